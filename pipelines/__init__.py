@@ -1,0 +1,1 @@
+"""End-to-end runs: paper reproduction, folder/video matching, dataset benchmarks."""

@@ -1,0 +1,226 @@
+"""Sparse distributed representations (SDRs).
+
+An SDR batch is a :class:`scipy.sparse.csr_matrix` of ``bool`` with one row per
+frame and one column per bit. The functions here build, check and perturb such
+batches; they never densify a whole batch.
+"""
+from __future__ import annotations
+
+from typing import Iterable, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+__all__ = [
+    "from_indices",
+    "from_dense",
+    "from_topk",
+    "to_indices",
+    "check_batch",
+    "overlap",
+    "union",
+    "density",
+    "add_noise",
+    "random_sdrs",
+]
+
+
+def _csr(indptr, indices, n_rows, n_bits) -> sp.csr_matrix:
+    data = np.ones(len(indices), dtype=bool)
+    m = sp.csr_matrix((data, indices, indptr), shape=(n_rows, n_bits))
+    m.sort_indices()
+    return m
+
+
+def from_indices(rows: Sequence[Iterable[int]], n_bits: int) -> sp.csr_matrix:
+    """Build an SDR batch from one array of active-bit indices per row.
+
+    Duplicate indices within a row are merged.
+
+    Raises
+    ------
+    ValueError
+        If ``n_bits`` is not positive or an index is negative, out of range or
+        not an integer; the message names the row.
+    """
+    n_bits = int(n_bits)
+    if n_bits <= 0:
+        raise ValueError(f"n_bits must be positive, got {n_bits}")
+    indptr = [0]
+    chunks = []
+    for r, idx in enumerate(rows):
+        a = np.asarray(list(idx) if not isinstance(idx, np.ndarray) else idx)
+        if a.size == 0:
+            a = np.zeros(0, dtype=np.int64)
+        if a.ndim != 1:
+            raise ValueError(f"row {r}: expected a 1-D array of bit indices, got shape {a.shape}")
+        if a.dtype.kind == "f":
+            if np.isnan(a).any():
+                raise ValueError(f"row {r}: NaN in bit indices")
+            if not np.all(a == np.round(a)):
+                raise ValueError(f"row {r}: non-integer bit indices")
+        elif a.dtype.kind not in "iub":
+            raise ValueError(f"row {r}: bit indices must be integers, got dtype {a.dtype}")
+        a = a.astype(np.int64)
+        if a.size and (a.min() < 0 or a.max() >= n_bits):
+            bad = a[(a < 0) | (a >= n_bits)][0]
+            raise ValueError(f"row {r}: bit index {bad} outside [0, {n_bits})")
+        a = np.unique(a)
+        chunks.append(a)
+        indptr.append(indptr[-1] + a.size)
+    indices = np.concatenate(chunks) if chunks else np.zeros(0, dtype=np.int64)
+    return _csr(np.asarray(indptr, dtype=np.int64), indices, len(chunks), n_bits)
+
+
+def from_dense(array) -> sp.csr_matrix:
+    """Build an SDR batch from a dense 0/1 (or bool) array of shape (frames, bits).
+
+    A 1-D array is taken as a single row.
+    """
+    a = np.asarray(array)
+    if a.ndim == 1:
+        a = a[None, :]
+    if a.ndim != 2:
+        raise ValueError(f"expected a 2-D (frames x bits) array, got shape {a.shape}")
+    if a.dtype != bool:
+        if a.dtype.kind == "f":
+            nan_rows = np.flatnonzero(np.isnan(a).any(axis=1))
+            if nan_rows.size:
+                raise ValueError(f"row {nan_rows[0]}: NaN in SDR")
+        bad = (a != 0) & (a != 1)
+        if bad.any():
+            r = int(np.flatnonzero(bad.any(axis=1))[0])
+            raise ValueError(f"row {r}: SDR values must be 0 or 1")
+        a = a.astype(bool)
+    return sp.csr_matrix(a)
+
+
+def from_topk(values, k: int) -> sp.csr_matrix:
+    """SDR with exactly ``k`` bits per row: the ``k`` largest entries of each row.
+
+    Ties are broken by the lower index so the result is deterministic.
+    """
+    v = np.asarray(values, dtype=np.float64)
+    if v.ndim == 1:
+        v = v[None, :]
+    if v.ndim != 2:
+        raise ValueError(f"expected a 2-D (frames x dims) array, got shape {v.shape}")
+    n, d = v.shape
+    k = int(k)
+    if not 0 < k <= d:
+        raise ValueError(f"k must be in [1, {d}], got {k}")
+    nan_rows = np.flatnonzero(np.isnan(v).any(axis=1))
+    if nan_rows.size:
+        raise ValueError(f"row {nan_rows[0]}: NaN in descriptor")
+    # stable sort on -v keeps the lower index first among ties
+    idx = np.argsort(-v, axis=1, kind="stable")[:, :k]
+    idx.sort(axis=1)
+    indptr = np.arange(0, n * k + 1, k, dtype=np.int64)
+    return _csr(indptr, idx.ravel(), n, d)
+
+
+def to_indices(batch: sp.csr_matrix) -> list[np.ndarray]:
+    """List of active-bit index arrays, one per row."""
+    b = check_batch(batch)
+    return [b.indices[b.indptr[i]:b.indptr[i + 1]].copy() for i in range(b.shape[0])]
+
+
+def check_batch(batch, n_bits: int | None = None, name: str = "SDR batch") -> sp.csr_matrix:
+    """Validate an SDR batch and return it as a canonical bool CSR matrix.
+
+    Accepts a CSR/CSC/COO matrix or a dense array of 0/1 values.
+
+    Raises
+    ------
+    ValueError
+        Wrong width, non-binary values or NaN (naming the first bad row).
+    """
+    if not sp.issparse(batch):
+        b = from_dense(batch)
+    else:
+        b = sp.csr_matrix(batch)
+        if b.dtype != bool:
+            d = b.data
+            if d.dtype.kind == "f" and np.isnan(d).any():
+                r = int(np.searchsorted(b.indptr, np.flatnonzero(np.isnan(d))[0], side="right") - 1)
+                raise ValueError(f"{name}: row {r}: NaN in SDR")
+            bad = (d != 0) & (d != 1)
+            if bad.any():
+                r = int(np.searchsorted(b.indptr, np.flatnonzero(bad)[0], side="right") - 1)
+                raise ValueError(f"{name}: row {r}: SDR values must be 0 or 1")
+            b = b.astype(bool)
+        b.eliminate_zeros()
+        b.sum_duplicates()
+        b.sort_indices()
+    if n_bits is not None and b.shape[1] != n_bits:
+        raise ValueError(f"{name}: expected {n_bits} bits per row, got {b.shape[1]}")
+    return b
+
+
+def overlap(a, b=None) -> np.ndarray:
+    """Overlap counts |a_i & b_j| between the rows of two SDR batches (dense int array).
+
+    For large batches prefer :func:`vpr.similarity.overlap` with ``top_k``.
+    """
+    A = check_batch(a).astype(np.int32)
+    B = A if b is None else check_batch(b, n_bits=A.shape[1]).astype(np.int32)
+    return np.asarray((A @ B.T).toarray(), dtype=np.int64)
+
+
+def union(batch) -> np.ndarray:
+    """Indices of bits active in any row of the batch."""
+    b = check_batch(batch)
+    return np.unique(b.indices)
+
+
+def density(batch) -> np.ndarray:
+    """Fraction of active bits per row."""
+    b = check_batch(batch)
+    return np.diff(b.indptr) / b.shape[1]
+
+
+def add_noise(batch, fraction: float, seed=None) -> sp.csr_matrix:
+    """Move ``fraction`` of each row's 1-bits to random previously inactive positions.
+
+    This is the paper's noise parameter n (section 5.2): with 40 active bits and
+    n = 0.5, 20 bits are moved. The number moved per row is ``round(fraction *
+    active)``; the row keeps its number of active bits.
+    """
+    if not 0.0 <= fraction <= 1.0 or not np.isfinite(fraction):
+        raise ValueError(f"fraction must be in [0, 1], got {fraction}")
+    b = check_batch(batch)
+    rng = np.random.default_rng(seed)
+    n_bits = b.shape[1]
+    rows = []
+    for r in range(b.shape[0]):
+        act = b.indices[b.indptr[r]:b.indptr[r + 1]]
+        n_move = int(round(fraction * act.size))
+        if n_move == 0:
+            rows.append(act)
+            continue
+        if act.size + n_move > n_bits:
+            raise ValueError(f"row {r}: not enough free bits to move {n_move} of {act.size}")
+        keep = rng.choice(act, size=act.size - n_move, replace=False)
+        # rejection sampling of free positions: cheap because SDRs are sparse
+        taken = set(act.tolist())
+        new = []
+        while len(new) < n_move:
+            cand = rng.integers(0, n_bits, size=2 * n_move)
+            for c in cand.tolist():
+                if c not in taken:
+                    taken.add(c)
+                    new.append(c)
+                    if len(new) == n_move:
+                        break
+        rows.append(np.concatenate([keep, np.asarray(new, dtype=np.int64)]))
+    return from_indices(rows, n_bits)
+
+
+def random_sdrs(n: int, n_bits: int = 2048, n_active: int = 40, seed=None) -> sp.csr_matrix:
+    """``n`` independent random SDRs with exactly ``n_active`` bits each."""
+    if n_active > n_bits:
+        raise ValueError(f"n_active ({n_active}) > n_bits ({n_bits})")
+    rng = np.random.default_rng(seed)
+    idx = np.argsort(rng.random((n, n_bits)), axis=1)[:, :n_active] if n * n_bits <= 5e7 else \
+        np.stack([rng.choice(n_bits, n_active, replace=False) for _ in range(n)])
+    return from_indices(list(idx), n_bits)
