@@ -1,0 +1,422 @@
+"""rSHOSM: the simplified HTM higher-order sequence memory of Neubert, Ahmad and
+Protzel, "A Sequence-Based Neuronal Model for Mobile Robot Localization", KI 2018.
+
+:class:`SequenceMemory` implements Algorithm 1 of the paper (SHOSM) with the
+randomised extra connections of section 4.3 (rSHOSM, ``p_extra > 0``). The
+output of every step is the set of winner cells; place recognition compares
+winner codes of different time steps by their overlap.
+
+Data layout (why it is fast): minicolumns are found through an inverted index
+*input bit -> minicolumns*, and lateral connections are kept as linked lists per
+source and per target cell in append-only arrays; the per-observation loop is
+compiled with numba (:mod:`vpr._memory_kernel`). ``benchmarks/bench_memory.py``
+prints the cost per observation.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+from vpr import io as _io
+from vpr import _memory_kernel as K
+from vpr import sdr as _sdr
+
+__all__ = ["SequenceMemory", "MemoryFileError"]
+
+_FORMAT = "vpr.SequenceMemory"
+_FORMAT_VERSION = 1
+
+
+class MemoryFileError(ValueError):
+    """A saved memory file is missing, corrupt, or not a SequenceMemory file."""
+
+
+class SequenceMemory:
+    """Simplified higher-order sequence memory with randomised connections (rSHOSM).
+
+    Parameters
+    ----------
+    n_inputs : int
+        Width of the input SDRs (paper: 2048).
+    cells_per_column : int
+        Cells per minicolumn (paper: 32).
+    new_columns : int
+        Minicolumns created for an input that activates none (Alg. 1 line 3; paper: 10).
+    connectivity : float
+        Fraction of the input's 1-bits each new minicolumn connects to (paper: 0.5).
+    threshold : float
+        A minicolumn is active when its overlap with the input is at least this
+        fraction of its connections (paper: 0.25).
+    p_extra : float
+        rSHOSM: probability of creating a lateral connection even though the
+        previous winner's minicolumn already connects to the cell (section 4.3).
+        0.0 gives SHOSM; the paper uses 0.01 and 0.05.
+    k_active : int
+        **Our extension, not the paper's:** with learning off, when no
+        minicolumn reaches the threshold, the ``k_active`` minicolumns with the
+        highest non-zero overlap are taken as active so that a query traverse
+        still produces winner cells.
+    seed : int or None
+        Seed of the generator used for sampling connections, breaking ties
+        between cells when bursting, and the rSHOSM coin flips.
+
+    Notes
+    -----
+    Each call of :meth:`step` runs Algorithm 1 once. Winner codes are
+    comparable across time: cell ``i`` of minicolumn ``m`` has index
+    ``m * cells_per_column + i``; cell indices never change as the memory grows.
+    """
+
+    def __init__(self, n_inputs: int = 2048, cells_per_column: int = 32, new_columns: int = 10,
+                 connectivity: float = 0.5, threshold: float = 0.25, p_extra: float = 0.05,
+                 k_active: int = 10, seed=0):
+        if int(n_inputs) <= 0:
+            raise ValueError(f"n_inputs must be positive, got {n_inputs}")
+        if int(cells_per_column) <= 0:
+            raise ValueError(f"cells_per_column must be positive, got {cells_per_column}")
+        if int(new_columns) <= 0:
+            raise ValueError(f"new_columns must be positive, got {new_columns}")
+        if not 0.0 < connectivity <= 1.0:
+            raise ValueError(f"connectivity must be in (0, 1], got {connectivity}")
+        if not 0.0 < threshold <= 1.0:
+            raise ValueError(f"threshold must be in (0, 1], got {threshold}")
+        if not 0.0 <= p_extra <= 1.0:
+            raise ValueError(f"p_extra must be in [0, 1], got {p_extra}")
+        if int(k_active) < 0:
+            raise ValueError(f"k_active must be >= 0, got {k_active}")
+        self.n_inputs = int(n_inputs)
+        self.cells_per_column = int(cells_per_column)
+        self.new_columns = int(new_columns)
+        self.connectivity = float(connectivity)
+        self.threshold = float(threshold)
+        self.p_extra = float(p_extra)
+        self.k_active = int(k_active)
+        self.seed = seed
+        self._rng = np.random.default_rng(seed)
+        self._st = np.zeros(K.STATE_SIZE, dtype=np.int64)
+        self._bit_head = np.full(self.n_inputs, -1, dtype=np.int64)
+        self._tape = np.zeros(0, dtype=np.float64)
+        self._alloc_cols(64)
+        self._alloc_entries(1024)
+        self._alloc_edges(4096)
+        self.reset()
+
+    # ------------------------------------------------------------ storage
+    @staticmethod
+    def _grown(arr, size, fill=0):
+        out = np.full(size, fill, dtype=arr.dtype) if fill else np.zeros(size, dtype=arr.dtype)
+        out[: arr.shape[0]] = arr
+        return out
+
+    def _alloc_cols(self, cap):
+        cells = cap * self.cells_per_column
+        if not hasattr(self, "_col_thr"):
+            self._col_thr = np.zeros(cap, np.int32)
+            self._counts = np.zeros(cap, np.int32)
+            self._touched = np.zeros(cap, np.int64)
+            self._active = np.zeros(cap, np.int64)
+            self._out_head = np.full(cells, -1, np.int64)
+            self._in_head = np.full(cells, -1, np.int64)
+            self._outdeg = np.zeros(cells, np.int32)
+            self._is_pred = np.zeros(cells, bool)
+            self._is_next = np.zeros(cells, bool)
+            self._pred_list = np.zeros(cells, np.int64)
+            self._next_list = np.zeros(cells, np.int64)
+            self._prev = np.zeros(cells, np.int64)
+            self._cur = np.zeros(cells, np.int64)
+            return
+        g = self._grown
+        self._col_thr, self._counts = g(self._col_thr, cap), g(self._counts, cap)
+        self._touched, self._active = g(self._touched, cap), g(self._active, cap)
+        self._out_head, self._in_head = g(self._out_head, cells, -1), g(self._in_head, cells, -1)
+        self._outdeg, self._is_pred, self._is_next = g(self._outdeg, cells), g(self._is_pred, cells), g(self._is_next, cells)
+        self._pred_list, self._next_list = g(self._pred_list, cells), g(self._next_list, cells)
+        self._prev, self._cur = g(self._prev, cells), g(self._cur, cells)
+
+    def _alloc_entries(self, cap):
+        if not hasattr(self, "_ent_col"):
+            self._ent_col, self._ent_bit = np.zeros(cap, np.int32), np.zeros(cap, np.int32)
+            self._ent_next = np.zeros(cap, np.int64)
+            return
+        g = self._grown
+        self._ent_col, self._ent_bit, self._ent_next = g(self._ent_col, cap), g(self._ent_bit, cap), g(self._ent_next, cap)
+
+    def _alloc_edges(self, cap):
+        if not hasattr(self, "_e_src"):
+            self._e_src, self._e_dst = np.zeros(cap, np.int64), np.zeros(cap, np.int64)
+            self._e_onext, self._e_inext = np.zeros(cap, np.int64), np.zeros(cap, np.int64)
+            return
+        g = self._grown
+        self._e_src, self._e_dst = g(self._e_src, cap), g(self._e_dst, cap)
+        self._e_onext, self._e_inext = g(self._e_onext, cap), g(self._e_inext, cap)
+
+    def _refill_tape(self, need):
+        # keep the unread rest so the numbers are consumed exactly in generator order
+        st = self._st
+        rest = self._tape[st[K.TAPE_POS]: st[K.TAPE_LEN]]
+        fresh = self._rng.random(max(int(need), 65536))
+        self._tape = np.concatenate([rest, fresh])
+        st[K.TAPE_POS] = 0
+        st[K.TAPE_LEN] = self._tape.size
+
+    # ------------------------------------------------------------------ state
+    @property
+    def n_columns(self) -> int:
+        """Number of minicolumns created so far."""
+        return int(self._st[K.N_COLS])
+
+    @property
+    def n_cells(self) -> int:
+        """Number of cells (grows with the number of minicolumns)."""
+        return self.n_columns * self.cells_per_column
+
+    @property
+    def n_connections(self) -> int:
+        """Number of lateral (prediction) connections."""
+        return int(self._st[K.N_EDGES])
+
+    @property
+    def active_columns(self) -> np.ndarray:
+        """Minicolumns active in the last step (sorted)."""
+        return self._active[: self._st[K.N_ACTIVE]].copy()
+
+    @property
+    def winner_cells(self) -> np.ndarray:
+        """Winner cells of the last step (sorted)."""
+        return self._prev[: self._st[K.N_PREV]].copy()
+
+    @property
+    def predictive_cells(self) -> np.ndarray:
+        """Cells predicted for the next step (sorted)."""
+        return np.sort(self._pred_list[: self._st[K.N_PRED]])
+
+    def reset(self) -> None:
+        """Forget the sequence context (previous winners and predictions), keep what was learned."""
+        st = self._st
+        self._is_pred[self._pred_list[: st[K.N_PRED]]] = False
+        st[K.N_PRED] = 0
+        st[K.N_PREV] = 0
+        st[K.N_ACTIVE] = 0
+
+    # ------------------------------------------------------------------- API
+    def _input_bits(self, sdr_row) -> np.ndarray:
+        if sp.issparse(sdr_row):
+            b = _sdr.check_batch(sdr_row, n_bits=self.n_inputs, name="input SDR")
+            if b.shape[0] != 1:
+                raise ValueError(f"step() takes one SDR row, got {b.shape[0]} rows; use run()")
+            return b
+        a = np.asarray(sdr_row)
+        if a.dtype == bool:
+            if a.ndim != 1 or a.size != self.n_inputs:
+                raise ValueError(f"input SDR has shape {a.shape}, memory expects ({self.n_inputs},)")
+            a = np.flatnonzero(a)
+        # otherwise: an array of active bit indices
+        return _sdr.from_indices([a.ravel()], self.n_inputs)
+
+    def _run_batch(self, batch: sp.csr_matrix, learn: bool, progress: bool = False):
+        """Run the kernel over all rows of a checked batch; return (indptr, indices) of winners."""
+        n = batch.shape[0]
+        ind_ptr = batch.indptr.astype(np.int64)
+        ind = batch.indices.astype(np.int64)
+        out_ptr = np.zeros(n + 1, np.int64)
+        out_idx = np.zeros(max(1024, 16 * batch.nnz // 2), np.int64)
+        keys = np.zeros(self.n_inputs, np.float64)
+        st = self._st
+        st[K.OUT_POS] = 0
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=n, desc="rSHOSM", unit="frame", leave=False)
+        f = 0
+        chunk = 2048 if progress else n
+        while f < n:
+            stop = min(n, f + chunk)
+            f_new = K.run_frames(
+                ind_ptr, ind, f, stop, learn, self.cells_per_column, self.new_columns, self.k_active,
+                self.connectivity, self.threshold, self.p_extra, st, self._bit_head, self._ent_col,
+                self._ent_next, self._ent_bit, self._col_thr, self._counts, self._touched, self._active,
+                self._out_head, self._in_head, self._outdeg, self._e_src, self._e_dst, self._e_onext,
+                self._e_inext, self._is_pred, self._is_next, self._pred_list, self._next_list, self._prev,
+                self._cur, self._tape, out_idx, out_ptr, keys)
+            if bar is not None:
+                bar.update(f_new - f)
+            f = f_new
+            kind, size = st[K.NEED_KIND], int(st[K.NEED_SIZE])
+            if f < stop or kind != K.DONE:
+                if kind == K.NEED_COLS:
+                    self._alloc_cols(max(size, 2 * self._col_thr.size))
+                elif kind == K.NEED_ENTRIES:
+                    self._alloc_entries(max(size, 2 * self._ent_col.size))
+                elif kind == K.NEED_EDGES:
+                    self._alloc_edges(max(size, 2 * self._e_src.size))
+                elif kind == K.NEED_TAPE:
+                    self._refill_tape(size)
+                elif kind == K.NEED_OUT:
+                    out_idx = self._grown(out_idx, max(size, 2 * out_idx.size))
+                st[K.NEED_KIND] = K.DONE
+        if bar is not None:
+            bar.close()
+        return out_ptr, out_idx[: out_ptr[-1]]
+
+    def step(self, sdr_row, learn: bool = True) -> np.ndarray:
+        """Process one input SDR (one pass of Algorithm 1) and return the winner cells.
+
+        Parameters
+        ----------
+        sdr_row : 1-row SDR batch, dense bool vector of ``n_inputs`` bits, or an
+            array of active bit indices.
+        learn : bool
+            With learning off no minicolumns are created and no connections are
+            learned (a query traverse against a learned database).
+
+        Returns
+        -------
+        ndarray of int64: the sorted winner cell indices :math:`C^t_{winner}`.
+        """
+        _, idx = self._run_batch(self._input_bits(sdr_row), learn)
+        return idx.copy()
+
+    compute = step  # htm.core's name
+
+    def run(self, sdr_batch, learn: bool = True, reset: bool = False, progress: bool = False) -> sp.csr_matrix:
+        """Process an SDR batch row by row; return the winner codes (frames x cells, csr bool).
+
+        The returned width is the number of cells after the last frame; codes of
+        different runs on one memory can be brought to one width with
+        :func:`pad_codes`. ``reset=True`` clears the sequence context first.
+        """
+        batch = _sdr.check_batch(sdr_batch, n_bits=self.n_inputs, name="input SDR batch")
+        if reset:
+            self.reset()
+        ptr, idx = self._run_batch(batch, learn, progress)
+        # winners come out sorted and unique
+        return sp.csr_matrix((np.ones(idx.size, bool), idx, ptr), shape=(batch.shape[0], max(self.n_cells, 1)))
+
+    # ------------------------------------------------------------ persistence
+    def get_params(self) -> dict:
+        return {k: getattr(self, k) for k in ("n_inputs", "cells_per_column", "new_columns", "connectivity",
+                                              "threshold", "p_extra", "k_active", "seed")}
+
+    def _arrays(self) -> dict:
+        st = self._st
+        nc, ne, nd = self.n_columns, int(st[K.N_ENTRIES]), int(st[K.N_EDGES])
+        cells = nc * self.cells_per_column
+        return {
+            "bit_head": self._bit_head, "ent_col": self._ent_col[:ne], "ent_bit": self._ent_bit[:ne],
+            "ent_next": self._ent_next[:ne], "col_thr": self._col_thr[:nc],
+            "out_head": self._out_head[:cells], "in_head": self._in_head[:cells], "outdeg": self._outdeg[:cells],
+            "e_src": self._e_src[:nd], "e_dst": self._e_dst[:nd], "e_onext": self._e_onext[:nd],
+            "e_inext": self._e_inext[:nd], "pred": self._pred_list[: st[K.N_PRED]],
+            "prev": self._prev[: st[K.N_PREV]], "active": self._active[: st[K.N_ACTIVE]],
+            "tape": self._tape[st[K.TAPE_POS]: st[K.TAPE_LEN]],
+        }
+
+    def save(self, path) -> Path:
+        """Save the learned memory and its sequence context to a versioned ``.npz`` (atomically).
+
+        A loaded memory continues exactly as this one would (same random stream).
+        """
+        path = Path(path)
+        header = {"format": _FORMAT, "version": _FORMAT_VERSION, "params": self.get_params(),
+                  "rng": self._rng.bit_generator.state}
+        with _io.atomic_path(path, suffix=".npz") as tmp:
+            with open(tmp, "wb") as fh:
+                np.savez_compressed(fh, header=np.array(json.dumps(header)), **self._arrays())
+        return path
+
+    @classmethod
+    def load(cls, path) -> "SequenceMemory":
+        """Load a memory written by :meth:`save`.
+
+        Raises
+        ------
+        MemoryFileError
+            Missing, corrupt or foreign file, or an unsupported format version.
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise MemoryFileError(f"{path}: no such memory file")
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                data = {k: z[k] for k in z.files}
+            header = json.loads(str(data["header"]))
+        except Exception as e:  # zip, format and JSON errors all mean "not our file"
+            raise MemoryFileError(f"{path}: not a readable SequenceMemory file ({type(e).__name__}: {e})") from e
+        if not isinstance(header, dict) or header.get("format") != _FORMAT:
+            raise MemoryFileError(f"{path}: not a SequenceMemory file")
+        if header.get("version") != _FORMAT_VERSION:
+            raise MemoryFileError(f"{path}: unsupported SequenceMemory format version {header.get('version')}")
+        try:
+            m = cls(**header["params"])
+            m._rng.bit_generator.state = header["rng"]
+            m._restore(data)
+        except MemoryFileError:
+            raise
+        except Exception as e:
+            raise MemoryFileError(f"{path}: corrupt SequenceMemory file ({type(e).__name__}: {e})") from e
+        return m
+
+    def _restore(self, d: dict) -> None:
+        nc, ne, nd = d["col_thr"].size, d["ent_col"].size, d["e_src"].size
+        cells = nc * self.cells_per_column
+
+        def check(name, lo, hi, size=None):
+            a = d[name]
+            if size is not None and a.size != size:
+                raise MemoryFileError(f"array {name!r} has {a.size} entries, expected {size}")
+            if a.size and (a.min() < lo or a.max() >= hi):
+                raise MemoryFileError(f"array {name!r} has values outside [{lo}, {hi})")
+
+        # the kernel does not bounds-check, so a file must be consistent before it is used
+        check("bit_head", -1, ne, self.n_inputs)
+        check("ent_col", 0, nc)
+        check("ent_bit", 0, self.n_inputs, ne)
+        check("ent_next", -1, ne, ne)
+        for name in ("out_head", "in_head"):
+            check(name, -1, nd, cells)
+        check("outdeg", 0, nd + 1, cells)
+        for name in ("e_src", "e_dst"):
+            check(name, 0, cells, nd)
+        for name in ("e_onext", "e_inext"):
+            check(name, -1, nd, nd)
+        for name in ("pred", "prev"):
+            check(name, 0, cells)
+        check("active", 0, nc)
+        self._alloc_cols(max(64, nc))
+        self._alloc_entries(max(1024, ne))
+        self._alloc_edges(max(4096, nd))
+        self._bit_head[:] = d["bit_head"]
+        self._ent_col[:ne], self._ent_bit[:ne], self._ent_next[:ne] = d["ent_col"], d["ent_bit"], d["ent_next"]
+        self._col_thr[:nc] = d["col_thr"]
+        self._out_head[:cells], self._in_head[:cells], self._outdeg[:cells] = d["out_head"], d["in_head"], d["outdeg"]
+        self._e_src[:nd], self._e_dst[:nd] = d["e_src"], d["e_dst"]
+        self._e_onext[:nd], self._e_inext[:nd] = d["e_onext"], d["e_inext"]
+        st = self._st
+        st[K.N_COLS], st[K.N_ENTRIES], st[K.N_EDGES] = nc, ne, nd
+        npred, nprev, nact = d["pred"].size, d["prev"].size, d["active"].size
+        self._pred_list[:npred] = d["pred"]
+        self._is_pred[d["pred"]] = True
+        self._prev[:nprev] = d["prev"]
+        self._active[:nact] = d["active"]
+        st[K.N_PRED], st[K.N_PREV], st[K.N_ACTIVE] = npred, nprev, nact
+        self._tape = d["tape"].astype(np.float64)
+        st[K.TAPE_POS], st[K.TAPE_LEN] = 0, self._tape.size
+
+    def __repr__(self) -> str:
+        return (f"SequenceMemory(columns={self.n_columns}, cells={self.n_cells}, "
+                f"connections={self.n_connections}, p_extra={self.p_extra})")
+
+
+def pad_codes(*batches) -> list[sp.csr_matrix]:
+    """Give winner-code batches from one memory (different times) the same width."""
+    width = max(b.shape[1] for b in batches)
+    out = []
+    for b in batches:
+        b = sp.csr_matrix(b, copy=True)
+        b.resize((b.shape[0], width))
+        out.append(b)
+    return out

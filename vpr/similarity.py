@@ -1,0 +1,145 @@
+"""Similarity matrices between SDR batches or dense descriptors.
+
+Every function returns **database x query** (rows of the first argument by
+rows of the second), higher = more similar. For a single stream pass one
+argument and get T x T.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from vpr import sdr as _sdr
+
+__all__ = ["overlap", "cosine", "neg_sad", "topk_sparse", "DENSE_LIMIT"]
+
+#: Above this many rows on either side, dense T x T output is refused: use ``top_k``.
+DENSE_LIMIT = 20_000
+
+
+def _norm_overlap_block(A, B, na, nb):
+    ov = (A @ B.T).toarray().astype(np.float32)
+    denom = np.sqrt(np.outer(na, nb)).astype(np.float32)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.where(denom > 0, ov / np.where(denom > 0, denom, 1), 0.0)
+    return out.astype(np.float32)
+
+
+def overlap(A, B=None, top_k: int | None = None, normalise: bool = True, chunk: int = 2048):
+    """Normalised overlap |a & b| / sqrt(|a| |b|) between the rows of SDR batches.
+
+    Parameters
+    ----------
+    A : SDR batch (database), shape (n_db, n_bits)
+    B : SDR batch (query), shape (n_q, n_bits); ``None`` compares ``A`` with itself.
+    top_k : int, optional
+        Keep only the ``top_k`` highest database entries per query and return a
+        ``scipy.sparse.csr_matrix`` (n_db x n_q). Required when either side has
+        more than :data:`DENSE_LIMIT` rows.
+    normalise : bool
+        ``False`` returns raw overlap counts.
+    chunk : int
+        Queries processed per block (bounds memory for top-K).
+
+    Returns
+    -------
+    ndarray (float32, n_db x n_q) or csr_matrix when ``top_k`` is given.
+    Rows with no active bits have similarity 0 to everything.
+    """
+    A = _sdr.check_batch(A, name="database SDRs")
+    B = A if B is None else _sdr.check_batch(B, n_bits=A.shape[1], name="query SDRs")
+    Ai = A.astype(np.int32)
+    Bi = Ai if B is A else B.astype(np.int32)
+    na = np.diff(A.indptr).astype(np.float64)
+    nb = np.diff(B.indptr).astype(np.float64)
+    if not normalise:
+        na = nb = None
+    if top_k is None:
+        if max(A.shape[0], B.shape[0]) > DENSE_LIMIT:
+            raise ValueError(
+                f"{A.shape[0]} x {B.shape[0]} is too large for a dense similarity matrix; pass top_k")
+        if na is None:
+            return (Ai @ Bi.T).toarray().astype(np.float32)
+        return _norm_overlap_block(Ai, Bi, na, nb)
+
+    def block(q0, q1):
+        if na is None:
+            return (Ai @ Bi[q0:q1].T).toarray().astype(np.float32)
+        return _norm_overlap_block(Ai, Bi[q0:q1], na, nb[q0:q1])
+
+    return topk_sparse(block, A.shape[0], B.shape[0], top_k, chunk)
+
+
+def topk_sparse(block_fn, n_db: int, n_q: int, top_k: int, chunk: int = 2048) -> sp.csr_matrix:
+    """Assemble a sparse db x query matrix keeping the ``top_k`` db entries per query.
+
+    ``block_fn(q0, q1)`` returns the dense (n_db x (q1 - q0)) similarity block.
+    Entries that are exactly representable as 0 but kept are stored explicitly
+    so that "kept with score 0" and "not kept" stay distinguishable.
+    """
+    top_k = int(top_k)
+    if top_k < 1:
+        raise ValueError(f"top_k must be >= 1, got {top_k}")
+    k = min(top_k, n_db)
+    rows, cols, vals = [], [], []
+    for q0 in range(0, n_q, chunk):
+        q1 = min(q0 + chunk, n_q)
+        S = block_fn(q0, q1)
+        idx = np.argpartition(-S, k - 1, axis=0)[:k] if k < n_db else np.broadcast_to(
+            np.arange(n_db)[:, None], (n_db, q1 - q0))
+        rows.append(idx.ravel())
+        cols.append(np.broadcast_to(np.arange(q0, q1), idx.shape).ravel())
+        vals.append(np.take_along_axis(S, idx, axis=0).ravel())
+    r = np.concatenate(rows) if rows else np.zeros(0, int)
+    c = np.concatenate(cols) if cols else np.zeros(0, int)
+    v = np.concatenate(vals).astype(np.float32) if vals else np.zeros(0, np.float32)
+    # coo -> csr sums duplicates; there are none since each (db, q) appears once
+    m = sp.coo_matrix((v, (r, c)), shape=(n_db, n_q)).tocsr()
+    return m
+
+
+def _as_2d_float(X, name):
+    X = np.asarray(X, dtype=np.float32)
+    if X.ndim == 1:
+        X = X[None, :]
+    if X.ndim != 2:
+        X = X.reshape(X.shape[0], -1)
+    if not np.isfinite(X).all():
+        r = int(np.flatnonzero(~np.isfinite(X).all(axis=1))[0])
+        raise ValueError(f"{name}: row {r} has NaN or infinite values")
+    return X
+
+
+def cosine(X, Y=None) -> np.ndarray:
+    """Cosine similarity between dense descriptor rows (db x query, float32).
+
+    Zero vectors have similarity 0 to everything.
+    """
+    X = _as_2d_float(X, "database descriptors")
+    Y = X if Y is None else _as_2d_float(Y, "query descriptors")
+    if X.shape[1] != Y.shape[1]:
+        raise ValueError(f"descriptor sizes differ: database {X.shape[1]}, query {Y.shape[1]}")
+    nx = np.linalg.norm(X, axis=1)
+    ny = np.linalg.norm(Y, axis=1)
+    Xn = X / np.where(nx > 0, nx, 1)[:, None]
+    Yn = Y / np.where(ny > 0, ny, 1)[:, None]
+    return (Xn @ Yn.T).astype(np.float32)
+
+
+def neg_sad(X, Y=None, max_block: int = 32_000_000) -> np.ndarray:
+    """Negative mean absolute difference between dense descriptor rows (db x query).
+
+    The similarity of SeqSLAM's difference matrix: 0 for identical rows, lower
+    (more negative) for more different ones.
+    """
+    X = _as_2d_float(X, "database descriptors")
+    Y = X if Y is None else _as_2d_float(Y, "query descriptors")
+    if X.shape[1] != Y.shape[1]:
+        raise ValueError(f"descriptor sizes differ: database {X.shape[1]}, query {Y.shape[1]}")
+    out = np.empty((X.shape[0], Y.shape[0]), dtype=np.float32)
+    # the broadcast block is n_db x chunk x dims floats: bound it, not the query count
+    chunk = max(1, int(max_block // max(1, X.shape[0] * X.shape[1])))
+    for q0 in range(0, Y.shape[0], chunk):
+        q1 = min(q0 + chunk, Y.shape[0])
+        out[:, q0:q1] = -np.abs(X[:, None, :] - Y[None, q0:q1, :]).mean(axis=2)
+    return out
