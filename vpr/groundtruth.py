@@ -1,0 +1,380 @@
+"""Ground-truth matrices from files: (query, db) pairs, per-frame positions, or frame alignment.
+
+Every builder returns a ``bool`` array of shape (n_db, n_query) with
+``gt[i, j]`` true when database frame ``i`` shows the same place as query
+frame ``j``; rows and columns are the frames actually read, in order.
+
+File format
+-----------
+Comma-separated text (a line without commas is split on whitespace). Blank
+lines and lines starting with ``#`` are ignored; the first line may be a
+header. A frame is named either by its name (as produced by
+:mod:`vpr.sources`; the file name without folder or extension also matches
+when unambiguous) or by its integer frame number in the source: position in
+the naturally sorted folder or list file, or video frame number. Pass the
+frames' numbers as ``db_indices`` / ``q_indices`` (``Frame.index``) when a
+source was subsampled or frames were skipped; without them the frames read
+are taken to be numbered 0, 1, 2, ...
+
+Every malformed line raises ``ValueError("FILE:LINE: reason")``.
+"""
+from __future__ import annotations
+
+import csv
+import math
+import re
+import warnings
+from pathlib import Path, PurePath
+from typing import Sequence
+
+import numpy as np
+
+__all__ = [
+    "load_pairs_csv",
+    "load_positions_csv",
+    "gt_from_position_files",
+    "gt_from_tolerance",
+]
+
+_INT = re.compile(r"[+-]?\d+(?:\.0*)?")
+
+
+def _parse_int(token: str) -> int | None:
+    # "12.0" is accepted because spreadsheet and pandas exports often write floats
+    if _INT.fullmatch(token):
+        return int(token.split(".")[0])
+    return None
+
+
+def _parse_float(token: str) -> float | None:
+    try:
+        return float(token)
+    except ValueError:
+        return None
+
+
+def _read_rows(path, n_cols: int, what: str) -> list[tuple[int, list[str]]]:
+    """Content lines of a CSV file as (line number, stripped fields)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise FileNotFoundError(f"no such ground-truth file: {path}") from None
+    except IsADirectoryError:
+        raise ValueError(f"{path}: is a folder, expected a CSV file") from None
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not a UTF-8 text file (byte {exc.start})") from None
+    rows = []
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        s = line.strip()
+        if not s or s.startswith("#"):
+            continue
+        if "," in s:
+            try:
+                fields = next(csv.reader([s], skipinitialspace=True))
+            except csv.Error as exc:
+                raise ValueError(f"{path}:{lineno}: {exc}") from None
+        else:
+            fields = s.split()
+        fields = [f.strip() for f in fields]
+        if len(fields) != n_cols:
+            raise ValueError(f"{path}:{lineno}: expected {n_cols} columns ({what}), got {len(fields)}")
+        rows.append((lineno, fields))
+    if not rows:
+        raise ValueError(f"{path}: empty file (no {what} rows)")
+    return rows
+
+
+def _alias_keys(name: str) -> list[str]:
+    """The name itself, then without folders, then without extension."""
+    p = PurePath(name.replace("\\", "/"))
+    return [name, p.name, p.stem]
+
+
+class _NameIndex:
+    """Map a token to a position in ``names``: exact name first, then folder-less, then stem.
+
+    An alias shared by several names matches none of them, so a token never
+    silently picks one of two frames.
+    """
+
+    def __init__(self, names: Sequence[str]):
+        self._levels: list[dict[str, int | None]] = [{}, {}, {}]
+        for pos, name in enumerate(names):
+            for level, key in zip(self._levels, _alias_keys(str(name))):
+                level[key] = None if key in level and level[key] != pos else pos
+
+    def find(self, name: str) -> tuple[int | None, bool]:
+        """Return (position, ambiguous) of the entry matching ``name`` at the first level that has it.
+
+        ``name`` is reduced the same way at each level, so "0001.png" finds
+        "0001" and "a.png" finds "imgs/a.png".
+        """
+        for level, key in zip(self._levels, _alias_keys(name)):
+            if key in level:
+                pos = level[key]
+                return pos, pos is None
+        return None, False
+
+
+def _check_count(n, what: str) -> int:
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise ValueError(f"{what} must be a positive integer, got {n!r}")
+    return int(n)
+
+
+def _index_rows(indices, n: int, what: str) -> dict[int, int]:
+    """Frame number -> output row."""
+    if indices is None:
+        return {i: i for i in range(n)}
+    idx = [int(i) for i in indices]
+    if len(idx) != n:
+        raise ValueError(f"{what}: {len(idx)} frame numbers for {n} frames")
+    rows = {k: r for r, k in enumerate(idx)}
+    if len(rows) != n:
+        raise ValueError(f"{what}: frame numbers are not unique")
+    return rows
+
+
+def _check_names(names, n: int, what: str):
+    if names is not None and len(names) != n:
+        raise ValueError(f"{what}: {len(names)} names for {n} frames")
+
+
+def load_pairs_csv(path, n_db: int, n_q: int, db_names: Sequence[str] | None = None,
+                   q_names: Sequence[str] | None = None, *, db_indices: Sequence[int] | None = None,
+                   q_indices: Sequence[int] | None = None) -> np.ndarray:
+    """Ground truth from a CSV of ``query,db`` pairs (header optional).
+
+    Parameters
+    ----------
+    path : str or Path
+        CSV file; each line is one matching (query frame, database frame).
+    n_db, n_q : int
+        Number of database and query frames read.
+    db_names, q_names : sequence of str, optional
+        Names of the frames read; a token matching a name is that frame.
+    db_indices, q_indices : sequence of int, optional
+        Source frame numbers of the frames read. With them, an integer token
+        of a frame that was not read (skipped or not selected) drops the pair
+        with one warning; without them, frames are numbered 0..n-1 and a
+        larger number is an error.
+
+    Returns
+    -------
+    numpy.ndarray
+        bool (n_db, n_q).
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    ValueError
+        Empty file, wrong column count, unknown name, non-integer or
+        out-of-range frame number: ``"FILE:LINE: reason"``.
+    """
+    n_db = _check_count(n_db, "n_db")
+    n_q = _check_count(n_q, "n_q")
+    _check_names(db_names, n_db, "db_names")
+    _check_names(q_names, n_q, "q_names")
+    sides = {
+        "query": (_NameIndex(q_names) if q_names is not None else None, _index_rows(q_indices, n_q, "q_indices"),
+                  q_indices is not None, n_q),
+        "db": (_NameIndex(db_names) if db_names is not None else None, _index_rows(db_indices, n_db, "db_indices"),
+               db_indices is not None, n_db),
+    }
+    rows = _read_rows(path, 2, "query,db")
+
+    def resolve(token: str, role: str, where: str) -> tuple[int | None, str | None]:
+        """(output row or None if the frame was not read, error message or None)."""
+        lookup, by_index, has_indices, n = sides[role]
+        if not token:
+            return None, f"{where}: empty {role} field"
+        if lookup is not None:
+            pos, ambiguous = lookup.find(token)
+            if ambiguous:
+                return None, f"{where}: {role} frame name {token!r} matches several frames"
+            if pos is not None:
+                return pos, None
+        k = _parse_int(token)
+        if k is None:
+            hint = "" if lookup is not None else f" (pass {'q' if role == 'query' else 'db'}_names to match names)"
+            kind = "a known frame name or an integer frame number" if lookup is not None else "an integer"
+            return None, f"{where}: {role} {token!r} is not {kind}{hint}"
+        if k < 0:
+            return None, f"{where}: {role} frame number {k} is negative"
+        if k in by_index:
+            return by_index[k], None
+        if has_indices:
+            return None, None
+        return None, f"{where}: {role} frame number {k} out of range 0..{n - 1}"
+
+    first_line, first = rows[0]
+    resolved_first = [resolve(t, r, "") for t, r in zip(first, ("query", "db"))]
+    if all(pos is None and err is not None and _parse_int(t) is None
+           for t, (pos, err) in zip(first, resolved_first)):
+        rows = rows[1:]  # a header: neither field is a frame
+        if not rows:
+            raise ValueError(f"{path}: no pairs after the header on line {first_line}")
+
+    gt = np.zeros((n_db, n_q), dtype=bool)
+    dropped = 0
+    for lineno, (q_tok, db_tok) in rows:
+        where = f"{path}:{lineno}"
+        q, err = resolve(q_tok, "query", where)
+        if err:
+            raise ValueError(err)
+        d, err = resolve(db_tok, "db", where)
+        if err:
+            raise ValueError(err)
+        if q is None or d is None:
+            dropped += 1
+            continue
+        gt[d, q] = True
+    if dropped:
+        warnings.warn(f"{path}: {dropped} pairs name frames that were not read; ignored", stacklevel=2)
+    return gt
+
+
+def _load_positions(path):
+    rows = _read_rows(path, 3, "frame,x,y")
+    first_line, (_, fx, fy) = rows[0]
+    if _parse_float(fx) is None and _parse_float(fy) is None:
+        rows = rows[1:]  # header
+        if not rows:
+            raise ValueError(f"{path}: no positions after the header on line {first_line}")
+    tokens, xy, lines = [], [], []
+    for lineno, (frame, xs, ys) in rows:
+        where = f"{path}:{lineno}"
+        if not frame:
+            raise ValueError(f"{where}: empty frame field")
+        for label, tok in (("x", xs), ("y", ys)):
+            v = _parse_float(tok)
+            if v is None:
+                raise ValueError(f"{where}: {label} {tok!r} is not a number")
+            if not math.isfinite(v):
+                raise ValueError(f"{where}: {label} is {tok!r}, expected a finite number")
+        tokens.append(frame)
+        xy.append((float(xs), float(ys)))
+        lines.append(lineno)
+    ints = [_parse_int(t) for t in tokens]
+    if all(k is not None for k in ints):
+        frames = ints
+    else:
+        frames = tokens
+    seen: dict = {}
+    for f, lineno in zip(frames, lines):
+        if isinstance(f, int) and f < 0:
+            raise ValueError(f"{path}:{lineno}: frame number {f} is negative")
+        if f in seen:
+            raise ValueError(f"{path}:{lineno}: duplicate frame {f!r} (first on line {seen[f]})")
+        seen[f] = lineno
+    return frames, tokens, np.asarray(xy, dtype=np.float64).reshape(-1, 2), lines
+
+
+def load_positions_csv(path) -> tuple[list[str] | np.ndarray, np.ndarray]:
+    """Read per-frame positions: lines of ``frame,x,y`` (header optional).
+
+    Returns
+    -------
+    frames : list of str or numpy.ndarray of int64
+        Frame numbers when every frame field is an integer, else names.
+    xy : numpy.ndarray
+        float64 (n, 2) positions, in file order.
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    ValueError
+        Empty file, wrong column count, non-numeric or non-finite
+        coordinate, negative frame number, duplicate frame:
+        ``"FILE:LINE: reason"``.
+    """
+    frames, _, xy, _ = _load_positions(path)
+    if frames and isinstance(frames[0], int):
+        return np.asarray(frames, dtype=np.int64), xy
+    return list(frames), xy
+
+
+def _positions_for_frames(path, names, indices, role: str) -> np.ndarray:
+    """Positions of the frames read, one row per frame in reading order."""
+    frames, tokens, xy, _ = _load_positions(path)
+    if names is None and indices is None and not isinstance(frames[0], int):
+        return xy  # named rows without frame names to match: file order
+    if names is not None:
+        if indices is not None and len(indices) != len(names):
+            raise ValueError(f"{role}: {len(indices)} frame numbers for {len(names)} names")
+        lookup = _NameIndex(tokens)
+        found = [lookup.find(str(n)) for n in names]
+        # integer-looking tokens may still be names such as "0001" for 0001.png
+        if not isinstance(frames[0], int) or all(pos is not None for pos, _ in found):
+            missing = [n for n, (pos, _) in zip(names, found) if pos is None]
+            if missing:
+                raise ValueError(f"{path}: no position for {len(missing)} of the {len(names)} {role} frames read, "
+                                 f"e.g. {', '.join(repr(m) for m in missing[:3])}")
+            return xy[[pos for pos, _ in found]]
+        wanted = list(indices) if indices is not None else list(range(len(names)))
+    elif indices is not None:
+        wanted = list(indices)
+    else:
+        wanted = list(range(max(frames) + 1))
+    row_of = {k: r for r, k in enumerate(frames)}
+    missing = [k for k in wanted if k not in row_of]
+    if missing:
+        raise ValueError(f"{path}: no position for {len(missing)} of the {len(wanted)} {role} frames, "
+                         f"e.g. frame number {', '.join(str(m) for m in missing[:3])}")
+    return xy[[row_of[k] for k in wanted]]
+
+
+def gt_from_position_files(db_csv, q_csv, radius: float, db_names: Sequence[str] | None = None,
+                           q_names: Sequence[str] | None = None, *, db_indices: Sequence[int] | None = None,
+                           q_indices: Sequence[int] | None = None) -> np.ndarray:
+    """Ground truth from per-frame positions of both traverses: match within ``radius``.
+
+    Parameters
+    ----------
+    db_csv, q_csv : str or Path
+        ``frame,x,y`` files (see :func:`load_positions_csv`). Rows for frames
+        that were not read are ignored; a frame read without a row is an
+        error.
+    radius : float
+        Distance (same unit as x, y) up to which two frames match, inclusive.
+    db_names, q_names : sequence of str, optional
+        Names of the frames read, matched against named rows (and against
+        integer-looking rows when every name matches one). Without names,
+        named rows are used in file order.
+    db_indices, q_indices : sequence of int, optional
+        Source frame numbers of the frames read, matched against integer
+        rows; default 0, 1, 2, ...
+
+    Returns
+    -------
+    numpy.ndarray
+        bool (n_db, n_q).
+    """
+    from scipy.spatial import cKDTree
+
+    r = _parse_float(str(radius)) if not isinstance(radius, bool) else None
+    if r is None or not math.isfinite(r) or r < 0:
+        raise ValueError(f"radius must be a finite number >= 0, got {radius!r}")
+    db_xy = _positions_for_frames(db_csv, db_names, db_indices, "database")
+    q_xy = _positions_for_frames(q_csv, q_names, q_indices, "query")
+    gt = np.zeros((len(db_xy), len(q_xy)), dtype=bool)
+    # a k-d tree keeps memory at O(matches) instead of a dense distance matrix
+    near = cKDTree(db_xy).query_ball_point(q_xy, r=r)
+    for j, rows in enumerate(near):
+        gt[rows, j] = True
+    return gt
+
+
+def gt_from_tolerance(n_db: int, n_q: int, k: int) -> np.ndarray:
+    """Ground truth for frame-aligned traverses: query ``j`` matches db ``i`` when ``|i - j| <= k``."""
+    n_db = _check_count(n_db, "n_db")
+    n_q = _check_count(n_q, "n_q")
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 0:
+        raise ValueError(f"tolerance must be an integer >= 0, got {k!r}")
+    gt = np.zeros((n_db, n_q), dtype=bool)
+    for i in range(n_db):
+        gt[i, max(0, i - k):i + k + 1] = True
+    return gt
