@@ -1,0 +1,163 @@
+"""Tests for vpr.plots: files are written as valid PNGs, pooling is right, bad input raises."""
+import sys
+
+import matplotlib.image as mpimg
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from vpr.evaluate import gt_from_tolerance, pr_curve
+from vpr.plots import _block_any, _block_max, plot_bars, plot_pr, plot_similarity
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _assert_png(path):
+    assert path.exists()
+    assert path.read_bytes()[:8] == PNG_SIGNATURE
+    img = mpimg.imread(path)
+    assert img.ndim == 3 and img.shape[0] > 100 and img.shape[1] > 100
+    # a blank canvas would mean nothing was drawn
+    assert img[..., :3].std() > 0.01
+    # atomic write leaves no temporary files behind
+    assert [p.name for p in path.parent.iterdir() if p.name.startswith(".")] == []
+
+
+def _no_pyplot_figures():
+    if "matplotlib.pyplot" in sys.modules:
+        assert sys.modules["matplotlib.pyplot"].get_fignums() == []
+
+
+@pytest.fixture
+def example():
+    rng = np.random.default_rng(0)
+    n = 40
+    gt = gt_from_tolerance(n, n, 1)
+    S = rng.random((n, n)) + 2 * np.eye(n)
+    return S, gt
+
+
+def test_plot_pr_writes_png(tmp_path, example):
+    S, gt = example
+    curves = {"ours": pr_curve(S, gt), "noise": pr_curve(-S, gt)[:2]}
+    out = plot_pr(curves, tmp_path / "sub" / "pr.png", title="PR")
+    assert out == tmp_path / "sub" / "pr.png"
+    _assert_png(out)
+    _no_pyplot_figures()
+
+
+def test_plot_pr_bad_input(tmp_path):
+    p = tmp_path / "pr.png"
+    with pytest.raises(ValueError, match="non-empty"):
+        plot_pr({}, p)
+    with pytest.raises(ValueError, match="'a'.*equal length"):
+        plot_pr({"a": ([1, 0.5], [0, 0.5, 1])}, p)
+    with pytest.raises(ValueError, match="'a'.*precision must lie"):
+        plot_pr({"a": ([1, np.nan], [0, 1])}, p)
+    with pytest.raises(ValueError, match="'b'.*recall must be non-decreasing"):
+        plot_pr({"a": ([1, 1], [0, 1]), "b": ([1, 1], [1, 0])}, p)
+    with pytest.raises(ValueError, match="'a'"):
+        plot_pr({"a": [1, 0.5]}, p)
+    assert not p.exists()
+
+
+def test_plot_similarity_with_markers_and_gt(tmp_path, example):
+    S, gt = example
+    best = S.argmax(axis=0)
+    best[3] = -1  # no match for this query
+    accepted = S.max(axis=0) > 1.5
+    out = plot_similarity(S, tmp_path / "S.png", best_db=best, accepted=accepted, gt_hard=gt,
+                          title="S")
+    _assert_png(out)
+    _assert_png(plot_similarity(S, tmp_path / "S2.png", best_db=best))
+    _no_pyplot_figures()
+
+
+def test_plot_similarity_large_and_sparse(tmp_path):
+    rng = np.random.default_rng(1)
+    n_db, n_q = 2500, 2100
+    S = rng.random((n_db, n_q)).astype(np.float32)
+    _assert_png(plot_similarity(S, tmp_path / "big.png", best_db=S.argmax(0),
+                                gt_hard=gt_from_tolerance(n_db, n_q, 2), max_pixels=500))
+    # sparse top-1 per query, far too large to densify
+    n_db, n_q = 100_000, 80_000
+    q = np.arange(n_q)
+    Ssp = sp.csr_matrix((rng.random(n_q), (q, q)), shape=(n_db, n_q))
+    gt = gt_from_tolerance(n_db, n_q, 1, sparse=True)
+    _assert_png(plot_similarity(Ssp, tmp_path / "sparse.png", best_db=q, accepted=q % 2 == 0,
+                                gt_hard=gt, max_pixels=300))
+
+
+def test_block_pooling_matches_brute_force():
+    rng = np.random.default_rng(2)
+    S = rng.integers(-3, 4, size=(7, 11)).astype(float)
+    S[S == -3] = -np.inf
+    G = rng.random((7, 11)) < 0.2
+    fr, fc = 3, 4
+    pooled = _block_max(S, fr, fc)
+    pooled_sp = _block_max(sp.csr_matrix(np.where(np.isinf(S), 0, S) + 0.0), fr, fc)
+    anyg = _block_any(G, fr, fc)
+    assert pooled.shape == (3, 3) and anyg.shape == (3, 3)
+    for a in range(3):
+        for b in range(3):
+            block = S[a * fr:(a + 1) * fr, b * fc:(b + 1) * fc]
+            finite = block[np.isfinite(block)]
+            if finite.size:
+                assert pooled[a, b] == finite.max()
+            else:
+                assert np.isnan(pooled[a, b])
+            assert anyg[a, b] == G[a * fr:(a + 1) * fr, b * fc:(b + 1) * fc].any()
+    np.testing.assert_array_equal(_block_any(sp.csr_matrix(G), fr, fc), anyg)
+    # sparse: only stored entries count, unstored blocks are NaN
+    stored = sp.csr_matrix(np.where(np.isinf(S), 0, S))
+    for a in range(3):
+        for b in range(3):
+            block = stored[a * fr:(a + 1) * fr, b * fc:(b + 1) * fc]
+            if block.nnz:
+                assert pooled_sp[a, b] == block.data.max()
+            else:
+                assert np.isnan(pooled_sp[a, b])
+
+
+def test_plot_similarity_bad_input(tmp_path, example):
+    S, gt = example
+    p = tmp_path / "S.png"
+    with pytest.raises(ValueError, match="S contains NaN"):
+        plot_similarity(np.where(gt, np.nan, S), p)
+    with pytest.raises(ValueError, match="S must be a non-empty 2-D"):
+        plot_similarity(S[0], p)
+    with pytest.raises(ValueError, match="gt_hard must be boolean"):
+        plot_similarity(S, p, gt_hard=gt.astype(int))
+    with pytest.raises(ValueError, match="gt_hard has shape"):
+        plot_similarity(S, p, gt_hard=gt[:-1])
+    with pytest.raises(ValueError, match="best_db must have shape"):
+        plot_similarity(S, p, best_db=np.zeros(3, int))
+    with pytest.raises(ValueError, match="best_db has indices"):
+        plot_similarity(S, p, best_db=np.full(S.shape[1], S.shape[0]))
+    with pytest.raises(ValueError, match="best_db must hold integers"):
+        plot_similarity(S, p, best_db=np.zeros(S.shape[1]))
+    with pytest.raises(ValueError, match="accepted requires best_db"):
+        plot_similarity(S, p, accepted=np.ones(S.shape[1], bool))
+    with pytest.raises(ValueError, match="accepted must be a bool"):
+        plot_similarity(S, p, best_db=S.argmax(0), accepted=np.ones(S.shape[1]))
+    with pytest.raises(ValueError, match="max_pixels"):
+        plot_similarity(S, p, max_pixels=0)
+    assert not p.exists()
+
+
+def test_plot_bars(tmp_path):
+    table = {"nordland": {"sift": 0.4, "cnn": 0.7}, "oxford": {"cnn": 0.5, "hog": 0.2}}
+    _assert_png(plot_bars(table, tmp_path / "bars.png", ylabel="AUC", title="encoders"))
+    p = tmp_path / "bad.png"
+    with pytest.raises(ValueError, match="non-empty"):
+        plot_bars({}, p, ylabel="x")
+    with pytest.raises(ValueError, match=r"table\['a'\]\['m'\] must be a finite number"):
+        plot_bars({"a": {"m": float("nan")}}, p, ylabel="x")
+    with pytest.raises(ValueError, match=r"table\['a'\]\['m'\]"):
+        plot_bars({"a": {"m": "high"}}, p, ylabel="x")
+    with pytest.raises(ValueError, match="no values"):
+        plot_bars({"a": {}}, p, ylabel="x")
+    with pytest.raises(ValueError, match=r"table\['a'\] must be a dict"):
+        plot_bars({"a": [1, 2]}, p, ylabel="x")
+    assert not p.exists()
+    _no_pyplot_figures()

@@ -1,0 +1,665 @@
+"""Place-recognition metrics and ground-truth builders.
+
+The metrics follow the conventions of the VPR tutorial of Schubert, Neubert,
+Garg, Milford and Fischer (IEEE RAM 2023; ``createPR``, ``recallAt100precision``,
+``recallAtK``), but evaluate *every* distinct threshold instead of a fixed grid.
+
+Conventions
+-----------
+``S``
+    Similarity matrix, database x query (``n_db x n_q``), higher means more
+    similar; for single-stream loop closure it is ``T x T``. It may be a dense
+    array or a :mod:`scipy.sparse` matrix holding, e.g., only the top-K entries
+    per query. Entries that are not stored, and dense entries equal to
+    ``-inf``, mean "never matched": they lie below every threshold, are never
+    predicted as matches and never appear in a top-k list. Explicitly stored
+    zeros are ordinary similarities. ``S`` must not contain NaN or ``+inf``.
+``gt_hard``
+    Boolean matrix (dense or sparse) of the same shape: the true matches.
+``gt_soft``
+    Optional boolean matrix of the same shape that should contain ``gt_hard``.
+    Only its extra pairs ``gt_soft & ~gt_hard`` are used: they are ignored
+    entirely, i.e. they are neither true nor false positives, are not counted
+    in recall and are removed from rankings.
+``mask``
+    Optional boolean matrix of the same shape; only pairs where it is True are
+    evaluated, both as decisions and as ground-truth positives (loop closure:
+    :func:`loop_closure_mask`).
+
+Matching
+--------
+``"multi"``
+    Every evaluated ``(db, query)`` pair with ``S >= t`` is a predicted match.
+    Recall is relative to the number of ``gt_hard`` pairs.
+``"single"``
+    Each query makes at most one decision: its best database entry (highest
+    similarity; on ties the lowest database index). Queries without any true
+    match still make that decision, so they can produce false positives.
+    Recall is relative to the number of queries with at least one ``gt_hard``
+    match.
+
+All sizes in the denominators are counted inside ``mask``. When ``S`` is
+sparse, only its stored entries and the nonzeros of ``gt_hard`` are touched,
+so ``n_db * n_q`` may be far larger than memory (pass ``gt_hard`` and
+``gt_soft`` sparse as well in that case, e.g. from the ``sparse=True`` option
+of the builders below).
+"""
+from __future__ import annotations
+
+import numbers
+from typing import NamedTuple
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.spatial import cKDTree
+
+__all__ = [
+    "pr_curve",
+    "auc_pr",
+    "auc_from_pr",
+    "recall_at_100p",
+    "recall_at_k",
+    "evaluate",
+    "gt_from_labels",
+    "gt_from_tolerance",
+    "gt_from_positions",
+    "loop_closure_mask",
+    "loop_closure_gt",
+]
+
+_MATCHINGS = ("multi", "single")
+
+
+# --------------------------------------------------------------------------- #
+# input handling
+# --------------------------------------------------------------------------- #
+class _Problem(NamedTuple):
+    """Validated inputs reduced to what the metrics need.
+
+    Dense problems keep full matrices; sparse problems keep only the candidate
+    entries (stored, inside the mask, not soft-only), sorted by query, then by
+    decreasing similarity, then by database index, i.e. in ranking order.
+    """
+
+    shape: tuple
+    sparse: bool
+    S: np.ndarray | None          # dense only, float64
+    hard: np.ndarray | None       # dense only, bool
+    cand: np.ndarray | None       # dense only, bool: may be decided / ranked
+    rows: np.ndarray | None       # sparse only, candidate entries
+    cols: np.ndarray | None
+    vals: np.ndarray | None
+    is_hard: np.ndarray | None
+    n_pos: int                    # gt_hard pairs inside the mask
+    pos_queries: np.ndarray       # bool (n_q,): query has a gt_hard pair in the mask
+
+
+def _check_S(S):
+    if sp.issparse(S):
+        if S.ndim != 2:
+            raise ValueError(f"S must be 2-D (n_db x n_q), got shape {S.shape}")
+        kind = S.dtype.kind
+    else:
+        S = np.asarray(S)
+        if S.ndim != 2:
+            raise ValueError(f"S must be 2-D (n_db x n_q), got shape {S.shape}")
+        kind = S.dtype.kind
+    if kind not in "biuf":
+        raise ValueError(f"S must be real-valued, got dtype {S.dtype}")
+    if S.shape[0] == 0 or S.shape[1] == 0:
+        raise ValueError(f"S must have at least one database entry and one query, got shape {S.shape}")
+    if sp.issparse(S):
+        # copy: canonicalising must not touch the caller's matrix
+        S = sp.coo_matrix(S, copy=True)
+        S.sum_duplicates()
+        data = S.data.astype(np.float64, copy=False)
+        _check_values("S", data)
+        return S.shape, (S.row.astype(np.intp), S.col.astype(np.intp), data)
+    S = S.astype(np.float64, copy=False)
+    _check_values("S", S)
+    return S.shape, S
+
+
+def _check_values(name, a):
+    if np.isnan(a).any():
+        raise ValueError(f"{name} contains NaN")
+    if np.isposinf(a).any():
+        raise ValueError(f"{name} contains +inf (use -inf for 'never matched')")
+
+
+def _check_bool(name, G, shape, dense):
+    """Return ``G`` as a bool ndarray (``dense``) or as-given bool ndarray / canonical CSR."""
+    if G is None:
+        return None
+    if sp.issparse(G):
+        if G.dtype != bool:
+            raise ValueError(f"{name} must be boolean, got dtype {G.dtype}")
+        if G.shape != shape:
+            raise ValueError(f"{name} has shape {G.shape}, but S has shape {shape}")
+        if dense:
+            return G.toarray()
+        G = sp.csr_matrix(G, copy=True)
+        G.eliminate_zeros()
+        return G
+    G = np.asarray(G)
+    if G.dtype != bool:
+        raise ValueError(f"{name} must be boolean, got dtype {G.dtype}")
+    if G.shape != shape:
+        raise ValueError(f"{name} has shape {G.shape}, but S has shape {shape}")
+    return G
+
+
+def _at(G, rows, cols):
+    """Values of a dense or sparse bool matrix at the given coordinates."""
+    if sp.issparse(G):
+        if len(rows) == 0:
+            return np.zeros(0, dtype=bool)
+        return np.asarray(G[rows, cols]).ravel().astype(bool)
+    return G[rows, cols]
+
+
+def _prepare(S, gt_hard, gt_soft=None, mask=None) -> _Problem:
+    shape, S = _check_S(S)
+    sparse = isinstance(S, tuple)
+    hard = _check_bool("gt_hard", gt_hard, shape, dense=not sparse)
+    if hard is None:
+        raise ValueError("gt_hard is required")
+    soft = _check_bool("gt_soft", gt_soft, shape, dense=not sparse)
+    mask = _check_bool("mask", mask, shape, dense=not sparse)
+    n_q = shape[1]
+
+    if not sparse:
+        cand = S > -np.inf
+        if soft is not None:
+            cand &= ~(soft & ~hard)
+        pos = hard
+        if mask is not None:
+            cand &= mask
+            pos = hard & mask
+        return _Problem(shape, False, S, hard, cand, None, None, None, None,
+                        int(np.count_nonzero(pos)), pos.any(axis=0))
+
+    rows, cols, vals = S
+    is_hard = _at(hard, rows, cols)
+    keep = vals > -np.inf
+    if soft is not None:
+        keep &= ~(_at(soft, rows, cols) & ~is_hard)
+    if mask is not None:
+        keep &= _at(mask, rows, cols)
+    rows, cols, vals, is_hard = rows[keep], cols[keep], vals[keep], is_hard[keep]
+    # ranking order within each query: similarity descending, then db index
+    order = np.lexsort((rows, -vals, cols))
+    rows, cols, vals, is_hard = rows[order], cols[order], vals[order], is_hard[order]
+
+    # positives that S never stored still count in the recall denominators
+    if sp.issparse(hard):
+        hc = hard.tocoo()
+        h_rows, h_cols = hc.row.astype(np.intp), hc.col.astype(np.intp)
+    else:
+        h_rows, h_cols = np.nonzero(hard)
+    if mask is not None:
+        inside = _at(mask, h_rows, h_cols)
+        h_rows, h_cols = h_rows[inside], h_cols[inside]
+    pos_queries = np.bincount(h_cols, minlength=n_q) > 0
+    return _Problem(shape, True, None, None, None, rows, cols, vals, is_hard,
+                    int(len(h_rows)), pos_queries)
+
+
+def _check_matching(matching):
+    if matching not in _MATCHINGS:
+        raise ValueError(f"matching must be one of {_MATCHINGS}, got {matching!r}")
+
+
+# --------------------------------------------------------------------------- #
+# core computations on a prepared problem
+# --------------------------------------------------------------------------- #
+def _decisions(p: _Problem, matching: str):
+    """Similarity and correctness of every decision, plus the recall denominator."""
+    if matching == "multi":
+        n_pos = p.n_pos
+        if p.sparse:
+            vals, is_hard = p.vals, p.is_hard
+        else:
+            vals, is_hard = p.S[p.cand], p.hard[p.cand]
+    else:
+        n_pos = int(np.count_nonzero(p.pos_queries))
+        if p.sparse:
+            # entries are in ranking order, so each query's first one is its best
+            first = np.r_[True, p.cols[1:] != p.cols[:-1]] if len(p.cols) else np.zeros(0, bool)
+            vals, is_hard = p.vals[first], p.is_hard[first]
+        else:
+            Sc = np.where(p.cand, p.S, -np.inf)
+            best = np.argmax(Sc, axis=0)  # first maximum = lowest db index on ties
+            q = np.arange(p.shape[1])
+            vals = Sc[best, q]
+            decided = vals > -np.inf
+            vals, is_hard = vals[decided], p.hard[best, q][decided]
+    if n_pos == 0:
+        where = "inside mask " if matching == "multi" else ""
+        raise ValueError(f"gt_hard has no true match {where}to evaluate: recall is undefined")
+    return vals, is_hard, n_pos
+
+
+def _counts(vals, is_hard):
+    """Thresholds (decreasing, with +inf first) and cumulative TP / FP counts."""
+    # A plain sort of the values plus a search among the (few) true ones is much
+    # faster than an argsort of all decisions with cumulative sums.
+    v = np.sort(vals)
+    first = np.flatnonzero(np.r_[True, v[1:] != v[:-1]]) if len(v) else np.zeros(0, np.intp)
+    distinct = v[first]
+    n_ge = len(v) - first  # a threshold admits every tied decision at once
+    hard_sorted = np.sort(vals[is_hard])
+    tp = len(hard_sorted) - np.searchsorted(hard_sorted, distinct, side="left")
+    fp = n_ge - tp
+    return np.r_[np.inf, distinct[::-1]], np.r_[0, tp[::-1]], np.r_[0, fp[::-1]]
+
+
+def _curve(p: _Problem, matching: str):
+    vals, is_hard, n_pos = _decisions(p, matching)
+    thresholds, tp, fp = _counts(vals, is_hard)
+    predicted = tp + fp
+    precision = np.ones(len(tp))
+    precision[1:] = tp[1:] / predicted[1:]  # every real threshold predicts >= 1 pair
+    recall = tp / n_pos
+    return precision, recall, thresholds, fp
+
+
+def _auc(precision, recall):
+    return float(np.sum(np.diff(recall) * (precision[1:] + precision[:-1]) / 2.0))
+
+
+def _recall_at_k(p: _Problem, k: int) -> float:
+    n_pos = int(np.count_nonzero(p.pos_queries))
+    if n_pos == 0:
+        raise ValueError("gt_hard has no query with a true match to evaluate: recall@k is undefined")
+    if p.sparse:
+        if len(p.cols) == 0:
+            return 0.0
+        start = np.searchsorted(p.cols, p.cols, side="left")
+        rank = np.arange(len(p.cols)) - start
+        hit = np.zeros(p.shape[1], dtype=bool)
+        hit[p.cols[p.is_hard & (rank < k)]] = True
+        return float(np.count_nonzero(hit & p.pos_queries) / n_pos)
+
+    # Rank of each query's best true match under the order (similarity desc, db
+    # index asc): entries strictly more similar, plus ties with a lower index.
+    hc = p.hard & p.cand
+    v = np.where(hc, p.S, -np.inf).max(axis=0)
+    r_best = np.argmax(hc & (p.S == v), axis=0)
+    above = np.count_nonzero(p.cand & (p.S > v), axis=0)
+    rows = np.arange(p.shape[0])[:, None]
+    tied_before = np.count_nonzero(p.cand & (p.S == v) & (rows < r_best), axis=0)
+    hit = (v > -np.inf) & (above + tied_before < k)
+    return float(np.count_nonzero(hit & p.pos_queries) / n_pos)
+
+
+# --------------------------------------------------------------------------- #
+# public metrics
+# --------------------------------------------------------------------------- #
+def pr_curve(S, gt_hard, gt_soft=None, matching="multi", mask=None):
+    """Precision-recall curve at every distinct similarity threshold.
+
+    A pair (or, for ``"single"`` matching, a query's best pair) is a predicted
+    match at threshold ``t`` if its similarity is ``>= t``. See the module
+    docstring for the conventions on ``S``, ``gt_soft`` and ``mask``.
+
+    Parameters
+    ----------
+    S : array_like or scipy.sparse matrix, shape (n_db, n_q)
+        Similarities, higher = more similar.
+    gt_hard : bool array or sparse bool matrix, shape (n_db, n_q)
+        True matches.
+    gt_soft : bool array or sparse bool matrix, shape (n_db, n_q), optional
+        Pairs ``gt_soft & ~gt_hard`` are ignored.
+    matching : {"multi", "single"}
+        ``"multi"``: every pair is a decision; ``"single"``: only each query's
+        best database entry (lowest index on ties) is a decision.
+    mask : bool array or sparse bool matrix, shape (n_db, n_q), optional
+        Only pairs where ``mask`` is True are evaluated.
+
+    Returns
+    -------
+    precision, recall, thresholds : ndarray of float, shape (n_thresholds + 1,)
+        Sorted by decreasing threshold. The first point is the start of the
+        curve, where nothing is predicted: ``thresholds[0] = +inf``,
+        ``recall[0] = 0`` and, by definition, ``precision[0] = 1`` (as in
+        Schubert et al.'s ``createPR``). Each further point belongs to one
+        distinct similarity of the evaluated decisions. Recall is
+        non-decreasing along the arrays.
+
+    Raises
+    ------
+    ValueError
+        On shape mismatch, NaN or +inf in ``S``, non-boolean ``gt_hard`` /
+        ``gt_soft`` / ``mask``, unknown ``matching``, or when there is no true
+        match to evaluate (recall undefined).
+    """
+    _check_matching(matching)
+    precision, recall, thresholds, _ = _curve(_prepare(S, gt_hard, gt_soft, mask), matching)
+    return precision, recall, thresholds
+
+
+def auc_from_pr(precision, recall) -> float:
+    """Area under a precision-recall curve by the trapezoidal rule over recall.
+
+    Parameters
+    ----------
+    precision, recall : array_like of float, shape (n,)
+        Points in order of non-decreasing recall, as returned by :func:`pr_curve`.
+
+    Raises
+    ------
+    ValueError
+        If the arrays are not 1-D of equal length, contain NaN, or ``recall``
+        decreases somewhere.
+    """
+    precision = np.asarray(precision, dtype=np.float64)
+    recall = np.asarray(recall, dtype=np.float64)
+    if precision.ndim != 1 or recall.shape != precision.shape:
+        raise ValueError(f"precision and recall must be 1-D of equal length, got shapes "
+                         f"{precision.shape} and {recall.shape}")
+    if np.isnan(precision).any() or np.isnan(recall).any():
+        raise ValueError("precision / recall contain NaN")
+    if np.any(np.diff(recall) < 0):
+        raise ValueError("recall must be non-decreasing (order points by decreasing threshold)")
+    return _auc(precision, recall)
+
+
+def auc_pr(S, gt_hard, gt_soft=None, matching="multi", mask=None) -> float:
+    """Area under the precision-recall curve of :func:`pr_curve` (trapezoid over recall).
+
+    The start point (recall 0, precision 1) is included, so a perfect ranking
+    scores 1. Arguments and errors as for :func:`pr_curve`.
+    """
+    _check_matching(matching)
+    precision, recall, _, _ = _curve(_prepare(S, gt_hard, gt_soft, mask), matching)
+    return _auc(precision, recall)
+
+
+def recall_at_100p(S, gt_hard, gt_soft=None, matching="multi", mask=None) -> float:
+    """Largest recall on the :func:`pr_curve` reached without any false positive.
+
+    Returns 0 when the most similar decision is already wrong. Arguments and
+    errors as for :func:`pr_curve`.
+    """
+    _check_matching(matching)
+    _, recall, _, fp = _curve(_prepare(S, gt_hard, gt_soft, mask), matching)
+    # fp is non-decreasing, so the last fp == 0 point has the largest recall
+    return float(recall[fp == 0][-1])
+
+
+def _check_k(k):
+    if isinstance(k, (bool, np.bool_)) or not isinstance(k, numbers.Integral) or k < 1:
+        raise ValueError(f"k must be a positive integer, got {k!r}")
+    return int(k)
+
+
+def recall_at_k(S, gt_hard, gt_soft=None, k=1, mask=None) -> float:
+    """Fraction of queries with a true match whose top-k database entries contain one.
+
+    Only queries with at least one ``gt_hard`` pair inside ``mask`` are
+    counted. Each query ranks its evaluated database entries by decreasing
+    similarity, ties broken by lower database index; soft-only pairs
+    (``gt_soft & ~gt_hard``), pairs outside ``mask`` and never-matched entries
+    (not stored / ``-inf``) are removed from the ranking, as in Schubert et
+    al.'s ``recallAtK``.
+
+    Parameters
+    ----------
+    S, gt_hard, gt_soft, mask
+        As for :func:`pr_curve`.
+    k : int
+        Number of retrieved database entries, ``>= 1``.
+
+    Returns
+    -------
+    float
+        Recall@k in [0, 1].
+
+    Raises
+    ------
+    ValueError
+        As for :func:`pr_curve`; also if ``k`` is not a positive integer or no
+        query has a true match.
+    """
+    k = _check_k(k)
+    return _recall_at_k(_prepare(S, gt_hard, gt_soft, mask), k)
+
+
+def evaluate(S, gt_hard, gt_soft=None, mask=None) -> dict:
+    """Standard metric set for one similarity matrix.
+
+    Returns
+    -------
+    dict
+        ``auc_pr`` and ``recall_at_100p`` (multi matching), ``recall_at_1``,
+        ``recall_at_5`` and ``auc_pr_single`` (single matching), all floats.
+        Arguments and errors as for :func:`pr_curve`.
+    """
+    p = _prepare(S, gt_hard, gt_soft, mask)
+    precision, recall, _, fp = _curve(p, "multi")
+    precision_s, recall_s, _, _ = _curve(p, "single")
+    return {
+        "auc_pr": _auc(precision, recall),
+        "recall_at_100p": float(recall[fp == 0][-1]),
+        "recall_at_1": _recall_at_k(p, 1),
+        "recall_at_5": _recall_at_k(p, 5),
+        "auc_pr_single": _auc(precision_s, recall_s),
+    }
+
+
+# --------------------------------------------------------------------------- #
+# ground-truth builders
+# --------------------------------------------------------------------------- #
+def _check_count(name, n, minimum=0):
+    if isinstance(n, (bool, np.bool_)) or not isinstance(n, numbers.Integral) or n < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {n!r}")
+    return int(n)
+
+
+def _expand_ranges(starts, counts):
+    """Concatenation of ``arange(s, s + c)`` for every (s, c), without a Python loop."""
+    total = int(counts.sum())
+    offsets = np.repeat(np.cumsum(counts) - counts, counts)
+    return np.arange(total) - offsets + np.repeat(starts, counts)
+
+
+def _csc_from_columns(row_idx, counts, shape):
+    indptr = np.r_[0, np.cumsum(counts)].astype(np.int64)
+    m = sp.csc_matrix((np.ones(len(row_idx), dtype=bool), row_idx, indptr), shape=shape)
+    m.sort_indices()
+    return m.tocsr()
+
+
+def _check_labels(name, labels):
+    a = np.asarray(labels)
+    if a.ndim != 1:
+        raise ValueError(f"{name} must be 1-D, got shape {a.shape}")
+    if a.dtype.kind in "fc" and np.isnan(a).any():
+        raise ValueError(f"{name} contains NaN")
+    return a
+
+
+def gt_from_labels(db_labels, q_labels, sparse=False):
+    """Ground truth from place labels: ``gt[i, j] = db_labels[i] == q_labels[j]``.
+
+    Parameters
+    ----------
+    db_labels : array_like, shape (n_db,)
+    q_labels : array_like, shape (n_q,)
+        Place identifiers (integers, strings, ...).
+    sparse : bool
+        Return a ``scipy.sparse.csr_matrix`` instead of a dense array.
+
+    Returns
+    -------
+    gt : ndarray of bool or csr_matrix, shape (n_db, n_q)
+
+    Raises
+    ------
+    ValueError
+        If a label array is not 1-D or contains NaN.
+    """
+    db = _check_labels("db_labels", db_labels)
+    q = _check_labels("q_labels", q_labels)
+    # integer codes make the comparison cheap whatever the label type
+    _, codes = np.unique(np.concatenate([db, q]), return_inverse=True)
+    codes = codes.ravel()
+    db_c, q_c = codes[: len(db)], codes[len(db):]
+    if not sparse:
+        return db_c[:, None] == q_c[None, :]
+    order = np.argsort(db_c, kind="stable")
+    sorted_c = db_c[order]
+    lo = np.searchsorted(sorted_c, q_c, side="left")
+    counts = np.searchsorted(sorted_c, q_c, side="right") - lo
+    return _csc_from_columns(order[_expand_ranges(lo, counts)], counts, (len(db), len(q)))
+
+
+def gt_from_tolerance(n_db, n_q, tol, sparse=False):
+    """Ground truth for aligned traverses: ``gt[i, j] = |i - j| <= tol``.
+
+    Parameters
+    ----------
+    n_db, n_q : int
+        Number of database and query frames.
+    tol : int
+        Frame tolerance, ``>= 0``.
+    sparse : bool
+        Return a ``scipy.sparse.csr_matrix`` instead of a dense array.
+
+    Raises
+    ------
+    ValueError
+        If a size or ``tol`` is not a non-negative integer.
+    """
+    n_db = _check_count("n_db", n_db)
+    n_q = _check_count("n_q", n_q)
+    tol = _check_count("tol", tol)
+    if not sparse:
+        return np.abs(np.arange(n_db)[:, None] - np.arange(n_q)[None, :]) <= tol
+    j = np.arange(n_q)
+    lo = np.clip(j - tol, 0, n_db)
+    hi = np.clip(j + tol + 1, 0, n_db)
+    counts = np.maximum(hi - lo, 0)
+    return _csc_from_columns(_expand_ranges(lo, counts), counts, (n_db, n_q))
+
+
+def _check_positions(name, xy):
+    a = np.asarray(xy)
+    if a.ndim != 2:
+        raise ValueError(f"{name} must be 2-D (n_points x n_dims), got shape {a.shape}")
+    if a.dtype.kind not in "biuf":
+        raise ValueError(f"{name} must be numeric, got dtype {a.dtype}")
+    a = a.astype(np.float64, copy=False)
+    if not np.isfinite(a).all():
+        raise ValueError(f"{name} contains NaN or inf")
+    return a
+
+
+def gt_from_positions(db_xy, q_xy, radius, sparse=False):
+    """Ground truth from positions: ``gt[i, j] = ||db_xy[i] - q_xy[j]|| <= radius``.
+
+    Uses a KD-tree, so time and memory grow with the number of matching pairs
+    rather than with ``n_db * n_q`` (use ``sparse=True`` for large runs).
+
+    Parameters
+    ----------
+    db_xy : array_like, shape (n_db, d)
+    q_xy : array_like, shape (n_q, d)
+        Positions (any dimension ``d``, Euclidean distance).
+    radius : float
+        Inclusive match radius, ``>= 0``.
+    sparse : bool
+        Return a ``scipy.sparse.csr_matrix`` instead of a dense array.
+
+    Raises
+    ------
+    ValueError
+        If the position arrays are not 2-D, differ in ``d`` or are not finite,
+        or ``radius`` is negative or not finite.
+    """
+    db = _check_positions("db_xy", db_xy)
+    q = _check_positions("q_xy", q_xy)
+    if db.shape[1] != q.shape[1]:
+        raise ValueError(f"db_xy has {db.shape[1]} dimensions, q_xy has {q.shape[1]}")
+    try:
+        radius = float(radius)
+    except (TypeError, ValueError):
+        raise ValueError(f"radius must be a number, got {radius!r}") from None
+    if not np.isfinite(radius) or radius < 0:
+        raise ValueError(f"radius must be finite and >= 0, got {radius}")
+    shape = (len(db), len(q))
+    if len(db) and len(q):
+        pairs = cKDTree(db).sparse_distance_matrix(cKDTree(q), radius, output_type="ndarray")
+        rows, cols = pairs["i"].astype(np.intp), pairs["j"].astype(np.intp)
+    else:
+        rows = cols = np.zeros(0, dtype=np.intp)
+    if sparse:
+        return sp.csr_matrix((np.ones(len(rows), dtype=bool), (rows, cols)), shape=shape)
+    gt = np.zeros(shape, dtype=bool)
+    gt[rows, cols] = True
+    return gt
+
+
+def loop_closure_mask(T, exclude=0):
+    """Pairs evaluated for single-stream loop closure on a ``T x T`` matrix.
+
+    ``mask[i, j]`` is True exactly when ``i < j`` and ``j - i >= exclude``:
+    each query frame ``j`` (column) is compared only with earlier frames ``i``
+    (rows), and the ``exclude - 1`` frames just before it are skipped because
+    they are trivially similar. ``exclude`` of 0 or 1 keeps all ``i < j``.
+    This is ``np.triu(np.ones((T, T), bool), k=max(exclude, 1))``.
+
+    Raises
+    ------
+    ValueError
+        If ``T`` or ``exclude`` is not a non-negative integer.
+    """
+    T = _check_count("T", T)
+    exclude = _check_count("exclude", exclude)
+    idx = np.arange(T)
+    return (idx[None, :] - idx[:, None]) >= max(exclude, 1)
+
+
+def loop_closure_gt(labels_or_xy, radius=None, exclude=0, sparse=False):
+    """Ground truth for single-stream loop closure, restricted to :func:`loop_closure_mask`.
+
+    Parameters
+    ----------
+    labels_or_xy : array_like, shape (T,) or (T, d)
+        Place labels per frame (when ``radius`` is None) or positions
+        (1-D positions are treated as ``(T, 1)``).
+    radius : float, optional
+        Match radius for positions; None means ``labels_or_xy`` are labels.
+    exclude : int
+        As for :func:`loop_closure_mask`.
+    sparse : bool
+        Return a ``scipy.sparse.csr_matrix`` instead of a dense array.
+
+    Returns
+    -------
+    gt : ndarray of bool or csr_matrix, shape (T, T)
+        True for revisits ``(i, j)`` with ``i < j`` and ``j - i >= exclude``.
+        With a dense ``S`` also pass ``mask=loop_closure_mask(T, exclude)`` to
+        the metrics so that pairs outside the mask are not false positives;
+        with a sparse ``S``, ``sp.triu(S, k=max(exclude, 1))`` has the same effect
+        without a dense mask.
+
+    Raises
+    ------
+    ValueError
+        As for the underlying builders; also if labels are given as 2-D.
+    """
+    exclude = _check_count("exclude", exclude)
+    a = np.asarray(labels_or_xy)
+    if radius is None:
+        if a.ndim != 1:
+            raise ValueError(f"labels_or_xy must be 1-D labels when radius is None, got shape {a.shape}")
+        gt = gt_from_labels(a, a, sparse=sparse)
+    else:
+        if a.ndim == 1:
+            a = a[:, None]
+        gt = gt_from_positions(a, a, radius, sparse=sparse)
+    if sparse:
+        return sp.triu(gt, k=max(exclude, 1), format="csr").astype(bool)
+    return gt & loop_closure_mask(len(a), exclude)
