@@ -5,12 +5,15 @@ operations, about 400 us per observation here; the paper's target regime (many
 thousands of observations) needs well under 100 us, hence this kernel
 (`benchmarks/bench_memory.py` prints the figures).
 
-All state lives in NumPy arrays owned by the Python object. Lists (input bit ->
-minicolumns, cell -> outgoing and incoming connections) are singly linked lists
-threaded through append-only arrays, so nothing is ever relocated and the
-space one step needs is known before the step mutates anything: when an array
-is too small the kernel stops *before* the step and reports which one, Python
-grows it and calls again from that frame.
+All state lives in NumPy arrays owned by the Python object. The inverted index
+input bit -> minicolumns is a 2-D array with one contiguous row per bit (the
+matching loop reads it sequentially: a linked list here was 10x slower once it
+outgrew the cache); cell -> outgoing connections are singly linked lists threaded
+through append-only arrays; line 13's tests use two open-addressing hash sets,
+(source minicolumn, cell) and (source cell, cell). The space one step needs is known
+before the step mutates anything: when an array is too small the kernel stops
+*before* the step and reports which one, Python grows it and calls again from
+that frame.
 
 Randomness comes from a "tape" of uniform numbers drawn from the memory's
 ``numpy.random.Generator`` and consumed strictly in order, so results depend
@@ -22,18 +25,72 @@ import numpy as np
 from numba import njit
 
 # indices into the int64 state vector
-N_COLS, N_ENTRIES, N_EDGES, N_PRED, N_PREV, TAPE_POS, TAPE_LEN, OUT_POS, NEED_KIND, NEED_SIZE, N_ACTIVE = range(11)
-STATE_SIZE = 11
+N_COLS, N_ENTRIES, N_EDGES, N_PRED, N_PREV, TAPE_POS, TAPE_LEN, OUT_POS, NEED_KIND, NEED_SIZE, N_ACTIVE, N_KEYS = \
+    range(12)
+# work counters (list nodes visited), machine-independent cost figures for the benchmark
+W_MATCH, W_PRED, W_BURST, W_LEARN = range(12, 16)
+STATE_SIZE = 16
 
 # what the kernel needs more of (NEED_KIND)
-DONE, NEED_COLS, NEED_ENTRIES, NEED_EDGES, NEED_TAPE, NEED_OUT = range(6)
+DONE, NEED_COLS, NEED_ENTRIES, NEED_EDGES, NEED_TAPE, NEED_OUT, NEED_HASH, NEED_EDGE_HASH = range(8)
+
+_EMPTY = -1
+_MULT = np.uint64(0x9E3779B97F4A7C15)
+
+
+@njit(cache=True, inline="always")
+def _slot(key, mask):
+    # Fibonacci hashing; the table size is a power of two
+    return np.int64((np.uint64(key) * _MULT) >> np.uint64(20)) & mask
+
+
+@njit(cache=True)
+def hash_insert(table, key):
+    """Insert ``key`` into an open-addressing set; return True if it was new."""
+    mask = table.shape[0] - 1
+    i = _slot(key, mask)
+    while True:
+        k = table[i]
+        if k == key:
+            return False
+        if k == _EMPTY:
+            table[i] = key
+            return True
+        i = (i + 1) & mask
+
+
+@njit(cache=True)
+def hash_contains(table, key):
+    mask = table.shape[0] - 1
+    i = _slot(key, mask)
+    while True:
+        k = table[i]
+        if k == key:
+            return True
+        if k == _EMPTY:
+            return False
+        i = (i + 1) & mask
+
+
+@njit(cache=True)
+def rebuild_sets(table, e_src, e_dst, n_edges, cpc):
+    """Fill a key set from the first ``n_edges`` connections; return the number of keys.
+
+    ``cpc`` > 0: keys are (source minicolumn, target cell); ``cpc`` == 0: (source cell, target cell).
+    """
+    n = 0
+    for e in range(n_edges):
+        src = e_src[e] // cpc if cpc > 0 else e_src[e]
+        if hash_insert(table, src << 32 | e_dst[e]):
+            n += 1
+    return n
 
 
 @njit(cache=True)
 def run_frames(ind_ptr, ind, f_start, f_stop, learn, cpc, new_columns, k_active, connectivity, threshold,
-               p_extra, st, bit_head, ent_col, ent_next, ent_bit, col_thr, counts, touched, active,
-               out_head, in_head, outdeg, e_src, e_dst, e_onext, e_inext, is_pred, is_next,
-               pred_list, next_list, prev, cur, tape, out_idx, out_ptr, keys):
+               p_extra, st, bit_cols, bit_len, col_thr, counts, touched, active,
+               out_head, outdeg, e_src, e_dst, e_onext, is_pred, is_next,
+               pred_list, next_list, prev, cur, tape, out_idx, out_ptr, keys, col_cell, edge_set):
     """Run Algorithm 1 on frames ``f_start..f_stop-1``; return the first frame not processed."""
     cols_cap = col_thr.shape[0]
     f = f_start
@@ -44,14 +101,16 @@ def run_frames(ind_ptr, ind, f_start, f_stop, learn, cpc, new_columns, k_active,
         # ---- line 1: M_active = match(I, M): overlap through the inverted index
         n_touch = 0
         for i in range(nb):
-            e = bit_head[bits[i]]
-            while e >= 0:
-                c = ent_col[e]
+            b = bits[i]
+            row = bit_cols[b]
+            n_b = bit_len[b]
+            st[W_MATCH] += n_b
+            for j in range(n_b):
+                c = row[j]
                 if counts[c] == 0:
                     touched[n_touch] = c
                     n_touch += 1
                 counts[c] += 1
-                e = ent_next[e]
         n_act = 0
         for i in range(n_touch):
             c = touched[i]
@@ -84,13 +143,26 @@ def run_frames(ind_ptr, ind, f_start, f_stop, learn, cpc, new_columns, k_active,
             st[NEED_KIND] = NEED_COLS
             st[NEED_SIZE] = n_cols + new_columns
             return f
-        if create and st[N_ENTRIES] + new_columns * n_conn > ent_col.shape[0]:
-            st[NEED_KIND] = NEED_ENTRIES
-            st[NEED_SIZE] = st[N_ENTRIES] + new_columns * n_conn
-            return f
+        if create:
+            longest = 0
+            for i in range(nb):
+                longest = max(longest, bit_len[bits[i]])
+            if longest + new_columns > bit_cols.shape[1]:
+                st[NEED_KIND] = NEED_ENTRIES
+                st[NEED_SIZE] = longest + new_columns
+                return f
         if learn and st[N_EDGES] + n_prev * max_win > e_src.shape[0]:
             st[NEED_KIND] = NEED_EDGES
             st[NEED_SIZE] = st[N_EDGES] + n_prev * max_win
+            return f
+        if learn and 2 * (st[N_KEYS] + n_prev * max_win) > col_cell.shape[0]:
+            # keep the (minicolumn, cell) set at most half full
+            st[NEED_KIND] = NEED_HASH
+            st[NEED_SIZE] = 2 * (st[N_KEYS] + n_prev * max_win)
+            return f
+        if learn and p_extra > 0.0 and 2 * (st[N_EDGES] + n_prev * max_win) > edge_set.shape[0]:
+            st[NEED_KIND] = NEED_EDGE_HASH
+            st[NEED_SIZE] = 2 * (st[N_EDGES] + n_prev * max_win)
             return f
         if st[TAPE_POS] + need_tape > st[TAPE_LEN]:
             st[NEED_KIND] = NEED_TAPE
@@ -110,15 +182,11 @@ def run_frames(ind_ptr, ind, f_start, f_stop, learn, cpc, new_columns, k_active,
                     keys[i] = tape[tp + i]
                 tp += nb
                 order = np.argsort(keys[:nb], kind="mergesort")
-                ne = st[N_ENTRIES]
                 for i in range(n_conn):
                     b = bits[order[i]]
-                    ent_col[ne] = c
-                    ent_bit[ne] = b
-                    ent_next[ne] = bit_head[b]
-                    bit_head[b] = ne
-                    ne += 1
-                st[N_ENTRIES] = ne
+                    bit_cols[b, bit_len[b]] = c
+                    bit_len[b] += 1
+                st[N_ENTRIES] += n_conn
                 col_thr[c] = thr
                 active[j] = c
             n_act = new_columns
@@ -154,6 +222,7 @@ def run_frames(ind_ptr, ind, f_start, f_stop, learn, cpc, new_columns, k_active,
                         n_cur += 1
                         e = out_head[cell]
                         while e >= 0:
+                            st[W_PRED] += 1
                             t = e_dst[e]
                             if not is_next[t]:
                                 is_next[t] = True
@@ -173,6 +242,7 @@ def run_frames(ind_ptr, ind, f_start, f_stop, learn, cpc, new_columns, k_active,
                         best_key = key
                     e = out_head[cell]
                     while e >= 0:
+                        st[W_BURST] += 1
                         t = e_dst[e]
                         if not is_next[t]:
                             is_next[t] = True
@@ -190,31 +260,28 @@ def run_frames(ind_ptr, ind, f_start, f_stop, learn, cpc, new_columns, k_active,
                 col_s = s // cpc
                 for w in range(n_cur):
                     d = cur[w]
-                    has_col = False
-                    exact = False
-                    e = in_head[d]
-                    while e >= 0:
-                        src = e_src[e]
-                        if src // cpc == col_s:
-                            has_col = True
-                            if src == s:
-                                exact = True
-                                break
-                        e = e_inext[e]
+                    ckey = col_s << 32 | d
+                    has_col = hash_contains(col_cell, ckey)
                     make = not has_col
                     if has_col and p_extra > 0.0:
-                        # rSHOSM (section 4.3): bypass the restriction with probability p_extra
+                        # rSHOSM (section 4.3): bypass the restriction with probability p_extra,
+                        # unless this very cell already connects
                         u = tape[tp]
                         tp += 1
-                        make = u < p_extra and not exact
+                        if u < p_extra:
+                            st[W_LEARN] += 1
+                            make = not hash_contains(edge_set, s << 32 | d)
                     if make:
+                        if not has_col:
+                            hash_insert(col_cell, ckey)
+                            st[N_KEYS] += 1
                         e_src[ne] = s
                         e_dst[ne] = d
                         e_onext[ne] = out_head[s]
                         out_head[s] = ne
-                        e_inext[ne] = in_head[d]
-                        in_head[d] = ne
                         outdeg[s] += 1
+                        if p_extra > 0.0:
+                            hash_insert(edge_set, s << 32 | d)
                         ne += 1
             st[N_EDGES] = ne
         # ---- commit predictions and winners

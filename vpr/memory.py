@@ -97,11 +97,14 @@ class SequenceMemory:
         self.seed = seed
         self._rng = np.random.default_rng(seed)
         self._st = np.zeros(K.STATE_SIZE, dtype=np.int64)
-        self._bit_head = np.full(self.n_inputs, -1, dtype=np.int64)
+        self._bit_cols = np.zeros((self.n_inputs, 16), dtype=np.int32)  # input bit -> minicolumns
+        self._bit_len = np.zeros(self.n_inputs, dtype=np.int32)
         self._tape = np.zeros(0, dtype=np.float64)
         self._alloc_cols(64)
-        self._alloc_entries(1024)
         self._alloc_edges(4096)
+        # hash sets of (source minicolumn, target cell) and (source cell, target cell) keys
+        self._col_cell = np.full(8192, -1, np.int64)
+        self._edge_set = np.full(8192 if self.p_extra > 0 else 1, -1, np.int64)
         self.reset()
 
     # ------------------------------------------------------------ storage
@@ -119,7 +122,6 @@ class SequenceMemory:
             self._touched = np.zeros(cap, np.int64)
             self._active = np.zeros(cap, np.int64)
             self._out_head = np.full(cells, -1, np.int64)
-            self._in_head = np.full(cells, -1, np.int64)
             self._outdeg = np.zeros(cells, np.int32)
             self._is_pred = np.zeros(cells, bool)
             self._is_next = np.zeros(cells, bool)
@@ -131,27 +133,36 @@ class SequenceMemory:
         g = self._grown
         self._col_thr, self._counts = g(self._col_thr, cap), g(self._counts, cap)
         self._touched, self._active = g(self._touched, cap), g(self._active, cap)
-        self._out_head, self._in_head = g(self._out_head, cells, -1), g(self._in_head, cells, -1)
+        self._out_head = g(self._out_head, cells, -1)
         self._outdeg, self._is_pred, self._is_next = g(self._outdeg, cells), g(self._is_pred, cells), g(self._is_next, cells)
         self._pred_list, self._next_list = g(self._pred_list, cells), g(self._next_list, cells)
         self._prev, self._cur = g(self._prev, cells), g(self._cur, cells)
 
-    def _alloc_entries(self, cap):
-        if not hasattr(self, "_ent_col"):
-            self._ent_col, self._ent_bit = np.zeros(cap, np.int32), np.zeros(cap, np.int32)
-            self._ent_next = np.zeros(cap, np.int64)
-            return
-        g = self._grown
-        self._ent_col, self._ent_bit, self._ent_next = g(self._ent_col, cap), g(self._ent_bit, cap), g(self._ent_next, cap)
+    def _alloc_bit_cols(self, width):
+        grown = np.zeros((self.n_inputs, width), dtype=np.int32)
+        grown[:, : self._bit_cols.shape[1]] = self._bit_cols
+        self._bit_cols = grown
 
     def _alloc_edges(self, cap):
         if not hasattr(self, "_e_src"):
             self._e_src, self._e_dst = np.zeros(cap, np.int64), np.zeros(cap, np.int64)
-            self._e_onext, self._e_inext = np.zeros(cap, np.int64), np.zeros(cap, np.int64)
+            self._e_onext = np.zeros(cap, np.int64)
             return
         g = self._grown
         self._e_src, self._e_dst = g(self._e_src, cap), g(self._e_dst, cap)
-        self._e_onext, self._e_inext = g(self._e_onext, cap), g(self._e_inext, cap)
+        self._e_onext = g(self._e_onext, cap)
+
+    def _rehash(self, need, edges=False):
+        old = self._edge_set if edges else self._col_cell
+        size = 1 << int(np.ceil(np.log2(max(need, 2 * old.size))))
+        table = np.full(size, -1, np.int64)
+        st = self._st
+        n = K.rebuild_sets(table, self._e_src, self._e_dst, st[K.N_EDGES], 0 if edges else self.cells_per_column)
+        if edges:
+            self._edge_set = table
+        else:
+            self._col_cell = table
+            st[K.N_KEYS] = n
 
     def _refill_tape(self, need):
         # keep the unread rest so the numbers are consumed exactly in generator order
@@ -237,11 +248,9 @@ class SequenceMemory:
             stop = min(n, f + chunk)
             f_new = K.run_frames(
                 ind_ptr, ind, f, stop, learn, self.cells_per_column, self.new_columns, self.k_active,
-                self.connectivity, self.threshold, self.p_extra, st, self._bit_head, self._ent_col,
-                self._ent_next, self._ent_bit, self._col_thr, self._counts, self._touched, self._active,
-                self._out_head, self._in_head, self._outdeg, self._e_src, self._e_dst, self._e_onext,
-                self._e_inext, self._is_pred, self._is_next, self._pred_list, self._next_list, self._prev,
-                self._cur, self._tape, out_idx, out_ptr, keys)
+                self.connectivity, self.threshold, self.p_extra, st, self._bit_cols, self._bit_len, self._col_thr, self._counts, self._touched, self._active,
+                self._out_head, self._outdeg, self._e_src, self._e_dst, self._e_onext, self._is_pred, self._is_next, self._pred_list, self._next_list, self._prev,
+                self._cur, self._tape, out_idx, out_ptr, keys, self._col_cell, self._edge_set)
             if bar is not None:
                 bar.update(f_new - f)
             f = f_new
@@ -250,9 +259,13 @@ class SequenceMemory:
                 if kind == K.NEED_COLS:
                     self._alloc_cols(max(size, 2 * self._col_thr.size))
                 elif kind == K.NEED_ENTRIES:
-                    self._alloc_entries(max(size, 2 * self._ent_col.size))
+                    self._alloc_bit_cols(max(size, 2 * self._bit_cols.shape[1]))
                 elif kind == K.NEED_EDGES:
                     self._alloc_edges(max(size, 2 * self._e_src.size))
+                elif kind == K.NEED_HASH:
+                    self._rehash(size)
+                elif kind == K.NEED_EDGE_HASH:
+                    self._rehash(size, edges=True)
                 elif kind == K.NEED_TAPE:
                     self._refill_tape(size)
                 elif kind == K.NEED_OUT:
@@ -303,14 +316,13 @@ class SequenceMemory:
 
     def _arrays(self) -> dict:
         st = self._st
-        nc, ne, nd = self.n_columns, int(st[K.N_ENTRIES]), int(st[K.N_EDGES])
+        nc, nd = self.n_columns, int(st[K.N_EDGES])
         cells = nc * self.cells_per_column
+        rows = np.arange(self._bit_cols.shape[1])[None, :] < self._bit_len[:, None]
         return {
-            "bit_head": self._bit_head, "ent_col": self._ent_col[:ne], "ent_bit": self._ent_bit[:ne],
-            "ent_next": self._ent_next[:ne], "col_thr": self._col_thr[:nc],
-            "out_head": self._out_head[:cells], "in_head": self._in_head[:cells], "outdeg": self._outdeg[:cells],
-            "e_src": self._e_src[:nd], "e_dst": self._e_dst[:nd], "e_onext": self._e_onext[:nd],
-            "e_inext": self._e_inext[:nd], "pred": self._pred_list[: st[K.N_PRED]],
+            "bit_len": self._bit_len, "bit_cols": self._bit_cols[rows], "col_thr": self._col_thr[:nc],
+            "out_head": self._out_head[:cells], "outdeg": self._outdeg[:cells],
+            "e_src": self._e_src[:nd], "e_dst": self._e_dst[:nd], "e_onext": self._e_onext[:nd], "pred": self._pred_list[: st[K.N_PRED]],
             "prev": self._prev[: st[K.N_PREV]], "active": self._active[: st[K.N_ACTIVE]],
             "tape": self._tape[st[K.TAPE_POS]: st[K.TAPE_LEN]],
         }
@@ -361,7 +373,7 @@ class SequenceMemory:
         return m
 
     def _restore(self, d: dict) -> None:
-        nc, ne, nd = d["col_thr"].size, d["ent_col"].size, d["e_src"].size
+        nc, nd = d["col_thr"].size, d["e_src"].size
         cells = nc * self.cells_per_column
 
         def check(name, lo, hi, size=None):
@@ -372,37 +384,36 @@ class SequenceMemory:
                 raise MemoryFileError(f"array {name!r} has values outside [{lo}, {hi})")
 
         # the kernel does not bounds-check, so a file must be consistent before it is used
-        check("bit_head", -1, ne, self.n_inputs)
-        check("ent_col", 0, nc)
-        check("ent_bit", 0, self.n_inputs, ne)
-        check("ent_next", -1, ne, ne)
-        for name in ("out_head", "in_head"):
-            check(name, -1, nd, cells)
+        check("bit_len", 0, nc + 1, self.n_inputs)
+        check("bit_cols", 0, nc, int(d["bit_len"].sum()))
+        check("out_head", -1, nd, cells)
         check("outdeg", 0, nd + 1, cells)
         for name in ("e_src", "e_dst"):
             check(name, 0, cells, nd)
-        for name in ("e_onext", "e_inext"):
-            check(name, -1, nd, nd)
+        check("e_onext", -1, nd, nd)
         for name in ("pred", "prev"):
             check(name, 0, cells)
         check("active", 0, nc)
         self._alloc_cols(max(64, nc))
-        self._alloc_entries(max(1024, ne))
         self._alloc_edges(max(4096, nd))
-        self._bit_head[:] = d["bit_head"]
-        self._ent_col[:ne], self._ent_bit[:ne], self._ent_next[:ne] = d["ent_col"], d["ent_bit"], d["ent_next"]
+        self._bit_len[:] = d["bit_len"]
+        self._alloc_bit_cols(max(16, int(self._bit_len.max())))
+        self._bit_cols[np.arange(self._bit_cols.shape[1])[None, :] < self._bit_len[:, None]] = d["bit_cols"]
         self._col_thr[:nc] = d["col_thr"]
-        self._out_head[:cells], self._in_head[:cells], self._outdeg[:cells] = d["out_head"], d["in_head"], d["outdeg"]
+        self._out_head[:cells], self._outdeg[:cells] = d["out_head"], d["outdeg"]
         self._e_src[:nd], self._e_dst[:nd] = d["e_src"], d["e_dst"]
-        self._e_onext[:nd], self._e_inext[:nd] = d["e_onext"], d["e_inext"]
+        self._e_onext[:nd] = d["e_onext"]
         st = self._st
-        st[K.N_COLS], st[K.N_ENTRIES], st[K.N_EDGES] = nc, ne, nd
+        st[K.N_COLS], st[K.N_ENTRIES], st[K.N_EDGES] = nc, int(self._bit_len.sum()), nd
         npred, nprev, nact = d["pred"].size, d["prev"].size, d["active"].size
         self._pred_list[:npred] = d["pred"]
         self._is_pred[d["pred"]] = True
         self._prev[:nprev] = d["prev"]
         self._active[:nact] = d["active"]
         st[K.N_PRED], st[K.N_PREV], st[K.N_ACTIVE] = npred, nprev, nact
+        self._rehash(4 * nd + 8192)
+        if self.p_extra > 0:
+            self._rehash(4 * nd + 8192, edges=True)
         self._tape = d["tape"].astype(np.float64)
         st[K.TAPE_POS], st[K.TAPE_LEN] = 0, self._tape.size
 
