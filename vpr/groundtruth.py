@@ -29,6 +29,8 @@ from typing import Sequence
 
 import numpy as np
 
+from vpr.evaluate import gt_from_positions, gt_from_tolerance  # re-exported: the CLI takes all GT here
+
 __all__ = [
     "load_pairs_csv",
     "load_positions_csv",
@@ -353,28 +355,9 @@ def gt_from_position_files(db_csv, q_csv, radius: float, db_names: Sequence[str]
     numpy.ndarray
         bool (n_db, n_q).
     """
-    from scipy.spatial import cKDTree
-
     r = _parse_float(str(radius)) if not isinstance(radius, bool) else None
     if r is None or not math.isfinite(r) or r < 0:
         raise ValueError(f"radius must be a finite number >= 0, got {radius!r}")
     db_xy = _positions_for_frames(db_csv, db_names, db_indices, "database")
     q_xy = _positions_for_frames(q_csv, q_names, q_indices, "query")
-    gt = np.zeros((len(db_xy), len(q_xy)), dtype=bool)
-    # a k-d tree keeps memory at O(matches) instead of a dense distance matrix
-    near = cKDTree(db_xy).query_ball_point(q_xy, r=r)
-    for j, rows in enumerate(near):
-        gt[rows, j] = True
-    return gt
-
-
-def gt_from_tolerance(n_db: int, n_q: int, k: int) -> np.ndarray:
-    """Ground truth for frame-aligned traverses: query ``j`` matches db ``i`` when ``|i - j| <= k``."""
-    n_db = _check_count(n_db, "n_db")
-    n_q = _check_count(n_q, "n_q")
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 0:
-        raise ValueError(f"tolerance must be an integer >= 0, got {k!r}")
-    gt = np.zeros((n_db, n_q), dtype=bool)
-    for i in range(n_db):
-        gt[i, max(0, i - k):i + k + 1] = True
-    return gt
+    return gt_from_positions(db_xy, q_xy, r)
