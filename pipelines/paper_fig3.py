@@ -1,0 +1,127 @@
+"""Reproduce Fig. 3 of Neubert, Ahmad & Protzel (KI 2018) on the simulated grid world.
+
+Left panel: SHOSM vs rSHOSM (p_extra = 0.01 and 0.05), no noise, no aliasing.
+Right panel: pairwise comparison of the input SDRs vs rSHOSM (p_extra = 0.05) for
+(a=0, n=0.5), (a=5, n=0) and (a=5, n=0.5): ``a`` pairs of places share one SDR,
+``n`` is the fraction of 1-bits moved per observation.
+
+Trajectory: 10 laps of a 20-place loop (200 observations). Similarity: overlap of
+winner codes (rSHOSM) or of input SDRs (pairwise), T x T; every pair i < j is a
+decision, ground truth = same place. Metrics are averaged over seeds.
+
+Run: ``vpr paper-fig3 --out results/fig3`` or ``python -m pipelines.paper_fig3 --out DIR``.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from vpr import evaluate, io, plots, simulate
+from vpr.baselines.pairwise import pairwise
+from vpr.memory import SequenceMemory
+from vpr.similarity import overlap
+
+__all__ = ["CURVES_LEFT", "CURVES_RIGHT", "run_curve", "run", "main"]
+
+#: name -> (method, p_extra, aliasing a, noise n)
+CURVES_LEFT = {
+    "SHOSM": ("rshosm", 0.0, 0, 0.0),
+    "rSHOSM p=0.01": ("rshosm", 0.01, 0, 0.0),
+    "rSHOSM p=0.05": ("rshosm", 0.05, 0, 0.0),
+}
+CURVES_RIGHT = {
+    f"{m} a={a} n={n}": (method, p, a, n)
+    for a, n in ((0, 0.5), (5, 0.0), (5, 0.5))
+    for m, method, p in (("pairwise", "pairwise", 0.0), ("rSHOSM p=0.05", "rshosm", 0.05))
+}
+
+def run_curve(method: str, p_extra: float, aliasing: int, noise: float, seed: int, n_loops: int = 10) -> dict:
+    """One curve for one seed: similarity of all pairs, metrics and the PR curve."""
+    obs, places = simulate.simulate_loops(aliasing=aliasing, noise=noise, n_loops=n_loops, seed=seed)
+    t = time.perf_counter()
+    if method == "rshosm":
+        codes = SequenceMemory(p_extra=p_extra, seed=seed).run(obs)
+        S = overlap(codes)
+    elif method == "pairwise":
+        S = pairwise(obs)
+    else:
+        raise ValueError(f"unknown method {method!r}")
+    seconds = time.perf_counter() - t
+    gt = evaluate.gt_from_labels(places, places)
+    mask = evaluate.loop_closure_mask(len(places), exclude=1)
+    prec, rec, _ = evaluate.pr_curve(S, gt, mask=mask)
+    return {"auc_pr": evaluate.auc_from_pr(prec, rec), "recall_at_100p": evaluate.recall_at_100p(S, gt, mask=mask),
+            "seconds": seconds, "precision": prec, "recall": rec}
+
+
+def run(out_dir, seeds: int = 5, n_loops: int = 10, progress: bool = True) -> dict:
+    """Run both panels, write ``fig3_left.png``, ``fig3_right.png`` and ``metrics.json``; return the metrics."""
+    if seeds < 1:
+        raise ValueError(f"seeds must be >= 1, got {seeds}")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    from tqdm import tqdm
+
+    panels = {"left": CURVES_LEFT, "right": CURVES_RIGHT}
+    metrics = {"curves": {}, "params": {"seeds": seeds, "n_loops": n_loops, "places_per_loop": 20,
+                                         "n_bits": 2048, "n_active": 40, "memory": SequenceMemory().get_params()}}
+    jobs = [(panel, name, spec, s) for panel, curves in panels.items() for name, spec in curves.items()
+            for s in range(seeds)]
+    results: dict = {}
+    for panel, name, spec, s in tqdm(jobs, desc="paper-fig3", unit="run", disable=not progress):
+        results.setdefault((panel, name), []).append(run_curve(*spec, seed=s, n_loops=n_loops))
+    for panel, curves in panels.items():
+        plot_curves = {}
+        for name, (method, p, a, n) in curves.items():
+            rs = results[(panel, name)]
+            auc = [r["auc_pr"] for r in rs]
+            r100 = [r["recall_at_100p"] for r in rs]
+            metrics["curves"][name] = {
+                "panel": panel, "method": method, "p_extra": p, "aliasing": a, "noise": n,
+                "auc_pr": float(np.mean(auc)), "auc_pr_std": float(np.std(auc)),
+                "recall_at_100p": float(np.mean(r100)), "recall_at_100p_std": float(np.std(r100)),
+                "per_seed": {"auc_pr": auc, "recall_at_100p": r100},
+                "seconds": float(np.mean([r["seconds"] for r in rs])),
+            }
+            # the curves drawn are seed 0's; metrics.json has the means over all seeds
+            plot_curves[name] = (rs[0]["precision"], rs[0]["recall"])
+        title = ("SHOSM vs rSHOSM (no noise, no aliasing)" if panel == "left"
+                 else "pairwise vs rSHOSM (a = aliased pairs, n = noise)")
+        plots.plot_pr(plot_curves, out / f"fig3_{panel}.png", title=f"{title}; seed 0")
+    io.save_json(out / "metrics.json", metrics)
+    return metrics
+
+
+def format_table(metrics: dict) -> str:
+    lines = [f"{'curve':<28} {'AUC':>7} {'(std)':>7} {'R@100P':>7} {'(std)':>7}"]
+    for name, m in metrics["curves"].items():
+        lines.append(f"{name:<28} {m['auc_pr']:7.3f} {m['auc_pr_std']:7.3f} {m['recall_at_100p']:7.3f}"
+                     f" {m['recall_at_100p_std']:7.3f}")
+    return "\n".join(lines)
+
+
+def add_arguments(ap: argparse.ArgumentParser, command: str = "paper-fig3") -> None:
+    ap.add_argument("--out", required=True, help="output folder (plots and metrics.json)")
+    ap.add_argument("--seeds", type=int, default=5, help="seeds to average over (default 5)")
+    ap.add_argument("--loops", type=int, default=10, help="laps of the 20-place loop (default 10)")
+
+
+def run_command(args) -> int:
+    metrics = run(args.out, seeds=args.seeds, n_loops=args.loops)
+    print(format_table(metrics))
+    print(f"wrote {Path(args.out) / 'fig3_left.png'}, fig3_right.png, metrics.json")
+    return 0
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m pipelines.paper_fig3", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(ap)
+    return run_command(ap.parse_args(argv))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
