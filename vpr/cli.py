@@ -1,7 +1,8 @@
 """The ``vpr`` command line.
 
-Each sub-command lives in the module that implements it, which provides
-``add_arguments(parser, command)`` and ``run_command(args) -> int`` (``args.command``
+Each sub-command lives in the module that implements it, which provides a
+function adding its arguments (``add_arguments(parser, command)`` unless named
+otherwise below) and one running it (``run_command(args) -> int``; ``args.command``
 names the command); modules are imported
 only when their command runs, so ``vpr --help`` stays fast.
 
@@ -14,7 +15,7 @@ import argparse
 import importlib
 import sys
 
-#: command -> (module, one-line help)
+#: command -> (module, one-line help); modules named in _FUNCS use other function names
 COMMANDS = {
     "demo": ("pipelines.demo", "render the two_seasons scene and compare rSHOSM, SeqSLAM and pairwise on it"),
     "match": ("pipelines.match", "match a query traverse against a database traverse (folders, videos, lists)"),
@@ -26,8 +27,18 @@ COMMANDS = {
 }
 
 
+_FUNCS = {"vpr.render": ("add_render_arguments", "run_render_command")}
+
+
 def _module(cmd):
     return importlib.import_module(COMMANDS[cmd][0])
+
+
+def _funcs(cmd):
+    mod = _module(cmd)
+    add, run = _FUNCS.get(COMMANDS[cmd][0], ("add_arguments", "run_command"))
+    adder = getattr(mod, add)
+    return (adder if add == "add_arguments" else (lambda p, _cmd: adder(p))), getattr(mod, run)
 
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
@@ -41,13 +52,13 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         p = sub.add_parser(cmd, help=help_, description=help_)
         if only is None or cmd == only:
             try:
-                mod = _module(cmd)
+                adder, _ = _funcs(cmd)
             except ModuleNotFoundError as e:
                 if only == cmd:
                     raise
                 p.description = f"{help_} (unavailable: {e})"
                 continue
-            mod.add_arguments(p, cmd)
+            adder(p, cmd)
     return ap
 
 
@@ -68,7 +79,7 @@ def main(argv=None) -> int:
     from vpr.memory import MemoryFileError
 
     try:
-        return int(_module(args.command).run_command(args) or 0)
+        return int(_funcs(args.command)[1](args) or 0)
     except KeyboardInterrupt:
         print("vpr: interrupted", file=sys.stderr)
         return 130

@@ -469,6 +469,8 @@ class Verifier:
         self.mutual = bool(mutual)
         self.min_side = _check_int(min_side, "min_side", 1)
         self._cache = {"database": {}, "query": {}}
+        # (db, query) -> inliers: several methods often propose the same candidates
+        self._pairs: dict[tuple[int, int], int] = {}
 
     @staticmethod
     def _check_images(images, name):
@@ -502,8 +504,13 @@ class Verifier:
 
     def pair_inliers(self, db_index: int, q_index: int) -> int:
         """RANSAC inliers between database image ``db_index`` and query ``q_index``."""
-        fd, fq = self.db_features(db_index), self.query_features(q_index)
-        return self._inliers(fd, fq)
+        key = (int(db_index), int(q_index))
+        n = self._pairs.get(key)
+        if n is None:
+            n = self._inliers(self.db_features(db_index), self.query_features(q_index))
+            if self.cache:
+                self._pairs[key] = n
+        return n
 
     def _inliers(self, fd: Features, fq: Features) -> int:
         m = match_features(fq, fd, self.ratio, self.mutual)
@@ -549,11 +556,10 @@ class Verifier:
         for j in tqdm(range(n_q), desc="verify", unit="query", disable=not progress):
             if cand[j, 0] < 0:
                 continue
-            fq = self.query_features(j)
             for r, i in enumerate(cand[j]):
                 if i < 0:
                     break
-                inl[j, r] = self._inliers(self.db_features(i), fq)
+                inl[j, r] = self.pair_inliers(i, j)
 
         # argmax returns the first maximum, i.e. ties go to the candidate S ranks higher
         best_r = np.argmax(inl, axis=1)
