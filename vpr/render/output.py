@@ -1,0 +1,220 @@
+"""Writing rendered scenes to disk: PNG folders, ground truth, contact sheets, videos, and ``vpr render``."""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import csv
+import io
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..io import atomic_open, atomic_path, save_image, save_json
+from .scene import SceneRenderer, _apply_overrides, loop_pairs
+from .spec import load_spec
+
+__all__ = ["write_scene", "contact_sheet", "add_render_arguments", "run_render_command"]
+
+GT_COLUMNS = ["frame", "traverse", "route_pos", "x", "y", "place_pos", "lateral", "yaw_deg", "image"]
+
+
+def _sample_indices(plan, n_cols: int, length: float, loop: bool) -> list[int]:
+    """Frames of one traverse nearest to ``n_cols`` evenly spaced places (first pass only)."""
+    places = np.linspace(0.05, 0.9, n_cols) * length
+    first = plan.route_pos - plan.route_pos[0] < (length if loop else np.inf)
+    cand = np.nonzero(first)[0]
+    d = np.abs(plan.place[cand][None, :] - places[:, None])
+    return [int(cand[i]) for i in d.argmin(axis=1)]
+
+
+def contact_sheet(rows: list[tuple[str, list[np.ndarray]]], tile_width: int = 240) -> np.ndarray:
+    """A grid image: one row of sample frames per traverse with its label above.
+
+    Parameters
+    ----------
+    rows : list of (label, frames)
+        Frames are uint8 BGR images of equal size.
+    tile_width : int
+        Width of each tile in pixels (frames are resized keeping their aspect).
+    """
+    if not rows:
+        raise ValueError("contact_sheet: no rows")
+    h0, w0 = rows[0][1][0].shape[:2]
+    tw = int(tile_width)
+    th = max(1, round(h0 * tw / w0))
+    gap, label_h = 4, 22
+    ncol = max(len(fr) for _, fr in rows)
+    W = ncol * tw + (ncol + 1) * gap
+    H = len(rows) * (th + label_h + gap) + gap
+    sheet = np.full((H, W, 3), 255, np.uint8)
+    y = gap
+    for label, frames in rows:
+        cv2.putText(sheet, label, (gap, y + 15), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (20, 20, 20), 1, cv2.LINE_AA)
+        y += label_h
+        for j, fr in enumerate(frames):
+            x = gap + j * (tw + gap)
+            sheet[y:y + th, x:x + tw] = cv2.resize(fr, (tw, th), interpolation=cv2.INTER_AREA)
+        y += th + gap
+    return sheet
+
+
+def _label(t, kind: str) -> str:
+    c = t["conditions"]
+    what = f"{c['season']} {c['time']}, {c['weather']}" if kind == "street" else {
+        "day": "lights on", "dusk": "lights dimmed", "night": "night lighting"}[c["time"]]
+    return f"{t['name']}: {what}, speed {t['speed']['mean']:g} m/s"
+
+
+def write_scene(spec, out_dir, preview: bool = False, video: bool = False, traverses=None,
+                size=None, n_frames=None, seed=None, progress: bool = True, loop_radius: float = 5.0) -> dict:
+    """Render a scene to ``out_dir`` (what ``vpr render`` does).
+
+    Writes, atomically per file:
+
+    - ``<traverse>/000000.png ...``: the frames of each traverse,
+    - ``ground_truth.csv``: one row per frame with ``frame, traverse, route_pos,
+      x, y`` (metres) and ``place_pos, lateral, yaw_deg, image``,
+    - ``scene.json``: the resolved spec including any overrides,
+    - with ``preview``: ``contact_sheet.png``, sample frames of every traverse
+      at the same places,
+    - with ``video``: ``<traverse>.mp4`` (OpenCV, mp4v) at the spec's fps,
+    - for closed loops: ``loop_pairs.csv`` (``traverse, frame_a, frame_b,
+      distance``), the revisits within ``loop_radius`` metres as
+      :func:`vpr.render.loop_pairs` gives them (a < b).
+
+    Parameters
+    ----------
+    spec : str, Path or dict
+        Spec file, builtin scene name or dictionary.
+    out_dir : str or Path
+        Output folder (created).
+    preview, video : bool
+        Also write the contact sheet / one video per traverse.
+    traverses : list of str, optional
+        Only these traverses.
+    size, n_frames, seed
+        Overrides as for :func:`vpr.render.render_scene`.
+    progress : bool
+        tqdm progress bars.
+    loop_radius : float
+        Radius in metres of the revisits listed in ``loop_pairs.csv``.
+
+    Returns
+    -------
+    dict
+        ``{"out_dir", "scene", "ground_truth", "preview", "loop_pairs",
+        "traverses": {name: {"frames", "folder", "video"}}}`` with paths as
+        strings (None for files not written).
+    """
+    from tqdm import tqdm
+
+    resolved = _apply_overrides(load_spec(spec), size, n_frames, traverses, seed)
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"out_dir: {out} exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    r = SceneRenderer(resolved, n_frames)
+    fps = resolved["camera"]["fps"]
+    W, H = resolved["camera"]["size"]
+    summary = {"out_dir": str(out), "scene": str(out / "scene.json"), "ground_truth": str(out / "ground_truth.csv"),
+               "preview": None, "loop_pairs": None, "traverses": {}}
+    gt = io.StringIO()
+    wr = csv.writer(gt, lineterminator="\n")
+    wr.writerow(GT_COLUMNS)
+    sheet_rows = []
+    L, loop = resolved["world"]["length"], resolved["world"]["loop"]
+    plans = {}
+    for t in resolved["traverses"]:
+        plan = plans[t["name"]] = r.plan(t)
+        folder = out / t["name"]
+        folder.mkdir(parents=True, exist_ok=True)
+        samples = set(_sample_indices(plan, 6, L, loop)) if preview else set()
+        picked = {}
+        with contextlib.ExitStack() as stack:
+            writer = None
+            if video:
+                # callbacks run last-in first-out: the writer is released before the rename
+                tmp = stack.enter_context(atomic_path(out / f"{t['name']}.mp4"))
+                writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (W, H))
+                stack.callback(writer.release)
+                if not writer.isOpened():
+                    raise OSError(f"{out / (t['name'] + '.mp4')}: OpenCV could not open an mp4v video writer")
+            frames = r.frames(t, plan)
+            if progress:
+                frames = stack.enter_context(tqdm(frames, total=plan.n, desc=f"render {t['name']}", unit="frame"))
+            for k, img in enumerate(frames):
+                name = f"{k:06d}.png"
+                save_image(folder / name, img)
+                if writer is not None:
+                    writer.write(img)
+                if k in samples:
+                    picked[k] = img
+                wr.writerow([k, t["name"], f"{plan.route_pos[k]:.3f}", f"{plan.xy[k, 0]:.3f}", f"{plan.xy[k, 1]:.3f}",
+                             f"{plan.place[k]:.3f}", f"{plan.lateral[k]:.3f}", f"{np.degrees(plan.yaw[k]):.3f}",
+                             f"{t['name']}/{name}"])
+        summary["traverses"][t["name"]] = {"frames": plan.n, "folder": str(folder),
+                                           "video": str(out / f"{t['name']}.mp4") if video else None}
+        if preview:
+            sheet_rows.append((_label(t, resolved["world"]["kind"]), [picked[k] for k in sorted(picked)]))
+    with atomic_open(out / "ground_truth.csv", "w", encoding="utf-8", newline="") as fh:
+        fh.write(gt.getvalue())
+    if loop:
+        # revisits of the same place, as loop_pairs() gives them, upper triangle only
+        lp = io.StringIO()
+        lw = csv.writer(lp, lineterminator="\n")
+        lw.writerow(["traverse", "frame_a", "frame_b", "distance"])
+        for t in resolved["traverses"]:
+            tr = r.make_traverse(t, plans[t["name"]], None)
+            i, j = np.nonzero(np.triu(loop_pairs(tr, loop_radius)))
+            d = np.linalg.norm(tr.xy[i] - tr.xy[j], axis=1)
+            lw.writerows([t["name"], a, b, f"{dd:.3f}"] for a, b, dd in zip(i.tolist(), j.tolist(), d))
+        with atomic_open(out / "loop_pairs.csv", "w", encoding="utf-8", newline="") as fh:
+            fh.write(lp.getvalue())
+        summary["loop_pairs"] = str(out / "loop_pairs.csv")
+    save_json(out / "scene.json", resolved)
+    if preview:
+        summary["preview"] = str(save_image(out / "contact_sheet.png", contact_sheet(sheet_rows)))
+    return summary
+
+
+def _size(text: str):
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, e.g. 320x240, got {text!r}") from None
+    return (w, h)
+
+
+def add_render_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Add the arguments of ``vpr render`` to ``parser``."""
+    parser.add_argument("spec", help="scene spec: a JSON file or a builtin name (two_seasons, loop_revisits, ...)")
+    parser.add_argument("--out", required=True, help="output folder")
+    parser.add_argument("--preview", action="store_true", help="also write contact_sheet.png")
+    parser.add_argument("--video", action="store_true", help="also write one mp4 video per traverse")
+    parser.add_argument("--traverse", action="append", default=None, metavar="NAME",
+                        help="render only this traverse (repeatable)")
+    parser.add_argument("--size", type=_size, default=None, metavar="WxH", help="override the image size")
+    parser.add_argument("--frames", type=int, default=None, metavar="N",
+                        help="override the number of frames per traverse")
+    parser.add_argument("--seed", type=int, default=None, help="override the world seed")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    return parser
+
+
+def run_render_command(args) -> int:
+    """Run ``vpr render`` for parsed ``args``; prints a summary, returns the exit code 0."""
+    s = write_scene(args.spec, args.out, preview=args.preview, video=args.video,
+                    traverses=getattr(args, "traverse", None), size=getattr(args, "size", None),
+                    n_frames=getattr(args, "frames", None), seed=getattr(args, "seed", None),
+                    progress=not getattr(args, "quiet", False))
+    for name, t in s["traverses"].items():
+        extra = f", video {t['video']}" if t["video"] else ""
+        print(f"{name}: {t['frames']} frames in {t['folder']}{extra}")
+    print(f"ground truth: {s['ground_truth']}")
+    print(f"scene: {s['scene']}")
+    if s["loop_pairs"]:
+        print(f"loop closures: {s['loop_pairs']}")
+    if s["preview"]:
+        print(f"contact sheet: {s['preview']}")
+    return 0

@@ -1,0 +1,745 @@
+"""Procedural worlds for the renderer: a street or an indoor corridor, unrolled along the route.
+
+The world is laid out in "route coordinates": ``z`` is the position along the
+route in metres, ``x`` the lateral position (left wall at ``-half_width``,
+right wall at ``+half_width``), ``y`` the height above the ground. Appearance is
+a function of ``z`` only, so a closed loop revisits the same ``z`` (modulo its
+length) and shows the same place; the (x, y) ground truth in the world plane is
+taken separately from a route polyline at the same arc length
+(:func:`route_polyline`).
+
+Everything here is albedo (reflectance in [0, 1], BGR) plus "emissive rank"
+layers (which windows or lamps may light up at night); the lighting of a
+particular traverse is applied by :mod:`vpr.render.engine`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+__all__ = ["WorldRaster", "build_world", "route_polyline", "make_sprite", "OBJECT_TYPES", "LANE_CENTRE"]
+
+# BGR albedos
+_FACADE_PALETTE = np.array([
+    [0.22, 0.30, 0.52],  # red brick
+    [0.50, 0.64, 0.76],  # sandstone
+    [0.80, 0.82, 0.83],  # white render
+    [0.52, 0.53, 0.54],  # grey concrete
+    [0.72, 0.60, 0.48],  # pastel blue
+    [0.46, 0.74, 0.84],  # pastel yellow
+    [0.28, 0.28, 0.30],  # dark stone
+    [0.50, 0.62, 0.52],  # sage
+    [0.40, 0.48, 0.66],  # terracotta
+], np.float32)
+_VIVID = np.array([[0.15, 0.15, 0.70], [0.20, 0.55, 0.15], [0.65, 0.35, 0.10], [0.10, 0.70, 0.85],
+                   [0.45, 0.15, 0.45], [0.10, 0.10, 0.10]], np.float32)
+_CORRIDOR_WALLS = np.array([[0.78, 0.86, 0.88], [0.70, 0.80, 0.70], [0.82, 0.74, 0.62], [0.80, 0.80, 0.80],
+                            [0.62, 0.78, 0.86]], np.float32)
+
+LANE_CENTRE = 1.75  # metres right of a street's centre line: where the camera drives
+
+OBJECT_TYPES = {
+    "street": ("tree", "lamp", "sign", "bin", "bollard", "car"),
+    "corridor": ("extinguisher", "plant", "bin", "pillar", "exitsign", "bench"),
+}
+
+
+@dataclass
+class WorldRaster:
+    """Rasterised world at a given texture resolution (see module docstring).
+
+    Walls are indexed ``[side]`` with side 0 = left, 1 = right; wall rows start at
+    the ground (row 0 = height 0). Wall column ``c`` covers
+    ``z = zlo + (c + 0.5) / ppm``; ground/ceiling row ``i`` covers
+    ``x = -half_width + (i + 0.5) / gppm`` and column ``j`` covers
+    ``z = zlo + (j + 0.5) / gppm``.
+    """
+
+    kind: str
+    length: float
+    loop: bool
+    half_width: float
+    ceiling: float | None
+    zlo: float
+    zhi: float
+    ppm: float
+    gppm: float
+    wall_alb: list
+    wall_emit: list
+    wall_snow: list
+    wall_top: list
+    ground_alb: np.ndarray
+    ground_kind: np.ndarray  # 0 road, 1 sidewalk/floor, 2 paint, 3 kerb
+    ground_emit: np.ndarray
+    ceil_alb: np.ndarray | None
+    ceil_emit: np.ndarray | None
+    objects: dict
+    sprite_keys: list
+    sprite_params: list
+    sky_noise: np.ndarray
+    seed: int
+    extras: dict = field(default_factory=dict)
+
+
+# ----------------------------------------------------------------------------- route geometry
+
+def route_polyline(length: float, loop: bool, seed: int, step: float = 0.5) -> np.ndarray:
+    """(x, y) in metres of the route at arc lengths ``0, step, 2 step, ... >= length``.
+
+    Open routes meander with a heading that never deviates more than ~70 degrees
+    from the mean direction, so they cannot cross themselves; loops are a
+    perturbed circle of perimeter ``length`` (star-shaped, hence simple).
+    """
+    rng = np.random.default_rng([seed, 7])
+    n = int(np.ceil(length / step)) + 1
+    s = np.arange(n) * step
+    if loop:
+        th = np.linspace(0.0, 2 * np.pi, 4097)
+        a = rng.uniform(0.03, 0.12, 2)
+        ph = rng.uniform(0, 2 * np.pi, 2)
+        r = 1.0 + a[0] * np.cos(2 * th + ph[0]) + a[1] * np.cos(3 * th + ph[1])
+        pts = np.stack([r * np.cos(th), r * np.sin(th)], 1)
+        seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        cum = np.concatenate([[0.0], np.cumsum(seg)])
+        pts *= length / cum[-1]
+        cum *= length / cum[-1]
+        sm = np.mod(s, length)
+        return np.stack([np.interp(sm, cum, pts[:, 0]), np.interp(sm, cum, pts[:, 1])], 1)
+    k = 3
+    lam = rng.uniform(150.0, 600.0, k)
+    amp = rng.uniform(0.2, 0.4, k)
+    ph = rng.uniform(0, 2 * np.pi, k)
+    h0 = rng.uniform(0, 2 * np.pi)
+    heading = h0 + (amp[:, None] * np.sin(2 * np.pi * s[None, :] / lam[:, None] + ph[:, None])).sum(0)
+    d = np.stack([np.cos(heading), np.sin(heading)], 1) * step
+    return np.concatenate([[[0.0, 0.0]], np.cumsum(d[:-1], axis=0)])
+
+
+# ----------------------------------------------------------------------------- helpers
+
+def _smooth_noise(rng, shape, scale):
+    """Value noise with feature size ~``scale`` pixels, zero mean, unit-ish std."""
+    h, w = shape
+    sh, sw = max(2, int(np.ceil(h / scale)) + 2), max(2, int(np.ceil(w / scale)) + 2)
+    small = rng.standard_normal((sh, sw)).astype(np.float32)
+    big = cv2.resize(small, (int(sw * scale), int(sh * scale)), interpolation=cv2.INTER_CUBIC)
+    return big[:h, :w]
+
+
+def _cols(zc, z0, z1):
+    """Column slice covering [z0, z1) given sorted column centres ``zc``."""
+    return slice(int(np.searchsorted(zc, z0)), int(np.searchsorted(zc, z1)))
+
+
+# ----------------------------------------------------------------------------- street facades
+
+def _plan_street_side(rng, a, b, loop):
+    segs = []
+    z = a
+    while z < b:
+        if segs and rng.random() < 0.12:
+            w = rng.uniform(2.0, 6.0)
+            segs.append({"type": "gap", "z0": z, "w": w, "height": rng.uniform(1.8, 9.0),
+                         "colour": _FACADE_PALETTE[rng.integers(len(_FACADE_PALETTE))] * 0.45,
+                         "fence": bool(rng.random() < 0.5)})
+        else:
+            w = rng.uniform(7.0, 22.0)
+            fh = rng.uniform(2.9, 3.5)
+            nfl = int(rng.integers(2, 8))
+            ww = rng.uniform(0.8, 1.5)
+            segs.append({
+                "type": "building", "z0": z, "w": w, "floor_h": fh, "floors": nfl,
+                "height": nfl * fh + rng.uniform(0.5, 1.2),
+                "colour": np.clip(_FACADE_PALETTE[rng.integers(len(_FACADE_PALETTE))] +
+                                  rng.uniform(-0.06, 0.06, 3), 0.05, 0.95).astype(np.float32),
+                "win_w": ww, "win_h": rng.uniform(1.2, 1.8), "spacing": ww + rng.uniform(0.8, 2.2),
+                "sill": rng.uniform(0.7, 1.0), "frame": np.float32(rng.choice([0.85, 0.2, 0.6])),
+                "glass": np.array([0.33, 0.28, 0.24], np.float32) * rng.uniform(0.7, 1.3),
+                "shop": bool(rng.random() < 0.55), "awning": _VIVID[rng.integers(len(_VIVID))],
+                "brick": bool(rng.random() < 0.4), "band": bool(rng.random() < 0.35),
+                "door": rng.uniform(0.15, 0.85),
+                "win_seed": int(rng.integers(1 << 31)),
+            })
+        z += w
+        segs[-1]["w"] = w
+    if loop:
+        # the last segment closes the loop exactly at b
+        segs[-1]["w"] = b - segs[-1]["z0"]
+        if segs[-1]["w"] < 2.0 and len(segs) > 1:
+            segs.pop()
+            segs[-1]["w"] = b - segs[-1]["z0"]
+    return segs
+
+
+def _raster_street_side(segs, zc, hr, alb, emit, snow, top):
+    for sg in segs:
+        cs = _cols(zc, sg["z0"], sg["z0"] + sg["w"])
+        if cs.stop <= cs.start:
+            continue
+        zz = zc[cs] - sg["z0"]
+        blk, em, sn = alb[:, cs], emit[:, cs], snow[:, cs]
+        hb = sg["height"]
+        top[cs] = hb
+        blk[:] = sg["colour"]
+        if sg["type"] == "gap":
+            if sg["fence"]:
+                slats = (np.mod(zz, 0.25) < 0.08)[None, :] & (hr < 1.8)[:, None]
+                blk[slats] *= 0.6
+            sn[np.abs(hr - hb) < 0.15, :] = True
+            continue
+        wrng = np.random.default_rng(sg["win_seed"])
+        fh, sp, ww, wh, sill = sg["floor_h"], sg["spacing"], sg["win_w"], sg["win_h"], sg["sill"]
+        nwin = max(1, int((sg["w"] - 1.0 + sp - ww) // sp))
+        m0 = (sg["w"] - (nwin * sp - (sp - ww))) / 2.0
+        k = np.floor((zz - m0) / sp).astype(int)
+        loc = zz - m0 - k * sp
+        fl = np.floor(hr / fh).astype(int)
+        lr = hr - fl * fh
+        if sg["brick"]:
+            mortar = np.mod(hr, 0.3) < 0.045
+            blk[mortar] *= 0.8
+        if sg["band"]:
+            band = (lr < 0.25) & (fl >= 1)
+            blk[band] = np.clip(sg["colour"] * 1.25 + 0.05, 0, 1)
+        # cornice and drainpipe
+        blk[(hr > hb - 0.45) & (hr < hb - 0.15)] *= 0.7
+        sn[(hr > hb - 0.15) & (hr < hb + 0.1), :] = True
+        pipe = (zz > 0.15) & (zz < 0.27)
+        blk[:, pipe] = 0.25
+        in_col = (k >= 0) & (k < nwin) & (loc < ww)
+        frame_col = (k >= 0) & (k < nwin) & (loc > -0.08) & (loc < ww + 0.08)
+        upper = (fl >= 1) & (fl < sg["floors"])
+        in_row = upper & (lr >= sill) & (lr < sill + wh)
+        frame_row = upper & (lr >= sill - 0.08) & (lr < sill + wh + 0.08)
+        sill_row = upper & (lr >= sill - 0.2) & (lr < sill - 0.08)
+        blk[np.ix_(frame_row, frame_col)] = sg["frame"]
+        blk[np.ix_(sill_row, frame_col)] = 0.75
+        sn[np.ix_(sill_row, frame_col)] = True
+        nf = sg["floors"] + 1
+        gl = sg["glass"][None, None, :] * wrng.uniform(0.6, 1.5, (nf, nwin, 1)).astype(np.float32)
+        curtains = wrng.random((nf, nwin)) < 0.3
+        gl[curtains] = np.array([0.62, 0.70, 0.75], np.float32) * wrng.uniform(0.7, 1.1)
+        rank = wrng.uniform(0.001, 1.0, (nf, nwin)).astype(np.float32)
+        ri, ci = np.nonzero(in_row)[0], np.nonzero(in_col)[0]
+        if len(ri) and len(ci):
+            F, K = np.meshgrid(fl[ri], np.clip(k[ci], 0, nwin - 1), indexing="ij")
+            blk[np.ix_(ri, ci)] = gl[F, K]
+            em[np.ix_(ri, ci)] = rank[F, K]
+            mull = np.abs(loc[ci] - ww / 2) < 0.04
+            sub = blk[np.ix_(ri, ci[mull])]
+            blk[np.ix_(ri, ci[mull])] = sg["frame"] * 0.9 + sub * 0.1
+        # ground floor: shop front or plain windows + door
+        door_z = sg["door"] * (sg["w"] - 1.4) + 0.2
+        if sg["shop"]:
+            shopwin = (hr > 0.5) & (hr < 2.55)
+            panes = (zz > 0.5) & (zz < sg["w"] - 0.5) & (np.mod(zz, 2.0) > 0.1)
+            blk[np.ix_(shopwin, panes)] = sg["glass"] * 1.2 + 0.05
+            em[np.ix_(shopwin, panes)] = wrng.uniform(0.001, 0.5)
+            aw = (hr > 2.7) & (hr < 3.3)
+            blk[aw, :] = sg["awning"]
+            text = (hr > 2.85) & (hr < 3.15)
+            tz = (zz > sg["w"] * 0.25) & (zz < sg["w"] * 0.75)
+            glyphs = tz & (wrng.random(len(zz)) < 0.5) & (np.mod(zz, 0.35) < 0.22)
+            blk[np.ix_(text, glyphs)] = 0.92 if sg["awning"].mean() < 0.5 else 0.1
+        else:
+            gw = (hr > sill) & (hr < sill + wh)
+            gz = in_col & (np.abs(zz - door_z - 0.6) > 1.2)
+            blk[np.ix_(gw, gz)] = sg["glass"]
+            em[np.ix_(gw, gz)] = rank[0, 0]
+        door = (zz > door_z) & (zz < door_z + 1.2)
+        blk[np.ix_(hr < 2.3, door)] = sg["awning"] * 0.5 + 0.08
+        blk[np.ix_(hr < 0.3, np.ones(len(zz), bool))] *= 0.75  # plinth
+
+
+# ----------------------------------------------------------------------------- corridor walls
+
+def _plan_corridor_side(rng, a, b, loop):
+    zones, z = [], a
+    while z < b:
+        w = rng.uniform(15.0, 35.0)
+        doors, d = [], z + rng.uniform(1.0, 4.0)
+        while d < z + w - 1.5:
+            doors.append({"z": d, "w": rng.uniform(0.85, 1.1),
+                          "colour": np.clip(rng.choice([[0.25, 0.38, 0.55], [0.55, 0.35, 0.15], [0.30, 0.30, 0.32],
+                                                        [0.70, 0.72, 0.72]]) + rng.uniform(-0.05, 0.05, 3), 0, 1),
+                          "glass": bool(rng.random() < 0.4)})
+            d += doors[-1]["w"] + rng.uniform(2.0, 7.0)
+        boards = [{"z": float(rng.uniform(z, z + w - 1.5)), "w": float(rng.uniform(0.8, 1.6)),
+                   "seed": int(rng.integers(1 << 31))} for _ in range(int(rng.integers(0, 3)))]
+        zones.append({"z0": z, "w": w, "colour": np.clip(_CORRIDOR_WALLS[rng.integers(len(_CORRIDOR_WALLS))] +
+                                                          rng.uniform(-0.04, 0.04, 3), 0, 1).astype(np.float32),
+                      "doors": doors, "boards": boards, "rail": bool(rng.random() < 0.5)})
+        z += w
+    if loop:
+        zones[-1]["w"] = b - zones[-1]["z0"]
+    return zones
+
+
+def _raster_corridor_side(zones, zc, hr, alb, emit, snow, top, ceiling):
+    top[:] = ceiling
+    for zn in zones:
+        cs = _cols(zc, zn["z0"], zn["z0"] + zn["w"])
+        if cs.stop <= cs.start:
+            continue
+        blk = alb[:, cs]
+        zz = zc[cs]
+        blk[:] = zn["colour"]
+        blk[hr < 0.12] = 0.18  # skirting
+        if zn["rail"]:
+            blk[(hr > 0.88) & (hr < 0.96)] = [0.25, 0.40, 0.55]
+        for dr in zn["doors"]:
+            fz = (zz > dr["z"] - 0.07) & (zz < dr["z"] + dr["w"] + 0.07)
+            blk[np.ix_(hr < 2.17, fz)] = 0.55
+            dz = (zz > dr["z"]) & (zz < dr["z"] + dr["w"])
+            blk[np.ix_(hr < 2.1, dz)] = dr["colour"]
+            if dr["glass"]:
+                gz = dz & (np.abs(zz - dr["z"] - dr["w"] / 2) < 0.12)
+                gr = (hr > 1.2) & (hr < 1.8)
+                blk[np.ix_(gr, gz)] = [0.45, 0.40, 0.35]
+                emit[np.ix_(gr, np.nonzero(gz)[0] + cs.start)] = 0.5
+            hz = dz & (np.abs(zz - dr["z"] - dr["w"] * 0.85) < 0.06)
+            blk[np.ix_((hr > 0.95) & (hr < 1.05), hz)] = 0.1
+            pz = dz & (np.abs(zz - dr["z"] - dr["w"] / 2) < 0.1)
+            blk[np.ix_((hr > 1.55) & (hr < 1.65), pz)] = 0.95
+        for bd in zn["boards"]:
+            bz = (zz > bd["z"]) & (zz < bd["z"] + bd["w"])
+            br = (hr > 1.1) & (hr < 1.95)
+            blk[np.ix_(br, bz)] = [0.25, 0.45, 0.62]
+            brng = np.random.default_rng(bd["seed"])
+            for _ in range(int(brng.integers(2, 7))):
+                z0 = bd["z"] + brng.uniform(0.05, bd["w"] - 0.3)
+                y0 = brng.uniform(1.15, 1.6)
+                pz = (zz > z0) & (zz < z0 + brng.uniform(0.15, 0.3))
+                py = (hr > y0) & (hr < y0 + brng.uniform(0.2, 0.3))
+                blk[np.ix_(py, pz)] = brng.choice([0.95, 0.85, 0.6]) * np.array([1.0, 1.0, brng.uniform(0.8, 1.0)])
+    snow[:] = False
+
+
+# ----------------------------------------------------------------------------- ground / ceiling
+
+def _raster_street_ground(rng, xg, zg, hw, alb, kind, a, b):
+    sw = 2.5
+    road_hw = hw - sw
+    ax = np.abs(xg)[:, None]
+    noise = 0.04 * _smooth_noise(rng, alb.shape[:2], 6) + 0.03 * rng.standard_normal(alb.shape[:2]).astype(np.float32)
+    side = ax > road_hw
+    alb[:] = 0.27
+    kind[:] = 0
+    tiles = (np.mod(xg, 0.5) < 0.04)[:, None] | (np.mod(zg, 0.5) < 0.04)[None, :]
+    pav = np.broadcast_to(side, alb.shape[:2])
+    alb[pav] = [0.50, 0.54, 0.56]
+    alb[pav & tiles] = [0.38, 0.40, 0.42]
+    kind[pav] = 1
+    kerb = np.broadcast_to((ax > road_hw - 0.05) & (ax <= road_hw + 0.15), alb.shape[:2])
+    alb[kerb] = 0.62
+    kind[kerb] = 3
+    centre = (np.abs(xg) < 0.07)[:, None] & (np.mod(zg, 9.0) < 3.0)[None, :]
+    edge = ((ax > road_hw - 0.45) & (ax < road_hw - 0.3)) & np.ones((1, len(zg)), bool)
+    for m in (centre, edge):
+        alb[m] = 0.82
+        kind[m] = 2
+    # crossings, patches and manholes make the road surface place-specific
+    for zc in np.arange(a + rng.uniform(20, 80), b, rng.uniform(60, 140)):
+        cz = (zg > zc) & (zg < zc + 3.5)
+        m = ((np.abs(xg) < road_hw - 0.3) & (np.mod(xg, 1.0) < 0.5))[:, None] & cz[None, :]
+        alb[m] = 0.85
+        kind[m] = 2
+    for _ in range(int((b - a) / 15)):
+        z0, x0 = rng.uniform(a, b), rng.uniform(-road_hw, road_hw)
+        cz = _cols(zg, z0, z0 + rng.uniform(2, 8))
+        cx = _cols(xg, x0, x0 + rng.uniform(1, 4))
+        sub = kind[cx, cz] == 0
+        alb[cx, cz][sub] *= rng.uniform(0.75, 1.3)
+    for _ in range(int((b - a) / 25)):
+        z0, x0 = rng.uniform(a, b), rng.uniform(-road_hw + 0.5, road_hw - 0.5)
+        cz = _cols(zg, z0 - 0.5, z0 + 0.5)
+        r = np.hypot(xg[:, None] - x0, zg[None, cz] - z0)
+        alb[:, cz][r < 0.35] = 0.15
+        alb[:, cz][(r < 0.4) & (r >= 0.35)] = 0.45
+    alb *= (1.0 + noise)[..., None]
+
+
+def _raster_corridor_floor(rng, xg, zg, hw, alb, kind, zones):
+    alb[:] = [0.45, 0.48, 0.50]
+    for zn in zones:
+        cz = _cols(zg, zn["z0"], zn["z0"] + zn["w"])
+        alb[:, cz] = np.clip(zn["colour"] * 0.55 + rng.uniform(-0.05, 0.05, 3), 0, 1)
+    tiles = (np.mod(xg + hw, 0.6) < 0.03)[:, None] | (np.mod(zg, 0.6) < 0.03)[None, :]
+    alb[tiles] *= 0.85
+    worn = np.exp(-(xg / 0.45) ** 2)[:, None] * (0.12 + 0.08 * _smooth_noise(rng, alb.shape[:2], 10))
+    alb *= (1.0 - worn)[..., None]
+    alb *= (1.0 + 0.03 * rng.standard_normal(alb.shape[:2]).astype(np.float32))[..., None]
+    kind[:] = 1
+
+
+def _raster_ceiling(rng, xg, zg, alb, emit, a, b):
+    alb[:] = 0.82
+    grid = (np.mod(xg, 0.6) < 0.03)[:, None] | (np.mod(zg, 0.6) < 0.03)[None, :]
+    alb[grid] = 0.62
+    z = a + rng.uniform(0.5, 2.0)
+    while z < b:
+        cz = _cols(zg, z, z + 1.2)
+        cx = _cols(xg, -0.3, 0.3)
+        alb[cx, cz] = 0.95
+        emit[cx, cz] = rng.uniform(0.001, 1.0)
+        z += rng.choice([2.4, 3.0, 3.6])
+    for _ in range(int((b - a) / 12)):
+        z0 = rng.uniform(a, b)
+        cz, cx = _cols(zg, z0, z0 + 0.6), _cols(xg, 0.5, 1.1) if rng.random() < 0.5 else _cols(xg, -1.1, -0.5)
+        alb[cx, cz] = 0.55
+        alb[cx, cz][::2] = 0.4
+
+
+# ----------------------------------------------------------------------------- objects
+
+def _variant_params(rng, typ):
+    u = rng.uniform
+    if typ == "tree":
+        return {"w": u(2.5, 5.0), "h": u(5.0, 9.0), "base": 0.0, "trunk": u(0.2, 0.4), "crown": u(0.45, 0.7),
+                "hue": u(-0.08, 0.08), "seed": int(rng.integers(1 << 31))}
+    if typ == "lamp":
+        return {"w": 1.4, "h": u(5.5, 7.0), "base": 0.0, "seed": int(rng.integers(1 << 31))}
+    if typ == "sign":
+        return {"w": 0.7, "h": u(2.5, 3.0), "base": 0.0, "shape": int(rng.integers(3)),
+                "colour": _VIVID[rng.integers(4)].tolist(), "seed": int(rng.integers(1 << 31))}
+    if typ == "bin":
+        return {"w": u(0.5, 0.8), "h": u(0.9, 1.2), "base": 0.0,
+                "colour": (np.array([0.2, 0.35, 0.15]) * u(0.6, 1.6)).tolist(), "seed": int(rng.integers(1 << 31))}
+    if typ == "bollard":
+        return {"w": 0.22, "h": 0.9, "base": 0.0, "seed": int(rng.integers(1 << 31))}
+    if typ == "car":
+        return {"w": 1.8, "h": u(1.4, 1.7), "base": 0.0,
+                "colour": np.clip(rng.choice(_FACADE_PALETTE) * u(0.5, 1.3), 0.05, 0.95).tolist(),
+                "seed": int(rng.integers(1 << 31))}
+    if typ == "extinguisher":
+        return {"w": 0.2, "h": 0.6, "base": 0.35, "seed": int(rng.integers(1 << 31))}
+    if typ == "plant":
+        return {"w": u(0.5, 0.9), "h": u(0.9, 1.6), "base": 0.0, "hue": u(-0.05, 0.05),
+                "seed": int(rng.integers(1 << 31))}
+    if typ == "pillar":
+        return {"w": 0.5, "h": 3.0, "base": 0.0, "colour": u(0.55, 0.75), "seed": int(rng.integers(1 << 31))}
+    if typ == "exitsign":
+        return {"w": 0.45, "h": 0.22, "base": 2.25, "seed": int(rng.integers(1 << 31))}
+    if typ == "bench":
+        return {"w": 1.3, "h": 0.85, "base": 0.0, "colour": u(0.2, 0.5), "seed": int(rng.integers(1 << 31))}
+    raise ValueError(f"unknown object type {typ!r}")
+
+
+def _place_street_objects(rng, a, b, hw, density, variants):
+    rows = []  # (type, variant, x, z)
+    sw = 2.5
+    for side in (-1, 1):
+        xs = side * (hw - 1.0)
+        z = a + rng.uniform(0, 10)
+        while z < b:  # tree stretches
+            if rng.random() < 0.5 * min(1.0, density):
+                z1 = z + rng.uniform(30, 90)
+                tz = z
+                while tz < min(z1, b):
+                    rows.append((0, int(rng.integers(variants[0])), xs + rng.uniform(-0.3, 0.3), tz))
+                    tz += rng.uniform(7, 13) / max(density, 0.2)
+                z = z1
+            else:
+                z += rng.uniform(20, 60)
+        for lz in np.arange(a + rng.uniform(0, 30), b, 30.0 / max(density, 0.2)):
+            rows.append((1, int(rng.integers(variants[1])), side * (hw - 0.5), lz + rng.uniform(-2, 2)))
+        n = int((b - a) / 25 * density)
+        for t, nv, dx in ((2, variants[2], -0.4), (3, variants[3], -0.6), (4, variants[4], -2.3)):
+            for z0 in rng.uniform(a, b, int(n * (0.5 if t != 2 else 0.8))):
+                rows.append((t, int(rng.integers(nv)), side * (hw + dx), z0))
+        z = a + rng.uniform(0, 30)
+        while z < b:  # parked cars in clusters
+            if rng.random() < 0.4 * min(1.0, density):
+                for _ in range(int(rng.integers(1, 5))):
+                    rows.append((5, int(rng.integers(variants[5])), side * (hw - sw - 1.1), z))
+                    z += rng.uniform(5.0, 6.5)
+            z += rng.uniform(15, 50)
+    return rows
+
+
+def _place_corridor_objects(rng, a, b, hw, density, variants):
+    rows = []
+    for side in (-1, 1):
+        for t, every, dx in ((0, 25, 0.12), (1, 30, 0.4), (2, 35, 0.35), (5, 45, 0.35)):
+            for z0 in rng.uniform(a, b, int((b - a) / every * density)):
+                rows.append((t, int(rng.integers(variants[t])), side * (hw - dx), z0))
+    for z0 in np.arange(a + rng.uniform(5, 20), b, 24.0 / max(density, 0.2)):  # pillars pairs
+        if rng.random() < 0.5:
+            for side in (-1, 1):
+                rows.append((3, 0, side * (hw - 0.25), z0))
+    for z0 in np.arange(a + rng.uniform(5, 20), b, 20.0 / max(density, 0.2)):
+        rows.append((4, 0, 0.0, z0 + rng.uniform(-3, 3)))
+    return rows
+
+
+# ----------------------------------------------------------------------------- sprites
+
+def make_sprite(typ: str, p: dict, season: str, ppm: float = 24.0):
+    """Albedo (h, w, 3), alpha (h, w), emissive (h, w) float32 of one object, bottom row at its base."""
+    h_px = max(4, int(round(p["h"] * ppm)))
+    w_px = max(2, int(round(p["w"] * ppm)))
+    alb = np.zeros((h_px, w_px, 3), np.float32)
+    alpha = np.zeros((h_px, w_px), np.float32)
+    emit = np.zeros((h_px, w_px), np.float32)
+    rng = np.random.default_rng(p["seed"])
+    cx = w_px / 2.0
+
+    def rect(x0, y0, x1, y1, col, a=1.0):
+        # y measured upwards from the base in metres, x from the left edge
+        r0, r1 = h_px - int(round(y1 * ppm)), h_px - int(round(y0 * ppm))
+        c0, c1 = int(round(x0 * ppm)), int(round(x1 * ppm))
+        r0, c0 = max(r0, 0), max(c0, 0)
+        if r1 > r0 and c1 > c0:
+            alb[r0:r1, c0:c1] = col
+            alpha[r0:r1, c0:c1] = a
+        return slice(r0, r1), slice(c0, c1)
+
+    W, H = p["w"], p["h"]
+    if typ == "tree":
+        rect(W / 2 - p["trunk"] / 2, 0, W / 2 + p["trunk"] / 2, H * 0.75, [0.12, 0.18, 0.25])
+        yy, xx = np.mgrid[0:h_px, 0:w_px].astype(np.float32)
+        ry, rx = h_px * p["crown"] / 2, w_px / 2
+        ccy = h_px * p["crown"] / 2
+        n = _smooth_noise(rng, (h_px, w_px), max(2.0, w_px / 6))
+        d = np.sqrt(((yy - ccy) / ry) ** 2 + ((xx - cx) / rx) ** 2) + 0.15 * n
+        crown = d < 0.95
+        shade = (0.8 + 0.25 * n - 0.25 * (yy - ccy) / ry)[..., None]
+        if season == "winter":
+            # bare branches: a few thick strokes from the trunk upwards
+            br = np.zeros((h_px, w_px), np.uint8)
+            for _ in range(9):
+                x1 = int(cx + rng.uniform(-1, 1) * rx * 0.9)
+                y1 = int(ccy + rng.uniform(-1, 0.6) * ry)
+                cv2.line(br, (int(cx), int(h_px * 0.7)), (x1, y1), 1, max(1, w_px // 40))
+            m = (br > 0) | ((d < 0.95) & (rng.random((h_px, w_px)) < 0.07))
+            alb[m] = [0.14, 0.17, 0.2]
+            alpha[m] = 1.0
+        else:
+            base = {"summer": [0.12, 0.42, 0.22], "spring": [0.2, 0.6, 0.35],
+                    "autumn": [0.08, 0.38, 0.72]}[season]
+            col = np.clip(np.array(base, np.float32) + [0, p["hue"], -p["hue"]], 0, 1)
+            alb[crown] = (col[None, None, :] * shade)[crown]
+            alpha[crown] = 1.0
+    elif typ == "lamp":
+        rect(0.05, 0, 0.2, H, [0.22, 0.22, 0.24])
+        rect(0.05, H - 0.12, 1.3, H, [0.22, 0.22, 0.24])
+        rows, cols = rect(0.9, H - 0.3, 1.4, H - 0.05, [0.35, 0.38, 0.4])
+        emit[rows, cols] = 1.0
+    elif typ == "sign":
+        rect(W / 2 - 0.04, 0, W / 2 + 0.04, H - 0.3, [0.5, 0.5, 0.5])
+        plate = np.zeros((h_px, w_px), np.uint8)
+        r = int(W * ppm / 2) - 1
+        cyp = int(h_px - (H - 0.3) * ppm)
+        if p["shape"] == 0:
+            cv2.circle(plate, (int(cx), cyp), r, 1, -1)
+        elif p["shape"] == 1:
+            cv2.rectangle(plate, (1, max(0, cyp - r)), (w_px - 2, cyp + r), 1, -1)
+        else:
+            pts = np.array([[int(cx), max(0, cyp - r)], [w_px - 1, cyp], [int(cx), cyp + r], [0, cyp]], np.int32)
+            cv2.fillPoly(plate, [pts], 1)
+        m = plate > 0
+        alb[m] = p["colour"]
+        inner = cv2.erode(plate, np.ones((3, 3), np.uint8), iterations=max(1, r // 3)) > 0
+        alb[inner] = 0.9
+        alpha[m] = 1.0
+    elif typ == "bin":
+        rect(0, 0, W, H, p["colour"])
+        rect(0, H - 0.1, W, H, np.array(p["colour"]) * 0.6)
+    elif typ == "bollard":
+        rect(0, 0, W, H, [0.3, 0.3, 0.32])
+        rect(0, H - 0.25, W, H - 0.15, [0.9, 0.9, 0.9])
+    elif typ == "car":
+        c = np.array(p["colour"], np.float32)
+        rect(0, 0.25, W, H * 0.62, c)
+        rect(0.22, H * 0.62, W - 0.22, H, c * 0.9)
+        rect(0.3, H * 0.64, W - 0.3, H * 0.95, [0.12, 0.1, 0.1])
+        rect(0.05, 0, 0.35, 0.35, [0.05, 0.05, 0.05])
+        rect(W - 0.35, 0, W - 0.05, 0.35, [0.05, 0.05, 0.05])
+        for x0 in (0.05, W - 0.3):
+            rows, cols = rect(x0, H * 0.45, x0 + 0.25, H * 0.55, [0.1, 0.1, 0.7])
+            emit[rows, cols] = 0.8
+        rect(W / 2 - 0.25, 0.35, W / 2 + 0.25, 0.48, [0.92, 0.92, 0.92])
+    elif typ == "extinguisher":
+        rect(0.02, 0, W - 0.02, H * 0.85, [0.1, 0.1, 0.75])
+        rect(W * 0.3, H * 0.85, W * 0.7, H, [0.1, 0.1, 0.1])
+    elif typ == "plant":
+        rect(W * 0.25, 0, W * 0.75, 0.4, [0.15, 0.3, 0.5])
+        yy, xx = np.mgrid[0:h_px, 0:w_px].astype(np.float32)
+        n = _smooth_noise(rng, (h_px, w_px), max(2.0, w_px / 5))
+        ccy, ry = h_px * 0.35, h_px * 0.38
+        d = np.sqrt(((yy - ccy) / ry) ** 2 + ((xx - cx) / (w_px / 2)) ** 2) + 0.2 * n
+        m = d < 0.95
+        alb[m] = np.clip(np.array([0.15, 0.45 + p["hue"], 0.2]) * (0.8 + 0.3 * n[m, None]), 0, 1)
+        alpha[m] = 1.0
+    elif typ == "pillar":
+        rect(0, 0, W, H, p["colour"])
+        rect(0, 0, W, 0.12, 0.2)
+    elif typ == "exitsign":
+        rect(0, 0, W, H, [0.2, 0.6, 0.1])
+        rows, cols = rect(0.05, 0.04, W - 0.05, H - 0.04, [0.3, 0.85, 0.2])
+        emit[rows, cols] = 0.9
+        rect(0.1, 0.07, 0.2, H - 0.07, 0.95)
+        rect(W / 2 - 0.01, H, W / 2 + 0.01, H, 0.3)
+    elif typ == "bench":
+        rect(0, 0.4, W, 0.5, p["colour"])
+        rect(0, 0.6, W, 0.85, p["colour"] * 0.9)
+        rect(0.1, 0, 0.18, 0.45, 0.15)
+        rect(W - 0.18, 0, W - 0.1, 0.45, 0.15)
+    if season == "winter":
+        # snow caps: the top few opaque pixels of every column
+        op = alpha > 0
+        first = np.argmax(op, axis=0)
+        has = op.any(axis=0)
+        depth = max(1, int(round(0.12 * ppm)))
+        r = np.arange(h_px)[:, None]
+        cap = has[None, :] & (r >= first[None, :]) & (r < first[None, :] + depth) & op
+        if typ not in ("extinguisher", "exitsign", "plant", "pillar", "bench"):
+            alb[cap] = 0.92
+    return alb, alpha, emit
+
+
+# ----------------------------------------------------------------------------- the world
+
+def build_world(wspec: dict, ppm: float, gppm: float, max_depth: float, sprite_ppm: float = 24.0) -> WorldRaster:
+    """Rasterise the world of a resolved ``world`` spec at ``ppm`` texels per metre (walls), ``gppm`` (ground).
+
+    The plan (buildings, doors, objects) depends only on ``wspec['seed']``; the
+    resolution only changes how finely it is sampled.
+    """
+    kind, L, loop = wspec["kind"], float(wspec["length"]), bool(wspec["loop"])
+    hw = float(wspec["half_width"])
+    seed = int(wspec["seed"])
+    margin = 12.0
+    zlo, zhi = -margin, L + max_depth + margin
+    a, b = (0.0, L) if loop else (zlo, zhi)
+    if loop:
+        # whole numbers of texels per loop, so that the texture wraps without a seam
+        ppm = round(L * ppm) / L
+        gppm = round(L * gppm) / L
+    rng_plan = np.random.default_rng([seed, 1])
+    rng_tex = np.random.default_rng([seed, 2])
+    ncols = int(round((b - a) * ppm))
+    ngz = int(round((b - a) * gppm))
+    zc = a + (np.arange(ncols) + 0.5) / ppm
+    zg = a + (np.arange(ngz) + 0.5) / gppm
+    nx = max(2, int(round(2 * hw * gppm)))
+    xg = -hw + (np.arange(nx) + 0.5) / gppm
+    ceiling = wspec.get("ceiling")
+    height = 24.0 if kind == "street" else float(ceiling)
+    hpx = int(np.ceil(height * ppm)) + 1
+    hr = (np.arange(hpx) + 0.5) / ppm
+
+    walls_alb, walls_emit, walls_snow, walls_top, plans = [], [], [], [], []
+    for side in range(2):
+        alb = np.zeros((hpx, ncols, 3), np.float32)
+        emit = np.zeros((hpx, ncols), np.float32)
+        snow = np.zeros((hpx, ncols), bool)
+        top = np.zeros(ncols, np.float32)
+        if kind == "street":
+            segs = _plan_street_side(rng_plan, a, b, loop)
+            _raster_street_side(segs, zc, hr, alb, emit, snow, top)
+        else:
+            segs = _plan_corridor_side(rng_plan, a, b, loop)
+            _raster_corridor_side(segs, zc, hr, alb, emit, snow, top, float(ceiling))
+        plans.append(segs)
+        # stains and grain so that plain walls still carry some texture
+        alb *= (1.0 + 0.06 * _smooth_noise(rng_tex, (hpx, ncols), max(2.0, ppm * 1.5))
+                + 0.03 * rng_tex.standard_normal((hpx, ncols)).astype(np.float32))[..., None]
+        np.clip(alb, 0.0, 1.0, out=alb)
+        walls_alb.append(alb)
+        walls_emit.append(emit)
+        walls_snow.append(snow)
+        walls_top.append(top)
+
+    galb = np.zeros((nx, ngz, 3), np.float32)
+    gkind = np.zeros((nx, ngz), np.uint8)
+    gemit = np.zeros((nx, ngz), np.float32)
+    calb = cemit = None
+    if kind == "street":
+        _raster_street_ground(rng_tex, xg, zg, hw, galb, gkind, a, b)
+    else:
+        _raster_corridor_floor(rng_tex, xg, zg, hw, galb, gkind, plans[0])
+        calb = np.zeros((nx, ngz, 3), np.float32)
+        cemit = np.zeros((nx, ngz), np.float32)
+        _raster_ceiling(rng_tex, xg, zg, calb, cemit, a, b)
+    np.clip(galb, 0.0, 1.0, out=galb)
+
+    types = OBJECT_TYPES[kind]
+    nvar = [6, 2, 6, 3, 1, 8] if kind == "street" else [1, 3, 2, 1, 1, 2]
+    vparams = [[_variant_params(rng_plan, t) for _ in range(n)] for t, n in zip(types, nvar)]
+    if kind == "street":
+        rows = _place_street_objects(rng_plan, a, b, hw, wspec["density"], nvar)
+    else:
+        rows = _place_corridor_objects(rng_plan, a, b, hw, wspec["density"], nvar)
+    obj = np.array(rows, np.float64).reshape(-1, 4)
+    if loop:
+        obj[:, 3] = np.mod(obj[:, 3], L)
+
+    # place aliasing: copy a stretch of walls, ground and objects onto another
+    for al in wspec.get("aliasing", []):
+        src, dst, ln = al["source"], al["target"], al["length"]
+        n = int(round(ln * ppm))
+        c_s, c_d = int(round((src - a) * ppm)), int(round((dst - a) * ppm))
+        for side in range(2):
+            walls_alb[side][:, c_d:c_d + n] = walls_alb[side][:, c_s:c_s + n]
+            walls_emit[side][:, c_d:c_d + n] = walls_emit[side][:, c_s:c_s + n]
+            walls_snow[side][:, c_d:c_d + n] = walls_snow[side][:, c_s:c_s + n]
+            walls_top[side][c_d:c_d + n] = walls_top[side][c_s:c_s + n]
+        ng = int(round(ln * gppm))
+        g_s, g_d = int(round((src - a) * gppm)), int(round((dst - a) * gppm))
+        for arr in (galb, gkind, gemit, calb, cemit):
+            if arr is not None:
+                arr[:, g_d:g_d + ng] = arr[:, g_s:g_s + ng]
+        keep = ~((obj[:, 3] >= dst) & (obj[:, 3] < dst + ln))
+        cp = obj[(obj[:, 3] >= src) & (obj[:, 3] < src + ln)].copy()
+        cp[:, 3] += dst - src
+        obj = np.concatenate([obj[keep], cp])
+
+    if loop:
+        # extend the periodic textures to [zlo, zhi] so lookups never wrap per pixel
+        ext = np.mod(np.floor((zlo + (np.arange(int(round((zhi - zlo) * ppm))) + 0.5) / ppm - a) * ppm).astype(int),
+                     ncols)
+        gext = np.mod(np.floor((zlo + (np.arange(int(round((zhi - zlo) * gppm))) + 0.5) / gppm) * gppm)
+                      .astype(int), ngz)
+        walls_alb = [w[:, ext] for w in walls_alb]
+        walls_emit = [w[:, ext] for w in walls_emit]
+        walls_snow = [w[:, ext] for w in walls_snow]
+        walls_top = [w[ext] for w in walls_top]
+        galb, gkind, gemit = galb[:, gext], gkind[:, gext], gemit[:, gext]
+        if calb is not None:
+            calb, cemit = calb[:, gext], cemit[:, gext]
+        obj = np.concatenate([obj + [0, 0, 0, k * L] for k in range(-1, int(np.ceil(zhi / L)) + 1)])
+        obj = obj[(obj[:, 3] >= zlo) & (obj[:, 3] <= zhi)]
+
+    if kind == "street":
+        # street lamps light a pool of ground around them (used at night)
+        lamps = obj[obj[:, 0] == 1]
+        zg_full = zlo + (np.arange(galb.shape[1]) + 0.5) / gppm
+        for _, _, lx, lz in lamps:
+            cz = _cols(zg_full, lz - 9, lz + 9)
+            r2 = (xg[:, None] - lx * 0.7) ** 2 + (zg_full[None, cz] - lz) ** 2
+            gemit[:, cz] += np.exp(-r2 / (2 * 2.5 ** 2)).astype(np.float32)
+
+    order = np.argsort(obj[:, 3], kind="stable")
+    obj = obj[order]
+    keys = [(t, v) for t in range(len(types)) for v in range(nvar[t])]
+    key_index = {k: i for i, k in enumerate(keys)}
+    sprite_id = np.array([key_index[(int(t), int(v))] for t, v in obj[:, :2]], np.int32)
+    sp = [vparams[t][v] for t, v in keys]
+    objects = {
+        "sprite": sprite_id,
+        "x": obj[:, 2].astype(np.float32),
+        "z": obj[:, 3].astype(np.float64),
+        "w": np.array([sp[i]["w"] for i in sprite_id], np.float32),
+        "h": np.array([sp[i]["h"] for i in sprite_id], np.float32),
+        "base": np.array([sp[i]["base"] for i in sprite_id], np.float32),
+    }
+    return WorldRaster(
+        kind=kind, length=L, loop=loop, half_width=hw, ceiling=ceiling, zlo=zlo, zhi=zhi,
+        ppm=ppm, gppm=gppm, wall_alb=walls_alb, wall_emit=walls_emit, wall_snow=walls_snow, wall_top=walls_top,
+        ground_alb=galb, ground_kind=gkind, ground_emit=gemit, ceil_alb=calb, ceil_emit=cemit,
+        objects=objects, sprite_keys=[(types[t], v) for t, v in keys], sprite_params=sp,
+        sky_noise=_smooth_noise(np.random.default_rng([seed, 3]), (48, 360), 8), seed=seed,
+        extras={"sprite_ppm": sprite_ppm})
