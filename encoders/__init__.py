@@ -1,0 +1,90 @@
+"""Image encoders: batches of images -> SDR batches (bool CSR, frames x n_bits).
+
+Look an encoder up by name, as in hloc::
+
+    import encoders
+    enc = encoders.get("pixel", k=40, standardise="fit")
+    sdrs = enc.fit(db_images).encode(db_images)
+
+Registered encoders (see each module for its conf keys):
+
+- ``pixel``: SeqSLAM patch-normalised 64x32 thumbnail -> random projection top-k
+- ``projection``: random projection top-k of a named descriptor (pixel, hog, cnn)
+- ``orb``: ORB / grid-BRIEF binary descriptors -> LSH votes -> top-k
+- ``cnn``: pooled ONNX CNN features (EfficientNet-Lite0 by default) -> projection top-k
+
+Conf values may be strings (from ``--encoder-conf key=value``); they are
+coerced to the type of the default.
+"""
+from __future__ import annotations
+
+from importlib import import_module
+
+from .base import BaseEncoder
+
+__all__ = ["get", "available", "get_class", "parse_conf", "add_arguments", "from_args", "BaseEncoder"]
+
+# name -> (module, class); imported lazily so that e.g. onnxruntime is only
+# loaded when the cnn encoder is used
+_REGISTRY = {
+    "pixel": ("encoders.pixel", "PixelEncoder"),
+    "projection": ("encoders.projection", "ProjectionEncoder"),
+    "orb": ("encoders.orb", "OrbEncoder"),
+    "cnn": ("encoders.cnn", "CnnEncoder"),
+}
+
+
+def available() -> list[str]:
+    """Names accepted by :func:`get`, sorted."""
+    return sorted(_REGISTRY)
+
+
+def get_class(name: str) -> type[BaseEncoder]:
+    """The encoder class registered as ``name``.
+
+    Raises
+    ------
+    ValueError
+        Unknown name (the message lists the available ones).
+    """
+    if name not in _REGISTRY:
+        raise ValueError(f"unknown encoder {name!r}; available: {', '.join(available())}")
+    module, cls = _REGISTRY[name]
+    return getattr(import_module(module), cls)
+
+
+def get(name: str, **conf) -> BaseEncoder:
+    """A new encoder ``name`` with ``conf`` merged over its ``default_conf``."""
+    return get_class(name)(**conf)
+
+
+def parse_conf(pairs) -> dict:
+    """``["k=40", "standardise=fit"]`` (the CLI's ``--encoder-conf``) -> dict of strings.
+
+    The strings are coerced to the defaults' types by :func:`get`.
+
+    Raises
+    ------
+    ValueError
+        An item without ``=`` or with an empty key.
+    """
+    conf = {}
+    for item in pairs or ():
+        key, sep, value = str(item).partition("=")
+        if not sep or not key.strip():
+            raise ValueError(f"--encoder-conf: expected key=value, got {item!r}")
+        conf[key.strip()] = value
+    return conf
+
+
+def add_arguments(parser, default: str = "pixel") -> None:
+    """Add ``--encoder NAME`` and repeatable ``--encoder-conf key=value`` to an argparse parser."""
+    parser.add_argument("--encoder", default=default, choices=available(),
+                        help=f"image encoder (default: {default})")
+    parser.add_argument("--encoder-conf", action="append", default=[], metavar="KEY=VALUE",
+                        help="encoder conf override, repeatable; values are read as the default's type")
+
+
+def from_args(args) -> BaseEncoder:
+    """The encoder selected by the arguments of :func:`add_arguments`."""
+    return get(args.encoder, **parse_conf(args.encoder_conf))

@@ -1,0 +1,211 @@
+"""Base class of the image encoders: configuration merging and input checks.
+
+Each encoder is a small class with a ``default_conf`` dict (as in hloc); the
+user's configuration is merged over the defaults of the class and all its
+bases. Values given as strings (``--encoder-conf key=value`` on the command
+line) are coerced to the type of the default they replace.
+"""
+from __future__ import annotations
+
+import copy
+import json
+from typing import Any, Mapping
+
+import numpy as np
+import scipy.sparse as sp
+
+from vpr.imageproc import to_uint8
+
+__all__ = ["BaseEncoder", "coerce_value", "as_image_list", "check_descriptors"]
+
+_TRUE = {"1", "true", "yes", "on", "y", "t"}
+_FALSE = {"0", "false", "no", "off", "n", "f"}
+
+
+def _parse_scalar(text: str):
+    t = text.strip()
+    if t.lower() in ("none", "null", ""):
+        return None
+    for cast in (int, float):
+        try:
+            return cast(t)
+        except ValueError:
+            pass
+    return t
+
+
+def coerce_value(key: str, value: Any, default: Any) -> Any:
+    """Coerce ``value`` to the type of ``default`` (used for CLI strings).
+
+    Non-string values are checked loosely (numbers for numbers, sequences for
+    tuples) and returned converted; strings are parsed: ``"true"``/``"0"`` for
+    booleans, ``"224,224"`` or ``"[224, 224]"`` for tuples, JSON for dicts and
+    ``"none"`` for ``None``.
+
+    Raises
+    ------
+    ValueError
+        If the value cannot be read as the default's type; the message names
+        ``key``.
+    """
+    if default is None:
+        return _parse_scalar(value) if isinstance(value, str) else value
+    try:
+        if isinstance(default, bool):
+            if isinstance(value, str):
+                v = value.strip().lower()
+                if v in _TRUE:
+                    return True
+                if v in _FALSE:
+                    return False
+                raise ValueError(value)
+            if isinstance(value, (bool, np.bool_)) or value in (0, 1):
+                return bool(value)
+            raise ValueError(value)
+        if isinstance(default, int):
+            if isinstance(value, str):
+                f = float(value.strip())
+            elif isinstance(value, (bool, np.bool_)):
+                raise ValueError(value)
+            else:
+                f = float(value)
+            if f != int(f):
+                raise ValueError(value)
+            return int(f)
+        if isinstance(default, float):
+            if isinstance(value, (bool, np.bool_)):
+                raise ValueError(value)
+            return float(value.strip() if isinstance(value, str) else value)
+        if isinstance(default, (tuple, list)):
+            if isinstance(value, str):
+                s = value.strip()
+                if s.startswith(("[", "(")):
+                    s = s[1:-1]
+                items = [x for x in (p.strip() for p in s.split(",")) if x != ""]
+            else:
+                items = list(value)
+            if default:
+                proto = default[0]
+                items = [coerce_value(f"{key}[{i}]", x, proto) for i, x in enumerate(items)]
+            else:
+                items = [_parse_scalar(x) if isinstance(x, str) else x for x in items]
+            return type(default)(items)
+        if isinstance(default, dict):
+            if isinstance(value, str):
+                value = json.loads(value) if value.strip() else {}
+            if not isinstance(value, Mapping):
+                raise ValueError(value)
+            return dict(value)
+        if isinstance(default, str):
+            if not isinstance(value, str):
+                raise ValueError(value)
+            return value
+    except (ValueError, TypeError, json.JSONDecodeError) as e:
+        raise ValueError(f"conf {key!r}: cannot read {value!r} as {type(default).__name__}") from e
+    return value
+
+
+def as_image_list(images, name: str = "images") -> list[np.ndarray]:
+    """Validate a batch of images and return a list of uint8 arrays.
+
+    ``images`` is a sequence of (H, W) grey, (H, W, 3) BGR or (H, W, 4) BGRA
+    arrays, or one (N, H, W) grey / (N, H, W, C) colour array. 16-bit and
+    float images are converted to uint8 (see :func:`vpr.imageproc.to_uint8`).
+
+    Raises
+    ------
+    ValueError
+        An empty batch, a single image passed without a batch axis, or a frame
+        that is empty, of the wrong rank or dtype (the message names the frame
+        as ``images[i]``).
+    """
+    if isinstance(images, np.ndarray):
+        if images.ndim == 3 and images.shape[-1] in (3, 4):
+            # an (H, W, 3) colour image would otherwise be read as H grey frames 3 pixels wide
+            raise ValueError(f"{name}: got one array of shape {images.shape}; pass a single colour "
+                             "image as [image] or a batch as (N, H, W, C)")
+        if images.ndim not in (3, 4):
+            raise ValueError(f"{name}: expected a sequence of images or an (N, H, W[, C]) array, "
+                             f"got an array of shape {images.shape}")
+        frames = list(images)
+    elif isinstance(images, (str, bytes)) or not hasattr(images, "__iter__"):
+        raise ValueError(f"{name}: expected a sequence of images, got {type(images).__name__}")
+    else:
+        frames = list(images)
+    if not frames:
+        raise ValueError(f"{name}: empty batch (no frames)")
+    return [to_uint8(f, name=f"{name}[{i}]") for i, f in enumerate(frames)]
+
+
+def check_descriptors(desc, name: str = "descriptors", dim: int | None = None) -> np.ndarray:
+    """Validate a dense (frames, dims) descriptor array; returns float32.
+
+    Raises
+    ------
+    ValueError
+        Wrong rank, empty, a dimension other than ``dim``, or a non-finite
+        value (the message names the first bad frame).
+    """
+    d = np.asarray(desc)
+    if d.ndim == 1:
+        d = d[None, :]
+    if d.ndim != 2 or d.size == 0:
+        raise ValueError(f"{name}: expected a non-empty 2-D (frames x dims) array, got shape {d.shape}")
+    if d.dtype.kind not in "fiub":
+        raise ValueError(f"{name}: expected numbers, got dtype {d.dtype}")
+    d = d.astype(np.float32, copy=False)
+    if dim is not None and d.shape[1] != dim:
+        raise ValueError(f"{name}: expected {dim} dims per frame, got {d.shape[1]}")
+    bad = ~np.isfinite(d).all(axis=1)
+    if bad.any():
+        raise ValueError(f"{name}: frame {int(np.flatnonzero(bad)[0])}: NaN or infinite value")
+    return d
+
+
+class BaseEncoder:
+    """An image encoder: images in, SDR batch (bool CSR, frames x ``n_bits``) out.
+
+    Subclasses set ``default_conf`` and implement :meth:`encode` and, where
+    they have a dense descriptor, :meth:`describe`. Configuration is merged
+    over the defaults of every class in the hierarchy; unknown keys raise.
+
+    Parameters
+    ----------
+    **conf
+        Overrides of ``default_conf``. Strings are coerced to the default's type.
+    """
+
+    default_conf: dict = {}
+    name: str = "base"
+
+    def __init__(self, **conf):
+        defaults: dict = {}
+        for cls in reversed(type(self).__mro__):
+            defaults.update(getattr(cls, "default_conf", {}) or {})
+        unknown = sorted(set(conf) - set(defaults))
+        if unknown:
+            raise ValueError(f"{self.name}: unknown conf key(s) {unknown}; known: {sorted(defaults)}")
+        # deep copy: a default dict or list must not be shared between instances
+        self.conf = {k: coerce_value(k, conf[k], v) if k in conf else copy.deepcopy(v)
+                     for k, v in defaults.items()}
+
+    @property
+    def n_bits(self) -> int:
+        """Width of the SDRs produced by :meth:`encode`."""
+        raise NotImplementedError
+
+    def fit(self, images) -> "BaseEncoder":
+        """Learn statistics from ``images`` (default: nothing to learn). Returns self."""
+        as_image_list(images)
+        return self
+
+    def describe(self, images) -> np.ndarray:
+        """Dense float32 descriptor, (frames, dims)."""
+        raise NotImplementedError(f"encoder {self.name!r} has no dense descriptor")
+
+    def encode(self, images) -> sp.csr_matrix:
+        """SDR batch, bool CSR (frames, ``n_bits``)."""
+        raise NotImplementedError
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({', '.join(f'{k}={v!r}' for k, v in self.conf.items())})"

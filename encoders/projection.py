@@ -1,0 +1,265 @@
+"""Random-projection top-k sparsifier: dense descriptor -> SDR.
+
+A dense descriptor ``x`` (D dims) is optionally standardised, multiplied by a
+seeded Gaussian matrix ``W`` (D x n_bits) and the ``k`` largest projections
+become the active bits. Random projection approximately preserves angles, and
+keeping the winners of ``x @ W`` makes the overlap of two SDRs a monotone
+(noisy) function of the descriptors' cosine similarity, which is what the
+sequence memory and the pairwise overlap baseline consume.
+
+The two-sided variant projects to ``n_bits / 2`` dims and activates the
+``ceil(k/2)`` largest projections in the first half of the SDR and the
+``floor(k/2)`` smallest in the second half, so it too has exactly ``k`` bits.
+
+Standardisation (``standardise``):
+
+- ``"none"``: the descriptor as it is.
+- ``"fit"``: per-dim mean / std learned by :meth:`fit` (e.g. on one traverse,
+  then encode that traverse). Removing the traverse's mean descriptor cancels
+  global appearance change (season, illumination) that is shared by all its
+  frames and otherwise dominates the top-k.
+- ``"per_batch"``: mean / std of the batch being encoded (needs >= 2 frames);
+  an SDR then depends on the other frames of the batch.
+
+The registered ``projection`` encoder wraps a descriptor by name:
+``descriptor="pixel"`` (SeqSLAM patch-normalised thumbnail), ``"hog"``
+(scikit-image HOG) or ``"cnn"`` (pooled ONNX CNN features); ``descriptor_conf``
+configures it. HOG and CNN descriptors are non-negative with a large mean
+shared by all images; without standardisation that mean dominates the top-k,
+so use ``standardise="fit"`` (or ``"per_batch"``) with them.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from vpr import sdr
+from vpr.imageproc import resize, to_grey
+
+from .base import BaseEncoder, as_image_list, check_descriptors, coerce_value
+
+__all__ = ["TopKProjection", "ProjectedEncoder", "ProjectionEncoder", "HogDescriptor"]
+
+_STANDARDISE = ("none", "fit", "per_batch")
+
+
+def _csr_rows(idx: np.ndarray, n_bits: int) -> sp.csr_matrix:
+    """Bool CSR from an (N, k) array of distinct bit indices per row."""
+    n, k = idx.shape
+    idx = np.sort(idx, axis=1)
+    indptr = np.arange(0, n * k + 1, k, dtype=np.int64)
+    return sp.csr_matrix((np.ones(n * k, dtype=bool), idx.ravel().astype(np.int32), indptr),
+                         shape=(n, n_bits))
+
+
+class TopKProjection:
+    """Seeded Gaussian random projection followed by top-k (exactly ``k`` bits per row).
+
+    Parameters
+    ----------
+    n_bits : int
+        SDR width.
+    k : int
+        Active bits per row.
+    seed : int
+        Seed of the projection matrix; the same seed and input dimension give
+        the same matrix.
+    two_sided : bool
+        Top ``ceil(k/2)`` into the first half, bottom ``floor(k/2)`` into the
+        second half (``n_bits`` must be even).
+    standardise : {"none", "fit", "per_batch"}
+        See the module docstring.
+    """
+
+    def __init__(self, n_bits: int = 2048, k: int = 40, seed: int = 0, two_sided: bool = False,
+                 standardise: str = "none"):
+        n_bits, k = int(n_bits), int(k)
+        if n_bits <= 0:
+            raise ValueError(f"n_bits must be positive, got {n_bits}")
+        if two_sided and n_bits % 2:
+            raise ValueError(f"n_bits must be even for two_sided, got {n_bits}")
+        if not 1 <= k <= (n_bits // 2 if two_sided else n_bits):
+            raise ValueError(f"k must be in [1, {n_bits // 2 if two_sided else n_bits}], got {k}")
+        if two_sided and k < 2:
+            raise ValueError(f"k must be >= 2 for two_sided, got {k}")
+        if standardise not in _STANDARDISE:
+            raise ValueError(f"standardise must be one of {_STANDARDISE}, got {standardise!r}")
+        self.n_bits, self.k, self.seed = n_bits, k, int(seed)
+        self.two_sided, self.standardise = bool(two_sided), standardise
+        self.mean_: np.ndarray | None = None
+        self.std_: np.ndarray | None = None
+        self._W: np.ndarray | None = None
+
+    def matrix(self, dim: int) -> np.ndarray:
+        """The (dim, n_out) float32 projection matrix for input dimension ``dim``."""
+        n_out = self.n_bits // 2 if self.two_sided else self.n_bits
+        if self._W is None or self._W.shape[0] != dim:
+            rng = np.random.default_rng(self.seed)
+            self._W = rng.standard_normal((dim, n_out), dtype=np.float32)
+        return self._W
+
+    @staticmethod
+    def _stats(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        mean = d.mean(axis=0, dtype=np.float64).astype(np.float32)
+        std = d.std(axis=0, dtype=np.float64).astype(np.float32)
+        # constant dims carry no information; leave them at zero instead of dividing by ~0
+        std[std < 1e-6] = np.inf
+        return mean, std
+
+    def fit(self, desc) -> "TopKProjection":
+        """Learn the per-dim mean and std used by ``standardise="fit"``. Returns self."""
+        d = check_descriptors(desc)
+        if d.shape[0] < 2:
+            raise ValueError(f"descriptors: fit needs at least 2 frames, got {d.shape[0]}")
+        self.mean_, self.std_ = self._stats(d)
+        return self
+
+    def standardised(self, desc) -> np.ndarray:
+        """The descriptors after the configured standardisation (float32)."""
+        d = check_descriptors(desc)
+        if self.standardise == "fit":
+            if self.mean_ is None:
+                raise ValueError("standardise='fit' but the encoder was not fitted: call fit() first")
+            if d.shape[1] != self.mean_.size:
+                raise ValueError(f"descriptors: fitted on {self.mean_.size} dims, got {d.shape[1]}")
+            return (d - self.mean_) / self.std_
+        if self.standardise == "per_batch":
+            if d.shape[0] < 2:
+                raise ValueError(f"descriptors: standardise='per_batch' needs at least 2 frames, "
+                                 f"got {d.shape[0]}")
+            mean, std = self._stats(d)
+            return (d - mean) / std
+        return d
+
+    def project(self, desc) -> np.ndarray:
+        """Projections (frames, n_bits or n_bits/2), float32."""
+        d = self.standardised(desc)
+        return d @ self.matrix(d.shape[1])
+
+    def __call__(self, desc) -> sp.csr_matrix:
+        """SDR batch with exactly ``k`` bits per row.
+
+        Ties (e.g. an all-zero descriptor) go to the lower bit index, so the
+        result is deterministic.
+        """
+        p = self.project(desc)
+        if not self.two_sided:
+            return sdr.from_topk(p, self.k)
+        half = p.shape[1]
+        k_top = (self.k + 1) // 2
+        top = np.argsort(-p, axis=1, kind="stable")[:, :k_top]
+        bottom = np.argsort(p, axis=1, kind="stable")[:, :self.k - k_top] + half
+        return _csr_rows(np.concatenate([top, bottom], axis=1), self.n_bits)
+
+
+class ProjectedEncoder(BaseEncoder):
+    """Base of encoders whose SDR is the :class:`TopKProjection` of a dense descriptor.
+
+    Subclasses implement :meth:`describe`; :meth:`encode` is
+    ``encode_descriptors(describe(images))``.
+    """
+
+    default_conf = {
+        "n_bits": 2048,
+        "k": 40,
+        "seed": 0,
+        "two_sided": False,
+        "standardise": "none",
+    }
+
+    def __init__(self, **conf):
+        super().__init__(**conf)
+        c = self.conf
+        self.projection = TopKProjection(c["n_bits"], c["k"], c["seed"], c["two_sided"], c["standardise"])
+
+    @property
+    def n_bits(self) -> int:
+        return self.projection.n_bits
+
+    def describe(self, images) -> np.ndarray:
+        raise NotImplementedError
+
+    def fit(self, images) -> "ProjectedEncoder":
+        """Learn the standardisation statistics from ``images`` (used by ``standardise="fit"``)."""
+        self.projection.fit(self.describe(images))
+        return self
+
+    def fit_descriptors(self, desc) -> "ProjectedEncoder":
+        """As :meth:`fit`, from precomputed descriptors."""
+        self.projection.fit(desc)
+        return self
+
+    def encode_descriptors(self, desc) -> sp.csr_matrix:
+        """Sparsify precomputed dense descriptors (frames, dims) without recomputing them."""
+        return self.projection(desc)
+
+    def encode(self, images) -> sp.csr_matrix:
+        return self.encode_descriptors(self.describe(images))
+
+
+class HogDescriptor:
+    """Whole-image HOG (scikit-image) of the grey image resized to ``size`` (w, h).
+
+    Parameters
+    ----------
+    size : tuple of int
+        (width, height) the image is resized to before HOG.
+    orientations, pixels_per_cell, cells_per_block : int
+        As in :func:`skimage.feature.hog` (square cells and blocks).
+    """
+
+    default_conf = {"size": (128, 64), "orientations": 9, "pixels_per_cell": 16, "cells_per_block": 2}
+
+    def __init__(self, **conf):
+        unknown = sorted(set(conf) - set(self.default_conf))
+        if unknown:
+            raise ValueError(f"hog: unknown conf key(s) {unknown}; known: {sorted(self.default_conf)}")
+        self.conf = {k: coerce_value(k, conf[k], v) if k in conf else v for k, v in self.default_conf.items()}
+        w, h = self.conf["size"]
+        ppc, cpb = self.conf["pixels_per_cell"], self.conf["cells_per_block"]
+        if min(w, h) < ppc * cpb:
+            raise ValueError(f"hog: size {self.conf['size']} smaller than one block ({ppc * cpb} px)")
+
+    def describe(self, images) -> np.ndarray:
+        from skimage.feature import hog
+
+        c = self.conf
+        frames = as_image_list(images)
+        out = [hog(resize(to_grey(f, f"images[{i}]"), c["size"]), orientations=c["orientations"],
+                   pixels_per_cell=(c["pixels_per_cell"],) * 2, cells_per_block=(c["cells_per_block"],) * 2,
+                   block_norm="L2-Hys", feature_vector=True)
+               for i, f in enumerate(frames)]
+        return np.asarray(out, dtype=np.float32)
+
+
+class ProjectionEncoder(ProjectedEncoder):
+    """Random-projection top-k SDRs of a named dense descriptor.
+
+    Conf (besides :class:`ProjectedEncoder`'s ``n_bits``, ``k``, ``seed``,
+    ``two_sided``, ``standardise``):
+
+    descriptor : {"pixel", "hog", "cnn"}
+        The wrapped descriptor; ``"pixel"`` and ``"cnn"`` are the
+        :meth:`describe` of those encoders.
+    descriptor_conf : dict
+        Conf of the wrapped descriptor (JSON when given as a string).
+    """
+
+    name = "projection"
+    default_conf = {"descriptor": "pixel", "descriptor_conf": {}}
+
+    def __init__(self, **conf):
+        super().__init__(**conf)
+        name, dconf = self.conf["descriptor"], self.conf["descriptor_conf"]
+        if name == "hog":
+            self.descriptor = HogDescriptor(**dconf)
+        elif name in ("pixel", "cnn"):
+            from . import get  # lazy: the registry imports this module
+
+            self.descriptor = get(name, **dconf)
+        else:
+            raise ValueError(f"projection: descriptor must be 'pixel', 'hog' or 'cnn', got {name!r}")
+
+    def describe(self, images) -> np.ndarray:
+        """The wrapped dense descriptor, float32 (frames, dims)."""
+        return self.descriptor.describe(images)
