@@ -27,16 +27,6 @@ __all__ = ["add_arguments", "run_command", "run_compare", "run_loops", "metrics_
 
 
 # ------------------------------------------------------------------ arguments
-def _parse_kv(pairs, what):
-    conf = {}
-    for item in pairs or ():
-        key, sep, value = str(item).partition("=")
-        if not sep or not key.strip():
-            raise ValueError(f"{what}: expected key=value, got {item!r}")
-        conf[key.strip()] = value
-    return conf
-
-
 def _coerce(method, conf):
     """Coerce string values (from the command line) to the type of the method's defaults."""
     from encoders.base import coerce_value
