@@ -305,3 +305,73 @@ def run_frames(ind_ptr, ind, f_start, f_stop, learn, cpc, new_columns, k_active,
         f += 1
     st[NEED_KIND] = DONE
     return f
+
+
+@njit(cache=True)
+def evidence_frames(q_ptr, q_ind, order, bit_cols, bit_len, col_size, rel_col, e_src, e_dst,
+                    db_ptr, db_ind, db_norm, decay, stay, skip, z_weight, out, e, fresh):
+    """Graded sequence evidence of a query traverse along the learned lateral connections.
+
+    Not Algorithm 1: an extension for database-vs-query matching (``vpr.memory.
+    SequenceMemory.evidence``). Cells are the memory's "relevant" cells (those in
+    database codes or on a connection), renumbered ``0 .. n_rel-1``; ``rel_col``
+    is each one's minicolumn. For query frames in ``order``, a cell's evidence is
+    its minicolumn's feed-forward overlap fraction ``z`` plus ``decay`` times the
+    best evidence that predicts it: over its incoming connections (the learned
+    sequence), two connections back minus ``skip`` (a skipped frame) or itself
+    minus ``stay`` (a repeated frame); a negative ``stay``/``skip`` disables that
+    path. ``out[j, q] += mean over database code j of (evidence - z_weight * z)``.
+    ``e`` carries the evidence from one call to the next (chunks of ``order``);
+    ``fresh`` marks the first chunk.
+    """
+    n_rel = rel_col.shape[0]
+    n_cols = col_size.shape[0]
+    n_db = db_ptr.shape[0] - 1
+    n_e = e_src.shape[0]
+    counts = np.zeros(n_cols, np.float64)
+    z = np.zeros(n_rel, np.float64)
+    p1 = np.empty(n_rel, np.float64)
+    p2 = np.empty(n_rel, np.float64)
+    for t in range(order.shape[0]):
+        q = order[t]
+        for i in range(q_ptr[q], q_ptr[q + 1]):
+            b = q_ind[i]
+            for j in range(bit_len[b]):
+                counts[bit_cols[b, j]] += 1.0
+        for c in range(n_rel):
+            col = rel_col[c]
+            z[c] = counts[col] / col_size[col] if col_size[col] > 0 else 0.0
+        for i in range(q_ptr[q], q_ptr[q + 1]):
+            b = q_ind[i]
+            for j in range(bit_len[b]):
+                counts[bit_cols[b, j]] = 0.0
+        if t == 0 and fresh:
+            for c in range(n_rel):
+                e[c] = z[c]
+        else:
+            p1[:] = -np.inf
+            for k in range(n_e):
+                if e[e_src[k]] > p1[e_dst[k]]:
+                    p1[e_dst[k]] = e[e_src[k]]
+            if skip >= 0.0:
+                p2[:] = -np.inf
+                for k in range(n_e):
+                    if p1[e_src[k]] > p2[e_dst[k]]:
+                        p2[e_dst[k]] = p1[e_src[k]]
+            for c in range(n_rel):
+                p = p1[c]
+                if skip >= 0.0 and p2[c] - skip > p:
+                    p = p2[c] - skip
+                if stay >= 0.0 and e[c] - stay > p:
+                    p = e[c] - stay
+                if p == -np.inf:
+                    p = 0.0  # nothing predicts this cell: no sequence evidence either way
+                e[c] = z[c] + decay * p
+        for j in range(n_db):
+            s = 0.0
+            for i in range(db_ptr[j], db_ptr[j + 1]):
+                c = db_ind[i]
+                s += e[c] - z_weight * z[c]
+            if db_norm[j] > 0:
+                out[j, q] += s / db_norm[j]
+    return out

@@ -5,6 +5,9 @@ Protzel, "A Sequence-Based Neuronal Model for Mobile Robot Localization", KI 201
 randomised extra connections of section 4.3 (rSHOSM, ``p_extra > 0``). The
 output of every step is the set of winner cells; place recognition compares
 winner codes of different time steps by their overlap.
+:meth:`SequenceMemory.evidence` (our extension, method ``rshosm-seq``) instead
+scores a query traverse against a learned database with graded feed-forward
+and prediction evidence along the learned connections.
 
 Data layout (why it is fast): minicolumns are found through an inverted index
 *input bit -> minicolumns*, and lateral connections are kept as linked lists per
@@ -308,6 +311,103 @@ class SequenceMemory:
         ptr, idx = self._run_batch(batch, learn, progress)
         # winners come out sorted and unique
         return sp.csr_matrix((np.ones(idx.size, bool), idx, ptr), shape=(batch.shape[0], max(self.n_cells, 1)))
+
+    def column_sizes(self) -> np.ndarray:
+        """Number of feed-forward connections (input bits) of every minicolumn, int64."""
+        rows = np.arange(self._bit_cols.shape[1])[None, :] < self._bit_len[:, None]
+        return np.bincount(self._bit_cols[rows], minlength=self.n_columns)[: self.n_columns].astype(np.int64)
+
+    def evidence(self, query_batch, db_codes, decay: float = 0.9, stay: float | None = 0.05,
+                 skip: float | None = 0.05, direction: str = "both", progress: bool = False) -> np.ndarray:
+        """Graded sequence evidence of every query frame for every database frame.
+
+        **Our extension, not the paper's** (Algorithm 1 gives binary winner
+        cells, whose overlap cannot rank a query that is only partly like its
+        place; on Nordland summer vs winter that is most of them). The learned
+        memory is used as it is, nothing is learned or changed:
+
+        * feed-forward: a cell's input evidence ``z`` is the fraction of its
+          minicolumn's connections that are 1-bits of the query SDR (the
+          quantity Alg. 1 line 1 thresholds at ``threshold``);
+        * sequence: a cell's evidence is ``z + decay * p``, where ``p`` is the
+          best evidence of a cell that predicts it through a learned lateral
+          connection at the previous query frame (the prediction of lines 7 and
+          10, graded instead of binary); ``stay`` and ``skip`` admit a repeated
+          or a skipped database frame at that cost (velocity tolerance, as
+          SeqSLAM's velocity search), ``None`` disables them;
+        * ``direction="both"`` also runs the query traverse backwards along the
+          reversed connections and adds the two (the input term counted once),
+          so that evidence, like OpenSeqSLAM's centred window, comes from both
+          sides of a frame; ``"forward"`` is causal (online use).
+
+        The similarity of database frame ``j`` and query frame ``q`` is the mean
+        evidence of ``j``'s winner cells at ``q``. Cost per query frame is
+        linear in the number of learned connections; the output is dense.
+
+        Parameters
+        ----------
+        query_batch : SDR batch (n_q x n_inputs)
+        db_codes : csr matrix (n_db x cells), winner codes of the database traverse
+            from :meth:`run` on this memory.
+        decay : float in [0, 1)
+            Weight of the predicted evidence (1 / (1 - decay) frames of memory).
+        stay, skip : float >= 0 or None
+        direction : {"both", "forward"}
+        progress : bool
+            tqdm progress bar.
+
+        Returns
+        -------
+        ndarray, float32, n_db x n_q (higher = more similar).
+        """
+        if not 0.0 <= float(decay) < 1.0:
+            raise ValueError(f"decay must be in [0, 1), got {decay}")
+        for name, v in (("stay", stay), ("skip", skip)):
+            if v is not None and not float(v) >= 0.0:
+                raise ValueError(f"{name} must be >= 0 or None, got {v}")
+        if direction not in ("both", "forward"):
+            raise ValueError(f"direction must be 'both' or 'forward', got {direction!r}")
+        q = _sdr.check_batch(query_batch, n_bits=self.n_inputs, name="query SDR batch")
+        if not sp.issparse(db_codes) or db_codes.ndim != 2:
+            raise ValueError("db_codes must be a sparse winner-code matrix (database frames x cells)")
+        db = sp.csr_matrix(db_codes)
+        if db.shape[1] > self.n_cells and db[:, self.n_cells:].nnz:
+            raise ValueError(f"db_codes use cells beyond this memory's {self.n_cells}: codes of another memory?")
+        cpc = self.cells_per_column
+        ne = self.n_connections
+        src, dst = self._e_src[:ne], self._e_dst[:ne]
+        # only cells in database codes or on a connection can carry evidence to the output
+        rel = np.unique(np.concatenate([db.indices.astype(np.int64), src, dst]))
+        remap = lambda a: np.searchsorted(rel, a).astype(np.int64)  # noqa: E731
+        db_ind = remap(db.indices.astype(np.int64))
+        db_ptr = db.indptr.astype(np.int64)
+        db_norm = np.diff(db_ptr).astype(np.float64)
+        rs, rd = remap(src), remap(dst)
+        col_size = self.column_sizes().astype(np.float64)
+        n_db, n_q = db.shape[0], q.shape[0]
+        out = np.zeros((n_db, n_q), dtype=np.float32)
+        st, sk = (-1.0 if stay is None else float(stay)), (-1.0 if skip is None else float(skip))
+        passes = [(np.arange(n_q), rs, rd, 0.5 if direction == "both" else 0.0)]
+        if direction == "both":
+            passes.append((np.arange(n_q)[::-1].copy(), rd, rs, 0.5))
+        q_ptr, q_ind = q.indptr.astype(np.int64), q.indices.astype(np.int64)
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=n_q * len(passes), desc="rSHOSM evidence", unit="frame", leave=False)
+        chunk = 256 if progress else n_q
+        for order, a, b, zw in passes:
+            e = np.zeros(rel.size, np.float64)
+            for f0 in range(0, n_q, chunk):
+                K.evidence_frames(q_ptr, q_ind, order[f0:f0 + chunk], self._bit_cols, self._bit_len, col_size,
+                                  rel // cpc, a, b, db_ptr, db_ind, db_norm, float(decay), st, sk, zw, out, e,
+                                  f0 == 0)
+                if bar is not None:
+                    bar.update(min(chunk, n_q - f0))
+        if bar is not None:
+            bar.close()
+        return out
 
     # ------------------------------------------------------------ persistence
     def get_params(self) -> dict:

@@ -1,5 +1,13 @@
 """Place-recognition methods behind one interface: rSHOSM, SeqSLAM and pairwise.
 
+``rshosm`` is the paper's memory: winner codes compared by overlap.
+``rshosm-seq`` is our extension for matching a query traverse against a
+learned database (:meth:`vpr.memory.SequenceMemory.evidence`): the same learned
+memory, but the query's feed-forward overlaps and predictions are graded
+evidence accumulated along the learned connections in both directions, and
+each query's scores are standardised (``normalise="query"``); see
+``docs/experiments.md`` for what each part contributes on Nordland.
+
 Each method takes the encoded traverses (:class:`Features`: SDRs and/or dense
 descriptors) and returns a :class:`MatchResult` with a database x query
 similarity matrix (dense, or a top-K sparse matrix for large inputs), the best
@@ -29,6 +37,10 @@ DENSE_PAIRS_LIMIT = 20_000 * 20_000
 
 DEFAULT_CONF = {
     "rshosm": {**SequenceMemory().get_params(), "top_k": 50},
+    # stay / skip < 0 disable those transitions; threshold 0.75 (paper: 0.25) keeps a database
+    # frame from reusing minicolumns sampled from other frames (docs/experiments.md)
+    "rshosm-seq": {**SequenceMemory().get_params(), "threshold": 0.75, "decay": 0.9, "stay": 0.05,
+                   "skip": 0.05, "direction": "both", "normalise": "query"},
     "seqslam": {"ds": 10, "v_min": 0.8, "v_max": 1.2, "v_step": 0.1, "R": 10, "rwindow": 10,
                 "ratio_threshold": 0.9, "causal": False, "metric": "sad", "descriptor": "pixel"},
     "pairwise": {"on": "sdr", "metric": "auto", "top_k": 50},
@@ -100,6 +112,37 @@ def _need(feat: Features, attr: str, method: str, role: str):
     return value
 
 
+def _normalise_columns(S: np.ndarray, how: str) -> np.ndarray:
+    """Standardise every query column of a dense S in place (``how="query"``) or leave it."""
+    if how == "none":
+        return S
+    if how != "query":
+        raise ValueError(f"rshosm-seq: normalise must be 'query' or 'none', got {how!r}")
+    # each query's evidence has its own scale (how well that winter frame matches anything);
+    # z-scores make one threshold mean the same for every query, as SeqSLAM's enhancement does
+    for c0 in range(0, S.shape[1], 1024):
+        blk = S[:, c0:c0 + 1024]
+        sd = blk.std(axis=0)
+        blk -= blk.mean(axis=0)
+        blk /= np.where(sd > 0, sd, 1.0)
+    return S
+
+
+def _rshosm_seq(conf, db_sdr, q_sdr, progress):
+    """Learn ``db_sdr``, then the graded sequence evidence of ``q_sdr``."""
+    n_db, n_q = db_sdr.shape[0], q_sdr.shape[0]
+    if n_db * n_q > DENSE_PAIRS_LIMIT:
+        raise ValueError(f"rshosm-seq builds a dense {n_db} x {n_q} matrix, above the limit of "
+                         f"{DENSE_PAIRS_LIMIT} pairs; split the traverses")
+    mem = SequenceMemory(**{k: conf[k] for k in SequenceMemory().get_params()})
+    db_codes = mem.run(db_sdr, progress=progress)
+    mem.reset()
+    opt = lambda v: None if float(v) < 0 else float(v)  # noqa: E731
+    S = mem.evidence(q_sdr, db_codes, decay=conf["decay"], stay=opt(conf["stay"]),
+                     skip=opt(conf["skip"]), direction=conf["direction"], progress=progress)
+    return _normalise_columns(S, conf["normalise"])
+
+
 def _top_k_or_dense(n_db, n_q, top_k):
     return top_k if n_db * n_q > DENSE_PAIRS_LIMIT else None
 
@@ -130,6 +173,9 @@ def match(method: str, db: Features, query: Features, conf: dict | None = None,
         q_codes = mem.run(_need(query, "sdr", method, "query"), learn=False, progress=progress)
         db_codes, q_codes = pad_codes(db_codes, q_codes)
         S = similarity.overlap(db_codes, q_codes, top_k=_top_k_or_dense(len(db), len(query), conf["top_k"]))
+        best, score = best_matches(S)
+    elif method == "rshosm-seq":
+        S = _rshosm_seq(conf, _need(db, "sdr", method, "database"), _need(query, "sdr", method, "query"), progress)
         best, score = best_matches(S)
     elif method == "seqslam":
         from vpr.baselines.seqslam import difference_matrix
@@ -188,6 +234,11 @@ def loops(method: str, seq: Features, exclude: int = 1, conf: dict | None = None
     """
     if int(exclude) < 1:
         raise ValueError(f"exclude must be >= 1, got {exclude}")
+    if method == "rshosm-seq":
+        # within one traverse every frame's own evidence leaks, through the stay/skip and
+        # backward paths, onto the frames just before it, which loop closure must not see
+        raise ValueError("rshosm-seq matches a query traverse against a database; "
+                         "for loop closure within one traverse use rshosm")
     conf = merge_conf(method, conf)
     t = time.perf_counter()
     accepted = None

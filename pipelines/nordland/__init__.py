@@ -1,0 +1,60 @@
+"""Nordland summer vs winter benchmark: ``python -m pipelines.nordland --subset 358|full --out DIR``.
+
+Summer is the database, winter the query; a query frame i matches database
+frame j when |i - j| <= 1 (hard), pairs with 1 < |i - j| <= 3 are ignored
+(soft). Methods: pairwise (pixel SAD; SDR overlap), SeqSLAM (pixel, OpenSeqSLAM
+defaults), rSHOSM as in the paper and ``rshosm-seq`` (our sequence-evidence
+extension), all on the same frames. Writes ``metrics.json``, ``pr.png`` and
+``table.md`` to ``--out`` and prints the table. ``--grid`` instead runs the
+variant study of ``docs/experiments.md`` (:mod:`pipelines.nordland.experiments`).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from .benchmark import METHOD_SPECS, markdown_table, run_benchmark
+from .data import DEFAULT_DATA, SUBSETS, DatasetError
+
+__all__ = ["add_arguments", "run_command", "run_benchmark", "METHOD_SPECS", "markdown_table", "main"]
+
+
+def add_arguments(parser: argparse.ArgumentParser, command: str = "nordland") -> None:
+    """Options of ``vpr nordland`` / ``python -m pipelines.nordland``."""
+    parser.add_argument("--subset", choices=sorted(SUBSETS), default="358",
+                        help="358: every 10th frame (OpenSeqSLAM's demo subset); full: all 3,576")
+    parser.add_argument("--out", required=True, help="output folder (metrics.json, pr.png, table.md, cache/)")
+    parser.add_argument("--data", default=None,
+                        help=f"dataset folder holding summer/ and winter/ (default: {DEFAULT_DATA})")
+    parser.add_argument("--k", type=int, default=200, help="active bits of the 2048-bit SDRs (default 200)")
+    parser.add_argument("--threshold", type=float, default=None,
+                        help="minicolumn threshold of both rSHOSM methods (default: each method's own)")
+    parser.add_argument("--grid", action="store_true",
+                        help="run the rSHOSM variant study instead (docs/experiments.md)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+
+def run_command(args) -> int:
+    """Run the benchmark (or the variant grid) for parsed ``args``; print the table; return the exit status."""
+    try:
+        if args.grid:
+            from .experiments import run_grid
+
+            print(run_grid(args.subset, args.out, data=args.data, progress=not args.no_progress), end="")
+            return 0
+        doc = run_benchmark(args.subset, args.out, data=args.data, k=args.k, threshold=args.threshold,
+                            progress=not args.no_progress)
+    except (DatasetError, ValueError) as e:
+        print(f"vpr nordland: {e}", file=sys.stderr)
+        return 2
+    metrics = {label: m for label, m in doc["methods"].items()}
+    print(markdown_table(metrics, f"Nordland summer vs winter, {doc['frames']} frames (subset {doc['subset']})"),
+          end="")
+    print(f"peak memory {doc['peak_rss_mb']:.0f} MB, total {doc['total_seconds']:.1f} s; outputs in {args.out}")
+    return 0
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m pipelines.nordland", description=__doc__.splitlines()[0])
+    add_arguments(ap)
+    return run_command(ap.parse_args(argv))

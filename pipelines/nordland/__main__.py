@@ -1,0 +1,5 @@
+import sys
+
+from pipelines.nordland import main
+
+sys.exit(main())

@@ -1,0 +1,159 @@
+"""The Nordland summer (database) vs winter (query) benchmark.
+
+Every method sees the same frames: the pixel descriptor (OpenSeqSLAM's
+patch-normalised 64x32 grey thumbnail) and, for the SDR methods, its random
+projection top-k SDR with per-traverse standardisation (each season's encoder
+is fitted on that season's own frames, which removes the season's mean
+appearance; see ``docs/experiments.md`` for why).
+"""
+from __future__ import annotations
+
+import resource
+import time
+from pathlib import Path
+
+import numpy as np
+
+from vpr import evaluate as E
+from vpr import io as _io
+from vpr.methods import Features, match, merge_conf
+
+from .data import SUBSETS, find_dataset, frame_names, pixel_descriptors
+
+__all__ = ["METHOD_SPECS", "encode_sdrs", "run_methods", "run_benchmark", "markdown_table"]
+
+#: Benchmark entry -> (vpr.methods name, conf). Defaults everywhere except where stated.
+METHOD_SPECS = {
+    "pairwise (pixel, SAD)": ("pairwise", {"on": "descriptor", "metric": "sad"}),
+    "pairwise (SDR overlap)": ("pairwise", {"on": "sdr", "metric": "overlap"}),
+    "SeqSLAM (pixel)": ("seqslam", {}),
+    "rSHOSM (paper)": ("rshosm", {}),
+    "rSHOSM-seq": ("rshosm-seq", {}),
+}
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process so far, MB (Linux reports kB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def encode_sdrs(db_desc, q_desc, n_bits: int = 2048, k: int = 40, standardise: str = "fit", seed: int = 0):
+    """Random-projection top-k SDRs of both traverses; with ``"fit"`` each traverse is fitted on itself."""
+    import encoders
+
+    out = []
+    for desc in (db_desc, q_desc):
+        enc = encoders.get("projection", descriptor="pixel", n_bits=n_bits, k=k, standardise=standardise, seed=seed)
+        if standardise == "fit":
+            enc.fit_descriptors(desc)
+        out.append(enc.encode_descriptors(desc))
+    return out[0], out[1]
+
+
+def _pixel_sad(db_desc, q_desc):
+    """Pairwise negative mean absolute difference of the pixel descriptors.
+
+    The same numbers as ``pairwise`` with ``metric="sad"``, computed by SeqSLAM's
+    compiled difference matrix (25x faster here at 3,576 x 3,576).
+    """
+    from vpr.baselines.seqslam import difference_matrix
+
+    S = difference_matrix(db_desc, q_desc, metric="sad")
+    np.negative(S, out=S)
+    return S
+
+
+def run_methods(db_desc, q_desc, db_sdr, q_sdr, specs: dict, progress: bool = False) -> tuple[dict, dict]:
+    """Run and evaluate every ``specs`` entry, one at a time (one dense matrix alive at once).
+
+    Ground truth: |i - j| <= 1 true, 1 < |i - j| <= 3 ignored. Returns
+    ``(metrics, curves)``: label -> metric dict (with wall and CPU seconds and the
+    process's peak RSS after the method), label -> (precision, recall).
+    """
+    n_db, n_q = len(db_desc), len(q_desc)
+    names = [str(i) for i in range(max(n_db, n_q))]
+    db = Features(names[:n_db], sdr=db_sdr, desc=db_desc, pixels=db_desc)
+    q = Features(names[:n_q], sdr=q_sdr, desc=q_desc, pixels=q_desc)
+    gh, gs = E.gt_from_tolerance(n_db, n_q, 1), E.gt_from_tolerance(n_db, n_q, 3)
+    for method, conf in specs.values():
+        merge_conf(method, conf)  # bad conf fails before any work
+    metrics, curves = {}, {}
+    for label, (method, conf) in specs.items():
+        t0, c0 = time.perf_counter(), time.process_time()
+        if method == "pairwise" and conf.get("on") == "descriptor" and conf.get("metric") == "sad":
+            S = _pixel_sad(db_desc, q_desc)
+        else:
+            S = match(method, db, q, conf, progress=progress).similarity
+        sec, cpu = time.perf_counter() - t0, time.process_time() - c0
+        m = E.evaluate(S, gh, gs)
+        p, r, _ = E.pr_curve(S, gh, gs)
+        del S
+        curves[label] = (p, r)
+        metrics[label] = {"auc_pr": m["auc_pr"], "recall_at_100p": m["recall_at_100p"],
+                          "recall_at_1": m["recall_at_1"], "recall_at_5": m["recall_at_5"],
+                          "seconds": sec, "cpu_seconds": cpu, "peak_rss_mb_after": peak_rss_mb()}
+    return metrics, curves
+
+
+def markdown_table(metrics: dict, title: str | None = None) -> str:
+    """Markdown table of AUC, R@100P, R@1 and seconds per method."""
+    lines = [f"**{title}**", ""] if title else []
+    lines += ["| method | AUC | R@100P | R@1 | R@5 | seconds (wall) | seconds (CPU) |",
+              "|---|---:|---:|---:|---:|---:|---:|"]
+    for label, m in metrics.items():
+        lines.append(f"| {label} | {m['auc_pr']:.3f} | {m['recall_at_100p']:.3f} | {m['recall_at_1']:.3f} | "
+                     f"{m['recall_at_5']:.3f} | {m['seconds']:.2f} | {m['cpu_seconds']:.2f} |")
+    return "\n".join(lines) + "\n"
+
+
+def run_benchmark(subset: str, out, data=None, k: int = 40, threshold: float | None = None,
+                  progress: bool = True) -> dict:
+    """Load, encode, run every method, evaluate; write ``metrics.json``, ``pr.png`` and ``table.md``.
+
+    Parameters
+    ----------
+    subset : {"358", "full"}
+    out : output folder (descriptors are cached in ``out/cache``).
+    data : dataset folder; default :data:`pipelines.nordland.data.DEFAULT_DATA`.
+    k : active bits of the 2048-bit SDRs.
+    threshold : minicolumn threshold of both rSHOSM methods (default: the method defaults).
+
+    Returns
+    -------
+    dict: the content of ``metrics.json``.
+    """
+    from vpr.plots import plot_pr
+
+    out = Path(out)
+    t0 = time.perf_counter()
+    root = find_dataset(data)
+    names = frame_names(root, subset)
+    db_desc = pixel_descriptors(root, "summer", names, out / "cache", progress)
+    q_desc = pixel_descriptors(root, "winter", names, out / "cache", progress)
+    t_enc = time.perf_counter()
+    db_sdr, q_sdr = encode_sdrs(db_desc, q_desc, k=k)
+    t_enc = time.perf_counter() - t_enc
+    specs = {label: (m, dict(c)) for label, (m, c) in METHOD_SPECS.items()}
+    if threshold is not None:
+        for label, (m, c) in specs.items():
+            if m.startswith("rshosm"):
+                c["threshold"] = float(threshold)
+    metrics, curves = run_methods(db_desc, q_desc, db_sdr, q_sdr, specs, progress)
+    out.mkdir(parents=True, exist_ok=True)
+    title = f"Nordland summer vs winter, {len(names)} frames (subset {subset})"
+    plot_pr(curves, out / "pr.png", title=title)
+    table = markdown_table(metrics, title)
+    with _io.atomic_open(out / "table.md", "w", encoding="utf-8") as fh:
+        fh.write(table)
+    doc = {
+        "subset": subset, "frames": len(names), "step": SUBSETS[subset], "data": str(root),
+        "ground_truth": {"hard": "|i - j| <= 1", "soft": "|i - j| <= 3"},
+        "sdr": {"encoder": "projection", "descriptor": "pixel", "n_bits": 2048, "k": k, "standardise": "fit",
+                "fitted_on": "each traverse itself", "seconds": t_enc},
+        "methods": {label: {"method": m, "conf": merge_conf(m, c), **metrics[label]}
+                    for label, (m, c) in specs.items()},
+        "peak_rss_mb": peak_rss_mb(),
+        "total_seconds": time.perf_counter() - t0,
+    }
+    _io.save_json(out / "metrics.json", doc)
+    return doc

@@ -1,0 +1,102 @@
+"""Nordland frames: locate the dataset, list the aligned frames, load and cache descriptors."""
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+
+from vpr import io as _io
+
+__all__ = ["DEFAULT_DATA", "SUBSETS", "DatasetError", "find_dataset", "frame_names", "load_images",
+           "pixel_descriptors"]
+
+#: Where the dataset is looked for when ``--data`` is not given (relative to the repository).
+DEFAULT_DATA = Path(__file__).resolve().parents[3] / "shared" / "datasets" / "nordland_trimmed"
+#: Subset name -> step through the sorted file list (every 10th file: OpenSeqSLAM's demo subset).
+SUBSETS = {"358": 10, "full": 1}
+SEASONS = ("summer", "winter")
+
+
+class DatasetError(ValueError):
+    """The dataset folder is missing or inconsistent."""
+
+
+def find_dataset(data=None) -> Path:
+    """The dataset root (a folder with ``summer/`` and ``winter/``), checked.
+
+    Raises
+    ------
+    DatasetError
+        The folder or a season sub-folder is missing; the message says where it looked.
+    """
+    root = Path(data) if data is not None else DEFAULT_DATA
+    missing = [s for s in SEASONS if not (root / s).is_dir()]
+    if missing:
+        raise DatasetError(f"Nordland dataset not found: looked for {', '.join(str(root / s) for s in missing)} "
+                           f"(pass --data PATH to the folder holding summer/ and winter/)")
+    return root
+
+
+def frame_names(root: Path, subset: str) -> list[str]:
+    """File names present in both seasons, sorted, every ``SUBSETS[subset]``-th one.
+
+    Raises
+    ------
+    DatasetError
+        Unknown subset, no images, or the seasons' file names differ (frames must be aligned).
+    """
+    if subset not in SUBSETS:
+        raise DatasetError(f"subset must be one of {sorted(SUBSETS)}, got {subset!r}")
+    names = {s: sorted(p.name for p in (root / s).iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg"))
+             for s in SEASONS}
+    if not names["summer"]:
+        raise DatasetError(f"no images in {root / 'summer'}")
+    if names["summer"] != names["winter"]:
+        only = sorted(set(names["summer"]) ^ set(names["winter"]))[:5]
+        raise DatasetError(f"{root}: summer/ and winter/ hold different file names (e.g. {only}); "
+                           f"frames must be aligned by name")
+    return names["summer"][:: SUBSETS[subset]]
+
+
+def load_images(folder: Path, names: list[str]) -> list[np.ndarray]:
+    """Read the named images with OpenCV (BGR uint8); a file that cannot be read is an error naming it."""
+    import cv2
+
+    out = []
+    for n in names:
+        img = cv2.imread(str(folder / n), cv2.IMREAD_COLOR)
+        if img is None:
+            raise DatasetError(f"cannot read image {folder / n}")
+        out.append(img)
+    return out
+
+
+def pixel_descriptors(root: Path, season: str, names: list[str], cache_dir: Path | None = None,
+                      progress: bool = False) -> np.ndarray:
+    """OpenSeqSLAM's patch-normalised 64x32 thumbnails (frames x 2048, float32), cached.
+
+    The cache file name carries a hash of the dataset path, the season and the
+    file list, so a different subset or dataset never reads a stale cache.
+    """
+    import encoders
+
+    key = hashlib.sha1("\n".join([str(root.resolve()), season, *names]).encode()).hexdigest()[:12]
+    path = None if cache_dir is None else Path(cache_dir) / f"pixel_{season}_{len(names)}_{key}.npy"
+    if path is not None and path.exists():
+        desc = np.load(path)
+        if desc.shape == (len(names), 2048):
+            return desc
+    enc = encoders.get("pixel")
+    chunks = []
+    it = range(0, len(names), 512)
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(it, desc=f"describe {season}", unit="chunk", leave=False)
+    for i in it:
+        chunks.append(enc.describe(load_images(root / season, names[i:i + 512])))
+    desc = np.concatenate(chunks).astype(np.float32)
+    if path is not None:
+        _io.save_npy(path, desc)
+    return desc

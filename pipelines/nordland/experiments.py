@@ -1,0 +1,166 @@
+"""The rSHOSM variant study of ``docs/experiments.md``: ``python -m pipelines.nordland --grid``.
+
+Each row changes one thing against the row it names, on the same frames and
+ground truth as the benchmark, and is reproducible from this module alone.
+Rows:
+
+- SDR density and per-traverse standardisation (pairwise overlap and the paper's rSHOSM);
+- the paper's rSHOSM with learning off and the query's minicolumns chosen as the
+  ``k`` best-overlapping ones instead of by threshold, optionally with the
+  overlaps z-scored against the neighbouring minicolumns (created around the
+  same database frames) and a bonus for minicolumns holding predicted cells
+  (:func:`binary_topk_query`, pure Python, run on the 358-frame subset only);
+- ``rshosm-seq`` built up one part at a time (graded evidence forward only,
+  both directions, stay/skip transitions, per-query normalisation), then one
+  default changed at a time (minicolumn threshold while learning the database,
+  rSHOSM's random connections, decay, standardisation).
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+from vpr import evaluate as E
+from vpr import io as _io
+from vpr.memory import SequenceMemory, pad_codes
+from vpr.methods import Features, match
+from vpr.similarity import overlap
+
+from .benchmark import encode_sdrs
+from .data import find_dataset, frame_names, pixel_descriptors
+
+__all__ = ["binary_topk_query", "grid_rows", "run_grid"]
+
+
+def binary_topk_query(mem: SequenceMemory, q_sdr, k_active: int = 30, window: int = 0, bias: float = 0.0,
+                      seed: int = 0) -> sp.csr_matrix:
+    """Query winner codes (learning off) with top-k minicolumn selection; a variant, not the paper's.
+
+    Every query frame activates the ``k_active`` minicolumns with the highest
+    score: the fraction of the minicolumn's connections that are on, z-scored
+    against minicolumns ``c - window//2 .. c + window//2`` when ``window > 0``,
+    plus ``bias`` if the minicolumn holds a predicted cell. Winners and
+    predictions then follow Algorithm 1 lines 5-11 (no learning).
+    """
+    rng = np.random.default_rng(seed)
+    cpc, nc = mem.cells_per_column, mem.n_columns
+    rows = np.arange(mem._bit_cols.shape[1])[None, :] < mem._bit_len[:, None]
+    C = sp.csr_matrix((np.ones(int(rows.sum()), np.float32),
+                       (mem._bit_cols[rows], np.repeat(np.arange(mem.n_inputs), mem._bit_len))),
+                      shape=(nc, mem.n_inputs))
+    size = np.maximum(np.asarray(C.sum(axis=1)).ravel(), 1)
+    ne = mem.n_connections
+    A = sp.csr_matrix((np.ones(ne, bool), (mem._e_src[:ne], mem._e_dst[:ne])), shape=(nc * cpc, nc * cpc))
+    outdeg = np.diff(A.indptr)
+    h = window // 2
+    i = np.arange(nc)
+    lo, hi = np.maximum(i - h, 0), np.minimum(i + h + 1, nc)
+    pred = np.zeros(nc * cpc, bool)
+    codes = []
+    for t in range(q_sdr.shape[0]):
+        x = (C @ q_sdr[t].T.astype(np.float32)).toarray().ravel() / size
+        if window:
+            cs, cs2 = np.r_[0, np.cumsum(x)], np.r_[0, np.cumsum(x * x)]
+            m = (cs[hi] - cs[lo]) / (hi - lo)
+            x = (x - m) / np.sqrt(np.maximum((cs2[hi] - cs2[lo]) / (hi - lo) - m * m, 1e-12))
+        score = x + bias * pred.reshape(nc, cpc).any(axis=1)
+        win, nxt = [], np.zeros_like(pred)
+        for c in np.argsort(-score, kind="stable")[:k_active]:
+            cells = np.arange(c * cpc, (c + 1) * cpc)
+            p = cells[pred[cells]]
+            if p.size:
+                win.extend(p.tolist())
+                src = p
+            else:  # burst: fewest forward connections wins, ties at random
+                win.append(int(cells[np.argmin(outdeg[cells] + 0.5 * rng.random(cpc))]))
+                src = cells
+            for s in src:
+                nxt[A.indices[A.indptr[s]:A.indptr[s + 1]]] = True
+        pred = nxt
+        codes.append(sorted(set(win)))
+    ptr = np.cumsum([0] + [len(w) for w in codes])
+    idx = np.concatenate([np.asarray(w, np.int64) for w in codes]) if ptr[-1] else np.zeros(0, np.int64)
+    return sp.csr_matrix((np.ones(idx.size, bool), idx, ptr), shape=(q_sdr.shape[0], nc * cpc))
+
+
+def grid_rows(subset: str) -> list[tuple]:
+    """(label, kind, k, standardise, conf) of every row of the study for ``subset``."""
+    rows = []
+    for k in (40, 200):
+        for st in ("none", "fit"):
+            rows.append((f"pairwise SDR overlap, k={k}, standardise={st}", "pairwise", k, st, {}))
+            rows.append((f"rSHOSM paper (threshold + k_active fallback), k={k}, standardise={st}", "rshosm", k, st, {}))
+    if subset == "358":
+        for k_act, window, bias in ((10, 0, 0.0), (30, 0, 0.0), (30, 100, 0.0), (30, 100, 3.0), (10, 100, 3.0)):
+            rows.append((f"rSHOSM binary, top-{k_act} query minicolumns, window={window}, bias={bias}, k=200",
+                         "topk", 200, "fit", {"k_active": k_act, "window": window, "bias": bias}))
+    base = {"stay": -1.0, "skip": -1.0, "direction": "forward", "normalise": "none"}
+    steps = [
+        ("graded evidence, forward only", {}),
+        ("+ both directions", {"direction": "both"}),
+        ("+ stay/skip 0.05", {"direction": "both", "stay": 0.05, "skip": 0.05}),
+        ("+ per-query normalisation (= rshosm-seq defaults)", {"direction": "both", "stay": 0.05, "skip": 0.05,
+                                                               "normalise": "query"}),
+    ]
+    for k in (40, 200):
+        for label, c in steps:
+            rows.append((f"rshosm-seq {label}, k={k}", "rshosm-seq", k, "fit", {**base, **c}))
+    for k in (40, 200):
+        for thr in (0.25, 0.5):
+            rows.append((f"rshosm-seq defaults but threshold={thr} (paper: 0.25), k={k}", "rshosm-seq", k, "fit",
+                         {"threshold": thr}))
+    rows.append(("rSHOSM paper but threshold=0.75, k=200", "rshosm", 200, "fit", {"threshold": 0.75}))
+    rows.append(("rshosm-seq defaults but p_extra=0 (SHOSM), k=200", "rshosm-seq", 200, "fit", {"p_extra": 0.0}))
+    rows.append(("rshosm-seq defaults but decay=0.8, k=200", "rshosm-seq", 200, "fit", {"decay": 0.8}))
+    rows.append(("rshosm-seq defaults but decay=0.95, k=200", "rshosm-seq", 200, "fit", {"decay": 0.95}))
+    rows.append(("rshosm-seq defaults but standardise=none, k=200", "rshosm-seq", 200, "none", {}))
+    return rows
+
+
+def run_grid(subset: str, out, data=None, progress: bool = True) -> str:
+    """Run every :func:`grid_rows` row; write ``grid.json`` and ``grid.md`` to ``out``; return the table."""
+    out = Path(out)
+    root = find_dataset(data)
+    names = frame_names(root, subset)
+    db_desc = pixel_descriptors(root, "summer", names, out / "cache", progress)
+    q_desc = pixel_descriptors(root, "winter", names, out / "cache", progress)
+    n = len(names)
+    gh, gs = E.gt_from_tolerance(n, n, 1), E.gt_from_tolerance(n, n, 3)
+    sdrs, results = {}, []
+    rows = grid_rows(subset)
+    it = rows
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(rows, desc="variants", unit="row")
+    for label, kind, k, st, conf in it:
+        if (k, st) not in sdrs:
+            sdrs[k, st] = encode_sdrs(db_desc, q_desc, k=k, standardise=st)
+        a, b = sdrs[k, st]
+        c0 = time.process_time()
+        if kind == "topk":
+            mem = SequenceMemory(seed=0)
+            db_codes = mem.run(a)
+            mem.reset()
+            S = overlap(*pad_codes(db_codes, binary_topk_query(mem, b, **conf)))
+        else:
+            method = "pairwise" if kind == "pairwise" else kind
+            S = match(method, Features(names, sdr=a), Features(names, sdr=b), conf).similarity
+        cpu = time.process_time() - c0
+        m = E.evaluate(S, gh, gs)
+        results.append({"variant": label, "method": kind, "k": k, "standardise": st, "conf": conf,
+                        "auc_pr": m["auc_pr"], "recall_at_100p": m["recall_at_100p"],
+                        "recall_at_1": m["recall_at_1"], "cpu_seconds": cpu})
+    out.mkdir(parents=True, exist_ok=True)
+    _io.save_json(out / "grid.json", {"subset": subset, "frames": n, "rows": results})
+    lines = [f"**rSHOSM variants, Nordland {n} frames (subset {subset})**", "",
+             "| variant | AUC | R@100P | R@1 | CPU s |", "|---|---:|---:|---:|---:|"]
+    lines += [f"| {r['variant']} | {r['auc_pr']:.3f} | {r['recall_at_100p']:.3f} | {r['recall_at_1']:.3f} | "
+              f"{r['cpu_seconds']:.1f} |" for r in results]
+    table = "\n".join(lines) + "\n"
+    with _io.atomic_open(out / "grid.md", "w", encoding="utf-8") as fh:
+        fh.write(table)
+    return table
