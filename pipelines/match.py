@@ -265,7 +265,7 @@ def _extract_all(args, srcs, methods, method_conf, out: Path):
     from pipelines.extract import extract
 
     encoder = encoders.get(args.encoder, **encoders.parse_conf(args.encoder_conf))
-    need_sdr = any(m == "rshosm" or (m == "pairwise" and method_conf.get(m, {}).get("on", "sdr") == "sdr")
+    need_sdr = any(m.startswith("rshosm") or (m == "pairwise" and method_conf.get(m, {}).get("on", "sdr") == "sdr")
                    for m in methods)
     seq_desc = merge_conf("seqslam", method_conf.get("seqslam")).get("descriptor") if "seqslam" in methods else None
     need_desc = seq_desc == "encoder" or ("pairwise" in methods and

