@@ -4,7 +4,8 @@ Renders the ``two_seasons`` scene (a street driven on a summer day and on a
 winter night, at different speeds), then runs ``vpr compare`` on it: the summer
 traverse is the database, the winter traverse the query, ground truth comes
 from the rendered positions. Prints the metrics table of rSHOSM, SeqSLAM and
-pairwise, with and without geometric verification, and writes everything
+pairwise (and ``rshosm-seq``, our sequence-evidence extension of rSHOSM), with
+and without geometric verification, and writes everything
 ``compare`` writes to ``DIR`` (the render goes to ``DIR/scene`` and is reused by
 the next run).
 """
@@ -18,15 +19,18 @@ from pipelines import match
 
 __all__ = ["add_arguments", "run_command", "DEFAULTS"]
 
-DEFAULTS = {"scene": "two_seasons", "encoder": "pixel", "radius": 3.0, "soft_radius": 10.0, "verify": 5}
+DEFAULTS = {"scene": "two_seasons", "encoder": "pixel", "encoder_conf": ["k=200", "standardise=fit"],
+            "methods": "rshosm,rshosm-seq,seqslam,pairwise", "radius": 3.0, "soft_radius": 10.0, "verify": 5}
 
 
 def add_arguments(ap: argparse.ArgumentParser, command: str = "demo") -> None:
     ap.add_argument("--out", required=True, help="output folder")
     ap.add_argument("--scene", default=DEFAULTS["scene"], help="builtin scene or spec file (default two_seasons)")
     ap.add_argument("--encoder", default=DEFAULTS["encoder"], help=f"encoder (default {DEFAULTS['encoder']})")
-    ap.add_argument("--encoder-conf", action="append", default=[], metavar="KEY=VALUE")
-    ap.add_argument("--methods", default="rshosm,seqslam,pairwise")
+    ap.add_argument("--encoder-conf", action="append", metavar="KEY=VALUE",
+                    help=f"encoder option, repeatable (default: {' '.join(DEFAULTS['encoder_conf'])}: "
+                         "200 of 2048 bits, each traverse standardised on its own frames)")
+    ap.add_argument("--methods", default=DEFAULTS["methods"], help=f"default {DEFAULTS['methods']}")
     ap.add_argument("--method-conf", action="append", default=[], metavar="METHOD.KEY=VALUE")
     ap.add_argument("--radius", type=float, default=DEFAULTS["radius"],
                     help="metres within which frames show the same place (default 3)")
@@ -81,7 +85,7 @@ def run_command(args) -> int:
     argv = [db, query, "--out", str(out), "--methods", args.methods, "--encoder", args.encoder,
             "--gt", rendered["ground_truth"], "--radius", str(args.radius), "--gt-soft", str(args.soft_radius),
             "--verify", str(args.verify)]
-    for kv in args.encoder_conf:
+    for kv in DEFAULTS["encoder_conf"] if args.encoder_conf is None else args.encoder_conf:
         argv += ["--encoder-conf", kv]
     for kv in args.method_conf:
         argv += ["--method-conf", kv]
