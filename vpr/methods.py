@@ -151,6 +151,13 @@ def _seqslam_descriptors(feat: Features, conf: dict, role: str):
     return _need(feat, "pixels" if conf["descriptor"] == "pixel" else "desc", "seqslam", role)
 
 
+def _check_dense(method: str, n_db: int, n_q: int) -> None:
+    # SeqSLAM's contrast enhancement and trajectory search need the whole difference matrix
+    if n_db * n_q > DENSE_PAIRS_LIMIT:
+        raise ValueError(f"{method} needs a dense {n_db} x {n_q} difference matrix "
+                         f"({n_db * n_q * 4 / 2**30:.1f} GiB); subsample the traverses (--step)")
+
+
 def _run_seqslam(D, conf):
     from vpr.baselines.seqslam import seqslam
 
@@ -180,6 +187,7 @@ def match(method: str, db: Features, query: Features, conf: dict | None = None,
     elif method == "seqslam":
         from vpr.baselines.seqslam import difference_matrix
 
+        _check_dense(method, len(db), len(query))
         D = difference_matrix(_seqslam_descriptors(db, conf, "database"),
                               _seqslam_descriptors(query, conf, "query"), metric=conf["metric"])
         S, best, score, accepted = _run_seqslam(D, conf)
@@ -205,6 +213,8 @@ def _pairwise(db: Features, query: Features | None, conf):
     a = _need(db, attr, "pairwise", "database")
     b = None if query is None else _need(query, attr, "pairwise", "query")
     n_q = len(db) if query is None else len(query)
+    if attr != "sdr":
+        _check_dense("pairwise comparison of dense descriptors", len(db), n_q)
     top_k = _top_k_or_dense(len(db), n_q, conf["top_k"]) if attr == "sdr" else None
     S = pairwise(a, b, metric=conf["metric"], top_k=top_k)
     best, score = best_matches(S)
@@ -250,6 +260,7 @@ def loops(method: str, seq: Features, exclude: int = 1, conf: dict | None = None
     elif method == "seqslam":
         from vpr.baselines.seqslam import difference_matrix
 
+        _check_dense(method, n, n)
         x = _seqslam_descriptors(seq, conf, "sequence")
         D = difference_matrix(x, x, metric=conf["metric"])
         # recent frames must not win the sequence search: give them the worst difference
