@@ -13,7 +13,14 @@ Rows:
 - ``rshosm-seq`` built up one part at a time (graded evidence forward only,
   both directions, stay/skip transitions, per-query normalisation), then one
   default changed at a time (minicolumn threshold while learning the database,
-  rSHOSM's random connections, decay, standardisation).
+  rSHOSM's random connections, decay, standardisation);
+- several feed-forward segments per minicolumn, taught on the query traverse by
+  the sequence prediction (:mod:`pipelines.nordland.segments`, pure Python,
+  358-frame subset only): teacher off (= the paper's rSHOSM), when no (or few)
+  minicolumns are active, only from confirmed predictions, with a cap; read
+  online, or in a second pass after teaching on the query itself (transductive)
+  or on the winter frames halfway between the subset's (held out); and an upper
+  bound whose teacher is the ground truth.
 """
 from __future__ import annotations
 
@@ -31,6 +38,7 @@ from vpr.similarity import overlap
 
 from .benchmark import encode_sdrs
 from .data import find_dataset, frame_names, pixel_descriptors
+from .segments import segment_codes
 
 __all__ = ["binary_topk_query", "grid_rows", "run_grid"]
 
@@ -117,7 +125,51 @@ def grid_rows(subset: str) -> list[tuple]:
     rows.append(("rshosm-seq defaults but decay=0.8, k=200", "rshosm-seq", 200, "fit", {"decay": 0.8}))
     rows.append(("rshosm-seq defaults but decay=0.95, k=200", "rshosm-seq", 200, "fit", {"decay": 0.95}))
     rows.append(("rshosm-seq defaults but standardise=none, k=200", "rshosm-seq", 200, "none", {}))
+    if subset == "358":
+        rows += segment_rows()
     return rows
+
+
+def segment_rows() -> list[tuple]:
+    """Rows of the feed-forward segment study (:func:`pipelines.nordland.segments.segment_codes`), k = 200.
+
+    ``teach_on``: ``"query"`` teaches on the query traverse itself (online, or
+    transductive for a second pass); ``"shifted"`` on the winter frames halfway
+    between the subset's (full list ``[5::10]``), which are not query frames.
+    """
+    spec = [
+        ("teacher off (= paper rSHOSM, literal)", {"teach_below": 0}),
+        ("teacher when no minicolumn is active, online", {"teach_below": 1}),
+        ("teacher when none active, 2nd pass after teaching on the query (transductive)",
+         {"teach_below": 1, "read": "after"}),
+        ("teacher when none active, at most 2 segments, online", {"teach_below": 1, "max_segments": 2}),
+        ("confirmed-prediction teacher when none active, online", {"teach_below": 1, "confirmed_only": True}),
+        ("confirmed teacher when fewer than 3 active, online", {"teach_below": 3, "confirmed_only": True}),
+        ("confirmed teacher always, at most 2 segments, online",
+         {"teach_below": 10**9, "confirmed_only": True, "max_segments": 2}),
+        ("confirmed teacher when none active, 2nd pass after teaching on the query (transductive)",
+         {"teach_below": 1, "confirmed_only": True, "read": "after"}),
+        ("confirmed teacher when none active, 2nd pass after teaching on held-out winter frames",
+         {"teach_below": 1, "confirmed_only": True, "read": "after", "teach_on": "shifted"}),
+        ("upper bound: ground truth teaches held-out winter frames, 2nd pass",
+         {"teacher": "labels", "read": "after", "teach_on": "shifted"}),
+        ("sanity check: ground truth teaches the query itself, 2nd pass (transductive)",
+         {"teacher": "labels", "read": "after"}),
+    ]
+    return [(f"segments: {label}, k=200", "segments", 200, "fit", conf) for label, conf in spec]
+
+
+def _segment_similarity(a, b, conf, teach_sdrs):
+    """Overlap of database and query winner codes of one segment row, and the row's counts."""
+    conf = dict(conf)
+    teach_sdr = teach_sdrs() if conf.pop("teach_on", "query") == "shifted" else None
+    db_codes, q_codes, stats = segment_codes(a, b, teach_sdr=teach_sdr, **conf)
+    return overlap(db_codes, q_codes), stats
+
+
+def _fmt(stats: dict) -> str:
+    p = stats["teacher_precision"]
+    return "n/a" if p is None else f"{p:.2f}"
 
 
 def run_grid(subset: str, out, data=None, progress: bool = True) -> str:
@@ -129,7 +181,16 @@ def run_grid(subset: str, out, data=None, progress: bool = True) -> str:
     q_desc = pixel_descriptors(root, "winter", names, out / "cache", progress)
     n = len(names)
     gh, gs = E.gt_from_tolerance(n, n, 1), E.gt_from_tolerance(n, n, 3)
-    sdrs, results = {}, []
+    sdrs, results, shifted = {}, [], {}
+
+    def teach_sdrs():
+        # winter frames halfway between the subset's: a second winter traverse that is not the query
+        if not shifted:
+            s_names = frame_names(root, "full")[5::10]
+            s_desc = pixel_descriptors(root, "winter", s_names, out / "cache", progress)
+            shifted["sdr"] = encode_sdrs(db_desc, s_desc, k=200, standardise="fit")[1]
+        return shifted["sdr"]
+
     rows = grid_rows(subset)
     it = rows
     if progress:
@@ -140,12 +201,17 @@ def run_grid(subset: str, out, data=None, progress: bool = True) -> str:
         if (k, st) not in sdrs:
             sdrs[k, st] = encode_sdrs(db_desc, q_desc, k=k, standardise=st)
         a, b = sdrs[k, st]
+        if kind == "segments" and conf.get("teach_on") == "shifted":
+            teach_sdrs()  # load and encode outside the timed region: CPU s is the method's alone
         c0 = time.process_time()
+        extra = None
         if kind == "topk":
             mem = SequenceMemory(seed=0)
             db_codes = mem.run(a)
             mem.reset()
             S = overlap(*pad_codes(db_codes, binary_topk_query(mem, b, **conf)))
+        elif kind == "segments":
+            S, extra = _segment_similarity(a, b, conf, teach_sdrs)
         else:
             method = "pairwise" if kind == "pairwise" else kind
             S = match(method, Features(names, sdr=a), Features(names, sdr=b), conf).similarity
@@ -153,13 +219,21 @@ def run_grid(subset: str, out, data=None, progress: bool = True) -> str:
         m = E.evaluate(S, gh, gs)
         results.append({"variant": label, "method": kind, "k": k, "standardise": st, "conf": conf,
                         "auc_pr": m["auc_pr"], "recall_at_100p": m["recall_at_100p"],
-                        "recall_at_1": m["recall_at_1"], "cpu_seconds": cpu})
+                        "recall_at_1": m["recall_at_1"], "cpu_seconds": cpu, **({"segments": extra} if extra else {})})
     out.mkdir(parents=True, exist_ok=True)
     _io.save_json(out / "grid.json", {"subset": subset, "frames": n, "rows": results})
     lines = [f"**rSHOSM variants, Nordland {n} frames (subset {subset})**", "",
              "| variant | AUC | R@100P | R@1 | CPU s |", "|---|---:|---:|---:|---:|"]
     lines += [f"| {r['variant']} | {r['auc_pr']:.3f} | {r['recall_at_100p']:.3f} | {r['recall_at_1']:.3f} | "
               f"{r['cpu_seconds']:.1f} |" for r in results]
+    seg = [r for r in results if "segments" in r]
+    if seg:
+        lines += ["", "Segment rows: database minicolumns, query frames on which the teacher added segments, "
+                  "segments added, fraction of them on a minicolumn of the right place (|i - t| <= 1; "
+                  "only when the query itself is taught)", ""]
+        lines += [f"- {r['variant']}: {r['segments']['columns']} minicolumns, {r['segments']['taught_frames']} "
+                  f"frames, {r['segments']['taught_segments']} segments, precision {_fmt(r['segments'])}"
+                  for r in seg]
     table = "\n".join(lines) + "\n"
     with _io.atomic_open(out / "grid.md", "w", encoding="utf-8") as fh:
         fh.write(table)
