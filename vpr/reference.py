@@ -12,7 +12,26 @@ from collections import defaultdict
 
 import numpy as np
 
-__all__ = ["ReferenceMemory"]
+__all__ = ["ReferenceMemory", "learn_lateral"]
+
+
+def learn_lateral(forward, backward, prev_winners, winners, cpc, p_extra, rng) -> None:
+    """Alg. 1 lines 12-13 with rSHOSM's extra connections, on dict-of-set connections.
+
+    Each previous winner ``s`` connects to each winner ``c`` unless a cell of
+    ``s``'s minicolumn already does; with probability ``p_extra`` (one draw from
+    ``rng`` per such pair) it connects anyway, unless ``s -> c`` exists.
+    """
+    for s in prev_winners:
+        for c in winners:
+            sources = backward[c]
+            has_column = any(x // cpc == s // cpc for x in sources)
+            make = not has_column
+            if has_column and p_extra > 0:
+                make = rng.random() < p_extra and s not in sources
+            if make:
+                forward[s].add(c)
+                backward[c].add(s)
 
 
 class ReferenceMemory:
@@ -70,16 +89,7 @@ class ReferenceMemory:
                 keys = [len(self.forward[c]) + 0.5 * self.rng.random() for c in cells]
                 winners.append(cells[int(np.argmin(keys))])   # line 11
         if learn:                                    # lines 12-13
-            for s in self.prev_winners:
-                for c in winners:
-                    sources = self.backward[c]
-                    has_column = any(x // cpc == s // cpc for x in sources)
-                    make = not has_column
-                    if has_column and self.p_extra > 0:
-                        make = self.rng.random() < self.p_extra and s not in sources
-                    if make:
-                        self.forward[s].add(c)
-                        self.backward[c].add(s)
+            learn_lateral(self.forward, self.backward, self.prev_winners, winners, cpc, self.p_extra, self.rng)
         self.predicted = next_predicted
         self.prev_winners = winners
         return winners

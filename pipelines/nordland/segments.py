@@ -34,6 +34,8 @@ from collections import defaultdict
 import numpy as np
 import scipy.sparse as sp
 
+from vpr.reference import learn_lateral
+
 __all__ = ["SegmentedMemory", "segment_codes", "teach_from_labels", "teacher_precision"]
 
 
@@ -158,17 +160,7 @@ class SegmentedMemory:
 
     def _learn_lateral(self, winners: list[int]) -> None:
         """Alg. 1 lines 12-13 with rSHOSM's random extra connections (as ReferenceMemory)."""
-        cpc = self.cpc
-        for s in self.prev_winners:
-            for c in winners:
-                sources = self.backward[c]
-                has_column = any(x // cpc == s // cpc for x in sources)
-                make = not has_column
-                if has_column and self.p_extra > 0:
-                    make = self.rng.random() < self.p_extra and s not in sources
-                if make:
-                    self.forward[s].add(c)
-                    self.backward[c].add(s)
+        learn_lateral(self.forward, self.backward, self.prev_winners, winners, self.cpc, self.p_extra, self.rng)
 
     # -------------------------------------------------------------------- step
     def step(self, bits, learn: bool = True, teach: bool = False) -> list[int]:
