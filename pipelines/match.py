@@ -234,14 +234,16 @@ def accepted_precision(best_db, accepted, gt_hard, gt_soft=None) -> dict:
             "recall_accepted": float(correct.sum() / max(1, n_with_match))}
 
 
-def method_metrics(res: MatchResult, gt_hard, gt_soft, mask=None) -> dict:
+def method_metrics(res: MatchResult, gt_hard, gt_soft, mask=None):
+    """(metrics dict, (precision, recall) or None without ground truth)."""
     m = {"seconds": round(res.seconds, 4)}
-    if gt_hard is not None:
-        ev = evaluate.evaluate(res.similarity, gt_hard, gt_soft, mask=mask)
-        m.update({k: float(v) for k, v in ev.items()})
-        if mask is None:
-            m.update(accepted_precision(res.best_db, res.accepted, gt_hard, gt_soft))
-    return m
+    if gt_hard is None:
+        return m, None
+    ev, (prec, rec, _) = evaluate.evaluate(res.similarity, gt_hard, gt_soft, mask=mask, return_curve=True)
+    m.update({k: float(v) for k, v in ev.items()})
+    if mask is None:
+        m.update(accepted_precision(res.best_db, res.accepted, gt_hard, gt_soft))
+    return m, (prec, rec)
 
 
 def metrics_table(methods: dict) -> str:
@@ -305,10 +307,10 @@ def run_compare(args, methods: list[str]) -> dict:
         folder = out if single else out / m
         folder.mkdir(parents=True, exist_ok=True)
         sim_file = write_similarity(folder, res.similarity)
-        metrics[m] = method_metrics(res, gt_hard, gt_soft)
+        metrics[m], curve = method_metrics(res, gt_hard, gt_soft)
+        if curve is not None:
+            curves[m] = curve
         metrics[m]["similarity_file"] = str(Path(folder.name if not single else ".") / sim_file)
-        if gt_hard is not None:
-            curves[m] = evaluate.pr_curve(res.similarity, gt_hard, gt_soft)[:2]
         extra = {}
         if args.verify:
             t0 = time.perf_counter()
@@ -318,9 +320,9 @@ def run_compare(args, methods: list[str]) -> dict:
                                    res.seconds + time.perf_counter() - t0, res.conf)
             extra = {"verified_db": vr.best_db.tolist(), "inliers": vr.score.astype(int).tolist(),
                      "verified": vr.accepted.astype(int).tolist()}
-            metrics[m + "+verify"] = method_metrics(verified, gt_hard, gt_soft)
-            if gt_hard is not None:
-                curves[m + "+verify"] = evaluate.pr_curve(verified.similarity, gt_hard, gt_soft)[:2]
+            metrics[m + "+verify"], curve = method_metrics(verified, gt_hard, gt_soft)
+            if curve is not None:
+                curves[m + "+verify"] = curve
         write_matches(folder, res, db_ex.features.names, q_ex.features.names, extra)
         plots.plot_similarity(res.similarity, folder / "similarity.png", best_db=res.best_db,
                               accepted=res.accepted, gt_hard=gt_hard, title=f"{m}: database x query")
@@ -367,13 +369,14 @@ def run_loops(args) -> dict:
         xy = _loop_positions(args.gt[0], src.name, ex.indices)
         gt_hard = evaluate.gt_from_positions(xy, xy, args.radius)
         mask = evaluate.loop_closure_mask(len(ex.features), exclude=args.exclude)
-    metrics = {args.method: method_metrics(res, gt_hard, None, mask=mask)}
+    metrics = {}
+    metrics[args.method], curve = method_metrics(res, gt_hard, None, mask=mask)
     metrics[args.method]["similarity_file"] = sim_file
     write_matches(out, res, ex.features.names, ex.features.names)
     plots.plot_similarity(res.similarity, out / "similarity.png", best_db=res.best_db, accepted=res.accepted,
                           gt_hard=gt_hard, title=f"{args.method}: loop closures")
     if gt_hard is not None:
-        plots.plot_pr({args.method: evaluate.pr_curve(res.similarity, gt_hard, mask=mask)[:2]}, out / "pr.png",
+        plots.plot_pr({args.method: curve}, out / "pr.png",
                       title=f"loop closures in {src.name}")
     report = {"methods": metrics,
               "params": {"command": "loops", "seq": str(args.seq), "exclude": args.exclude,

@@ -7,6 +7,7 @@ import scipy.sparse as sp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from vpr import evaluate as E
 from vpr.evaluate import (
     auc_from_pr,
     auc_pr,
@@ -444,3 +445,13 @@ def test_loop_closure_gt_positions_and_sparse():
         loop_closure_gt(xy)
     with pytest.raises(ValueError, match="exclude"):
         loop_closure_mask(5, -1)
+
+
+def test_evaluate_returns_the_curve_it_used():
+    rng = np.random.default_rng(5)
+    S = rng.random((12, 9))
+    gt = rng.random((12, 9)) < 0.2
+    metrics, (p, r, t) = E.evaluate(S, gt, return_curve=True)
+    p2, r2, t2 = E.pr_curve(S, gt)
+    assert np.array_equal(p, p2) and np.array_equal(r, r2) and np.array_equal(t, t2)
+    assert metrics == E.evaluate(S, gt)

@@ -426,7 +426,7 @@ def recall_at_k(S, gt_hard, gt_soft=None, k=1, mask=None) -> float:
     return _recall_at_k(_prepare(S, gt_hard, gt_soft, mask), k)
 
 
-def evaluate(S, gt_hard, gt_soft=None, mask=None) -> dict:
+def evaluate(S, gt_hard, gt_soft=None, mask=None, return_curve: bool = False):
     """Standard metric set for one similarity matrix.
 
     Returns
@@ -435,17 +435,21 @@ def evaluate(S, gt_hard, gt_soft=None, mask=None) -> dict:
         ``auc_pr`` and ``recall_at_100p`` (multi matching), ``recall_at_1``,
         ``recall_at_5`` and ``auc_pr_single`` (single matching), all floats.
         Arguments and errors as for :func:`pr_curve`.
+    (precision, recall, thresholds)
+        Only with ``return_curve=True``: the multi-matching curve of
+        :func:`pr_curve`, which the metrics were computed from (no second sort).
     """
     p = _prepare(S, gt_hard, gt_soft, mask)
-    precision, recall, _, fp = _curve(p, "multi")
+    precision, recall, thresholds, fp = _curve(p, "multi")
     precision_s, recall_s, _, _ = _curve(p, "single")
-    return {
+    metrics = {
         "auc_pr": _auc(precision, recall),
         "recall_at_100p": float(recall[fp == 0][-1]),
         "recall_at_1": _recall_at_k(p, 1),
         "recall_at_5": _recall_at_k(p, 5),
         "auc_pr_single": _auc(precision_s, recall_s),
     }
+    return (metrics, (precision, recall, thresholds)) if return_curve else metrics
 
 
 # --------------------------------------------------------------------------- #

@@ -69,8 +69,7 @@ def run_methods(db_desc, q_desc, db_sdr, q_sdr, specs: dict, progress: bool = Fa
         t0, c0 = time.perf_counter(), time.process_time()
         S = match(method, db, q, conf, progress=progress).similarity
         sec, cpu = time.perf_counter() - t0, time.process_time() - c0
-        m = E.evaluate(S, gh, gs)
-        p, r, _ = E.pr_curve(S, gh, gs)
+        m, (p, r, _) = E.evaluate(S, gh, gs, return_curve=True)
         del S
         curves[label] = (p, r)
         metrics[label] = {"auc_pr": m["auc_pr"], "recall_at_100p": m["recall_at_100p"],
