@@ -14,11 +14,13 @@ Registered encoders (see each module for its conf keys):
 - ``cnn``: pooled ONNX CNN features (EfficientNet-Lite0 by default) -> projection top-k
 
 Conf values may be strings (from ``--encoder-conf key=value``); they are
-coerced to the type of the default.
+coerced to the type of the default (:func:`vpr.config.merge_conf`).
 """
 from __future__ import annotations
 
 from importlib import import_module
+
+from vpr.config import parse_key_values
 
 from .base import BaseEncoder
 
@@ -68,13 +70,7 @@ def parse_conf(pairs) -> dict:
     ValueError
         An item without ``=`` or with an empty key.
     """
-    conf = {}
-    for item in pairs or ():
-        key, sep, value = str(item).partition("=")
-        if not sep or not key.strip():
-            raise ValueError(f"--encoder-conf: expected key=value, got {item!r}")
-        conf[key.strip()] = value
-    return conf
+    return parse_key_values(pairs, "--encoder-conf")
 
 
 def add_arguments(parser, default: str = "pixel") -> None:

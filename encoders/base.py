@@ -3,107 +3,18 @@
 Each encoder is a small class with a ``default_conf`` dict (as in hloc); the
 user's configuration is merged over the defaults of the class and all its
 bases. Values given as strings (``--encoder-conf key=value`` on the command
-line) are coerced to the type of the default they replace.
+line) are coerced to the type of the default they replace
+(:func:`vpr.config.merge_conf`).
 """
 from __future__ import annotations
-
-import copy
-import json
-from typing import Any, Mapping
 
 import numpy as np
 import scipy.sparse as sp
 
+from vpr.config import merge_conf
 from vpr.imageproc import to_uint8
 
-__all__ = ["BaseEncoder", "coerce_value", "as_image_list", "check_descriptors"]
-
-_TRUE = {"1", "true", "yes", "on", "y", "t"}
-_FALSE = {"0", "false", "no", "off", "n", "f"}
-
-
-def _parse_scalar(text: str):
-    t = text.strip()
-    if t.lower() in ("none", "null", ""):
-        return None
-    for cast in (int, float):
-        try:
-            return cast(t)
-        except ValueError:
-            pass
-    return t
-
-
-def coerce_value(key: str, value: Any, default: Any) -> Any:
-    """Coerce ``value`` to the type of ``default`` (used for CLI strings).
-
-    Non-string values are checked loosely (numbers for numbers, sequences for
-    tuples) and returned converted; strings are parsed: ``"true"``/``"0"`` for
-    booleans, ``"224,224"`` or ``"[224, 224]"`` for tuples, JSON for dicts and
-    ``"none"`` for ``None``.
-
-    Raises
-    ------
-    ValueError
-        If the value cannot be read as the default's type; the message names
-        ``key``.
-    """
-    if default is None:
-        return _parse_scalar(value) if isinstance(value, str) else value
-    try:
-        if isinstance(default, bool):
-            if isinstance(value, str):
-                v = value.strip().lower()
-                if v in _TRUE:
-                    return True
-                if v in _FALSE:
-                    return False
-                raise ValueError(value)
-            if isinstance(value, (bool, np.bool_)) or value in (0, 1):
-                return bool(value)
-            raise ValueError(value)
-        if isinstance(default, int):
-            if isinstance(value, str):
-                f = float(value.strip())
-            elif isinstance(value, (bool, np.bool_)):
-                raise ValueError(value)
-            else:
-                f = float(value)
-            if f != int(f):
-                raise ValueError(value)
-            return int(f)
-        if isinstance(default, float):
-            if isinstance(value, (bool, np.bool_)):
-                raise ValueError(value)
-            return float(value.strip() if isinstance(value, str) else value)
-        if isinstance(default, (tuple, list)):
-            if isinstance(value, str):
-                s = value.strip()
-                if s.startswith(("[", "(")):
-                    s = s[1:-1]
-                items = [x for x in (p.strip() for p in s.split(",")) if x != ""]
-            else:
-                items = list(value)
-            if default:
-                proto = default[0]
-                items = [coerce_value(f"{key}[{i}]", x, proto) for i, x in enumerate(items)]
-            else:
-                items = [_parse_scalar(x) if isinstance(x, str) else x for x in items]
-            return type(default)(items)
-        if isinstance(default, dict):
-            if isinstance(value, str):
-                value = json.loads(value) if value.strip() else {}
-            if not isinstance(value, Mapping):
-                raise ValueError(value)
-            return dict(value)
-        if isinstance(default, str):
-            if not isinstance(value, str):
-                raise ValueError(value)
-            return value
-    except (ValueError, TypeError, json.JSONDecodeError) as e:
-        raise ValueError(f"conf {key!r}: cannot read {value!r} as {type(default).__name__}") from e
-    return value
-
+__all__ = ["BaseEncoder", "as_image_list", "check_descriptors"]
 
 def as_image_list(images, name: str = "images") -> list[np.ndarray]:
     """Validate a batch of images and return a list of uint8 arrays.
@@ -182,12 +93,7 @@ class BaseEncoder:
         defaults: dict = {}
         for cls in reversed(type(self).__mro__):
             defaults.update(getattr(cls, "default_conf", {}) or {})
-        unknown = sorted(set(conf) - set(defaults))
-        if unknown:
-            raise ValueError(f"{self.name}: unknown conf key(s) {unknown}; known: {sorted(defaults)}")
-        # deep copy: a default dict or list must not be shared between instances
-        self.conf = {k: coerce_value(k, conf[k], v) if k in conf else copy.deepcopy(v)
-                     for k, v in defaults.items()}
+        self.conf = merge_conf(defaults, conf, f"{self.name} encoder")
 
     @property
     def n_bits(self) -> int:

@@ -36,7 +36,9 @@ import scipy.sparse as sp
 from vpr import sdr
 from vpr.imageproc import resize, to_grey
 
-from .base import BaseEncoder, as_image_list, check_descriptors, coerce_value
+from vpr.config import merge_conf
+
+from .base import BaseEncoder, as_image_list, check_descriptors
 
 __all__ = ["TopKProjection", "ProjectedEncoder", "ProjectionEncoder", "HogDescriptor"]
 
@@ -211,10 +213,7 @@ class HogDescriptor:
     default_conf = {"size": (128, 64), "orientations": 9, "pixels_per_cell": 16, "cells_per_block": 2}
 
     def __init__(self, **conf):
-        unknown = sorted(set(conf) - set(self.default_conf))
-        if unknown:
-            raise ValueError(f"hog: unknown conf key(s) {unknown}; known: {sorted(self.default_conf)}")
-        self.conf = {k: coerce_value(k, conf[k], v) if k in conf else v for k, v in self.default_conf.items()}
+        self.conf = merge_conf(self.default_conf, conf, "hog descriptor")
         w, h = self.conf["size"]
         ppc, cpb = self.conf["pixels_per_cell"], self.conf["cells_per_block"]
         if min(w, h) < ppc * cpb:

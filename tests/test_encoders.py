@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import encoders
-from encoders.base import coerce_value
+from vpr.config import coerce_value
 from encoders.projection import TopKProjection
 from vpr.imageproc import seqslam_preprocess
 from vpr.sdr import overlap
@@ -62,7 +62,7 @@ def test_registry_lists_and_builds_all():
 def test_registry_rejects_unknown_name_and_key():
     with pytest.raises(ValueError, match="unknown encoder 'nope'.*pixel"):
         encoders.get("nope")
-    with pytest.raises(ValueError, match="unknown conf key.*'kk'"):
+    with pytest.raises(ValueError, match="unknown pixel encoder option.*'kk'"):
         encoders.get("pixel", kk=3)
 
 

@@ -1,0 +1,174 @@
+"""One configuration helper for encoders, methods, descriptors and the verifier.
+
+Every configurable class keeps a ``default_conf`` dict (as in hloc); the
+user's configuration is merged into it with :func:`merge_conf`, which rejects
+unknown keys (listing the valid ones) and coerces each value to the type of
+the default it replaces, so ``--encoder-conf k=40`` and ``k=40`` in Python
+mean the same. :func:`parse_key_values` reads the command line's
+``--x-conf key=value`` lists.
+
+``None`` as a value: a default of ``None`` gives no type, so a string given for
+it is parsed as a scalar (int, float, ``none``) and other values pass as they
+are. Keys listed in ``nullable`` accept ``None`` (or the string ``"none"``) in
+addition to the default's type; methods use that for "disabled" (e.g.
+rshosm-seq's ``stay=None``: no stay transition).
+"""
+from __future__ import annotations
+
+import copy
+import json
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import numpy as np
+
+__all__ = ["merge_conf", "coerce_value", "parse_key_values"]
+
+_TRUE = {"1", "true", "yes", "on", "y", "t"}
+_FALSE = {"0", "false", "no", "off", "n", "f"}
+_NONE = ("none", "null", "")
+
+
+def _parse_scalar(text: str):
+    t = text.strip()
+    if t.lower() in _NONE:
+        return None
+    for cast in (int, float):
+        try:
+            return cast(t)
+        except ValueError:
+            pass
+    return t
+
+
+def coerce_value(key: str, value: Any, default: Any) -> Any:
+    """Coerce ``value`` to the type of ``default`` (used for CLI strings).
+
+    Non-string values are checked loosely (numbers for numbers, sequences for
+    tuples) and returned converted; strings are parsed: ``"true"``/``"0"`` for
+    booleans, ``"224,224"`` or ``"[224, 224]"`` for tuples, JSON for dicts and
+    ``"none"`` for ``None``.
+
+    Raises
+    ------
+    ValueError
+        If the value cannot be read as the default's type; the message names
+        ``key``.
+    """
+    if default is None:
+        return _parse_scalar(value) if isinstance(value, str) else value
+    try:
+        if isinstance(default, bool):
+            if isinstance(value, str):
+                v = value.strip().lower()
+                if v in _TRUE:
+                    return True
+                if v in _FALSE:
+                    return False
+                raise ValueError(value)
+            if isinstance(value, (bool, np.bool_)) or value in (0, 1):
+                return bool(value)
+            raise ValueError(value)
+        if isinstance(default, int):
+            if isinstance(value, str):
+                f = float(value.strip())
+            elif isinstance(value, (bool, np.bool_)):
+                raise ValueError(value)
+            else:
+                f = float(value)
+            if f != int(f):
+                raise ValueError(value)
+            return int(f)
+        if isinstance(default, float):
+            if isinstance(value, (bool, np.bool_)):
+                raise ValueError(value)
+            return float(value.strip() if isinstance(value, str) else value)
+        if isinstance(default, (tuple, list)):
+            if isinstance(value, str):
+                s = value.strip()
+                if s.startswith(("[", "(")):
+                    s = s[1:-1]
+                items = [x for x in (p.strip() for p in s.split(",")) if x != ""]
+            else:
+                items = list(value)
+            if default:
+                proto = default[0]
+                items = [coerce_value(f"{key}[{i}]", x, proto) for i, x in enumerate(items)]
+            else:
+                items = [_parse_scalar(x) if isinstance(x, str) else x for x in items]
+            return type(default)(items)
+        if isinstance(default, dict):
+            if isinstance(value, str):
+                value = json.loads(value) if value.strip() else {}
+            if not isinstance(value, Mapping):
+                raise ValueError(value)
+            return dict(value)
+        if isinstance(default, str):
+            if not isinstance(value, str):
+                raise ValueError(value)
+            return value
+    except (ValueError, TypeError, json.JSONDecodeError) as e:
+        raise ValueError(f"conf {key!r}: cannot read {value!r} as {type(default).__name__}") from e
+    return value
+
+
+def merge_conf(default_conf: Mapping, conf: Mapping | None, what: str, nullable: Iterable[str] = ()) -> dict:
+    """``default_conf`` updated with ``conf``, each value coerced to its default's type.
+
+    Parameters
+    ----------
+    default_conf : mapping
+        Every valid key with its default; the defaults are deep-copied, so a
+        default list or dict is never shared between results.
+    conf : mapping or None
+        Overrides; strings (from the command line) are parsed as the
+        default's type, other values checked and converted loosely.
+    what : str
+        What is configured, for error messages (e.g. ``"rshosm-seq"``).
+    nullable : iterable of str
+        Keys that also accept ``None`` (or the string ``"none"``).
+
+    Raises
+    ------
+    ValueError
+        Unknown keys (the message lists the valid ones) or a value that
+        cannot be read as its default's type.
+    """
+    conf = dict(conf or {})
+    unknown = sorted(set(conf) - set(default_conf))
+    if unknown:
+        raise ValueError(f"unknown {what} option(s) {unknown}; valid: {sorted(default_conf)}")
+    nullable = set(nullable)
+    out = {}
+    for key, default in default_conf.items():
+        if key not in conf:
+            out[key] = copy.deepcopy(default)
+            continue
+        value = conf[key]
+        if key in nullable and (value is None or (isinstance(value, str) and value.strip().lower() in _NONE)):
+            out[key] = None
+            continue
+        try:
+            out[key] = coerce_value(key, value, default)
+        except ValueError as e:
+            raise ValueError(f"{what}: {e}") from None
+    return out
+
+
+def parse_key_values(items: Iterable[str] | None, flag: str) -> dict:
+    """``["k=40", "standardise=fit"]`` (a repeatable ``--x-conf key=value``) -> dict of strings.
+
+    The strings are coerced later, by :func:`merge_conf`, to the defaults' types.
+
+    Raises
+    ------
+    ValueError
+        An item without ``=`` or with an empty key; the message names ``flag``.
+    """
+    out = {}
+    for item in items or ():
+        key, sep, value = str(item).partition("=")
+        if not sep or not key.strip():
+            raise ValueError(f"{flag}: expected key=value, got {item!r}")
+        out[key.strip()] = value
+    return out
