@@ -100,7 +100,7 @@ class BaseEncoder:
         """Width of the SDRs produced by :meth:`encode`."""
         raise NotImplementedError
 
-    def fit(self, images) -> "BaseEncoder":
+    def fit(self, images) -> BaseEncoder:
         """Learn statistics from ``images`` (default: nothing to learn). Returns self."""
         as_image_list(images)
         return self

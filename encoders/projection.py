@@ -34,9 +34,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from vpr import sdr
-from vpr.imageproc import resize, to_grey
-
 from vpr.config import merge_conf
+from vpr.imageproc import resize, to_grey
 
 from .base import BaseEncoder, as_image_list, check_descriptors
 
@@ -108,7 +107,7 @@ class TopKProjection:
         std[std < 1e-6] = np.inf
         return mean, std
 
-    def fit(self, desc) -> "TopKProjection":
+    def fit(self, desc) -> TopKProjection:
         """Learn the per-dim mean and std used by ``standardise="fit"``. Returns self."""
         d = check_descriptors(desc)
         if d.shape[0] < 2:
@@ -181,12 +180,12 @@ class ProjectedEncoder(BaseEncoder):
     def describe(self, images) -> np.ndarray:
         raise NotImplementedError
 
-    def fit(self, images) -> "ProjectedEncoder":
+    def fit(self, images) -> ProjectedEncoder:
         """Learn the standardisation statistics from ``images`` (used by ``standardise="fit"``)."""
         self.projection.fit(self.describe(images))
         return self
 
-    def fit_descriptors(self, desc) -> "ProjectedEncoder":
+    def fit_descriptors(self, desc) -> ProjectedEncoder:
         """As :meth:`fit`, from precomputed descriptors."""
         self.projection.fit(desc)
         return self

@@ -19,7 +19,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from vpr import imageproc, io
-from vpr.methods import Features
+from vpr.methods import EncodedTraverse
 from vpr.sources import Source, iter_batches
 
 __all__ = ["Extracted", "extract", "cache_key"]
@@ -30,7 +30,7 @@ THUMB_MAX_SIDE = 640
 
 @dataclass
 class Extracted:
-    features: Features
+    features: EncodedTraverse
     skipped: list = field(default_factory=list)
     ignored: int = 0
     seconds: float = 0.0
@@ -74,7 +74,7 @@ def _load_cache(path: Path) -> Extracted | None:
         if "sdr_indptr" in d:
             idx = d["sdr_indices"]
             sdr = sp.csr_matrix((np.ones(idx.size, bool), idx, d["sdr_indptr"]), shape=tuple(d["sdr_shape"]))
-        feats = Features(names=d["names"].tolist(), sdr=sdr, desc=d.get("desc"), pixels=d.get("pixels"))
+        feats = EncodedTraverse(names=d["names"].tolist(), sdr=sdr, desc=d.get("desc"), pixels=d.get("pixels"))
         return Extracted(feats, [tuple(s) for s in meta["skipped"]], meta["ignored"], meta["seconds"], True,
                          indices=d["indices"].tolist())
     except Exception:  # a damaged cache is recomputed, never trusted
@@ -143,7 +143,7 @@ def extract(source: Source, encoder, need_sdr=True, need_desc=False, need_pixels
             sdr = encoder.encode_descriptors(desc)
         else:
             sdr = sp.vstack(sdr_rows).tocsr()
-    feats = Features(names=names, sdr=sdr, desc=desc if need_desc else None,
+    feats = EncodedTraverse(names=names, sdr=sdr, desc=desc if need_desc else None,
                      pixels=np.concatenate(pixels).astype(np.float32) if pixels else None)
     ex = Extracted(feats, list(source.skipped), source.ignored, time.perf_counter() - t, False,
                    small if thumbs else None, indices)

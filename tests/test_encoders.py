@@ -11,8 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import encoders
-from vpr.config import coerce_value
 from encoders.projection import TopKProjection
+from vpr.config import coerce_value
 from vpr.imageproc import seqslam_preprocess
 from vpr.sdr import overlap
 

@@ -2,7 +2,9 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from vpr import methods, sdr, simulate
+from vpr import methods, simulate
+from vpr.memory import SequenceMemory
+from vpr.methods import base
 
 
 def _features(n=30, seed=0):
@@ -12,19 +14,39 @@ def _features(n=30, seed=0):
     q = simulate.observe(world, traj, 0.1, seed=2)
     rng = np.random.default_rng(seed)
     pix = rng.random((n, 64)).astype(np.float32)
-    mk = lambda s, p: methods.Features(names=[str(i) for i in range(n)], sdr=s, desc=p, pixels=p)  # noqa: E731
+    mk = lambda s, p: methods.EncodedTraverse(names=[str(i) for i in range(n)], sdr=s, desc=p, pixels=p)  # noqa: E731
     return mk(db, pix), mk(q, pix + 0.01 * rng.random((n, 64)).astype(np.float32))
 
 
-def test_merge_conf_rejects_unknown_methods_and_keys():
-    assert methods.merge_conf("seqslam", {"ds": 4})["ds"] == 4
-    with pytest.raises(ValueError, match="unknown method"):
-        methods.merge_conf("nope", {})
-    with pytest.raises(ValueError, match="unknown seqslam option"):
-        methods.merge_conf("seqslam", {"dx": 1})
+def test_registry_builds_methods_and_rejects_unknown_names_and_keys():
+    assert methods.available() == ["rshosm", "rshosm-seq", "seqslam", "pairwise"]
+    for name in methods.available():
+        m = methods.get(name)
+        assert isinstance(m, methods.Method) and m.name == name and m.conf == type(m).default_conf
+    # strings (from --method-conf) are read as the default's type
+    assert methods.get("seqslam", ds="4", causal="true").conf["ds"] == 4
+    assert methods.get("seqslam", causal="true").conf["causal"] is True
+    with pytest.raises(ValueError, match="unknown method 'nope'; available: rshosm"):
+        methods.get("nope")
+    with pytest.raises(ValueError, match=r"unknown seqslam option\(s\) \['dx'\]; valid: \['R', 'causal'"):
+        methods.get("seqslam", dx=1)
+    with pytest.raises(ValueError, match="seqslam: conf 'ds': cannot read 'many' as int"):
+        methods.get("seqslam", ds="many")
+    # the rshosm conf is the memory's parameters plus its own
+    assert set(methods.get_class("rshosm").default_conf) == {"top_k", *SequenceMemory.default_params()}
 
 
-@pytest.mark.parametrize("method", methods.METHODS)
+def test_methods_refuse_loop_closure_they_cannot_do():
+    seq = methods.EncodedTraverse(names=list(range(5)), sdr=sp.csr_matrix((5, 64), dtype=bool))
+
+    class NoLoops(methods.Method):
+        name = "noloops"
+
+    with pytest.raises(ValueError, match="noloops does not support loop closure"):
+        NoLoops().loops(seq, exclude=1)
+
+
+@pytest.mark.parametrize("method", methods.available())
 def test_every_method_finds_an_aligned_route(method):
     db, q = _features()
     conf = {"ds": 4} if method == "seqslam" else None
@@ -42,20 +64,26 @@ def test_best_matches_sparse_marks_empty_queries():
 
 def test_large_inputs_go_sparse_or_are_refused(monkeypatch):
     db, q = _features()
-    monkeypatch.setattr(methods, "DENSE_PAIRS_LIMIT", 100)
+    monkeypatch.setattr(base, "DENSE_PAIRS_LIMIT", 100)
     res = methods.match("rshosm", db, q, {"top_k": 3})
     assert sp.issparse(res.similarity) and res.similarity.nnz <= 3 * 30
     res = methods.match("pairwise", db, q, {"top_k": 2})
     assert sp.issparse(res.similarity)
-    with pytest.raises(ValueError, match="dense 30 x 30 difference matrix"):
+    with pytest.raises(ValueError, match="seqslam needs a dense 30 x 30 matrix"):
         methods.match("seqslam", db, q)
     with pytest.raises(ValueError, match="dense descriptors"):
         methods.match("pairwise", db, q, {"on": "descriptor"})
+    # refused before any work: rshosm-seq learns nothing from a database it cannot match
+    calls = []
+    monkeypatch.setattr(methods.get_class("rshosm-seq"), "_match", lambda *a: calls.append(a))
+    with pytest.raises(ValueError, match="rshosm-seq needs a dense 30 x 30 matrix"):
+        methods.match("rshosm-seq", db, q)
+    assert not calls
 
 
 def test_loops_only_look_back_far_enough():
     obs, places = simulate.simulate_loops(n_loops=3, seed=0)
-    feats = methods.Features(names=list(range(len(places))), sdr=obs)
+    feats = methods.EncodedTraverse(names=list(range(len(places))), sdr=obs)
     res = methods.loops("rshosm", feats, exclude=5)
     ok = res.best_db >= 0
     assert np.all(res.best_db[ok] <= np.flatnonzero(ok) - 5)

@@ -3,9 +3,10 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from vpr import evaluate, sdr
+from vpr import evaluate, methods, sdr
 from vpr.memory import SequenceMemory
-from vpr.methods import DEFAULT_CONF, METHODS, Features, loops, match, merge_conf
+from vpr.methods import EncodedTraverse as Features
+from vpr.methods import loops, match
 from vpr.similarity import overlap
 
 
@@ -129,13 +130,14 @@ def test_rshosm_seq_beats_pairwise_and_paper_memory_under_aliasing_and_noise():
 
 
 def test_method_registry_and_defaults():
-    assert "rshosm-seq" in METHODS and "rshosm" in METHODS
-    c = merge_conf("rshosm-seq", {"decay": 0.5})
+    assert "rshosm-seq" in methods.available() and "rshosm" in methods.available()
+    c = methods.get("rshosm-seq", decay="0.5").conf
     assert c["decay"] == 0.5 and c["threshold"] == 0.75 and c["normalise"] == "query"
     # the paper's memory keeps the paper's defaults
-    assert DEFAULT_CONF["rshosm"]["threshold"] == 0.25 and DEFAULT_CONF["rshosm"]["p_extra"] == 0.05
+    paper = methods.get_class("rshosm").default_conf
+    assert paper["threshold"] == 0.25 and paper["p_extra"] == 0.05
     with pytest.raises(ValueError, match="unknown rshosm-seq option"):
-        merge_conf("rshosm-seq", {"nope": 1})
+        methods.get("rshosm-seq", nope=1)
 
 
 def test_rshosm_seq_normalise_and_disabled_transitions():
@@ -146,12 +148,15 @@ def test_rshosm_seq_normalise_and_disabled_transitions():
     np.testing.assert_allclose(S.mean(axis=0), 0, atol=1e-4)
     np.testing.assert_allclose(S.std(axis=0), 1, atol=1e-3)
     raw = match("rshosm-seq", Features(names, sdr=db), Features(names, sdr=q),
-                {"normalise": "none", "stay": -1, "skip": -1}).similarity
+                {"normalise": "none", "stay": None, "skip": "none"}).similarity
     mem = SequenceMemory(threshold=0.75, seed=0)
     codes = mem.run(db)
     np.testing.assert_allclose(raw, mem.evidence(q, codes, stay=None, skip=None), rtol=1e-6)
     with pytest.raises(ValueError, match="normalise"):
         match("rshosm-seq", Features(names, sdr=db), Features(names, sdr=q), {"normalise": "global"})
+    # a negative cost is an error, not a second way of saying "disabled"
+    with pytest.raises(ValueError, match="stay must be >= 0 or None"):
+        match("rshosm-seq", Features(names, sdr=db), Features(names, sdr=q), {"stay": -1})
 
 
 def test_rshosm_seq_refuses_loop_closure():

@@ -17,6 +17,7 @@ prints the cost per observation.
 """
 from __future__ import annotations
 
+import inspect
 import json
 from pathlib import Path
 
@@ -410,6 +411,11 @@ class SequenceMemory:
         return out
 
     # ------------------------------------------------------------ persistence
+    @classmethod
+    def default_params(cls) -> dict:
+        """The constructor's parameters and their defaults (read from its signature: one source)."""
+        return {k: p.default for k, p in inspect.signature(cls.__init__).parameters.items() if k != "self"}
+
     def get_params(self) -> dict:
         return {k: getattr(self, k) for k in ("n_inputs", "cells_per_column", "new_columns", "connectivity",
                                               "threshold", "p_extra", "k_active", "seed")}

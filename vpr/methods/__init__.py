@@ -1,0 +1,79 @@
+"""Place-recognition methods behind one interface, found by name like the encoders.
+
+Registered methods (see each module for its conf keys):
+
+- ``rshosm``: the paper's memory; winner codes compared by overlap
+  (:class:`~vpr.methods.rshosm.Rshosm`).
+- ``rshosm-seq``: our extension for a query against a learned database; graded
+  sequence evidence (:class:`~vpr.methods.rshosm_seq.RshosmSeq`).
+- ``seqslam``: SeqSLAM on pixel or encoder descriptors (:class:`~vpr.methods.seqslam.SeqSlam`).
+- ``pairwise``: single-frame comparison of SDRs or descriptors (:class:`~vpr.methods.pairwise.Pairwise`).
+
+::
+
+    from vpr import methods
+    m = methods.get("seqslam", ds=20)          # conf merged over SeqSlam.default_conf
+    res = m.match(db, query)                   # db, query: EncodedTraverse
+    res = methods.match("rshosm", db, query)   # the same in one call
+
+Each method takes encoded traverses (:class:`EncodedTraverse`: SDRs and/or
+dense descriptors) and returns a :class:`MatchResult` with a database x query
+similarity matrix (dense, or a top-K sparse matrix above
+:data:`DENSE_PAIRS_LIMIT` pairs), the best database frame per query, its score
+and an accept flag. ``match`` compares a query traverse with a database
+traverse; ``loops`` finds loop closures within one traverse (only earlier
+frames, at least ``exclude`` frames back). A new method is a :class:`Method`
+subclass registered in ``_REGISTRY``.
+"""
+from __future__ import annotations
+
+from importlib import import_module
+
+from .base import DENSE_PAIRS_LIMIT, EncodedTraverse, MatchResult, Method, best_matches
+
+__all__ = ["get", "available", "get_class", "match", "loops", "Method", "EncodedTraverse", "MatchResult",
+           "best_matches", "DENSE_PAIRS_LIMIT"]
+
+# name -> (module, class); imported on first use, so that e.g. the SeqSLAM kernels load only for seqslam
+_REGISTRY = {
+    "rshosm": ("vpr.methods.rshosm", "Rshosm"),
+    "rshosm-seq": ("vpr.methods.rshosm_seq", "RshosmSeq"),
+    "seqslam": ("vpr.methods.seqslam", "SeqSlam"),
+    "pairwise": ("vpr.methods.pairwise", "Pairwise"),
+}
+
+
+def available() -> list[str]:
+    """Names accepted by :func:`get`, in registration order."""
+    return list(_REGISTRY)
+
+
+def get_class(name: str) -> type[Method]:
+    """The method class registered as ``name``.
+
+    Raises
+    ------
+    ValueError
+        Unknown name (the message lists the available ones).
+    """
+    if name not in _REGISTRY:
+        raise ValueError(f"unknown method {name!r}; available: {', '.join(available())}")
+    module, cls = _REGISTRY[name]
+    return getattr(import_module(module), cls)
+
+
+def get(name: str, **conf) -> Method:
+    """A new method ``name`` with ``conf`` merged over its ``default_conf``."""
+    return get_class(name)(**conf)
+
+
+def match(method: str, db: EncodedTraverse, query: EncodedTraverse, conf: dict | None = None,
+          progress: bool = False) -> MatchResult:
+    """Match every query frame against the database traverse with ``method`` (see :meth:`Method.match`)."""
+    return get(method, **(conf or {})).match(db, query, progress=progress)
+
+
+def loops(method: str, seq: EncodedTraverse, exclude: int = 1, conf: dict | None = None,
+          progress: bool = False) -> MatchResult:
+    """Loop closures within one traverse with ``method`` (see :meth:`Method.loops`)."""
+    return get(method, **(conf or {})).loops(seq, exclude=exclude, progress=progress)

@@ -1,0 +1,54 @@
+"""``pairwise``: every query frame against every database frame, no sequence information."""
+from __future__ import annotations
+
+import numpy as np
+
+from vpr import similarity
+from vpr.baselines.pairwise import pairwise
+
+from .base import EncodedTraverse, Method, best_matches, check_dense, need, top_k_or_dense
+
+__all__ = ["Pairwise"]
+
+
+class Pairwise(Method):
+    """Pairwise comparison of SDRs (``on="sdr"``, overlap) or dense descriptors (``on="descriptor"``).
+
+    Conf: ``on``, ``metric`` (see :func:`vpr.baselines.pairwise.pairwise`) and
+    ``top_k`` (entries kept per query when the SDR similarity is too large to
+    be dense; dense descriptors have no sparse form and are refused then).
+    """
+
+    name = "pairwise"
+    default_conf = {"on": "sdr", "metric": "auto", "top_k": 50}
+
+    @property
+    def _attr(self) -> str:
+        return "sdr" if self.conf["on"] == "sdr" else "desc"
+
+    def check_size(self, n_db: int, n_q: int) -> None:
+        if self._attr != "sdr":
+            check_dense("pairwise comparison of dense descriptors", n_db, n_q)
+
+    def warm_up(self) -> None:
+        similarity.mean_abs_diff(np.zeros((2, 2), np.float32))
+
+    def accept(self, best, score):
+        ok = super().accept(best, score)
+        # an SDR overlap of zero is no evidence
+        return ok & (score > 0) if self._attr == "sdr" else ok
+
+    def _similarity(self, db: EncodedTraverse, query: EncodedTraverse | None):
+        a = need(db, self._attr, self.name, "database" if query is not None else "sequence")
+        b = None if query is None else need(query, self._attr, self.name, "query")
+        n_q = len(db) if query is None else len(query)
+        top_k = top_k_or_dense(len(db), n_q, self.conf["top_k"]) if self._attr == "sdr" else None
+        return pairwise(a, b, metric=self.conf["metric"], top_k=top_k)
+
+    def _match(self, db: EncodedTraverse, query: EncodedTraverse, progress: bool):
+        S = self._similarity(db, query)
+        best, score = best_matches(S)
+        return S, best, score, None
+
+    def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool):
+        return self._similarity(seq, None), None

@@ -1,0 +1,58 @@
+"""``rshosm``: the paper's sequence memory; winner codes compared by overlap."""
+from __future__ import annotations
+
+from vpr import sdr, similarity
+from vpr.memory import SequenceMemory, pad_codes
+
+from .base import EncodedTraverse, Method, best_matches, need, top_k_or_dense
+
+__all__ = ["Rshosm", "warm_up_memory"]
+
+
+def warm_up_memory(evidence: bool = False) -> None:
+    """Compile (or load from numba's cache) the memory's kernels on a tiny input."""
+    tiny = sdr.from_indices([[0, 1, 2, 3]] * 2, 64)
+    mem = SequenceMemory(n_inputs=64, cells_per_column=2, new_columns=1)
+    codes = mem.run(tiny)
+    if evidence:
+        mem.evidence(tiny, codes)
+
+
+class Rshosm(Method):
+    """rSHOSM (Neubert et al. 2018): learn the database, run the query without learning, compare winner codes.
+
+    Conf: the :class:`~vpr.memory.SequenceMemory` parameters, and ``top_k``
+    (entries kept per query when the similarity matrix is too large to be dense).
+    In :meth:`loops` the memory learns while it runs, as in the paper.
+    """
+
+    name = "rshosm"
+    default_conf = {**SequenceMemory.default_params(), "top_k": 50}
+    nullable_conf = frozenset({"seed"})
+
+    def memory(self) -> SequenceMemory:
+        """A new, empty memory with this method's parameters."""
+        return SequenceMemory(**{k: self.conf[k] for k in SequenceMemory.default_params()})
+
+    def warm_up(self) -> None:
+        warm_up_memory()
+
+    def accept(self, best, score):
+        # an overlap of zero is no evidence
+        return super().accept(best, score) & (score > 0)
+
+    def _match(self, db: EncodedTraverse, query: EncodedTraverse, progress: bool):
+        mem = self.memory()
+        db_codes = mem.run(need(db, "sdr", self.name, "database"), progress=progress)
+        mem.reset()
+        q_codes = mem.run(need(query, "sdr", self.name, "query"), learn=False, progress=progress)
+        db_codes, q_codes = pad_codes(db_codes, q_codes)
+        S = similarity.overlap(db_codes, q_codes, top_k=top_k_or_dense(len(db), len(query), self.conf["top_k"]))
+        best, score = best_matches(S)
+        return S, best, score, None
+
+    def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool):
+        n = len(seq)
+        codes = self.memory().run(need(seq, "sdr", self.name, "sequence"), progress=progress)
+        return similarity.overlap(codes, top_k=top_k_or_dense(n, n, self.conf["top_k"])), None
+

@@ -1,0 +1,75 @@
+"""``rshosm-seq``: rSHOSM's learned memory, queried for graded sequence evidence.
+
+Our extension for matching a query traverse against a learned database
+(:meth:`vpr.memory.SequenceMemory.evidence`): the same learned memory, but the
+query's feed-forward overlaps and predictions are graded evidence accumulated
+along the learned connections in both directions, and each query's scores are
+standardised (``normalise="query"``); see ``docs/experiments.md`` for what each
+part contributes on Nordland.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from vpr.memory import SequenceMemory
+
+from .base import EncodedTraverse, Method, best_matches, check_dense, need
+from .rshosm import warm_up_memory
+
+__all__ = ["RshosmSeq"]
+
+
+def normalise_columns(S: np.ndarray, how: str) -> np.ndarray:
+    """Standardise every query column of a dense S in place (``how="query"``) or leave it (``"none"``)."""
+    if how == "none":
+        return S
+    if how != "query":
+        raise ValueError(f"rshosm-seq: normalise must be 'query' or 'none', got {how!r}")
+    # each query's evidence has its own scale (how well that winter frame matches anything);
+    # z-scores make one threshold mean the same for every query, as SeqSLAM's enhancement does
+    for c0 in range(0, S.shape[1], 1024):
+        blk = S[:, c0:c0 + 1024]
+        sd = blk.std(axis=0)
+        blk -= blk.mean(axis=0)
+        blk /= np.where(sd > 0, sd, 1.0)
+    return S
+
+
+class RshosmSeq(Method):
+    """Learn the database with rSHOSM, then score the query by graded sequence evidence.
+
+    Conf: the :class:`~vpr.memory.SequenceMemory` parameters (``threshold``
+    0.75 instead of the paper's 0.25: it keeps a database frame from reusing
+    minicolumns sampled from other frames, docs/experiments.md) and the
+    arguments of :meth:`~vpr.memory.SequenceMemory.evidence`: ``decay``,
+    ``stay`` and ``skip`` (a float >= 0, or ``None`` -- ``"none"`` on the
+    command line -- to disable that transition), ``direction``; ``normalise``
+    (``"query"`` or ``"none"``).
+    """
+
+    name = "rshosm-seq"
+    default_conf = {**SequenceMemory.default_params(), "threshold": 0.75, "decay": 0.9, "stay": 0.05,
+                    "skip": 0.05, "direction": "both", "normalise": "query"}
+    nullable_conf = frozenset({"seed", "stay", "skip"})
+    # within one traverse every frame's own evidence leaks, through the stay/skip and
+    # backward paths, onto the frames just before it, which loop closure must not see
+    no_loops_reason = ("rshosm-seq matches a query traverse against a database; "
+                       "for loop closure within one traverse use rshosm")
+
+    def check_size(self, n_db: int, n_q: int) -> None:
+        check_dense("rshosm-seq", n_db, n_q, hint="split the traverses")
+
+    def warm_up(self) -> None:
+        warm_up_memory(evidence=True)
+
+    def _match(self, db: EncodedTraverse, query: EncodedTraverse, progress: bool):
+        c = self.conf
+        db_sdr, q_sdr = need(db, "sdr", self.name, "database"), need(query, "sdr", self.name, "query")
+        mem = SequenceMemory(**{k: c[k] for k in SequenceMemory.default_params()})
+        db_codes = mem.run(db_sdr, progress=progress)
+        mem.reset()
+        S = mem.evidence(q_sdr, db_codes, decay=c["decay"], stay=c["stay"], skip=c["skip"],
+                         direction=c["direction"], progress=progress)
+        S = normalise_columns(S, c["normalise"])
+        best, score = best_matches(S)
+        return S, best, score, None
