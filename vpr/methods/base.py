@@ -116,9 +116,10 @@ class Method:
 
     Subclasses set ``name`` and ``default_conf`` (``nullable_conf``: keys that
     also accept ``None``; ``no_loops_reason``: why loop closure is refused),
-    and implement :meth:`_match` and, if they support loop closure, :meth:`_loops`; :meth:`check_size` refuses inputs too large
-    for the method before any work is done and :meth:`warm_up` compiles its
-    kernels outside the timed region.
+    and implement :meth:`_match` and, if they support loop closure,
+    :meth:`_loops`; :meth:`check_size` refuses inputs too large for the method
+    before any work is done and :meth:`warm_up` compiles its kernels outside
+    the timed region.
 
     Parameters
     ----------
