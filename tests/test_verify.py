@@ -6,7 +6,7 @@ import scipy.sparse as sp
 
 from vpr.verify import (
     MODELS,
-    Features,
+    Keypoints,
     Verifier,
     extract_features,
     match_features,
@@ -62,7 +62,7 @@ def feats(imgs):
 # --------------------------------------------------------------------------- #
 def test_features_layout_and_grey_bgr_agree(imgs, feats):
     f = feats["a"]
-    assert isinstance(f, Features)
+    assert isinstance(f, Keypoints)
     assert 100 < len(f) <= 1000
     assert f.xy.dtype == np.float64 and f.xy.shape == (len(f), 2)
     assert f.descriptors.dtype == np.uint8 and f.descriptors.shape == (len(f), 32)
@@ -334,6 +334,11 @@ def test_verifier_bad_args(place):
         Verifier(db, q, model="essential")
     with pytest.raises(ValueError, match="min_inliers"):
         Verifier(db, q, min_inliers=-1)
+    with pytest.raises(ValueError, match=r"unknown verifier option\(s\) \['inliers'\]; valid: .*'min_inliers'"):
+        Verifier(db, q, inliers=3)
+    # command-line strings are read as the defaults' types
+    v = Verifier(db, q, min_inliers="7", mutual="no", seed="none")
+    assert (v.min_inliers, v.mutual, v.seed) == (7, False, None)
     with pytest.raises(ValueError, match="db_images"):
         Verifier(42, q)
     with pytest.raises(ValueError, match="query image 1"):

@@ -14,7 +14,7 @@ Coordinate frames
 ORB needs images of a few hundred pixels to find keypoints, while VPR
 pipelines often work with tiny thumbnails (e.g. 64 x 32). Images whose
 shorter side is below ``min_side`` are therefore upscaled before detection.
-:class:`Features` keeps keypoints in the *original* image's pixel
+:class:`Keypoints` keeps keypoints in the *original* image's pixel
 coordinates, plus the upscaling factor. RANSAC's ``max_error`` is measured in
 the *detection* frame (the upscaled image), so the same threshold means the
 same thing for thumbnails and for full-size frames; for images that were not
@@ -31,18 +31,19 @@ from __future__ import annotations
 
 import math
 import numbers
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Callable, Sequence, Union
 
 import cv2
 import numpy as np
 import pycolmap
 import scipy.sparse as sp
 
+from vpr.config import merge_conf
 from vpr.imageproc import to_grey
 
 __all__ = [
-    "Features",
+    "Keypoints",
     "VerifyResult",
     "Verifier",
     "MODELS",
@@ -60,7 +61,7 @@ _DESCRIPTOR_BYTES = 32  # ORB descriptors are 256 bits
 
 
 @dataclass(frozen=True, eq=False)
-class Features:
+class Keypoints:
     """ORB keypoints and descriptors of one image.
 
     Attributes
@@ -123,16 +124,16 @@ def _check_seed(seed) -> int:
     return _check_int(seed, "seed", 0)
 
 
-def _check_features(f, name: str) -> Features:
-    if not isinstance(f, Features):
-        raise ValueError(f"{name} must be a Features object (see extract_features), got {type(f).__name__}")
+def _check_features(f, name: str) -> Keypoints:
+    if not isinstance(f, Keypoints):
+        raise ValueError(f"{name} must be a Keypoints object (see extract_features), got {type(f).__name__}")
     return f
 
 
 # --------------------------------------------------------------------------- #
 # features, matching, two-view geometry
 # --------------------------------------------------------------------------- #
-def extract_features(image, n_features: int = 1000, min_side: int = 240, name: str = "image") -> Features:
+def extract_features(image, n_features: int = 1000, min_side: int = 240, name: str = "image") -> Keypoints:
     """Detect ORB keypoints and compute their descriptors.
 
     Parameters
@@ -151,7 +152,7 @@ def extract_features(image, n_features: int = 1000, min_side: int = 240, name: s
 
     Returns
     -------
-    Features
+    Keypoints
         Possibly empty: an image without texture (e.g. blank) gives K = 0.
 
     Raises
@@ -171,19 +172,19 @@ def extract_features(image, n_features: int = 1000, min_side: int = 240, name: s
     orb = cv2.ORB_create(nfeatures=n_features)
     keypoints, desc = orb.detectAndCompute(grey, None)
     if desc is None or len(keypoints) == 0:
-        return Features(np.zeros((0, 2)), np.zeros((0, _DESCRIPTOR_BYTES), np.uint8), scale)
+        return Keypoints(np.zeros((0, 2)), np.zeros((0, _DESCRIPTOR_BYTES), np.uint8), scale)
     xy_det = np.array([kp.pt for kp in keypoints], dtype=np.float64).reshape(-1, 2)
     xy = (xy_det + 0.5) / scale - 0.5
-    return Features(xy, np.ascontiguousarray(desc, dtype=np.uint8), scale)
+    return Keypoints(xy, np.ascontiguousarray(desc, dtype=np.uint8), scale)
 
 
-def match_features(f1: Features, f2: Features, ratio: float = 0.8, mutual: bool = True) -> np.ndarray:
+def match_features(f1: Keypoints, f2: Keypoints, ratio: float = 0.8, mutual: bool = True) -> np.ndarray:
     """Match ORB descriptors by Hamming distance with Lowe's ratio test.
 
     Parameters
     ----------
-    f1, f2 : Features
-        Features of the two images.
+    f1, f2 : Keypoints
+        Keypoints of the two images.
     ratio : float
         A match ``i -> j`` is kept if its distance is below ``ratio`` times
         the distance to ``f1``'s second-nearest neighbour in ``f2``. When
@@ -225,7 +226,7 @@ def match_features(f1: Features, f2: Features, ratio: float = 0.8, mutual: bool 
     return out[np.argsort(out[:, 0], kind="stable")]
 
 
-def _ransac_options(max_error: float, seed: int, max_trials: int) -> "pycolmap.RANSACOptions":
+def _ransac_options(max_error: float, seed: int, max_trials: int) -> pycolmap.RANSACOptions:
     opts = pycolmap.RANSACOptions()
     opts.max_error = max_error
     opts.random_seed = seed
@@ -238,14 +239,14 @@ def _ransac_options(max_error: float, seed: int, max_trials: int) -> "pycolmap.R
     return opts
 
 
-def two_view_inliers(f1: Features, f2: Features, matches, model: str = "fundamental",
+def two_view_inliers(f1: Keypoints, f2: Keypoints, matches, model: str = "fundamental",
                      max_error: float = 4.0, seed: int | None = 0, max_trials: int = 2000) -> int:
     """Number of matches consistent with one two-view model (pycolmap LO-RANSAC).
 
     Parameters
     ----------
-    f1, f2 : Features
-        Features of the two images.
+    f1, f2 : Keypoints
+        Keypoints of the two images.
     matches : array_like
         (M, 2) integer index pairs into ``f1`` and ``f2``, e.g. from
         :func:`match_features`.
@@ -418,7 +419,7 @@ class VerifyResult:
         return sp.csc_matrix((vals, (self.candidates[q, r], q)), shape=(self.n_db, n_q))
 
 
-ImageSource = Union[Callable[[int], np.ndarray], Sequence[np.ndarray]]
+ImageSource = Callable[[int], np.ndarray] | Sequence[np.ndarray]
 
 
 class Verifier:
@@ -430,6 +431,10 @@ class Verifier:
         ``i -> image`` callables, or sequences (lists, stacked arrays) of
         images; any layout accepted by :func:`extract_features`. Sequences
         also let :meth:`verify` check the shape of ``S``.
+    **conf
+        Overrides of ``Verifier.default_conf``, merged by
+        :func:`vpr.config.merge_conf` (unknown keys raise; strings are read as
+        the default's type):
     n_features : int
         ORB keypoints per image.
     model : {"fundamental", "homography"}
@@ -451,23 +456,25 @@ class Verifier:
         Upscaling threshold, see :func:`extract_features`.
     """
 
-    def __init__(self, db_images: ImageSource, q_images: ImageSource, n_features: int = 1000,
-                 model: str = "fundamental", ratio: float = 0.8, min_inliers: int = 15,
-                 cache: bool = True, *, max_error: float = 4.0, seed: int | None = 0,
-                 max_trials: int = 2000, mutual: bool = True, min_side: int = 240):
+    default_conf = {"n_features": 1000, "model": "fundamental", "ratio": 0.8, "min_inliers": 15, "cache": True,
+                    "max_error": 4.0, "seed": 0, "max_trials": 2000, "mutual": True, "min_side": 240}
+
+    def __init__(self, db_images: ImageSource, q_images: ImageSource, **conf):
         self._db = self._check_images(db_images, "db_images")
         self._q = self._check_images(q_images, "q_images")
-        self.n_features = _check_int(n_features, "n_features", 1)
-        self.model = _check_model(model)
-        self.ratio = _check_ratio(ratio)
-        self.min_inliers = _check_int(min_inliers, "min_inliers", 0)
-        self.cache = bool(cache)
-        self.max_error = _check_positive(max_error, "max_error")
-        _check_seed(seed)
-        self.seed = seed
-        self.max_trials = _check_int(max_trials, "max_trials", 1)
-        self.mutual = bool(mutual)
-        self.min_side = _check_int(min_side, "min_side", 1)
+        # strings (from a command line) are read as the default's type, then every value is checked
+        self.conf = c = merge_conf(self.default_conf, conf, "verifier", nullable=("seed",))
+        self.n_features = _check_int(c["n_features"], "n_features", 1)
+        self.model = _check_model(c["model"])
+        self.ratio = _check_ratio(c["ratio"])
+        self.min_inliers = _check_int(c["min_inliers"], "min_inliers", 0)
+        self.cache = c["cache"]
+        self.max_error = _check_positive(c["max_error"], "max_error")
+        _check_seed(c["seed"])
+        self.seed = c["seed"]
+        self.max_trials = _check_int(c["max_trials"], "max_trials", 1)
+        self.mutual = c["mutual"]
+        self.min_side = _check_int(c["min_side"], "min_side", 1)
         self._cache = {"database": {}, "query": {}}
         # (db, query) -> inliers: several methods often propose the same candidates
         self._pairs: dict[tuple[int, int], int] = {}
@@ -481,7 +488,7 @@ class Verifier:
         raise ValueError(f"{name} must be a callable i -> image or a sequence of images, "
                          f"got {type(images).__name__}")
 
-    def _features(self, which: str, images, i: int) -> Features:
+    def _features(self, which: str, images, i: int) -> Keypoints:
         store = self._cache[which]
         f = store.get(i)
         if f is None:
@@ -494,12 +501,12 @@ class Verifier:
                 store[i] = f
         return f
 
-    def db_features(self, i: int) -> Features:
-        """Features of database image ``i`` (computed on first use when caching)."""
+    def db_features(self, i: int) -> Keypoints:
+        """Keypoints of database image ``i`` (computed on first use when caching)."""
         return self._features("database", self._db, int(i))
 
-    def query_features(self, j: int) -> Features:
-        """Features of query image ``j`` (computed on first use when caching)."""
+    def query_features(self, j: int) -> Keypoints:
+        """Keypoints of query image ``j`` (computed on first use when caching)."""
         return self._features("query", self._q, int(j))
 
     def pair_inliers(self, db_index: int, q_index: int) -> int:
@@ -512,7 +519,7 @@ class Verifier:
                 self._pairs[key] = n
         return n
 
-    def _inliers(self, fd: Features, fq: Features) -> int:
+    def _inliers(self, fd: Keypoints, fq: Keypoints) -> int:
         m = match_features(fq, fd, self.ratio, self.mutual)
         return two_view_inliers(fq, fd, m, self.model, self.max_error, self.seed, self.max_trials)
 
