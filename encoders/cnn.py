@@ -23,7 +23,7 @@ Pooled features of an ImageNet network share a large component common to all
 images, so with ``standardise="none"`` the SDRs of different places overlap
 almost as much as those of the same place; per-traverse standardisation
 (``standardise="fit"``, then ``fit`` on the traverse before encoding it)
-removes it and is recommended (see ``pipelines/encoder_study.py``).
+removes it and is recommended (measured by the encoder study, ``vpr encoders test``).
 """
 from __future__ import annotations
 

@@ -16,8 +16,14 @@ import json
 from pathlib import Path
 
 from pipelines import match
+from pipelines.render import parse_size
+from vpr import io, render
+from vpr.config import parse_key_values
+from vpr.groundtruth import GroundTruthSpec
 
-__all__ = ["add_arguments", "run_command", "DEFAULTS"]
+__all__ = ["COMMANDS", "add_arguments", "run_command", "run_demo", "render_once", "DEFAULTS"]
+
+COMMANDS = {"demo": "render the two_seasons scene and compare rSHOSM, SeqSLAM and pairwise on it"}
 
 DEFAULTS = {"scene": "two_seasons", "encoder": "pixel", "encoder_conf": ["k=200", "standardise=fit"],
             "methods": "rshosm,rshosm-seq,seqslam,pairwise", "radius": 3.0, "soft_radius": 10.0, "verify": 5}
@@ -38,15 +44,13 @@ def add_arguments(ap: argparse.ArgumentParser, command: str = "demo") -> None:
                     help="pairs within this radius but outside --radius are ignored (default 10)")
     ap.add_argument("--verify", type=int, default=DEFAULTS["verify"],
                     help="geometric verification of the N best candidates (default 5; 0 = off)")
-    ap.add_argument("--size", help="render size WxH override (default: the scene's)")
+    ap.add_argument("--size", type=parse_size, metavar="WxH", help="render size override (default: the scene's)")
     ap.add_argument("--frames", type=int, help="frames per traverse override (for a quick run)")
     ap.add_argument("--no-progress", action="store_true")
 
 
 def render_once(scene, out: Path, size=None, n_frames=None, progress=True) -> dict:
     """Render ``scene`` into ``out`` unless the same render is already there."""
-    from vpr import render
-
     spec = render.load_spec(scene)
     stamp = {"spec": spec, "size": size, "n_frames": n_frames}
     marker = out / "demo_render.json"
@@ -58,51 +62,49 @@ def render_once(scene, out: Path, size=None, n_frames=None, progress=True) -> di
         except (ValueError, KeyError):
             pass
     result = render.write_scene(spec, out, preview=True, size=size, n_frames=n_frames, progress=progress)
-    from vpr import io
-
     io.save_json(marker, {"stamp": stamp, "result": result})
     return json.loads(json.dumps(result, default=str))
 
 
-def _size(text):
-    if text is None:
-        return None
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise ValueError(f"--size: expected WxH, e.g. 320x240, got {text!r}") from None
-    return (w, h)
+def run_demo(out, scene=DEFAULTS["scene"], encoder=DEFAULTS["encoder"], encoder_conf=None,
+             methods=DEFAULTS["methods"], method_conf=None, radius=DEFAULTS["radius"],
+             soft_radius=DEFAULTS["soft_radius"], verify=DEFAULTS["verify"], size=None, n_frames=None,
+             progress=True) -> dict:
+    """Render ``scene`` (once) and compare ``methods`` on its first two traverses; print the table.
+
+    ``encoder_conf`` (dict, default ``DEFAULTS["encoder_conf"]``) and
+    ``method_conf`` (method -> dict) values may be strings; ``methods`` is a
+    comma-separated string or a list. Returns :func:`pipelines.match.run_compare`'s report.
+    """
+    out = Path(out)
+    rendered = render_once(scene, out / "scene", size=size, n_frames=n_frames, progress=progress)
+    names = list(rendered["traverses"])
+    if len(names) < 2:
+        raise ValueError(f"scene {scene!r} has {len(names)} traverse(s); the demo needs two")
+    db, query = (rendered["traverses"][n]["folder"] for n in names[:2])
+    if encoder_conf is None:
+        encoder_conf = dict(kv.split("=", 1) for kv in DEFAULTS["encoder_conf"])
+    if isinstance(methods, str):
+        methods = [m.strip() for m in methods.split(",") if m.strip()]
+    opts = match.RunOptions(out=out, encoder=encoder, encoder_conf=encoder_conf, method_conf=method_conf or {},
+                            gt=GroundTruthSpec(files=(rendered["ground_truth"],), radius=radius, soft=soft_radius),
+                            verify=verify, progress=progress)
+    report = match.run_compare(db, query, methods, opts, command="demo")
+    print(f"database: {names[0]} ({report['params']['n_db']} frames), query: {names[1]} "
+          f"({report['params']['n_query']} frames), encoder {encoder}, ground truth: within "
+          f"{radius:g} m (pairs within {soft_radius:g} m ignored)")
+    print(match.metrics_table(report["methods"]))
+    if verify:
+        print(f"'+verify': best of {verify} candidates re-ranked by ORB + pycolmap RANSAC inliers; "
+              f"P(acc) = precision of the accepted best matches")
+    print(f"wrote {out}/metrics.json, pr.png, per-method folders; contact sheet {out}/scene/contact_sheet.png")
+    return report
 
 
 def run_command(args) -> int:
-    out = Path(args.out)
-    rendered = render_once(args.scene, out / "scene", size=_size(args.size), n_frames=args.frames,
-                           progress=not args.no_progress)
-    names = list(rendered["traverses"])
-    if len(names) < 2:
-        raise ValueError(f"scene {args.scene!r} has {len(names)} traverse(s); the demo needs two")
-    db, query = (rendered["traverses"][n]["folder"] for n in names[:2])
-    argv = [db, query, "--out", str(out), "--methods", args.methods, "--encoder", args.encoder,
-            "--gt", rendered["ground_truth"], "--radius", str(args.radius), "--gt-soft", str(args.soft_radius),
-            "--verify", str(args.verify)]
-    for kv in DEFAULTS["encoder_conf"] if args.encoder_conf is None else args.encoder_conf:
-        argv += ["--encoder-conf", kv]
-    for kv in args.method_conf:
-        argv += ["--method-conf", kv]
-    if args.no_progress:
-        argv.append("--no-progress")
-    ap = argparse.ArgumentParser(prog="vpr compare")
-    match.add_arguments(ap, "compare")
-    cargs = ap.parse_args(argv)
-    cargs.command = "compare"
-    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
-    report = match.run_compare(cargs, methods)
-    print(f"database: {names[0]} ({report['params']['n_db']} frames), query: {names[1]} "
-          f"({report['params']['n_query']} frames), encoder {args.encoder}, ground truth: within "
-          f"{args.radius:g} m (pairs within {args.soft_radius:g} m ignored)")
-    print(match.metrics_table(report["methods"]))
-    if args.verify:
-        print(f"'+verify': best of {args.verify} candidates re-ranked by ORB + pycolmap RANSAC inliers; "
-              f"P(acc) = precision of the accepted best matches")
-    print(f"wrote {out}/metrics.json, pr.png, per-method folders; contact sheet {out}/scene/contact_sheet.png")
+    run_demo(args.out, scene=args.scene, encoder=args.encoder,
+             encoder_conf=None if args.encoder_conf is None else parse_key_values(args.encoder_conf, "--encoder-conf"),
+             methods=args.methods, method_conf=match.method_confs(args.method_conf), radius=args.radius,
+             soft_radius=args.soft_radius, verify=args.verify, size=args.size, n_frames=args.frames,
+             progress=not args.no_progress)
     return 0

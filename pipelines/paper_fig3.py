@@ -26,6 +26,8 @@ from vpr.similarity import overlap
 
 __all__ = ["CURVES_LEFT", "CURVES_RIGHT", "run_curve", "run", "main"]
 
+COMMANDS = {"paper-fig3": "reproduce Fig. 3 of the paper on the simulated grid world"}
+
 #: name -> (method, p_extra, aliasing a, noise n)
 CURVES_LEFT = {
     "SHOSM": ("rshosm", 0.0, 0, 0.0),

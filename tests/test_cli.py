@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from vpr.cli import main
+from pipelines.cli import main
 
 N_FRAMES = 40
 

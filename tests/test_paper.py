@@ -2,10 +2,9 @@
 import json
 
 import numpy as np
-import pytest
 
 from pipelines import paper_fig3
-from vpr.cli import main as cli_main
+from pipelines.cli import main as cli_main
 
 SEEDS = (0, 1, 2)
 

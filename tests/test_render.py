@@ -1,7 +1,6 @@
 """Tests of the procedural renderer (vpr.render): specs, renders, ground truth, output files."""
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 
@@ -11,9 +10,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from pipelines.cli import main as cli_main
 from vpr.imageproc import seqslam_preprocess
-from vpr.render import (add_render_arguments, builtin_spec_path, builtin_specs, gt_matrix, load_spec, loop_pairs,
-                        render_scene, run_render_command, write_scene)
+from vpr.render import builtin_spec_path, builtin_specs, gt_matrix, load_spec, loop_pairs, render_scene, write_scene
 from vpr.render.engine import plan_traverse
 from vpr.render.world import build_world, route_polyline
 
@@ -363,15 +362,12 @@ def test_write_scene_files(tmp_path):
 
 
 def test_render_command(tmp_path, capsys):
-    ap = add_render_arguments(argparse.ArgumentParser())
-    args = ap.parse_args(["loop_revisits", "--out", str(tmp_path / "o"), "--size", "32x24", "--frames", "5",
-                          "--quiet"])
-    assert run_render_command(args) == 0
+    assert cli_main(["render", "loop_revisits", "--out", str(tmp_path / "o"), "--size", "32x24", "--frames", "5",
+                     "--quiet"]) == 0
     assert "laps: 5 frames" in capsys.readouterr().out
     assert len(list((tmp_path / "o" / "laps").glob("*.png"))) == 5
-    args = ap.parse_args(["loop_revisits", "--out", str(tmp_path / "p"), "--size", "32x24", "--frames", "60",
-                          "--quiet"])
-    run_render_command(args)
+    assert cli_main(["render", "loop_revisits", "--out", str(tmp_path / "p"), "--size", "32x24", "--frames", "60",
+                     "--quiet"]) == 0
     with open(tmp_path / "p" / "loop_pairs.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     t = render_scene("loop_revisits", size=(32, 24), n_frames=60).traverses[0]
@@ -379,7 +375,7 @@ def test_render_command(tmp_path, capsys):
     assert len(rows) == P.sum() > 0
     assert all(P[int(r["frame_a"]), int(r["frame_b"])] for r in rows)
     with pytest.raises(SystemExit):
-        ap.parse_args(["x", "--out", "o", "--size", "big"])
+        cli_main(["render", "x", "--out", "o", "--size", "big"])
 
 
 # ----------------------------------------------------------------------------- property tests

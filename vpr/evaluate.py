@@ -667,3 +667,40 @@ def loop_closure_gt(labels_or_xy, radius=None, exclude=0, sparse=False):
     if sparse:
         return sp.triu(gt, k=max(exclude, 1), format="csr").astype(bool)
     return gt & loop_closure_mask(len(a), exclude)
+
+
+# --------------------------------------------------------------------------- #
+# one decision per query
+# --------------------------------------------------------------------------- #
+__all__.append("accepted_precision")
+
+
+def accepted_precision(best_db, accepted, gt_hard, gt_soft=None) -> dict:
+    """Precision and recall of the accepted best matches (one decision per query).
+
+    Parameters
+    ----------
+    best_db : array of int, (n_q,)
+        Best database frame per query (-1: none).
+    accepted : array of bool, (n_q,)
+        Whether each query's best match is accepted.
+    gt_hard, gt_soft : bool (n_db, n_q), dense or sparse
+        Ground truth; a best match that is only a soft pair counts neither as
+        right nor as wrong.
+
+    Returns
+    -------
+    dict
+        ``n_accepted``, ``precision_accepted`` (1.0 when nothing is accepted)
+        and ``recall_accepted`` (correct accepted matches over queries that
+        have a true match).
+    """
+    best_db = np.asarray(best_db)
+    q = np.flatnonzero(np.asarray(accepted, bool) & (best_db >= 0))
+    correct = _at(gt_hard, best_db[q], q).astype(bool)
+    if gt_soft is not None:
+        keep = correct | ~_at(gt_soft, best_db[q], q).astype(bool)
+        q, correct = q[keep], correct[keep]
+    n_with_match = int((np.asarray((gt_hard != 0).sum(axis=0)).ravel() > 0).sum())
+    return {"n_accepted": int(q.size), "precision_accepted": float(correct.mean()) if q.size else 1.0,
+            "recall_accepted": float(correct.sum() / max(1, n_with_match))}

@@ -24,8 +24,9 @@ import csv
 import math
 import re
 import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path, PurePath
-from typing import Sequence
 
 import numpy as np
 
@@ -36,6 +37,10 @@ __all__ = [
     "load_positions_csv",
     "gt_from_position_files",
     "gt_from_tolerance",
+    "load_traverse_positions",
+    "positions_of_frames",
+    "GroundTruthSpec",
+    "build_gt",
 ]
 
 _INT = re.compile(r"[+-]?\d+(?:\.0*)?")
@@ -361,3 +366,139 @@ def gt_from_position_files(db_csv, q_csv, radius: float, db_names: Sequence[str]
     db_xy = _positions_for_frames(db_csv, db_names, db_indices, "database")
     q_xy = _positions_for_frames(q_csv, q_names, q_indices, "query")
     return gt_from_positions(db_xy, q_xy, r)
+
+
+# --------------------------------------------------------------------------- #
+# rows "traverse,frame,x,y" (as written by vpr render) and the match pipeline's choice
+# --------------------------------------------------------------------------- #
+def load_traverse_positions(path, traverse: str) -> dict[int, tuple[float, float]]:
+    """Rows ``traverse,frame,x,y[,...]`` (as written by ``vpr render``) of one traverse: frame -> (x, y).
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    ValueError
+        No header with those columns, a malformed row (``FILE:LINE: reason``)
+        or no row for ``traverse``.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"ground truth file not found: {path}")
+    rows = {}
+    with open(path, newline="", encoding="utf-8") as fh:
+        reader = csv.reader(fh)
+        header = next(reader, None)
+        if header is None:
+            raise ValueError(f"{path}: empty ground truth file")
+        cols = [h.strip().lower() for h in header]
+        need = {"traverse", "frame", "x", "y"}
+        if not need <= set(cols):
+            raise ValueError(f"{path}:1: expected a header with columns {sorted(need)}, got {header}")
+        ti, fi, xi, yi = (cols.index(c) for c in ("traverse", "frame", "x", "y"))
+        for line_no, row in enumerate(reader, start=2):
+            if not row or row[0].startswith("#"):
+                continue
+            if len(row) != len(cols):
+                raise ValueError(f"{path}:{line_no}: expected {len(cols)} columns, got {len(row)}")
+            if row[ti] != traverse:
+                continue
+            try:
+                rows[int(row[fi])] = (float(row[xi]), float(row[yi]))
+            except ValueError:
+                raise ValueError(f"{path}:{line_no}: frame must be an integer and x, y numbers") from None
+    if not rows:
+        raise ValueError(f"{path}: no rows for traverse {traverse!r}")
+    return rows
+
+
+def _xy_for(rows, indices, path, traverse) -> np.ndarray:
+    missing = [i for i in indices if i not in rows]
+    if missing:
+        raise ValueError(f"{path}: no position for frame {missing[0]} of traverse {traverse!r}")
+    return np.array([rows[i] for i in indices])
+
+
+def positions_of_frames(path, traverse: str, indices: Sequence[int]) -> np.ndarray:
+    """(x, y) of the frames numbered ``indices`` from a ``frame,x,y`` or ``traverse,frame,x,y`` file."""
+    with open(path, encoding="utf-8") as fh:
+        first = fh.readline().lower()
+    if "traverse" in first:
+        return _xy_for(load_traverse_positions(path, traverse), indices, path, traverse)
+    keys, xy = load_positions_csv(path)
+    rows = {int(k) if not isinstance(k, str) else k: tuple(v) for k, v in zip(keys, xy, strict=True)}
+    return _xy_for(rows, indices, path, traverse)
+
+
+@dataclass(frozen=True)
+class GroundTruthSpec:
+    """Where the ground truth of a database/query pair comes from (the ``vpr match`` options).
+
+    Attributes
+    ----------
+    tolerance : int, optional
+        Frame-aligned traverses: ``|i - j| <= tolerance`` (source frame numbers).
+    files : tuple of str
+        One CSV of ``query,db`` pairs; or, with ``radius``, one positions CSV
+        per traverse (``frame,x,y``) or one with ``traverse,frame,x,y`` rows
+        for both.
+    radius : float, optional
+        Match radius for position ground truth.
+    soft : float, optional
+        Larger radius (or tolerance) within which pairs are ignored.
+    """
+
+    tolerance: int | None = None
+    files: tuple[str, ...] = ()
+    radius: float | None = None
+    soft: float | None = None
+
+    def describe(self) -> dict:
+        """The spec under the command line's names (for ``metrics.json``)."""
+        return {"tolerance": self.tolerance, "gt": list(self.files) or None, "radius": self.radius,
+                "gt_soft": self.soft}
+
+
+def build_gt(spec: GroundTruthSpec, db_names: Sequence[str], q_names: Sequence[str], db_indices: Sequence[int],
+             q_indices: Sequence[int], db_traverse: str = "database", q_traverse: str = "query"):
+    """(gt_hard, gt_soft) of the frames read, or (None, None) without ground truth.
+
+    ``db_traverse`` / ``q_traverse`` name the traverses in a combined
+    ``traverse,frame,x,y`` file; ``*_indices`` are the source frame numbers.
+
+    Raises
+    ------
+    ValueError
+        Contradictory or incomplete options (the message names them), or a bad file.
+    """
+    files = list(spec.files)
+    if spec.tolerance is not None:
+        if files:
+            raise ValueError("give either --tolerance or --gt, not both")
+        db_i, q_i = np.asarray(db_indices), np.asarray(q_indices)
+        d = np.abs(db_i[:, None] - q_i[None, :])
+        return d <= spec.tolerance, (d <= spec.soft if spec.soft is not None else None)
+    if not files:
+        if spec.radius is not None:
+            raise ValueError("--radius needs --gt FILE")
+        return None, None
+    if len(files) > 2:
+        raise ValueError(f"--gt takes one or two files, got {len(files)}")
+    if spec.radius is None:
+        if len(files) != 1:
+            raise ValueError("two --gt files are positions files and need --radius")
+        if spec.soft is not None:
+            raise ValueError("--gt-soft needs position ground truth (--radius) or --tolerance")
+        hard = load_pairs_csv(files[0], len(db_names), len(q_names), db_names=db_names, q_names=q_names,
+                              db_indices=db_indices, q_indices=q_indices)
+        return hard, None
+    if len(files) == 2:
+        kw = dict(db_names=db_names, q_names=q_names, db_indices=db_indices, q_indices=q_indices)
+        hard = gt_from_position_files(files[0], files[1], spec.radius, **kw)
+        soft = gt_from_position_files(files[0], files[1], spec.soft, **kw) if spec.soft is not None else None
+        return hard, soft
+    db_xy = _xy_for(load_traverse_positions(files[0], db_traverse), db_indices, files[0], db_traverse)
+    q_xy = _xy_for(load_traverse_positions(files[0], q_traverse), q_indices, files[0], q_traverse)
+    hard = gt_from_positions(db_xy, q_xy, spec.radius)
+    soft = gt_from_positions(db_xy, q_xy, spec.soft) if spec.soft is not None else None
+    return hard, soft

@@ -12,7 +12,7 @@ least ``min_inliers`` inliers.
 Coordinate frames
 -----------------
 ORB needs images of a few hundred pixels to find keypoints, while VPR
-pipelines often work with tiny thumbnails (e.g. 64 x 32). Images whose
+systems often work with tiny thumbnails (e.g. 64 x 32). Images whose
 shorter side is below ``min_side`` are therefore upscaled before detection.
 :class:`Keypoints` keeps keypoints in the *original* image's pixel
 coordinates, plus the upscaling factor. RANSAC's ``max_error`` is measured in

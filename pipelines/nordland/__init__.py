@@ -18,6 +18,8 @@ from .data import DEFAULT_DATA, SUBSETS, DatasetError
 
 __all__ = ["add_arguments", "run_command", "run_benchmark", "METHOD_SPECS", "markdown_table", "main"]
 
+COMMANDS = {"nordland": "Nordland summer vs winter benchmark (needs the dataset)"}
+
 
 def add_arguments(parser: argparse.ArgumentParser, command: str = "nordland") -> None:
     """Options of ``vpr nordland`` / ``python -m pipelines.nordland``."""

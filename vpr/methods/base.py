@@ -140,6 +140,10 @@ class Method:
         return f"{type(self).__name__}({', '.join(f'{k}={v!r}' for k, v in self.conf.items())})"
 
     # ----------------------------------------------------------- to override
+    def inputs(self) -> set[str]:
+        """Which :class:`EncodedTraverse` fields the method reads (``"sdr"``, ``"desc"``, ``"pixels"``)."""
+        raise NotImplementedError
+
     def check_size(self, n_db: int, n_q: int) -> None:
         """Raise ValueError if ``n_db x n_q`` is too large for this method (default: any size)."""
 

@@ -30,6 +30,9 @@ class Pairwise(Method):
         if self._attr != "sdr":
             check_dense("pairwise comparison of dense descriptors", n_db, n_q)
 
+    def inputs(self) -> set[str]:
+        return {self._attr}
+
     def warm_up(self) -> None:
         similarity.mean_abs_diff(np.zeros((2, 2), np.float32))
 

@@ -34,6 +34,9 @@ class Rshosm(Method):
         """A new, empty memory with this method's parameters."""
         return SequenceMemory(**{k: self.conf[k] for k in SequenceMemory.default_params()})
 
+    def inputs(self) -> set[str]:
+        return {"sdr"}
+
     def warm_up(self) -> None:
         warm_up_memory()
 

@@ -59,6 +59,9 @@ class RshosmSeq(Method):
     def check_size(self, n_db: int, n_q: int) -> None:
         check_dense("rshosm-seq", n_db, n_q, hint="split the traverses")
 
+    def inputs(self) -> set[str]:
+        return {"sdr"}
+
     def warm_up(self) -> None:
         warm_up_memory(evidence=True)
 

@@ -29,6 +29,9 @@ class SeqSlam(Method):
         # the contrast enhancement and trajectory search need the whole difference matrix
         check_dense("seqslam", n_db, n_q)
 
+    def inputs(self) -> set[str]:
+        return {"pixels" if self.conf["descriptor"] == "pixel" else "desc"}
+
     def warm_up(self) -> None:
         # the difference matrix and pairwise SAD share one compiled kernel
         similarity.mean_abs_diff(np.zeros((2, 2), np.float32))

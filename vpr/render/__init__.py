@@ -10,14 +10,14 @@ truth. Scenes are described by JSON specs; builtin ones live in
 
 Main entry points: :func:`load_spec`, :func:`render_scene` (in memory),
 :func:`write_scene` (PNG folders + ``ground_truth.csv`` + ``scene.json``, what
-``vpr render`` runs), :func:`gt_matrix` and :func:`loop_pairs`.
+the ``vpr render`` command runs), :func:`gt_matrix` and :func:`loop_pairs`.
 """
-from .output import add_render_arguments, contact_sheet, run_render_command, write_scene
+from .output import contact_sheet, write_scene
 from .scene import Scene, SceneRenderer, Traverse, gt_matrix, loop_pairs, render_scene
 from .spec import builtin_spec_path, builtin_specs, load_spec
 
 __all__ = [
     "load_spec", "builtin_spec_path", "builtin_specs",
     "Traverse", "Scene", "SceneRenderer", "render_scene", "gt_matrix", "loop_pairs",
-    "write_scene", "contact_sheet", "add_render_arguments", "run_render_command",
+    "write_scene", "contact_sheet",
 ]

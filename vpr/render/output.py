@@ -1,7 +1,6 @@
 """Writing rendered scenes to disk: PNG folders, ground truth, contact sheets, videos, and ``vpr render``."""
 from __future__ import annotations
 
-import argparse
 import contextlib
 import csv
 import io
@@ -14,7 +13,7 @@ from ..io import atomic_open, atomic_path, save_image, save_json
 from .scene import SceneRenderer, _apply_overrides, loop_pairs
 from .spec import load_spec
 
-__all__ = ["write_scene", "contact_sheet", "add_render_arguments", "run_render_command"]
+__all__ = ["write_scene", "contact_sheet"]
 
 GT_COLUMNS = ["frame", "traverse", "route_pos", "x", "y", "place_pos", "lateral", "yaw_deg", "image"]
 
@@ -176,45 +175,3 @@ def write_scene(spec, out_dir, preview: bool = False, video: bool = False, trave
     if preview:
         summary["preview"] = str(save_image(out / "contact_sheet.png", contact_sheet(sheet_rows)))
     return summary
-
-
-def _size(text: str):
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, e.g. 320x240, got {text!r}") from None
-    return (w, h)
-
-
-def add_render_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    """Add the arguments of ``vpr render`` to ``parser``."""
-    parser.add_argument("spec", help="scene spec: a JSON file or a builtin name (two_seasons, loop_revisits, ...)")
-    parser.add_argument("--out", required=True, help="output folder")
-    parser.add_argument("--preview", action="store_true", help="also write contact_sheet.png")
-    parser.add_argument("--video", action="store_true", help="also write one mp4 video per traverse")
-    parser.add_argument("--traverse", action="append", default=None, metavar="NAME",
-                        help="render only this traverse (repeatable)")
-    parser.add_argument("--size", type=_size, default=None, metavar="WxH", help="override the image size")
-    parser.add_argument("--frames", type=int, default=None, metavar="N",
-                        help="override the number of frames per traverse")
-    parser.add_argument("--seed", type=int, default=None, help="override the world seed")
-    parser.add_argument("--quiet", action="store_true", help="no progress bars")
-    return parser
-
-
-def run_render_command(args) -> int:
-    """Run ``vpr render`` for parsed ``args``; prints a summary, returns the exit code 0."""
-    s = write_scene(args.spec, args.out, preview=args.preview, video=args.video,
-                    traverses=getattr(args, "traverse", None), size=getattr(args, "size", None),
-                    n_frames=getattr(args, "frames", None), seed=getattr(args, "seed", None),
-                    progress=not getattr(args, "quiet", False))
-    for name, t in s["traverses"].items():
-        extra = f", video {t['video']}" if t["video"] else ""
-        print(f"{name}: {t['frames']} frames in {t['folder']}{extra}")
-    print(f"ground truth: {s['ground_truth']}")
-    print(f"scene: {s['scene']}")
-    if s["loop_pairs"]:
-        print(f"loop closures: {s['loop_pairs']}")
-    if s["preview"]:
-        print(f"contact sheet: {s['preview']}")
-    return 0

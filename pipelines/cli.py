@@ -1,0 +1,105 @@
+"""The ``vpr`` command line, above the pipelines.
+
+Each pipeline module listed in :data:`MODULES` contributes its sub-commands:
+
+- ``COMMANDS = {"name": "one-line help", ...}``, a literal dict;
+- ``add_arguments(parser, command)``, adding the command's arguments;
+- ``run_command(args) -> int``, a thin adapter from the parsed arguments to the
+  module's functions (which take explicit parameters).
+
+``vpr --help`` reads the ``COMMANDS`` literals from the modules' source
+without importing them, and only the chosen command's module is imported, so
+the help and typos stay fast.
+
+Bad input (missing or corrupt files, wrong arguments) ends the run with one line
+on stderr and exit status 2; Ctrl-C with ``vpr: interrupted`` and status 130;
+an unexpected failure with a traceback and status 1.
+"""
+from __future__ import annotations
+
+import argparse
+import ast
+import importlib
+import importlib.util
+import sys
+from pathlib import Path
+
+__all__ = ["MODULES", "commands", "build_parser", "main"]
+
+#: The pipeline modules providing sub-commands, in the order ``vpr --help`` lists them.
+MODULES = ("pipelines.demo", "pipelines.match", "pipelines.render", "pipelines.paper_fig3", "pipelines.nordland")
+
+
+def _declared_commands(module: str) -> dict:
+    """The ``COMMANDS`` literal of ``module``, read from its source (importing would be slow)."""
+    spec = importlib.util.find_spec(module)
+    if spec is None or not spec.origin or not spec.origin.endswith(".py"):
+        return dict(importlib.import_module(module).COMMANDS)
+    tree = ast.parse(Path(spec.origin).read_text(encoding="utf-8"), spec.origin)
+    for node in tree.body:
+        target = node.target if isinstance(node, ast.AnnAssign) else (
+            node.targets[0] if isinstance(node, ast.Assign) and len(node.targets) == 1 else None)
+        if isinstance(target, ast.Name) and target.id == "COMMANDS" and node.value is not None:
+            return dict(ast.literal_eval(node.value))
+    raise RuntimeError(f"{spec.origin}: no literal COMMANDS dict (needed by pipelines.cli)")
+
+
+def commands() -> dict[str, tuple[str, str]]:
+    """Every sub-command: name -> (module, one-line help)."""
+    out: dict[str, tuple[str, str]] = {}
+    for module in MODULES:
+        for name, help_ in _declared_commands(module).items():
+            if name in out:
+                raise RuntimeError(f"command {name!r} is declared by {out[name][0]} and {module}")
+            out[name] = (module, help_)
+    return out
+
+
+def build_parser(only: str | None = None, table: dict | None = None) -> argparse.ArgumentParser:
+    """The ``vpr`` parser; with ``only``, just that command gets its arguments (imports one module)."""
+    from vpr import __version__
+
+    table = commands() if table is None else table
+    ap = argparse.ArgumentParser(prog="vpr", description="Sequence-based visual place recognition: "
+                                 "rSHOSM, SeqSLAM and pairwise matching, evaluation and plots.")
+    ap.add_argument("--version", action="version", version=f"vpr {__version__}")
+    sub = ap.add_subparsers(dest="command", metavar="COMMAND")
+    for cmd, (module, help_) in table.items():
+        p = sub.add_parser(cmd, help=help_, description=help_)
+        if only is None or cmd == only:
+            importlib.import_module(module).add_arguments(p, cmd)
+    return ap
+
+
+def main(argv=None) -> int:
+    """Run ``vpr`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit status."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    table = commands()
+    # build only the chosen command's arguments (cheap imports for --help and typos)
+    cmd = next((a for a in argv if not a.startswith("-")), None)
+    only = cmd if cmd in table else "__none__"
+    try:
+        ap = build_parser(only, table)
+    except ModuleNotFoundError as e:
+        print(f"vpr: error: command {cmd!r} is unavailable ({e})", file=sys.stderr)
+        return 2
+    args = ap.parse_args(argv)
+    if not args.command:
+        ap.print_help()
+        return 2
+    from vpr.memory import MemoryFileError
+
+    try:
+        return int(importlib.import_module(table[args.command][0]).run_command(args) or 0)
+    except KeyboardInterrupt:
+        print("vpr: interrupted", file=sys.stderr)
+        return 130
+    except (ValueError, FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError,
+            MemoryFileError) as e:
+        msg = " ".join(str(e).split())
+        print(f"vpr {args.command}: error: {msg}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
