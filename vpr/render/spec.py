@@ -19,8 +19,8 @@ import copy
 import json
 import math
 import re
-import sys
 import zlib
+from importlib import resources
 from pathlib import Path
 
 __all__ = ["load_spec", "builtin_spec_path", "builtin_specs", "CONDITION_PRESETS"]
@@ -282,22 +282,27 @@ def resolve(spec: dict, source: str = "<spec>") -> dict:
 
 
 def _search_dirs() -> list[Path]:
-    import vpr
-
-    return [Path(vpr.__file__).resolve().parents[1] / "data" / "synthetic",
-            Path(sys.prefix) / "share" / "vpr-shosm" / "synthetic"]
+    """Where builtin scenes are looked for: the installed package data, then the source checkout."""
+    dirs = []
+    scenes = resources.files("vpr.render") / "scenes"
+    if isinstance(scenes, Path):  # a wheel installs vpr/render/scenes/*.json (setup.py copies data/synthetic)
+        dirs.append(scenes)
+    # a source checkout or an editable install reads the repository's data/synthetic/ directly
+    dirs.append(Path(__file__).resolve().parents[2] / "data" / "synthetic")
+    return dirs
 
 
 def builtin_spec_path(name: str) -> Path:
-    """Path of the builtin scene ``name`` (``data/synthetic/NAME.json``).
+    """Path of the builtin scene ``name`` (``data/synthetic/NAME.json`` in the repository).
 
-    Looks in the source tree first, then in ``sys.prefix/share/vpr-shosm/synthetic``
-    (where a non-editable install puts the data files).
+    Looks in the installed package data (``vpr/render/scenes/``, found with
+    :mod:`importlib.resources`), then in the source checkout's ``data/synthetic/``.
 
     Raises
     ------
     FileNotFoundError
-        No builtin scene of that name; the message lists the available ones.
+        No builtin scene of that name; the message lists the available ones
+        and the folders searched.
     """
     for d in _search_dirs():
         p = d / f"{name}.json"
