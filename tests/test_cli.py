@@ -146,3 +146,44 @@ def test_demo_tiny(tmp_path, capsys):
         assert m in stdout
     assert (tmp_path / "demo" / "scene" / "contact_sheet.png").is_file()
     assert (tmp_path / "demo" / "pr.png").is_file()
+
+
+def test_commands_are_declared_by_the_pipeline_modules():
+    import importlib
+
+    from pipelines import cli
+
+    table = cli.commands()
+    assert {"demo", "match", "compare", "loops", "render", "paper-fig3", "nordland"} <= set(table)
+    for cmd, (module, help_) in table.items():
+        mod = importlib.import_module(module)
+        # the literal read from the source is the module's own table, and the module can run the command
+        assert mod.COMMANDS[cmd] == help_ and callable(mod.add_arguments) and callable(mod.run_command)
+
+
+def test_help_imports_no_pipeline_module():
+    import subprocess
+    import sys
+
+    code = ("import sys, contextlib, io\nfrom pipelines.cli import main\n"
+            "with contextlib.redirect_stdout(io.StringIO()):\n    main([])\n"
+            "print(sorted(m for m in sys.modules if m.startswith(('pipelines.', 'encoders', 'vpr.methods'))))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "['pipelines.cli']"
+
+
+def test_import_direction_of_the_layout():
+    """vpr imports neither encoders nor pipelines; encoders does not import pipelines (README, layout)."""
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    forbidden = {"vpr": ("encoders", "pipelines"), "encoders": ("pipelines",)}
+    for package, bad in forbidden.items():
+        for path in (root / package).rglob("*.py"):
+            text = path.read_text(encoding="utf-8")
+            for node in ast.walk(ast.parse(text)):
+                names = [a.name for a in node.names] if isinstance(node, ast.Import) else (
+                    [node.module or ""] if isinstance(node, ast.ImportFrom) and node.level == 0 else [])
+                assert not [n for n in names if n.split(".")[0] in bad], f"{path} imports {names}"
+            assert "pipelines" not in text, f"{path} names pipelines"

@@ -455,3 +455,18 @@ def test_evaluate_returns_the_curve_it_used():
     p2, r2, t2 = E.pr_curve(S, gt)
     assert np.array_equal(p, p2) and np.array_equal(r, r2) and np.array_equal(t, t2)
     assert metrics == E.evaluate(S, gt)
+
+
+# --------------------------------------------------------------------------- accepted_precision
+def test_accepted_precision_counts_one_decision_per_query():
+    gt = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 0, 0]], bool)  # query 3 has no true match
+    soft = gt | np.array([[0, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 0]], bool)
+    best = np.array([0, 2, 1, -1])
+    accepted = np.array([True, True, True, True])
+    # query 0 right, query 1 wrong, query 2 wrong (a soft pair without soft gt), query 3 has no best match
+    m = E.accepted_precision(best, accepted, gt)
+    assert m == {"n_accepted": 3, "precision_accepted": pytest.approx(1 / 3), "recall_accepted": 0.5}
+    # with soft gt query 2's soft pair counts neither way; sparse gt gives the same
+    m = E.accepted_precision(best, accepted, sp.csr_matrix(gt), sp.csr_matrix(soft))
+    assert m == {"n_accepted": 2, "precision_accepted": 0.5, "recall_accepted": 0.5}
+    assert E.accepted_precision(best, np.zeros(4, bool), gt)["precision_accepted"] == 1.0

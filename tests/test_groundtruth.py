@@ -6,7 +6,16 @@ import re
 import numpy as np
 import pytest
 
-from vpr.groundtruth import gt_from_position_files, gt_from_tolerance, load_pairs_csv, load_positions_csv
+from vpr.groundtruth import (
+    GroundTruthSpec,
+    build_gt,
+    gt_from_position_files,
+    gt_from_tolerance,
+    load_pairs_csv,
+    load_positions_csv,
+    load_traverse_positions,
+    positions_of_frames,
+)
 
 
 def _file(tmp_path, name, text):
@@ -205,3 +214,64 @@ def test_gt_from_tolerance():
     assert np.array_equal(gt_from_tolerance(3, 3, 0), np.eye(3, dtype=bool))
     with pytest.raises(ValueError, match="tol"):
         gt_from_tolerance(3, 3, -1)
+
+
+# ------------------------------------------------- traverse,frame,x,y files and build_gt
+
+_COMBINED = "traverse,frame,x,y,yaw\nsummer,0,0,0,0\nsummer,1,5,0,0\nsummer,2,10,0,0\nwinter,0,1,0,0\nwinter,1,9,0,0\n"
+
+
+def test_load_traverse_positions_reads_one_traverse(tmp_path):
+    p = _file(tmp_path, "gt.csv", _COMBINED)
+    assert load_traverse_positions(p, "winter") == {0: (1.0, 0.0), 1: (9.0, 0.0)}
+    with pytest.raises(ValueError, match="no rows for traverse 'autumn'"):
+        load_traverse_positions(p, "autumn")
+    with pytest.raises(ValueError, match=_line_error(p.parent / "bad.csv", 3)):
+        load_traverse_positions(_file(tmp_path, "bad.csv", "traverse,frame,x,y\nsummer,0,0,0\nsummer,x,0,0\n"),
+                                "summer")
+    with pytest.raises(ValueError, match=_line_error(p.parent / "head.csv", 1)):
+        load_traverse_positions(_file(tmp_path, "head.csv", "frame,x,y\n0,0,0\n"), "summer")
+    with pytest.raises(FileNotFoundError, match="nope.csv"):
+        load_traverse_positions(tmp_path / "nope.csv", "summer")
+
+
+def test_positions_of_frames_reads_both_layouts(tmp_path):
+    combined = _file(tmp_path, "gt.csv", _COMBINED)
+    assert positions_of_frames(combined, "summer", [2, 0]).tolist() == [[10, 0], [0, 0]]
+    plain = _file(tmp_path, "pos.csv", "frame,x,y\n0,0,0\n1,3,4\n")
+    assert positions_of_frames(plain, "any", [1]).tolist() == [[3, 4]]
+    with pytest.raises(ValueError, match="no position for frame 5 of traverse 'summer'"):
+        positions_of_frames(combined, "summer", [0, 5])
+
+
+def test_build_gt_from_a_combined_file_with_soft_radius(tmp_path):
+    p = _file(tmp_path, "gt.csv", _COMBINED)
+    spec = GroundTruthSpec(files=(str(p),), radius=2.0, soft=6.0)
+    names = ["a", "b", "c"]
+    hard, soft = build_gt(spec, names, names[:2], [0, 1, 2], [0, 1], "summer", "winter")
+    # winter 0 at x=1 is within 2 of summer 0 (x=0); winter 1 at x=9 within 2 of summer 2 (x=10)
+    assert hard.tolist() == [[True, False], [False, False], [False, True]]
+    assert soft.tolist() == [[True, False], [True, True], [False, True]]
+
+
+def test_build_gt_tolerance_and_pairs(tmp_path):
+    hard, soft = build_gt(GroundTruthSpec(tolerance=0, soft=1), ["a", "b"], ["a", "b"], [0, 2], [0, 1])
+    assert hard.tolist() == [[True, False], [False, False]] and soft.tolist() == [[True, True], [False, True]]
+    pairs = _file(tmp_path, "pairs.csv", "query,db\n1,0\n")
+    hard, soft = build_gt(GroundTruthSpec(files=(str(pairs),)), ["a", "b"], ["x", "y"], [0, 1], [0, 1])
+    assert hard.tolist() == [[False, True], [False, False]] and soft is None
+    assert build_gt(GroundTruthSpec(), ["a"], ["b"], [0], [0]) == (None, None)
+    assert GroundTruthSpec(files=("g.csv",), radius=3.0).describe() == {
+        "tolerance": None, "gt": ["g.csv"], "radius": 3.0, "gt_soft": None}
+
+
+@pytest.mark.parametrize("spec,msg", [
+    (GroundTruthSpec(tolerance=1, files=("g.csv",)), "either --tolerance or --gt"),
+    (GroundTruthSpec(radius=3.0), "--radius needs --gt"),
+    (GroundTruthSpec(files=("a", "b", "c"), radius=1.0), "one or two files, got 3"),
+    (GroundTruthSpec(files=("a", "b")), "need --radius"),
+    (GroundTruthSpec(files=("a",), soft=2.0), "--gt-soft needs"),
+])
+def test_build_gt_rejects_contradictory_options(spec, msg):
+    with pytest.raises(ValueError, match=re.escape(msg)):
+        build_gt(spec, ["a"], ["b"], [0], [0])
