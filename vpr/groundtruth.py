@@ -108,7 +108,7 @@ class _NameIndex:
     def __init__(self, names: Sequence[str]):
         self._levels: list[dict[str, int | None]] = [{}, {}, {}]
         for pos, name in enumerate(names):
-            for level, key in zip(self._levels, _alias_keys(str(name))):
+            for level, key in zip(self._levels, _alias_keys(str(name)), strict=False):
                 level[key] = None if key in level and level[key] != pos else pos
 
     def find(self, name: str) -> tuple[int | None, bool]:
@@ -117,7 +117,7 @@ class _NameIndex:
         ``name`` is reduced the same way at each level, so "0001.png" finds
         "0001" and "a.png" finds "imgs/a.png".
         """
-        for level, key in zip(self._levels, _alias_keys(name)):
+        for level, key in zip(self._levels, _alias_keys(name), strict=False):
             if key in level:
                 pos = level[key]
                 return pos, pos is None
@@ -217,9 +217,9 @@ def load_pairs_csv(path, n_db: int, n_q: int, db_names: Sequence[str] | None = N
         return None, f"{where}: {role} frame number {k} out of range 0..{n - 1}"
 
     first_line, first = rows[0]
-    resolved_first = [resolve(t, r, "") for t, r in zip(first, ("query", "db"))]
+    resolved_first = [resolve(t, r, "") for t, r in zip(first, ("query", "db"), strict=False)]
     if all(pos is None and err is not None and _parse_int(t) is None
-           for t, (pos, err) in zip(first, resolved_first)):
+           for t, (pos, err) in zip(first, resolved_first, strict=False)):
         rows = rows[1:]  # a header: neither field is a frame
         if not rows:
             raise ValueError(f"{path}: no pairs after the header on line {first_line}")
@@ -270,7 +270,7 @@ def _load_positions(path):
     else:
         frames = tokens
     seen: dict = {}
-    for f, lineno in zip(frames, lines):
+    for f, lineno in zip(frames, lines, strict=False):
         if isinstance(f, int) and f < 0:
             raise ValueError(f"{path}:{lineno}: frame number {f} is negative")
         if f in seen:
@@ -316,7 +316,7 @@ def _positions_for_frames(path, names, indices, role: str) -> np.ndarray:
         found = [lookup.find(str(n)) for n in names]
         # integer-looking tokens may still be names such as "0001" for 0001.png
         if not isinstance(frames[0], int) or all(pos is not None for pos, _ in found):
-            missing = [n for n, (pos, _) in zip(names, found) if pos is None]
+            missing = [n for n, (pos, _) in zip(names, found, strict=False) if pos is None]
             if missing:
                 raise ValueError(f"{path}: no position for {len(missing)} of the {len(names)} {role} frames read, "
                                  f"e.g. {', '.join(repr(m) for m in missing[:3])}")
