@@ -19,8 +19,8 @@ __all__ = ["overlap_similarity", "cosine", "neg_sad", "mean_abs_diff", "topk_spa
 DENSE_PAIRS_LIMIT = 20_000 * 20_000
 
 # Pairs per dense block when assembling top-K output: the block, its negation and
-# argpartition's int64 indices take about 16 bytes per pair (256 MiB here).
-_BLOCK_PAIRS = 2**24
+# argpartition's int64 indices take about 16 bytes per pair (64 MiB here).
+_BLOCK_PAIRS = 2**22
 
 
 def _norm_overlap_block(A, B, na, nb):
@@ -94,7 +94,7 @@ def topk_sparse(block_fn, n_db: int, n_q: int, top_k: int, chunk: int = 2048) ->
     ``block_fn(q0, q1)`` returns the dense (n_db x (q1 - q0)) similarity block.
     Entries that are exactly representable as 0 but kept are stored explicitly
     so that "kept with score 0" and "not kept" stay distinguishable. Blocks
-    hold at most ``chunk`` queries and about 2**24 pairs, and only the kept
+    hold at most ``chunk`` queries and about 2**22 pairs, and only the kept
     entries of each block are retained, so memory grows with
     ``n_q * top_k``, not with ``n_db * n_q``.
     """
