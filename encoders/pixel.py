@@ -3,8 +3,8 @@
 :meth:`PixelEncoder.describe` is OpenSeqSLAM's preprocessing (grey, resize to
 ``size`` = 64 x 32, normalise every ``patch`` x ``patch`` block to zero mean and
 unit std) flattened row-major: a 2048-dim float32 vector with the defaults,
-identical to :func:`vpr.imageproc.seqslam_preprocess`. SeqSLAM and cosine
-baselines use it directly.
+computed by :func:`vpr.imageproc.seqslam_descriptors` (the project's one
+implementation). SeqSLAM and cosine baselines use it directly.
 
 :meth:`PixelEncoder.encode` sparsifies that descriptor with the random
 projection top-k of :mod:`encoders.projection` (conf ``n_bits``, ``k``,
@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vpr.imageproc import patch_normalise, resize, to_grey
+from vpr.imageproc import seqslam_descriptors
 
 from .base import as_image_list
 from .projection import ProjectedEncoder
@@ -50,16 +50,4 @@ class PixelEncoder(ProjectedEncoder):
 
     def describe(self, images) -> np.ndarray:
         """Flattened patch-normalised thumbnails, float32 (frames, width * height)."""
-        (w, h), p = self.conf["size"], self.conf["patch"]
-        frames = as_image_list(images)
-        thumbs = np.stack([resize(to_grey(f, f"images[{i}]"), (w, h)) for i, f in enumerate(frames)])
-        n = len(frames)
-        if h % p or w % p:
-            # ragged blocks: fall back to the per-image reference implementation
-            return np.stack([patch_normalise(t, p) for t in thumbs]).reshape(n, -1)
-        # all thumbnails at once; same arithmetic as vpr.imageproc.patch_normalise
-        blocks = thumbs.astype(np.float32).reshape(n, h // p, p, w // p, p)
-        mu = blocks.mean(axis=(2, 4), keepdims=True)
-        sd = blocks.std(axis=(2, 4), keepdims=True)
-        out = np.where(sd > 1e-6, (blocks - mu) / np.maximum(sd, 1e-6), 0.0)
-        return out.astype(np.float32).reshape(n, h * w)
+        return seqslam_descriptors(as_image_list(images), self.conf["size"], self.conf["patch"])

@@ -22,7 +22,7 @@ import numpy as np
 from vpr import evaluate, io, plots, simulate
 from vpr.baselines.pairwise import pairwise
 from vpr.memory import SequenceMemory
-from vpr.similarity import overlap
+from vpr.similarity import overlap_similarity
 
 __all__ = ["CURVES_LEFT", "CURVES_RIGHT", "run_curve", "run", "main"]
 
@@ -46,7 +46,7 @@ def run_curve(method: str, p_extra: float, aliasing: int, noise: float, seed: in
     t = time.perf_counter()
     if method == "rshosm":
         codes = SequenceMemory(p_extra=p_extra, seed=seed).run(obs)
-        S = overlap(codes)
+        S = overlap_similarity(codes)
     elif method == "pairwise":
         S = pairwise(obs)
     else:

@@ -14,7 +14,7 @@ import encoders
 from encoders.projection import TopKProjection
 from vpr.config import coerce_value
 from vpr.imageproc import seqslam_preprocess
-from vpr.sdr import overlap
+from vpr.sdr import overlap_count
 
 NAMES = ["cnn", "orb", "pixel", "projection"]
 
@@ -254,7 +254,7 @@ def test_orb_small_images_are_upscaled_and_grid_is_upright(images):
     assert (g.getnnz(axis=1) == 40).all()
     # upright descriptors: a 180-degree rotation changes the grid SDR of a textured image
     rot = grid.encode([cv2.rotate(images[0], cv2.ROTATE_180)])
-    assert overlap(grid.encode(images[:1]), rot)[0, 0] < 20
+    assert overlap_count(grid.encode(images[:1]), rot)[0, 0] < 20
 
 
 def test_orb_votes_histogram_matches_sdr(encs, images):
@@ -386,5 +386,5 @@ def test_same_place_overlap_beats_different_place_on_rendered_route(route, name,
     fit = conf.get("standardise") == "fit"
     A = enc.fit(db.images).encode(db.images) if fit else enc.encode(db.images)
     B = enc.fit(q.images).encode(q.images) if fit else enc.encode(q.images)
-    O = overlap(A, B)
+    O = overlap_count(A, B)
     assert O[same].mean() > O[different].mean() + 1.0, (O[same].mean(), O[different].mean())

@@ -11,6 +11,7 @@ from vpr import evaluate as E
 from vpr.evaluate import (
     auc_from_pr,
     auc_pr,
+    average_precision,
     evaluate,
     gt_from_labels,
     gt_from_positions,
@@ -63,7 +64,7 @@ def _brute_curve(S, hard, soft, mask, matching):
     dec, n_pos = _brute_decisions(S, hard, soft, mask, matching)
     if n_pos == 0:
         return None
-    P, R, T, FP = [1.0], [0.0], [math.inf], [0]
+    P, R, T, FP = [0.0], [0.0], [math.inf], [0]
     for t in sorted({s for s, _ in dec}, reverse=True):
         tp = sum(1 for s, h in dec if s >= t and h)
         fp = sum(1 for s, h in dec if s >= t and not h)
@@ -71,6 +72,8 @@ def _brute_curve(S, hard, soft, mask, matching):
         R.append(tp / n_pos)
         T.append(t)
         FP.append(fp)
+    if len(P) > 1:
+        P[0] = P[1]  # the curve starts at recall 0 with the first threshold's precision
     return P, R, T, FP
 
 
@@ -82,7 +85,7 @@ def _brute_auc(P, R):
 
 
 def _brute_r100p(R, FP):
-    return max(r for r, fp in zip(R, FP) if fp == 0)
+    return max(r for r, fp in zip(R, FP, strict=True) if fp == 0)
 
 
 def _brute_recall_at_k(S, hard, soft, mask, k):
@@ -190,7 +193,7 @@ def test_sparse_top_k_equals_dense_with_minus_inf(problem, K):
     for matching in ("multi", "single"):
         sparse_curve = pr_curve(S_topk, hard, soft, matching, mask)
         dense_curve = pr_curve(S_dense, hard, soft, matching, mask)
-        for a, b in zip(sparse_curve, dense_curve):
+        for a, b in zip(sparse_curve, dense_curve, strict=True):
             np.testing.assert_array_equal(a, b)
     for k in (1, 2, 3):
         assert recall_at_k(S_topk, hard, soft, k, mask) == recall_at_k(S_dense, hard, soft, k, mask)
@@ -205,7 +208,8 @@ def test_evaluate_agrees_with_individual_metrics(problem):
             evaluate(S, hard, soft, mask=mask)
         return
     res = evaluate(S, hard, soft, mask=mask)
-    assert set(res) == {"auc_pr", "recall_at_100p", "recall_at_1", "recall_at_5", "auc_pr_single"}
+    assert list(res) == ["ap", "auc_pr", "recall_at_100p", "recall_at_1", "recall_at_5", "auc_pr_single"]
+    assert res["ap"] == average_precision(S, hard, soft, mask=mask)
     assert all(isinstance(v, float) for v in res.values())
     assert res["auc_pr"] == auc_pr(S, hard, soft, mask=mask)
     assert res["auc_pr_single"] == auc_pr(S, hard, soft, matching="single", mask=mask)
@@ -222,7 +226,8 @@ def test_curve_invariants(problem):
         P, R, T = pr_curve(S, hard, soft, mask=mask)
     except ValueError:
         return
-    assert P[0] == 1 and R[0] == 0 and T[0] == np.inf
+    assert R[0] == 0 and T[0] == np.inf
+    assert P[0] == (P[1] if len(P) > 1 else 0)
     assert np.all(np.diff(T) < 0), "one point per distinct threshold, decreasing"
     assert np.all(np.diff(R) >= 0)
     assert np.all((P >= 0) & (P <= 1)) and np.all((R >= 0) & (R <= 1))
@@ -244,6 +249,8 @@ def test_hand_example_multi_and_single():
     np.testing.assert_array_equal(T, [np.inf, 0.9, 0.8, 0.6, 0.5, 0.4, 0.3, 0.2, 0.1])
     np.testing.assert_allclose(R, [0, .5, .5, .5, .5, .5, 1, 1, 1])
     np.testing.assert_allclose(P, [1, 1, 1 / 2, 1 / 4, 1 / 5, 1 / 6, 2 / 7, 2 / 8, 2 / 9])
+    # AP: recall steps 0 -> 0.5 at precision 1 (0.9), 0.5 -> 1 at precision 2/7 (0.3)
+    assert average_precision(S, hard) == pytest.approx(0.5 * 1 + 0.5 * 2 / 7)
     assert recall_at_100p(S, hard) == 0.5
     # single: q0 -> db0 0.9 (T), q1 -> db1 0.8 (F), q2 tie 0.6 -> db0 (no true match: F)
     P, R, T = pr_curve(S, hard, matching="single")
@@ -276,7 +283,7 @@ def test_perfect_and_worst_ranking():
     n = 8
     hard = np.eye(n, dtype=bool)
     S = np.eye(n) + 0.01 * np.random.default_rng(0).random((n, n))
-    assert evaluate(S, hard) == {"auc_pr": 1.0, "recall_at_100p": 1.0, "recall_at_1": 1.0,
+    assert evaluate(S, hard) == {"ap": 1.0, "auc_pr": 1.0, "recall_at_100p": 1.0, "recall_at_1": 1.0,
                                  "recall_at_5": 1.0, "auc_pr_single": 1.0}
     res = evaluate(-S, hard)
     assert res["recall_at_100p"] == 0.0 and res["recall_at_1"] == 0.0
@@ -314,6 +321,10 @@ def test_sparse_large_does_not_densify():
     # at most K of the 5 true pairs per query are stored, the rest count as missed
     P, R, _ = pr_curve(S, gt, soft)
     assert R[-1] < 0.6 and 0 < res["auc_pr"] < 1
+    # AP adds the final tied block of all unstored pairs: its precision is tiny
+    ap_curve = float(np.sum(np.diff(R) * P[1:]))
+    n_pairs = n_db * n_q - (soft.nnz - gt.nnz)
+    assert res["ap"] == pytest.approx(ap_curve + (1 - R[-1]) * gt.nnz / n_pairs, rel=1e-12)
 
 
 def test_sparse_duplicates_are_summed_and_input_untouched():
@@ -470,3 +481,89 @@ def test_accepted_precision_counts_one_decision_per_query():
     m = E.accepted_precision(best, accepted, sp.csr_matrix(gt), sp.csr_matrix(soft))
     assert m == {"n_accepted": 2, "precision_accepted": 0.5, "recall_accepted": 0.5}
     assert E.accepted_precision(best, np.zeros(4, bool), gt)["precision_accepted"] == 1.0
+
+
+# --------------------------------------------------------------------------- #
+# average precision against scikit-learn
+# --------------------------------------------------------------------------- #
+def _sklearn_ap(S, hard, soft, mask):
+    """scikit-learn's AP of the evaluated pairs; never-matched (-inf) pairs tie below every score."""
+    from sklearn.metrics import average_precision_score  # slow import, only this reference needs it
+
+    keep = np.ones(S.shape, bool) if mask is None else mask.copy()
+    if soft is not None:
+        keep &= ~(soft & ~hard)
+    finite = S[np.isfinite(S)]
+    bottom = (finite.min() if finite.size else 0.0) - 1.0
+    scores = np.where(np.isfinite(S), S, bottom)[keep]
+    labels = hard[keep]
+    if not labels.any():
+        return None
+    return average_precision_score(labels, scores)
+
+
+@SETTINGS
+@given(problems())
+def test_average_precision_equals_sklearn(problem):
+    S, hard, soft, mask = problem
+    ref = _sklearn_ap(S, hard, soft, mask)
+    for args in _variants(S, hard, soft, mask):  # dense, and sparse S with -inf entries not stored
+        if ref is None:
+            with pytest.raises(ValueError, match="gt_hard"):
+                average_precision(*args[:3], mask=args[3])
+        else:
+            assert average_precision(*args[:3], mask=args[3]) == pytest.approx(ref, abs=1e-9)
+
+
+@SETTINGS
+@given(st.integers(1, 40), st.integers(1, 30), st.integers(1, 5), st.integers(2, 6), st.booleans(),
+       st.booleans(), st.integers(0, 2**32 - 1))
+def test_average_precision_top_k_sparse_equals_sklearn(n_db, n_q, K, levels, with_soft, with_mask, seed):
+    # Larger matrices than `problems`, quantised scores (ties), a real top-K retrieval stage.
+    rng = np.random.default_rng(seed)
+    S = rng.integers(0, levels, size=(n_db, n_q)).astype(float)
+    hard = rng.random((n_db, n_q)) < 0.15
+    soft = (hard | (rng.random((n_db, n_q)) < 0.1)) if with_soft else None
+    mask = rng.random((n_db, n_q)) < 0.8 if with_mask else None
+    K = min(K, n_db)
+    top = np.argpartition(-S, K - 1, axis=0)[:K]
+    cols = np.broadcast_to(np.arange(n_q), top.shape)
+    S_topk = sp.csr_matrix((S[top, cols].ravel(), (top.ravel(), cols.ravel())), shape=S.shape)
+    S_dense = np.full(S.shape, -np.inf)
+    S_dense[top, cols] = S[top, cols]
+    ref = _sklearn_ap(S_dense, hard, soft, mask)
+    if ref is None:
+        with pytest.raises(ValueError, match="gt_hard"):
+            average_precision(S_topk, hard, soft, mask)
+        return
+    assert average_precision(S_topk, hard, soft, mask) == pytest.approx(ref, abs=1e-9)
+    sparse_gt = [None if a is None else sp.csr_matrix(a) for a in (hard, soft, mask)]
+    assert average_precision(S_topk, *sparse_gt) == pytest.approx(ref, abs=1e-9)
+    assert evaluate(S_topk, hard, soft, mask)["ap"] == pytest.approx(ref, abs=1e-9)
+
+
+def test_constant_matrix_scores_the_share_of_true_pairs():
+    # the old curve started at an invented (recall 0, precision 1) and gave 0.50 here
+    gt = gt_from_tolerance(111, 111, 0)
+    share = gt.sum() / gt.size
+    assert auc_pr(np.ones((111, 111)), gt) == pytest.approx(share, abs=1e-12)
+    assert average_precision(np.ones((111, 111)), gt) == pytest.approx(share, abs=1e-12)
+    P, R, _ = pr_curve(np.ones((111, 111)), gt)
+    np.testing.assert_allclose(P, [share, share])
+    np.testing.assert_allclose(R, [0, 1])
+    # one tied block of pairs: a few true pairs above it cannot lend it their precision
+    S = np.ones((111, 111))
+    S[0, 0] = S[1, 1] = 2.0
+    assert average_precision(S, gt) == pytest.approx(2 / 111 * 1 + 109 / 111 * 111 / (111 * 111))
+
+
+def test_recall_at_100p_ends_before_a_tie_block_with_a_false_pair():
+    S = np.array([[0.9, 0.5], [0.5, 0.9], [0.5, 0.1]])
+    hard = np.array([[True, False], [False, True], [True, False]])
+    # 0.9: two true pairs (recall 2/3); 0.5 admits the true (2, 0) only with the false (0, 1), (1, 0)
+    assert recall_at_100p(S, hard) == pytest.approx(2 / 3)
+    assert evaluate(S, hard)["recall_at_100p"] == pytest.approx(2 / 3)
+    # the same tie block without false pairs does reach 100 % recall
+    assert recall_at_100p(S, hard, gt_soft=hard | (S == 0.5)) == 1.0
+    # and a tie at the very top with a false pair gives 0
+    assert recall_at_100p(np.ones((2, 1)), np.array([[True], [False]])) == 0.0

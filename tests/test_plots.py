@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from vpr.evaluate import gt_from_tolerance, pr_curve
+import vpr.plots
+from vpr.evaluate import evaluate, gt_from_tolerance, pr_curve
 from vpr.plots import _block_any, _block_max, plot_bars, plot_pr, plot_similarity
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -124,8 +125,12 @@ def test_plot_similarity_bad_input(tmp_path, example):
     p = tmp_path / "S.png"
     with pytest.raises(ValueError, match="S contains NaN"):
         plot_similarity(np.where(gt, np.nan, S), p)
-    with pytest.raises(ValueError, match="S must be a non-empty 2-D"):
+    with pytest.raises(ValueError, match="S must be 2-D"):
         plot_similarity(S[0], p)
+    with pytest.raises(ValueError, match="at least one database entry"):
+        plot_similarity(S[:0], p)
+    with pytest.raises(ValueError, match=r"S contains \+inf"):
+        plot_similarity(sp.csr_matrix(np.where(gt, np.inf, 0.0)), p)
     with pytest.raises(ValueError, match="gt_hard must be boolean"):
         plot_similarity(S, p, gt_hard=gt.astype(int))
     with pytest.raises(ValueError, match="gt_hard has shape"):
@@ -161,3 +166,65 @@ def test_plot_bars(tmp_path):
         plot_bars({"a": [1, 2]}, p, ylabel="x")
     assert not p.exists()
     _no_pyplot_figures()
+
+
+def _capture(monkeypatch):
+    """Replace the file writer by one that keeps the figure, so tests can read what was drawn."""
+    figs = []
+
+    def keep(fig, path, dpi=150):
+        figs.append(fig)
+        return path
+
+    monkeypatch.setattr(vpr.plots, "save_figure", keep)
+    return figs
+
+
+def _markers(fig):
+    """(x, y) of every scatter marker on the figure's first axes."""
+    offsets = [c.get_offsets() for c in fig.axes[0].collections if len(c.get_offsets())]
+    return {tuple(map(float, xy)) for o in offsets for xy in np.asarray(o)}
+
+
+def test_plot_pr_legend_shows_average_precision(tmp_path, monkeypatch, example):
+    S, gt = example
+    figs = _capture(monkeypatch)
+    metrics, curve = evaluate(S, gt, return_curve=True)
+    plot_pr({"ours": curve, "other": pr_curve(-S, gt)}, tmp_path / "pr.png", ap={"ours": metrics["ap"]})
+    labels = [t.get_text() for t in figs[0].axes[0].get_legend().get_texts()]
+    P, R, _ = pr_curve(-S, gt)
+    assert labels == [f"ours (AP = {metrics['ap']:.3f})", f"other (AP = {np.sum(np.diff(R) * P[1:]):.3f})"]
+    with pytest.raises(ValueError, match=r"ap\['ours'\] must be a number in \[0, 1\]"):
+        plot_pr({"ours": curve}, tmp_path / "pr.png", ap={"ours": 1.5})
+    with pytest.raises(ValueError, match="ap has names without a curve"):
+        plot_pr({"ours": curve}, tmp_path / "pr.png", ap={"theirs": 0.5})
+
+
+@pytest.mark.parametrize("sparse", [False, True])
+def test_plot_similarity_draws_no_marker_for_a_query_without_candidate(tmp_path, monkeypatch, sparse):
+    S = np.array([[0.0, 0.2, 0.0, 0.0, 0.5],
+                  [0.0, 0.9, 0.0, 0.0, 0.5],
+                  [0.0, 0.1, 0.0, -np.inf, 0.5]])
+    S[:, 3] = -np.inf  # query 3: never matched anywhere
+    # q0: all zero (argmax says row 0); q1: real best row 1; q2: all zero; q4: all tied
+    best = np.array([0, 1, 0, 0, 0])
+    accepted = np.array([False, True, False, False, False])
+    if sparse:
+        r, c = np.nonzero(np.isfinite(S))
+        S = sp.csr_matrix((S[r, c], (r, c)), shape=S.shape)  # explicit zeros stored, -inf not
+    figs = _capture(monkeypatch)
+    plot_similarity(S, tmp_path / "S.png", best_db=best, accepted=accepted)
+    assert _markers(figs[0]) == {(1.0, 1.0)}
+    plot_similarity(S, tmp_path / "S.png", best_db=best)
+    assert _markers(figs[1]) == {(1.0, 1.0)}
+
+
+def test_plot_similarity_sparse_marker_needs_a_stored_entry(tmp_path, monkeypatch):
+    # top-1 sparse: the stored entry is the candidate, an unstored one never is
+    S = sp.csr_matrix((np.array([0.0, 0.4]), (np.array([2, 0]), np.array([0, 1]))), shape=(3, 3))
+    figs = _capture(monkeypatch)
+    plot_similarity(S, tmp_path / "S.png", best_db=np.array([2, 1, 0]))
+    assert _markers(figs[0]) == {(0.0, 2.0)}
+    # a single database frame has nothing to tie with: its stored entry is the candidate
+    plot_similarity(np.zeros((1, 2)), tmp_path / "S.png", best_db=np.array([0, -1]))
+    assert _markers(figs[1]) == {(0.0, 0.0)}

@@ -9,7 +9,7 @@ from vpr.baselines.pairwise import pairwise
 def test_overlap_is_normalised_db_by_query():
     db = sdr.from_indices([[0, 1, 2, 3], [4, 5]], 8)
     q = sdr.from_indices([[0, 1], [4, 5], []], 8)
-    S = similarity.overlap(db, q)
+    S = similarity.overlap_similarity(db, q)
     assert S.shape == (2, 3)
     assert np.allclose(S, [[2 / np.sqrt(8), 0, 0], [0, 1, 0]])
 
@@ -18,8 +18,8 @@ def test_overlap_top_k_keeps_the_best_per_query():
     rng = np.random.default_rng(0)
     db = sdr.random_sdrs(60, n_bits=256, n_active=20, seed=1)
     q = sdr.add_noise(db[rng.permutation(60)[:25]], 0.3, seed=2)
-    dense = similarity.overlap(db, q)
-    top = similarity.overlap(db, q, top_k=3, chunk=7)
+    dense = similarity.overlap_similarity(db, q)
+    top = similarity.overlap_similarity(db, q, top_k=3, chunk=7)
     assert sp.issparse(top) and top.shape == dense.shape
     assert np.all(np.diff(top.tocsc().indptr) == 3)
     for j in range(25):
@@ -29,12 +29,48 @@ def test_overlap_top_k_keeps_the_best_per_query():
         assert len(idx) <= 3
 
 
-def test_dense_refused_for_huge_inputs(monkeypatch):
-    monkeypatch.setattr(similarity, "DENSE_LIMIT", 10)
+def test_dense_refused_above_the_pair_limit_only(monkeypatch):
+    monkeypatch.setattr(similarity, "DENSE_PAIRS_LIMIT", 100)
     a = sdr.random_sdrs(11, n_bits=64, n_active=4, seed=0)
     with pytest.raises(ValueError, match="top_k"):
-        similarity.overlap(a)
-    assert similarity.overlap(a, top_k=2).nnz == 22
+        similarity.overlap_similarity(a)  # 121 pairs
+    assert similarity.overlap_similarity(a, top_k=2).nnz == 22
+    # the limit counts pairs, not rows: a long side with a short one stays dense
+    long = sdr.random_sdrs(50, n_bits=64, n_active=4, seed=1)
+    assert similarity.overlap_similarity(long, a[:2]).shape == (50, 2)
+
+
+def test_large_database_with_top_k_or_few_queries():
+    # one side above 20,000 rows used to be refused even with top_k (issue 11 item 12)
+    db = sdr.random_sdrs(25_000, n_bits=64, n_active=4, seed=0)
+    q = db[[3, 24_999] * 25]
+    top = similarity.overlap_similarity(db, q, top_k=5)
+    assert top.shape == (25_000, 50) and np.all(np.diff(top.tocsc().indptr) == 5)
+    dense = similarity.overlap_similarity(db, q)  # 1.25 M pairs: far below the dense pair limit
+    assert dense.shape == (25_000, 50)
+    np.testing.assert_allclose(top.max(axis=0).toarray().ravel(), dense.max(axis=0))
+    assert np.all(dense[3, 0::2] == 1) and np.all(dense[24_999, 1::2] == 1)
+
+
+def test_topk_sparse_keeps_only_the_kept_entries_in_memory():
+    # Before the fix each block's kept indices were a view of the whole n_db x block
+    # argpartition output, so memory grew with n_db x n_q x 8 bytes (40 MB here).
+    import tracemalloc
+
+    n_db, n_q, chunk = 5_000, 1_000, 100
+    block = np.random.default_rng(0).random((n_db, chunk)).astype(np.float32)
+    tracemalloc.start()
+    try:
+        tracemalloc.reset_peak()
+        m = similarity.topk_sparse(lambda q0, q1: block[:, : q1 - q0], n_db, n_q, top_k=2, chunk=chunk)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert m.nnz == 2 * n_q
+    per_block = block.nbytes * 4  # the block's negation and int64 argpartition indices, with margin
+    assert peak < per_block + 2_000_000, f"peak {peak / 1e6:.1f} MB"
+    best = np.sort(np.argsort(-block, axis=0)[:2], axis=0)
+    np.testing.assert_array_equal(m.tocsc()[:, :chunk].indices.reshape(chunk, 2).T, best)
 
 
 def test_cosine_and_sad():
@@ -51,7 +87,7 @@ def test_cosine_and_sad():
 
 def test_pairwise_dispatch():
     a = sdr.random_sdrs(5, n_bits=64, n_active=8, seed=3)
-    assert np.allclose(pairwise(a), similarity.overlap(a))
+    assert np.allclose(pairwise(a), similarity.overlap_similarity(a))
     X = np.random.default_rng(0).random((4, 6))
     assert np.allclose(pairwise(X, X[:2]), similarity.cosine(X, X[:2]))
     assert np.allclose(pairwise(X, metric="sad"), similarity.neg_sad(X))

@@ -14,6 +14,10 @@ Conventions
     ``-inf``, mean "never matched": they lie below every threshold, are never
     predicted as matches and never appear in a top-k list. Explicitly stored
     zeros are ordinary similarities. ``S`` must not contain NaN or ``+inf``.
+    The one exception is :func:`average_precision`, which ranks *every*
+    evaluated pair: never-matched pairs come last, all tied, so a top-K ``S``
+    scores exactly as the dense matrix with its missing entries set below
+    every stored value.
 ``gt_hard``
     Boolean matrix (dense or sparse) of the same shape: the true matches.
 ``gt_soft``
@@ -46,14 +50,16 @@ of the builders below).
 """
 from __future__ import annotations
 
-import numbers
 from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
+from vpr._checks import at, check_count, check_int, check_similarity
+
 __all__ = [
+    "average_precision",
     "pr_curve",
     "auc_pr",
     "auc_from_pr",
@@ -92,39 +98,7 @@ class _Problem(NamedTuple):
     is_hard: np.ndarray | None
     n_pos: int                    # gt_hard pairs inside the mask
     pos_queries: np.ndarray       # bool (n_q,): query has a gt_hard pair in the mask
-
-
-def _check_S(S):
-    if sp.issparse(S):
-        if S.ndim != 2:
-            raise ValueError(f"S must be 2-D (n_db x n_q), got shape {S.shape}")
-        kind = S.dtype.kind
-    else:
-        S = np.asarray(S)
-        if S.ndim != 2:
-            raise ValueError(f"S must be 2-D (n_db x n_q), got shape {S.shape}")
-        kind = S.dtype.kind
-    if kind not in "biuf":
-        raise ValueError(f"S must be real-valued, got dtype {S.dtype}")
-    if S.shape[0] == 0 or S.shape[1] == 0:
-        raise ValueError(f"S must have at least one database entry and one query, got shape {S.shape}")
-    if sp.issparse(S):
-        # copy: canonicalising must not touch the caller's matrix
-        S = sp.coo_matrix(S, copy=True)
-        S.sum_duplicates()
-        data = S.data.astype(np.float64, copy=False)
-        _check_values("S", data)
-        return S.shape, (S.row.astype(np.intp), S.col.astype(np.intp), data)
-    S = S.astype(np.float64, copy=False)
-    _check_values("S", S)
-    return S.shape, S
-
-
-def _check_values(name, a):
-    if np.isnan(a).any():
-        raise ValueError(f"{name} contains NaN")
-    if np.isposinf(a).any():
-        raise ValueError(f"{name} contains +inf (use -inf for 'never matched')")
+    n_pairs: int                  # evaluated pairs (inside the mask, not soft-only), never-matched included
 
 
 def _check_bool(name, G, shape, dense):
@@ -149,18 +123,12 @@ def _check_bool(name, G, shape, dense):
     return G
 
 
-def _at(G, rows, cols):
-    """Values of a dense or sparse bool matrix at the given coordinates."""
-    if sp.issparse(G):
-        if len(rows) == 0:
-            return np.zeros(0, dtype=bool)
-        return np.asarray(G[rows, cols]).ravel().astype(bool)
-    return G[rows, cols]
-
-
 def _prepare(S, gt_hard, gt_soft=None, mask=None) -> _Problem:
-    shape, S = _check_S(S)
-    sparse = isinstance(S, tuple)
+    S = check_similarity(S, sparse_format="coo")
+    shape = S.shape
+    sparse = sp.issparse(S)
+    if sparse:
+        S = (S.row.astype(np.intp), S.col.astype(np.intp), S.data)
     hard = _check_bool("gt_hard", gt_hard, shape, dense=not sparse)
     if hard is None:
         raise ValueError("gt_hard is required")
@@ -169,23 +137,21 @@ def _prepare(S, gt_hard, gt_soft=None, mask=None) -> _Problem:
     n_q = shape[1]
 
     if not sparse:
-        cand = S > -np.inf
+        evaluated = np.ones(shape, dtype=bool) if mask is None else mask.copy()
         if soft is not None:
-            cand &= ~(soft & ~hard)
-        pos = hard
-        if mask is not None:
-            cand &= mask
-            pos = hard & mask
+            evaluated &= ~(soft & ~hard)
+        cand = evaluated & (S > -np.inf)
+        pos = hard if mask is None else hard & mask
         return _Problem(shape, False, S, hard, cand, None, None, None, None,
-                        int(np.count_nonzero(pos)), pos.any(axis=0))
+                        int(np.count_nonzero(pos)), pos.any(axis=0), int(np.count_nonzero(evaluated)))
 
     rows, cols, vals = S
-    is_hard = _at(hard, rows, cols)
+    is_hard = at(hard, rows, cols)
     keep = vals > -np.inf
     if soft is not None:
-        keep &= ~(_at(soft, rows, cols) & ~is_hard)
+        keep &= ~(at(soft, rows, cols) & ~is_hard)
     if mask is not None:
-        keep &= _at(mask, rows, cols)
+        keep &= at(mask, rows, cols)
     rows, cols, vals, is_hard = rows[keep], cols[keep], vals[keep], is_hard[keep]
     # ranking order within each query: similarity descending, then db index
     order = np.lexsort((rows, -vals, cols))
@@ -198,11 +164,30 @@ def _prepare(S, gt_hard, gt_soft=None, mask=None) -> _Problem:
     else:
         h_rows, h_cols = np.nonzero(hard)
     if mask is not None:
-        inside = _at(mask, h_rows, h_cols)
+        inside = at(mask, h_rows, h_cols)
         h_rows, h_cols = h_rows[inside], h_cols[inside]
     pos_queries = np.bincount(h_cols, minlength=n_q) > 0
     return _Problem(shape, True, None, None, None, rows, cols, vals, is_hard,
-                    int(len(h_rows)), pos_queries)
+                    int(len(h_rows)), pos_queries, _count_evaluated(shape, hard, soft, mask))
+
+
+def _count_evaluated(shape, hard, soft, mask) -> int:
+    """Pairs inside ``mask`` that are not soft-only, counted from the nonzeros (never ``n_db x n_q`` work)."""
+    if mask is None:
+        n = shape[0] * shape[1]
+    else:
+        n = int(mask.nnz) if sp.issparse(mask) else int(np.count_nonzero(mask))
+    if soft is None:
+        return n
+    if sp.issparse(soft):
+        sc = soft.tocoo()
+        s_rows, s_cols = sc.row.astype(np.intp), sc.col.astype(np.intp)
+    else:
+        s_rows, s_cols = np.nonzero(soft)
+    soft_only = ~at(hard, s_rows, s_cols)
+    if mask is not None:
+        soft_only &= at(mask, s_rows, s_cols)
+    return n - int(np.count_nonzero(soft_only))
 
 
 def _check_matching(matching):
@@ -258,10 +243,26 @@ def _curve(p: _Problem, matching: str):
     vals, is_hard, n_pos = _decisions(p, matching)
     thresholds, tp, fp = _counts(vals, is_hard)
     predicted = tp + fp
-    precision = np.ones(len(tp))
+    precision = np.zeros(len(tp))
     precision[1:] = tp[1:] / predicted[1:]  # every real threshold predicts >= 1 pair
+    # The start point (recall 0) takes the precision of the first threshold: an
+    # invented precision 1 there would add area that no threshold achieves (a
+    # constant S would score (1 + share of true pairs) / 2 instead of the share).
+    if len(tp) > 1:
+        precision[0] = precision[1]
     recall = tp / n_pos
-    return precision, recall, thresholds, fp
+    return precision, recall, thresholds, fp, tp
+
+
+def _average_precision(p: _Problem, precision, recall, tp) -> float:
+    """Non-interpolated AP of the multi-matching curve plus the final block of never-matched pairs."""
+    ap = float(np.sum(np.diff(recall) * precision[1:]))
+    # Pairs that are never matched (unstored / -inf) rank last, tied: one final
+    # threshold that predicts every evaluated pair, at precision n_pos / n_pairs.
+    missed = p.n_pos - int(tp[-1])
+    if missed:
+        ap += missed / p.n_pairs
+    return ap
 
 
 def _auc(precision, recall):
@@ -322,8 +323,12 @@ def pr_curve(S, gt_hard, gt_soft=None, matching="multi", mask=None):
     precision, recall, thresholds : ndarray of float, shape (n_thresholds + 1,)
         Sorted by decreasing threshold. The first point is the start of the
         curve, where nothing is predicted: ``thresholds[0] = +inf``,
-        ``recall[0] = 0`` and, by definition, ``precision[0] = 1`` (as in
-        Schubert et al.'s ``createPR``). Each further point belongs to one
+        ``recall[0] = 0`` and ``precision[0] = precision[1]``, the precision
+        of the first threshold (0 when no pair is ever predicted). Unlike
+        Schubert et al.'s ``createPR`` there is no invented precision 1 at
+        recall 0: with it, a first threshold that admits a large block of
+        tied pairs at low precision would still earn the area of the
+        trapezoid down from precision 1. Each further point belongs to one
         distinct similarity of the evaluated decisions. Recall is
         non-decreasing along the arrays.
 
@@ -335,8 +340,53 @@ def pr_curve(S, gt_hard, gt_soft=None, matching="multi", mask=None):
         match to evaluate (recall undefined).
     """
     _check_matching(matching)
-    precision, recall, thresholds, _ = _curve(_prepare(S, gt_hard, gt_soft, mask), matching)
+    precision, recall, thresholds, _, _ = _curve(_prepare(S, gt_hard, gt_soft, mask), matching)
     return precision, recall, thresholds
+
+
+def average_precision(S, gt_hard, gt_soft=None, mask=None) -> float:
+    """Non-interpolated average precision over all evaluated pairs (the headline metric).
+
+    ``AP = sum_n (R_n - R_{n-1}) P_n`` over the distinct similarity thresholds
+    ``t_n`` in decreasing order (``R_0 = 0``), where ``P_n`` and ``R_n`` are the
+    precision and recall of predicting every pair with ``S >= t_n``; this is
+    scikit-learn's ``average_precision_score`` of the evaluated pairs (scores
+    ``S``, labels ``gt_hard``). Because a threshold admits all pairs tied at
+    it together, ties cannot inflate the score: a constant ``S`` scores the
+    share of true pairs, and each step of recall is weighted by the precision
+    actually reached there, not by an interpolation towards an invented point.
+
+    Evaluated pairs are those inside ``mask`` that are not soft-only
+    (``gt_soft & ~gt_hard``). Never-matched pairs (not stored in a sparse
+    ``S``, or ``-inf``) are evaluated too: they rank last, all tied, i.e. one
+    final threshold that predicts every evaluated pair (precision = share of
+    true pairs, recall 1). A top-K ``S`` thus scores as the dense matrix with
+    its missing entries set below every stored value, and true matches that
+    retrieval dropped still cost AP. Only ``"multi"`` matching (every pair a
+    decision) is defined. Time and memory grow with the stored entries of a
+    sparse ``S`` and the nonzeros of sparse ``gt_hard`` / ``gt_soft`` / ``mask``,
+    never with ``n_db * n_q``.
+
+    Parameters
+    ----------
+    S, gt_hard, gt_soft, mask
+        As for :func:`pr_curve`.
+
+    Returns
+    -------
+    float
+        AP in [0, 1]; 1 exactly when every true pair ranks strictly above every
+        false one.
+
+    Raises
+    ------
+    ValueError
+        As for :func:`pr_curve`, including when there is no true pair inside
+        ``mask`` (AP undefined).
+    """
+    p = _prepare(S, gt_hard, gt_soft, mask)
+    precision, recall, _, _, tp = _curve(p, "multi")
+    return _average_precision(p, precision, recall, tp)
 
 
 def auc_from_pr(precision, recall) -> float:
@@ -368,30 +418,34 @@ def auc_from_pr(precision, recall) -> float:
 def auc_pr(S, gt_hard, gt_soft=None, matching="multi", mask=None) -> float:
     """Area under the precision-recall curve of :func:`pr_curve` (trapezoid over recall).
 
-    The start point (recall 0, precision 1) is included, so a perfect ranking
-    scores 1. Arguments and errors as for :func:`pr_curve`.
+    The curve starts at recall 0 with the precision of the first threshold,
+    so a perfect ranking scores 1 and a constant ``S`` scores the share of
+    true pairs (an invented start point of precision 1 would give it about
+    half the area for free). The trapezoid interpolates linearly between
+    thresholds, which is optimistic where precision drops over a large tie
+    block, and the curve ends at the last similarity that is not "never
+    matched": prefer :func:`average_precision`, the step-wise sum without
+    interpolation over every evaluated pair. ``auc_pr`` stays for comparison
+    with earlier results and also supports ``"single"`` matching. Arguments
+    and errors as for :func:`pr_curve`.
     """
     _check_matching(matching)
-    precision, recall, _, _ = _curve(_prepare(S, gt_hard, gt_soft, mask), matching)
+    precision, recall, _, _, _ = _curve(_prepare(S, gt_hard, gt_soft, mask), matching)
     return _auc(precision, recall)
 
 
 def recall_at_100p(S, gt_hard, gt_soft=None, matching="multi", mask=None) -> float:
     """Largest recall on the :func:`pr_curve` reached without any false positive.
 
-    Returns 0 when the most similar decision is already wrong. Arguments and
+    Thresholds admit tied decisions together, so a block of tied pairs that
+    holds a false one ends the 100 % precision range before it. Returns 0
+    when the most similar decision (or tie block) is already wrong. Arguments and
     errors as for :func:`pr_curve`.
     """
     _check_matching(matching)
-    _, recall, _, fp = _curve(_prepare(S, gt_hard, gt_soft, mask), matching)
+    _, recall, _, fp, _ = _curve(_prepare(S, gt_hard, gt_soft, mask), matching)
     # fp is non-decreasing, so the last fp == 0 point has the largest recall
     return float(recall[fp == 0][-1])
-
-
-def _check_k(k):
-    if isinstance(k, (bool, np.bool_)) or not isinstance(k, numbers.Integral) or k < 1:
-        raise ValueError(f"k must be a positive integer, got {k!r}")
-    return int(k)
 
 
 def recall_at_k(S, gt_hard, gt_soft=None, k=1, mask=None) -> float:
@@ -422,7 +476,7 @@ def recall_at_k(S, gt_hard, gt_soft=None, k=1, mask=None) -> float:
         As for :func:`pr_curve`; also if ``k`` is not a positive integer or no
         query has a true match.
     """
-    k = _check_k(k)
+    k = check_int(k, "k", minimum=1)
     return _recall_at_k(_prepare(S, gt_hard, gt_soft, mask), k)
 
 
@@ -432,7 +486,8 @@ def evaluate(S, gt_hard, gt_soft=None, mask=None, return_curve: bool = False):
     Returns
     -------
     dict
-        ``auc_pr`` and ``recall_at_100p`` (multi matching), ``recall_at_1``,
+        ``ap`` (:func:`average_precision`, the headline, first key), ``auc_pr``
+        and ``recall_at_100p`` (multi matching), ``recall_at_1``,
         ``recall_at_5`` and ``auc_pr_single`` (single matching), all floats.
         Arguments and errors as for :func:`pr_curve`.
     (precision, recall, thresholds)
@@ -440,9 +495,10 @@ def evaluate(S, gt_hard, gt_soft=None, mask=None, return_curve: bool = False):
         :func:`pr_curve`, which the metrics were computed from (no second sort).
     """
     p = _prepare(S, gt_hard, gt_soft, mask)
-    precision, recall, thresholds, fp = _curve(p, "multi")
-    precision_s, recall_s, _, _ = _curve(p, "single")
+    precision, recall, thresholds, fp, tp = _curve(p, "multi")
+    precision_s, recall_s, _, _, _ = _curve(p, "single")
     metrics = {
+        "ap": _average_precision(p, precision, recall, tp),
         "auc_pr": _auc(precision, recall),
         "recall_at_100p": float(recall[fp == 0][-1]),
         "recall_at_1": _recall_at_k(p, 1),
@@ -455,12 +511,6 @@ def evaluate(S, gt_hard, gt_soft=None, mask=None, return_curve: bool = False):
 # --------------------------------------------------------------------------- #
 # ground-truth builders
 # --------------------------------------------------------------------------- #
-def _check_count(name, n, minimum=0):
-    if isinstance(n, (bool, np.bool_)) or not isinstance(n, numbers.Integral) or n < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {n!r}")
-    return int(n)
-
-
 def _expand_ranges(starts, counts):
     """Concatenation of ``arange(s, s + c)`` for every (s, c), without a Python loop."""
     total = int(counts.sum())
@@ -536,9 +586,9 @@ def gt_from_tolerance(n_db, n_q, tol, sparse=False):
     ValueError
         If a size or ``tol`` is not a non-negative integer.
     """
-    n_db = _check_count("n_db", n_db)
-    n_q = _check_count("n_q", n_q)
-    tol = _check_count("tol", tol)
+    n_db = check_count(n_db, "n_db")
+    n_q = check_count(n_q, "n_q")
+    tol = check_count(tol, "tol")
     if not sparse:
         return np.abs(np.arange(n_db)[:, None] - np.arange(n_q)[None, :]) <= tol
     j = np.arange(n_q)
@@ -619,8 +669,8 @@ def loop_closure_mask(T, exclude=0):
     ValueError
         If ``T`` or ``exclude`` is not a non-negative integer.
     """
-    T = _check_count("T", T)
-    exclude = _check_count("exclude", exclude)
+    T = check_count(T, "T")
+    exclude = check_count(exclude, "exclude")
     idx = np.arange(T)
     return (idx[None, :] - idx[:, None]) >= max(exclude, 1)
 
@@ -654,7 +704,7 @@ def loop_closure_gt(labels_or_xy, radius=None, exclude=0, sparse=False):
     ValueError
         As for the underlying builders; also if labels are given as 2-D.
     """
-    exclude = _check_count("exclude", exclude)
+    exclude = check_count(exclude, "exclude")
     a = np.asarray(labels_or_xy)
     if radius is None:
         if a.ndim != 1:

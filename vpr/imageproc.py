@@ -8,7 +8,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["to_uint8", "to_grey", "to_bgr", "resize", "patch_normalise", "seqslam_preprocess"]
+__all__ = ["to_uint8", "to_grey", "to_bgr", "resize", "patch_normalise", "seqslam_preprocess",
+           "seqslam_descriptors"]
 
 
 def to_uint8(img, name: str = "image") -> np.ndarray:
@@ -78,34 +79,76 @@ def patch_normalise(grey: np.ndarray, patch: int = 8) -> np.ndarray:
     """Normalise each non-overlapping ``patch`` x ``patch`` block to zero mean, unit std.
 
     As in OpenSeqSLAM's patch normalisation; flat blocks become 0. Borders that
-    do not fill a whole block are normalised as a smaller block. Returns float32.
+    do not fill a whole block are normalised as a smaller block. ``grey`` is one
+    image (H, W) or a stack (N, H, W) of equal-size images, normalised
+    image by image in one vectorised pass. Returns float32 of the same shape.
     """
     g = np.asarray(grey, dtype=np.float32)
-    h, w = g.shape
+    if g.ndim not in (2, 3):
+        raise ValueError(f"patch_normalise: expected (H, W) or (N, H, W), got shape {g.shape}")
+    single = g.ndim == 2
+    if single:
+        g = g[None]
+    n, h, w = g.shape
     out = np.empty_like(g)
     hh, ww = (h // patch) * patch, (w // patch) * patch
     if hh and ww:
-        blocks = g[:hh, :ww].reshape(hh // patch, patch, ww // patch, patch)
-        mu = blocks.mean(axis=(1, 3), keepdims=True)
-        sd = blocks.std(axis=(1, 3), keepdims=True)
+        blocks = g[:, :hh, :ww].reshape(n, hh // patch, patch, ww // patch, patch)
+        mu = blocks.mean(axis=(2, 4), keepdims=True)
+        sd = blocks.std(axis=(2, 4), keepdims=True)
         nb = np.where(sd > 1e-6, (blocks - mu) / np.maximum(sd, 1e-6), 0.0)
-        out[:hh, :ww] = nb.reshape(hh, ww)
+        out[:, :hh, :ww] = nb.reshape(n, hh, ww)
     # ragged borders (rare: only when the size is not a multiple of the patch)
     for ys, xs in ((slice(hh, h), slice(0, w)), (slice(0, hh), slice(ww, w))):
-        blk = g[ys, xs]
-        if blk.size:
-            for y0 in range(ys.start, ys.stop, patch):
-                for x0 in range(xs.start, xs.stop, patch):
-                    b = g[y0:min(y0 + patch, ys.stop), x0:min(x0 + patch, xs.stop)]
-                    s = b.std()
-                    out[y0:y0 + b.shape[0], x0:x0 + b.shape[1]] = (b - b.mean()) / s if s > 1e-6 else 0.0
-    return out
+        if ys.stop > ys.start and xs.stop > xs.start:
+            for i in range(n):
+                for y0 in range(ys.start, ys.stop, patch):
+                    for x0 in range(xs.start, xs.stop, patch):
+                        b = g[i, y0:min(y0 + patch, ys.stop), x0:min(x0 + patch, xs.stop)]
+                        s = b.std()
+                        out[i, y0:y0 + b.shape[0], x0:x0 + b.shape[1]] = (b - b.mean()) / s if s > 1e-6 else 0.0
+    return out[0] if single else out
 
 
 def seqslam_preprocess(img, size: tuple[int, int] = (64, 32), patch: int = 8,
                        name: str = "image") -> np.ndarray:
     """OpenSeqSLAM's image preprocessing: grey, resize to ``size`` (w, h), patch-normalise.
 
-    Returns a float32 (h, w) array.
+    Returns a float32 (h, w) array; equal to one row of :func:`seqslam_descriptors`.
     """
     return patch_normalise(resize(to_grey(img, name), size), patch)
+
+
+def seqslam_descriptors(images, size: tuple[int, int] = (64, 32), patch: int = 8,
+                        name: str = "images") -> np.ndarray:
+    """The SeqSLAM pixel descriptor of every image: :func:`seqslam_preprocess` flattened row-major.
+
+    The one implementation behind the ``pixel`` encoder, SeqSLAM on images and
+    the pipelines' pixel descriptors (2,048 dims with the defaults).
+
+    Parameters
+    ----------
+    images : sequence of images
+        Any layout accepted by :func:`to_grey`; sizes may differ (each is
+        resized to ``size``).
+    size : (int, int)
+        Thumbnail (width, height).
+    patch : int
+        Side of the normalisation blocks.
+    name : str
+        Prefix of error messages, which name the image as ``name[i]``.
+
+    Returns
+    -------
+    ndarray of float32, shape (n_images, width * height)
+
+    Raises
+    ------
+    ValueError
+        If there are no images or an image is invalid (see :func:`to_uint8`).
+    """
+    w, h = int(size[0]), int(size[1])
+    thumbs = [resize(to_grey(im, f"{name}[{i}]"), (w, h)) for i, im in enumerate(images)]
+    if not thumbs:
+        raise ValueError(f"{name}: no images")
+    return patch_normalise(np.stack(thumbs), patch).reshape(len(thumbs), w * h)

@@ -20,7 +20,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
-from vpr.evaluate import auc_from_pr
+from vpr._checks import check_int, check_similarity
 from vpr.io import save_figure
 
 __all__ = ["plot_pr", "plot_similarity", "plot_bars"]
@@ -35,8 +35,8 @@ def _new_figure(figsize):
 # --------------------------------------------------------------------------- #
 # precision-recall curves
 # --------------------------------------------------------------------------- #
-def plot_pr(curves, path, title=None, dpi=150) -> Path:
-    """Plot one precision-recall curve per method, with its AUC in the legend.
+def plot_pr(curves, path, title=None, dpi=150, ap=None) -> Path:
+    """Plot one precision-recall curve per method, with its average precision (AP) in the legend.
 
     Parameters
     ----------
@@ -44,6 +44,13 @@ def plot_pr(curves, path, title=None, dpi=150) -> Path:
         Method name -> ``(precision, recall)``; a third element (the
         thresholds returned by :func:`vpr.evaluate.pr_curve`) is accepted and
         ignored. Points must be ordered by non-decreasing recall.
+    ap : dict[str, float], optional
+        Method name -> AP to show, normally ``evaluate(...)["ap"]``. For a
+        method not in it, the legend shows the AP of the drawn points,
+        ``sum((recall[n] - recall[n-1]) * precision[n])``, which equals
+        :func:`vpr.evaluate.average_precision` unless the curve stops short of
+        recall 1 because some pairs are never matched (those enter AP as one
+        final, low-precision block that the curve does not draw).
     path : str or Path
         Output file (format from the suffix, e.g. ``.png``).
     title : str, optional
@@ -58,8 +65,14 @@ def plot_pr(curves, path, title=None, dpi=150) -> Path:
     ------
     ValueError
         If ``curves`` is empty or a curve is malformed (lengths differ, NaN,
-        values outside [0, 1], recall decreasing); the message names the curve.
+        values outside [0, 1], recall decreasing), or an ``ap`` value is not a
+        number in [0, 1]; the message names the curve.
     """
+    ap = {} if ap is None else ap
+    if not isinstance(ap, Mapping):
+        raise ValueError("ap must be a dict of name -> average precision")
+    if set(ap) - set(curves):
+        raise ValueError(f"ap has names without a curve: {sorted(map(str, set(ap) - set(curves)))}")
     if not isinstance(curves, Mapping) or len(curves) == 0:
         raise ValueError("curves must be a non-empty dict of name -> (precision, recall)")
     checked = []
@@ -75,16 +88,22 @@ def plot_pr(curves, path, title=None, dpi=150) -> Path:
         for label, a in (("precision", precision), ("recall", recall)):
             if not np.all((a >= 0) & (a <= 1)):  # also catches NaN
                 raise ValueError(f"curves[{name!r}]: {label} must lie in [0, 1] (no NaN)")
-        try:
-            auc = auc_from_pr(precision, recall)
-        except ValueError as e:
-            raise ValueError(f"curves[{name!r}]: {e}") from None
-        checked.append((str(name), precision, recall, auc))
+        if np.any(np.diff(recall) < 0):
+            raise ValueError(f"curves[{name!r}]: recall must be non-decreasing (order points by decreasing "
+                             f"threshold)")
+        if name in ap:
+            value = ap[name]
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real) or not 0 <= value <= 1:
+                raise ValueError(f"ap[{name!r}] must be a number in [0, 1], got {value!r}")
+            score = float(value)
+        else:
+            score = float(np.sum(np.diff(recall) * precision[1:]))
+        checked.append((str(name), precision, recall, score))
 
     fig = _new_figure((6, 5))
     ax = fig.subplots()
-    for name, precision, recall, auc in checked:
-        ax.plot(recall, precision, label=f"{name} (AUC = {auc:.3f})", linewidth=1.5)
+    for name, precision, recall, score in checked:
+        ax.plot(recall, precision, label=f"{name} (AP = {score:.3f})", linewidth=1.5)
     ax.set_xlabel("recall")
     ax.set_ylabel("precision")
     ax.set_xlim(0, 1)
@@ -136,21 +155,41 @@ def _block_any(G, fr, fc):
     return padded.reshape(out_shape[0], fr, out_shape[1], fc).any(axis=(1, 3))
 
 
-def _check_similarity(S):
-    if sp.issparse(S):
-        data = S.data
+def _has_candidate(S, best_db):
+    """Which queries' ``best_db`` entry is a real candidate worth a marker (bool, shape (n_q,)).
+
+    Not a candidate: a negative ``best_db``, a never-matched entry (``-inf`` or
+    not stored), or a column of ties, where the entry is no more similar than
+    the least similar one of its column (unstored entries count as least
+    similar). An all-zero column is such a tie: its argmax, row 0, would read
+    as a match to database frame 0. With one database entry there is nothing
+    to tie with.
+    """
+    n_db, n_q = S.shape
+    has = best_db >= 0
+    q = np.flatnonzero(has)
+    rows = best_db[q]
+    if sp.issparse(S):  # canonical CSC with sorted indices (check_similarity)
+        # global position of (row, col) in the column-major order of the stored entries
+        keys = S.indices.astype(np.int64) + np.repeat(np.arange(n_q, dtype=np.int64), np.diff(S.indptr)) * n_db
+        want = rows.astype(np.int64) + q.astype(np.int64) * n_db
+        pos = np.searchsorted(keys, want)
+        stored = pos < len(keys)
+        stored[stored] = keys[pos[stored]] == want[stored]
+        val = np.full(len(q), -np.inf)
+        val[stored] = S.data[pos[stored]]
+        col_min = np.full(n_q, -np.inf)
+        full = np.flatnonzero(np.diff(S.indptr) == n_db)  # only full columns lack an unstored entry
+        if len(full):
+            col_min[full] = np.minimum.reduceat(S.data, S.indptr[full])
     else:
-        S = np.asarray(S)
-        data = S
-    if S.ndim != 2 or S.shape[0] == 0 or S.shape[1] == 0:
-        raise ValueError(f"S must be a non-empty 2-D (n_db x n_q) matrix, got shape {S.shape}")
-    if S.dtype.kind not in "biuf":
-        raise ValueError(f"S must be real-valued, got dtype {S.dtype}")
-    if np.isnan(data).any():
-        raise ValueError("S contains NaN")
-    if np.isposinf(data).any():
-        raise ValueError("S contains +inf (use -inf for 'never matched')")
-    return S
+        val = S[rows, q]
+        col_min = S.min(axis=0)
+    ok = val > -np.inf
+    if n_db > 1:
+        ok &= val > col_min[q]
+    has[q] = ok
+    return has
 
 
 def plot_similarity(S, path, best_db=None, accepted=None, gt_hard=None, title=None,
@@ -169,8 +208,10 @@ def plot_similarity(S, path, best_db=None, accepted=None, gt_hard=None, title=No
     path : str or Path
         Output file (format from the suffix).
     best_db : array_like of int, shape (n_q,), optional
-        Each query's best database index; a negative value means "no match"
-        and draws nothing.
+        Each query's best database index. No marker is drawn for a query
+        without a candidate: a negative value, an entry that is never matched
+        (``-inf`` / not stored), or a column of ties such as an all-zero one
+        (its "best" row is arbitrary, not a match).
     accepted : array_like of bool, shape (n_q,), optional
         Whether each best match was accepted (circle) or rejected (cross).
         Requires ``best_db``.
@@ -193,11 +234,9 @@ def plot_similarity(S, path, best_db=None, accepted=None, gt_hard=None, title=No
         ``accepted``, out-of-range ``best_db``, or ``accepted`` without
         ``best_db``.
     """
-    S = _check_similarity(S)
+    S = check_similarity(S, sparse_format="csc")
     n_db, n_q = S.shape
-    if isinstance(max_pixels, (bool, np.bool_)) or not isinstance(max_pixels, numbers.Integral) \
-            or max_pixels < 1:
-        raise ValueError(f"max_pixels must be a positive integer, got {max_pixels!r}")
+    max_pixels = check_int(max_pixels, "max_pixels", minimum=1)
 
     if best_db is not None:
         best_db = np.asarray(best_db)
@@ -220,7 +259,7 @@ def plot_similarity(S, path, best_db=None, accepted=None, gt_hard=None, title=No
         else:
             gt_hard = np.asarray(gt_hard)
             gt_dtype, gt_shape = gt_hard.dtype, gt_hard.shape
-        if gt_dtype != bool:
+        if gt_dtype != np.bool_:
             raise ValueError(f"gt_hard must be boolean, got dtype {gt_dtype}")
         if gt_shape != (n_db, n_q):
             raise ValueError(f"gt_hard has shape {gt_shape}, but S has shape {(n_db, n_q)}")
@@ -249,7 +288,7 @@ def plot_similarity(S, path, best_db=None, accepted=None, gt_hard=None, title=No
         handles.append(Patch(facecolor="red", alpha=0.35, label="ground truth"))
 
     if best_db is not None:
-        q = np.flatnonzero(best_db >= 0)
+        q = np.flatnonzero(_has_candidate(S, best_db))
         # thousands of markers would hide the matrix; thin them like the pixels
         q = q[::max(1, -(-len(q) // (2 * max_pixels)))] if len(q) > 2 * max_pixels else q
         size = float(np.clip(2000.0 / max(len(q), 1), 2.0, 30.0))

@@ -6,7 +6,7 @@ batches; they never densify a whole batch.
 """
 from __future__ import annotations
 
-from typing import Iterable, Sequence
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -17,7 +17,7 @@ __all__ = [
     "from_topk",
     "to_indices",
     "check_batch",
-    "overlap",
+    "overlap_count",
     "union",
     "density",
     "add_noise",
@@ -157,10 +157,11 @@ def check_batch(batch, n_bits: int | None = None, name: str = "SDR batch") -> sp
     return b
 
 
-def overlap(a, b=None) -> np.ndarray:
+def overlap_count(a, b=None) -> np.ndarray:
     """Overlap counts |a_i & b_j| between the rows of two SDR batches (dense int array).
 
-    For large batches prefer :func:`vpr.similarity.overlap` with ``top_k``.
+    For the normalised similarity matrix, and for large batches (``top_k``),
+    use :func:`vpr.similarity.overlap_similarity`.
     """
     A = check_batch(a).astype(np.int32)
     B = A if b is None else check_batch(b, n_bits=A.shape[1]).astype(np.int32)

@@ -12,10 +12,15 @@ from numba import njit
 
 from vpr import sdr as _sdr
 
-__all__ = ["overlap", "cosine", "neg_sad", "mean_abs_diff", "topk_sparse", "DENSE_LIMIT"]
+__all__ = ["overlap_similarity", "cosine", "neg_sad", "mean_abs_diff", "topk_sparse", "DENSE_PAIRS_LIMIT"]
 
-#: Above this many rows on either side, dense T x T output is refused: use ``top_k``.
-DENSE_LIMIT = 20_000
+#: Above this many database x query pairs a dense similarity matrix is refused: use ``top_k``.
+#: The one size limit of the project (also used to choose dense or top-K output).
+DENSE_PAIRS_LIMIT = 20_000 * 20_000
+
+# Pairs per dense block when assembling top-K output: the block, its negation and
+# argpartition's int64 indices take about 16 bytes per pair (64 MiB here).
+_BLOCK_PAIRS = 2**22
 
 
 def _norm_overlap_block(A, B, na, nb):
@@ -26,8 +31,11 @@ def _norm_overlap_block(A, B, na, nb):
     return out.astype(np.float32)
 
 
-def overlap(A, B=None, top_k: int | None = None, normalise: bool = True, chunk: int = 2048):
+def overlap_similarity(A, B=None, top_k: int | None = None, normalise: bool = True, chunk: int = 2048):
     """Normalised overlap |a & b| / sqrt(|a| |b|) between the rows of SDR batches.
+
+    The similarity matrix used by the pairwise baselines; for the raw counts
+    of two small batches see :func:`vpr.sdr.overlap_count`.
 
     Parameters
     ----------
@@ -35,17 +43,25 @@ def overlap(A, B=None, top_k: int | None = None, normalise: bool = True, chunk: 
     B : SDR batch (query), shape (n_q, n_bits); ``None`` compares ``A`` with itself.
     top_k : int, optional
         Keep only the ``top_k`` highest database entries per query and return a
-        ``scipy.sparse.csr_matrix`` (n_db x n_q). Required when either side has
-        more than :data:`DENSE_LIMIT` rows.
+        ``scipy.sparse.csr_matrix`` (n_db x n_q). Required when ``n_db * n_q``
+        exceeds :data:`DENSE_PAIRS_LIMIT`; with it there is no size limit
+        (memory grows with ``n_db * top_k``-sized blocks and ``n_q * top_k``).
     normalise : bool
         ``False`` returns raw overlap counts.
     chunk : int
-        Queries processed per block (bounds memory for top-K).
+        Queries processed per block for top-K (fewer when ``n_db`` is large,
+        so that a block stays within a fixed memory budget).
 
     Returns
     -------
     ndarray (float32, n_db x n_q) or csr_matrix when ``top_k`` is given.
     Rows with no active bits have similarity 0 to everything.
+
+    Raises
+    ------
+    ValueError
+        On an invalid SDR batch, or when dense output (no ``top_k``) would
+        exceed :data:`DENSE_PAIRS_LIMIT` pairs; checked before any work.
     """
     A = _sdr.check_batch(A, name="database SDRs")
     B = A if B is None else _sdr.check_batch(B, n_bits=A.shape[1], name="query SDRs")
@@ -56,9 +72,10 @@ def overlap(A, B=None, top_k: int | None = None, normalise: bool = True, chunk: 
     if not normalise:
         na = nb = None
     if top_k is None:
-        if max(A.shape[0], B.shape[0]) > DENSE_LIMIT:
+        if A.shape[0] * B.shape[0] > DENSE_PAIRS_LIMIT:
             raise ValueError(
-                f"{A.shape[0]} x {B.shape[0]} is too large for a dense similarity matrix; pass top_k")
+                f"{A.shape[0]} x {B.shape[0]} pairs exceed the dense limit of {DENSE_PAIRS_LIMIT} "
+                f"(DENSE_PAIRS_LIMIT); pass top_k")
         if na is None:
             return (Ai @ Bi.T).toarray().astype(np.float32)
         return _norm_overlap_block(Ai, Bi, na, nb)
@@ -76,17 +93,22 @@ def topk_sparse(block_fn, n_db: int, n_q: int, top_k: int, chunk: int = 2048) ->
 
     ``block_fn(q0, q1)`` returns the dense (n_db x (q1 - q0)) similarity block.
     Entries that are exactly representable as 0 but kept are stored explicitly
-    so that "kept with score 0" and "not kept" stay distinguishable.
+    so that "kept with score 0" and "not kept" stay distinguishable. Blocks
+    hold at most ``chunk`` queries and about 2**22 pairs, and only the kept
+    entries of each block are retained, so memory grows with
+    ``n_q * top_k``, not with ``n_db * n_q``.
     """
     top_k = int(top_k)
     if top_k < 1:
         raise ValueError(f"top_k must be >= 1, got {top_k}")
     k = min(top_k, n_db)
+    chunk = max(1, min(int(chunk), _BLOCK_PAIRS // max(n_db, 1)))
     rows, cols, vals = [], [], []
     for q0 in range(0, n_q, chunk):
         q1 = min(q0 + chunk, n_q)
         S = block_fn(q0, q1)
-        idx = np.argpartition(-S, k - 1, axis=0)[:k] if k < n_db else np.broadcast_to(
+        # copy: a slice would keep the whole n_db x block argpartition output alive
+        idx = np.argpartition(-S, k - 1, axis=0)[:k].copy() if k < n_db else np.broadcast_to(
             np.arange(n_db)[:, None], (n_db, q1 - q0))
         rows.append(idx.ravel())
         cols.append(np.broadcast_to(np.arange(q0, q1), idx.shape).ravel())

@@ -39,6 +39,7 @@ import numpy as np
 import pycolmap
 import scipy.sparse as sp
 
+from vpr._checks import check_int, check_similarity
 from vpr.config import merge_conf
 from vpr.imageproc import to_grey
 
@@ -92,12 +93,6 @@ class Keypoints:
 # --------------------------------------------------------------------------- #
 # argument checks
 # --------------------------------------------------------------------------- #
-def _check_int(value, name: str, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise ValueError(f"{name} must be an integer, got {value!r}")
-    if value < minimum:
-        raise ValueError(f"{name} must be >= {minimum}, got {value}")
-    return int(value)
 
 
 def _check_positive(value, name: str) -> float:
@@ -121,7 +116,7 @@ def _check_model(model) -> str:
 def _check_seed(seed) -> int:
     if seed is None:
         return -1  # pycolmap: non-deterministic seed
-    return _check_int(seed, "seed", 0)
+    return check_int(seed, "seed", 0)
 
 
 def _check_features(f, name: str) -> Keypoints:
@@ -160,8 +155,8 @@ def extract_features(image, n_features: int = 1000, min_side: int = 240, name: s
     ValueError
         Invalid image (message starts with ``name``) or parameters.
     """
-    n_features = _check_int(n_features, "n_features", 1)
-    min_side = _check_int(min_side, "min_side", 1)
+    n_features = check_int(n_features, "n_features", 1)
+    min_side = check_int(min_side, "min_side", 1)
     grey = to_grey(image, name)
     h, w = grey.shape
     if min(h, w) < min_side:
@@ -274,7 +269,7 @@ def two_view_inliers(f1: Keypoints, f2: Keypoints, matches, model: str = "fundam
     model = _check_model(model)
     max_error = _check_positive(max_error, "max_error")
     seed = _check_seed(seed)
-    max_trials = _check_int(max_trials, "max_trials", 1)
+    max_trials = check_int(max_trials, "max_trials", 1)
     m = np.asarray(matches)
     if m.size == 0:
         return 0
@@ -333,8 +328,8 @@ def top_candidates(S, n_candidates: int) -> np.ndarray:
         intp (n_q, n_candidates) database indices in decreasing similarity,
         ties by lower index; padded with -1 when a query has fewer candidates.
     """
-    n = _check_int(n_candidates, "n_candidates", 1)
-    S = _check_S(S)
+    n = check_int(n_candidates, "n_candidates", 1)
+    S = check_similarity(S, sparse_format="csc")
     n_db, n_q = S.shape
     out = np.empty((n_q, n), dtype=np.intp)
     if sp.issparse(S):
@@ -348,27 +343,6 @@ def top_candidates(S, n_candidates: int) -> np.ndarray:
     return out
 
 
-def _check_S(S):
-    """``S`` as float64 ndarray or canonical CSC matrix (a copy when converted)."""
-    if sp.issparse(S):
-        if S.ndim != 2:
-            raise ValueError(f"S must be 2-D (n_db x n_q), got shape {S.shape}")
-        if S.dtype.kind not in "biuf":
-            raise ValueError(f"S must be real-valued, got dtype {S.dtype}")
-        S = sp.csc_matrix(S, dtype=np.float64, copy=True)
-        S.sum_duplicates()
-        vals = S.data
-    else:
-        S = np.asarray(S)
-        if S.ndim != 2:
-            raise ValueError(f"S must be 2-D (n_db x n_q), got shape {S.shape}")
-        if S.dtype.kind not in "biuf":
-            raise ValueError(f"S must be real-valued, got dtype {S.dtype}")
-        S = S.astype(np.float64, copy=False)
-        vals = S
-    if np.isnan(vals).any():
-        raise ValueError("S contains NaN")
-    return S
 
 
 # --------------------------------------------------------------------------- #
@@ -464,17 +438,17 @@ class Verifier:
         self._q = self._check_images(q_images, "q_images")
         # strings (from a command line) are read as the default's type, then every value is checked
         self.conf = c = merge_conf(self.default_conf, conf, "verifier", nullable=("seed",))
-        self.n_features = _check_int(c["n_features"], "n_features", 1)
+        self.n_features = check_int(c["n_features"], "n_features", 1)
         self.model = _check_model(c["model"])
         self.ratio = _check_ratio(c["ratio"])
-        self.min_inliers = _check_int(c["min_inliers"], "min_inliers", 0)
+        self.min_inliers = check_int(c["min_inliers"], "min_inliers", 0)
         self.cache = c["cache"]
         self.max_error = _check_positive(c["max_error"], "max_error")
         _check_seed(c["seed"])
         self.seed = c["seed"]
-        self.max_trials = _check_int(c["max_trials"], "max_trials", 1)
+        self.max_trials = check_int(c["max_trials"], "max_trials", 1)
         self.mutual = c["mutual"]
-        self.min_side = _check_int(c["min_side"], "min_side", 1)
+        self.min_side = check_int(c["min_side"], "min_side", 1)
         self._cache = {"database": {}, "query": {}}
         # (db, query) -> inliers: several methods often propose the same candidates
         self._pairs: dict[tuple[int, int], int] = {}
@@ -548,8 +522,8 @@ class Verifier:
             shape differs from the image sequences' lengths, or an image
             cannot be read.
         """
-        n_candidates = _check_int(n_candidates, "n_candidates", 1)
-        S = _check_S(S)
+        n_candidates = check_int(n_candidates, "n_candidates", 1)
+        S = check_similarity(S, sparse_format="csc")
         n_db, n_q = S.shape
         for images, n, what, axis in ((self._db, n_db, "db_images", "rows"),
                                       (self._q, n_q, "q_images", "columns")):

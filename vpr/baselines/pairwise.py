@@ -34,7 +34,7 @@ def pairwise(db, query=None, metric: str = "auto", top_k: int | None = None):
     if metric == "auto":
         metric = "overlap" if is_sdr else "cosine"
     if metric == "overlap":
-        return similarity.overlap(db, query, top_k=top_k)
+        return similarity.overlap_similarity(db, query, top_k=top_k)
     if top_k is not None:
         raise ValueError("top_k is only supported for SDR overlap")
     if is_sdr or (query is not None and sp.issparse(query)):

@@ -17,13 +17,13 @@ import numpy as np
 import scipy.sparse as sp
 
 from vpr.config import merge_conf
+from vpr.similarity import DENSE_PAIRS_LIMIT
 
 __all__ = ["DENSE_PAIRS_LIMIT", "EncodedTraverse", "MatchResult", "Method", "best_matches", "check_dense",
            "need", "top_k_or_dense"]
 
-#: Above this many database x query pairs similarity matrices are top-K sparse, and methods
-#: that need the whole dense matrix (SeqSLAM, rshosm-seq, dense descriptors) refuse to run.
-DENSE_PAIRS_LIMIT = 20_000 * 20_000
+# DENSE_PAIRS_LIMIT (one limit, in vpr.similarity): above this many database x query pairs
+# similarity matrices are top-K sparse, and methods that need the whole dense matrix refuse to run.
 
 
 @dataclass

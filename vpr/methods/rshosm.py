@@ -50,12 +50,13 @@ class Rshosm(Method):
         mem.reset()
         q_codes = mem.run(need(query, "sdr", self.name, "query"), learn=False, progress=progress)
         db_codes, q_codes = pad_codes(db_codes, q_codes)
-        S = similarity.overlap(db_codes, q_codes, top_k=top_k_or_dense(len(db), len(query), self.conf["top_k"]))
+        top_k = top_k_or_dense(len(db), len(query), self.conf["top_k"])
+        S = similarity.overlap_similarity(db_codes, q_codes, top_k=top_k)
         best, score = best_matches(S)
         return S, best, score, None
 
     def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool):
         n = len(seq)
         codes = self.memory().run(need(seq, "sdr", self.name, "sequence"), progress=progress)
-        return similarity.overlap(codes, top_k=top_k_or_dense(n, n, self.conf["top_k"])), None
+        return similarity.overlap_similarity(codes, top_k=top_k_or_dense(n, n, self.conf["top_k"])), None
 

@@ -1,0 +1,114 @@
+"""Argument checks shared across :mod:`vpr` (one definition each, so that messages and rules agree).
+
+The similarity convention checked here is the one of :mod:`vpr.evaluate`:
+``S`` is database x query, higher = more similar, dense or :mod:`scipy.sparse`;
+``-inf`` (or, in a sparse matrix, an entry that is not stored) means "never
+matched"; NaN and ``+inf`` are errors.
+"""
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+import scipy.sparse as sp
+
+__all__ = ["check_similarity", "check_int", "check_count", "at"]
+
+_SPARSE_FORMATS = ("coo", "csr", "csc")
+
+
+def check_similarity(S, name: str = "S", allow_sparse: bool = True, sparse_format: str = "coo"):
+    """Validate a similarity matrix (database x query) and return it as float64.
+
+    Parameters
+    ----------
+    S : array_like or scipy.sparse matrix, shape (n_db, n_q)
+    name : str
+        Used in error messages.
+    allow_sparse : bool
+        If False, a sparse ``S`` is an error (for callers that need every entry).
+    sparse_format : {"coo", "csr", "csc"}
+        Format of the returned matrix when ``S`` is sparse.
+
+    Returns
+    -------
+    ndarray of float64 or scipy.sparse matrix of float64
+        Dense input: ``S`` as float64 (no copy if it already is). Sparse input:
+        always a copy (so canonicalising never touches the caller's matrix) in
+        ``sparse_format``, duplicates summed, explicit zeros kept (a stored 0
+        is a similarity, an unstored entry is "never matched").
+
+    Raises
+    ------
+    ValueError
+        If ``S`` is not 2-D, is empty, is not real-valued, contains NaN or
+        ``+inf``, or is sparse while ``allow_sparse`` is False; the message
+        starts with ``name``.
+    """
+    if sparse_format not in _SPARSE_FORMATS:
+        raise ValueError(f"sparse_format must be one of {_SPARSE_FORMATS}, got {sparse_format!r}")
+    sparse = sp.issparse(S)
+    if sparse and not allow_sparse:
+        raise ValueError(f"{name} must be a dense array here, got a sparse {S.format} matrix")
+    if not sparse:
+        S = np.asarray(S)
+    if S.ndim != 2:
+        raise ValueError(f"{name} must be 2-D (n_db x n_q), got shape {S.shape}")
+    if S.dtype.kind not in "biuf":
+        raise ValueError(f"{name} must be real-valued, got dtype {S.dtype}")
+    if S.shape[0] == 0 or S.shape[1] == 0:
+        raise ValueError(f"{name} must have at least one database entry and one query, got shape {S.shape}")
+    if sparse:
+        S = sp.coo_matrix(S, dtype=np.float64, copy=True)
+        S.sum_duplicates()
+        if sparse_format != "coo":
+            S = S.asformat(sparse_format)
+            S.sort_indices()
+        values = S.data
+    else:
+        S = S.astype(np.float64, copy=False)
+        values = S
+    if np.isnan(values).any():
+        raise ValueError(f"{name} contains NaN")
+    if np.isposinf(values).any():
+        raise ValueError(f"{name} contains +inf (use -inf for 'never matched')")
+    return S
+
+
+def check_int(value, name: str, minimum: int | None = None, maximum: int | None = None) -> int:
+    """``value`` as a Python int, refusing bools, floats and values outside [minimum, maximum].
+
+    Raises
+    ------
+    ValueError
+        Naming ``name`` and the bound that failed.
+    """
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+        raise ValueError(f"{name} must be an integer, got {value!r}")
+    if minimum is not None and value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    if maximum is not None and value > maximum:
+        raise ValueError(f"{name} must be an integer <= {maximum}, got {value!r}")
+    return int(value)
+
+
+def check_count(value, name: str, minimum: int = 0) -> int:
+    """A size or count: :func:`check_int` with a lower bound (default 0)."""
+    return check_int(value, name, minimum=minimum)
+
+
+def at(G, rows, cols) -> np.ndarray:
+    """Values of a dense or sparse boolean matrix at coordinates ``(rows[i], cols[i])`` as a bool array.
+
+    Sparse ``G`` is indexed without densifying; an entry counts as True when
+    it is stored and nonzero.
+    """
+    rows = np.asarray(rows, dtype=np.intp)
+    cols = np.asarray(cols, dtype=np.intp)
+    if sp.issparse(G):
+        if len(rows) == 0:
+            return np.zeros(0, dtype=bool)
+        if G.format not in ("csr", "csc"):
+            G = G.tocsr()
+        return np.asarray(G[rows, cols]).ravel() != 0
+    return np.asarray(G)[rows, cols].astype(bool, copy=False)
