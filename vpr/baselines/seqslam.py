@@ -673,48 +673,57 @@ def _sdr_overlap_rows(indptr, indices, r0, r1, qptr, qcols, out):  # pragma: no 
 
 
 @njit(cache=True, nogil=True)
-def _sdr_candidates(post_ptr, post_rows, n_db, q_indptr, q_indices, k, out):  # pragma: no cover - compiled
+def _sdr_candidates(post_ptr, post_rows, q_indptr, q_indices, k, counts, out):  # pragma: no cover - compiled
     # Single-frame candidates: per query the k database rows of largest overlap,
-    # through the database's inverted index (bit -> rows). Only rows sharing a bit
-    # are touched; a histogram of the counts gives the k-th largest without sorting.
-    counts = np.zeros(n_db, np.int32)
-    touched = np.empty(n_db, np.int64)
+    # through the database's inverted index (bit -> rows). Rows reaching an
+    # overlap of 2 are listed as they do (random rows rarely do, so the list is
+    # short); a histogram of their counts gives the k-th largest without
+    # sorting. Only if fewer than k rows reach 2 are rows with overlap 1 added.
+    # ``counts`` (n_db, zeros) is uint16 when overlaps fit: half the cache footprint.
+    n_db = counts.shape[0]
+    listed = np.empty(n_db + 1, np.int64)
     max_bits = 0
     for q in range(q_indptr.shape[0] - 1):
         max_bits = max(max_bits, q_indptr[q + 1] - q_indptr[q])
     hist = np.zeros(max_bits + 2, np.int64)
     for q in range(q_indptr.shape[0] - 1):
-        nt = 0
+        counts[:] = 0
+        nl = 0
         for p in range(q_indptr[q], q_indptr[q + 1]):
             b = q_indices[p]
             for t in range(post_ptr[b], post_ptr[b + 1]):
                 r = post_rows[t]
-                if counts[r] == 0:
-                    touched[nt] = r
-                    nt += 1
-                counts[r] += 1
-        for t in range(nt):
-            hist[counts[touched[t]]] += 1
-        thr = 1
+                c = counts[r] + 1
+                counts[r] = c
+                listed[nl] = r                   # branch-free: 1.5-2x faster than an if
+                nl += c == 2
+        for t in range(nl):
+            hist[counts[listed[t]]] += 1
+        thr = 2
         cum = 0
-        for c in range(max_bits, 0, -1):
+        for c in range(max_bits, 1, -1):
             if cum + hist[c] >= k:
                 thr = c
                 break
             cum += hist[c]
         n_out = 0
-        for t in range(nt):                      # strictly above the threshold: all fit
-            if counts[touched[t]] > thr:
-                out[q, n_out] = touched[t]
+        for t in range(nl):                      # strictly above the threshold: all fit
+            if counts[listed[t]] > thr:
+                out[q, n_out] = listed[t]
                 n_out += 1
-        for t in range(nt):                      # at the threshold: in touch order until k
+        for t in range(nl):                      # at the threshold: in listing order until k
             if n_out == k:
                 break
-            if counts[touched[t]] == thr:
-                out[q, n_out] = touched[t]
+            if counts[listed[t]] == thr:
+                out[q, n_out] = listed[t]
                 n_out += 1
-        for t in range(nt):
-            counts[touched[t]] = 0
+        if n_out < k:                            # few rows share 2 bits: fill with overlap 1, lowest rows first
+            for r in range(n_db):
+                if n_out == k:
+                    break
+                if counts[r] == 1:
+                    out[q, n_out] = r
+                    n_out += 1
         hist[:] = 0
 
 
@@ -752,6 +761,7 @@ class _Descriptors:
             if metric == "cosine":
                 self.au, self.bu = _unit_rows(self.a), _unit_rows(self.b)
         self.n_db, self.n_q = self.a.shape[0], self.b.shape[0]
+        self._qb_cols = None
         self.dim = self.a.shape[1]
 
     def block(self, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
@@ -762,10 +772,12 @@ class _Descriptors:
             out = self.au[r0:r1] @ self.bu[c0:c1].T
             np.subtract(np.float32(1.0), out, out=out)
             return np.clip(out, 0.0, 2.0, out=out)
-        qb = self.b[c0:c1].tocsc()
+        if self._qb_cols != (c0, c1):            # one inverted index per query block, shared by its windows
+            qb = self.b[c0:c1].tocsc()
+            self._qb = (qb.indptr.astype(np.int64), qb.indices.astype(np.int64))
+            self._qb_cols = (c0, c1)
         ov = np.zeros((r1 - r0, c1 - c0), dtype=np.int64)
-        _sdr_overlap_rows(self.a_indptr, self.a_indices, r0, r1, qb.indptr.astype(np.int64),
-                          qb.indices.astype(np.int64), ov)
+        _sdr_overlap_rows(self.a_indptr, self.a_indices, r0, r1, self._qb[0], self._qb[1], ov)
         na = self.na[r0:r1, None]
         nb = self.nb[None, c0:c1]
         if self.metric == "sad":
@@ -780,8 +792,9 @@ class _Descriptors:
         if self.sdr:
             post = self.a.tocsc()
             out = np.full((self.n_q, k), -1, dtype=np.int64)
-            _sdr_candidates(post.indptr.astype(np.int64), post.indices.astype(np.int64), self.n_db,
-                            self.b.indptr.astype(np.int64), self.b.indices.astype(np.int64), k, out)
+            counts = np.zeros(self.n_db, dtype=np.uint16 if self.nb.max(initial=0) < 2**16 - 1 else np.int64)
+            _sdr_candidates(post.indptr.astype(np.int64), post.indices.astype(np.int32),
+                            self.b.indptr.astype(np.int64), self.b.indices.astype(np.int64), k, counts, out)
         else:
             out = np.empty((self.n_q, k), dtype=np.int64)
             for c0 in range(0, self.n_q, chunk):
