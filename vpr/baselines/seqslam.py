@@ -786,23 +786,33 @@ class _Descriptors:
         cos = np.divide(ov, denom, out=np.zeros(ov.shape), where=denom > 0)
         return np.clip(1.0 - cos, 0.0, 2.0).astype(np.float32)
 
-    def candidates(self, k: int, chunk: int = 512) -> tuple[np.ndarray, np.ndarray]:
-        """Single-frame candidates: the k most similar database rows per query (csc-like ptr, rows)."""
+    def candidates(self, k: int, stride: int = 1, chunk: int = 512) -> tuple[np.ndarray, np.ndarray]:
+        """Single-frame candidates of every ``stride``-th query: its k most similar database rows.
+
+        Returns (ptr, rows) per query column, csc-like; skipped queries have none.
+        """
         k = min(k, self.n_db)
+        sampled = np.arange(0, self.n_q, stride)
         if self.sdr:
             post = self.a.tocsc()
-            out = np.full((self.n_q, k), -1, dtype=np.int64)
+            qs = self.b[sampled]
+            out = np.full((len(sampled), k), -1, dtype=np.int64)
             counts = np.zeros(self.n_db, dtype=np.uint16 if self.nb.max(initial=0) < 2**16 - 1 else np.int64)
             _sdr_candidates(post.indptr.astype(np.int64), post.indices.astype(np.int32),
-                            self.b.indptr.astype(np.int64), self.b.indices.astype(np.int64), k, counts, out)
+                            qs.indptr.astype(np.int64), qs.indices.astype(np.int64), k, counts, out)
         else:
-            out = np.empty((self.n_q, k), dtype=np.int64)
-            for c0 in range(0, self.n_q, chunk):
-                c1 = min(c0 + chunk, self.n_q)
-                D = self.block(0, self.n_db, c0, c1)
-                out[c0:c1] = np.argpartition(D, k - 1, axis=0)[:k].T if k < self.n_db else np.arange(self.n_db)
-        keep = out >= 0
-        return np.concatenate([[0], np.cumsum(keep.sum(axis=1))]).astype(np.int64), out[keep]
+            out = np.empty((len(sampled), k), dtype=np.int64)
+            for c0 in range(0, len(sampled), chunk):
+                idx = sampled[c0:c0 + chunk]
+                if self.metric == "sad":
+                    D = mean_abs_diff(self.a, self.b[idx])
+                else:
+                    D = 1.0 - self.au @ self.bu[idx].T
+                out[c0:c0 + len(idx)] = np.argpartition(D, k - 1, axis=0)[:k].T if k < self.n_db else \
+                    np.arange(self.n_db)
+        n_per = np.zeros(self.n_q, dtype=np.int64)
+        n_per[sampled] = (out >= 0).sum(axis=1)
+        return np.concatenate([[0], np.cumsum(n_per)]).astype(np.int64), out[out >= 0]
 
 
 def _candidate_pattern(candidates, n_db: int, n_q: int) -> tuple[np.ndarray, np.ndarray]:
@@ -858,7 +868,8 @@ def _windows(ptr, rows, q0: int, q1: int, n_db: int, n_windows: int, v_min: floa
 
 
 def seqslam_topk(db_desc, q_desc, top_k: int = 50, metric: str = "sad", block: int | None = None,
-                 candidates=None, n_candidates: int = 50, n_windows: int = 4, ds: int = 10,
+                 candidates=None, n_candidates: int = 50, candidate_stride: int = 4, n_windows: int = 4,
+                 ds: int = 10,
                  v_min: float = 0.8, v_max: float = 1.2, v_step: float = 0.1, R: int = 10,
                  rwindow: int = 10, ratio_threshold: float = 0.9, causal: bool = False,
                  enhance: bool = True) -> SeqSLAMTopK:
@@ -910,6 +921,11 @@ def seqslam_topk(db_desc, q_desc, top_k: int = 50, metric: str = "sad", block: i
         See above.
     n_candidates : int
         Candidates per query for ``candidates="pairwise"``.
+    candidate_stride : int
+        ``candidates="pairwise"`` searches every ``candidate_stride``-th query
+        only: the single-frame search is the only part whose time grows with
+        ``n_db * n_q``, and a block's alignment needs a few of its queries'
+        votes, not all of them.
     n_windows : int
         Alignments (windows) searched per query block in candidate mode.
     ds, v_min, v_max, v_step, R, rwindow, ratio_threshold, causal, enhance
@@ -937,12 +953,13 @@ def seqslam_topk(db_desc, q_desc, top_k: int = 50, metric: str = "sad", block: i
     ratio_threshold = _check_float(ratio_threshold, "ratio_threshold")
     n_windows = _check_int(n_windows, "n_windows", 1)
     n_candidates = _check_int(n_candidates, "n_candidates", 1)
+    candidate_stride = _check_int(candidate_stride, "candidate_stride", 1)
     if candidates is None:
         ptr = rows = None
     elif isinstance(candidates, str):
         if candidates != "pairwise":
             raise ValueError(f"candidates: expected None, 'pairwise' or a matrix, got {candidates!r}")
-        ptr, rows = desc.candidates(n_candidates)
+        ptr, rows = desc.candidates(n_candidates, candidate_stride)
     else:
         ptr, rows = _candidate_pattern(candidates, n_db, n_q)
     block = _check_int(256 if block is None and ptr is None else 64 if block is None else block, "block", 1)
