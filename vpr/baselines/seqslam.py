@@ -16,6 +16,13 @@ Pipeline, with OpenSeqSLAM's defaults:
 Any difference matrix can be fed to :func:`seqslam`, e.g. one built from CNN or
 random-projection descriptors (``metric="cosine"``).
 
+Beyond a dense ``n_db x n_q`` matrix (20,000 x 20,000 float32 is 1.6 GB),
+:func:`seqslam_topk` goes from descriptors (dense, or SDR batches compared
+through bit overlaps) by blocks of queries and keeps the top-K per query:
+exactly the dense result when it searches every row (time still
+``n_db * n_q``), or, with candidate windows, only the rows near candidate
+alignments (time about linear; approximate, see its docstring).
+
 Where OpenSeqSLAM leaves a value undefined (the first and last ``ds / 2``
 queries, databases shorter than a trajectory) this module defines one; every
 such choice is listed in the docstring of :func:`seqslam`.
