@@ -912,6 +912,13 @@ def seqslam_topk(db_desc, q_desc, top_k: int = 50, metric: str = "sad", block: i
     cells only. When the windows of every block cover the whole database the
     result is the exact one (``exact`` is True).
 
+    Measured (``benchmarks/bench_seqslam_scale.py``, aliased SDR traverses,
+    one thread, CPU time): candidate mode 0.4 s at 5,000 x 5,000 and 6.7 s at
+    50,000 x 50,000 (1 % of the cells searched, growth exponent 1.17), peak RSS
+    0.42 GB; its best match equals the exact one for 99.86-99.88 % of the
+    queries (5,000 and 10,000 frames). Exact mode 3.4 s at 5,000 and 16 s at
+    10,000 (exponent about 2; 50,000 would take several minutes).
+
     Parameters
     ----------
     db_desc, q_desc : SDR batches (scipy.sparse, bool) or arrays (n, ...)
