@@ -648,6 +648,7 @@ def test_topk_candidate_matrix_from_caller():
     (dict(top_k=0), "top_k"),
     (dict(block=0), "block"),
     (dict(n_windows=0), "n_windows"),
+    (dict(candidates="pairwise", candidate_stride=0), "candidate_stride"),
     (dict(metric="l2"), "metric"),
     (dict(ds=3), "ds"),
 ])
@@ -663,3 +664,18 @@ def test_topk_mixed_descriptor_kinds_refused():
         seqslam_topk(db, db.toarray())
     with pytest.raises(ValueError, match="q_desc"):
         seqslam_topk(db, _sdr.random_sdrs(5, 32, 4, seed=0))
+
+
+@pytest.mark.parametrize("metric", ["sad", "cosine"])
+def test_topk_pairwise_candidates_on_dense_descriptors(metric):
+    # a route of 600 smooth dense descriptors, revisited at speed 0.8-1.2 with noise
+    rng = np.random.default_rng(21)
+    db = np.cumsum(rng.standard_normal((600, 32)), axis=0).astype(np.float32)
+    pos = np.cumsum(1.0 + 0.2 * np.sin(np.arange(600) / 40.0))
+    gt = np.round(pos[pos <= 599]).astype(int)
+    q = db[gt] + 2.0 * rng.standard_normal((len(gt), 32)).astype(np.float32)
+    ex = seqslam_topk(db, q, metric=metric, top_k=5)
+    ca = seqslam_topk(db, q, metric=metric, top_k=5, candidates="pairwise", n_candidates=10)
+    assert ca.cells < 0.6 * ex.cells
+    assert np.mean(ca.best_db == ex.best_db) > 0.97
+    assert np.mean(np.abs(ca.best_db - gt) <= 2) > 0.9
