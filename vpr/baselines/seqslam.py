@@ -650,14 +650,24 @@ def _trajectories(Z, z0, o0, o1, n_db, rel, colvalid, S, P):  # pragma: no cover
                         acc[j] += Z[zr, j + k]
             if nin == 0:
                 continue
-            for j in range(w):
-                if interior:
-                    cnt = nin
+            if interior:
+                # every query frame exists: one factor for the row, branch-free minima (vectorised)
+                f = fpts / np.float32(nin)
+                full = nin == n_pts
+                if full:
+                    for j in range(w):
+                        pv = acc[j] * f
+                        P[li, j] = min(P[li, j], pv)
+                        S[li, j] = min(S[li, j], pv)
                 else:
-                    cnt = 0
-                    for k in range(n_pts):
-                        if rowin[k] and colvalid[j + k]:
-                            cnt += 1
+                    for j in range(w):
+                        P[li, j] = min(P[li, j], acc[j] * f)
+                continue
+            for j in range(w):
+                cnt = 0
+                for k in range(n_pts):
+                    if rowin[k] and colvalid[j + k]:
+                        cnt += 1
                 if cnt == 0:
                     continue
                 pv = acc[j] * (fpts / np.float32(cnt))
