@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.signal import convolve2d
@@ -476,3 +477,205 @@ def test_match_images_bad_input():
 def test_too_many_velocities_is_an_error():
     with pytest.raises(ValueError, match="^v_step:"):
         trajectory_offsets(v_step=1e-8)
+
+
+# --------------------------------------------------------------------------- #
+# seqslam_topk: blocked, from descriptors, top-K output
+# --------------------------------------------------------------------------- #
+from vpr import sdr as _sdr  # noqa: E402
+from vpr.baselines.seqslam import SeqSLAMTopK, seqslam_topk  # noqa: E402
+
+
+def _dense_topk_values(sim, k):
+    """Per column, the k highest values of a dense similarity, descending."""
+    return [np.sort(sim[:, q])[::-1][:k] for q in range(sim.shape[1])]
+
+
+def _check_topk_against_dense(res, ref, top_k, exact=True):
+    """seqslam_topk vs the dense seqslam: fields within float32 rounding, top-K content equal."""
+    assert isinstance(res, SeqSLAMTopK)
+    n_db, n_q = ref.score.shape
+    assert res.similarity.shape == (n_db, n_q) and res.similarity.dtype == np.float32
+    assert res.exact is exact
+    k = min(top_k, n_db)
+    C = res.similarity.tocsc()
+    assert np.all(np.diff(C.indptr) == k)
+    fin = np.isfinite(ref.score)
+    scale = max(1.0, float(np.abs(ref.score[fin]).max())) if fin.any() else 1.0
+    tol = 1e-5 * scale
+    want = _dense_topk_values(ref.similarity, k)
+    for q in range(n_q):
+        rows = C.indices[C.indptr[q]:C.indptr[q + 1]]
+        vals = C.data[C.indptr[q]:C.indptr[q + 1]]
+        # each kept entry carries the dense value of its cell, and the kept values are the dense top-K
+        np.testing.assert_allclose(vals, ref.similarity[rows, q], rtol=1e-5, atol=tol)
+        np.testing.assert_allclose(np.sort(vals)[::-1], want[q], rtol=1e-5, atol=tol)
+    np.testing.assert_array_equal(res.complete, ref.complete)
+    # best row: the dense one, unless the dense column has a float32 near-tie at its best
+    T = np.where(ref.complete[None, :], ref.score, -ref.similarity)
+    Ts = np.sort(T, axis=0)
+    tie = (Ts[1] - Ts[0] <= 4 * tol) if n_db > 1 else np.zeros(n_q, bool)
+    np.testing.assert_array_equal(res.best_db[~tie], ref.best_db[~tie])
+    same = res.best_db == ref.best_db
+    np.testing.assert_allclose(res.best_score[same], ref.best_score[same], rtol=1e-5, atol=tol)
+    close = same & (np.abs(res.ratio - ref.ratio) <= 1e-3)
+    assert close[~tie].mean() >= 0.95 if (~tie).any() else True
+    np.testing.assert_array_equal(res.accepted[close & (np.abs(ref.ratio - 0.9) > 1e-3)],
+                                  ref.accepted[close & (np.abs(ref.ratio - 0.9) > 1e-3)])
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    n_db=st.integers(1, 40),
+    n_q=st.integers(1, 40),
+    half_ds=st.integers(0, 5),
+    causal=st.booleans(),
+    enhance=st.booleans(),
+    vel=st.sampled_from([(0.8, 1.2, 0.1), (1.0, 1.0, 0.1), (0.5, 1.5, 0.25), (0.9, 1.3, 0.2)]),
+    metric=st.sampled_from(["sad", "cosine"]),
+    block=st.integers(1, 45),
+    top_k=st.integers(1, 12),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_topk_equals_dense_random(n_db, n_q, half_ds, causal, enhance, vel, metric, block, top_k, seed):
+    rng = np.random.default_rng(seed)
+    a = rng.random((n_db, 6), dtype=np.float32)
+    b = rng.random((n_q, 6), dtype=np.float32)
+    kw = dict(ds=2 * half_ds, v_min=vel[0], v_max=vel[1], v_step=vel[2], causal=causal, enhance=enhance)
+    ref = seqslam(difference_matrix(a, b, metric=metric), **kw)
+    res = seqslam_topk(a, b, top_k=top_k, metric=metric, block=block, **kw)
+    _check_topk_against_dense(res, ref, top_k)
+    assert res.cells == n_db * n_q
+
+
+@pytest.mark.parametrize("metric", ["sad", "cosine"])
+@pytest.mark.parametrize("causal", [False, True])
+def test_topk_sdr_equals_dense_on_01_rows(metric, causal):
+    # SDRs go through overlaps, never densified; the dense reference sees the 0/1 rows
+    rng = np.random.default_rng(3)
+    db = _sdr.add_noise(_sdr.random_sdrs(60, 256, 24, seed=rng), 0.2, seed=rng)
+    q = _sdr.add_noise(db[5:55], 0.4, seed=rng)
+    ref = seqslam(difference_matrix(db.toarray().astype(np.float32), q.toarray().astype(np.float32),
+                                    metric=metric), causal=causal)
+    res = seqslam_topk(db, q, top_k=15, metric=metric, block=16, causal=causal)
+    _check_topk_against_dense(res, ref, 15)
+    assert np.mean(np.abs(res.best_db[5:-5] - np.arange(5, 55)[5:-5]) <= 1) > 0.9
+
+
+@pytest.mark.parametrize("causal", [False, True])
+@pytest.mark.parametrize("n_db", [1, 3, 8])
+def test_topk_database_shorter_than_ds(n_db, causal):
+    rng = np.random.default_rng(n_db)
+    a, b = rng.random((n_db, 5), dtype=np.float32), rng.random((17, 5), dtype=np.float32)
+    ref = seqslam(difference_matrix(a, b), causal=causal)
+    res = seqslam_topk(a, b, top_k=4, block=5, causal=causal)
+    assert not res.complete[10:12].any()     # interior: 11 frames at v >= 0.8 need 9 database rows
+    _check_topk_against_dense(res, ref, 4)
+
+
+def test_topk_border_queries_and_single_query():
+    rng = np.random.default_rng(5)
+    a = rng.random((30, 8), dtype=np.float32)
+    for b in (a[:1] + 0.01, a[:4], a[-3:]):
+        ref = seqslam(difference_matrix(a, b))
+        _check_topk_against_dense(seqslam_topk(a, b, top_k=30, block=2), ref, 30)
+
+
+def test_topk_candidates_covering_everything_is_exact():
+    rng = np.random.default_rng(7)
+    a, b = rng.random((50, 8), dtype=np.float32), rng.random((35, 8), dtype=np.float32)
+    ref = seqslam(difference_matrix(a, b))
+    every = sp.csr_matrix(np.ones((50, 35)))
+    # every alignment a candidate, enough windows to hold them all: every row searched
+    res = seqslam_topk(a, b, top_k=10, candidates=every, block=8, n_windows=50)
+    _check_topk_against_dense(res, ref, 10, exact=True)
+    dense_pattern = seqslam_topk(a, b, top_k=10, candidates=np.ones((50, 35), bool), block=8, n_windows=50)
+    assert dense_pattern.similarity.nnz == res.similarity.nnz
+    np.testing.assert_array_equal(dense_pattern.best_db, res.best_db)
+
+
+def _aliased(n, seed):
+    """Aliased SDR traverses: n places, n // 10 appearances, query at a varying speed, 35 % bits moved."""
+    rng = np.random.default_rng(seed)
+    app = _sdr.random_sdrs(max(1, n // 10), 2048, 40, seed=rng)
+    db = app[rng.integers(0, app.shape[0], n)]
+    pos = np.cumsum(1.0 + 0.2 * np.sin(np.arange(n) / 60.0))
+    gt = np.round(pos[pos <= n - 1]).astype(int)
+    return _sdr.check_batch(db), _sdr.add_noise(db[gt], 0.35, seed=rng), gt
+
+
+def test_topk_candidate_windows_match_exact_on_aliased_traverses():
+    db, q, gt = _aliased(1500, 11)
+    ex = seqslam_topk(db, q, top_k=20)
+    ca = seqslam_topk(db, q, top_k=20, candidates="pairwise")
+    assert ex.exact and not ca.exact
+    assert ca.cells < 0.5 * ex.cells
+    # single frames are aliased ~10 times, so this is the sequence search at work
+    assert np.mean(np.abs(ex.best_db - gt) <= 1) > 0.85
+    assert np.mean(ca.best_db == ex.best_db) > 0.98
+    # where both found the same best row, its score is the same exact trajectory score
+    same = ca.best_db == ex.best_db
+    shift = np.median(ca.best_score[same] - ex.best_score[same])    # global-minimum shift over searched cells only
+    np.testing.assert_allclose(ca.best_score[same] - shift, ex.best_score[same], atol=1e-3)
+    # kept entries are exact-mode entries up to that shift (the top-K itself differs: the
+    # exact one also holds far-away rows the windows never search)
+    E, Cc = ex.similarity.tocsc(), ca.similarity.tocsc()
+    for q in np.flatnonzero(same)[::50]:
+        er, ev = E.indices[E.indptr[q]:E.indptr[q + 1]], E.data[E.indptr[q]:E.indptr[q + 1]]
+        cr, cv = Cc.indices[Cc.indptr[q]:Cc.indptr[q + 1]], Cc.data[Cc.indptr[q]:Cc.indptr[q + 1]]
+        common, ie, ic = np.intersect1d(er, cr, return_indices=True)
+        assert ex.best_db[q] in common
+        np.testing.assert_allclose(cv[ic] + shift, ev[ie], atol=1e-3)
+
+
+def test_topk_candidate_matrix_from_caller():
+    db, q, gt = _aliased(800, 12)
+    from vpr.similarity import overlap
+
+    cand = overlap(db, q, top_k=30)
+    res = seqslam_topk(db, q, top_k=10, candidates=cand, n_windows=2)
+    assert np.mean(np.abs(res.best_db - gt) <= 1) > 0.85
+    # a query block without any candidate searches nothing
+    empty = sp.csr_matrix(cand.shape)
+    none = seqslam_topk(db, q, candidates=empty)
+    assert none.cells == 0 and (none.best_db == -1).all() and not none.accepted.any()
+    assert none.similarity.nnz == 0
+
+
+@pytest.mark.parametrize("kw, arg", [
+    (dict(candidates="nearby"), "candidates"),
+    (dict(candidates=np.ones((3, 3))), "candidates"),
+    (dict(top_k=0), "top_k"),
+    (dict(block=0), "block"),
+    (dict(n_windows=0), "n_windows"),
+    (dict(candidates="pairwise", candidate_stride=0), "candidate_stride"),
+    (dict(metric="l2"), "metric"),
+    (dict(ds=3), "ds"),
+])
+def test_topk_bad_input(kw, arg):
+    a = np.random.default_rng(0).random((12, 4))
+    with pytest.raises(ValueError, match=arg):
+        seqslam_topk(a, a[:10], **kw)
+
+
+def test_topk_mixed_descriptor_kinds_refused():
+    db = _sdr.random_sdrs(5, 64, 4, seed=0)
+    with pytest.raises(ValueError, match="q_desc"):
+        seqslam_topk(db, db.toarray())
+    with pytest.raises(ValueError, match="q_desc"):
+        seqslam_topk(db, _sdr.random_sdrs(5, 32, 4, seed=0))
+
+
+@pytest.mark.parametrize("metric", ["sad", "cosine"])
+def test_topk_pairwise_candidates_on_dense_descriptors(metric):
+    # a route of 600 smooth dense descriptors, revisited at speed 0.8-1.2 with noise
+    rng = np.random.default_rng(21)
+    db = np.cumsum(rng.standard_normal((600, 32)), axis=0).astype(np.float32)
+    pos = np.cumsum(1.0 + 0.2 * np.sin(np.arange(600) / 40.0))
+    gt = np.round(pos[pos <= 599]).astype(int)
+    q = db[gt] + 2.0 * rng.standard_normal((len(gt), 32)).astype(np.float32)
+    ex = seqslam_topk(db, q, metric=metric, top_k=5)
+    ca = seqslam_topk(db, q, metric=metric, top_k=5, candidates="pairwise", n_candidates=10)
+    assert ca.cells < 0.6 * ex.cells
+    assert np.mean(ca.best_db == ex.best_db) > 0.97
+    assert np.mean(np.abs(ca.best_db - gt) <= 2) > 0.9
