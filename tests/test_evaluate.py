@@ -364,9 +364,9 @@ def test_bad_input_raises():
         pr_curve(np.zeros((3, 2), dtype=complex), gt)
     with pytest.raises(ValueError, match="matching"):
         pr_curve(S, gt, matching="best")
-    with pytest.raises(ValueError, match="k must"):
+    with pytest.raises(ValueError, match="k: must"):
         recall_at_k(S, gt, k=0)
-    with pytest.raises(ValueError, match="k must"):
+    with pytest.raises(ValueError, match="k: must"):
         recall_at_k(S, gt, k=1.5)
     with pytest.raises(ValueError, match="recall"):
         auc_pr(S, np.zeros((3, 2), bool))

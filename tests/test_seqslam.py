@@ -630,9 +630,9 @@ def test_topk_candidate_windows_match_exact_on_aliased_traverses():
 
 def test_topk_candidate_matrix_from_caller():
     db, q, gt = _aliased(800, 12)
-    from vpr.similarity import overlap
+    from vpr.similarity import overlap_similarity
 
-    cand = overlap(db, q, top_k=30)
+    cand = overlap_similarity(db, q, top_k=30)
     res = seqslam_topk(db, q, top_k=10, candidates=cand, n_windows=2)
     assert np.mean(np.abs(res.best_db - gt) <= 1) > 0.85
     # a query block without any candidate searches nothing

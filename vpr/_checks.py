@@ -84,11 +84,11 @@ def check_int(value, name: str, minimum: int | None = None, maximum: int | None 
         Naming ``name`` and the bound that failed.
     """
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
-        raise ValueError(f"{name} must be an integer, got {value!r}")
+        raise ValueError(f"{name}: must be an integer, got {value!r}")
     if minimum is not None and value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+        raise ValueError(f"{name}: must be an integer >= {minimum}, got {value!r}")
     if maximum is not None and value > maximum:
-        raise ValueError(f"{name} must be an integer <= {maximum}, got {value!r}")
+        raise ValueError(f"{name}: must be an integer <= {maximum}, got {value!r}")
     return int(value)
 
 

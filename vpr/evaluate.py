@@ -747,9 +747,9 @@ def accepted_precision(best_db, accepted, gt_hard, gt_soft=None) -> dict:
     """
     best_db = np.asarray(best_db)
     q = np.flatnonzero(np.asarray(accepted, bool) & (best_db >= 0))
-    correct = _at(gt_hard, best_db[q], q).astype(bool)
+    correct = at(gt_hard, best_db[q], q).astype(bool)
     if gt_soft is not None:
-        keep = correct | ~_at(gt_soft, best_db[q], q).astype(bool)
+        keep = correct | ~at(gt_soft, best_db[q], q).astype(bool)
         q, correct = q[keep], correct[keep]
     n_with_match = int((np.asarray((gt_hard != 0).sum(axis=0)).ravel() > 0).sum())
     return {"n_accepted": int(q.size), "precision_accepted": float(correct.mean()) if q.size else 1.0,

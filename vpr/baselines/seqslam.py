@@ -36,7 +36,8 @@ import scipy.sparse as sp
 from numba import njit
 
 from vpr import sdr as _sdr
-from vpr.imageproc import seqslam_preprocess
+from vpr._checks import check_int
+from vpr.imageproc import seqslam_descriptors
 from vpr.similarity import mean_abs_diff
 
 __all__ = [
@@ -71,12 +72,6 @@ def _check_matrix(D, name: str = "D") -> np.ndarray:
     return a
 
 
-def _check_int(value, name: str, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise ValueError(f"{name}: expected an integer, got {value!r}")
-    if value < minimum:
-        raise ValueError(f"{name}: must be >= {minimum}, got {value}")
-    return int(value)
 
 
 def _check_float(value, name: str) -> float:
@@ -141,7 +136,7 @@ def difference_matrix(db_desc, q_desc, metric: str = "sad", chunk: int = 512) ->
     """
     if metric not in ("sad", "cosine"):
         raise ValueError(f"metric: expected 'sad' or 'cosine', got {metric!r}")
-    chunk = _check_int(chunk, "chunk", 1)
+    chunk = check_int(chunk, "chunk", 1)
     a = _descriptors(db_desc, "db_desc")
     b = _descriptors(q_desc, "q_desc")
     if a.shape[1] != b.shape[1]:
@@ -195,8 +190,8 @@ def enhance_contrast(D, R: int = 10, chunk: int = 256) -> np.ndarray:
         float32, shape (n_db, n_q), minimum 0.
     """
     D = _check_matrix(D, "D")
-    R = _check_int(R, "R", 2)
-    chunk = _check_int(chunk, "chunk", 1)
+    R = check_int(R, "R", 2)
+    chunk = check_int(chunk, "chunk", 1)
     h = R // 2
     n_db, n_q = D.shape
     rows = np.arange(n_db)
@@ -245,7 +240,7 @@ def trajectory_offsets(ds: int = 10, v_min: float = 0.8, v_max: float = 1.2,
     velocities : numpy.ndarray, float64, shape (n_v,)
     offsets : numpy.ndarray, int64, shape (n_distinct, ds + 1)
     """
-    ds = _check_int(ds, "ds", 0)
+    ds = check_int(ds, "ds", 0)
     v_min = _check_float(v_min, "v_min")
     v_max = _check_float(v_max, "v_max")
     v_step = _check_float(v_step, "v_step")
@@ -452,14 +447,14 @@ def seqslam(D, ds: int = 10, v_min: float = 0.8, v_max: float = 1.2, v_step: flo
         names the argument).
     """
     D = _check_matrix(D, "D")
-    ds = _check_int(ds, "ds", 0)
+    ds = check_int(ds, "ds", 0)
     if not causal and ds % 2:
         raise ValueError(f"ds: must be even for the centred window (OpenSeqSLAM rounds it up), got {ds}")
     velocities, offsets = trajectory_offsets(ds, v_min, v_max, v_step)
-    R = _check_int(R, "R", 2)
-    rwindow = _check_int(rwindow, "rwindow", 0)
+    R = check_int(R, "R", 2)
+    rwindow = check_int(rwindow, "rwindow", 0)
     ratio_threshold = _check_float(ratio_threshold, "ratio_threshold")
-    chunk = _check_int(chunk, "chunk", 1)
+    chunk = check_int(chunk, "chunk", 1)
     if enhance:
         DD = enhance_contrast(D, R)
     else:
@@ -536,12 +531,7 @@ def match_images(db_images, q_images, size: tuple[int, int] = (64, 32), patch: i
 
 
 def _preprocess_all(images, size, patch, name) -> np.ndarray:
-    if isinstance(images, np.ndarray) and images.ndim < 3:
-        raise ValueError(f"{name}: expected a sequence of images, got an array of shape {images.shape}")
-    out = [seqslam_preprocess(img, size, patch, name=f"{name}[{i}]") for i, img in enumerate(images)]
-    if not out:
-        raise ValueError(f"{name}: no images")
-    return np.stack(out)
+    return seqslam_descriptors(images, size, patch, name).reshape(-1, size[1], size[0])
 
 
 # --------------------------------------------------------------------------- #
@@ -967,17 +957,17 @@ def seqslam_topk(db_desc, q_desc, top_k: int = 50, metric: str = "sad", block: i
     """
     desc = _Descriptors(db_desc, q_desc, metric)
     n_db, n_q = desc.n_db, desc.n_q
-    top_k = _check_int(top_k, "top_k", 1)
-    ds = _check_int(ds, "ds", 0)
+    top_k = check_int(top_k, "top_k", 1)
+    ds = check_int(ds, "ds", 0)
     if not causal and ds % 2:
         raise ValueError(f"ds: must be even for the centred window (OpenSeqSLAM rounds it up), got {ds}")
     velocities, offsets = trajectory_offsets(ds, v_min, v_max, v_step)
-    R = _check_int(R, "R", 2)
-    rwindow = _check_int(rwindow, "rwindow", 0)
+    R = check_int(R, "R", 2)
+    rwindow = check_int(rwindow, "rwindow", 0)
     ratio_threshold = _check_float(ratio_threshold, "ratio_threshold")
-    n_windows = _check_int(n_windows, "n_windows", 1)
-    n_candidates = _check_int(n_candidates, "n_candidates", 1)
-    candidate_stride = _check_int(candidate_stride, "candidate_stride", 1)
+    n_windows = check_int(n_windows, "n_windows", 1)
+    n_candidates = check_int(n_candidates, "n_candidates", 1)
+    candidate_stride = check_int(candidate_stride, "candidate_stride", 1)
     if candidates is None:
         ptr = rows = None
     elif isinstance(candidates, str):
@@ -986,7 +976,7 @@ def seqslam_topk(db_desc, q_desc, top_k: int = 50, metric: str = "sad", block: i
         ptr, rows = desc.candidates(n_candidates, candidate_stride)
     else:
         ptr, rows = _candidate_pattern(candidates, n_db, n_q)
-    block = _check_int(256 if block is None and ptr is None else 64 if block is None else block, "block", 1)
+    block = check_int(256 if block is None and ptr is None else 64 if block is None else block, "block", 1)
 
     causal = bool(causal)
     h = R // 2 if enhance else 0
