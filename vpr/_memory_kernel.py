@@ -100,6 +100,8 @@ def query_tie_key(cell):
     return np.float64(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
 
 
+# The phases are inlined into run_frames (inline="always"): separately called they cost ~10 %
+# per observation in bench_memory's random walk.
 # The phases below share the memory's arrays in four groups (tuples, unpacked by name):
 #   ff      feed-forward: (bit_cols, bit_len, col_thr), the inverted index input bit -> minicolumns
 #   lat     lateral: (out_head, outdeg, e_src, e_dst, e_onext, col_cell, edge_set)
@@ -108,7 +110,7 @@ def query_tie_key(cell):
 # and the parameters ``params = (cpc, new_columns, k_active, connectivity, threshold, p_extra)``.
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def match_columns(bits, learn, k_active, st, ff, scratch):
     """Alg. 1 line 1, M_active = match(I, M): overlaps through the inverted index; return n_active.
 
@@ -151,7 +153,7 @@ def match_columns(bits, learn, k_active, st, ff, scratch):
     return n_act
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def lacks_space(bits, create, n_act, learn, params, st, ff, lat, tape, out_idx):
     """True (and ``st[NEED_*]`` set) if an array is too small for this step; checked before it mutates anything."""
     cpc, new_columns, _, _, _, p_extra = params
@@ -186,7 +188,7 @@ def lacks_space(bits, create, n_act, learn, params, st, ff, lat, tape, out_idx):
     return need != DONE
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _longest_row(bits, bit_len):
     longest = 0
     for i in range(bits.shape[0]):
@@ -194,7 +196,7 @@ def _longest_row(bits, bit_len):
     return longest
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def create_columns(bits, params, st, ff, scratch, tape, tp):
     """Alg. 1 lines 2-4: ``new_columns`` minicolumns, each on a random ``connectivity`` of the 1-bits.
 
@@ -241,7 +243,7 @@ def _predict_from(cell, w_slot, st, lat, cells, n_next):
     return n_next
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def activate_cells(act, learn, cpc, st, lat, cells, tape, tp):
     """Alg. 1 lines 5-11 for the sorted active minicolumns ``act``; return (n_winners, n_predicted_next, tp).
 
@@ -285,7 +287,7 @@ def activate_cells(act, learn, cpc, st, lat, cells, tape, tp):
     return n_cur, n_next, tp
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def learn_lateral(n_cur, cpc, p_extra, st, lat, cells, tape, tp):
     """Alg. 1 lines 12-13: connect every previous winner to every winner; return the tape position.
 
@@ -326,7 +328,7 @@ def learn_lateral(n_cur, cpc, p_extra, st, lat, cells, tape, tp):
     return tp
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def forget_context(st, cells):
     """No active minicolumn and nothing learned: the sequence context is broken."""
     is_pred, _, pred_list, _, _, _ = cells
@@ -337,7 +339,7 @@ def forget_context(st, cells):
     st[N_ACTIVE] = 0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def commit_step(n_cur, n_next, n_act, st, cells, out_idx):
     """The predictions become the current ones, the winners the previous ones and the step's output."""
     is_pred, is_next, pred_list, next_list, prev, cur = cells
