@@ -2,7 +2,6 @@
 import json
 
 import numpy as np
-import pytest
 
 from pipelines import paper_fig3
 from vpr.cli import main as cli_main
