@@ -62,7 +62,7 @@ def child_random_walk(T, seed):
     mem = SequenceMemory(seed=seed)
     times, counts = _timed_run(mem, obs, min(WINDOW, T))
     per_obs = times / counts * 1e6
-    arrays = sum(a.nbytes for a in mem._arrays().values())
+    arrays = mem.nbytes
     print(json.dumps({
         "T": T, "seed": seed, "total_s": float(times.sum()), "mean_us": float(times.sum() / T * 1e6),
         "window_us": per_obs.tolist(), "columns": mem.n_columns, "connections": mem.n_connections,

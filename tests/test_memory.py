@@ -230,6 +230,7 @@ def test_connections_view_matches_what_was_learned():
     assert set(zip(lat.row.tolist(), lat.col.tolist(), strict=True)) == {
         (s, d) for s, ds in ref.forward.items() for d in ds}
     assert con.thresholds.tolist() == ref.thresholds
+    assert m.nbytes >= con.column_sizes().sum() * 4 + m.n_connections * 8 * 3
     with pytest.raises(ValueError):
         con.lateral.data[0] = False  # a read-only copy, not the memory's arrays
 

@@ -12,8 +12,10 @@ and prediction evidence along the learned connections.
 Data layout (why it is fast): minicolumns are found through an inverted index
 *input bit -> minicolumns*, and lateral connections are kept as linked lists per
 source and per target cell in append-only arrays; the per-observation loop is
-compiled with numba (:mod:`vpr._memory_kernel`). ``benchmarks/bench_memory.py``
-prints the cost per observation.
+compiled with numba (:mod:`vpr._memory_kernel`, one function per phase of
+Algorithm 1). ``benchmarks/bench_memory.py`` prints the cost per observation.
+What the memory has learned is read through :attr:`SequenceMemory.connections`
+(SciPy matrices, a read-only copy), never through the private arrays.
 """
 from __future__ import annotations
 
@@ -418,6 +420,11 @@ class SequenceMemory:
         """Number of feed-forward connections (input bits) of every minicolumn, int64."""
         rows = np.arange(self._bit_cols.shape[1])[None, :] < self._bit_len[:, None]
         return np.bincount(self._bit_cols[rows], minlength=self.n_columns)[: self.n_columns].astype(np.int64)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the learned state and sequence context (what :meth:`save` writes, uncompressed)."""
+        return int(sum(a.nbytes for a in self._arrays().values()))
 
     @property
     def n_feedforward(self) -> int:
