@@ -9,14 +9,14 @@ Prints microseconds per observation and peak memory for:
 2. a route where every observation is a new place: the cost grows with the number
    of minicolumns per input bit; the slope of a linear fit is printed;
 3. the speed ratio to the literal set-based reference implementation
-   (`vpr.reference.ReferenceMemory`), measured in the same process.
+   (`tests/reference.py`, the test oracle), measured in the same process.
 
 The paper's Matlab implementation took ~8 ms per observation at T = 200.
 Target here: median <= 100 us per observation at every T, peak < 2 GB at T = 100,000.
 
 Times are CPU seconds of the benchmark process (the machine may be shared).
 
-Usage: python benchmarks/bench_memory.py [--quick]
+Usage: python benchmarks/bench_memory.py [--quick] [--walk-only] (from the repository root)
 """
 from __future__ import annotations
 
@@ -62,7 +62,7 @@ def child_random_walk(T, seed):
     mem = SequenceMemory(seed=seed)
     times, counts = _timed_run(mem, obs, min(WINDOW, T))
     per_obs = times / counts * 1e6
-    arrays = sum(a.nbytes for a in mem._arrays().values())
+    arrays = mem.nbytes
     print(json.dumps({
         "T": T, "seed": seed, "total_s": float(times.sum()), "mean_us": float(times.sum() / T * 1e6),
         "window_us": per_obs.tolist(), "columns": mem.n_columns, "connections": mem.n_connections,
@@ -82,7 +82,7 @@ def child_new_places(T, seed):
         t = time.process_time()
         mem.run(obs[a:a + WINDOW])
         dt = time.process_time() - t
-        per_bit = mem._st[1] / mem.n_inputs  # feed-forward entries per input bit = minicolumns per bit
+        per_bit = mem.n_feedforward / mem.n_inputs  # feed-forward entries per input bit = minicolumns per bit
         rows.append((a + WINDOW, mem.n_columns, per_bit, dt / WINDOW * 1e6))
     print(json.dumps({"rows": rows, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
 
@@ -102,6 +102,7 @@ def _mmm(values):
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="smaller T (for a smoke run)")
+    ap.add_argument("--walk-only", action="store_true", help="only part 1 (the random walk)")
     ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
@@ -124,6 +125,8 @@ def main():
               f" {res[0]['columns']:>7} | {max(r['peak_rss_mb'] for r in res):8.0f}"
               f" (memory arrays {res[0]['arrays_mb']:.0f} MB)")
 
+    if args.walk_only:
+        return
     T_new = 5000 if args.quick else 20_000
     print(f"\n== every observation a new place, T = {T_new} (cost grows with minicolumns per input bit)")
     r = _child("new", T_new, 0)
@@ -137,7 +140,8 @@ def main():
 
     print("\n== ratio to the literal set-based reference (same process, same observations, T = 2,000)")
     from vpr.memory import SequenceMemory
-    from vpr.reference import ReferenceMemory
+    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # tests/ is not installed
+    from tests.reference import ReferenceMemory
 
     obs = _world_walk(2000, 7)
     SequenceMemory(seed=0).run(obs[:50])

@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
+from tests.reference import ReferenceMemory
 from vpr import sdr, simulate
 from vpr.memory import MemoryFileError, SequenceMemory, pad_codes
-from vpr.reference import ReferenceMemory
 
 
 def _small_walk(seed=0, n_places=30, steps=500, noise=0.3):
@@ -64,9 +64,11 @@ def test_new_columns_and_threshold():
     assert m.n_columns == 10 and m.n_cells == 320
     assert len(m.active_columns) == 10
     # every column samples 20 of the 40 bits; 5 (25%) shared bits activate it, 4 do not
-    cols = m._bit_cols[x.indices][:, 0]
-    bits_of_col0 = [b for b in x.indices if 0 in m._bit_cols[b, : m._bit_len[b]]]
-    assert len(bits_of_col0) == 20 and cols.size == 40
+    ff = m.connections.feedforward
+    assert ff.shape == (10, 2048) and (ff.sum(axis=1) == 20).all()
+    assert set(ff.indices) <= set(x.indices.tolist())  # every column samples only the input's bits
+    bits_of_col0 = ff[0].indices.tolist()
+    assert len(bits_of_col0) == 20 and set(m.connections.columns_of_bit(bits_of_col0[0])) >= {0}
     m.reset()
     m.step(np.array(bits_of_col0[:5]), learn=False)
     assert 0 in m.active_columns
@@ -210,3 +212,65 @@ def test_pad_codes():
     b = sdr.from_indices([[7]], 8)
     pa, pb = pad_codes(a, b)
     assert pa.shape == pb.shape == (1, 8)
+
+
+def test_connections_view_matches_what_was_learned():
+    obs = _small_walk(seed=4, steps=150)
+    kw = dict(n_inputs=256, cells_per_column=4, new_columns=3, p_extra=0.2, seed=2)
+    m, ref = SequenceMemory(**kw), ReferenceMemory(**kw)
+    m.run(obs)
+    for i in range(obs.shape[0]):
+        ref.step(obs[i].indices)
+    con = m.connections
+    assert (con.n_columns, con.n_cells, con.n_connections) == (m.n_columns, m.n_cells, m.n_connections)
+    assert con.feedforward.dtype == bool and con.lateral.dtype == bool
+    assert [set(con.feedforward[c].indices.tolist()) for c in range(con.n_columns)] == ref.columns
+    assert (con.column_sizes() == m.column_sizes()).all() and con.column_sizes().sum() == m.n_feedforward
+    lat = con.lateral.tocoo()
+    assert set(zip(lat.row.tolist(), lat.col.tolist(), strict=True)) == {
+        (s, d) for s, ds in ref.forward.items() for d in ds}
+    assert con.thresholds.tolist() == ref.thresholds
+    assert m.nbytes >= con.column_sizes().sum() * 4 + m.n_connections * 8 * 3
+    with pytest.raises(ValueError):
+        con.lateral.data[0] = False  # a read-only copy, not the memory's arrays
+
+
+def test_query_leaves_the_memory_unchanged():
+    obs = _small_walk(seed=5, steps=300)
+    kw = dict(n_inputs=256, cells_per_column=8, new_columns=3, p_extra=0.1, seed=4)
+    m = SequenceMemory(**kw)
+    m.run(obs[:200])
+    q1 = m.run(obs[200:], learn=False, reset=True)
+    q2 = m.run(obs[200:], learn=False, reset=True)
+    assert q1.nnz > 0 and (q1 != q2).nnz == 0  # same memory, same query, same answer
+    m.reset()
+    stepped = [m.step(obs[200 + i], learn=False).tolist() for i in range(100)]
+    assert stepped == [q1[i].indices.tolist() for i in range(100)]
+    # learning afterwards continues exactly as if no query had been made
+    fresh = SequenceMemory(**kw)
+    fresh.run(obs[:200])
+    a, b = m.run(obs[:100], reset=True), fresh.run(obs[:100], reset=True)
+    assert (a != b).nnz == 0 and m.n_connections == fresh.n_connections
+
+
+def test_step_reads_a_row_as_run_does():
+    kw = dict(n_inputs=64, new_columns=2, cells_per_column=4, seed=0)
+    x = sdr.random_sdrs(1, n_bits=64, n_active=6, seed=3)
+    dense = x.toarray()[0]
+    expected = SequenceMemory(**kw).run(x)[0].indices.tolist()
+    rows = {"bool": dense, "uint8 0/1": dense.astype(np.uint8), "int 0/1": dense.astype(np.int64),
+            "float 0/1": dense.astype(float), "1 x n bool": dense[None, :], "indices": x.indices,
+            "int32 indices": x.indices.astype(np.int32), "sparse row": x}
+    for name, row in rows.items():
+        m = SequenceMemory(**kw)
+        assert m.step(row).tolist() == expected, name
+        assert set(m.connections.feedforward.indices.tolist()) <= set(x.indices.tolist()), name
+    # run() reads the dense 0/1 form the same way
+    assert SequenceMemory(**kw).run(dense[None, :].astype(np.uint8))[0].indices.tolist() == expected
+    m = SequenceMemory(**kw)
+    with pytest.raises(ValueError, match="ambiguous"):
+        m.step(np.arange(64))  # n_inputs values that are not 0/1
+    with pytest.raises(ValueError, match="integers"):
+        m.step(np.array([1.5, 2.0]))
+    with pytest.raises(ValueError, match="one row"):
+        m.step(np.zeros((2, 64), bool))

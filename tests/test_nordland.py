@@ -37,6 +37,20 @@ def test_missing_dataset_names_where_it_looked(tmp_path, capsys):
     assert code == 2 and "not found" in capsys.readouterr().err
 
 
+def test_dataset_found_through_the_environment(tmp_path, monkeypatch, dataset):
+    (tmp_path / "sets").mkdir()
+    (tmp_path / "sets" / data.DATASET_NAME).symlink_to(dataset)
+    monkeypatch.setenv(data.DATASETS_ENV, str(tmp_path / "sets"))
+    assert data.find_dataset() == tmp_path / "sets" / data.DATASET_NAME
+    assert data.find_dataset(dataset) == dataset  # --data wins
+    monkeypatch.setenv(data.DATASETS_ENV, str(tmp_path / "empty"))
+    roots = data.candidate_roots()
+    assert roots[0] == tmp_path / "empty" / data.DATASET_NAME
+    if not all((r / "summer").is_dir() and (r / "winter").is_dir() for r in roots[1:]):
+        with pytest.raises(data.DatasetError, match=f"{tmp_path / 'empty'}.*VPR_DATASETS is set"):
+            data.find_dataset()
+
+
 def test_frame_lists_subset_and_alignment(tmp_path, dataset):
     names = data.frame_names(dataset, "full")
     assert len(names) == 60 and names == sorted(names)

@@ -14,17 +14,14 @@ def _literal_evidence(mem, q, db_codes, decay, stay, skip, direction):
     """Straightforward dense version of the documented rule, over all cells."""
     cpc, nc = mem.cells_per_column, mem.n_columns
     ncell = nc * cpc
-    ne = mem.n_connections
-    src, dst = mem._e_src[:ne], mem._e_dst[:ne]
-    size = np.zeros(nc)
-    for b in range(mem.n_inputs):
-        for c in mem._bit_cols[b, : mem._bit_len[b]]:
-            size[c] += 1
+    con = mem.connections
+    src, dst = con.lateral.nonzero()
+    columns = [set(con.feedforward[c].indices.tolist()) for c in range(nc)]
     Z = np.zeros((ncell, q.shape[0]))
     for t in range(q.shape[0]):
         for c in range(nc):
-            on = sum(1 for b in q[t].indices if c in mem._bit_cols[b, : mem._bit_len[b]])
-            Z[c * cpc:(c + 1) * cpc, t] = on / size[c]
+            on = len(columns[c] & set(q[t].indices.tolist()))
+            Z[c * cpc:(c + 1) * cpc, t] = on / len(columns[c])
 
     def run(order, s, d):
         E = np.zeros_like(Z)

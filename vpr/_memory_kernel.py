@@ -86,222 +86,314 @@ def rebuild_sets(table, e_src, e_dst, n_edges, cpc):
     return n
 
 
+@njit(cache=True, inline="always")
+def query_tie_key(cell):
+    """A fixed pseudo-random number in [0, 1) for ``cell`` (splitmix64).
+
+    Breaks ties between bursting cells when learning is off, so that a query
+    reads no random numbers and leaves the memory exactly as it found it.
+    """
+    z = np.uint64(cell) + np.uint64(0x9E3779B97F4A7C15)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    z = z ^ (z >> np.uint64(31))
+    return np.float64(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+
+
+# The phases are inlined into run_frames (inline="always"): separately called they cost ~10 %
+# per observation in bench_memory's random walk.
+# The phases below share the memory's arrays in four groups (tuples, unpacked by name):
+#   ff      feed-forward: (bit_cols, bit_len, col_thr), the inverted index input bit -> minicolumns
+#   lat     lateral: (out_head, outdeg, e_src, e_dst, e_onext, col_cell, edge_set)
+#   cells   per-cell flags and lists: (is_pred, is_next, pred_list, next_list, prev, cur)
+#   scratch per-step work space: (counts, touched, active, keys)
+# and the parameters ``params = (cpc, new_columns, k_active, connectivity, threshold, p_extra)``.
+
+
+@njit(cache=True, inline="always")
+def match_columns(bits, learn, k_active, st, ff, scratch):
+    """Alg. 1 line 1, M_active = match(I, M): overlaps through the inverted index; return n_active.
+
+    With learning off and no minicolumn at its threshold, our extension takes the
+    ``k_active`` minicolumns with the highest non-zero overlap.
+    """
+    bit_cols, bit_len, col_thr = ff
+    counts, touched, active, _ = scratch
+    n_touch = 0
+    for i in range(bits.shape[0]):
+        b = bits[i]
+        row = bit_cols[b]
+        n_b = bit_len[b]
+        st[W_MATCH] += n_b
+        for j in range(n_b):
+            c = row[j]
+            if counts[c] == 0:
+                touched[n_touch] = c
+                n_touch += 1
+            counts[c] += 1
+    n_act = 0
+    for i in range(n_touch):
+        c = touched[i]
+        if counts[c] >= col_thr[c]:
+            active[n_act] = c
+            n_act += 1
+    if n_act == 0 and not learn and k_active > 0 and n_touch > 0:
+        for _ in range(min(k_active, n_touch)):
+            best = -1
+            for i in range(n_touch):
+                c = touched[i]
+                if counts[c] > 0 and (best < 0 or counts[c] > counts[best]
+                                      or (counts[c] == counts[best] and c < best)):
+                    best = c
+            active[n_act] = best
+            n_act += 1
+            counts[best] = -counts[best]  # taken (all counts are reset below)
+    for i in range(n_touch):
+        counts[touched[i]] = 0
+    return n_act
+
+
+@njit(cache=True, inline="always")
+def lacks_space(bits, create, n_act, learn, params, st, ff, lat, tape, out_idx):
+    """True (and ``st[NEED_*]`` set) if an array is too small for this step; checked before it mutates anything."""
+    cpc, new_columns, _, _, _, p_extra = params
+    bit_cols, bit_len, col_thr = ff
+    _, _, e_src, _, _, col_cell, edge_set = lat
+    nb = bits.shape[0]
+    max_win = (new_columns if create else n_act) * cpc
+    n_prev = st[N_PREV]
+    if learn:
+        need_tape = max_win + (new_columns * nb if create else 0) + n_prev * max_win
+    else:
+        need_tape = 0  # queries draw no random numbers
+    new_edges = n_prev * max_win if learn else 0
+    need, size = DONE, 0
+    if create and st[N_COLS] + new_columns > col_thr.shape[0]:
+        need, size = NEED_COLS, st[N_COLS] + new_columns
+    elif create and _longest_row(bits, bit_len) + new_columns > bit_cols.shape[1]:
+        need, size = NEED_ENTRIES, _longest_row(bits, bit_len) + new_columns
+    elif learn and st[N_EDGES] + new_edges > e_src.shape[0]:
+        need, size = NEED_EDGES, st[N_EDGES] + new_edges
+    elif learn and 2 * (st[N_KEYS] + new_edges) > col_cell.shape[0]:
+        # keep the (minicolumn, cell) set at most half full
+        need, size = NEED_HASH, 2 * (st[N_KEYS] + new_edges)
+    elif learn and p_extra > 0.0 and 2 * (st[N_EDGES] + new_edges) > edge_set.shape[0]:
+        need, size = NEED_EDGE_HASH, 2 * (st[N_EDGES] + new_edges)
+    elif st[TAPE_POS] + need_tape > st[TAPE_LEN]:
+        need, size = NEED_TAPE, need_tape
+    elif st[OUT_POS] + max_win > out_idx.shape[0]:
+        need, size = NEED_OUT, st[OUT_POS] + max_win
+    st[NEED_KIND] = need
+    st[NEED_SIZE] = size
+    return need != DONE
+
+
+@njit(cache=True, inline="always")
+def _longest_row(bits, bit_len):
+    longest = 0
+    for i in range(bits.shape[0]):
+        longest = max(longest, bit_len[bits[i]])
+    return longest
+
+
+@njit(cache=True, inline="always")
+def create_columns(bits, params, st, ff, scratch, tape, tp):
+    """Alg. 1 lines 2-4: ``new_columns`` minicolumns, each on a random ``connectivity`` of the 1-bits.
+
+    They become the active minicolumns; return the tape position after the draws.
+    """
+    _, new_columns, _, connectivity, threshold, _ = params
+    bit_cols, bit_len, col_thr = ff
+    _, _, active, keys = scratch
+    nb = bits.shape[0]
+    n_conn = max(1, int(np.round(connectivity * nb)))
+    thr = int(np.ceil(threshold * n_conn - 1e-9))
+    n_cols = st[N_COLS]
+    for j in range(new_columns):
+        c = n_cols + j
+        for i in range(nb):
+            keys[i] = tape[tp + i]
+        tp += nb
+        order = np.argsort(keys[:nb], kind="mergesort")
+        for i in range(n_conn):
+            b = bits[order[i]]
+            bit_cols[b, bit_len[b]] = c
+            bit_len[b] += 1
+        st[N_ENTRIES] += n_conn
+        col_thr[c] = thr
+        active[j] = c
+    st[N_COLS] = n_cols + new_columns
+    return tp
+
+
+@njit(cache=True, inline="always")
+def _predict_from(cell, w_slot, st, lat, cells, n_next):
+    """Mark the targets of ``cell``'s lateral connections as predicted next; return the new n_next."""
+    out_head, _, _, e_dst, e_onext, _, _ = lat
+    _, is_next, _, next_list, _, _ = cells
+    e = out_head[cell]
+    while e >= 0:
+        st[w_slot] += 1
+        t = e_dst[e]
+        if not is_next[t]:
+            is_next[t] = True
+            next_list[n_next] = t
+            n_next += 1
+        e = e_onext[e]
+    return n_next
+
+
+@njit(cache=True, inline="always")
+def activate_cells(act, learn, cpc, st, lat, cells, tape, tp):
+    """Alg. 1 lines 5-11 for the sorted active minicolumns ``act``; return (n_winners, n_predicted_next, tp).
+
+    Predicted cells of an active minicolumn win and predict their targets (lines
+    6-8); a minicolumn without one bursts (lines 9-11): all its cells predict and
+    the winner is the cell with the fewest outgoing connections, ties broken by
+    the tape (learning) or :func:`query_tie_key` (learning off).
+    """
+    _, outdeg, _, _, _, _, _ = lat
+    is_pred, _, _, _, _, cur = cells
+    n_cur = 0
+    n_next = 0
+    for j in range(act.shape[0]):
+        base = act[j] * cpc
+        n_p = 0
+        for i in range(cpc):
+            if is_pred[base + i]:
+                n_p += 1
+        if n_p > 0:
+            for i in range(cpc):
+                cell = base + i
+                if is_pred[cell]:
+                    cur[n_cur] = cell
+                    n_cur += 1
+                    n_next = _predict_from(cell, W_PRED, st, lat, cells, n_next)
+        else:
+            best = -1
+            best_key = 0.0
+            for i in range(cpc):
+                cell = base + i
+                u = tape[tp + i] if learn else query_tie_key(cell)
+                key = outdeg[cell] + 0.5 * u
+                if best < 0 or key < best_key:
+                    best = cell
+                    best_key = key
+                n_next = _predict_from(cell, W_BURST, st, lat, cells, n_next)
+            if learn:
+                tp += cpc
+            cur[n_cur] = best
+            n_cur += 1
+    return n_cur, n_next, tp
+
+
+@njit(cache=True, inline="always")
+def learn_lateral(n_cur, cpc, p_extra, st, lat, cells, tape, tp):
+    """Alg. 1 lines 12-13: connect every previous winner to every winner; return the tape position.
+
+    A connection is made unless a cell of the source's minicolumn already
+    connects to the target; rSHOSM (section 4.3) bypasses that with probability
+    ``p_extra``, unless this very cell already connects.
+    """
+    out_head, outdeg, e_src, e_dst, e_onext, col_cell, edge_set = lat
+    _, _, _, _, prev, cur = cells
+    ne = st[N_EDGES]
+    for a in range(st[N_PREV]):
+        s = prev[a]
+        col_s = s // cpc
+        for w in range(n_cur):
+            d = cur[w]
+            ckey = col_s << 32 | d
+            has_col = hash_contains(col_cell, ckey)
+            make = not has_col
+            if has_col and p_extra > 0.0:
+                u = tape[tp]
+                tp += 1
+                if u < p_extra:
+                    st[W_LEARN] += 1
+                    make = not hash_contains(edge_set, s << 32 | d)
+            if make:
+                if not has_col:
+                    hash_insert(col_cell, ckey)
+                    st[N_KEYS] += 1
+                e_src[ne] = s
+                e_dst[ne] = d
+                e_onext[ne] = out_head[s]
+                out_head[s] = ne
+                outdeg[s] += 1
+                if p_extra > 0.0:
+                    hash_insert(edge_set, s << 32 | d)
+                ne += 1
+    st[N_EDGES] = ne
+    return tp
+
+
+@njit(cache=True, inline="always")
+def forget_context(st, cells):
+    """No active minicolumn and nothing learned: the sequence context is broken."""
+    is_pred, _, pred_list, _, _, _ = cells
+    for i in range(st[N_PRED]):
+        is_pred[pred_list[i]] = False
+    st[N_PRED] = 0
+    st[N_PREV] = 0
+    st[N_ACTIVE] = 0
+
+
+@njit(cache=True, inline="always")
+def commit_step(n_cur, n_next, n_act, st, cells, out_idx):
+    """The predictions become the current ones, the winners the previous ones and the step's output."""
+    is_pred, is_next, pred_list, next_list, prev, cur = cells
+    for i in range(st[N_PRED]):
+        is_pred[pred_list[i]] = False
+    for i in range(n_next):
+        t = next_list[i]
+        is_next[t] = False
+        is_pred[t] = True
+        pred_list[i] = t
+    st[N_PRED] = n_next
+    op = st[OUT_POS]
+    for w in range(n_cur):
+        prev[w] = cur[w]
+        out_idx[op + w] = cur[w]
+    st[N_PREV] = n_cur
+    st[N_ACTIVE] = n_act
+    st[OUT_POS] = op + n_cur
+
+
 @njit(cache=True)
-def run_frames(ind_ptr, ind, f_start, f_stop, learn, cpc, new_columns, k_active, connectivity, threshold,
-               p_extra, st, bit_cols, bit_len, col_thr, counts, touched, active,
-               out_head, outdeg, e_src, e_dst, e_onext, is_pred, is_next,
-               pred_list, next_list, prev, cur, tape, out_idx, out_ptr, keys, col_cell, edge_set):
-    """Run Algorithm 1 on frames ``f_start..f_stop-1``; return the first frame not processed."""
-    cols_cap = col_thr.shape[0]
+def run_frames(frames, f_start, f_stop, learn, params, st, ff, lat, cells, scratch, tape, out):
+    """Run Algorithm 1 on frames ``f_start..f_stop-1``; return the first frame not processed.
+
+    ``frames = (indptr, indices)`` of the input batch, ``out = (out_idx, out_ptr)``
+    the winners; the other groups are described above. A frame for which an
+    array is too small is not started (see ``st[NEED_KIND]``).
+    """
+    ind_ptr, ind = frames
+    out_idx, out_ptr = out
+    cpc, new_columns, k_active, _, _, p_extra = params
+    active = scratch[2]
     f = f_start
     while f < f_stop:
         bits = ind[ind_ptr[f]:ind_ptr[f + 1]]
-        nb = bits.shape[0]
-        n_cols = st[N_COLS]
-        # ---- line 1: M_active = match(I, M): overlap through the inverted index
-        n_touch = 0
-        for i in range(nb):
-            b = bits[i]
-            row = bit_cols[b]
-            n_b = bit_len[b]
-            st[W_MATCH] += n_b
-            for j in range(n_b):
-                c = row[j]
-                if counts[c] == 0:
-                    touched[n_touch] = c
-                    n_touch += 1
-                counts[c] += 1
-        n_act = 0
-        for i in range(n_touch):
-            c = touched[i]
-            if counts[c] >= col_thr[c]:
-                active[n_act] = c
-                n_act += 1
-        if n_act == 0 and not learn and k_active > 0 and n_touch > 0:
-            # our extension: with learning off take the k best-overlapping minicolumns
-            k = min(k_active, n_touch)
-            for j in range(k):
-                best = -1
-                for i in range(n_touch):
-                    c = touched[i]
-                    if counts[c] > 0 and (best < 0 or counts[c] > counts[best]
-                                          or (counts[c] == counts[best] and c < best)):
-                        best = c
-                active[n_act] = best
-                n_act += 1
-                counts[best] = -counts[best]  # taken (all counts are reset below)
-        for i in range(n_touch):
-            counts[touched[i]] = 0
-        create = n_act == 0 and learn and nb > 0
-        n_conn = max(1, int(np.round(connectivity * nb)))
-        # ---- capacity checks: nothing below may run out of space
-        n_act_b = new_columns if create else n_act
-        max_win = n_act_b * cpc
-        n_prev = st[N_PREV]
-        need_tape = max_win + (new_columns * nb if create else 0) + (n_prev * max_win if learn else 0)
-        if create and n_cols + new_columns > cols_cap:
-            st[NEED_KIND] = NEED_COLS
-            st[NEED_SIZE] = n_cols + new_columns
-            return f
-        if create:
-            longest = 0
-            for i in range(nb):
-                longest = max(longest, bit_len[bits[i]])
-            if longest + new_columns > bit_cols.shape[1]:
-                st[NEED_KIND] = NEED_ENTRIES
-                st[NEED_SIZE] = longest + new_columns
-                return f
-        if learn and st[N_EDGES] + n_prev * max_win > e_src.shape[0]:
-            st[NEED_KIND] = NEED_EDGES
-            st[NEED_SIZE] = st[N_EDGES] + n_prev * max_win
-            return f
-        if learn and 2 * (st[N_KEYS] + n_prev * max_win) > col_cell.shape[0]:
-            # keep the (minicolumn, cell) set at most half full
-            st[NEED_KIND] = NEED_HASH
-            st[NEED_SIZE] = 2 * (st[N_KEYS] + n_prev * max_win)
-            return f
-        if learn and p_extra > 0.0 and 2 * (st[N_EDGES] + n_prev * max_win) > edge_set.shape[0]:
-            st[NEED_KIND] = NEED_EDGE_HASH
-            st[NEED_SIZE] = 2 * (st[N_EDGES] + n_prev * max_win)
-            return f
-        if st[TAPE_POS] + need_tape > st[TAPE_LEN]:
-            st[NEED_KIND] = NEED_TAPE
-            st[NEED_SIZE] = need_tape
-            return f
-        if st[OUT_POS] + max_win > out_idx.shape[0]:
-            st[NEED_KIND] = NEED_OUT
-            st[NEED_SIZE] = st[OUT_POS] + max_win
+        n_act = match_columns(bits, learn, k_active, st, ff, scratch)
+        create = n_act == 0 and learn and bits.shape[0] > 0
+        if lacks_space(bits, create, n_act, learn, params, st, ff, lat, tape, out_idx):
             return f
         tp = st[TAPE_POS]
-        # ---- lines 2-4: no active minicolumn -> create new ones sampling the input's 1-bits
         if create:
-            thr = int(np.ceil(threshold * n_conn - 1e-9))
-            for j in range(new_columns):
-                c = n_cols + j
-                for i in range(nb):
-                    keys[i] = tape[tp + i]
-                tp += nb
-                order = np.argsort(keys[:nb], kind="mergesort")
-                for i in range(n_conn):
-                    b = bits[order[i]]
-                    bit_cols[b, bit_len[b]] = c
-                    bit_len[b] += 1
-                st[N_ENTRIES] += n_conn
-                col_thr[c] = thr
-                active[j] = c
+            tp = create_columns(bits, params, st, ff, scratch, tape, tp)
             n_act = new_columns
-            st[N_COLS] = n_cols + new_columns
         if n_act == 0:
-            # nothing recognised and nothing learned: the sequence context is broken
-            for i in range(st[N_PRED]):
-                is_pred[pred_list[i]] = False
-            st[N_PRED] = 0
-            st[N_PREV] = 0
-            st[N_ACTIVE] = 0
-            st[TAPE_POS] = tp
-            out_ptr[f + 1] = st[OUT_POS]
-            f += 1
-            continue
-        act = np.sort(active[:n_act])
-        active[:n_act] = act
-        # ---- lines 5-11: winners and predictions for the next step
-        n_cur = 0
-        n_next = 0
-        for j in range(n_act):
-            base = act[j] * cpc
-            n_p = 0
-            for i in range(cpc):
-                if is_pred[base + i]:
-                    n_p += 1
-            if n_p > 0:
-                # lines 6-8: predicted cells win and predict (their targets)
-                for i in range(cpc):
-                    cell = base + i
-                    if is_pred[cell]:
-                        cur[n_cur] = cell
-                        n_cur += 1
-                        e = out_head[cell]
-                        while e >= 0:
-                            st[W_PRED] += 1
-                            t = e_dst[e]
-                            if not is_next[t]:
-                                is_next[t] = True
-                                next_list[n_next] = t
-                                n_next += 1
-                            e = e_onext[e]
-            else:
-                # lines 9-11: burst: every cell predicts; the winner is the cell with the
-                # fewest forward connections, ties broken by the tape
-                best = -1
-                best_key = 0.0
-                for i in range(cpc):
-                    cell = base + i
-                    key = outdeg[cell] + 0.5 * tape[tp + i]
-                    if best < 0 or key < best_key:
-                        best = cell
-                        best_key = key
-                    e = out_head[cell]
-                    while e >= 0:
-                        st[W_BURST] += 1
-                        t = e_dst[e]
-                        if not is_next[t]:
-                            is_next[t] = True
-                            next_list[n_next] = t
-                            n_next += 1
-                        e = e_onext[e]
-                tp += cpc
-                cur[n_cur] = best
-                n_cur += 1
-        # ---- lines 12-13: one-shot learning prev winner -> current winner
-        if learn:
-            ne = st[N_EDGES]
-            for a in range(n_prev):
-                s = prev[a]
-                col_s = s // cpc
-                for w in range(n_cur):
-                    d = cur[w]
-                    ckey = col_s << 32 | d
-                    has_col = hash_contains(col_cell, ckey)
-                    make = not has_col
-                    if has_col and p_extra > 0.0:
-                        # rSHOSM (section 4.3): bypass the restriction with probability p_extra,
-                        # unless this very cell already connects
-                        u = tape[tp]
-                        tp += 1
-                        if u < p_extra:
-                            st[W_LEARN] += 1
-                            make = not hash_contains(edge_set, s << 32 | d)
-                    if make:
-                        if not has_col:
-                            hash_insert(col_cell, ckey)
-                            st[N_KEYS] += 1
-                        e_src[ne] = s
-                        e_dst[ne] = d
-                        e_onext[ne] = out_head[s]
-                        out_head[s] = ne
-                        outdeg[s] += 1
-                        if p_extra > 0.0:
-                            hash_insert(edge_set, s << 32 | d)
-                        ne += 1
-            st[N_EDGES] = ne
-        # ---- commit predictions and winners
-        for i in range(st[N_PRED]):
-            is_pred[pred_list[i]] = False
-        for i in range(n_next):
-            t = next_list[i]
-            is_next[t] = False
-            is_pred[t] = True
-            pred_list[i] = t
-        st[N_PRED] = n_next
-        op = st[OUT_POS]
-        for w in range(n_cur):
-            prev[w] = cur[w]
-            out_idx[op + w] = cur[w]
-        st[N_PREV] = n_cur
-        st[N_ACTIVE] = n_act
-        st[OUT_POS] = op + n_cur
-        out_ptr[f + 1] = st[OUT_POS]
+            forget_context(st, cells)
+        else:
+            act = np.sort(active[:n_act])
+            active[:n_act] = act
+            n_cur, n_next, tp = activate_cells(act, learn, cpc, st, lat, cells, tape, tp)
+            if learn:
+                tp = learn_lateral(n_cur, cpc, p_extra, st, lat, cells, tape, tp)
+            commit_step(n_cur, n_next, n_act, st, cells, out_idx)
         st[TAPE_POS] = tp
+        out_ptr[f + 1] = st[OUT_POS]
         f += 1
     st[NEED_KIND] = DONE
     return f

@@ -12,8 +12,10 @@ and prediction evidence along the learned connections.
 Data layout (why it is fast): minicolumns are found through an inverted index
 *input bit -> minicolumns*, and lateral connections are kept as linked lists per
 source and per target cell in append-only arrays; the per-observation loop is
-compiled with numba (:mod:`vpr._memory_kernel`). ``benchmarks/bench_memory.py``
-prints the cost per observation.
+compiled with numba (:mod:`vpr._memory_kernel`, one function per phase of
+Algorithm 1). ``benchmarks/bench_memory.py`` prints the cost per observation.
+What the memory has learned is read through :attr:`SequenceMemory.connections`
+(SciPy matrices, a read-only copy), never through the private arrays.
 """
 from __future__ import annotations
 
@@ -24,11 +26,11 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
-from vpr import io as _io
 from vpr import _memory_kernel as K
+from vpr import io as _io
 from vpr import sdr as _sdr
 
-__all__ = ["SequenceMemory", "MemoryFileError"]
+__all__ = ["SequenceMemory", "Connections", "MemoryFileError", "pad_codes"]
 
 _FORMAT = "vpr.SequenceMemory"
 _FORMAT_VERSION = 1
@@ -36,6 +38,62 @@ _FORMAT_VERSION = 1
 
 class MemoryFileError(ValueError):
     """A saved memory file is missing, corrupt, or not a SequenceMemory file."""
+
+
+class Connections:
+    """Read-only snapshot of what a :class:`SequenceMemory` has learned (``mem.connections``).
+
+    In the spirit of htm.core's ``connections``: the learned synapses as plain
+    SciPy matrices, copied out of the memory (changing them changes nothing).
+
+    Attributes
+    ----------
+    feedforward : scipy.sparse.csr_matrix, bool, n_columns x n_inputs
+        Row ``m``: the input bits minicolumn ``m`` connects to (Alg. 1 line 3).
+    lateral : scipy.sparse.csr_matrix, bool, n_cells x n_cells
+        ``lateral[s, d]``: cell ``s`` predicts cell ``d`` (learned at lines 12-13).
+    thresholds : ndarray, int64, n_columns
+        Overlap a minicolumn needs to be active (``ceil(threshold * size)``).
+    cells_per_column, n_columns, n_cells, n_connections : int
+    """
+
+    def __init__(self, feedforward, lateral, thresholds, cells_per_column):
+        self.feedforward = feedforward
+        self.lateral = lateral
+        self.thresholds = thresholds
+        self.cells_per_column = int(cells_per_column)
+        for a in (feedforward.data, feedforward.indices, feedforward.indptr, lateral.data, lateral.indices,
+                  lateral.indptr, thresholds):
+            a.flags.writeable = False
+
+    @property
+    def n_columns(self) -> int:
+        return self.feedforward.shape[0]
+
+    @property
+    def n_cells(self) -> int:
+        return self.lateral.shape[0]
+
+    @property
+    def n_connections(self) -> int:
+        """Number of lateral connections."""
+        return int(self.lateral.nnz)
+
+    def column_sizes(self) -> np.ndarray:
+        """Feed-forward connections (input bits) of every minicolumn, int64."""
+        return np.diff(self.feedforward.indptr).astype(np.int64)
+
+    def column_of(self, cells) -> np.ndarray:
+        """Minicolumn of each cell index."""
+        return np.asarray(cells, dtype=np.int64) // self.cells_per_column
+
+    def columns_of_bit(self, bit: int) -> np.ndarray:
+        """Minicolumns connected to input ``bit`` (sorted)."""
+        return np.flatnonzero(self.feedforward[:, int(bit)].toarray().ravel())
+
+    def __repr__(self) -> str:
+        return (f"Connections(columns={self.n_columns}, cells={self.n_cells}, "
+                f"lateral={self.n_connections}, feedforward={self.feedforward.nnz})")
 
 
 class SequenceMemory:
@@ -138,7 +196,8 @@ class SequenceMemory:
         self._col_thr, self._counts = g(self._col_thr, cap), g(self._counts, cap)
         self._touched, self._active = g(self._touched, cap), g(self._active, cap)
         self._out_head = g(self._out_head, cells, -1)
-        self._outdeg, self._is_pred, self._is_next = g(self._outdeg, cells), g(self._is_pred, cells), g(self._is_next, cells)
+        self._outdeg = g(self._outdeg, cells)
+        self._is_pred, self._is_next = g(self._is_pred, cells), g(self._is_next, cells)
         self._pred_list, self._next_list = g(self._pred_list, cells), g(self._next_list, cells)
         self._prev, self._cur = g(self._prev, cells), g(self._cur, cells)
 
@@ -155,6 +214,16 @@ class SequenceMemory:
         g = self._grown
         self._e_src, self._e_dst = g(self._e_src, cap), g(self._e_dst, cap)
         self._e_onext = g(self._e_onext, cap)
+
+    # the kernel's array groups (see vpr._memory_kernel); rebuilt per call because growing replaces arrays
+    def _ff(self):
+        return self._bit_cols, self._bit_len, self._col_thr
+
+    def _lat(self):
+        return self._out_head, self._outdeg, self._e_src, self._e_dst, self._e_onext, self._col_cell, self._edge_set
+
+    def _cells(self):
+        return self._is_pred, self._is_next, self._pred_list, self._next_list, self._prev, self._cur
 
     def _rehash(self, need, edges=False):
         old = self._edge_set if edges else self._col_cell
@@ -194,6 +263,20 @@ class SequenceMemory:
         return int(self._st[K.N_EDGES])
 
     @property
+    def connections(self) -> Connections:
+        """What the memory has learned, as SciPy matrices (a read-only copy; see :class:`Connections`)."""
+        nc, ne = self.n_columns, self.n_connections
+        cells = nc * self.cells_per_column
+        rows = np.arange(self._bit_cols.shape[1])[None, :] < self._bit_len[:, None]
+        bits = np.repeat(np.arange(self.n_inputs, dtype=np.int64), self._bit_len)
+        ff = sp.csr_matrix((np.ones(bits.size, bool), (self._bit_cols[rows].astype(np.int64), bits)),
+                           shape=(nc, self.n_inputs))
+        lat = sp.csr_matrix((np.ones(ne, bool), (self._e_src[:ne], self._e_dst[:ne])), shape=(cells, cells))
+        for m in (ff, lat):
+            m.sort_indices()
+        return Connections(ff, lat, self._col_thr[:nc].astype(np.int64), self.cells_per_column)
+
+    @property
     def active_columns(self) -> np.ndarray:
         """Minicolumns active in the last step (sorted)."""
         return self._active[: self._st[K.N_ACTIVE]].copy()
@@ -217,19 +300,33 @@ class SequenceMemory:
         st[K.N_ACTIVE] = 0
 
     # ------------------------------------------------------------------- API
-    def _input_bits(self, sdr_row) -> np.ndarray:
+    def _input_bits(self, sdr_row) -> sp.csr_matrix:
+        """One input row as a checked 1-row SDR batch; see :meth:`step` for what a row may be."""
         if sp.issparse(sdr_row):
             b = _sdr.check_batch(sdr_row, n_bits=self.n_inputs, name="input SDR")
             if b.shape[0] != 1:
                 raise ValueError(f"step() takes one SDR row, got {b.shape[0]} rows; use run()")
             return b
         a = np.asarray(sdr_row)
+        if a.ndim == 2 and a.shape[0] == 1:
+            a = a[0]
+        if a.ndim != 1:
+            raise ValueError(f"input SDR has shape {a.shape}: step() takes one row (dense {self.n_inputs} bits "
+                             f"or bit indices); use run() for several")
         if a.dtype == bool:
-            if a.ndim != 1 or a.size != self.n_inputs:
+            if a.size != self.n_inputs:
                 raise ValueError(f"input SDR has shape {a.shape}, memory expects ({self.n_inputs},)")
             a = np.flatnonzero(a)
-        # otherwise: an array of active bit indices
-        return _sdr.from_indices([a.ravel()], self.n_inputs)
+        elif a.size == self.n_inputs and a.size > 0:
+            if not np.issubdtype(a.dtype, np.integer) and not np.issubdtype(a.dtype, np.floating):
+                raise ValueError(f"input SDR of dtype {a.dtype}: expected bool, 0/1 or bit indices")
+            if not np.isin(a, (0, 1)).all():
+                raise ValueError(f"input SDR of {a.size} values (= n_inputs) that are not all 0/1: ambiguous; "
+                                 f"pass a dense bool/0-1 row of {self.n_inputs} values or fewer bit indices")
+            a = np.flatnonzero(a)  # dense 0/1 row, as run() reads it
+        elif a.size and not np.issubdtype(a.dtype, np.integer):
+            raise ValueError(f"input SDR bit indices must be integers, got dtype {a.dtype}")
+        return _sdr.from_indices([a.astype(np.int64)], self.n_inputs)
 
     def _run_batch(self, batch: sp.csr_matrix, learn: bool, progress: bool = False):
         """Run the kernel over all rows of a checked batch; return (indptr, indices) of winners."""
@@ -241,6 +338,8 @@ class SequenceMemory:
         keys = np.zeros(self.n_inputs, np.float64)
         st = self._st
         st[K.OUT_POS] = 0
+        params = (self.cells_per_column, self.new_columns, self.k_active, self.connectivity, self.threshold,
+                  self.p_extra)
         bar = None
         if progress:
             from tqdm import tqdm
@@ -250,11 +349,8 @@ class SequenceMemory:
         chunk = 2048 if progress else n
         while f < n:
             stop = min(n, f + chunk)
-            f_new = K.run_frames(
-                ind_ptr, ind, f, stop, learn, self.cells_per_column, self.new_columns, self.k_active,
-                self.connectivity, self.threshold, self.p_extra, st, self._bit_cols, self._bit_len, self._col_thr, self._counts, self._touched, self._active,
-                self._out_head, self._outdeg, self._e_src, self._e_dst, self._e_onext, self._is_pred, self._is_next, self._pred_list, self._next_list, self._prev,
-                self._cur, self._tape, out_idx, out_ptr, keys, self._col_cell, self._edge_set)
+            f_new = K.run_frames((ind_ptr, ind), f, stop, learn, params, st, self._ff(), self._lat(), self._cells(),
+                                 (self._counts, self._touched, self._active, keys), self._tape, (out_idx, out_ptr))
             if bar is not None:
                 bar.update(f_new - f)
             f = f_new
@@ -284,11 +380,19 @@ class SequenceMemory:
 
         Parameters
         ----------
-        sdr_row : 1-row SDR batch, dense bool vector of ``n_inputs`` bits, or an
-            array of active bit indices.
+        sdr_row : 1-row SDR batch (sparse), dense row or bit indices
+            A 1-D array of exactly ``n_inputs`` values is a dense row: bool,
+            or integer/float 0/1 (anything else raises: it is ambiguous). Any
+            other integer array holds the indices of the active bits (so
+            ``n_inputs`` indices cannot be given this way: pass a dense row).
+            :meth:`run` reads a dense row the same way.
         learn : bool
             With learning off no minicolumns are created and no connections are
-            learned (a query traverse against a learned database).
+            learned (a query traverse against a learned database), and no
+            random numbers are drawn: ties between bursting cells are broken by a
+            fixed per-cell key, so the same query on the same memory (after
+            :meth:`reset`) gives the same winners, and a query leaves the memory
+            exactly as it found it.
 
         Returns
         -------
@@ -317,6 +421,16 @@ class SequenceMemory:
         """Number of feed-forward connections (input bits) of every minicolumn, int64."""
         rows = np.arange(self._bit_cols.shape[1])[None, :] < self._bit_len[:, None]
         return np.bincount(self._bit_cols[rows], minlength=self.n_columns)[: self.n_columns].astype(np.int64)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the learned state and sequence context (what :meth:`save` writes, uncompressed)."""
+        return int(sum(a.nbytes for a in self._arrays().values()))
+
+    @property
+    def n_feedforward(self) -> int:
+        """Number of feed-forward connections (input bit, minicolumn) of all minicolumns."""
+        return int(self._st[K.N_ENTRIES])
 
     def evidence(self, query_batch, db_codes, decay: float = 0.9, stay: float | None = 0.05,
                  skip: float | None = 0.05, direction: str = "both", progress: bool = False) -> np.ndarray:
@@ -428,7 +542,8 @@ class SequenceMemory:
         return {
             "bit_len": self._bit_len, "bit_cols": self._bit_cols[rows], "col_thr": self._col_thr[:nc],
             "out_head": self._out_head[:cells], "outdeg": self._outdeg[:cells],
-            "e_src": self._e_src[:nd], "e_dst": self._e_dst[:nd], "e_onext": self._e_onext[:nd], "pred": self._pred_list[: st[K.N_PRED]],
+            "e_src": self._e_src[:nd], "e_dst": self._e_dst[:nd], "e_onext": self._e_onext[:nd],
+            "pred": self._pred_list[: st[K.N_PRED]],
             "prev": self._prev[: st[K.N_PREV]], "active": self._active[: st[K.N_ACTIVE]],
             "tape": self._tape[st[K.TAPE_POS]: st[K.TAPE_LEN]],
         }
@@ -447,7 +562,7 @@ class SequenceMemory:
         return path
 
     @classmethod
-    def load(cls, path) -> "SequenceMemory":
+    def load(cls, path) -> SequenceMemory:
         """Load a memory written by :meth:`save`.
 
         Raises

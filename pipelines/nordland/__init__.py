@@ -5,8 +5,10 @@ frame j when |i - j| <= 1 (hard), pairs with 1 < |i - j| <= 3 are ignored
 (soft). Methods: pairwise (pixel SAD; SDR overlap), SeqSLAM (pixel, OpenSeqSLAM
 defaults), rSHOSM as in the paper and ``rshosm-seq`` (our sequence-evidence
 extension), all on the same frames. Writes ``metrics.json``, ``pr.png`` and
-``table.md`` to ``--out`` and prints the table. ``--grid`` instead runs the
-variant study of ``docs/experiments.md`` (:mod:`pipelines.nordland.experiments`).
+``table.md`` to ``--out`` and prints the table. The dataset is ``--data``,
+else ``$VPR_DATASETS/nordland_trimmed``, else (source checkout only)
+``../shared/datasets/nordland_trimmed`` next to the repository. The variant
+study of ``docs/experiments.md`` is ``python -m studies.nordland_variants``.
 """
 from __future__ import annotations
 
@@ -14,9 +16,11 @@ import argparse
 import sys
 
 from .benchmark import METHOD_SPECS, markdown_table, run_benchmark
-from .data import DEFAULT_DATA, SUBSETS, DatasetError
+from .data import DATASET_NAME, DATASETS_ENV, SUBSETS, DatasetError
 
-__all__ = ["add_arguments", "run_command", "run_benchmark", "METHOD_SPECS", "markdown_table", "main"]
+__all__ = ["COMMANDS", "add_arguments", "run_command", "run_benchmark", "METHOD_SPECS", "markdown_table", "main"]
+
+COMMANDS = {"nordland": "Nordland summer vs winter benchmark (all methods on the same frames)"}
 
 COMMANDS = {"nordland": "Nordland summer vs winter benchmark (needs the dataset)"}
 
@@ -27,23 +31,17 @@ def add_arguments(parser: argparse.ArgumentParser, command: str = "nordland") ->
                         help="358: every 10th frame (OpenSeqSLAM's demo subset); full: all 3,576")
     parser.add_argument("--out", required=True, help="output folder (metrics.json, pr.png, table.md, cache/)")
     parser.add_argument("--data", default=None,
-                        help=f"dataset folder holding summer/ and winter/ (default: {DEFAULT_DATA})")
+                        help=f"dataset folder holding summer/ and winter/ (default: ${DATASETS_ENV}/{DATASET_NAME},"
+                             f" then ../shared/datasets/{DATASET_NAME} in a source checkout)")
     parser.add_argument("--k", type=int, default=200, help="active bits of the 2048-bit SDRs (default 200)")
     parser.add_argument("--threshold", type=float, default=None,
                         help="minicolumn threshold of both rSHOSM methods (default: each method's own)")
-    parser.add_argument("--grid", action="store_true",
-                        help="run the rSHOSM variant study instead (docs/experiments.md)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
 def run_command(args) -> int:
-    """Run the benchmark (or the variant grid) for parsed ``args``; print the table; return the exit status."""
+    """Run :func:`run_benchmark` with the parsed ``args``; print the table; return the exit status."""
     try:
-        if args.grid:
-            from .experiments import run_grid
-
-            print(run_grid(args.subset, args.out, data=args.data, progress=not args.no_progress), end="")
-            return 0
         doc = run_benchmark(args.subset, args.out, data=args.data, k=args.k, threshold=args.threshold,
                             progress=not args.no_progress)
     except (DatasetError, ValueError) as e:

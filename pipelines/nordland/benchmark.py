@@ -12,8 +12,6 @@ import resource
 import time
 from pathlib import Path
 
-import numpy as np
-
 from vpr import evaluate as E
 from vpr import io as _io
 from vpr.methods import Features, match, merge_conf
@@ -97,7 +95,7 @@ def run_benchmark(subset: str, out, data=None, k: int = 40, threshold: float | N
     ----------
     subset : {"358", "full"}
     out : output folder (descriptors are cached in ``out/cache``).
-    data : dataset folder; default :data:`pipelines.nordland.data.DEFAULT_DATA`.
+    data : dataset folder; default: see :func:`pipelines.nordland.data.candidate_roots`.
     k : active bits of the 2048-bit SDRs.
     threshold : minicolumn threshold of both rSHOSM methods (default: the method defaults).
 
@@ -118,7 +116,7 @@ def run_benchmark(subset: str, out, data=None, k: int = 40, threshold: float | N
     t_enc = time.perf_counter() - t_enc
     specs = {label: (m, dict(c)) for label, (m, c) in METHOD_SPECS.items()}
     if threshold is not None:
-        for label, (m, c) in specs.items():
+        for m, c in specs.values():
             if m.startswith("rshosm"):
                 c["threshold"] = float(threshold)
     metrics, curves = run_methods(db_desc, q_desc, db_sdr, q_sdr, specs, progress)

@@ -2,17 +2,23 @@
 from __future__ import annotations
 
 import hashlib
+import os
 from pathlib import Path
 
 import numpy as np
 
 from vpr import io as _io
 
-__all__ = ["DEFAULT_DATA", "SUBSETS", "DatasetError", "find_dataset", "frame_names", "load_images",
+__all__ = ["DATASETS_ENV", "DEFAULT_DATA", "SUBSETS", "DatasetError", "find_dataset", "frame_names", "load_images",
            "pixel_descriptors"]
 
-#: Where the dataset is looked for when ``--data`` is not given (relative to the repository).
-DEFAULT_DATA = Path(__file__).resolve().parents[3] / "shared" / "datasets" / "nordland_trimmed"
+#: Environment variable naming the folder that holds ``nordland_trimmed/``.
+DATASETS_ENV = "VPR_DATASETS"
+#: Dataset folder name inside ``$VPR_DATASETS``.
+DATASET_NAME = "nordland_trimmed"
+_CHECKOUT = Path(__file__).resolve().parents[2]
+#: Last fallback, only when running from a source checkout: ``../shared/datasets`` next to the repository.
+DEFAULT_DATA = _CHECKOUT.parent / "shared" / "datasets" / DATASET_NAME
 #: Subset name -> step through the sorted file list (every 10th file: OpenSeqSLAM's demo subset).
 SUBSETS = {"358": 10, "full": 1}
 SEASONS = ("summer", "winter")
@@ -22,20 +28,38 @@ class DatasetError(ValueError):
     """The dataset folder is missing or inconsistent."""
 
 
+def candidate_roots(data=None) -> list[Path]:
+    """Where the dataset is looked for, in order: ``data``; else ``$VPR_DATASETS/nordland_trimmed``, then
+    (source checkout only) :data:`DEFAULT_DATA`."""
+    if data is not None:
+        return [Path(data)]
+    roots = []
+    env = os.environ.get(DATASETS_ENV)
+    if env:
+        roots.append(Path(env) / DATASET_NAME)
+    if (_CHECKOUT / "pyproject.toml").is_file():
+        roots.append(DEFAULT_DATA)
+    return roots
+
+
 def find_dataset(data=None) -> Path:
-    """The dataset root (a folder with ``summer/`` and ``winter/``), checked.
+    """The dataset root (a folder with ``summer/`` and ``winter/``), checked; see :func:`candidate_roots`.
 
     Raises
     ------
     DatasetError
-        The folder or a season sub-folder is missing; the message says where it looked.
+        No candidate holds both seasons; the message says where it looked.
     """
-    root = Path(data) if data is not None else DEFAULT_DATA
-    missing = [s for s in SEASONS if not (root / s).is_dir()]
-    if missing:
-        raise DatasetError(f"Nordland dataset not found: looked for {', '.join(str(root / s) for s in missing)} "
-                           f"(pass --data PATH to the folder holding summer/ and winter/)")
-    return root
+    roots = candidate_roots(data)
+    for root in roots:
+        if all((root / s).is_dir() for s in SEASONS):
+            return root
+    looked = "; ".join(f"{', '.join(str(r / s) for s in SEASONS)}" for r in roots) or "nowhere"
+    hint = ""
+    if data is None:
+        hint = f" (${DATASETS_ENV} is {'set' if os.environ.get(DATASETS_ENV) else 'unset'})"
+    raise DatasetError(f"Nordland dataset not found: looked for {looked}{hint} (pass --data PATH to the folder "
+                       f"holding summer/ and winter/, or set {DATASETS_ENV} to the folder holding {DATASET_NAME}/)")
 
 
 def frame_names(root: Path, subset: str) -> list[str]:

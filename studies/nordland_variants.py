@@ -1,4 +1,7 @@
-"""The rSHOSM variant study of ``docs/experiments.md``: ``python -m pipelines.nordland --grid``.
+"""Study: the rSHOSM variants of ``docs/experiments.md`` on Nordland.
+
+Run ``python -m studies.nordland_variants --subset 358 --out DIR [--data PATH]``
+(the dataset as for ``vpr nordland``: ``--data`` or ``$VPR_DATASETS``).
 
 Each row changes one thing against the row it names, on the same frames and
 ground truth as the benchmark, and is reproducible from this module alone.
@@ -15,7 +18,7 @@ Rows:
   default changed at a time (minicolumn threshold while learning the database,
   rSHOSM's random connections, decay, standardisation);
 - several feed-forward segments per minicolumn, taught on the query traverse by
-  the sequence prediction (:mod:`pipelines.nordland.segments`, pure Python,
+  the sequence prediction (:mod:`studies.ff_segments`, pure Python,
   358-frame subset only): teacher off (= the paper's rSHOSM), when no (or few)
   minicolumns are active, only from confirmed predictions, with a cap; read
   online, or in a second pass after teaching on the query itself (transductive)
@@ -24,49 +27,50 @@ Rows:
 """
 from __future__ import annotations
 
+import argparse
+import sys
 import time
+from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
 
+from pipelines.nordland.benchmark import encode_sdrs
+from pipelines.nordland.data import DatasetError, find_dataset, frame_names, pixel_descriptors
+from studies.ff_segments import segment_codes
+from tests.reference import activate_cells
 from vpr import evaluate as E
 from vpr import io as _io
 from vpr.memory import SequenceMemory, pad_codes
 from vpr.methods import Features, match
 from vpr.similarity import overlap
 
-from .benchmark import encode_sdrs
-from .data import find_dataset, frame_names, pixel_descriptors
-from .segments import segment_codes
-
-__all__ = ["binary_topk_query", "grid_rows", "run_grid"]
+__all__ = ["binary_topk_query", "grid_rows", "run_grid", "main"]
 
 
-def binary_topk_query(mem: SequenceMemory, q_sdr, k_active: int = 30, window: int = 0, bias: float = 0.0,
-                      seed: int = 0) -> sp.csr_matrix:
+def binary_topk_query(mem: SequenceMemory, q_sdr, k_active: int = 30, window: int = 0,
+                      bias: float = 0.0) -> sp.csr_matrix:
     """Query winner codes (learning off) with top-k minicolumn selection; a variant, not the paper's.
 
     Every query frame activates the ``k_active`` minicolumns with the highest
     score: the fraction of the minicolumn's connections that are on, z-scored
     against minicolumns ``c - window//2 .. c + window//2`` when ``window > 0``,
     plus ``bias`` if the minicolumn holds a predicted cell. Winners and
-    predictions then follow Algorithm 1 lines 5-11 (no learning).
+    predictions then follow Algorithm 1 lines 5-11 as the test oracle writes
+    them (:func:`tests.reference.activate_cells`, no learning, no random draws).
     """
-    rng = np.random.default_rng(seed)
-    cpc, nc = mem.cells_per_column, mem.n_columns
-    rows = np.arange(mem._bit_cols.shape[1])[None, :] < mem._bit_len[:, None]
-    C = sp.csr_matrix((np.ones(int(rows.sum()), np.float32),
-                       (mem._bit_cols[rows], np.repeat(np.arange(mem.n_inputs), mem._bit_len))),
-                      shape=(nc, mem.n_inputs))
-    size = np.maximum(np.asarray(C.sum(axis=1)).ravel(), 1)
-    ne = mem.n_connections
-    A = sp.csr_matrix((np.ones(ne, bool), (mem._e_src[:ne], mem._e_dst[:ne])), shape=(nc * cpc, nc * cpc))
-    outdeg = np.diff(A.indptr)
+    con = mem.connections
+    cpc, nc = con.cells_per_column, con.n_columns
+    C = con.feedforward.astype(np.float32)
+    size = np.maximum(con.column_sizes(), 1)
+    lat = con.lateral
+    forward = defaultdict(set, {s: set(lat.indices[lat.indptr[s]:lat.indptr[s + 1]].tolist())
+                                for s in np.flatnonzero(np.diff(lat.indptr)).tolist()})
     h = window // 2
     i = np.arange(nc)
     lo, hi = np.maximum(i - h, 0), np.minimum(i + h + 1, nc)
-    pred = np.zeros(nc * cpc, bool)
+    predicted: set[int] = set()
     codes = []
     for t in range(q_sdr.shape[0]):
         x = (C @ q_sdr[t].T.astype(np.float32)).toarray().ravel() / size
@@ -74,20 +78,11 @@ def binary_topk_query(mem: SequenceMemory, q_sdr, k_active: int = 30, window: in
             cs, cs2 = np.r_[0, np.cumsum(x)], np.r_[0, np.cumsum(x * x)]
             m = (cs[hi] - cs[lo]) / (hi - lo)
             x = (x - m) / np.sqrt(np.maximum((cs2[hi] - cs2[lo]) / (hi - lo) - m * m, 1e-12))
-        score = x + bias * pred.reshape(nc, cpc).any(axis=1)
-        win, nxt = [], np.zeros_like(pred)
-        for c in np.argsort(-score, kind="stable")[:k_active]:
-            cells = np.arange(c * cpc, (c + 1) * cpc)
-            p = cells[pred[cells]]
-            if p.size:
-                win.extend(p.tolist())
-                src = p
-            else:  # burst: fewest forward connections wins, ties at random
-                win.append(int(cells[np.argmin(outdeg[cells] + 0.5 * rng.random(cpc))]))
-                src = cells
-            for s in src:
-                nxt[A.indices[A.indptr[s]:A.indptr[s + 1]]] = True
-        pred = nxt
+        has_pred = np.zeros(nc, bool)
+        has_pred[[c // cpc for c in predicted]] = True
+        score = x + bias * has_pred
+        active = np.argsort(-score, kind="stable")[:k_active].tolist()
+        win, predicted, _ = activate_cells(active, predicted, forward, cpc, None, learn=False)
         codes.append(sorted(set(win)))
     ptr = np.cumsum([0] + [len(w) for w in codes])
     idx = np.concatenate([np.asarray(w, np.int64) for w in codes]) if ptr[-1] else np.zeros(0, np.int64)
@@ -131,7 +126,7 @@ def grid_rows(subset: str) -> list[tuple]:
 
 
 def segment_rows() -> list[tuple]:
-    """Rows of the feed-forward segment study (:func:`pipelines.nordland.segments.segment_codes`), k = 200.
+    """Rows of the feed-forward segment study (:func:`studies.ff_segments.segment_codes`), k = 200.
 
     ``teach_on``: ``"query"`` teaches on the query traverse itself (online, or
     transductive for a second pass); ``"shifted"`` on the winter frames halfway
@@ -238,3 +233,22 @@ def run_grid(subset: str, out, data=None, progress: bool = True) -> str:
     with _io.atomic_open(out / "grid.md", "w", encoding="utf-8") as fh:
         fh.write(table)
     return table
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m studies.nordland_variants", description=__doc__.splitlines()[0])
+    ap.add_argument("--subset", choices=["358", "full"], default="358")
+    ap.add_argument("--out", required=True, help="output folder (grid.json, grid.md, cache/)")
+    ap.add_argument("--data", default=None, help="folder holding summer/ and winter/ (default: as vpr nordland)")
+    ap.add_argument("--no-progress", action="store_true")
+    a = ap.parse_args(argv)
+    try:
+        print(run_grid(a.subset, a.out, data=a.data, progress=not a.no_progress), end="")
+    except (DatasetError, ValueError) as e:
+        print(f"{ap.prog}: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,10 +1,13 @@
-"""Several feed-forward segments per minicolumn, taught by the sequence prediction (a prototype).
+"""Study: several feed-forward segments per minicolumn, taught by the sequence prediction (a prototype).
+
+Negative result (``docs/experiments.md``, "Feed-forward segments taught by the
+prediction"); run on Nordland by ``python -m studies.nordland_variants``.
 
 The paper (section 4.2, item 5) suggests, without implementing it, that a
 minicolumn could own several feed-forward segments, one per appearance of a
 place, so that the context learned for a place (its lateral connections) is
 shared by all its appearances. :class:`SegmentedMemory` is Algorithm 1 written
-out as literally as :class:`vpr.reference.ReferenceMemory` (same random draws
+out as literally as :class:`tests.reference.ReferenceMemory` (the test oracle) (same random draws
 in the same order), except that
 
 * a minicolumn owns a list of feed-forward segments (sets of input bits, each
@@ -34,7 +37,7 @@ from collections import defaultdict
 import numpy as np
 import scipy.sparse as sp
 
-from vpr.reference import learn_lateral
+from tests.reference import activate_cells, learn_lateral
 
 __all__ = ["SegmentedMemory", "segment_codes", "teach_from_labels", "teacher_precision"]
 
@@ -94,7 +97,7 @@ class SegmentedMemory:
         self.predicted, self.confirmed, self.prev_winners = set(), set(), []
 
     # ------------------------------------------------------------ feed-forward
-    def _sample_segment(self, bits: list[int]) -> tuple[set[int], int]:
+    def sample_segment(self, bits: list[int]) -> tuple[set[int], int]:
         """A segment on ``connectivity`` of the 1-bits, drawn exactly as ReferenceMemory draws a minicolumn."""
         n_conn = max(1, int(np.round(self.connectivity * len(bits))))
         thr = int(np.ceil(self.threshold * n_conn - 1e-9))
@@ -121,7 +124,7 @@ class SegmentedMemory:
         """Alg. 1 lines 2-4: ``new_columns`` minicolumns, one segment each."""
         new = []
         for _ in range(self.new_columns):
-            self.segments.append([self._sample_segment(bits)])
+            self.segments.append([self.sample_segment(bits)])
             new.append(len(self.segments) - 1)
         return new
 
@@ -132,31 +135,16 @@ class SegmentedMemory:
         cap = self.max_segments
         taught = [m for m in predicted_cols if cap is None or len(self.segments[m]) < cap]
         for m in taught:
-            self.segments[m].append(self._sample_segment(bits))
+            self.segments[m].append(self.sample_segment(bits))
         if taught:
             self.taught_log.append((self._teach_steps, taught))
         return taught
 
     # ----------------------------------------------------------------- lateral
-    def _winners(self, active: list[int]) -> tuple[list[int], set[int], set[int]]:
-        """Alg. 1 lines 5-11: winner cells, cells predicted for the next step, and those of them
-        predicted by predicted winners (the ``confirmed`` ones)."""
-        cpc = self.cpc
-        winners, next_predicted, next_confirmed = [], set(), set()
-        for m in sorted(active):
-            cells = range(m * cpc, (m + 1) * cpc)
-            predicted = [c for c in cells if c in self.predicted]
-            if predicted:
-                for c in predicted:
-                    next_predicted |= self.forward[c]
-                    next_confirmed |= self.forward[c]
-                winners += predicted
-            else:  # burst: all cells predict, the cell with the fewest forward connections wins
-                for c in cells:
-                    next_predicted |= self.forward[c]
-                keys = [len(self.forward[c]) + 0.5 * self.rng.random() for c in cells]
-                winners.append(cells[int(np.argmin(keys))])
-        return winners, next_predicted, next_confirmed
+    def _winners(self, active: list[int], learn: bool) -> tuple[list[int], set[int], set[int]]:
+        """Alg. 1 lines 5-11 (the oracle's): winner cells, cells predicted for the next step, and those
+        of them predicted by predicted winners (the ``confirmed`` ones)."""
+        return activate_cells(active, self.predicted, self.forward, self.cpc, self.rng, learn)
 
     def _learn_lateral(self, winners: list[int]) -> None:
         """Alg. 1 lines 12-13 with rSHOSM's random extra connections (as ReferenceMemory)."""
@@ -185,7 +173,7 @@ class SegmentedMemory:
         if not active:
             self.reset()
             return []
-        winners, self.predicted, self.confirmed = self._winners(active)
+        winners, self.predicted, self.confirmed = self._winners(active, learn)
         if learn:
             self._learn_lateral(winners)
         self.prev_winners = winners
@@ -233,7 +221,7 @@ def teach_from_labels(mem: SegmentedMemory, teach_sdr, db_codes: sp.csr_matrix) 
         cap = mem.max_segments
         taught = [m for m in columns if cap is None or len(mem.segments[m]) < cap]
         for m in taught:
-            mem.segments[m].append(mem._sample_segment(bits))
+            mem.segments[m].append(mem.sample_segment(bits))
         if taught and bits:
             mem.taught_log.append((t, taught))
 

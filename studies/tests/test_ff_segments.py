@@ -1,11 +1,11 @@
-"""Feed-forward segments taught by the prediction (pipelines/nordland/segments.py); no dataset needed."""
+"""Feed-forward segments taught by the prediction (studies/ff_segments.py); no dataset needed."""
 import numpy as np
 import pytest
 
-from pipelines.nordland.segments import SegmentedMemory, segment_codes, teach_from_labels, teacher_precision
+from studies.ff_segments import SegmentedMemory, segment_codes, teach_from_labels, teacher_precision
+from tests.reference import ReferenceMemory
 from vpr import sdr, simulate
 from vpr.memory import SequenceMemory
-from vpr.reference import ReferenceMemory
 
 N_PLACES = 6
 

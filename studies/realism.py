@@ -1,4 +1,4 @@
-"""Realism check of the procedural renders: how hard is pairwise place recognition on them?
+"""Study: realism of the procedural renders: how hard is pairwise place recognition on them?
 
 For every ordered pair of traverses of a scene (default ``two_seasons``), and
 for each traverse against a re-render of itself with the same conditions but
@@ -9,7 +9,7 @@ cosine similarity. The table gives recall@1, recall@5, the area under the
 precision-recall curve (best match per query) and the recall@1 of random
 guessing.
 
-Run ``python -m pipelines.realism [--spec two_seasons] [--size 320x240]``.
+Run ``python -m studies.realism [--spec two_seasons] [--size 320x240]`` (log: ``docs/benchmarks.md``).
 The renders are good test data when cross-condition recall@1 lies in
 0.2 .. 0.8 (hard but not hopeless) and same-condition recall@1 is > 0.9.
 """
@@ -116,7 +116,7 @@ def _size(text):
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m pipelines.realism", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m studies.realism", description=__doc__.split("\n\n")[0])
     ap.add_argument("--spec", default="two_seasons", help="scene spec file or builtin name (default two_seasons)")
     ap.add_argument("--size", type=_size, default=None, metavar="WxH", help="render size (default: the spec's)")
     ap.add_argument("--frames", type=int, default=None, help="frames per traverse (default: the spec's)")
