@@ -31,9 +31,10 @@ import numpy as np
 import scipy.sparse as sp
 
 import encoders
+from vpr import evaluate, methods, render
 from vpr import io as _io
-from vpr import render
 from vpr.evaluate import recall_at_k
+from vpr.methods import EncodedTraverse
 
 __all__ = ["COMMANDS", "EncoderTest", "add_arguments", "run_command", "list_encoders", "format_list",
            "test_encoder", "format_table"]
@@ -65,28 +66,19 @@ class EncoderTest:
         self.size = (int(self.size[0]), int(self.size[1]))
 
 
-# ---------------------------------------------------------------- the seams the lead swaps at merge
 def similarity(method: str, db_sdr: sp.csr_matrix, q_sdr: sp.csr_matrix):
-    """db x query similarity of ``method`` (the one call into the method API)."""
-    from vpr.methods import Features, match
-
+    """db x query similarity of ``method`` on two SDR traverses."""
     names = list(range(max(db_sdr.shape[0], q_sdr.shape[0])))
-    return match(method, Features(names[: db_sdr.shape[0]], sdr=db_sdr),
-                 Features(names[: q_sdr.shape[0]], sdr=q_sdr)).similarity
+    return methods.get(method).match(EncodedTraverse(names[: db_sdr.shape[0]], sdr=db_sdr),
+                                     EncodedTraverse(names[: q_sdr.shape[0]], sdr=q_sdr)).similarity
 
 
 def average_precision(S, gt_hard, gt_soft=None, mask=None) -> float:
-    """Non-interpolated AP over the evaluated pairs (soft-only pairs and pairs outside ``mask`` left out)."""
-    from sklearn.metrics import average_precision_score  # slow import, only needed here
-
-    S = S.toarray() if sp.issparse(S) else np.asarray(S)
-    keep = np.ones(S.shape, bool) if mask is None else np.asarray(mask, bool).copy()
-    if gt_soft is not None:
-        keep &= ~(np.asarray(gt_soft, bool) & ~gt_hard)
-    y = np.asarray(gt_hard, bool)[keep]
-    if not y.any():
+    """AP over the evaluated pairs, NaN when no evaluated pair is a true match."""
+    hard = gt_hard.toarray() if sp.issparse(gt_hard) else np.asarray(gt_hard, bool)
+    if not (hard if mask is None else hard & np.asarray(mask, bool)).any():
         return float("nan")
-    return float(average_precision_score(y, S[keep]))
+    return evaluate.average_precision(S, gt_hard, gt_soft, mask=mask)
 
 
 # ------------------------------------------------------------------------------------- list

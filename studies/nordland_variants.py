@@ -43,8 +43,8 @@ from tests.reference import activate_cells
 from vpr import evaluate as E
 from vpr import io as _io
 from vpr.memory import SequenceMemory, pad_codes
-from vpr.methods import Features, match
-from vpr.similarity import overlap
+from vpr.methods import EncodedTraverse, match
+from vpr.similarity import overlap_similarity
 
 __all__ = ["binary_topk_query", "grid_rows", "run_grid", "main"]
 
@@ -100,7 +100,7 @@ def grid_rows(subset: str) -> list[tuple]:
         for k_act, window, bias in ((10, 0, 0.0), (30, 0, 0.0), (30, 100, 0.0), (30, 100, 3.0), (10, 100, 3.0)):
             rows.append((f"rSHOSM binary, top-{k_act} query minicolumns, window={window}, bias={bias}, k=200",
                          "topk", 200, "fit", {"k_active": k_act, "window": window, "bias": bias}))
-    base = {"stay": -1.0, "skip": -1.0, "direction": "forward", "normalise": "none"}
+    base = {"stay": None, "skip": None, "direction": "forward", "normalise": "none"}
     steps = [
         ("graded evidence, forward only", {}),
         ("+ both directions", {"direction": "both"}),
@@ -159,7 +159,7 @@ def _segment_similarity(a, b, conf, teach_sdrs):
     conf = dict(conf)
     teach_sdr = teach_sdrs() if conf.pop("teach_on", "query") == "shifted" else None
     db_codes, q_codes, stats = segment_codes(a, b, teach_sdr=teach_sdr, **conf)
-    return overlap(db_codes, q_codes), stats
+    return overlap_similarity(db_codes, q_codes), stats
 
 
 def _fmt(stats: dict) -> str:
@@ -204,12 +204,12 @@ def run_grid(subset: str, out, data=None, progress: bool = True) -> str:
             mem = SequenceMemory(seed=0)
             db_codes = mem.run(a)
             mem.reset()
-            S = overlap(*pad_codes(db_codes, binary_topk_query(mem, b, **conf)))
+            S = overlap_similarity(*pad_codes(db_codes, binary_topk_query(mem, b, **conf)))
         elif kind == "segments":
             S, extra = _segment_similarity(a, b, conf, teach_sdrs)
         else:
             method = "pairwise" if kind == "pairwise" else kind
-            S = match(method, Features(names, sdr=a), Features(names, sdr=b), conf).similarity
+            S = match(method, EncodedTraverse(names, sdr=a), EncodedTraverse(names, sdr=b), conf).similarity
         cpu = time.process_time() - c0
         m = E.evaluate(S, gh, gs)
         results.append({"variant": label, "method": kind, "k": k, "standardise": st, "conf": conf,

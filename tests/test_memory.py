@@ -113,9 +113,9 @@ def test_database_then_query_recognises_the_route():
     m.reset()
     qc = m.run(q, learn=False)
     dbc, qc = pad_codes(dbc, qc)
-    from vpr.similarity import overlap
+    from vpr.similarity import overlap_similarity
 
-    S = overlap(dbc, qc)
+    S = overlap_similarity(dbc, qc)
     assert np.mean(S.argmax(axis=0) == traj) > 0.95
 
 

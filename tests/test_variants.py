@@ -5,9 +5,8 @@ import scipy.sparse as sp
 
 from vpr import evaluate, methods, sdr
 from vpr.memory import SequenceMemory
-from vpr.methods import EncodedTraverse as Features
-from vpr.methods import loops, match
-from vpr.similarity import overlap
+from vpr.methods import EncodedTraverse, loops, match
+from vpr.similarity import overlap_similarity
 
 
 def _literal_evidence(mem, q, db_codes, decay, stay, skip, direction):
@@ -118,9 +117,13 @@ def test_rshosm_seq_beats_pairwise_and_paper_memory_under_aliasing_and_noise():
     # the benchmark's tolerances: |i - j| <= 1 true, <= 3 ignored
     gh, gs = evaluate.gt_from_tolerance(n, n, 1), evaluate.gt_from_tolerance(n, n, 3)
     names = list(range(n))
-    run = lambda m: evaluate.evaluate(match(m, Features(names, sdr=db), Features(names, sdr=q)).similarity, gh, gs)  # noqa: E731
+    a, b = EncodedTraverse(names, sdr=db), EncodedTraverse(names, sdr=q)
+
+    def run(method):
+        return evaluate.evaluate(match(method, a, b).similarity, gh, gs)
+
     seq, paper = run("rshosm-seq"), run("rshosm")
-    pw = evaluate.evaluate(overlap(db, q), gh, gs)
+    pw = evaluate.evaluate(overlap_similarity(db, q), gh, gs)
     assert seq["recall_at_1"] > 0.95 and seq["auc_pr"] > 0.95
     assert seq["auc_pr"] > pw["auc_pr"] + 0.3
     assert seq["auc_pr"] > paper["auc_pr"] + 0.2
@@ -140,23 +143,23 @@ def test_method_registry_and_defaults():
 def test_rshosm_seq_normalise_and_disabled_transitions():
     db, q = _aliased_traverses(n=40)
     names = list(range(40))
-    r = match("rshosm-seq", Features(names, sdr=db), Features(names, sdr=q))
+    r = match("rshosm-seq", EncodedTraverse(names, sdr=db), EncodedTraverse(names, sdr=q))
     S = r.similarity
     np.testing.assert_allclose(S.mean(axis=0), 0, atol=1e-4)
     np.testing.assert_allclose(S.std(axis=0), 1, atol=1e-3)
-    raw = match("rshosm-seq", Features(names, sdr=db), Features(names, sdr=q),
+    raw = match("rshosm-seq", EncodedTraverse(names, sdr=db), EncodedTraverse(names, sdr=q),
                 {"normalise": "none", "stay": None, "skip": "none"}).similarity
     mem = SequenceMemory(threshold=0.75, seed=0)
     codes = mem.run(db)
     np.testing.assert_allclose(raw, mem.evidence(q, codes, stay=None, skip=None), rtol=1e-6)
     with pytest.raises(ValueError, match="normalise"):
-        match("rshosm-seq", Features(names, sdr=db), Features(names, sdr=q), {"normalise": "global"})
+        match("rshosm-seq", EncodedTraverse(names, sdr=db), EncodedTraverse(names, sdr=q), {"normalise": "global"})
     # a negative cost is an error, not a second way of saying "disabled"
     with pytest.raises(ValueError, match="stay must be >= 0 or None"):
-        match("rshosm-seq", Features(names, sdr=db), Features(names, sdr=q), {"stay": -1})
+        match("rshosm-seq", EncodedTraverse(names, sdr=db), EncodedTraverse(names, sdr=q), {"stay": -1})
 
 
 def test_rshosm_seq_refuses_loop_closure():
     obs = sdr.random_sdrs(10, 2048, 40, seed=5)
     with pytest.raises(ValueError, match="loop closure"):
-        loops("rshosm-seq", Features(list(range(10)), sdr=obs), exclude=2)
+        loops("rshosm-seq", EncodedTraverse(list(range(10)), sdr=obs), exclude=2)

@@ -14,7 +14,8 @@ from pathlib import Path
 
 from vpr import evaluate as E
 from vpr import io as _io
-from vpr.methods import Features, match, merge_conf
+from vpr import methods
+from vpr.methods import EncodedTraverse, match
 
 from .data import SUBSETS, find_dataset, frame_names, pixel_descriptors
 
@@ -57,11 +58,11 @@ def run_methods(db_desc, q_desc, db_sdr, q_sdr, specs: dict, progress: bool = Fa
     """
     n_db, n_q = len(db_desc), len(q_desc)
     names = [str(i) for i in range(max(n_db, n_q))]
-    db = Features(names[:n_db], sdr=db_sdr, desc=db_desc, pixels=db_desc)
-    q = Features(names[:n_q], sdr=q_sdr, desc=q_desc, pixels=q_desc)
+    db = EncodedTraverse(names[:n_db], sdr=db_sdr, desc=db_desc, pixels=db_desc)
+    q = EncodedTraverse(names[:n_q], sdr=q_sdr, desc=q_desc, pixels=q_desc)
     gh, gs = E.gt_from_tolerance(n_db, n_q, 1), E.gt_from_tolerance(n_db, n_q, 3)
     for method, conf in specs.values():
-        merge_conf(method, conf)  # bad conf fails before any work
+        methods.get(method, **conf)  # bad conf fails before any work
     metrics, curves = {}, {}
     for label, (method, conf) in specs.items():
         t0, c0 = time.perf_counter(), time.process_time()
@@ -131,7 +132,7 @@ def run_benchmark(subset: str, out, data=None, k: int = 40, threshold: float | N
         "ground_truth": {"hard": "|i - j| <= 1", "soft": "|i - j| <= 3"},
         "sdr": {"encoder": "projection", "descriptor": "pixel", "n_bits": 2048, "k": k, "standardise": "fit",
                 "fitted_on": "each traverse itself", "seconds": t_enc},
-        "methods": {label: {"method": m, "conf": merge_conf(m, c), **metrics[label]}
+        "methods": {label: {"method": m, "conf": methods.get(m, **c).conf, **metrics[label]}
                     for label, (m, c) in specs.items()},
         "peak_rss_mb": peak_rss_mb(),
         "total_seconds": time.perf_counter() - t0,
