@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import copy
 import json
 import os
 import time
@@ -77,7 +78,8 @@ def _chunk_task(source: Source, encoder_name: str, conf_json: str, start: int, s
     key = (encoder_name, conf_json)
     if key not in _WORKER_ENCODERS:
         _WORKER_ENCODERS[key] = encoders.get(encoder_name, **json.loads(conf_json))
-    return encode_chunk(source, _WORKER_ENCODERS[key], start, stop, parts, batch_size=batch_size)
+    # a copy: a worker with several threads shares the scattered source, whose ``skipped`` a range resets
+    return encode_chunk(copy.copy(source), _WORKER_ENCODERS[key], start, stop, parts, batch_size=batch_size)
 
 
 @contextlib.contextmanager

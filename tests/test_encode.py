@@ -110,6 +110,9 @@ def test_serial_encode_is_the_cache_extract_reads_and_writes(data, tmp_path):
         extract(src, encoders.get("pixel", **CONF), need_sdr=True, need_desc=True, need_pixels=True,
                 cache_dir=own, chunk_frames=7, progress=False)
         assert (own / res.path.name).read_bytes() == res.path.read_bytes()
+    # verification needs thumbnails: read from the frames, the rest from the cache
+    thumbs = extract(srcs[0], encoders.get("pixel", **CONF), cache_dir=cache, thumbs=True, progress=False)
+    assert thumbs.cached and len(thumbs.thumbs) == N_FRAMES - 1 and thumbs.thumbs[0].shape == (48, 64)
     again = encode_sources(srcs, cache, "pixel", CONF, workers=0, progress=False)
     assert all(r.cached for r in again)
 

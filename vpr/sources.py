@@ -13,7 +13,8 @@ folder listing, the line order of a list file, or the video frame number.
 Ground-truth files with integer frame columns use the same numbering (see
 :mod:`vpr.groundtruth`), so subsampling a traverse does not shift its ground
 truth. ``Source.indices()`` gives the numbers of the frames that will be
-attempted, parallel to ``Source.names()``.
+attempted, parallel to ``Source.names()``; ``Source.iter_range(start, stop)``
+reads only the frames at those positions (the unit of parallel encoding).
 """
 from __future__ import annotations
 
