@@ -27,7 +27,8 @@ from pathlib import Path
 __all__ = ["MODULES", "commands", "build_parser", "main"]
 
 #: The pipeline modules providing sub-commands, in the order ``vpr --help`` lists them.
-MODULES = ("pipelines.demo", "pipelines.match", "pipelines.render", "pipelines.encoders_cmd", "pipelines.paper_fig3",
+MODULES = ("pipelines.demo", "pipelines.match", "pipelines.render", "pipelines.encoders_cmd", "pipelines.encode",
+           "pipelines.paper_fig3",
            "pipelines.nordland")
 
 

@@ -62,6 +62,7 @@ class RunOptions:
     verify: int = 0
     min_inliers: int = 15
     progress: bool = True
+    cache: Path | None = None
 
 
 # ------------------------------------------------------------------ arguments
@@ -117,6 +118,8 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     ap.add_argument("--verify", type=int, default=0, metavar="N",
                     help="geometric verification of each query's N best candidates (ORB + pycolmap)")
     ap.add_argument("--min-inliers", type=int, default=15, help="inliers needed to accept a verified match")
+    ap.add_argument("--cache", metavar="DIR", help="encoding cache folder, e.g. one filled by `vpr encode` "
+                    "(default: OUT/cache)")
     ap.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
@@ -128,7 +131,7 @@ def options_from_args(args) -> RunOptions:
         gt=GroundTruthSpec(tolerance=getattr(args, "tolerance", None), files=tuple(args.gt or ()),
                            radius=args.radius, soft=args.gt_soft),
         verify=getattr(args, "verify", 0), min_inliers=getattr(args, "min_inliers", 15),
-        progress=not args.no_progress)
+        progress=not args.no_progress, cache=Path(args.cache) if args.cache else None)
 
 
 def run_command(args) -> int:
@@ -211,7 +214,7 @@ def _extract_all(paths, runners: dict, opts: RunOptions):
     encoder = encoders.get(opts.encoder, **opts.encoder_conf)
     needed = set().union(*(r.inputs() for r in runners.values()))
     exs = [extract(s, encoder, need_sdr="sdr" in needed, need_desc="desc" in needed,
-                   need_pixels="pixels" in needed, thumbs=opts.verify > 0, cache_dir=Path(opts.out) / "cache",
+                   need_pixels="pixels" in needed, thumbs=opts.verify > 0, cache_dir=opts.cache or Path(opts.out) / "cache",
                    progress=opts.progress) for s in srcs]
     return srcs, encoder, exs
 

@@ -13,7 +13,8 @@ folder listing, the line order of a list file, or the video frame number.
 Ground-truth files with integer frame columns use the same numbering (see
 :mod:`vpr.groundtruth`), so subsampling a traverse does not shift its ground
 truth. ``Source.indices()`` gives the numbers of the frames that will be
-attempted, parallel to ``Source.names()``.
+attempted, parallel to ``Source.names()``; ``Source.iter_range(start, stop)``
+reads only the frames at those positions (the unit of parallel encoding).
 """
 from __future__ import annotations
 
@@ -23,8 +24,9 @@ import math
 import os
 import re
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator, NamedTuple
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -90,6 +92,15 @@ def natural_key(name: str) -> tuple:
     key = tuple((0, int(p), "") if i % 2 else (1, 0, p.casefold()) for i, p in enumerate(parts))
     # the raw name breaks ties such as "a01" vs "a1" deterministically
     return key + ((2, 0, name),)
+
+
+def _check_range(start, stop) -> tuple[int, int]:
+    for v, what in ((start, "start"), (stop, "stop")):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+            raise ValueError(f"frame range {what} must be a non-negative integer, got {v!r}")
+    if stop < start:
+        raise ValueError(f"frame range stop ({stop}) is before start ({start})")
+    return int(start), int(stop)
 
 
 def _check_positive_int(value, what: str) -> int | None:
@@ -173,6 +184,15 @@ class Source:
     def __iter__(self) -> Iterator[Frame]:
         raise NotImplementedError
 
+    def iter_range(self, start: int, stop: int) -> Iterator[Frame]:
+        """Frames at positions ``start:stop`` of :meth:`names` (as a slice; unreadable ones skipped).
+
+        The unit of parallel encoding: a worker reads only its range (a video
+        seeks to it). Unlike iteration, an empty result does not raise;
+        ``skipped`` holds the range's skipped frames.
+        """
+        raise NotImplementedError
+
     def _skip(self, name: str, reason: str) -> None:
         self.skipped.append((name, reason))
         warnings.warn(f"{self.path}: skipped frame {name}: {reason}", FrameSkippedWarning, stacklevel=3)
@@ -230,6 +250,16 @@ class _FileListSource(Source):
             yield Frame(index, name, img)
         if n_yielded == 0:
             raise self._no_frames_error()
+
+    def iter_range(self, start: int, stop: int) -> Iterator[Frame]:
+        start, stop = _check_range(start, stop)
+        self.skipped = []
+        for index, name, p in self._selected()[start:stop]:
+            img, reason = _decode_image(p)
+            if img is None:
+                self._skip(name, reason)
+                continue
+            yield Frame(index, name, img)
 
 
 class FolderSource(_FileListSource):
@@ -493,6 +523,45 @@ class VideoSource(Source):
             cap.release()
         if n_yielded == 0:
             raise self._no_frames_error()
+
+    def iter_range(self, start: int, stop: int) -> Iterator[Frame]:
+        start, stop = _check_range(start, stop)
+        self.skipped = []
+        wanted = self.indices()[start:stop]
+        if not wanted:
+            return
+        cap = self._open()
+        try:
+            pos = 0  # number of the frame the next grab() returns
+            if wanted[0] > 0:
+                cap.set(cv2.CAP_PROP_POS_FRAMES, wanted[0])
+                if cap.get(cv2.CAP_PROP_POS_FRAMES) == wanted[0]:
+                    pos = wanted[0]
+                else:
+                    # the backend could not seek exactly: decode from the start rather than misnumber frames
+                    cap.release()
+                    cap = self._open()
+            for target in wanted:
+                while pos < target:
+                    if not cap.grab():
+                        break
+                    pos += 1
+                if pos < target or not cap.grab():
+                    self._end_of_stream(target)
+                    break
+                pos += 1
+                ok, img = cap.retrieve()
+                if not ok or img is None:
+                    self._skip(self.frame_name(target), "frame could not be decoded; range ended")
+                    break
+                try:
+                    img = to_bgr(img, f"{self.path} frame {target}")
+                except ValueError as exc:
+                    self._skip(self.frame_name(target), f"{exc}; range ended")
+                    break
+                yield Frame(target, self.frame_name(target), img)
+        finally:
+            cap.release()
 
     def _end_of_stream(self, target: int) -> None:
         expected = self._reported_count

@@ -1,0 +1,286 @@
+"""``vpr encode SOURCE... --cache DIR``: encode traverses ahead of time, on a Dask cluster.
+
+Each source (image folder, video or image list) is split into frame ranges of
+``chunk_frames`` frames; workers read and describe their ranges themselves (a
+video seeks to its range), so one long video spreads over the cluster too. The
+client joins the ranges of a source in frame order, fits the encoder on the
+whole traverse where its conf asks (``standardise="fit"``), sparsifies and
+writes one cache file per source atomically: the file ``vpr match``,
+``compare``, ``loops`` and ``localize`` read with ``--cache DIR`` (see
+:func:`pipelines.extract.cache_path`), byte for byte what the serial run and
+:func:`pipelines.extract.extract` write.
+
+Execution: ``workers=0`` runs in this process; ``workers=N`` starts a local
+cluster of N single-threaded worker processes on 127.0.0.1 for the run;
+``scheduler=ADDRESS`` uses a running cluster (``dask scheduler`` plus ``dask
+worker ADDRESS --nthreads 1`` on each machine; the sources' paths must be
+readable by every worker). When a worker dies, the scheduler runs its chunks
+again on the others; chunks are pure, so the output does not change.
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import copy
+import json
+import os
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pipelines.extract import (
+    DEFAULT_CHUNK_FRAMES,
+    PARTS,
+    _check_parts,
+    _held,
+    assemble,
+    cache_path,
+    chunk_ranges,
+    encode_chunk,
+    load_cache,
+    save_cache,
+)
+from vpr.sources import Source, open_source
+
+__all__ = ["COMMANDS", "add_arguments", "run_command", "encode_sources", "Encoded", "default_workers"]
+
+COMMANDS = {"encode": "encode traverses (folders, videos, lists) into a cache for match/compare/loops, on Dask"}
+
+
+@dataclass
+class Encoded:
+    """Outcome for one source."""
+
+    source: str
+    path: Path
+    n_frames: int
+    skipped: list = field(default_factory=list)
+    cached: bool = False
+    seconds: float = 0.0
+
+
+def default_workers() -> int:
+    """Cores this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+# one encoder per worker process and conf: the cnn encoder loads its ONNX model once, not per chunk
+_WORKER_ENCODERS: dict = {}
+
+
+def _chunk_task(source: Source, encoder_name: str, conf_json: str, start: int, stop: int, parts, batch_size: int):
+    import encoders
+
+    key = (encoder_name, conf_json)
+    if key not in _WORKER_ENCODERS:
+        _WORKER_ENCODERS[key] = encoders.get(encoder_name, **json.loads(conf_json))
+    # a copy: a worker with several threads shares the scattered source, whose ``skipped`` a range resets
+    return encode_chunk(copy.copy(source), _WORKER_ENCODERS[key], start, stop, parts, batch_size=batch_size)
+
+
+@contextlib.contextmanager
+def _client(workers: int | None, scheduler: str | None):
+    # dask is imported only when a cluster is used: serial runs and the rest of vpr do not need it
+    import logging
+
+    from distributed import Client, LocalCluster
+
+    if scheduler:
+        with Client(scheduler, timeout="30s") as client:
+            yield client
+        return
+    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None, silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+        yield client
+
+
+def _check_workers(workers, scheduler) -> int | None:
+    if scheduler is not None and workers is not None:
+        raise ValueError("give either workers (a local cluster, 0 = serial) or scheduler (an existing cluster)")
+    if scheduler is not None:
+        if not str(scheduler).strip():
+            raise ValueError("scheduler address is empty")
+        return None
+    if workers is None:
+        return default_workers()
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
+        raise ValueError(f"workers must be an integer >= 0, got {workers!r}")
+    return workers
+
+
+def encode_sources(sources, cache_dir, encoder_name: str = "pixel", encoder_conf: dict | None = None,
+                   workers: int | None = None, scheduler: str | None = None,
+                   chunk_frames: int = DEFAULT_CHUNK_FRAMES, parts=PARTS, overwrite: bool = False,
+                   batch_size: int = 64, progress=True) -> list[Encoded]:
+    """Encode ``sources`` into ``cache_dir``, one cache file per source.
+
+    Parameters
+    ----------
+    sources : list of :class:`vpr.sources.Source` or paths (opened with default options)
+        Frame selection (``fps``, ``step``, ``max_frames``) is part of the cache
+        key: open the sources as the later ``vpr match`` will.
+    cache_dir : folder of the cache files (created if needed).
+    encoder_name, encoder_conf : as :func:`encoders.get`.
+    workers : local worker processes (1 thread each); 0 runs serially in this
+        process; None (default) is the number of cores. Not with ``scheduler``.
+    scheduler : address of a running Dask scheduler (``tcp://host:port``).
+    chunk_frames : frames per task.
+    parts : what to store, a subset of ``("sdr", "desc", "pixels")`` (default
+        all, so any later method finds what it needs).
+    overwrite : encode again even when a cache file with these parts exists.
+    batch_size : frames per encoder call inside a task.
+    progress : True for a progress bar, False for none, or a callable receiving
+        ``(source_position, start, stop, chunks_done, chunks_total)`` after each chunk.
+
+    Returns
+    -------
+    list of :class:`Encoded`, in the order of ``sources``.
+
+    Raises
+    ------
+    ValueError
+        Bad arguments, an unknown encoder or conf key, or a source without a readable frame.
+    """
+    import encoders
+
+    n_workers = _check_workers(workers, scheduler)
+    parts = _check_parts(parts)
+    if not parts:
+        raise ValueError(f"parts is empty; choose from {', '.join(PARTS)}")
+    srcs = [s if isinstance(s, Source) else open_source(s) for s in sources]
+    if not srcs:
+        raise ValueError("no sources given")
+    encoder = encoders.get(encoder_name, **dict(encoder_conf or {}))
+    # the merged conf goes to the workers, so that they build exactly the encoder keyed in the cache
+    conf_json = json.dumps(encoder.conf, sort_keys=True)
+    cache_dir = Path(cache_dir)
+    t0 = time.perf_counter()
+    results: list[Encoded | None] = [None] * len(srcs)
+    plan = {}  # source position -> chunk ranges
+    for i, src in enumerate(srcs):
+        path = cache_path(cache_dir, src, encoder)
+        hit = None if overwrite or not path.is_file() else load_cache(path)
+        if hit is not None and set(parts) <= set(_held(hit)):
+            results[i] = Encoded(str(src.path), path, len(hit.features), hit.skipped, True, 0.0)
+            continue
+        ranges = chunk_ranges(len(src.names()), chunk_frames)
+        if not ranges:
+            raise ValueError(f"{src.path}: no frames selected")
+        plan[i] = ranges
+    jobs = [(i, a, b) for i, ranges in plan.items() for a, b in ranges]
+    if not jobs:
+        return results
+    done: dict = {i: [] for i in plan}
+    report = _reporter(progress, srcs, jobs)
+
+    def finished(i, chunk):
+        done[i].append(chunk)
+        report(i, chunk.start, chunk.stop)
+        if len(done[i]) == len(plan[i]):
+            # a fresh encoder per source: fitting must not carry over from one traverse to the next
+            enc = encoders.get(encoder_name, **json.loads(conf_json))
+            ex = assemble(srcs[i], enc, done.pop(i), parts)
+            path = save_cache(cache_path(cache_dir, srcs[i], enc), ex, srcs[i], enc)
+            results[i] = Encoded(str(srcs[i].path), path, len(ex.features), ex.skipped, False,
+                                 time.perf_counter() - t0)
+
+    try:
+        if n_workers == 0:
+            for i, a, b in jobs:
+                finished(i, _chunk_task(srcs[i], encoder_name, conf_json, a, b, parts, batch_size))
+        else:
+            _run_on_dask(n_workers, scheduler, srcs, jobs, encoder_name, conf_json, parts, batch_size, finished)
+    finally:
+        report.close()
+    return results
+
+
+def _run_on_dask(n_workers, scheduler, srcs, jobs, encoder_name, conf_json, parts, batch_size, finished) -> None:
+    from distributed import as_completed
+
+    run = uuid.uuid4().hex[:8]
+    with _client(n_workers, scheduler) as client:
+        # each source goes to every worker once, not with every task (a folder lists all its files);
+        # replicas on every worker survive the death of one of them
+        client.wait_for_workers(1, timeout=60)
+        shared = {i: client.scatter([srcs[i]], broadcast=True, hash=False)[0] for i in sorted({i for i, _, _ in jobs})}
+        futures = {}
+        for i, a, b in jobs:
+            fut = client.submit(_chunk_task, shared[i], encoder_name, conf_json, a, b, parts, batch_size,
+                                key=f"vpr-encode-{run}-{i}-{a}", pure=False)
+            futures[fut] = i
+        try:
+            for fut in as_completed(list(futures)):
+                chunk = fut.result()
+                fut.release()
+                finished(futures[fut], chunk)
+        except BaseException:
+            client.cancel(list(futures))
+            raise
+
+
+class _reporter:
+    """Progress as a tqdm bar over frames, a user callable, or nothing."""
+
+    def __init__(self, progress, srcs, jobs):
+        self.total, self.n = len(jobs), 0
+        self.callback = progress if callable(progress) else None
+        self.bar = None
+        if progress is True:
+            from tqdm import tqdm  # optional module, only for the bar
+
+            self.bar = tqdm(total=sum(b - a for _, a, b in jobs), unit="frame", desc="encode", leave=False)
+
+    def __call__(self, i, start, stop):
+        self.n += 1
+        if self.bar is not None:
+            self.bar.update(stop - start)
+        if self.callback is not None:
+            self.callback(i, start, stop, self.n, self.total)
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+
+
+# ------------------------------------------------------------------ command line
+def add_arguments(ap: argparse.ArgumentParser, command: str = "encode") -> None:
+    import encoders
+
+    ap.add_argument("sources", metavar="SOURCE", nargs="+", help="image folders, videos or image lists")
+    ap.add_argument("--cache", required=True, metavar="DIR",
+                    help="cache folder; give the same to match/compare/loops/localize --cache")
+    encoders.add_arguments(ap)
+    ap.add_argument("--fps", type=float, help="videos: resample to this frame rate (as later for match)")
+    ap.add_argument("--step", type=int, help="keep every STEP-th frame (as later for match)")
+    ap.add_argument("--max-frames", type=int, help="read at most this many frames per source (as later for match)")
+    where = ap.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, metavar="N",
+                       help=f"local Dask worker processes, 1 thread each (default: the number of cores, "
+                            f"{default_workers()}); 0 runs serially in this process")
+    where.add_argument("--scheduler", metavar="ADDRESS", help="use a running Dask cluster, e.g. tcp://host:8786")
+    ap.add_argument("--chunk-frames", type=int, default=DEFAULT_CHUNK_FRAMES,
+                    help=f"frames per task (default {DEFAULT_CHUNK_FRAMES})")
+    ap.add_argument("--parts", default=",".join(PARTS),
+                    help=f"what to store, comma-separated subset of {','.join(PARTS)} (default: all)")
+    ap.add_argument("--overwrite", action="store_true", help="encode again even when the cache has the result")
+    ap.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def run_command(args) -> int:
+    import encoders
+
+    srcs = [open_source(p, fps=args.fps, step=args.step, max_frames=args.max_frames) for p in args.sources]
+    parts = [p.strip() for p in args.parts.split(",") if p.strip()]
+    out = encode_sources(srcs, args.cache, args.encoder, encoders.parse_conf(args.encoder_conf),
+                         workers=args.workers, scheduler=args.scheduler, chunk_frames=args.chunk_frames,
+                         parts=parts, overwrite=args.overwrite, progress=not args.no_progress)
+    width = max(len(r.source) for r in out)
+    for r in out:
+        state = "cached" if r.cached else f"{r.seconds:.1f} s"
+        print(f"{r.source:<{width}}  {r.n_frames:7d} frames  {len(r.skipped):4d} skipped  {state:>9}  {r.path}")
+    return 0
