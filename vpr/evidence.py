@@ -1,0 +1,350 @@
+"""Graded sequence evidence of rSHOSM-seq: dense, sparse (top-K), streaming and loop closure.
+
+**Our extension, not the paper's.** A database traverse is learned with
+Algorithm 1 (:class:`vpr.memory.SequenceMemory`); a query frame is then scored
+with graded evidence instead of binary winner cells: a cell's evidence is the
+feed-forward overlap fraction ``z`` of its minicolumn with the query SDR plus
+``decay`` times the best evidence of a cell that predicted it at the previous
+query frame (plus a repeated, ``stay``, or skipped, ``skip``, database frame at
+a cost). The similarity of database frame ``j`` and query frame ``q`` is the
+mean evidence of ``j``'s winner cells, standardised per query.
+
+* :func:`dense_evidence`: every cell every frame, dense n_db x n_q (what
+  :meth:`SequenceMemory.evidence` returns).
+* :func:`sparse_evidence`: only the cells above a floor are carried (a beam
+  entered through the inverted index input bit -> minicolumns and through the
+  learned connections); top-K database frames per query as a sparse matrix,
+  with the z-scores of the full column (its mean and standard deviation come
+  from the carried entries: absent ones are 0). For 50,000 x 50,000 frames.
+* :class:`ForwardEvidence`: the causal (forward) evidence one query frame at a
+  time, with a saveable state; equal to the batch forward run.
+* :func:`loop_evidence`: loop closure within one stream, learned online; each
+  frame is scored against the frames at least ``exclude`` back with forward
+  evidence over what was learned then.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from vpr import _evidence_kernel as K
+from vpr import sdr as _sdr
+
+__all__ = ["dense_evidence", "sparse_evidence", "EvidenceResult", "ForwardEvidence", "FrameEvidence",
+           "loop_evidence", "accept_loops", "BEAM_DEFAULTS"]
+
+#: Floors of the sparse beam (see :func:`sparse_evidence`).
+BEAM_DEFAULTS = {"floor": 0.0, "rel_floor": 0.02, "z_floor": 0.15}
+
+_BIG = np.iinfo(np.int64).max // 4
+
+
+def _memory_arrays(mem) -> dict:
+    """The only place that reads a memory's private arrays (to become ``mem.connections`` at merge).
+
+    Returns the inverted index input bit -> minicolumns (``bit_cols`` rows of
+    ``bit_len``), the lateral connections in the order they were learned
+    (``e_src``, ``e_dst``: append-only, which :func:`loop_evidence` relies on to
+    follow an online memory incrementally) and the sizes.
+    """
+    ne = mem.n_connections
+    return {"bit_cols": mem._bit_cols, "bit_len": mem._bit_len, "e_src": mem._e_src[:ne], "e_dst": mem._e_dst[:ne],
+            "n_columns": mem.n_columns, "cpc": mem.cells_per_column}
+
+
+def _check_params(decay, stay, skip, direction=None):
+    if not 0.0 <= float(decay) < 1.0:
+        raise ValueError(f"decay must be in [0, 1), got {decay}")
+    for name, v in (("stay", stay), ("skip", skip)):
+        if v is not None and not float(v) >= 0.0:
+            raise ValueError(f"{name} must be >= 0 or None, got {v}")
+    if direction is not None and direction not in ("both", "forward"):
+        raise ValueError(f"direction must be 'both' or 'forward', got {direction!r}")
+    return (-1.0 if stay is None else float(stay)), (-1.0 if skip is None else float(skip))
+
+
+def _check_codes(mem, db_codes) -> sp.csr_matrix:
+    if not sp.issparse(db_codes) or db_codes.ndim != 2:
+        raise ValueError("db_codes must be a sparse winner-code matrix (database frames x cells)")
+    db = sp.csr_matrix(db_codes)
+    if db.shape[1] > mem.n_cells and db[:, mem.n_cells:].nnz:
+        raise ValueError(f"db_codes use cells beyond this memory's {mem.n_cells}: codes of another memory?")
+    return db
+
+
+def dense_evidence(mem, query_batch, db_codes, decay: float = 0.9, stay: float | None = 0.05,
+                   skip: float | None = 0.05, direction: str = "both", progress: bool = False,
+                   clamp: bool = False) -> np.ndarray:
+    """Graded sequence evidence of every query frame for every database frame (dense).
+
+    See :meth:`vpr.memory.SequenceMemory.evidence` (which calls this) for the
+    parameters. ``clamp=True`` floors the predicted term at 0, the semantics of
+    :func:`sparse_evidence` (for tests).
+
+    Returns
+    -------
+    ndarray, float32, n_db x n_q (higher = more similar).
+    """
+    st, sk = _check_params(decay, stay, skip, direction)
+    q = _sdr.check_batch(query_batch, n_bits=mem.n_inputs, name="query SDR batch")
+    db = _check_codes(mem, db_codes)
+    arr = _memory_arrays(mem)
+    cpc = arr["cpc"]
+    src, dst = arr["e_src"], arr["e_dst"]
+    # only cells in database codes or on a connection can carry evidence to the output
+    rel = np.unique(np.concatenate([db.indices.astype(np.int64), src, dst]))
+    remap = lambda a: np.searchsorted(rel, a).astype(np.int64)  # noqa: E731
+    db_ind = remap(db.indices.astype(np.int64))
+    db_ptr = db.indptr.astype(np.int64)
+    db_norm = np.diff(db_ptr).astype(np.float64)
+    rs, rd = remap(src), remap(dst)
+    col_size = mem.column_sizes().astype(np.float64)
+    n_db, n_q = db.shape[0], q.shape[0]
+    out = np.zeros((n_db, n_q), dtype=np.float32)
+    passes = [(np.arange(n_q), rs, rd, 0.5 if direction == "both" else 0.0)]
+    if direction == "both":
+        passes.append((np.arange(n_q)[::-1].copy(), rd, rs, 0.5))
+    q_ptr, q_ind = q.indptr.astype(np.int64), q.indices.astype(np.int64)
+    bar = None
+    if progress:
+        from tqdm import tqdm  # optional, only for the progress bar
+
+        bar = tqdm(total=n_q * len(passes), desc="rSHOSM evidence", unit="frame", leave=False)
+    chunk = 256 if progress else n_q
+    for order, a, b, zw in passes:
+        e = np.zeros(rel.size, np.float64)
+        for f0 in range(0, n_q, chunk):
+            K.evidence_frames(q_ptr, q_ind, order[f0:f0 + chunk], arr["bit_cols"], arr["bit_len"], col_size,
+                              rel // cpc, a, b, db_ptr, db_ind, db_norm, float(decay), st, sk, zw, out, e,
+                              f0 == 0, clamp)
+            if bar is not None:
+                bar.update(min(chunk, n_q - f0))
+    if bar is not None:
+        bar.close()
+    return out
+
+
+# ---------------------------------------------------------------- sparse beam
+def _lists(keys, vals, n_heads):
+    """Linked lists key -> values laid out contiguously (sorted by key): (head, next, value)."""
+    keys = np.asarray(keys, np.int64)
+    order = np.argsort(keys, kind="stable")
+    ks = keys[order]
+    head = np.full(n_heads, -1, np.int64)
+    if ks.size:
+        first = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1]])
+        head[ks[first]] = first
+    nxt = np.arange(1, ks.size + 1, dtype=np.int64)
+    if ks.size:
+        nxt[np.r_[ks[1:] != ks[:-1], True]] = -1
+    return head, nxt, np.asarray(vals, np.int64)[order]
+
+
+class _Beam:
+    """State and scratch arrays of :func:`vpr._evidence_kernel.beam_frames` for one direction."""
+
+    def __init__(self, n_cells, n_cols, n_db):
+        self.st = np.zeros(K.BEAM_STATE_SIZE, np.int64)
+        self.beam = np.zeros(n_cells, np.int64)
+        self.beam_e = np.zeros(n_cells, np.float64)
+        self.e_cur = np.zeros(n_cells, np.float64)
+        self.p1 = np.zeros(n_cells, np.float64)
+        self.p2 = np.zeros(n_cells, np.float64)
+        self.z = np.zeros(n_cells, np.float64)
+        self.mark = np.zeros(n_cells, bool)
+        self.cand = np.zeros(n_cells, np.int64)
+        self.e_new = np.zeros(n_cells, np.float64)
+        self.counts = np.zeros(n_cols, np.float64)
+        self.touched_cols = np.zeros(n_cols, np.int64)
+        self.acc = np.zeros(n_db, np.float64)
+        self.db_mark = np.zeros(n_db, bool)
+        self.db_touch = np.zeros(n_db, np.int64)
+        self.out_idx = np.zeros(4096, np.int64)
+        self.out_val = np.zeros(4096, np.float64)
+
+    def grow(self, n_cells, n_cols, n_db):
+        """Make room for a memory / database that has grown (online learning)."""
+        def g(a, n):
+            if a.size >= n:
+                return a
+            out = np.zeros(max(n, 2 * a.size), a.dtype)
+            out[: a.size] = a
+            return out
+
+        for name in ("beam", "beam_e", "e_cur", "p1", "p2", "z", "mark", "cand", "e_new"):
+            setattr(self, name, g(getattr(self, name), n_cells))
+        self.counts, self.touched_cols = g(self.counts, n_cols), g(self.touched_cols, n_cols)
+        self.acc, self.db_mark, self.db_touch = g(self.acc, n_db), g(self.db_mark, n_db), g(self.db_touch, n_db)
+
+    def set_beam(self, cells, values):
+        self.e_cur[self.beam[: self.st[K.B_SIZE]]] = 0.0
+        n = len(cells)
+        self.beam[:n], self.beam_e[:n] = cells, values
+        self.e_cur[cells] = values
+        self.st[K.B_SIZE] = n
+
+    def run(self, g, adj, q_ptr, q_ind, order, limits, params):
+        """Run frames ``order``; return their sparse columns (ptr, idx, val)."""
+        n = order.size
+        out_ptr = np.zeros(n + 1, np.int64)
+        st = self.st
+        st[K.B_OUT_POS] = 0
+        st[K.B_FRAMES] = 0
+        while True:
+            done = K.beam_frames(q_ptr, q_ind, order, limits, g["bit_cols"], g["bit_len"], g["col_size"], g["cpc"],
+                                 adj[0], adj[1], adj[2], g["c_head"], g["c_next"], g["c_frame"], g["relevant"],
+                                 g["birth"], g["db_norm"], *params, st, self.beam, self.beam_e, self.e_cur,
+                                 self.counts, self.touched_cols, self.p1, self.p2, self.z, self.mark, self.cand,
+                                 self.e_new, self.acc, self.db_mark, self.db_touch, out_ptr, self.out_idx,
+                                 self.out_val)
+            if done >= n:
+                break
+            size = max(int(st[K.B_NEED]), 2 * self.out_idx.size)
+            self.out_idx = np.resize(self.out_idx, size)
+            self.out_val = np.resize(self.out_val, size)
+        end = out_ptr[-1]
+        return out_ptr, self.out_idx[:end].copy(), self.out_val[:end].copy()
+
+
+def _beam_params(decay, stay, skip, z_weight, floor, rel_floor, z_floor):
+    for name, v in (("floor", floor), ("rel_floor", rel_floor), ("z_floor", z_floor)):
+        if not float(v) >= 0.0:
+            raise ValueError(f"{name} must be >= 0, got {v}")
+    if float(rel_floor) >= 1.0:
+        raise ValueError(f"rel_floor must be < 1, got {rel_floor}")
+    return (float(decay), stay, skip, float(z_weight), float(floor), float(rel_floor), float(z_floor))
+
+
+def _db_graph(mem, db) -> dict:
+    """What the beam kernel reads, for a learned memory and its database codes."""
+    arr = _memory_arrays(mem)
+    n_cells = max(mem.n_cells, db.shape[1], 1)
+    src, dst = arr["e_src"], arr["e_dst"]
+    relevant = np.zeros(n_cells, bool)
+    relevant[db.indices] = True
+    relevant[src] = True
+    relevant[dst] = True
+    coo = db.tocoo()
+    c_head, c_next, c_frame = _lists(coo.col, coo.row, n_cells)
+    return {"bit_cols": arr["bit_cols"], "bit_len": arr["bit_len"],
+            "col_size": mem.column_sizes().astype(np.float64), "cpc": arr["cpc"], "n_cells": n_cells,
+            "n_cols": max(mem.n_columns, 1), "fwd": _lists(src, dst, n_cells), "bwd": _lists(dst, src, n_cells),
+            "c_head": c_head, "c_next": c_next, "c_frame": c_frame, "relevant": relevant,
+            "birth": np.zeros(n_cells, np.int64), "db_norm": np.maximum(np.diff(db.indptr), 1).astype(np.float64),
+            "n_db": db.shape[0]}
+
+
+@dataclass
+class EvidenceResult:
+    """Top-K sparse evidence: ``similarity`` (n_db x n_q csr, z-scores), best database frame and score per query.
+
+    ``best_db`` is -1 (score -inf) for a query frame that no database frame has evidence for.
+    """
+
+    similarity: sp.csr_matrix
+    best_db: np.ndarray
+    score: np.ndarray
+
+
+def sparse_evidence(mem, query_batch, db_codes, decay: float = 0.9, stay: float | None = 0.05,
+                    skip: float | None = 0.05, direction: str = "both", top_k: int | None = 50,
+                    normalise: str = "query", floor: float = BEAM_DEFAULTS["floor"],
+                    rel_floor: float = BEAM_DEFAULTS["rel_floor"], z_floor: float = BEAM_DEFAULTS["z_floor"],
+                    progress: bool = False) -> EvidenceResult:
+    """Graded sequence evidence carried only where it is; the top-K database frames per query.
+
+    The same evidence as :func:`dense_evidence`, but per query frame only the
+    cells whose evidence is above ``max(floor, rel_floor * largest)`` are
+    carried (a beam), and a minicolumn's cells enter by feed-forward only when
+    its overlap fraction is above ``z_floor`` (found through the memory's
+    inverted index, so the cost per frame follows the beam, not the database).
+    A cell outside the beam has evidence 0 (evidence is never negative here; the
+    dense version lets a cell that nothing predicts drift below 0). With all
+    floors 0 the result equals ``dense_evidence(..., clamp=True)``.
+
+    Parameters
+    ----------
+    mem, query_batch, db_codes, decay, stay, skip, direction
+        As :func:`dense_evidence`.
+    top_k : int or None
+        Database frames kept per query (None: all that have evidence).
+    normalise : {"query", "none"}
+        ``"query"``: z-scores per query over **all** database frames, exactly
+        as the dense column would be standardised (the mean and standard
+        deviation are sums over the carried entries; absent frames are 0).
+    floor, rel_floor, z_floor : float
+        The beam's floors (defaults :data:`BEAM_DEFAULTS`).
+    progress : bool
+        tqdm progress bar.
+
+    Returns
+    -------
+    EvidenceResult (similarity: csr n_db x n_q float32).
+    """
+    st, sk = _check_params(decay, stay, skip, direction)
+    if normalise not in ("query", "none"):
+        raise ValueError(f"normalise must be 'query' or 'none', got {normalise!r}")
+    if top_k is not None and int(top_k) < 1:
+        raise ValueError(f"top_k must be >= 1 or None, got {top_k}")
+    q = _sdr.check_batch(query_batch, n_bits=mem.n_inputs, name="query SDR batch")
+    db = _check_codes(mem, db_codes)
+    g = _db_graph(mem, db)
+    n_q, n_db = q.shape[0], db.shape[0]
+    q_ptr, q_ind = q.indptr.astype(np.int64), q.indices.astype(np.int64)
+    zw = 0.5 if direction == "both" else 0.0
+    params = _beam_params(decay, st, sk, zw, floor, rel_floor, z_floor)
+    limits = np.full(n_q, _BIG, np.int64)
+    cols = []
+    bar = None
+    if progress:
+        from tqdm import tqdm  # optional, only for the progress bar
+
+        bar = tqdm(total=n_q * (2 if direction == "both" else 1), desc="rSHOSM evidence", unit="frame", leave=False)
+    passes = [("fwd", np.arange(n_q, dtype=np.int64))]
+    if direction == "both":
+        passes.append(("bwd", np.arange(n_q, dtype=np.int64)[::-1].copy()))
+    chunk = 2048
+    for adj_name, order in passes:
+        beam = _Beam(g["n_cells"], g["n_cols"], n_db)
+        ptrs, idxs, vals = [np.zeros(1, np.int64)], [], []
+        base = 0
+        for f0 in range(0, n_q, chunk):
+            p, i, v = beam.run(g, g[adj_name], q_ptr, q_ind, order[f0:f0 + chunk], limits[f0:f0 + chunk], params)
+            ptrs.append(p[1:] + base)
+            idxs.append(i)
+            vals.append(v)
+            base += i.size
+            if bar is not None:
+                bar.update(p.size - 1)
+        ptr, idx, val = np.concatenate(ptrs), np.concatenate(idxs), np.concatenate(vals)
+        if adj_name == "bwd":  # columns came in reverse query order
+            ptr, idx, val = _reverse_columns(ptr, idx, val)
+        cols.append((ptr, idx, val))
+        del beam
+    if bar is not None:
+        bar.close()
+    b = cols[1] if len(cols) == 2 else (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
+    return _finish(cols[0], b, np.full(n_q, n_db, np.int64), n_db, top_k, normalise == "query", n_db)
+
+
+def _reverse_columns(ptr, idx, val):
+    lens = np.diff(ptr)[::-1]
+    starts = ptr[:-1][::-1]
+    take = np.concatenate([np.arange(s, s + n) for s, n in zip(starts, lens, strict=True)]) if lens.sum() else \
+        np.zeros(0, np.int64)
+    return np.r_[0, np.cumsum(lens)].astype(np.int64), idx[take], val[take]
+
+
+def _finish(a, b, n_db_per_q, n_db, top_k, normalise, n_rows) -> EvidenceResult:
+    acc = np.zeros(n_rows, np.float64)
+    mark = np.zeros(n_rows, bool)
+    touch = np.zeros(n_rows, np.int64)
+    ptr, idx, val, best, score, _, _ = K.finish_columns(a[0], a[1], a[2], b[0], b[1], b[2], n_db_per_q,
+                                                        0 if top_k is None else int(top_k), normalise,
+                                                        acc, mark, touch)
+    n_q = ptr.size - 1
+    S = sp.csc_matrix((val, idx, ptr), shape=(n_rows, n_q)).tocsr()
+    S.sort_indices()
+    return EvidenceResult(S, best, score)
