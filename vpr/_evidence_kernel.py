@@ -359,3 +359,23 @@ def finish_columns(a_ptr, a_idx, a_val, b_ptr, b_idx, b_val, n_db, top_k, normal
             acc[j] = 0.0
             mark[j] = False
     return ptr, idx[:pos], val[:pos], best, score, mean, sd
+
+
+@njit(cache=True)
+def append_lists(head, nxt, val, base, keys, vals):
+    """Append entries ``keys[i] -> vals[i]`` at positions ``base + i`` of linked lists (newest first)."""
+    for i in range(keys.shape[0]):
+        e = base + i
+        k = keys[i]
+        nxt[e] = head[k]
+        head[k] = e
+        val[e] = vals[i]
+
+
+@njit(cache=True)
+def count_new_entries(col_size, bits, old_len, bit_len, bit_cols):
+    """Add the feed-forward connections made since ``old_len`` (new minicolumns) to ``col_size``."""
+    for i in range(bits.shape[0]):
+        b = bits[i]
+        for j in range(old_len[b], bit_len[b]):
+            col_size[bit_cols[b, j]] += 1.0

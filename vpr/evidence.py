@@ -36,7 +36,7 @@ __all__ = ["dense_evidence", "sparse_evidence", "EvidenceResult", "ForwardEviden
            "loop_evidence", "accept_loops", "BEAM_DEFAULTS"]
 
 #: Floors of the sparse beam (see :func:`sparse_evidence`).
-BEAM_DEFAULTS = {"floor": 0.0, "rel_floor": 0.02, "z_floor": 0.15}
+BEAM_DEFAULTS = {"floor": 0.0, "rel_floor": 0.1, "z_floor": 0.15}
 
 _BIG = np.iinfo(np.int64).max // 4
 
@@ -348,3 +348,167 @@ def _finish(a, b, n_db_per_q, n_db, top_k, normalise, n_rows) -> EvidenceResult:
     S = sp.csc_matrix((val, idx, ptr), shape=(n_rows, n_q)).tocsr()
     S.sort_indices()
     return EvidenceResult(S, best, score)
+
+
+# ---------------------------------------------------------------- streaming
+@dataclass
+class FrameEvidence:
+    """Evidence of one query frame: the best database frame, its score, and the kept database frames.
+
+    ``db_idx`` are the top-K database frames by score (all frames, in index
+    order, when ``top_k`` is None) and ``scores`` their z-scores. ``best_db`` is
+    -1 (score -inf) when no database frame has any evidence.
+    """
+
+    best_db: int
+    score: float
+    db_idx: np.ndarray
+    scores: np.ndarray
+
+
+def _row_bits(sdr_row, n_inputs) -> np.ndarray:
+    """Active bit indices of one SDR row (1-row batch, dense bool vector or index array)."""
+    if sp.issparse(sdr_row):
+        b = _sdr.check_batch(sdr_row, n_bits=n_inputs, name="query SDR")
+        if b.shape[0] != 1:
+            raise ValueError(f"update() takes one SDR row, got {b.shape[0]} rows")
+        return np.sort(b.indices.astype(np.int64))
+    a = np.asarray(sdr_row)
+    if a.dtype == bool:
+        if a.ndim != 1 or a.size != n_inputs:
+            raise ValueError(f"query SDR has shape {a.shape}, memory expects ({n_inputs},)")
+        return np.flatnonzero(a).astype(np.int64)
+    a = np.unique(a.astype(np.int64).ravel())
+    if a.size and (a[0] < 0 or a[-1] >= n_inputs):
+        raise ValueError(f"query SDR bit indices must be in [0, {n_inputs}), got {a[0]}..{a[-1]}")
+    return a
+
+
+class ForwardEvidence:
+    """Causal (forward) rSHOSM-seq evidence of a query stream, one frame at a time.
+
+    Cost per frame does not grow with the number of query frames seen: the
+    state is the evidence of the last frame (the beam, or with ``exact=True``
+    every relevant cell). Answers equal the batch ``direction="forward"`` run
+    on the same frames: :func:`sparse_evidence` (default) or, with
+    ``exact=True``, :func:`dense_evidence` standardised per query.
+    The memory is read, never changed.
+
+    Parameters
+    ----------
+    mem : SequenceMemory
+        The memory that learned the database.
+    db_codes : csr matrix (n_db x cells)
+        Winner codes of the database traverse from ``mem.run``.
+    decay, stay, skip : as :func:`dense_evidence`.
+    top_k : int or None
+        Database frames reported per query frame (None: all).
+    normalise : {"query", "none"}
+        z-scores over all database frames, as the batch version.
+    exact : bool
+        Dense evidence (cost per frame linear in the number of connections)
+        instead of the beam.
+    floor, rel_floor, z_floor : the beam's floors (:func:`sparse_evidence`).
+    """
+
+    def __init__(self, mem, db_codes, decay: float = 0.9, stay: float | None = 0.05, skip: float | None = 0.05,
+                 top_k: int | None = 50, normalise: str = "query", exact: bool = False,
+                 floor: float = BEAM_DEFAULTS["floor"], rel_floor: float = BEAM_DEFAULTS["rel_floor"],
+                 z_floor: float = BEAM_DEFAULTS["z_floor"]):
+        st, sk = _check_params(decay, stay, skip)
+        if normalise not in ("query", "none"):
+            raise ValueError(f"normalise must be 'query' or 'none', got {normalise!r}")
+        if top_k is not None and int(top_k) < 1:
+            raise ValueError(f"top_k must be >= 1 or None, got {top_k}")
+        self.mem = mem
+        self.db = _check_codes(mem, db_codes)
+        self.n_db = self.db.shape[0]
+        self.conf = {"decay": float(decay), "stay": stay, "skip": skip, "top_k": top_k, "normalise": normalise,
+                     "exact": bool(exact), "floor": float(floor), "rel_floor": float(rel_floor),
+                     "z_floor": float(z_floor)}
+        self.frames = 0
+        self._acc = np.zeros(self.n_db, np.float64)
+        self._mark = np.zeros(self.n_db, bool)
+        self._touch = np.zeros(self.n_db, np.int64)
+        if exact:
+            arr = _memory_arrays(mem)
+            src, dst = arr["e_src"], arr["e_dst"]
+            rel = np.unique(np.concatenate([self.db.indices.astype(np.int64), src, dst]))
+            self._rel = rel
+            self._dense = (arr["bit_cols"], arr["bit_len"], mem.column_sizes().astype(np.float64),
+                           rel // arr["cpc"], np.searchsorted(rel, src).astype(np.int64),
+                           np.searchsorted(rel, dst).astype(np.int64), self.db.indptr.astype(np.int64),
+                           np.searchsorted(rel, self.db.indices.astype(np.int64)).astype(np.int64),
+                           np.diff(self.db.indptr).astype(np.float64))
+            self._e = np.zeros(rel.size, np.float64)
+            self._out = np.zeros((self.n_db, 1), np.float32)
+            self._params = (float(decay), st, sk)
+        else:
+            self._g = _db_graph(mem, self.db)
+            self._beam = _Beam(self._g["n_cells"], self._g["n_cols"], self.n_db)
+            self._params = _beam_params(decay, st, sk, 0.0, floor, rel_floor, z_floor)
+
+    def update(self, sdr_row) -> FrameEvidence:
+        """Score one query frame (SDR row: 1-row batch, bool vector or bit indices)."""
+        bits = _row_bits(sdr_row, self.mem.n_inputs)
+        q_ptr = np.array([0, bits.size], np.int64)
+        order = np.zeros(1, np.int64)
+        if self.conf["exact"]:
+            self._out[:] = 0.0
+            K.evidence_frames(q_ptr, bits, order, *self._dense[:7], self._dense[7], self._dense[8],
+                              *self._params, 0.0, self._out, self._e, self.frames == 0)
+            col = self._out[:, 0]
+            nz = np.flatnonzero(col)
+            a = (np.array([0, nz.size], np.int64), nz.astype(np.int64), col[nz].astype(np.float64))
+        else:
+            a = self._beam.run(self._g, self._g["fwd"], q_ptr, bits, order, np.full(1, _BIG, np.int64), self._params)
+        self.frames += 1
+        return self._frame(a)
+
+    def _frame(self, a) -> FrameEvidence:
+        top_k = self.conf["top_k"]
+        empty = np.zeros(0, np.int64)
+        ptr, idx, val, best, score, mean, sd = K.finish_columns(
+            a[0], a[1], a[2], empty, empty, np.zeros(0), np.full(1, self.n_db, np.int64),
+            0 if top_k is None else int(top_k), self.conf["normalise"] == "query", self._acc, self._mark, self._touch)
+        if top_k is None:
+            scores = np.full(self.n_db, -mean[0] / sd[0], np.float64)
+            scores[idx] = val
+            if best[0] < 0 and self.n_db:  # no evidence anywhere: all equal, argmax's answer
+                best[0], score[0] = 0, scores[0]
+            return FrameEvidence(int(best[0]), float(score[0]), np.arange(self.n_db), scores)
+        return FrameEvidence(int(best[0]), float(score[0]), idx.copy(), val.astype(np.float64))
+
+    # ------------------------------------------------------------- state
+    def state_dict(self) -> dict:
+        """The state after the frames seen so far, as arrays (save with ``np.savez``)."""
+        out = {"frames": np.array(self.frames, np.int64)}
+        if self.conf["exact"]:
+            out["rel"] = self._rel.copy()
+            out["e"] = self._e.copy()
+        else:
+            n = int(self._beam.st[K.B_SIZE])
+            out["beam_cells"] = self._beam.beam[:n].copy()
+            out["beam_e"] = self._beam.beam_e[:n].copy()
+        return out
+
+    def load_state(self, state: dict) -> ForwardEvidence:
+        """Continue from a :meth:`state_dict` of an object built on the same memory and database."""
+        self.frames = int(state["frames"])
+        if self.conf["exact"]:
+            if "e" not in state or not np.array_equal(state["rel"], self._rel):
+                raise ValueError("state is not from an exact ForwardEvidence on this memory and database")
+            self._e[:] = state["e"]
+        else:
+            if "beam_cells" not in state:
+                raise ValueError("state is not from a beam ForwardEvidence (exact=False)")
+            cells = np.asarray(state["beam_cells"], np.int64)
+            if cells.size and (cells.min() < 0 or cells.max() >= self._g["n_cells"]):
+                raise ValueError("state has beam cells outside this memory: another memory's state?")
+            self._beam.set_beam(cells, np.asarray(state["beam_e"], np.float64))
+        return self
+
+    @classmethod
+    def from_state(cls, mem, db_codes, state: dict, **conf) -> ForwardEvidence:
+        """A new object on ``mem`` and ``db_codes`` (with ``conf``) continuing from ``state``."""
+        return cls(mem, db_codes, **conf).load_state(state)
