@@ -512,3 +512,159 @@ class ForwardEvidence:
     def from_state(cls, mem, db_codes, state: dict, **conf) -> ForwardEvidence:
         """A new object on ``mem`` and ``db_codes`` (with ``conf``) continuing from ``state``."""
         return cls(mem, db_codes, **conf).load_state(state)
+
+
+# ---------------------------------------------------------------- loop closure
+def _grown(a, size, fill):
+    out = np.full(size, fill, a.dtype)
+    out[: a.size] = a
+    return out
+
+
+def loop_evidence(sdr_batch, exclude: int = 30, decay: float = 0.9, stay: float | None = 0.05,
+                  skip: float | None = 0.05, top_k: int | None = None, normalise: str = "query",
+                  memory: dict | None = None, floor: float = BEAM_DEFAULTS["floor"],
+                  rel_floor: float = BEAM_DEFAULTS["rel_floor"], z_floor: float = BEAM_DEFAULTS["z_floor"],
+                  progress: bool = False):
+    """Loop closure within one stream with graded forward sequence evidence, learned online.
+
+    Frame ``j`` is learned with Algorithm 1 (as the paper, one memory over the
+    stream) and then scored against the frames ``i <= j - exclude`` with the
+    forward (causal) evidence of :func:`sparse_evidence`: only the past counts.
+    Cells first learned at a frame after ``j - exclude`` take no part in the
+    evidence at ``j`` at all (not only masked in the output): within one
+    traverse a frame's own evidence would otherwise linger, through the stay
+    transition, on the frames just before it and win there.
+
+    Parameters
+    ----------
+    sdr_batch : SDR batch (T x n_inputs), the stream.
+    exclude : int >= 1
+        Frames closer than this are not candidates.
+    decay, stay, skip, floor, rel_floor, z_floor : as :func:`sparse_evidence`.
+    top_k : int or None
+        Earlier frames kept per frame (None: dense T x T).
+    normalise : {"query", "none"}
+        z-scores per frame over its candidate frames.
+    memory : dict, optional
+        :class:`vpr.memory.SequenceMemory` parameters (default: those of
+        ``rshosm-seq``, threshold 0.75).
+    progress : bool
+        tqdm progress bar.
+
+    Returns
+    -------
+    S : T x T (rows: earlier frame i, columns: frame j); dense float32 with
+        ``-inf`` outside ``i <= j - exclude``, or a top-K csr matrix.
+    codes : csr bool (T x cells), the winner codes learned online.
+    """
+    from vpr.memory import SequenceMemory  # vpr.memory imports this module lazily; no cycle at import time
+
+    st, sk = _check_params(decay, stay, skip)
+    if int(exclude) < 1:
+        raise ValueError(f"exclude must be >= 1, got {exclude}")
+    if normalise not in ("query", "none"):
+        raise ValueError(f"normalise must be 'query' or 'none', got {normalise!r}")
+    if top_k is not None and int(top_k) < 1:
+        raise ValueError(f"top_k must be >= 1 or None, got {top_k}")
+    exclude = int(exclude)
+    mem = SequenceMemory(**{"threshold": 0.75, **(memory or {})})
+    x = _sdr.check_batch(sdr_batch, n_bits=mem.n_inputs, name="stream SDR batch")
+    T = x.shape[0]
+    q_ptr, q_ind = x.indptr.astype(np.int64), x.indices.astype(np.int64)
+    params = _beam_params(decay, st, sk, 0.0, floor, rel_floor, z_floor)
+    cpc = mem.cells_per_column
+    cap = 1024 * cpc
+    g = {"cpc": cpc, "n_cells": cap, "col_size": np.zeros(cap // cpc), "relevant": np.zeros(cap, bool),
+         "birth": np.full(cap, _BIG, np.int64), "c_head": np.full(cap, -1, np.int64),
+         "c_next": np.zeros(16 * T + 16, np.int64), "c_frame": np.zeros(16 * T + 16, np.int64),
+         "db_norm": np.ones(max(T, 1), np.float64)}
+    a_head, a_next, a_dst = np.full(cap, -1, np.int64), np.zeros(4096, np.int64), np.zeros(4096, np.int64)
+    beam = _Beam(cap, cap // cpc, max(T, 1))
+    n_nodes = 0
+    ptrs, idxs, vals = [np.zeros(1, np.int64)], [], []
+    base = 0
+    codes_ptr, codes_idx = np.zeros(T + 1, np.int64), []
+    bar = None
+    if progress:
+        from tqdm import tqdm  # optional, only for the progress bar
+
+        bar = tqdm(total=T, desc="rSHOSM loops", unit="frame", leave=False)
+    for j in range(T):
+        arr = _memory_arrays(mem)
+        old_len, ne_old = arr["bit_len"].copy(), mem.n_connections
+        w = mem.run(x[j]).indices.astype(np.int64)
+        codes_idx.append(w)
+        codes_ptr[j + 1] = codes_ptr[j] + w.size
+        arr = _memory_arrays(mem)
+        n_cells = mem.n_cells
+        if n_cells > g["n_cells"]:  # grow everything indexed by cell or minicolumn
+            new = max(n_cells, 2 * g["n_cells"])
+
+            for name, fill in (("relevant", False), ("birth", _BIG), ("c_head", -1), ("col_size", 0.0)):
+                g[name] = _grown(g[name], new if name != "col_size" else new // cpc, fill)
+            a_head = _grown(a_head, new, -1)
+            g["n_cells"] = new
+            beam.grow(new, new // cpc, max(T, 1))
+        K.count_new_entries(g["col_size"], q_ind[q_ptr[j]:q_ptr[j + 1]], old_len, arr["bit_len"], arr["bit_cols"])
+        ne = mem.n_connections
+        if ne > a_next.size:
+            a_next, a_dst = np.resize(a_next, max(ne, 2 * a_next.size)), np.resize(a_dst, max(ne, 2 * a_dst.size))
+        K.append_lists(a_head, a_next, a_dst, ne_old, arr["e_src"][ne_old:], arr["e_dst"][ne_old:])
+        if n_nodes + w.size > g["c_next"].size:
+            g["c_next"] = np.resize(g["c_next"], 2 * (n_nodes + w.size))
+            g["c_frame"] = np.resize(g["c_frame"], 2 * (n_nodes + w.size))
+        K.append_lists(g["c_head"], g["c_next"], g["c_frame"], n_nodes, w, np.full(w.size, j, np.int64))
+        n_nodes += w.size
+        g["relevant"][w] = True
+        g["birth"][w] = np.minimum(g["birth"][w], j)
+        g["db_norm"][j] = max(w.size, 1)
+        g["bit_cols"], g["bit_len"] = arr["bit_cols"], arr["bit_len"]
+        p, i, v = beam.run(g, (a_head, a_next, a_dst), q_ptr, q_ind, np.array([j], np.int64),
+                           np.array([j - exclude], np.int64), params)
+        ptrs.append(p[1:] + base)
+        idxs.append(i)
+        vals.append(v)
+        base += i.size
+        if bar is not None:
+            bar.update(1)
+    if bar is not None:
+        bar.close()
+    codes = sp.csr_matrix((np.ones(int(codes_ptr[-1]), bool), np.concatenate(codes_idx + [np.zeros(0, np.int64)]),
+                           codes_ptr), shape=(T, max(mem.n_cells, 1)))
+    cols = (np.concatenate(ptrs), np.concatenate(idxs + [np.zeros(0, np.int64)]),
+            np.concatenate(vals + [np.zeros(0)]))
+    empty = np.zeros(0, np.int64)
+    n_cand = np.maximum(np.arange(T) - exclude + 1, 0).astype(np.int64)
+    acc, mark, touch = np.zeros(max(T, 1)), np.zeros(max(T, 1), bool), np.zeros(max(T, 1), np.int64)
+    ptr, idx, val, _, _, mean, sd = K.finish_columns(cols[0], cols[1], cols[2], empty, empty, np.zeros(0), n_cand,
+                                                     0 if top_k is None else int(top_k), normalise == "query",
+                                                     acc, mark, touch)
+    if top_k is not None:
+        S = sp.csc_matrix((val, idx, ptr), shape=(T, T)).tocsr()
+        S.sort_indices()
+        return S, codes
+    S = np.full((T, T), -np.inf, np.float32)
+    i, jj = np.indices((T, T))
+    valid = i <= jj - exclude
+    S[valid] = np.broadcast_to((-mean / sd).astype(np.float32), (T, T))[valid]
+    S[idx, np.repeat(np.arange(T), np.diff(ptr))] = val
+    return S, codes
+
+
+def accept_loops(S, z_min: float = 4.0):
+    """Best earlier frame per frame of a :func:`loop_evidence` matrix and whether it is accepted.
+
+    A closure is accepted when its z-score (how far the best earlier frame's
+    evidence stands out from all candidate frames') is at least ``z_min``.
+
+    Returns
+    -------
+    best : int64 per frame (-1: no candidate), score : float64, accepted : bool
+    """
+    from vpr.methods import best_matches  # methods imports the memory; only needed here
+
+    best, score = best_matches(S)
+    ok = (best >= 0) & np.isfinite(score) & (score >= float(z_min))
+    best = np.where(np.isfinite(score), best, -1)
+    return best, score, ok
