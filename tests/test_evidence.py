@@ -157,7 +157,8 @@ def test_loop_evidence_forward_only_drive_accepts_no_far_closure():
     import encoders
     from vpr.render import render_scene
 
-    day = render_scene("two_seasons", size=(64, 48), n_frames=120, traverses=["summer_day"]).traverses[0]
+    # a street without aliased stretches, driven once with stops
+    day = render_scene("speed_change", size=(64, 48), n_frames=150, traverses=["slow"]).traverses[0]
     x = encoders.get("pixel", k=200, standardise="fit").fit(day.images).encode(day.images)
     S, _ = ev.loop_evidence(x)  # defaults: exclude 30
     best, score, ok = ev.accept_loops(S)

@@ -122,7 +122,8 @@ def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
     decay, stay, skip, z_weight : as :func:`evidence_frames` (stay/skip < 0: off).
     floor, rel_floor : a cell stays in the beam when its evidence is above
         ``max(floor, rel_floor * (largest evidence this frame))``.
-    z_floor : a minicolumn's cells enter by feed-forward when its overlap fraction is above it.
+    z_floor : a minicolumn's cells enter by feed-forward alone when its overlap fraction is
+        above it (a cell that enters by prediction gets its feed-forward term whatever it is).
     st : int64 state: beam size, output position, need-flag, frames done.
     beam, beam_e : the beam (cells, evidence), carried from call to call.
     out_ptr, out_idx, out_val : per processed frame the sparse column
@@ -146,16 +147,17 @@ def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
                     touched_cols[n_tc] = col
                     n_tc += 1
                 counts[col] += 1.0
+        # counts become overlap fractions; they stay until the end of the frame so that every
+        # candidate (also one that enters by prediction) gets its feed-forward term
         n_c = 0
         for i in range(n_tc):
             col = touched_cols[i]
             zz = counts[col] / col_size[col] if col_size[col] > 0 else 0.0
-            counts[col] = 0.0
+            counts[col] = zz
             if zz > z_floor:
                 for k in range(cpc):
                     c = col * cpc + k
                     if relevant[c] and birth[c] <= limit:
-                        z[c] = zz
                         if not mark[c]:
                             mark[c] = True
                             cand[n_c] = c
@@ -204,6 +206,7 @@ def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
         emax = 0.0
         for i in range(n_c):
             c = cand[i]
+            z[c] = counts[c // cpc]
             p = p1[c]
             if skip >= 0.0 and p2[c] - skip > p:
                 p = p2[c] - skip
@@ -231,6 +234,8 @@ def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
                 p1[c] = 0.0
                 p2[c] = 0.0
                 z[c] = 0.0
+            for i in range(n_tc):
+                counts[touched_cols[i]] = 0.0
             st[B_NEED] = need
             st[B_FRAMES] = t
             return t
@@ -263,6 +268,8 @@ def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
                         acc[j] += (en - z_weight * zc) / db_norm[j]
                     node = c_next[node]
         st[B_SIZE] = nb2
+        for i in range(n_tc):
+            counts[touched_cols[i]] = 0.0
         pos = st[B_OUT_POS]
         for i in range(n_touch):
             j = db_touch[i]
