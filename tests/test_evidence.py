@@ -151,6 +151,8 @@ def test_loop_evidence_beats_seqslam_on_the_paper_world():
     C = Sk.tocoo()
     np.testing.assert_allclose(C.data, S[C.row, C.col], atol=1e-5)
     assert np.all(np.diff(Sk.tocsc().indptr) <= 5)
+    Sa, _ = ev.loop_evidence(obs, exclude=10, stay=None, skip=None, dense_max=100)  # beyond the limit: top-50
+    assert sp.issparse(Sa) and np.all(np.diff(Sa.tocsc().indptr) <= 50) and Sa.nnz > 50
 
 
 def test_loop_evidence_forward_only_drive_accepts_no_far_closure():

@@ -525,7 +525,7 @@ def loop_evidence(sdr_batch, exclude: int = 30, decay: float = 0.9, stay: float 
                   skip: float | None = 0.05, top_k: int | None = None, normalise: str = "query",
                   memory: dict | None = None, floor: float = BEAM_DEFAULTS["floor"],
                   rel_floor: float = BEAM_DEFAULTS["rel_floor"], z_floor: float = BEAM_DEFAULTS["z_floor"],
-                  progress: bool = False):
+                  dense_max: int = 20_000, progress: bool = False):
     """Loop closure within one stream with graded forward sequence evidence, learned online.
 
     Frame ``j`` is learned with Algorithm 1 (as the paper, one memory over the
@@ -543,7 +543,8 @@ def loop_evidence(sdr_batch, exclude: int = 30, decay: float = 0.9, stay: float 
         Frames closer than this are not candidates.
     decay, stay, skip, floor, rel_floor, z_floor : as :func:`sparse_evidence`.
     top_k : int or None
-        Earlier frames kept per frame (None: dense T x T).
+        Earlier frames kept per frame (None: dense T x T up to ``dense_max``
+        frames, top-50 beyond).
     normalise : {"query", "none"}
         z-scores per frame over its candidate frames.
     memory : dict, optional
@@ -571,6 +572,8 @@ def loop_evidence(sdr_batch, exclude: int = 30, decay: float = 0.9, stay: float 
     mem = SequenceMemory(**{"threshold": 0.75, **(memory or {})})
     x = _sdr.check_batch(sdr_batch, n_bits=mem.n_inputs, name="stream SDR batch")
     T = x.shape[0]
+    if top_k is None and T > int(dense_max):
+        top_k = 50  # a dense T x T would not fit (the project's limit on dense matrices)
     q_ptr, q_ind = x.indptr.astype(np.int64), x.indices.astype(np.int64)
     params = _beam_params(decay, st, sk, 0.0, floor, rel_floor, z_floor)
     cpc = mem.cells_per_column
