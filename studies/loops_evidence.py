@@ -25,6 +25,11 @@ from vpr import methods, simulate
 from vpr.evidence import accept_loops, loop_evidence
 
 
+def _traverse(**kw):
+    # EncodedTraverse on main (method registry), Features before it
+    return methods.EncodedTraverse(**kw) if hasattr(methods, "EncodedTraverse") else methods.Features(**kw)
+
+
 def loop_ap(S, gt, exclude, soft=None):
     from sklearn.metrics import average_precision_score  # slow import, only for the metric
 
@@ -42,7 +47,7 @@ def run(name, sdr, pixels, gt, exclude, soft=None, forward_only=False, z_min=4.5
     t = time.perf_counter()
     S, _ = loop_evidence(sdr, exclude=exclude, **kw)
     t_ev = time.perf_counter() - t
-    f = methods.Features(names=list(range(sdr.shape[0])), sdr=sdr, pixels=pixels,
+    f = _traverse(names=list(range(sdr.shape[0])), sdr=sdr, pixels=pixels,
                          desc=None if pixels is not None else sdr.toarray().astype(np.float32))
     conf = {} if pixels is not None else {"descriptor": "desc"}
     r = methods.loops("seqslam", f, exclude=exclude, conf=conf)

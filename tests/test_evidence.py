@@ -120,6 +120,13 @@ def test_exact_forward_stream_equals_dense_forward(aliased):
         ev.ForwardEvidence(mem, codes).load_state(f.state_dict())
 
 
+def _traverse(**kw):
+    from vpr import methods
+
+    # EncodedTraverse on main (method registry), Features before it
+    return methods.EncodedTraverse(**kw) if hasattr(methods, "EncodedTraverse") else methods.Features(**kw)
+
+
 def _loop_ap(S, gt, exclude):
     from sklearn.metrics import average_precision_score
 
@@ -139,7 +146,7 @@ def test_loop_evidence_beats_seqslam_on_the_paper_world():
     assert S.shape == (T, T) and codes.shape[0] == T
     i, j = np.indices((T, T))
     assert np.all(np.isneginf(S[i > j - 10])) and np.all(np.isfinite(S[i <= j - 10]))
-    f = methods.Features(names=list(range(T)), sdr=obs, desc=obs.toarray().astype(np.float32))
+    f = _traverse(names=list(range(T)), sdr=obs, desc=obs.toarray().astype(np.float32))
     r = methods.loops("seqslam", f, exclude=10, conf={"descriptor": "desc"})
     ap, ap_seqslam = _loop_ap(S, gt, 10), _loop_ap(r.similarity, gt, 10)
     assert ap >= 0.95 and ap > ap_seqslam, (ap, ap_seqslam)
