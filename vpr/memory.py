@@ -457,7 +457,9 @@ class SequenceMemory:
 
         The similarity of database frame ``j`` and query frame ``q`` is the mean
         evidence of ``j``'s winner cells at ``q``. Cost per query frame is
-        linear in the number of learned connections; the output is dense.
+        linear in the number of learned connections; the output is dense
+        (:func:`vpr.evidence.sparse_evidence` gives the top-K version for large
+        inputs, :class:`vpr.evidence.ForwardEvidence` the streaming one).
 
         Parameters
         ----------
@@ -475,54 +477,12 @@ class SequenceMemory:
         -------
         ndarray, float32, n_db x n_q (higher = more similar).
         """
-        if not 0.0 <= float(decay) < 1.0:
-            raise ValueError(f"decay must be in [0, 1), got {decay}")
-        for name, v in (("stay", stay), ("skip", skip)):
-            if v is not None and not float(v) >= 0.0:
-                raise ValueError(f"{name} must be >= 0 or None, got {v}")
-        if direction not in ("both", "forward"):
-            raise ValueError(f"direction must be 'both' or 'forward', got {direction!r}")
-        q = _sdr.check_batch(query_batch, n_bits=self.n_inputs, name="query SDR batch")
-        if not sp.issparse(db_codes) or db_codes.ndim != 2:
-            raise ValueError("db_codes must be a sparse winner-code matrix (database frames x cells)")
-        db = sp.csr_matrix(db_codes)
-        if db.shape[1] > self.n_cells and db[:, self.n_cells:].nnz:
-            raise ValueError(f"db_codes use cells beyond this memory's {self.n_cells}: codes of another memory?")
-        cpc = self.cells_per_column
-        ne = self.n_connections
-        src, dst = self._e_src[:ne], self._e_dst[:ne]
-        # only cells in database codes or on a connection can carry evidence to the output
-        rel = np.unique(np.concatenate([db.indices.astype(np.int64), src, dst]))
-        remap = lambda a: np.searchsorted(rel, a).astype(np.int64)  # noqa: E731
-        db_ind = remap(db.indices.astype(np.int64))
-        db_ptr = db.indptr.astype(np.int64)
-        db_norm = np.diff(db_ptr).astype(np.float64)
-        rs, rd = remap(src), remap(dst)
-        col_size = self.column_sizes().astype(np.float64)
-        n_db, n_q = db.shape[0], q.shape[0]
-        out = np.zeros((n_db, n_q), dtype=np.float32)
-        st, sk = (-1.0 if stay is None else float(stay)), (-1.0 if skip is None else float(skip))
-        passes = [(np.arange(n_q), rs, rd, 0.5 if direction == "both" else 0.0)]
-        if direction == "both":
-            passes.append((np.arange(n_q)[::-1].copy(), rd, rs, 0.5))
-        q_ptr, q_ind = q.indptr.astype(np.int64), q.indices.astype(np.int64)
-        bar = None
-        if progress:
-            from tqdm import tqdm
+        # the computation lives in vpr.evidence (dense, sparse, streaming); imported here because
+        # vpr.evidence reads this memory
+        from vpr.evidence import dense_evidence
 
-            bar = tqdm(total=n_q * len(passes), desc="rSHOSM evidence", unit="frame", leave=False)
-        chunk = 256 if progress else n_q
-        for order, a, b, zw in passes:
-            e = np.zeros(rel.size, np.float64)
-            for f0 in range(0, n_q, chunk):
-                K.evidence_frames(q_ptr, q_ind, order[f0:f0 + chunk], self._bit_cols, self._bit_len, col_size,
-                                  rel // cpc, a, b, db_ptr, db_ind, db_norm, float(decay), st, sk, zw, out, e,
-                                  f0 == 0)
-                if bar is not None:
-                    bar.update(min(chunk, n_q - f0))
-        if bar is not None:
-            bar.close()
-        return out
+        return dense_evidence(self, query_batch, db_codes, decay=decay, stay=stay, skip=skip, direction=direction,
+                              progress=progress)
 
     # ------------------------------------------------------------ persistence
     @classmethod

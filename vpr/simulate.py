@@ -14,7 +14,7 @@ import scipy.sparse as sp
 
 from vpr import sdr as _sdr
 
-__all__ = ["World", "make_world", "loop_trajectory", "random_walk", "observe", "simulate_loops"]
+__all__ = ["World", "make_world", "loop_trajectory", "random_walk", "observe", "simulate_loops", "aliased_traverses"]
 
 
 @dataclass
@@ -117,3 +117,43 @@ def simulate_loops(aliasing: int = 0, noise: float = 0.0, rows: int = 6, cols: i
     traj = loop_trajectory(rows, cols, n_loops)
     world = make_world(rows, cols, n_bits, n_active, aliasing, alias_places=traj, seed=rng)
     return observe(world, traj, noise, seed=rng), traj
+
+
+def aliased_traverses(n_places: int, n_appearances: int, n_bits: int = 2048, k: int = 40, move: float = 0.35,
+                      speed=(0.8, 1.2), seed=0):
+    """Two traverses of a long route whose places reuse a few appearances (scale benchmarks).
+
+    Every place shows one of ``n_appearances`` random SDRs (``k`` of ``n_bits``
+    bits), each reused about ``n_places / n_appearances`` times in random order,
+    so a single frame is ambiguous and only a sequence tells the places apart.
+    The database traverse visits every place once with the clean SDR; the query
+    traverse moves at a speed drawn from ``speed`` (places per frame, a new
+    value every 50 to 200 frames, so places are repeated or skipped) and sees
+    each SDR with ``move`` of its 1-bits moved (:func:`vpr.sdr.add_noise`).
+
+    Returns
+    -------
+    db_sdr, q_sdr : csr bool, (n_places x n_bits) and (about n_places x n_bits)
+    db_place, q_place : int64 place index of every frame
+    """
+    if int(n_places) < 1 or int(n_appearances) < 1:
+        raise ValueError(f"n_places and n_appearances must be >= 1, got {n_places}, {n_appearances}")
+    lo, hi = (float(s) for s in speed)
+    if not 0.0 < lo <= hi:
+        raise ValueError(f"speed must be (min, max) with 0 < min <= max, got {speed}")
+    rng = np.random.default_rng(seed)
+    looks = _sdr.random_sdrs(int(n_appearances), n_bits, k, seed=rng)
+    place_look = rng.permutation(np.resize(np.arange(int(n_appearances)), int(n_places)))
+    db_place = np.arange(int(n_places), dtype=np.int64)
+    steps = []
+    total = 0.0
+    while total < n_places + hi:
+        n = int(rng.integers(50, 201))
+        steps.append(np.full(n, rng.uniform(lo, hi)))
+        total += n * steps[-1][0]
+    pos = np.concatenate([[0.0], np.cumsum(np.concatenate(steps))])
+    q_place = np.floor(pos[pos < n_places]).astype(np.int64)
+    db_sdr = _sdr.check_batch(looks[place_look])
+    q_sdr = _sdr.add_noise(looks[place_look[q_place]], move, seed=rng) if move > 0 else \
+        _sdr.check_batch(looks[place_look[q_place]])
+    return db_sdr, q_sdr, db_place, q_place

@@ -1,0 +1,94 @@
+"""Online localisation: per-frame latency of vpr.evidence.ForwardEvidence.update (issue 12 §2).
+
+A database of n frames of ``vpr.simulate.aliased_traverses(n, n // 10)`` is
+learned (Algorithm 1, threshold 0.75); then the query traverse is fed one SDR
+at a time (encoding excluded). Prints the latency of ``update`` (wall clock,
+ms: median / p95 / max over the frames), the causal R@1 within one place, and
+the same for ``exact=True`` (dense evidence per frame) up to ``--exact-max``.
+
+Target: median <= 5 ms at 10,000 database frames.
+
+With ``--nordland DIR`` (the ``nordland_trimmed`` folder) it also prints the
+causal R@1 of winter against summer on the 358-frame subset (every 10th file,
+pixel encoder k=200, each traverse standardised on its own frames, radius 1).
+
+Usage: python benchmarks/bench_localize.py [--sizes 1000,10000,50000] [--frames 2000] [--nordland DIR]
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+
+def latency(n, frames, exact, seed=0):
+    from vpr import evidence, simulate
+    from vpr.memory import SequenceMemory
+
+    db, q, dp, qp = simulate.aliased_traverses(n, max(n // 10, 1), seed=seed)
+    mem = SequenceMemory(threshold=0.75, seed=seed)
+    codes = mem.run(db)
+    mem.reset()
+    loc = evidence.ForwardEvidence(mem, codes, top_k=50, exact=exact)
+    rows = [q.indices[q.indptr[j]:q.indptr[j + 1]] for j in range(min(frames, q.shape[0]))]
+    loc.update(rows[0])  # compile / load the kernels
+    loc = evidence.ForwardEvidence(mem, codes, top_k=50, exact=exact)
+    ms, best = [], []
+    for bits in rows:
+        t = time.perf_counter()
+        o = loc.update(bits)
+        ms.append((time.perf_counter() - t) * 1e3)
+        best.append(o.best_db)
+    ms = np.array(ms)
+    r1 = np.mean(np.abs(dp[np.maximum(best, 0)] - qp[: len(rows)]) <= 1)
+    return ms, r1
+
+
+def nordland(path):
+    from pathlib import Path
+
+    import encoders
+    from vpr import evidence
+    from vpr.memory import SequenceMemory
+    from vpr.sources import open_source
+
+    enc = encoders.get("pixel", k=200, standardise="fit")
+    x = {}
+    for season in ("summer", "winter"):
+        images = [f.image for f in open_source(Path(path) / season, step=10)]
+        x[season] = enc.fit(images).encode(images)
+    mem = SequenceMemory(threshold=0.75)
+    codes = mem.run(x["summer"])
+    mem.reset()
+    for exact in (False, True):
+        loc = evidence.ForwardEvidence(mem, codes, top_k=50, exact=exact)
+        w = x["winter"]
+        best = np.array([loc.update(w[j]).best_db for j in range(w.shape[0])])
+        r1 = np.mean(np.abs(best - np.arange(w.shape[0])) <= 1)
+        print(f"Nordland 358 winter vs summer, causal forward evidence ({'exact' if exact else 'beam'}): "
+              f"R@1 (radius 1) {r1:.3f}")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--sizes", default="1000,10000,50000")
+    ap.add_argument("--frames", type=int, default=2000, help="query frames timed per size")
+    ap.add_argument("--exact-max", type=int, default=10000)
+    ap.add_argument("--nordland", default=None)
+    a = ap.parse_args(argv)
+    print("ForwardEvidence.update latency per query frame (ms, encoding excluded), top-50")
+    print(f"{'n_db':>7} {'mode':>6} {'frames':>7} {'median':>8} {'p95':>8} {'max':>8} {'R@1':>7}")
+    for n in (int(s) for s in a.sizes.split(",")):
+        for exact in (False, True):
+            if exact and n > a.exact_max:
+                continue
+            ms, r1 = latency(n, a.frames, exact)
+            print(f"{n:7d} {'exact' if exact else 'beam':>6} {ms.size:7d} {np.median(ms):8.3f} "
+                  f"{np.percentile(ms, 95):8.3f} {ms.max():8.3f} {r1:7.3f}", flush=True)
+    if a.nordland:
+        nordland(a.nordland)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,195 @@
+"""vpr.evidence: sparse (beam, top-K), streaming and loop-closure rSHOSM-seq evidence."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from vpr import evidence as ev
+from vpr import sdr, simulate
+from vpr.memory import SequenceMemory
+
+
+def _zscore(D):
+    D = np.asarray(D, np.float64)
+    sd = D.std(axis=0)
+    return (D - D.mean(axis=0)) / np.where(sd > 0, sd, 1.0)
+
+
+@pytest.fixture(scope="module")
+def aliased():
+    db, q, dp, qp = simulate.aliased_traverses(400, 40, seed=3)
+    mem = SequenceMemory(threshold=0.75, seed=0)
+    codes = mem.run(db)
+    mem.reset()
+    return mem, codes, q, dp, qp
+
+
+def test_aliased_traverses_shapes_and_seed():
+    db, q, dp, qp = simulate.aliased_traverses(300, 30, k=40, move=0.35, speed=(0.8, 1.2), seed=1)
+    assert db.shape == (300, 2048) and db.dtype == bool and np.all(np.diff(db.indptr) == 40)
+    assert np.array_equal(dp, np.arange(300))
+    assert q.shape[0] == qp.size and 200 < qp.size < 400 and qp.min() == 0 and qp.max() <= 299
+    assert np.all(np.diff(qp) >= 0) and np.diff(qp).max() <= 2  # speed 0.8-1.2: repeats and skips
+    assert np.any(np.diff(qp) == 0) and np.any(np.diff(qp) == 2)
+    # 30 appearances over 300 places: each SDR is shown at about 10 places
+    assert np.unique(db.toarray(), axis=0).shape[0] == 30
+    # the query keeps 65 % of its place's bits
+    kept = np.asarray(db[qp].multiply(q).sum(axis=1)).ravel()
+    assert np.all(kept == 26)
+    db2, q2, _, qp2 = simulate.aliased_traverses(300, 30, seed=1)
+    assert (db2 != db).nnz == 0 and (q2 != q).nnz == 0 and np.array_equal(qp2, qp)
+    with pytest.raises(ValueError, match="speed"):
+        simulate.aliased_traverses(10, 2, speed=(0, 1))
+
+
+@pytest.mark.parametrize("direction", ["forward", "both"])
+def test_beam_without_floors_equals_dense_clamped(aliased, direction):
+    mem, codes, q, _, _ = aliased
+    q = q[:120]
+    D = ev.dense_evidence(mem, q, codes, direction=direction, clamp=True)
+    r = ev.sparse_evidence(mem, q, codes, direction=direction, top_k=None, normalise="none",
+                           floor=0.0, rel_floor=0.0, z_floor=0.0)
+    np.testing.assert_allclose(r.similarity.toarray(), D, atol=1e-5)
+    # z-scores from the sparse column's sums equal the dense column's
+    rz = ev.sparse_evidence(mem, q, codes, direction=direction, top_k=7, floor=0.0, rel_floor=0.0, z_floor=0.0)
+    Z = _zscore(D)
+    C = rz.similarity.tocoo()
+    np.testing.assert_allclose(C.data, Z[C.row, C.col], atol=1e-4)
+    assert np.all(np.diff(rz.similarity.tocsc().indptr) <= 7)
+    # the kept entries are the column's 7 largest
+    kth = -np.sort(-Z, axis=0)[6]
+    assert np.all(C.data >= kth[C.col] - 1e-4)
+
+
+def test_dense_evidence_is_the_memory_method(aliased):
+    mem, codes, q, _, _ = aliased
+    a = mem.evidence(q[:50], codes, decay=0.8, stay=None, skip=0.1)
+    b = ev.dense_evidence(mem, q[:50], codes, decay=0.8, stay=None, skip=0.1)
+    assert np.array_equal(a, b)
+
+
+def test_default_beam_gives_the_dense_best_matches(aliased):
+    mem, codes, q, dp, qp = aliased
+    D = mem.evidence(q, codes)  # the method as it was: unclamped, dense
+    r = ev.sparse_evidence(mem, q, codes)
+    agree = np.mean(r.best_db == D.argmax(axis=0))
+    assert agree >= 0.99, agree
+    assert np.mean(np.abs(dp[r.best_db] - qp) <= 1) >= 0.9
+    # kept z-scores are close to the dense ones (the beam drops evidence below its floor)
+    C = r.similarity.tocoo()
+    Z = _zscore(D)
+    best = C.row == r.best_db[C.col]
+    assert np.median(np.abs(C.data[best] - Z[C.row[best], C.col[best]])) < 0.1
+
+
+def test_forward_stream_equals_batch_and_restarts(aliased, tmp_path):
+    mem, codes, q, _, _ = aliased
+    n_conn, n_cols = mem.n_connections, mem.n_columns
+    batch = ev.sparse_evidence(mem, q, codes, direction="forward", top_k=10)
+    S = batch.similarity.tocsc()
+    f = ev.ForwardEvidence(mem, codes, top_k=10)
+    for j in range(q.shape[0]):
+        if j == 150:  # a robot restarts from its saved state
+            np.savez(tmp_path / "state.npz", **f.state_dict())
+            with np.load(tmp_path / "state.npz") as z:
+                f = ev.ForwardEvidence.from_state(mem, codes, dict(z), top_k=10)
+        o = f.update(q[j])
+        assert o.best_db == batch.best_db[j]
+        assert abs(o.score - batch.score[j]) <= 1e-6
+        col = S[:, j]
+        assert np.array_equal(np.sort(o.db_idx), np.sort(col.indices))
+        np.testing.assert_allclose(np.sort(o.scores), np.sort(col.data), atol=1e-6)
+    assert f.frames == q.shape[0]
+    assert (mem.n_connections, mem.n_columns) == (n_conn, n_cols)  # queries do not change the memory
+
+
+def test_exact_forward_stream_equals_dense_forward(aliased):
+    mem, codes, q, _, _ = aliased
+    q = q[:80]
+    Z = _zscore(mem.evidence(q, codes, direction="forward"))
+    f = ev.ForwardEvidence(mem, codes, top_k=None, exact=True)
+    rows = [q.indices[q.indptr[j]:q.indptr[j + 1]] for j in range(q.shape[0])]
+    for j, bits in enumerate(rows):
+        if j == 40:
+            f = ev.ForwardEvidence.from_state(mem, codes, f.state_dict(), top_k=None, exact=True)
+        o = f.update(bits)
+        np.testing.assert_allclose(o.scores, Z[:, j], atol=1e-6)
+        assert o.best_db == int(np.argmax(Z[:, j]))
+    with pytest.raises(ValueError, match="beam"):
+        ev.ForwardEvidence(mem, codes).load_state(f.state_dict())
+
+
+def _traverse(**kw):
+    from vpr import methods
+
+    # EncodedTraverse on main (method registry), Features before it
+    return methods.EncodedTraverse(**kw) if hasattr(methods, "EncodedTraverse") else methods.Features(**kw)
+
+
+def _loop_ap(S, gt, exclude):
+    from sklearn.metrics import average_precision_score
+
+    S = S.toarray() if sp.issparse(S) else S
+    i, j = np.indices(S.shape)
+    m = i <= j - exclude
+    return average_precision_score(gt[m], np.where(np.isfinite(S[m]), S[m], -1e9))
+
+
+def test_loop_evidence_beats_seqslam_on_the_paper_world():
+    from vpr import methods
+
+    obs, traj = simulate.simulate_loops(aliasing=5, noise=0.3, seed=0)
+    gt = traj[:, None] == traj[None]
+    S, codes = ev.loop_evidence(obs, exclude=10, stay=None, skip=None)
+    T = obs.shape[0]
+    assert S.shape == (T, T) and codes.shape[0] == T
+    i, j = np.indices((T, T))
+    assert np.all(np.isneginf(S[i > j - 10])) and np.all(np.isfinite(S[i <= j - 10]))
+    f = _traverse(names=list(range(T)), sdr=obs, desc=obs.toarray().astype(np.float32))
+    r = methods.loops("seqslam", f, exclude=10, conf={"descriptor": "desc"})
+    ap, ap_seqslam = _loop_ap(S, gt, 10), _loop_ap(r.similarity, gt, 10)
+    assert ap >= 0.95 and ap > ap_seqslam, (ap, ap_seqslam)
+    best, score, ok = ev.accept_loops(S, z_min=4.0)
+    assert ok.sum() > 100 and np.all(gt[best[ok], np.flatnonzero(ok)])
+    # top-K: the kept entries are the dense matrix's
+    Sk, codes_k = ev.loop_evidence(obs, exclude=10, stay=None, skip=None, top_k=5)
+    assert (codes_k != codes).nnz == 0
+    C = Sk.tocoo()
+    np.testing.assert_allclose(C.data, S[C.row, C.col], atol=1e-5)
+    assert np.all(np.diff(Sk.tocsc().indptr) <= 5)
+    Sa, _ = ev.loop_evidence(obs, exclude=10, stay=None, skip=None, dense_max=100)  # beyond the limit: top-50
+    assert sp.issparse(Sa) and np.all(np.diff(Sa.tocsc().indptr) <= 50) and Sa.nnz > 50
+
+
+def test_loop_evidence_forward_only_drive_accepts_no_far_closure():
+    import encoders
+    from vpr.render import render_scene
+
+    # a street without aliased stretches, driven once with stops
+    day = render_scene("speed_change", size=(64, 48), n_frames=150, traverses=["slow"]).traverses[0]
+    x = encoders.get("pixel", k=200, standardise="fit").fit(day.images).encode(day.images)
+    S, _ = ev.loop_evidence(x)  # defaults: exclude 30
+    best, score, ok = ev.accept_loops(S)
+    T = x.shape[0]
+    assert np.all(best[:30] == -1)
+    assert not np.any(ok & (np.arange(T) - best >= 30)), score[ok]
+
+
+def test_bad_arguments(aliased):
+    mem, codes, q, _, _ = aliased
+    with pytest.raises(ValueError, match="decay"):
+        ev.sparse_evidence(mem, q, codes, decay=1.0)
+    with pytest.raises(ValueError, match="top_k"):
+        ev.sparse_evidence(mem, q, codes, top_k=0)
+    with pytest.raises(ValueError, match="rel_floor"):
+        ev.sparse_evidence(mem, q, codes, rel_floor=1.5)
+    with pytest.raises(ValueError, match="direction"):
+        ev.sparse_evidence(mem, q, codes, direction="backward")
+    with pytest.raises(ValueError, match="shape"):
+        ev.ForwardEvidence(mem, codes).update(np.zeros(100, bool))
+    with pytest.raises(ValueError, match="exclude"):
+        ev.loop_evidence(sdr.random_sdrs(5, seed=0), exclude=0)
+    with pytest.raises(ValueError, match="another memory"):
+        ev.ForwardEvidence(mem, sp.csr_matrix((1, mem.n_cells + 10), dtype=bool) + sp.eye(1, mem.n_cells + 10,
+                                                                                          mem.n_cells + 5, dtype=bool))

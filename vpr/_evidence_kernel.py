@@ -1,0 +1,388 @@
+"""Compiled kernels of :mod:`vpr.evidence` (numba): graded sequence evidence.
+
+Not Algorithm 1 of the paper: our extension ``rshosm-seq`` scores query frames
+against a learned database with graded feed-forward and prediction evidence
+along the memory's learned lateral connections.
+
+* :func:`evidence_frames`: the dense version, every relevant cell every frame
+  (cost per frame linear in the number of connections; output n_db x n_q).
+* :func:`beam_frames`: the sparse version: per frame only the cells whose
+  evidence is above a floor (the "beam") are carried; a cell enters through the
+  inverted index input bit -> minicolumns (feed-forward) or through a learned
+  connection from a beam cell (prediction). Evidence is never negative here:
+  a cell outside the beam has evidence 0, which is what makes the beam exact
+  when its floors are 0 (tests compare it with ``evidence_frames(clamp=True)``).
+  Output per frame is the sparse column of database frames that a beam cell
+  belongs to.
+* :func:`finish_columns`: per-query z-scores (mean and standard deviation over
+  all database frames, from the sparse column: absent frames are 0) and top-K.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+# indices into the int64 state vector of beam_frames
+B_SIZE, B_OUT_POS, B_NEED, B_FRAMES = range(4)
+BEAM_STATE_SIZE = 4
+
+
+@njit(cache=True)
+def evidence_frames(q_ptr, q_ind, order, bit_cols, bit_len, col_size, rel_col, e_src, e_dst,
+                    db_ptr, db_ind, db_norm, decay, stay, skip, z_weight, out, e, fresh, clamp=False):
+    """Graded sequence evidence of a query traverse along the learned lateral connections.
+
+    Not Algorithm 1: an extension for database-vs-query matching
+    (:func:`vpr.evidence.dense_evidence`). Cells are the memory's "relevant" cells (those in
+    database codes or on a connection), renumbered ``0 .. n_rel-1``; ``rel_col``
+    is each one's minicolumn. For query frames in ``order``, a cell's evidence is
+    its minicolumn's feed-forward overlap fraction ``z`` plus ``decay`` times the
+    best evidence that predicts it: over its incoming connections (the learned
+    sequence), two connections back minus ``skip`` (a skipped frame) or itself
+    minus ``stay`` (a repeated frame); a negative ``stay``/``skip`` disables that
+    path. ``out[j, q] += mean over database code j of (evidence - z_weight * z)``.
+    ``e`` carries the evidence from one call to the next (chunks of ``order``);
+    ``fresh`` marks the first chunk. ``clamp`` floors the predicted term at 0
+    (the semantics of :func:`beam_frames`, whose absent cells are 0), for tests.
+    """
+    n_rel = rel_col.shape[0]
+    n_cols = col_size.shape[0]
+    n_db = db_ptr.shape[0] - 1
+    n_e = e_src.shape[0]
+    counts = np.zeros(n_cols, np.float64)
+    z = np.zeros(n_rel, np.float64)
+    p1 = np.empty(n_rel, np.float64)
+    p2 = np.empty(n_rel, np.float64)
+    for t in range(order.shape[0]):
+        q = order[t]
+        for i in range(q_ptr[q], q_ptr[q + 1]):
+            b = q_ind[i]
+            for j in range(bit_len[b]):
+                counts[bit_cols[b, j]] += 1.0
+        for c in range(n_rel):
+            col = rel_col[c]
+            z[c] = counts[col] / col_size[col] if col_size[col] > 0 else 0.0
+        for i in range(q_ptr[q], q_ptr[q + 1]):
+            b = q_ind[i]
+            for j in range(bit_len[b]):
+                counts[bit_cols[b, j]] = 0.0
+        if t == 0 and fresh:
+            for c in range(n_rel):
+                e[c] = z[c]
+        else:
+            p1[:] = -np.inf
+            for k in range(n_e):
+                if e[e_src[k]] > p1[e_dst[k]]:
+                    p1[e_dst[k]] = e[e_src[k]]
+            if skip >= 0.0:
+                p2[:] = -np.inf
+                for k in range(n_e):
+                    if p1[e_src[k]] > p2[e_dst[k]]:
+                        p2[e_dst[k]] = p1[e_src[k]]
+            for c in range(n_rel):
+                p = p1[c]
+                if skip >= 0.0 and p2[c] - skip > p:
+                    p = p2[c] - skip
+                if stay >= 0.0 and e[c] - stay > p:
+                    p = e[c] - stay
+                if p == -np.inf or (clamp and p < 0.0):
+                    p = 0.0  # nothing predicts this cell: no sequence evidence either way
+                e[c] = z[c] + decay * p
+        for j in range(n_db):
+            s = 0.0
+            for i in range(db_ptr[j], db_ptr[j + 1]):
+                c = db_ind[i]
+                s += e[c] - z_weight * z[c]
+            if db_norm[j] > 0:
+                out[j, q] += s / db_norm[j]
+    return out
+
+
+@njit(cache=True)
+def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
+                a_head, a_next, a_dst, c_head, c_next, c_frame, relevant, birth, db_norm,
+                decay, stay, skip, z_weight, floor, rel_floor, z_floor,
+                st, beam, beam_e, e_cur, counts, touched_cols, p1, p2, z, mark, cand, e_new,
+                acc, db_mark, db_touch, out_ptr, out_idx, out_val):
+    """Sparse graded evidence for the query frames ``order`` (one direction).
+
+    Parameters (all arrays owned by the caller; cells are the memory's cell indices)
+    ----------
+    q_ptr, q_ind : CSR of the query SDR batch; ``order``: frames to run, in order.
+    limits : int64 per frame of ``order``: only cells born at a database frame
+        ``<= limit`` take part and only database frames ``<= limit`` are output
+        (loop closure over the past; a large value for database matching).
+    bit_cols, bit_len : the memory's inverted index input bit -> minicolumns.
+    col_size : feed-forward connections per minicolumn (float64).
+    a_head, a_next, a_dst : the lateral connections used for prediction, as
+        linked lists per source cell (reversed connections for a backward pass).
+    c_head, c_next, c_frame : cell -> database frames whose code holds the cell.
+    relevant : bool per cell, may carry evidence; birth : first database frame of a cell.
+    db_norm : code size per database frame (the mean over its cells).
+    decay, stay, skip, z_weight : as :func:`evidence_frames` (stay/skip < 0: off).
+    floor, rel_floor : a cell stays in the beam when its evidence is above
+        ``max(floor, rel_floor * (largest evidence this frame))``.
+    z_floor : a minicolumn's cells enter by feed-forward alone when its overlap fraction is
+        above it (a cell that enters by prediction gets its feed-forward term whatever it is).
+    st : int64 state: beam size, output position, need-flag, frames done.
+    beam, beam_e : the beam (cells, evidence), carried from call to call.
+    out_ptr, out_idx, out_val : per processed frame the sparse column
+        (database frame, evidence); ``out_ptr[t + 1]`` ends frame ``order[t]``.
+
+    Returns the number of frames of ``order`` processed; fewer than all when
+    ``out_idx`` is too small for the next frame (``st[B_NEED]`` = size needed),
+    the caller grows it and calls again from there.
+    """
+    n = order.shape[0]
+    for t in range(st[B_FRAMES], n):
+        q = order[t]
+        limit = limits[t]
+        # ---- feed-forward: overlap of every touched minicolumn via the inverted index
+        n_tc = 0
+        for i in range(q_ptr[q], q_ptr[q + 1]):
+            b = q_ind[i]
+            for j in range(bit_len[b]):
+                col = bit_cols[b, j]
+                if counts[col] == 0.0:
+                    touched_cols[n_tc] = col
+                    n_tc += 1
+                counts[col] += 1.0
+        # counts become overlap fractions; they stay until the end of the frame so that every
+        # candidate (also one that enters by prediction) gets its feed-forward term
+        n_c = 0
+        for i in range(n_tc):
+            col = touched_cols[i]
+            zz = counts[col] / col_size[col] if col_size[col] > 0 else 0.0
+            counts[col] = zz
+            if zz > z_floor:
+                for k in range(cpc):
+                    c = col * cpc + k
+                    if relevant[c] and birth[c] <= limit:
+                        if not mark[c]:
+                            mark[c] = True
+                            cand[n_c] = c
+                            n_c += 1
+        # ---- prediction: one connection from a beam cell (and the beam cell itself: stay)
+        nb = st[B_SIZE]
+        for i in range(nb):
+            s = beam[i]
+            v = beam_e[i]
+            if birth[s] > limit:
+                continue
+            if stay >= 0.0 and v > stay and not mark[s]:
+                mark[s] = True
+                cand[n_c] = s
+                n_c += 1
+            e = a_head[s]
+            while e >= 0:
+                d = a_dst[e]
+                if birth[d] <= limit:
+                    if v > p1[d]:
+                        p1[d] = v
+                    if not mark[d]:
+                        mark[d] = True
+                        cand[n_c] = d
+                        n_c += 1
+                e = a_next[e]
+        # ---- two connections (a skipped database frame); only p1 > skip can win
+        if skip >= 0.0:
+            n1 = n_c
+            for i in range(n1):
+                s = cand[i]
+                v = p1[s]
+                if v > skip:
+                    e = a_head[s]
+                    while e >= 0:
+                        d = a_dst[e]
+                        if birth[d] <= limit:
+                            if v > p2[d]:
+                                p2[d] = v
+                            if not mark[d]:
+                                mark[d] = True
+                                cand[n_c] = d
+                                n_c += 1
+                        e = a_next[e]
+        # ---- new evidence of the candidates
+        emax = 0.0
+        for i in range(n_c):
+            c = cand[i]
+            z[c] = counts[c // cpc]
+            p = p1[c]
+            if skip >= 0.0 and p2[c] - skip > p:
+                p = p2[c] - skip
+            if stay >= 0.0 and e_cur[c] - stay > p:
+                p = e_cur[c] - stay
+            if p < 0.0:
+                p = 0.0
+            en = z[c] + decay * p
+            e_new[i] = en
+            if en > emax:
+                emax = en
+        thr = max(floor, rel_floor * emax)
+        # ---- capacity of the output for this frame (cells x their database frames)
+        need = st[B_OUT_POS]
+        for i in range(n_c):
+            if e_new[i] > thr:
+                node = c_head[cand[i]]
+                while node >= 0:
+                    need += 1
+                    node = c_next[node]
+        if need > out_idx.shape[0]:
+            for i in range(n_c):
+                c = cand[i]
+                mark[c] = False
+                p1[c] = 0.0
+                p2[c] = 0.0
+                z[c] = 0.0
+            for i in range(n_tc):
+                counts[touched_cols[i]] = 0.0
+            st[B_NEED] = need
+            st[B_FRAMES] = t
+            return t
+        # ---- new beam and the output column
+        for i in range(nb):
+            e_cur[beam[i]] = 0.0
+        nb2 = 0
+        n_touch = 0
+        for i in range(n_c):
+            c = cand[i]
+            zc = z[c]
+            mark[c] = False
+            p1[c] = 0.0
+            p2[c] = 0.0
+            z[c] = 0.0
+            en = e_new[i]
+            if en > thr:
+                beam[nb2] = c
+                beam_e[nb2] = en
+                e_cur[c] = en
+                nb2 += 1
+                node = c_head[c]
+                while node >= 0:
+                    j = c_frame[node]
+                    if j <= limit:
+                        if not db_mark[j]:
+                            db_mark[j] = True
+                            db_touch[n_touch] = j
+                            n_touch += 1
+                        acc[j] += (en - z_weight * zc) / db_norm[j]
+                    node = c_next[node]
+        st[B_SIZE] = nb2
+        for i in range(n_tc):
+            counts[touched_cols[i]] = 0.0
+        pos = st[B_OUT_POS]
+        for i in range(n_touch):
+            j = db_touch[i]
+            out_idx[pos] = j
+            out_val[pos] = acc[j]
+            pos += 1
+            acc[j] = 0.0
+            db_mark[j] = False
+        st[B_OUT_POS] = pos
+        out_ptr[t + 1] = pos
+    st[B_FRAMES] = n
+    st[B_NEED] = 0
+    return n
+
+
+@njit(cache=True)
+def finish_columns(a_ptr, a_idx, a_val, b_ptr, b_idx, b_val, n_db, top_k, normalise, acc, mark, touch):
+    """Per query: sum the two passes' sparse columns (``b_ptr`` empty: one pass),
+    standardise over all database frames and keep the ``top_k`` largest (``top_k <= 0``: all).
+
+    ``n_db`` is an array (per query, the number of database frames it is scored
+    against). Returns (ptr, idx, val, best, score, mean, sd); ``best`` is -1 for
+    a query without any evidence. Ties go to the smaller database index, as
+    ``argmax`` of the dense column.
+    """
+    n_q = a_ptr.shape[0] - 1
+    two = b_ptr.shape[0] == n_q + 1
+    cap = 0
+    for q in range(n_q):
+        m = a_ptr[q + 1] - a_ptr[q]
+        if two:
+            m += b_ptr[q + 1] - b_ptr[q]
+        cap += m if top_k <= 0 else min(m, top_k)
+    ptr = np.zeros(n_q + 1, np.int64)
+    idx = np.empty(cap, np.int64)
+    val = np.empty(cap, np.float32)
+    best = np.full(n_q, -1, np.int64)
+    score = np.full(n_q, -np.inf, np.float64)
+    mean = np.zeros(n_q, np.float64)
+    sd = np.ones(n_q, np.float64)
+    pos = 0
+    for q in range(n_q):
+        n_t = 0
+        for i in range(a_ptr[q], a_ptr[q + 1]):
+            j = a_idx[i]
+            if not mark[j]:
+                mark[j] = True
+                touch[n_t] = j
+                n_t += 1
+            acc[j] += a_val[i]
+        if two:
+            for i in range(b_ptr[q], b_ptr[q + 1]):
+                j = b_idx[i]
+                if not mark[j]:
+                    mark[j] = True
+                    touch[n_t] = j
+                    n_t += 1
+                acc[j] += b_val[i]
+        s = 0.0
+        s2 = 0.0
+        for i in range(n_t):
+            v = acc[touch[i]]
+            s += v
+            s2 += v * v
+        nd = n_db[q]
+        mu = 0.0
+        sig = 1.0
+        if normalise and nd > 0:
+            mu = s / nd
+            var = s2 / nd - mu * mu
+            sig = np.sqrt(var) if var > 0 else 1.0
+        mean[q] = mu
+        sd[q] = sig
+        keys = np.empty(n_t, np.float64)
+        for i in range(n_t):
+            keys[i] = -acc[touch[i]]
+        tj = touch[:n_t].copy()
+        # sort by value descending, then index ascending (ties as argmax)
+        o = np.argsort(tj, kind="mergesort")
+        o2 = np.argsort(keys[o], kind="mergesort")
+        o = o[o2]
+        k = n_t if top_k <= 0 else min(n_t, top_k)
+        if n_t > 0:
+            best[q] = tj[o[0]]
+            score[q] = (acc[tj[o[0]]] - mu) / sig
+        for i in range(k):
+            j = tj[o[i]]
+            idx[pos] = j
+            val[pos] = (acc[j] - mu) / sig
+            pos += 1
+        ptr[q + 1] = pos
+        for i in range(n_t):
+            j = touch[i]
+            acc[j] = 0.0
+            mark[j] = False
+    return ptr, idx[:pos], val[:pos], best, score, mean, sd
+
+
+@njit(cache=True)
+def append_lists(head, nxt, val, base, keys, vals):
+    """Append entries ``keys[i] -> vals[i]`` at positions ``base + i`` of linked lists (newest first)."""
+    for i in range(keys.shape[0]):
+        e = base + i
+        k = keys[i]
+        nxt[e] = head[k]
+        head[k] = e
+        val[e] = vals[i]
+
+
+@njit(cache=True)
+def count_new_entries(col_size, bits, old_len, bit_len, bit_cols):
+    """Add the feed-forward connections made since ``old_len`` (new minicolumns) to ``col_size``."""
+    for i in range(bits.shape[0]):
+        b = bits[i]
+        for j in range(old_len[b], bit_len[b]):
+            col_size[bit_cols[b, j]] += 1.0
