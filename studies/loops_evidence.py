@@ -21,33 +21,20 @@ import numpy as np
 import scipy.sparse as sp
 
 import encoders
-from vpr import methods, simulate
+from vpr import evaluate, methods, simulate
 from vpr.evidence import accept_loops, loop_evidence
 
 
-def _traverse(**kw):
-    # EncodedTraverse on main (method registry), Features before it
-    return methods.EncodedTraverse(**kw) if hasattr(methods, "EncodedTraverse") else methods.Features(**kw)
-
-
 def loop_ap(S, gt, exclude, soft=None):
-    from sklearn.metrics import average_precision_score  # slow import, only for the metric
-
-    S = S.toarray() if sp.issparse(S) else np.asarray(S)
-    T = S.shape[0]
-    i, j = np.indices((T, T))
-    m = i <= j - exclude
-    if soft is not None:
-        m &= ~(soft & ~gt)
-    s = np.where(np.isfinite(S[m]), S[m], -1e9)
-    return float(average_precision_score(gt[m], s))
+    """AP over the loop-closure pairs i <= j - exclude (soft-only pairs ignored)."""
+    return evaluate.average_precision(S, gt, soft, mask=evaluate.loop_closure_mask(S.shape[0], exclude=exclude))
 
 
 def run(name, sdr, pixels, gt, exclude, soft=None, forward_only=False, z_min=4.5, **kw):
     t = time.perf_counter()
     S, _ = loop_evidence(sdr, exclude=exclude, **kw)
     t_ev = time.perf_counter() - t
-    f = _traverse(names=list(range(sdr.shape[0])), sdr=sdr, pixels=pixels,
+    f = methods.EncodedTraverse(names=list(range(sdr.shape[0])), sdr=sdr, pixels=pixels,
                          desc=None if pixels is not None else sdr.toarray().astype(np.float32))
     conf = {} if pixels is not None else {"descriptor": "desc"}
     r = methods.loops("seqslam", f, exclude=exclude, conf=conf)

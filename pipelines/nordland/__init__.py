@@ -20,8 +20,6 @@ from .data import DATASET_NAME, DATASETS_ENV, SUBSETS, DatasetError
 
 __all__ = ["COMMANDS", "add_arguments", "run_command", "run_benchmark", "METHOD_SPECS", "markdown_table", "main"]
 
-COMMANDS = {"nordland": "Nordland summer vs winter benchmark (all methods on the same frames)"}
-
 COMMANDS = {"nordland": "Nordland summer vs winter benchmark (needs the dataset)"}
 
 
