@@ -26,8 +26,8 @@ import numpy as np
 PRESETS = {
     "default": {
         "encoder": "pixel+cnn",
-        "encoder_conf": {"standardise": "fit", "pixel.n_bits": 1024, "pixel.k": 100,
-                         "cnn.n_bits": 1024, "cnn.k": 100},
+        "encoder_conf": {"standardise": "fit", "pixel.n_bits": 1536, "pixel.k": 150,
+                         "cnn.n_bits": 512, "cnn.k": 50},
         "methods": ["rshosm-seq", "seqslam", "seqslam-desc", "pairwise"],
         "method_conf": {},
     },
