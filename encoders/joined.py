@@ -12,7 +12,9 @@ Configuration
 -------------
 ``PART.key=value`` sets ``key`` of one part (``pixel.k=100``, ``cnn.n_bits=1024``);
 a key without a prefix is given to every part (``standardise=fit``) and must
-be known to all of them. A part named twice (``pixel+pixel``) is addressed as
+be known to all of them. ``conf["standardise"]`` reads ``"fit"`` when any
+part fits, so pipelines that check it fit the joined encoder on each traverse.
+A part named twice (``pixel+pixel``) is addressed as
 ``pixel``, ``pixel#2``. Unless set, the parts share the width of one encoder's
 default SDR and its density: ``n_bits`` is 2,048 split evenly and ``k`` is each
 part's default ``k`` divided by the number of parts (rounded up), so the joined
@@ -156,6 +158,12 @@ class JoinedEncoder(BaseEncoder):
         for prefix, enc in zip(prefixes, self.encoders, strict=True):
             for k, v in enc.conf.items():
                 self.conf[f"{prefix}.{k}"] = v
+        # callers decide whether to fit a traverse by conf["standardise"] == "fit" (pipelines/extract.py);
+        # fitting a part that does not standardise is harmless, so "fit" if any part needs it. Passing
+        # the conf back to get() gives the same encoder: the part keys override this shared one.
+        std = [e.conf["standardise"] for e in self.encoders if "standardise" in e.conf]
+        if std and ("fit" in std or len(set(std)) == 1):
+            self.conf["standardise"] = "fit" if "fit" in std else std[0]
         self._dims: list[int] | None = None
 
     # ----------------------------------------------------------------- SDRs

@@ -162,3 +162,32 @@ def test_cli_accepts_joined_names():
     assert [p.conf["k"] for p in e.encoders] == [100, 100]
     with pytest.raises(SystemExit):
         ap.parse_args(["--encoder", "pixel+sift"])
+
+
+def test_conf_round_trips_and_tells_pipelines_to_fit():
+    e = encoders.get("pixel+cnn", **{"pixel.standardise": "fit", "pixel.k": 150, "pixel.n_bits": 1536,
+                                     "cnn.k": 50, "cnn.n_bits": 512, **SMALL_CNN})
+    # pipelines/extract.py fits when conf["standardise"] == "fit"; one fitting part is enough
+    assert e.conf["standardise"] == "fit" and e.encoders[1].conf["standardise"] == "none"
+    again = encoders.get("pixel+cnn", **e.conf)
+    assert again.conf == e.conf and [p.conf for p in again.encoders] == [p.conf for p in e.encoders]
+    assert encoders.get("pixel+orb").conf["standardise"] == "none"
+
+
+def test_compare_pipeline_extracts_joined_features(frames, tmp_path):
+    import cv2
+
+    from pipelines.extract import extract
+    from vpr.sources import open_source
+
+    db, _ = frames
+    for i, im in enumerate(db):
+        cv2.imwrite(str(tmp_path / f"{i:03d}.png"), im)
+    e = encoders.get("pixel+cnn", standardise="fit", **SMALL_CNN)
+    ex = extract(open_source(str(tmp_path)), e, need_sdr=True, need_desc=True, progress=False)
+    ref = encoders.get("pixel+cnn", standardise="fit", **SMALL_CNN)
+    d = ref.describe(list(db))
+    assert ex.features.desc.shape == d.shape
+    np.testing.assert_allclose(ex.features.desc, d, atol=1e-5)
+    # fitted on the traverse itself, as with a single encoder
+    assert same(ex.features.sdr, ref.fit_descriptors(d).encode_descriptors(d))
