@@ -387,6 +387,8 @@ def main(argv=None) -> int:
                 out["results"].setdefault(r, {}).update(res)
             out["frames"].update(new["frames"])
         rows = {**out.get("rows", {}), **rows}
+    else:
+        out = run_study(rows, datasets, args.cache)
     roles = {d["role"] for d in datasets.values()}
     decision = choose(out["results"], datasets, CANDIDATES) if {"select", "held-out"} <= roles else None
     round2 = None
