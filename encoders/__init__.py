@@ -18,6 +18,7 @@ coerced to the type of the default (:func:`vpr.config.merge_conf`).
 """
 from __future__ import annotations
 
+import argparse
 from importlib import import_module
 
 from vpr.config import parse_key_values
@@ -37,7 +38,7 @@ _REGISTRY = {
 
 
 def available() -> list[str]:
-    """Names accepted by :func:`get`, sorted."""
+    """Registered names, sorted; :func:`get` also takes any ``a+b`` of them (a joined encoder, e.g. ``pixel+cnn``)."""
     return sorted(_REGISTRY)
 
 
@@ -49,6 +50,8 @@ def get_class(name: str) -> type[BaseEncoder]:
     ValueError
         Unknown name (the message lists the available ones).
     """
+    if "+" in name:  # a joined encoder, e.g. pixel+cnn (encoders/joined.py)
+        return import_module("encoders.joined").joined_class(name)
     if name not in _REGISTRY:
         raise ValueError(f"unknown encoder {name!r}; available: {', '.join(available())}")
     module, cls = _REGISTRY[name]
@@ -75,8 +78,16 @@ def parse_conf(pairs) -> dict:
 
 def add_arguments(parser, default: str = "pixel") -> None:
     """Add ``--encoder NAME`` and repeatable ``--encoder-conf key=value`` to an argparse parser."""
-    parser.add_argument("--encoder", default=default, choices=available(),
-                        help=f"image encoder (default: {default})")
+    def name(text: str) -> str:  # registered or joined (a+b); argparse choices cannot list the joined ones
+        try:
+            get_class(text)
+        except ValueError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+        return text
+
+    parser.add_argument("--encoder", default=default, type=name, metavar="NAME",
+                        help=f"image encoder: {', '.join(available())} or parts joined by '+', "
+                             f"e.g. pixel+cnn (default: {default})")
     parser.add_argument("--encoder-conf", action="append", default=[], metavar="KEY=VALUE",
                         help="encoder conf override, repeatable; values are read as the default's type")
 
