@@ -53,10 +53,10 @@ def _method(name: str, conf: dict):
 
 
 def encode(preset: dict, images, need_pixels: bool):
-    """Features of one traverse the way the compare pipeline builds them."""
+    """EncodedTraverse of one traverse the way the compare pipeline builds them."""
     import encoders
     from vpr import imageproc
-    from vpr.methods import Features
+    from vpr.methods import EncodedTraverse
 
     enc = encoders.get(preset["encoder"], **preset["encoder_conf"])
     desc = enc.describe(images)
@@ -64,7 +64,7 @@ def encode(preset: dict, images, need_pixels: bool):
         enc.fit_descriptors(desc)
     sdr = enc.encode_descriptors(desc)
     pixels = np.stack([imageproc.seqslam_preprocess(im).ravel() for im in images]) if need_pixels else None
-    return Features(names=list(range(len(images))), sdr=sdr, desc=desc, pixels=pixels)
+    return EncodedTraverse(names=list(range(len(images))), sdr=sdr, desc=desc, pixels=pixels)
 
 
 def bench(preset: dict, db_images, q_images, repeats: int) -> dict:

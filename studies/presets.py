@@ -48,13 +48,12 @@ import time
 from pathlib import Path
 
 import numpy as np
-import scipy.sparse as sp
 
 import encoders
 from encoders.joined import split_name
 from vpr import evaluate as E
 from vpr import io
-from vpr.methods import Features, match
+from vpr.methods import EncodedTraverse, match
 
 __all__ = ["average_precision", "CANDIDATES", "REFERENCES", "DATASETS", "run_study", "choose", "markdown"]
 
@@ -62,24 +61,8 @@ DEFAULT_CACHE = Path("/tmp/vpr_presets_cache")
 
 
 def average_precision(S, gt_hard, gt_soft=None) -> float:
-    """Non-interpolated AP over the evaluated pairs (soft-only pairs excluded), as scikit-learn computes it.
-
-    The one place the study computes AP: swap in ``vpr.evaluate.average_precision``
-    once it exists. Entries missing from a sparse ``S`` rank last.
-    """
-    from sklearn.metrics import average_precision_score  # slow import, only needed here
-
-    if sp.issparse(S):
-        C = sp.coo_matrix(S)
-        lowest = (C.data.min() if C.nnz else 0.0) - 1.0
-        D = np.full(S.shape, lowest, np.float64)
-        D[C.row, C.col] = C.data
-        S = D
-    S = np.asarray(S, np.float64)
-    keep = np.ones(S.shape, bool) if gt_soft is None else (~np.asarray(gt_soft, bool) | np.asarray(gt_hard, bool))
-    scores = S[keep]
-    scores[~np.isfinite(scores)] = np.nanmin(scores[np.isfinite(scores)]) - 1.0
-    return float(average_precision_score(np.asarray(gt_hard, bool)[keep], scores))
+    """Non-interpolated AP over the evaluated pairs (:func:`vpr.evaluate.average_precision`)."""
+    return E.average_precision(S, gt_hard, gt_soft)
 
 
 # ----------------------------------------------------------------------------- rows
@@ -245,7 +228,7 @@ def _gt(a, b, radius):
     return E.gt_from_positions(a, b, radius)
 
 
-def features(data: Traverses, row: dict, which: int) -> Features:
+def features(data: Traverses, row: dict, which: int) -> EncodedTraverse:
     """Encode one traverse for ``row``: SDR (fitted on this traverse when ``standardise="fit"``),
     the encoder's dense descriptor, and SeqSLAM's pixels."""
     name, conf = row["encoder"], row["encoder_conf"]
@@ -260,7 +243,7 @@ def features(data: Traverses, row: dict, which: int) -> Features:
         enc.fit_descriptors(desc)
     sdr = enc.encode_descriptors(desc)
     pixels = data.descriptors("pixel", which)
-    return Features(names=list(range(len(desc))), sdr=sdr, desc=desc, pixels=pixels)
+    return EncodedTraverse(names=list(range(len(desc))), sdr=sdr, desc=desc, pixels=pixels)
 
 
 # ----------------------------------------------------------------------------- study

@@ -10,7 +10,7 @@ import scipy.sparse as sp
 import encoders
 from encoders.joined import DescribedJoinedEncoder, JoinedEncoder, split_name
 from vpr import render
-from vpr.methods import Features, match
+from vpr.methods import EncodedTraverse, match
 
 # a small CNN input keeps the ONNX runs in milliseconds; the tests are about joining, not the CNN
 SMALL_CNN = {"cnn.input_size": (64, 64)}
@@ -147,7 +147,7 @@ def test_rshosm_seq_runs_on_joined_sdrs(frames):
     for images in (db, q):
         e = encoders.get("pixel+cnn", standardise="fit", **{"pixel.k": 100, "cnn.k": 100, **SMALL_CNN})
         d = e.describe(images)
-        feats.append(Features(names=list(range(len(images))), sdr=e.fit_descriptors(d).encode_descriptors(d), desc=d))
+        feats.append(EncodedTraverse(names=list(range(len(images))), sdr=e.fit_descriptors(d).encode_descriptors(d), desc=d))
     res = match("rshosm-seq", *feats)
     assert res.similarity.shape == (len(db), len(q)) and np.isfinite(res.similarity).all()
     pw = match("pairwise", *feats, conf={"on": "descriptor", "metric": "cosine"})
