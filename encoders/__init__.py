@@ -76,8 +76,11 @@ def parse_conf(pairs) -> dict:
     return parse_key_values(pairs, "--encoder-conf")
 
 
-def add_arguments(parser, default: str = "pixel") -> None:
-    """Add ``--encoder NAME`` and repeatable ``--encoder-conf key=value`` to an argparse parser."""
+def add_arguments(parser, default: str | None = "pixel") -> None:
+    """Add ``--encoder NAME`` and repeatable ``--encoder-conf key=value`` to an argparse parser.
+
+    ``default=None``: not given stays None (the caller's preset decides, see ``vpr.presets``).
+    """
     def name(text: str) -> str:  # registered or joined (a+b); argparse choices cannot list the joined ones
         try:
             get_class(text)
@@ -87,7 +90,7 @@ def add_arguments(parser, default: str = "pixel") -> None:
 
     parser.add_argument("--encoder", default=default, type=name, metavar="NAME",
                         help=f"image encoder: {', '.join(available())} or parts joined by '+', "
-                             f"e.g. pixel+cnn (default: {default})")
+                             f"e.g. pixel+cnn (default: {default or 'the preset'})")
     parser.add_argument("--encoder-conf", action="append", default=[], metavar="KEY=VALUE",
                         help="encoder conf override, repeatable; values are read as the default's type")
 

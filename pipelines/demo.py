@@ -3,9 +3,11 @@
 Renders the ``two_seasons`` scene (a street driven on a summer day and on a
 winter night, at different speeds), then runs ``vpr compare`` on it: the summer
 traverse is the database, the winter traverse the query, ground truth comes
-from the rendered positions. Prints the metrics table of rSHOSM, SeqSLAM and
-pairwise (and ``rshosm-seq``, our sequence-evidence extension of rSHOSM), with
-and without geometric verification, and writes everything
+from the rendered positions. Encoder and methods come from a preset (``--preset``,
+default ``default``: rSHOSM-seq, our sequence-evidence extension of rSHOSM,
+against SeqSLAM, SeqSLAM on the encoder's descriptors and pairwise matching;
+see :mod:`vpr.presets`). Prints the metrics table, with and without geometric
+verification, and writes everything
 ``compare`` writes to ``DIR`` (the render goes to ``DIR/scene`` and is reused by
 the next run).
 """
@@ -17,26 +19,26 @@ from pathlib import Path
 
 from pipelines import match
 from pipelines.render import parse_size
-from vpr import io, render
+from vpr import io, presets, render
 from vpr.config import parse_key_values
 from vpr.groundtruth import GroundTruthSpec
 
 __all__ = ["COMMANDS", "add_arguments", "run_command", "run_demo", "render_once", "DEFAULTS"]
 
-COMMANDS = {"demo": "render the two_seasons scene and compare rSHOSM, SeqSLAM and pairwise on it"}
+COMMANDS = {"demo": "render the two_seasons scene and compare rSHOSM-seq, SeqSLAM and pairwise on it"}
 
-DEFAULTS = {"scene": "two_seasons", "encoder": "pixel", "encoder_conf": ["k=200", "standardise=fit"],
-            "methods": "rshosm,rshosm-seq,seqslam,pairwise", "radius": 3.0, "soft_radius": 10.0, "verify": 5}
+# encoder, its conf and the methods come from the preset (vpr.presets)
+DEFAULTS = {"scene": "two_seasons", "preset": presets.DEFAULT, "radius": 3.0, "soft_radius": 10.0, "verify": 5}
 
 
 def add_arguments(ap: argparse.ArgumentParser, command: str = "demo") -> None:
     ap.add_argument("--out", required=True, help="output folder")
     ap.add_argument("--scene", default=DEFAULTS["scene"], help="builtin scene or spec file (default two_seasons)")
-    ap.add_argument("--encoder", default=DEFAULTS["encoder"], help=f"encoder (default {DEFAULTS['encoder']})")
+    match.add_preset_argument(ap)
+    ap.add_argument("--encoder", help="encoder (default: the preset's)")
     ap.add_argument("--encoder-conf", action="append", metavar="KEY=VALUE",
-                    help=f"encoder option, repeatable (default: {' '.join(DEFAULTS['encoder_conf'])}: "
-                         "200 of 2048 bits, each traverse standardised on its own frames)")
-    ap.add_argument("--methods", default=DEFAULTS["methods"], help=f"default {DEFAULTS['methods']}")
+                    help="encoder option, repeatable, merged over the preset's conf of the same encoder")
+    ap.add_argument("--methods", help="comma-separated methods (default: the preset's)")
     ap.add_argument("--method-conf", action="append", default=[], metavar="METHOD.KEY=VALUE")
     ap.add_argument("--radius", type=float, default=DEFAULTS["radius"],
                     help="metres within which frames show the same place (default 3)")
@@ -66,27 +68,30 @@ def render_once(scene, out: Path, size=None, n_frames=None, progress=True) -> di
     return json.loads(json.dumps(result, default=str))
 
 
-def run_demo(out, scene=DEFAULTS["scene"], encoder=DEFAULTS["encoder"], encoder_conf=None,
-             methods=DEFAULTS["methods"], method_conf=None, radius=DEFAULTS["radius"],
+def run_demo(out, scene=DEFAULTS["scene"], preset=DEFAULTS["preset"], encoder=None, encoder_conf=None,
+             methods=None, method_conf=None, radius=DEFAULTS["radius"],
              soft_radius=DEFAULTS["soft_radius"], verify=DEFAULTS["verify"], size=None, n_frames=None,
              progress=True) -> dict:
     """Render ``scene`` (once) and compare ``methods`` on its first two traverses; print the table.
 
-    ``encoder_conf`` (dict, default ``DEFAULTS["encoder_conf"]``) and
-    ``method_conf`` (method -> dict) values may be strings; ``methods`` is a
-    comma-separated string or a list. Returns :func:`pipelines.match.run_compare`'s report.
+    ``encoder``, ``encoder_conf`` (dict), ``methods`` (comma-separated string or
+    list) and ``method_conf`` (method -> dict) override the settings of ``preset``
+    (:func:`vpr.presets.resolve`); conf values may be strings. Returns
+    :func:`pipelines.match.run_compare`'s report.
     """
     out = Path(out)
+    if isinstance(methods, str):
+        methods = [m.strip() for m in methods.split(",") if m.strip()]
+    # resolved before rendering: an unknown preset fails at once
+    s = presets.resolve(preset, encoder=encoder, encoder_conf=encoder_conf, methods=methods, method_conf=method_conf)
+    encoder, methods = s["encoder"], s["methods"]
     rendered = render_once(scene, out / "scene", size=size, n_frames=n_frames, progress=progress)
     names = list(rendered["traverses"])
     if len(names) < 2:
         raise ValueError(f"scene {scene!r} has {len(names)} traverse(s); the demo needs two")
     db, query = (rendered["traverses"][n]["folder"] for n in names[:2])
-    if encoder_conf is None:
-        encoder_conf = dict(kv.split("=", 1) for kv in DEFAULTS["encoder_conf"])
-    if isinstance(methods, str):
-        methods = [m.strip() for m in methods.split(",") if m.strip()]
-    opts = match.RunOptions(out=out, encoder=encoder, encoder_conf=encoder_conf, method_conf=method_conf or {},
+    opts = match.RunOptions(out=out, preset=s["preset"], encoder=encoder, encoder_conf=s["encoder_conf"],
+                            method_conf=s["method_conf"],
                             gt=GroundTruthSpec(files=(rendered["ground_truth"],), radius=radius, soft=soft_radius),
                             verify=verify, progress=progress)
     report = match.run_compare(db, query, methods, opts, command="demo")
@@ -102,7 +107,7 @@ def run_demo(out, scene=DEFAULTS["scene"], encoder=DEFAULTS["encoder"], encoder_
 
 
 def run_command(args) -> int:
-    run_demo(args.out, scene=args.scene, encoder=args.encoder,
+    run_demo(args.out, scene=args.scene, preset=args.preset, encoder=args.encoder,
              encoder_conf=None if args.encoder_conf is None else parse_key_values(args.encoder_conf, "--encoder-conf"),
              methods=args.methods, method_conf=match.method_confs(args.method_conf), radius=args.radius,
              soft_radius=args.soft_radius, verify=args.verify, size=args.size, n_frames=args.frames,

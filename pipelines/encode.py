@@ -41,6 +41,7 @@ from pipelines.extract import (
     load_cache,
     save_cache,
 )
+from vpr import presets
 from vpr.sources import Source, open_source
 
 __all__ = ["COMMANDS", "add_arguments", "run_command", "encode_sources", "Encoded", "default_workers"]
@@ -254,7 +255,11 @@ def add_arguments(ap: argparse.ArgumentParser, command: str = "encode") -> None:
     ap.add_argument("sources", metavar="SOURCE", nargs="+", help="image folders, videos or image lists")
     ap.add_argument("--cache", required=True, metavar="DIR",
                     help="cache folder; give the same to match/compare/loops/localize --cache")
-    encoders.add_arguments(ap)
+    # the preset's encoder unless --encoder is given, so that `vpr compare --cache DIR` with the same preset hits
+    ap.add_argument("--preset", default=presets.DEFAULT, choices=presets.available(),
+                    help=f"encoder and conf of this preset unless --encoder/--encoder-conf override them: "
+                         f"{presets.describe()} (default: {presets.DEFAULT})")
+    encoders.add_arguments(ap, default=None)
     ap.add_argument("--fps", type=float, help="videos: resample to this frame rate (as later for match)")
     ap.add_argument("--step", type=int, help="keep every STEP-th frame (as later for match)")
     ap.add_argument("--max-frames", type=int, help="read at most this many frames per source (as later for match)")
@@ -276,7 +281,8 @@ def run_command(args) -> int:
 
     srcs = [open_source(p, fps=args.fps, step=args.step, max_frames=args.max_frames) for p in args.sources]
     parts = [p.strip() for p in args.parts.split(",") if p.strip()]
-    out = encode_sources(srcs, args.cache, args.encoder, encoders.parse_conf(args.encoder_conf),
+    s = presets.resolve(args.preset, encoder=args.encoder, encoder_conf=encoders.parse_conf(args.encoder_conf))
+    out = encode_sources(srcs, args.cache, s["encoder"], s["encoder_conf"],
                          workers=args.workers, scheduler=args.scheduler, chunk_frames=args.chunk_frames,
                          parts=parts, overwrite=args.overwrite, progress=not args.no_progress)
     width = max(len(r.source) for r in out)

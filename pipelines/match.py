@@ -26,14 +26,15 @@ import scipy.sparse as sp
 
 import encoders
 from pipelines.extract import extract
-from vpr import evaluate, io, methods, plots
+from vpr import evaluate, io, methods, plots, presets
 from vpr.config import parse_key_values
 from vpr.groundtruth import GroundTruthSpec, build_gt, positions_of_frames
 from vpr.methods import MatchResult
 from vpr.sources import open_source
 
-__all__ = ["COMMANDS", "add_arguments", "run_command", "RunOptions", "run_compare", "run_loops", "method_confs",
-           "metrics_table", "method_metrics", "write_similarity", "write_matches", "versions"]
+__all__ = ["COMMANDS", "add_arguments", "add_preset_argument", "settings_from_args", "run_command", "RunOptions",
+           "run_compare", "run_loops", "method_confs", "metrics_table", "method_metrics",
+           "write_similarity", "write_matches", "versions"]
 
 COMMANDS = {
     "match": "match a query traverse against a database traverse (folders, videos, lists)",
@@ -53,6 +54,8 @@ class RunOptions:
 
     out: Path
     encoder: str = "pixel"
+    #: the preset the settings came from (recorded in config.json), None when given explicitly
+    preset: str | None = None
     encoder_conf: dict = field(default_factory=dict)
     method_conf: dict = field(default_factory=dict)
     fps: float | None = None
@@ -92,14 +95,17 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
         ap.add_argument("db", metavar="DB", help="database traverse: image folder, video or image list")
         ap.add_argument("query", metavar="QUERY", help="query traverse: image folder, video or image list")
     ap.add_argument("--out", required=True, help="output folder")
+    # defaults None: a flag not given takes the preset's value (vpr.presets.resolve)
+    add_preset_argument(ap)
     if command == "compare":
-        ap.add_argument("--methods", default="rshosm,seqslam,pairwise",
-                        help="comma-separated methods (default: rshosm,seqslam,pairwise)")
+        ap.add_argument("--methods", help="comma-separated methods (default: the preset's)")
     else:
-        ap.add_argument("--method", default="rshosm", choices=methods.available(), help="method (default: rshosm)")
+        ap.add_argument("--method", choices=methods.available(),
+                        help="method (default: the preset's " + ("loop method" if command == "loops" else
+                                                                 "first method") + ")")
     ap.add_argument("--method-conf", action="append", default=[], metavar="METHOD.KEY=VALUE",
                     help="method option, repeatable, e.g. seqslam.ds=20 or rshosm.p_extra=0.01")
-    encoders.add_arguments(ap)
+    encoders.add_arguments(ap, default=None)
     _add_source_args(ap)
     gt = ap.add_argument_group("ground truth (optional; enables metrics and pr.png)")
     if command == "loops":
@@ -123,11 +129,32 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     ap.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
+def add_preset_argument(ap: argparse.ArgumentParser) -> None:
+    """``--preset NAME`` (default ``default``): the settings that flags not given take."""
+    ap.add_argument("--preset", default=presets.DEFAULT, choices=presets.available(),
+                    help=f"named settings (encoder, its conf, methods, their confs) that explicit flags override: "
+                         f"{presets.describe()} (default: {presets.DEFAULT})")
+
+
+def settings_from_args(args) -> dict:
+    """:func:`vpr.presets.resolve` of ``--preset`` with the flags given (``--methods`` / ``--method``)."""
+    if getattr(args, "methods", None) is not None:
+        names = [m.strip() for m in args.methods.split(",") if m.strip()]
+    else:
+        names = [args.method] if getattr(args, "method", None) else None
+    s = presets.resolve(args.preset, encoder=args.encoder, encoder_conf=encoders.parse_conf(args.encoder_conf),
+                        methods=names, method_conf=method_confs(args.method_conf))
+    if names is None and args.command != "compare":  # one method: the preset's headline or loop method
+        s["methods"] = [s["loop_method"] if args.command == "loops" else s["methods"][0]]
+    return s
+
+
 def options_from_args(args) -> RunOptions:
     """The :class:`RunOptions` of parsed ``match`` / ``compare`` / ``loops`` arguments."""
+    s = settings_from_args(args)
     return RunOptions(
-        out=Path(args.out), encoder=args.encoder, encoder_conf=encoders.parse_conf(args.encoder_conf),
-        method_conf=method_confs(args.method_conf), fps=args.fps, step=args.step, max_frames=args.max_frames,
+        out=Path(args.out), preset=s["preset"], encoder=s["encoder"], encoder_conf=s["encoder_conf"],
+        method_conf=s["method_conf"], fps=args.fps, step=args.step, max_frames=args.max_frames,
         gt=GroundTruthSpec(tolerance=getattr(args, "tolerance", None), files=tuple(args.gt or ()),
                            radius=args.radius, soft=args.gt_soft),
         verify=getattr(args, "verify", 0), min_inliers=getattr(args, "min_inliers", 15),
@@ -136,12 +163,11 @@ def options_from_args(args) -> RunOptions:
 
 def run_command(args) -> int:
     opts = options_from_args(args)
+    names = settings_from_args(args)["methods"]
     if args.command == "loops":
-        report = run_loops(args.seq, args.method, opts, exclude=args.exclude)
+        report = run_loops(args.seq, names[0], opts, exclude=args.exclude)
     else:
-        names = args.methods.split(",") if args.command == "compare" else [args.method]
-        report = run_compare(args.db, args.query, [m.strip() for m in names if m.strip()], opts,
-                             command=args.command)
+        report = run_compare(args.db, args.query, names, opts, command=args.command)
     print(metrics_table(report["methods"]))
     print(f"wrote {args.out}/metrics.json")
     return 0

@@ -71,19 +71,19 @@ def run_methods(db_desc, q_desc, db_sdr, q_sdr, specs: dict, progress: bool = Fa
         m, (p, r, _) = E.evaluate(S, gh, gs, return_curve=True)
         del S
         curves[label] = (p, r)
-        metrics[label] = {"auc_pr": m["auc_pr"], "recall_at_100p": m["recall_at_100p"],
+        metrics[label] = {"ap": m["ap"], "auc_pr": m["auc_pr"], "recall_at_100p": m["recall_at_100p"],
                           "recall_at_1": m["recall_at_1"], "recall_at_5": m["recall_at_5"],
                           "seconds": sec, "cpu_seconds": cpu, "peak_rss_mb_after": peak_rss_mb()}
     return metrics, curves
 
 
 def markdown_table(metrics: dict, title: str | None = None) -> str:
-    """Markdown table of AUC, R@100P, R@1 and seconds per method."""
+    """Markdown table of AP, AUC, R@100P, R@1 and seconds per method."""
     lines = [f"**{title}**", ""] if title else []
-    lines += ["| method | AUC | R@100P | R@1 | R@5 | seconds (wall) | seconds (CPU) |",
-              "|---|---:|---:|---:|---:|---:|---:|"]
+    lines += ["| method | AP | AUC | R@100P | R@1 | R@5 | seconds (wall) | seconds (CPU) |",
+              "|---|---:|---:|---:|---:|---:|---:|---:|"]
     for label, m in metrics.items():
-        lines.append(f"| {label} | {m['auc_pr']:.3f} | {m['recall_at_100p']:.3f} | {m['recall_at_1']:.3f} | "
+        lines.append(f"| {label} | {m['ap']:.3f} | {m['auc_pr']:.3f} | {m['recall_at_100p']:.3f} | {m['recall_at_1']:.3f} | "
                      f"{m['recall_at_5']:.3f} | {m['seconds']:.2f} | {m['cpu_seconds']:.2f} |")
     return "\n".join(lines) + "\n"
 
@@ -123,7 +123,7 @@ def run_benchmark(subset: str, out, data=None, k: int = 40, threshold: float | N
     metrics, curves = run_methods(db_desc, q_desc, db_sdr, q_sdr, specs, progress)
     out.mkdir(parents=True, exist_ok=True)
     title = f"Nordland summer vs winter, {len(names)} frames (subset {subset})"
-    plot_pr(curves, out / "pr.png", title=title)
+    plot_pr(curves, out / "pr.png", title=title, ap={lbl: m["ap"] for lbl, m in metrics.items()})
     table = markdown_table(metrics, title)
     with _io.atomic_open(out / "table.md", "w", encoding="utf-8") as fh:
         fh.write(table)

@@ -1,0 +1,140 @@
+"""Named settings of a run: encoder with its conf, methods with their confs.
+
+``vpr compare DB QUERY`` with no encoder or method flags runs :data:`PRESETS`
+``["default"]``; ``--preset NAME`` picks another one, and explicit flags override
+the preset (:func:`resolve`). The presets:
+
+- ``default``: the best the project knows across every dataset it has
+  (``docs/experiments.md``, "Default preset"): the joined ``pixel+cnn`` SDR
+  (1,536 + 512 bits, 150 + 50 active, each traverse standardised on its own
+  frames), rSHOSM-seq first, then SeqSLAM on pixels, SeqSLAM on the encoder's
+  dense descriptors and pairwise matching as baselines.
+- ``paper``: the paper's setting (Neubert, Ahmad and Protzel, KI 2018): 40 active
+  bits of 2,048 from pixels, binary rSHOSM with p_extra 0.05, against pairwise
+  and SeqSLAM. For reproducing the paper, not for real use.
+- ``fast``: no CNN: pixel SDRs (200 active bits of 2,048, standardised), the same
+  methods as ``default``; for long videos on a laptop.
+
+Each preset also names the ``loop_method`` of ``vpr loops``.
+
+This module is plain data: encoder and method names are checked when a run
+builds them (``encoders.get``, :func:`vpr.methods.get`), so that ``vpr`` needs
+neither the encoders nor every method at import.
+"""
+from __future__ import annotations
+
+import copy
+
+__all__ = ["PRESETS", "DEFAULT", "available", "get", "resolve", "describe"]
+
+#: the preset of a run without ``--preset``
+DEFAULT = "default"
+
+#: name -> encoder, encoder_conf, methods (first = the headline), method_conf (method -> conf),
+#: loop_method, and a one-line ``use`` shown by ``--help`` and the README
+PRESETS: dict[str, dict] = {
+    "default": {
+        "encoder": "pixel+cnn",
+        "encoder_conf": {"standardise": "fit", "pixel.n_bits": 1536, "pixel.k": 150,
+                         "cnn.n_bits": 512, "cnn.k": 50},
+        "methods": ["rshosm-seq", "seqslam", "seqslam-desc", "pairwise"],
+        "method_conf": {},
+        "loop_method": "rshosm-seq",
+        "use": "joined pixel + CNN SDRs: the best across every dataset measured",
+    },
+    "paper": {
+        "encoder": "pixel",
+        "encoder_conf": {"n_bits": 2048, "k": 40, "standardise": "none"},
+        "methods": ["rshosm", "pairwise", "seqslam"],
+        "method_conf": {"rshosm": {"p_extra": 0.05}},
+        "loop_method": "rshosm",
+        "use": "the paper's setting (KI 2018), for reproducing it",
+    },
+    "fast": {
+        "encoder": "pixel",
+        "encoder_conf": {"k": 200, "standardise": "fit"},
+        "methods": ["rshosm-seq", "seqslam", "seqslam-desc", "pairwise"],
+        "method_conf": {},
+        "loop_method": "rshosm-seq",
+        "use": "pixel SDRs only, no CNN: long videos on a laptop",
+    },
+}
+
+
+def available() -> list[str]:
+    """Preset names, ``default`` first."""
+    return list(PRESETS)
+
+
+def get(name: str) -> dict:
+    """A copy of preset ``name`` (changing it leaves :data:`PRESETS` alone).
+
+    Raises
+    ------
+    ValueError
+        Unknown name (the message lists the available ones).
+    """
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset {name!r}; available: {', '.join(available())}")
+    return copy.deepcopy(PRESETS[name])
+
+
+def describe() -> str:
+    """One line per preset for ``--help``: name, encoder, methods and when to use it."""
+    return "; ".join(f"{n} ({p['encoder']}: {', '.join(p['methods'])}): {p['use']}" for n, p in PRESETS.items())
+
+
+def resolve(name: str | None = DEFAULT, encoder: str | None = None, encoder_conf: dict | None = None,
+            methods: list[str] | None = None, method_conf: dict | None = None) -> dict:
+    """The settings of a run: preset ``name`` with the explicitly given settings over it.
+
+    Parameters
+    ----------
+    name : str or None
+        Preset name (None: :data:`DEFAULT`).
+    encoder : str, optional
+        Replaces the preset's encoder. The preset's encoder conf is then dropped
+        (its keys belong to the preset's encoder), so only ``encoder_conf`` applies.
+    encoder_conf : dict, optional
+        Merged key by key over the preset's encoder conf when the encoder is the
+        preset's (not given, or the same name); otherwise the whole conf.
+    methods : list of str, optional
+        Replaces the preset's methods (a non-empty list; order kept, first = headline).
+    method_conf : dict, optional
+        method -> conf, merged key by key over the preset's conf of that method.
+        Always kept, even for a method the run does not use, so that the run can
+        reject a typo. The preset's conf of a method the run uses neither in
+        ``methods`` nor as ``loop_method`` is dropped.
+
+    Returns
+    -------
+    dict
+        ``preset``, ``encoder``, ``encoder_conf``, ``methods``, ``method_conf``,
+        ``loop_method``: plain data (copies), e.g. for ``config.json``.
+
+    Raises
+    ------
+    ValueError
+        Unknown preset, an empty or non-string method list, or a conf that is not a dict.
+    """
+    name = DEFAULT if name is None else name
+    preset = get(name)
+    for arg, value in (("encoder_conf", encoder_conf), ("method_conf", method_conf)):
+        if value is not None and not isinstance(value, dict):
+            raise ValueError(f"{arg} must be a dict, got {type(value).__name__}")
+    if encoder is None or encoder == preset["encoder"]:
+        enc, enc_conf = preset["encoder"], {**preset["encoder_conf"], **(encoder_conf or {})}
+    else:
+        enc, enc_conf = encoder, dict(encoder_conf or {})
+    if methods is not None:
+        methods = list(methods)
+        if not methods or not all(isinstance(m, str) and m for m in methods):
+            raise ValueError(f"methods must be a non-empty list of method names, got {methods!r}")
+    used = methods if methods is not None else preset["methods"]
+    confs = {m: dict(c) for m, c in preset["method_conf"].items() if m in used or m == preset["loop_method"]}
+    for m, c in (method_conf or {}).items():
+        if not isinstance(c, dict):
+            raise ValueError(f"method_conf[{m!r}] must be a dict, got {type(c).__name__}")
+        confs[m] = {**confs.get(m, {}), **c}
+    return {"preset": name, "encoder": enc, "encoder_conf": enc_conf, "methods": list(used),
+            "method_conf": confs, "loop_method": preset["loop_method"]}
