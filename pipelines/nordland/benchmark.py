@@ -83,8 +83,8 @@ def markdown_table(metrics: dict, title: str | None = None) -> str:
     lines += ["| method | AP | AUC | R@100P | R@1 | R@5 | seconds (wall) | seconds (CPU) |",
               "|---|---:|---:|---:|---:|---:|---:|---:|"]
     for label, m in metrics.items():
-        lines.append(f"| {label} | {m['ap']:.3f} | {m['auc_pr']:.3f} | {m['recall_at_100p']:.3f} | {m['recall_at_1']:.3f} | "
-                     f"{m['recall_at_5']:.3f} | {m['seconds']:.2f} | {m['cpu_seconds']:.2f} |")
+        lines.append(f"| {label} | {m['ap']:.3f} | {m['auc_pr']:.3f} | {m['recall_at_100p']:.3f} | "
+                     f"{m['recall_at_1']:.3f} | {m['recall_at_5']:.3f} | {m['seconds']:.2f} | {m['cpu_seconds']:.2f} |")
     return "\n".join(lines) + "\n"
 
 
