@@ -1,7 +1,7 @@
 """Cost per frame of the presets: encode + match on two rendered 1,000-frame traverses.
 
-For each preset (the plain dicts in :data:`PRESETS`, to be pointed at the real
-presets module) the rendered ``two_seasons`` database and query traverses
+For each preset of :mod:`vpr.presets` (``default`` and ``fast`` unless ``--presets``
+says otherwise) the rendered ``two_seasons`` database and query traverses
 (1,000 frames each, 160x120 by default) are encoded as ``vpr compare`` does it
 (the encoder's dense descriptor, per-traverse fit, the SDRs, and SeqSLAM's
 64x32 pixels when a method needs them), then every method of the preset is
@@ -11,42 +11,29 @@ matched. Printed: min / median / max over the repeats of
 - each method: milliseconds per query frame,
 - total: (encoding both traverses + every method) per query frame.
 
-One thread (the CNN's onnxruntime session is single-threaded by default).
+One thread (the CNN's onnxruntime session is single-threaded by default). The load
+average is printed before and after: the figures are only comparable at a similar load.
 
 Usage: python benchmarks/bench_presets.py [--frames 1000] [--size 160x120] [--repeats 3] [--presets default,fast]
 """
 from __future__ import annotations
 
 import argparse
+import os
 import time
 
 import numpy as np
 
-#: the presets measured: encoder + conf, methods, method confs (mirrors the proposed presets module)
-PRESETS = {
-    "default": {
-        "encoder": "pixel+cnn",
-        "encoder_conf": {"standardise": "fit", "pixel.n_bits": 1536, "pixel.k": 150,
-                         "cnn.n_bits": 512, "cnn.k": 50},
-        "methods": ["rshosm-seq", "seqslam", "seqslam-desc", "pairwise"],
-        "method_conf": {},
-    },
-    "fast": {
-        "encoder": "pixel",
-        "encoder_conf": {"k": 200, "standardise": "fit"},
-        "methods": ["rshosm-seq", "seqslam", "seqslam-desc", "pairwise"],
-        "method_conf": {},
-    },
-}
+from vpr import presets
 
-# before the seqslam-desc method exists it is SeqSLAM on the encoder's descriptor by cosine distance
+# where the seqslam-desc method is not registered yet: SeqSLAM on the encoder's descriptor by cosine distance
 _EMULATED = {"seqslam-desc": ("seqslam", {"descriptor": "encoder", "metric": "cosine"})}
 
 
 def _method(name: str, conf: dict):
-    from vpr.methods import METHODS
+    from vpr.methods import available
 
-    if name in METHODS or name not in _EMULATED:
+    if name in available() or name not in _EMULATED:
         return name, dict(conf.get(name, {})), False
     base, extra = _EMULATED[name]
     return base, {**extra, **conf.get(name, {})}, True
@@ -101,23 +88,26 @@ def main(argv=None) -> None:
     ap.add_argument("--frames", type=int, default=1000, help="frames per traverse (default 1000)")
     ap.add_argument("--size", default="160x120", help="render size WxH (default 160x120)")
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--presets", default=",".join(PRESETS), help=f"comma-separated subset of {', '.join(PRESETS)}")
+    ap.add_argument("--presets", default="default,fast",
+                    help=f"comma-separated subset of {', '.join(presets.available())} (default: default,fast)")
     args = ap.parse_args(argv)
     names = [p.strip() for p in args.presets.split(",") if p.strip()]
-    unknown = [p for p in names if p not in PRESETS]
+    unknown = [p for p in names if p not in presets.available()]
     if unknown:
-        ap.error(f"--presets: unknown {unknown}; choose from {list(PRESETS)}")
+        ap.error(f"--presets: unknown {unknown}; choose from {presets.available()}")
     w, h = (int(v) for v in args.size.lower().split("x"))
     t = time.perf_counter()
     scene = render.render_scene("two_seasons", size=(w, h), n_frames=args.frames)
     db, q = scene.traverses[:2]
     print(f"two_seasons {db.name} vs {q.name}: {len(db)} + {len(q)} frames at {w}x{h} "
           f"(rendered in {time.perf_counter() - t:.0f} s); min / median / max over {args.repeats} repeats")
+    print("load average (1, 5, 15 min) before: " + " ".join(f"{v:.2f}" for v in os.getloadavg()))
     for name in names:
-        p = PRESETS[name]
+        p = presets.get(name)
         print(f"\n{name}: encoder {p['encoder']} {p['encoder_conf']}, methods {', '.join(p['methods'])}")
         for key, vals in bench(p, db.images, q.images, args.repeats).items():
             print(f"  {key:40s} {min(vals):9.2f} {np.median(vals):9.2f} {max(vals):9.2f}")
+    print("load average (1, 5, 15 min) after: " + " ".join(f"{v:.2f}" for v in os.getloadavg()))
 
 
 if __name__ == "__main__":
