@@ -220,7 +220,7 @@ def method_metrics(res: MatchResult, gt_hard, gt_soft, mask=None):
 
 def metrics_table(table: dict) -> str:
     """The printed table: one row per method of ``{method: metrics}``."""
-    keys = [("auc_pr", "AUC"), ("recall_at_100p", "R@100P"), ("recall_at_1", "R@1"),
+    keys = [("ap", "AP"), ("auc_pr", "AUC"), ("recall_at_100p", "R@100P"), ("recall_at_1", "R@1"),
             ("precision_accepted", "P(acc)"), ("seconds", "seconds")]
     lines = [f"{'method':<22}" + "".join(f"{h:>10}" for _, h in keys)]
     for name, m in table.items():
