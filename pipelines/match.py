@@ -200,6 +200,13 @@ def metrics_table(table: dict) -> str:
     return "\n".join(lines)
 
 
+def _at(S, rows) -> np.ndarray:
+    """``S[rows[j], j]`` per column (rows >= 0), dense or sparse."""
+    cols = np.arange(len(rows))
+    rows = np.maximum(rows, 0)
+    return np.asarray(S[rows, cols], dtype=np.float64).ravel()
+
+
 def _config(opts: RunOptions, **inputs) -> dict:
     return {"argv": sys.argv[1:], **inputs, **asdict(opts)}
 
@@ -269,8 +276,12 @@ def run_compare(db, query, method_names: list[str], opts: RunOptions, command: s
         if opts.verify:
             t0 = time.perf_counter()
             vr = verifier.verify(res.similarity, opts.verify, progress=opts.progress)
-            # seconds: the method's plus verification (pairs shared with earlier methods are cached)
-            verified = MatchResult(m + "+verify", vr.similarity(), vr.best_db, vr.score, vr.accepted,
+            # the method's matrix with only each query's candidates re-ordered by inliers: its AP compares
+            # with the unverified one (vpr.verify.rerank); seconds: the method's plus verification
+            # (pairs shared with earlier methods are cached)
+            S_v = vr.reranked(res.similarity)
+            score_v = np.where(vr.best_db >= 0, _at(S_v, vr.best_db), -np.inf)
+            verified = MatchResult(m + "+verify", S_v, vr.best_db, score_v, vr.accepted,
                                    res.seconds + time.perf_counter() - t0, res.conf)
             extra = {"verified_db": vr.best_db.tolist(), "inliers": vr.score.astype(int).tolist(),
                      "verified": vr.accepted.astype(int).tolist()}
