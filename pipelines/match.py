@@ -61,6 +61,10 @@ class RunOptions:
     gt: GroundTruthSpec = field(default_factory=GroundTruthSpec)
     verify: int = 0
     min_inliers: int = 15
+    #: methods whose candidates are verified (None: all); verification costs ~5-15 ms per candidate pair
+    verify_methods: tuple | None = None
+    #: further :class:`vpr.verify.Verifier` conf (e.g. ``{"n_features": 500}``)
+    verify_conf: dict = field(default_factory=dict)
     progress: bool = True
 
 
@@ -250,6 +254,9 @@ def run_compare(db, query, method_names: list[str], opts: RunOptions, command: s
     if opts.verify < 0:
         raise ValueError(f"--verify must be >= 0, got {opts.verify}")
     runners = _runners(method_names, opts)
+    unknown = set(opts.verify_methods or ()) - set(runners)
+    if unknown:
+        raise ValueError(f"verify_methods: {', '.join(sorted(unknown))} not among the methods run")
     out = Path(opts.out)
     (db_src, q_src), encoder, (db_ex, q_ex) = _extract_all([db, query], runners, opts)
     gt_hard, gt_soft = build_gt(opts.gt, db_ex.features.names, q_ex.features.names, db_ex.indices, q_ex.indices,
@@ -261,7 +268,7 @@ def run_compare(db, query, method_names: list[str], opts: RunOptions, command: s
         from vpr.verify import Verifier  # pycolmap: loaded only when verifying
 
         # one verifier for all methods: features and pair inliers are computed once
-        verifier = Verifier(db_ex.thumbs, q_ex.thumbs, min_inliers=opts.min_inliers)
+        verifier = Verifier(db_ex.thumbs, q_ex.thumbs, **{"min_inliers": opts.min_inliers, **opts.verify_conf})
     for m, runner in runners.items():
         res = runner.match(db_ex.features, q_ex.features, progress=opts.progress)
         results[m] = res
@@ -273,7 +280,7 @@ def run_compare(db, query, method_names: list[str], opts: RunOptions, command: s
             curves[m] = curve
         metrics[m]["similarity_file"] = str(Path(folder.name if not single else ".") / sim_file)
         extra = {}
-        if opts.verify:
+        if opts.verify and (opts.verify_methods is None or m in opts.verify_methods):
             t0 = time.perf_counter()
             vr = verifier.verify(res.similarity, opts.verify, progress=opts.progress)
             # the method's matrix with only each query's candidates re-ordered by inliers: its AP compares

@@ -406,8 +406,8 @@ def rerank(S, candidates, inliers):
         keys = np.repeat(np.arange(n_q, dtype=np.int64), np.diff(out.indptr)) * n_db + out.indices
         want = q.astype(np.int64) * n_db + rows
         pos = np.searchsorted(keys, want)
-        pos_c = np.minimum(pos, len(keys) - 1)
-        if len(keys) == 0 or (keys[pos_c] != want).any():
+        pos_c = np.minimum(pos, max(len(keys) - 1, 0))
+        if want.size and (len(keys) == 0 or (keys[pos_c] != want).any()):
             raise ValueError("candidates: with a sparse S every candidate must be a stored entry")
         data = out.data
     else:
@@ -419,8 +419,8 @@ def rerank(S, candidates, inliers):
         raise ValueError("candidates: an entry with S = -inf (never matched) cannot be a candidate")
     # candidate k of each query, ordered by inliers (more first), ties by S (higher first) then by the
     # candidates' order, padding last
-    key_inl = np.where(valid, inl, np.iinfo(np.int64).min).astype(np.int64)
-    order = np.lexsort((np.broadcast_to(np.arange(cand.shape[1]), cand.shape), -vals, -key_inl), axis=-1)
+    neg_inl = np.where(valid, -inl.astype(np.int64), np.iinfo(np.int64).max)
+    order = np.lexsort((np.broadcast_to(np.arange(cand.shape[1]), cand.shape), -vals, neg_inl), axis=-1)
     ranked_vals = -np.sort(-vals, axis=1)      # the same values, best first; padding (-inf) last
     new = np.full(cand.shape, -np.inf)
     np.put_along_axis(new, order, ranked_vals, axis=1)
