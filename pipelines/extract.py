@@ -119,7 +119,11 @@ def extract(source: Source, encoder, need_sdr=True, need_desc=False, need_pixels
             indices += [f.index for f in batch]
             d = None
             if need_desc or (need_sdr and projected):
-                d = encoder.describe(images)
+                try:
+                    d = encoder.describe(images)
+                except NotImplementedError as e:  # the base class's "no dense descriptor"
+                    raise ValueError(f"a method needs dense descriptors (e.g. seqslam-desc), but {e}; "
+                                     f"choose an encoder with one (pixel, projection, cnn, orb)") from e
                 descs.append(d)
             if need_sdr and not projected:
                 sdr_rows.append(encoder.encode(images))

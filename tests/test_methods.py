@@ -144,3 +144,53 @@ def test_seqslam_above_the_dense_limit_runs_blocked_top_k(monkeypatch, name):
     # loop closure has no blocked form: refused before any work
     with pytest.raises(ValueError, match=f"{name} loop closure needs a dense 60 x 60 matrix"):
         methods.loops(name, db, exclude=5)
+
+
+@pytest.fixture(scope="module")
+def image_folders(tmp_path_factory):
+    """Two traverses of one textured route (query: noisy), 12 frames of 64 x 48."""
+    import cv2
+
+    root = tmp_path_factory.mktemp("route")
+    rng = np.random.default_rng(0)
+    world = cv2.resize(rng.integers(0, 256, (12, 60), dtype=np.uint8), (600, 48), interpolation=cv2.INTER_LINEAR)
+    for name, noise in (("db", 0), ("q", 12)):
+        (root / name).mkdir()
+        for i in range(12):
+            im = world[:, 40 * i:40 * i + 64].astype(float) + rng.normal(0, noise + 1e-9, (48, 64))
+            cv2.imwrite(str(root / name / f"{i:03d}.png"), np.clip(im, 0, 255).astype(np.uint8))
+    return root / "db", root / "q"
+
+
+@pytest.mark.parametrize("enc", ["pixel", "projection", "orb", "cnn"])
+def test_every_encoder_with_a_dense_descriptor_feeds_seqslam_desc(image_folders, enc, tmp_path):
+    import encoders
+    from pipelines.extract import extract
+    from vpr.sources import open_source
+
+    m = methods.get("seqslam-desc", ds=2, R=2)
+    encoder = encoders.get(enc)
+    feats = []
+    for folder in image_folders:
+        kw = dict(need_sdr=False, need_desc="desc" in m.inputs(), cache_dir=tmp_path, progress=False)
+        ex = extract(open_source(folder), encoder, **kw)
+        again = extract(open_source(folder), encoder, **kw)  # from the cache, with the descriptors
+        assert again.cached and again.features.desc is not None
+        np.testing.assert_array_equal(again.features.desc, ex.features.desc)
+        feats.append(ex.features)
+    d = feats[0].desc
+    assert d.dtype == np.float32 and d.shape[0] == 12 and d.ndim == 2
+    res = m.match(*feats)
+    assert res.similarity.shape == (12, 12) and res.best_db.shape == (12,)
+
+
+def test_an_encoder_without_a_dense_descriptor_is_named(image_folders):
+    import encoders
+    from pipelines.extract import extract
+    from vpr.sources import open_source
+
+    class NoDesc(encoders.base.BaseEncoder):
+        name = "nodesc"
+
+    with pytest.raises(ValueError, match="needs dense descriptors .*encoder 'nodesc' has no dense descriptor"):
+        extract(open_source(image_folders[0]), NoDesc(), need_sdr=False, need_desc=True, progress=False)
