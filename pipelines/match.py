@@ -290,7 +290,8 @@ def run_compare(db, query, method_names: list[str], opts: RunOptions, command: s
             score_v = np.where(vr.best_db >= 0, _at(S_v, vr.best_db), -np.inf)
             verified = MatchResult(m + "+verify", S_v, vr.best_db, score_v, vr.accepted,
                                    res.seconds + time.perf_counter() - t0, res.conf)
-            extra = {"verified_db": vr.best_db.tolist(), "inliers": np.where(vr.best_db >= 0, vr.score, -1).astype(int).tolist(),
+            extra = {"verified_db": vr.best_db.tolist(),
+                     "inliers": np.where(vr.best_db >= 0, vr.score, -1).astype(int).tolist(),
                      "verified": vr.accepted.astype(int).tolist()}
             metrics[m + "+verify"], curve = method_metrics(verified, gt_hard, gt_soft)
             if curve is not None:
