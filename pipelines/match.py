@@ -61,6 +61,10 @@ class RunOptions:
     gt: GroundTruthSpec = field(default_factory=GroundTruthSpec)
     verify: int = 0
     min_inliers: int = 15
+    #: methods whose candidates are verified (None: all); verification costs ~5-15 ms per candidate pair
+    verify_methods: tuple | None = None
+    #: further :class:`vpr.verify.Verifier` conf (e.g. ``{"n_features": 500}``)
+    verify_conf: dict = field(default_factory=dict)
     progress: bool = True
     cache: Path | None = None
 
@@ -203,6 +207,13 @@ def metrics_table(table: dict) -> str:
     return "\n".join(lines)
 
 
+def _at(S, rows) -> np.ndarray:
+    """``S[rows[j], j]`` per column (rows >= 0), dense or sparse."""
+    cols = np.arange(len(rows))
+    rows = np.maximum(rows, 0)
+    return np.asarray(S[rows, cols], dtype=np.float64).ravel()
+
+
 def _config(opts: RunOptions, **inputs) -> dict:
     return {"argv": sys.argv[1:], **inputs, **asdict(opts)}
 
@@ -246,6 +257,9 @@ def run_compare(db, query, method_names: list[str], opts: RunOptions, command: s
     if opts.verify < 0:
         raise ValueError(f"--verify must be >= 0, got {opts.verify}")
     runners = _runners(method_names, opts)
+    unknown = set(opts.verify_methods or ()) - set(runners)
+    if unknown:
+        raise ValueError(f"verify_methods: {', '.join(sorted(unknown))} not among the methods run")
     out = Path(opts.out)
     (db_src, q_src), encoder, (db_ex, q_ex) = _extract_all([db, query], runners, opts)
     gt_hard, gt_soft = build_gt(opts.gt, db_ex.features.names, q_ex.features.names, db_ex.indices, q_ex.indices,
@@ -257,7 +271,7 @@ def run_compare(db, query, method_names: list[str], opts: RunOptions, command: s
         from vpr.verify import Verifier  # pycolmap: loaded only when verifying
 
         # one verifier for all methods: features and pair inliers are computed once
-        verifier = Verifier(db_ex.thumbs, q_ex.thumbs, min_inliers=opts.min_inliers)
+        verifier = Verifier(db_ex.thumbs, q_ex.thumbs, **{"min_inliers": opts.min_inliers, **opts.verify_conf})
     for m, runner in runners.items():
         res = runner.match(db_ex.features, q_ex.features, progress=opts.progress)
         results[m] = res
@@ -269,13 +283,18 @@ def run_compare(db, query, method_names: list[str], opts: RunOptions, command: s
             curves[m] = curve
         metrics[m]["similarity_file"] = str(Path(folder.name if not single else ".") / sim_file)
         extra = {}
-        if opts.verify:
+        if opts.verify and (opts.verify_methods is None or m in opts.verify_methods):
             t0 = time.perf_counter()
             vr = verifier.verify(res.similarity, opts.verify, progress=opts.progress)
-            # seconds: the method's plus verification (pairs shared with earlier methods are cached)
-            verified = MatchResult(m + "+verify", vr.similarity(), vr.best_db, vr.score, vr.accepted,
+            # the method's matrix with only each query's candidates re-ordered by inliers: its AP compares
+            # with the unverified one (vpr.verify.rerank); seconds: the method's plus verification
+            # (pairs shared with earlier methods are cached)
+            S_v = vr.reranked(res.similarity)
+            score_v = np.where(vr.best_db >= 0, _at(S_v, vr.best_db), -np.inf)
+            verified = MatchResult(m + "+verify", S_v, vr.best_db, score_v, vr.accepted,
                                    res.seconds + time.perf_counter() - t0, res.conf)
-            extra = {"verified_db": vr.best_db.tolist(), "inliers": vr.score.astype(int).tolist(),
+            extra = {"verified_db": vr.best_db.tolist(),
+                     "inliers": np.where(vr.best_db >= 0, vr.score, -1).astype(int).tolist(),
                      "verified": vr.accepted.astype(int).tolist()}
             metrics[m + "+verify"], curve = method_metrics(verified, gt_hard, gt_soft)
             if curve is not None:

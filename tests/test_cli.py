@@ -142,8 +142,9 @@ def test_demo_tiny(tmp_path, capsys):
     code, stdout, _ = _run(["demo", "--out", tmp_path / "demo", "--size", "64x48", "--frames", 30,
                             "--verify", 1], capsys)
     assert code == 0
-    for m in ("rshosm", "seqslam", "pairwise", "rshosm+verify"):
+    for m in ("rshosm", "seqslam", "seqslam-desc", "pairwise", "rshosm-seq+verify"):
         assert m in stdout
+    assert "pairwise+verify" not in stdout  # the demo verifies rshosm-seq only
     assert (tmp_path / "demo" / "scene" / "contact_sheet.png").is_file()
     assert (tmp_path / "demo" / "pr.png").is_file()
 
