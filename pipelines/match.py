@@ -225,8 +225,8 @@ def _extract_all(paths, runners: dict, opts: RunOptions):
     encoder = encoders.get(opts.encoder, **opts.encoder_conf)
     needed = set().union(*(r.inputs() for r in runners.values()))
     exs = [extract(s, encoder, need_sdr="sdr" in needed, need_desc="desc" in needed,
-                   need_pixels="pixels" in needed, thumbs=opts.verify > 0, cache_dir=opts.cache or Path(opts.out) / "cache",
-                   progress=opts.progress) for s in srcs]
+                   need_pixels="pixels" in needed, thumbs=opts.verify > 0,
+                   cache_dir=opts.cache or Path(opts.out) / "cache", progress=opts.progress) for s in srcs]
     return srcs, encoder, exs
 
 
