@@ -1,12 +1,17 @@
 """``vpr match``, ``vpr compare`` and ``vpr loops``: image folders, videos or lists in,
 similarity matrices, matches, metrics and plots out.
 
-Outputs in ``out`` (one method: in it; several: one sub-folder per method):
-``similarity.npy`` (float32 db x query; a top-K sparse ``similarity_topk.npz`` for
-large inputs), ``matches.csv`` (query, best_db, score, accepted, ...),
-``similarity.png``; and in ``out`` ``pr.png`` (with ground truth), ``metrics.json``
-and ``config.json`` (everything needed to repeat the run). Encodings are cached
-in ``out/cache``.
+Outputs: each method writes ``out/METHOD``: ``similarity.npy`` (float32 db x query;
+a top-K sparse ``similarity_topk.npz`` for large inputs), ``matches.csv`` (query,
+best_db, score, accepted, ...), ``similarity.png``, ``pr_curve.npz`` and
+``config.json`` (everything needed to repeat the run); ``out/metrics.json`` and
+``out/pr.png`` hold every method run into ``out`` on the same inputs, merged
+under a lock (:func:`merge_metrics`). Encodings are cached in ``out/cache``.
+
+Faults: every option, source and ground-truth file is checked before the first
+frame is encoded, and a refused run writes nothing; every file is written
+atomically, so an interrupted run leaves only complete files and a rerun gives
+the uninterrupted result.
 
 :func:`run_compare` and :func:`run_loops` do the work from explicit parameters
 (:class:`RunOptions`); :func:`run_command` only adapts the parsed command line.
@@ -15,7 +20,9 @@ from __future__ import annotations
 
 import argparse
 import csv
+import errno
 import json
+import os
 import platform
 import sys
 import time
@@ -266,6 +273,14 @@ def _check_out(out: Path, srcs, folders) -> None:
     """Refuse an output folder whose writes would land in a source folder (they would be read back as frames)."""
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out}: exists and is not a folder")
+    # a read-only or forbidden --out would otherwise fail only when the first encoding is cached
+    anc = out.absolute()
+    while not anc.exists() and anc != anc.parent:
+        anc = anc.parent
+    if not os.access(anc, os.W_OK | os.X_OK):
+        readonly = hasattr(os, "statvfs") and os.statvfs(anc).f_flag & getattr(os, "ST_RDONLY", 1)
+        code = errno.EROFS if readonly else errno.EACCES
+        raise OSError(code, f"cannot write ({os.strerror(code)})", str(out))
     written = {(out / f).resolve(): f for f in folders}
     for src in srcs:
         if src.kind == "folder" and src.path.resolve() in written:

@@ -208,13 +208,18 @@ def test_pairs_columns_are_read_by_header_name(tmp_path):
 
 
 def test_db_query_header_through_the_cli(scene, tmp_path, capsys):
-    swapped = tmp_path / "gt.csv"
-    swapped.write_text("db,query\n" + "".join(f"{j},{j}\n" for j in range(5)))
-    code, _, _ = _run(["match", scene["db"], scene["q"], "--out", tmp_path / "o", "--method", "pairwise",
-                       "--gt", swapped, "--max-frames", 5], capsys)
-    assert code == 0
-    m = json.loads((tmp_path / "o" / "metrics.json").read_text())
-    assert m["params"]["n_db"] == 5
+    # the same pairs (database frame j + 1 for query frame j) as db,query and as headerless query,db
+    swapped, plain = tmp_path / "swapped.csv", tmp_path / "plain.csv"
+    swapped.write_text("db,query\n" + "".join(f"{j + 1},{j}\n" for j in range(0, 20, 3)))
+    plain.write_text("".join(f"{j},{j + 1}\n" for j in range(0, 20, 3)))
+    got = []
+    for gt in (swapped, plain):
+        out = tmp_path / gt.stem
+        code, _, _ = _run(["match", scene["db"], scene["q"], "--out", out, "--method", "pairwise", "--gt", gt], capsys)
+        assert code == 0
+        m = json.loads((out / "metrics.json").read_text())["methods"]["pairwise"]
+        got.append({k: v for k, v in m.items() if k not in ("seconds", "similarity_file", "pr_curve")})
+    assert got[0] == got[1]
 
 
 # ------------------------------------------------------------ 5. every check before the work
@@ -331,7 +336,11 @@ def test_ctrl_c_while_importing_in_process(monkeypatch, capsys):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(importlib, "import_module", interrupted)
-    assert main(["match", "a", "b", "--out", "c"]) == 130
+    try:
+        code = main(["match", "a", "b", "--out", "c"])
+    except KeyboardInterrupt:
+        pytest.fail("KeyboardInterrupt escaped main")
+    assert code == 130
     assert capsys.readouterr().err.strip() == "vpr: interrupted"
 
 
