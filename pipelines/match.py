@@ -434,6 +434,8 @@ def run_compare(db, query, method_names: list[str], opts: RunOptions, command: s
     out = Path(opts.out)
     runners, encoder, (db_src, q_src) = _prepare(out, [db, query], ["database", "query"], method_names, opts)
     db_att, q_att = db_src.indices(), q_src.indices()
+    for runner in runners.values():
+        runner.check_size(len(db_att), len(q_att))  # too large for a method: refused now, not after encoding
     gt_hard, gt_soft = build_gt(opts.gt, db_src.names(), q_src.names(), db_att, q_att, db_src.name, q_src.name)
     if gt_hard is not None and not gt_hard.any():
         raise opts.gt.no_match_error(db_att, q_att)
@@ -491,7 +493,10 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int = 10) -> dict:
     out = Path(opts.out)
     runners, encoder, (src,) = _prepare(out, [seq], ["sequence"], [method], opts, loops_exclude=exclude)
     runner = runners[method]
+    if type(runner)._loops is methods.Method._loops:
+        raise ValueError(runner.no_loops_reason or f"{method} does not support loop closure within one traverse")
     attempted = src.indices()
+    runner.check_size(len(attempted), len(attempted))
     if exclude >= len(attempted):
         raise ValueError(f"--exclude {exclude} leaves no pair to compare: {src.path} has {len(attempted)} frames "
                          "to read, and a loop closure needs frames at least --exclude apart")
@@ -500,7 +505,7 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int = 10) -> dict:
         xy = positions_of_frames(opts.gt.files[0], src.name, attempted)
         gt_hard = evaluate.gt_from_positions(xy, xy, opts.gt.radius)
         mask = evaluate.loop_closure_mask(len(attempted), exclude=exclude)
-        if not (gt_hard & mask.toarray() if sp.issparse(mask) else gt_hard & mask).any():
+        if not (gt_hard & mask).any():
             raise opts.gt.no_match_error(exclude=exclude)
     # ---- the work starts here: nothing above wrote a file
     (ex,) = _extract_all([src], ["sequence"], encoder, runners, opts)
@@ -508,6 +513,8 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int = 10) -> dict:
         rows = _gt_rows(attempted, ex.indices)
         gt_hard = gt_hard[np.ix_(rows, rows)]
         mask = evaluate.loop_closure_mask(len(ex.features), exclude=exclude)
+        if not (gt_hard & mask).any():  # skipped frames took the last true pairs
+            raise opts.gt.no_match_error(exclude=exclude)
     res = runner.loops(ex.features, exclude=exclude, progress=opts.progress)
     folder = out / method
     metrics = _write_method(folder, method, res, ex.features.names, ex.features.names, gt_hard, None, None, opts,
