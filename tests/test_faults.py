@@ -89,7 +89,7 @@ def test_read_only_file_system_gives_one_line(scene, tmpfs, capsys):
 
 
 def test_full_file_system_gives_one_line_and_no_partial_file(scene, tmpfs, capsys):
-    # leave about 8 kB: the encoding cache fits, the method's outputs do not
+    # leave about 8 kB: the disk fills part-way through the run (encoding cache or outputs)
     filler = tmpfs / "filler"
     with open(filler, "wb") as fh:
         try:
