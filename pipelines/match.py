@@ -515,7 +515,7 @@ def run_compare(db, query, method_names: list[str], opts: RunOptions, command: s
               "encoder_conf": encoder.conf, "ground_truth": opts.gt.describe()}
     report = {
         "methods": metrics,
-        "params": {"command": command, "db": str(db), "query": str(query),
+        "params": {"command": command, "db": str(db), "query": str(query), "preset": opts.preset,
                    "encoder": encoder.name, "encoder_conf": encoder.conf, "method_conf": confs,
                    "n_db": len(db_ex.features), "n_query": len(q_ex.features),
                    "encode_seconds": {"db": db_ex.seconds, "query": q_ex.seconds},

@@ -147,9 +147,11 @@ def test_config_json_records_the_resolved_settings(tmp_path):
     args = _args("compare", [str(db), str(q), "--out", str(tmp_path / "out"), "--preset", "paper",
                              "--methods", "rshosm,pairwise", "--no-progress"])
     assert match.run_command(args) == 0
-    config = json.loads((tmp_path / "out" / "config.json").read_text())
-    assert config["preset"] == "paper" and config["methods"] == ["rshosm", "pairwise"]
-    assert config["encoder"] == "pixel" and config["encoder_conf"] == presets.PRESETS["paper"]["encoder_conf"]
-    assert config["method_conf"] == {"rshosm": {"p_extra": 0.05}}
+    for m in ("rshosm", "pairwise"):  # one folder per method, each with the run's config
+        config = json.loads((tmp_path / "out" / m / "config.json").read_text())
+        assert config["preset"] == "paper" and config["methods"] == ["rshosm", "pairwise"]
+        assert config["encoder"] == "pixel" and config["encoder_conf"] == presets.PRESETS["paper"]["encoder_conf"]
+        assert config["method_conf"] == {"rshosm": {"p_extra": 0.05}}
     params = json.loads((tmp_path / "out" / "metrics.json").read_text())["params"]
-    assert params["encoder_conf"]["k"] == 40 and params["method_conf"]["rshosm"]["p_extra"] == 0.05
+    assert params["preset"] == "paper" and params["encoder_conf"]["k"] == 40
+    assert params["method_conf"]["rshosm"]["p_extra"] == 0.05
