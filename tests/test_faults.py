@@ -268,7 +268,8 @@ def test_ignored_options_are_errors(scene, tmp_path, capsys, case):
                                "--gt-soft", 2], ["--gt-soft 2", "--radius 3"]),
         "soft_below_tolerance": (["match", scene["db"], scene["q"], "--tolerance", 3, "--gt-soft", 1],
                                  ["--gt-soft 1", "--tolerance 3"]),
-        "exclude": (["loops", scene["db"], "--method", "rshosm", "--exclude", 100], ["--exclude 100", f"{scene['n_db']} frames"]),
+        "exclude": (["loops", scene["db"], "--method", "rshosm", "--exclude", 100],
+                    ["--exclude 100", f"{scene['n_db']} frames"]),
         "no_loops": (["loops", scene["db"], "--method", "rshosm-seq"], ["rshosm-seq"]),
     }[case]
     code, _, err = _run(argv + ["--out", out], capsys)
