@@ -110,7 +110,7 @@ class JoinedEncoder(BaseEncoder):
     default_conf = {"describe": "balanced"}
 
     def __init__(self, **conf):
-        import encoders
+        import encoders  # the registry imports this module: a top-level import would be circular
 
         if len(self.parts) < 2:
             raise ValueError("JoinedEncoder needs parts: use encoders.get('pixel+cnn', ...) or joined_class()")

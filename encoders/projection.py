@@ -219,7 +219,7 @@ class HogDescriptor:
             raise ValueError(f"hog: size {self.conf['size']} smaller than one block ({ppc * cpb} px)")
 
     def describe(self, images) -> np.ndarray:
-        from skimage.feature import hog
+        from skimage.feature import hog  # scikit-image is slow to import; only HOG needs it
 
         c = self.conf
         frames = as_image_list(images)

@@ -63,7 +63,7 @@ def commands() -> dict[str, tuple[str, str]]:
 
 def build_parser(only: str | None = None, table: dict | None = None) -> argparse.ArgumentParser:
     """The ``vpr`` parser; with ``only``, just that command gets its arguments (imports one module)."""
-    from vpr import __version__
+    from vpr import __version__  # imports here keep `vpr --help` and typos fast
 
     table = commands() if table is None else table
     ap = argparse.ArgumentParser(prog="vpr", description="Sequence-based visual place recognition: "
@@ -123,7 +123,7 @@ def main(argv=None) -> int:
         command = f"vpr {args.command}"
         if hasattr(args, "no_progress") and not sys.stderr.isatty():
             args.no_progress = True  # bars redrawn into a log file are noise
-        from vpr.memory import MemoryFileError
+        from vpr.memory import MemoryFileError  # numba: slow; only after the arguments parsed
 
         try:
             return int(importlib.import_module(table[args.command][0]).run_command(args) or 0)

@@ -22,7 +22,7 @@ import sys
 import numpy as np
 
 from vpr.evaluate import auc_pr, recall_at_k
-from vpr.imageproc import seqslam_preprocess
+from vpr.imageproc import seqslam_descriptors
 from vpr.io import save_json
 from vpr.render import gt_matrix, load_spec, render_scene
 from vpr.similarity import cosine
@@ -30,10 +30,6 @@ from vpr.similarity import cosine
 __all__ = ["realism_table", "format_table", "main"]
 
 RERUN_SUFFIX = "_rerun"
-
-
-def _descriptors(images: np.ndarray) -> np.ndarray:
-    return np.stack([seqslam_preprocess(im).ravel() for im in images])
 
 
 def realism_table(spec="two_seasons", size=None, n_frames=None, radius: float = 5.0, rerun_seed_offset: int = 1000,
@@ -75,7 +71,7 @@ def realism_table(spec="two_seasons", size=None, n_frames=None, radius: float = 
         reruns.append(r)
     s["traverses"] = s["traverses"] + reruns
     scene = render_scene(s, size=size, n_frames=n_frames, progress=progress)
-    desc = {t.name: _descriptors(t.images) for t in scene.traverses}
+    desc = {t.name: seqslam_descriptors(t.images) for t in scene.traverses}
     pairs = [(a, b, "cross condition") for a in base for b in base if a != b]
     pairs += [(a, a + RERUN_SUFFIX, "same condition") for a in base]
     rows = []

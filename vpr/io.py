@@ -126,7 +126,7 @@ def save_figure(fig, path, **kwargs) -> Path:
 
 def save_image(path, img) -> Path:
     """Atomically write an image with OpenCV (format from the suffix)."""
-    import cv2
+    import cv2  # slow to import; most writers here need only NumPy and json
 
     with atomic_path(path) as tmp:
         if not cv2.imwrite(str(tmp), img):

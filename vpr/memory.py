@@ -342,7 +342,7 @@ class SequenceMemory:
                   self.p_extra)
         bar = None
         if progress:
-            from tqdm import tqdm
+            from tqdm import tqdm  # only for the progress bar
 
             bar = tqdm(total=n, desc="rSHOSM", unit="frame", leave=False)
         f = 0

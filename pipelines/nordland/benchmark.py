@@ -12,6 +12,7 @@ import resource
 import time
 from pathlib import Path
 
+import encoders
 from vpr import evaluate as E
 from vpr import io as _io
 from vpr import methods
@@ -38,7 +39,6 @@ def peak_rss_mb() -> float:
 
 def encode_sdrs(db_desc, q_desc, n_bits: int = 2048, k: int = 40, standardise: str = "fit", seed: int = 0):
     """Random-projection top-k SDRs of both traverses; with ``"fit"`` each traverse is fitted on itself."""
-    import encoders
 
     out = []
     for desc in (db_desc, q_desc):
@@ -104,7 +104,7 @@ def run_benchmark(subset: str, out, data=None, k: int = 40, threshold: float | N
     -------
     dict: the content of ``metrics.json``.
     """
-    from vpr.plots import plot_pr
+    from vpr.plots import plot_pr  # matplotlib: slow to import, only needed for the plot
 
     out = Path(out)
     t0 = time.perf_counter()

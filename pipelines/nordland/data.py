@@ -5,9 +5,11 @@ import hashlib
 import os
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from vpr import io as _io
+from vpr.imageproc import seqslam_descriptors
 
 __all__ = ["DATASETS_ENV", "DEFAULT_DATA", "SUBSETS", "DatasetError", "find_dataset", "frame_names", "load_images",
            "pixel_descriptors"]
@@ -85,7 +87,6 @@ def frame_names(root: Path, subset: str) -> list[str]:
 
 def load_images(folder: Path, names: list[str]) -> list[np.ndarray]:
     """Read the named images with OpenCV (BGR uint8); a file that cannot be read is an error naming it."""
-    import cv2
 
     out = []
     for n in names:
@@ -103,23 +104,20 @@ def pixel_descriptors(root: Path, season: str, names: list[str], cache_dir: Path
     The cache file name carries a hash of the dataset path, the season and the
     file list, so a different subset or dataset never reads a stale cache.
     """
-    import encoders
-
     key = hashlib.sha1("\n".join([str(root.resolve()), season, *names]).encode()).hexdigest()[:12]
     path = None if cache_dir is None else Path(cache_dir) / f"pixel_{season}_{len(names)}_{key}.npy"
     if path is not None and path.exists():
         desc = np.load(path)
         if desc.shape == (len(names), 2048):
             return desc
-    enc = encoders.get("pixel")
     chunks = []
     it = range(0, len(names), 512)
     if progress:
-        from tqdm import tqdm
+        from tqdm import tqdm  # only for the progress bar
 
         it = tqdm(it, desc=f"describe {season}", unit="chunk", leave=False)
     for i in it:
-        chunks.append(enc.describe(load_images(root / season, names[i:i + 512])))
+        chunks.append(seqslam_descriptors(load_images(root / season, names[i:i + 512]), name=season))
     desc = np.concatenate(chunks).astype(np.float32)
     if path is not None:
         _io.save_npy(path, desc)
