@@ -80,3 +80,88 @@ def test_localizer_bad_input(traverses, tmp_path):
     np.savez(tmp_path / "y.npz", header=np.array(json.dumps({"format": "other"})))
     with pytest.raises(MemoryFileError, match="not a localizer file"):
         vpr.Localizer.load(tmp_path / "y.npz")
+
+
+# ---------------------------------------------------------------- command line
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    from vpr.render import write_scene
+
+    root = tmp_path_factory.mktemp("scene")
+    res = write_scene("two_seasons", root / "s", size=(48, 36), n_frames=40, progress=False)
+    return {name: t["folder"] for name, t in res["traverses"].items()}
+
+
+def _cli(argv, capsys, stdin=None, monkeypatch=None):
+    import io as _io
+
+    from pipelines.cli import main
+
+    if stdin is not None:
+        monkeypatch.setattr("sys.stdin", _io.StringIO(stdin))
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_learn_and_localize_folder_stdin_and_restart(scene, tmp_path, capsys, monkeypatch):
+    from pathlib import Path
+
+    day, night = scene["summer_day"], scene["winter_night"]
+    enc = ["--encoder-conf", "k=100", "--encoder-conf", "standardise=fit"]
+    code, out, err = _cli(["learn", day, "--out", tmp_path / "map.npz", "--no-progress", *enc], capsys)
+    assert code == 0, err
+    code, out, err = _cli(["localize", tmp_path / "map.npz", day, "--out", tmp_path / "a", "--tolerance", 1], capsys)
+    assert code == 0, err
+    lines = [json.loads(s) for s in out.splitlines()]
+    assert len(lines) == 40 and set(lines[0]) == {"query", "name", "best_db", "db_name", "score", "accepted",
+                                                  "latency_ms"}
+    # the database's own frames localise on themselves once the sequence is under way
+    assert np.mean([abs(r["best_db"] - r["query"]) <= 1 for r in lines[5:]]) >= 0.9
+    m = json.loads((tmp_path / "a" / "metrics.json").read_text())["metrics"]
+    assert m["frames"] == 40 and m["recall_at_1"] >= 0.8
+    for k in ("with_encoding", "without_encoding"):
+        assert m["latency_ms"][k]["median"] <= m["latency_ms"][k]["p95"] <= m["latency_ms"][k]["max"]
+    assert (tmp_path / "a" / "matches.csv").read_text().count("\n") == 41
+    # stdin: paths as they arrive, the same answers; a restart from --state-out continues identically
+    paths = sorted(str(p) for p in Path(night).glob("*.png"))
+    code, full, err = _cli(["localize", tmp_path / "map.npz", "-", "--out", tmp_path / "b"], capsys,
+                           "\n".join(paths) + "\n", monkeypatch)
+    assert code == 0, err
+    full = [json.loads(s) for s in full.splitlines()]
+    code, first, _ = _cli(["localize", tmp_path / "map.npz", "-", "--out", tmp_path / "c", "--state-out",
+                           tmp_path / "state.npz"], capsys, "\n".join(paths[:15]) + "\n", monkeypatch)
+    code, rest, _ = _cli(["localize", tmp_path / "state.npz", "-", "--out", tmp_path / "d"], capsys,
+                         "\n".join(paths[15:]) + "\n", monkeypatch)
+    both = [json.loads(s) for s in (first + rest).splitlines()]
+    key = lambda r: (r["best_db"], r["score"], r["accepted"])  # noqa: E731
+    assert [key(r) for r in both] == [key(r) for r in full]
+    code, folder, _ = _cli(["localize", tmp_path / "map.npz", night, "--out", tmp_path / "e"], capsys)
+    assert [key(json.loads(s)) for s in folder.splitlines()] == [key(r) for r in full]
+
+
+def test_localize_bad_input(scene, tmp_path, capsys):
+    code, _, err = _cli(["localize", tmp_path / "nothing.npz", scene["summer_day"], "--out", tmp_path / "o"], capsys)
+    assert code == 2 and "nothing.npz" in err
+    np.savez(tmp_path / "mem.npz", header=np.array("{}"))
+    code, _, err = _cli(["localize", tmp_path / "mem.npz", scene["summer_day"], "--out", tmp_path / "o"], capsys)
+    assert code == 2 and "not a localizer file" in err
+    code, _, err = _cli(["learn", scene["summer_day"], "--out", tmp_path / "m.npz", "--no-progress",
+                         "--encoder-conf", "standardise=per_batch"], capsys)
+    assert code == 2 and "per_batch" in err
+
+
+def test_exclude_seconds():
+    from types import SimpleNamespace
+
+    from pipelines.match import exclude_frames
+
+    video = SimpleNamespace(path="v.mp4", kind="video", video_fps=30.0, fps=None, step=3)
+    assert exclude_frames("5s", video) == 50 and exclude_frames("12", video) == 12 and exclude_frames(7, video) == 7
+    assert exclude_frames("2s", SimpleNamespace(path="v.mp4", kind="video", video_fps=30.0, fps=5.0, step=None)) == 10
+    folder = SimpleNamespace(path="imgs", kind="folder")
+    with pytest.raises(ValueError, match="seconds need a frame rate.*imgs"):
+        exclude_frames("5s", folder)
+    for bad in ("x", "0", "0.01s", "-3"):
+        with pytest.raises(ValueError, match="--exclude"):
+            exclude_frames(bad, video)

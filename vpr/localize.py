@@ -140,6 +140,15 @@ class Localizer:
         """Start a new query traverse: forget the evidence carried from earlier frames."""
         self._fwd.load_state(self._initial)
 
+    def warm_up(self) -> None:
+        """Compile (or load from numba's cache) the kernels, leaving the state as it was.
+
+        Otherwise the first :meth:`update` after start pays for it (hundreds of ms).
+        """
+        state = self._fwd.state_dict()
+        self._fwd.update(np.zeros(0, np.int64))
+        self._fwd.load_state(state)
+
     def update(self, sdr_row) -> LocalizerResult:
         """Localise one query frame (SDR row: 1-row batch, bool vector or bit indices)."""
         o = self._fwd.update(sdr_row)
