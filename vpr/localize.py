@@ -17,7 +17,7 @@ matches of the causal run stay below it, see ``docs/localize.md``).
 
 :meth:`Localizer.save` writes one versioned ``.npz`` (atomically): the memory,
 the database names and winner codes, the streaming state, the conf and
-optional caller metadata (``pipelines.localize`` stores the encoder there), so
+optional caller metadata (`vpr learn` stores the encoder there), so
 a robot can stop and, after :meth:`Localizer.load`, continue with the answers
 it would have given without stopping.
 
