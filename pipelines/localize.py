@@ -20,9 +20,10 @@ without encoding; with ground truth options AP and R@1 as ``vpr match``).
 Query standardisation (encoders with ``standardise=fit``): the batch commands
 standardise the query traverse on its own frames, which needs the whole
 traverse. Online that is impossible, so ``--query-standardise`` chooses
-``running`` (default: per-dimension mean and variance of the query frames seen
-so far, starting from the database's statistics with the weight of
-``--prior-frames`` frames) or ``db`` (the database's statistics, fixed).
+``running`` (default: per-dimension mean and variance of the last ``--window``
+query frames, default 50, plus the database's statistics with the weight of
+``--prior-frames`` frames, default 10) or ``db`` (the database's statistics, fixed).
+The state of the running statistics is kept in ``--state-out`` files.
 Measured on Nordland, see ``docs/localize.md``.
 """
 from __future__ import annotations
@@ -74,12 +75,14 @@ def _fitted(encoder) -> bool:
 class QueryEncoder:
     """Encode one query frame at a time with the database's encoder.
 
-    ``standardise``: ``"running"`` (causal running statistics, starting from
-    the database's with weight ``prior_frames``) or ``"db"`` (the database's).
-    Only used when the encoder was fitted (``standardise=fit``).
+    ``standardise``: ``"running"`` (causal statistics of the last ``window``
+    query frames, or of all so far when ``window`` is None, plus the
+    database's with the weight of ``prior_frames`` frames) or ``"db"`` (the
+    database's, fixed). Only used when the encoder was fitted (``standardise=fit``).
     """
 
-    def __init__(self, encoder, db_stats: list | None, standardise: str = "running", prior_frames: float = 10.0):
+    def __init__(self, encoder, db_stats: list | None, standardise: str = "running", prior_frames: float = 10.0,
+                 window: int | None = None):
         if standardise not in ("running", "db"):
             raise ValueError(f"--query-standardise must be 'running' or 'db', got {standardise!r}")
         if encoder.conf.get("standardise") == "per_batch":
@@ -87,6 +90,10 @@ class QueryEncoder:
                              "learn the map with standardise=fit or none")
         if not prior_frames > 0:
             raise ValueError(f"--prior-frames must be > 0, got {prior_frames}")
+        if window is not None and int(window) < 2:
+            raise ValueError(f"--window must be at least 2 frames, got {window}")
+        self.window = None if window is None else int(window)
+        self._recent: list = []
         self.encoder = encoder
         self.projected = hasattr(encoder, "encode_descriptors")
         self.fitted = _fitted(encoder) and self.projected
@@ -110,6 +117,8 @@ class QueryEncoder:
         out = {"q_n": np.array(self._n)}
         for i in range(len(self.projs)):
             out[f"q_sum_{i}"], out[f"q_sq_{i}"] = self._sum[i], self._sq[i]
+            if self._recent:
+                out[f"q_recent_{i}"] = np.stack([xs[i] for xs in self._recent])
         return out
 
     def load_state(self, arrays: dict) -> None:
@@ -119,6 +128,8 @@ class QueryEncoder:
         self._n = float(arrays["q_n"])
         for i in range(len(self.projs)):
             self._sum[i], self._sq[i] = arrays[f"q_sum_{i}"].astype(np.float64), arrays[f"q_sq_{i}"].astype(np.float64)
+        recent = [arrays[f"q_recent_{i}"] for i in range(len(self.projs))] if "q_recent_0" in arrays else []
+        self._recent = [list(rows) for rows in zip(*recent, strict=True)] if recent else []
 
     def encode(self, image) -> sp.csr_matrix:
         if not self.projected:
@@ -127,8 +138,16 @@ class QueryEncoder:
         if self.fitted and self.standardise == "running":
             blocks = self.encoder.split_descriptors(desc) if len(self.projs) > 1 else [desc]
             self._n += 1.0
-            for i, (p, b) in enumerate(zip(self.projs, blocks, strict=True)):
-                x = b[0].astype(np.float64)
+            xs = [b[0].astype(np.float64) for b in blocks]
+            if self.window is not None:
+                self._recent.append(xs)
+                if len(self._recent) > self.window:  # a sliding window: the oldest frame leaves the sums
+                    old = self._recent.pop(0)
+                    self._n -= 1.0
+                    for i, o in enumerate(old):
+                        self._sum[i] -= o
+                        self._sq[i] -= o * o
+            for i, (p, x) in enumerate(zip(self.projs, xs, strict=True)):
                 self._sum[i] += x
                 self._sq[i] += x * x
                 mean = self._sum[i] / self._n
@@ -209,7 +228,8 @@ def _latency(ms) -> dict:
 
 
 def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: str = "running",
-             prior_frames: float = 10.0, gt: GroundTruthSpec | None = None, learn_options: dict | None = None,
+             prior_frames: float = 10.0, window: int | None = 50, gt: GroundTruthSpec | None = None,
+             learn_options: dict | None = None,
              fps=None, step=None, max_frames=None, state_out=None) -> dict:
     """Localise every frame of ``query`` against a map (or a database learned first); return metrics.json's content.
 
@@ -219,7 +239,7 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
     query : folder, video, image list, or ``"-"`` (paths read from ``stdin``).
     out : output folder (matches.csv, metrics.json).
     stdout : where the JSON lines go (default ``sys.stdout``).
-    query_standardise, prior_frames : see :class:`QueryEncoder`.
+    query_standardise, prior_frames, window : see :class:`QueryEncoder` (window None or 0: all frames so far).
     gt : ground truth (as ``vpr match``), optional.
     state_out : optional path: the localizer with its streaming state after the last frame (a robot's restart file).
     """
@@ -233,7 +253,7 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
         learn_to = out / "map.npz"
         learn(map_or_db, learn_to, fps=fps, step=step, max_frames=max_frames, progress=False, **lo)
         loc, enc, stats = load_map(learn_to)
-    qenc = QueryEncoder(enc, stats, query_standardise, prior_frames)
+    qenc = QueryEncoder(enc, stats, query_standardise, prior_frames, window or None)
     qenc.load_state(loc.arrays)  # a --state-out file continues its query's running statistics
     q_src = None if str(query) == "-" else open_source(query, fps=fps, step=step, max_frames=max_frames)
     frames = _stdin_frames(stdin if stdin is not None else sys.stdin) if q_src is None else _source_frames(q_src)
@@ -307,7 +327,7 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
               "params": {"command": "localize", "map_or_db": str(map_or_db), "query": str(query),
                          "encoder": loc.meta.get("encoder"), "encoder_conf": loc.meta.get("encoder_conf"),
                          "localizer_conf": loc.conf, "n_db": loc.n_db, "query_standardise": query_standardise,
-                         "prior_frames": prior_frames, "skipped": skipped,
+                         "prior_frames": prior_frames, "window": window, "skipped": skipped,
                          "ground_truth": gt.describe()},
               "versions": versions()}
     io.save_json(out / "metrics.json", report)
@@ -337,6 +357,8 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
                          "database's")
     ap.add_argument("--prior-frames", type=float, default=10.0,
                     help="weight of the database's statistics in the running ones, in frames (default 10)")
+    ap.add_argument("--window", type=int, default=50,
+                    help="running statistics over the last N query frames (default 50; 0: all frames so far)")
     ap.add_argument("--state-out", metavar="FILE.npz", help="also write the localizer with its state at the end")
     learn_group = ap.add_argument_group("learning MAP_OR_DB when it is a database")
     _add_learn_args(learn_group)
@@ -358,7 +380,7 @@ def run_command(args) -> int:
         return 0
     src_opts = {"fps": args.fps, "step": args.step, "max_frames": args.max_frames}
     report = localize(args.map, args.query, args.out, query_standardise=args.query_standardise,
-                      prior_frames=args.prior_frames, state_out=args.state_out,
+                      prior_frames=args.prior_frames, window=args.window, state_out=args.state_out,
                       gt=GroundTruthSpec(tolerance=args.tolerance, files=tuple(args.gt or ()), radius=args.radius,
                                          soft=args.gt_soft),
                       learn_options=learn_opts, **src_opts)

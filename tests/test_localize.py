@@ -125,18 +125,18 @@ def test_learn_and_localize_folder_stdin_and_restart(scene, tmp_path, capsys, mo
     assert (tmp_path / "a" / "matches.csv").read_text().count("\n") == 41
     # stdin: paths as they arrive, the same answers; a restart from --state-out continues identically
     paths = sorted(str(p) for p in Path(night).glob("*.png"))
-    code, full, err = _cli(["localize", tmp_path / "map.npz", "-", "--out", tmp_path / "b"], capsys,
+    code, full, err = _cli(["localize", tmp_path / "map.npz", "-", "--out", tmp_path / "b", "--window", 5], capsys,
                            "\n".join(paths) + "\n", monkeypatch)
     assert code == 0, err
     full = [json.loads(s) for s in full.splitlines()]
-    code, first, _ = _cli(["localize", tmp_path / "map.npz", "-", "--out", tmp_path / "c", "--state-out",
+    code, first, _ = _cli(["localize", tmp_path / "map.npz", "-", "--out", tmp_path / "c", "--window", 5, "--state-out",
                            tmp_path / "state.npz"], capsys, "\n".join(paths[:15]) + "\n", monkeypatch)
-    code, rest, _ = _cli(["localize", tmp_path / "state.npz", "-", "--out", tmp_path / "d"], capsys,
+    code, rest, _ = _cli(["localize", tmp_path / "state.npz", "-", "--out", tmp_path / "d", "--window", 5], capsys,
                          "\n".join(paths[15:]) + "\n", monkeypatch)
     both = [json.loads(s) for s in (first + rest).splitlines()]
     key = lambda r: (r["best_db"], r["score"], r["accepted"])  # noqa: E731
     assert [key(r) for r in both] == [key(r) for r in full]
-    code, folder, _ = _cli(["localize", tmp_path / "map.npz", night, "--out", tmp_path / "e"], capsys)
+    code, folder, _ = _cli(["localize", tmp_path / "map.npz", night, "--out", tmp_path / "e", "--window", 5], capsys)
     assert [key(json.loads(s)) for s in folder.splitlines()] == [key(r) for r in full]
 
 
