@@ -30,7 +30,7 @@ def loop_ap(S, gt, exclude, soft=None):
     return evaluate.average_precision(S, gt, soft, mask=evaluate.loop_closure_mask(S.shape[0], exclude=exclude))
 
 
-def run(name, sdr, pixels, gt, exclude, soft=None, forward_only=False, z_min=4.0, **kw):
+def run(name, sdr, pixels, gt, exclude, soft=None, forward_only=False, z_min=5.0, **kw):
     t = time.perf_counter()
     S, _ = loop_evidence(sdr, exclude=exclude, **kw)
     t_ev = time.perf_counter() - t
@@ -98,7 +98,7 @@ def main(argv=None):
     ap.add_argument("--frames", type=int, default=150)
     ap.add_argument("--size", default="96x72")
     ap.add_argument("--exclude", type=int, default=30)
-    ap.add_argument("--z-min", type=float, default=4.0)
+    ap.add_argument("--z-min", type=float, default=5.0)
     ap.add_argument("--nordland", default=None)
     ap.add_argument("--skip-paper", action="store_true")
     a = ap.parse_args(argv)

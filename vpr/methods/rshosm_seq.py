@@ -54,7 +54,7 @@ class RshosmSeq(Method):
     name = "rshosm-seq"
     default_conf = {**SequenceMemory.default_params(), "threshold": 0.75, "decay": 0.9, "stay": 0.05,
                     "skip": 0.05, "direction": "both", "normalise": "query"}
-    default_conf["z_min"] = 4.0  # loops only: acceptance threshold on the closure's z-score
+    default_conf["z_min"] = 5.0  # loops only: acceptance threshold on the closure's z-score
     nullable_conf = frozenset({"seed", "stay", "skip"})
 
     def check_size(self, n_db: int, n_q: int) -> None:
