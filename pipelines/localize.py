@@ -85,9 +85,9 @@ class QueryEncoder:
                  window: int | None = None):
         if standardise not in ("running", "db"):
             raise ValueError(f"--query-standardise must be 'running' or 'db', got {standardise!r}")
-        if encoder.conf.get("standardise") == "per_batch":
-            raise ValueError("encoders with standardise=per_batch cannot encode one frame at a time; "
-                             "learn the map with standardise=fit or none")
+        if encoder.conf.get("standardise") in ("per_batch", "causal"):
+            raise ValueError(f"encoders with standardise={encoder.conf['standardise']} cannot encode one frame at "
+                             "a time; learn the map with standardise=fit or none")
         if not prior_frames > 0:
             raise ValueError(f"--prior-frames must be > 0, got {prior_frames}")
         if window is not None and int(window) < 2:
@@ -164,9 +164,9 @@ def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, loc
     """Encode and learn the database traverse ``db``; write the map to ``out`` (atomic) and return it."""
     src = open_source(db, fps=fps, step=step, max_frames=max_frames)
     enc = encoders.get(encoder, **(encoder_conf or {}))
-    if enc.conf.get("standardise") == "per_batch":
-        raise ValueError("encoders with standardise=per_batch cannot encode one query frame at a time; "
-                         "use standardise=fit or none")
+    if enc.conf.get("standardise") in ("per_batch", "causal"):
+        raise ValueError(f"encoders with standardise={enc.conf['standardise']} cannot encode one query frame at a "
+                         "time; use standardise=fit (vpr localize then standardises the query causally, --window)")
     t = time.perf_counter()
     ex = extract(src, enc, need_sdr=True, progress=progress)  # fits standardise=fit on the database
     t_enc = time.perf_counter() - t

@@ -165,3 +165,21 @@ def test_exclude_seconds():
     for bad in ("x", "0", "0.01s", "-3"):
         with pytest.raises(ValueError, match="--exclude"):
             exclude_frames(bad, video)
+
+
+def test_causal_standardisation_only_looks_back():
+    import encoders
+    from encoders.projection import CAUSAL_MIN, CAUSAL_WINDOW
+
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(CAUSAL_WINDOW + 60, 32)).astype(np.float32)
+    d[80:] += 5.0  # the condition changes at frame 80
+    enc = encoders.get("projection", descriptor="pixel", standardise="causal", k=10, n_bits=256)
+    x = enc.projection.standardised(d)
+    # a frame's value does not depend on later frames
+    y = enc.projection.standardised(np.vstack([d[:120], rng.normal(size=(40, 32)).astype(np.float32)]))
+    np.testing.assert_allclose(x[CAUSAL_MIN:120], y[CAUSAL_MIN:120], rtol=1e-5, atol=1e-5)
+    t = CAUSAL_WINDOW + 30
+    w = d[t - CAUSAL_WINDOW + 1:t + 1].astype(np.float64)
+    np.testing.assert_allclose(x[t], (d[t] - w.mean(0)) / w.std(0), rtol=1e-4, atol=1e-4)
+    assert enc.encode_descriptors(d).shape == (d.shape[0], 256)
