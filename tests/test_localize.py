@@ -183,3 +183,27 @@ def test_causal_standardisation_only_looks_back():
     w = d[t - CAUSAL_WINDOW + 1:t + 1].astype(np.float64)
     np.testing.assert_allclose(x[t], (d[t] - w.mean(0)) / w.std(0), rtol=1e-4, atol=1e-4)
     assert enc.encode_descriptors(d).shape == (d.shape[0], 256)
+
+
+def test_localize_stdin_answers_each_path_before_the_next_arrives(scene, tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from pipelines.localize import learn
+
+    learn(scene["summer_day"], tmp_path / "map.npz", encoder_conf={"k": 100, "standardise": "fit"}, progress=False)
+    paths = sorted(Path(scene["winter_night"]).glob("*.png"))[:3]
+    p = subprocess.Popen([sys.executable, "-m", "pipelines.cli", "localize", str(tmp_path / "map.npz"), "-",
+                          "--out", str(tmp_path / "o")], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True, cwd=Path(__file__).resolve().parents[1])
+    try:
+        for i, path in enumerate(paths):
+            p.stdin.write(f"{path}\n")
+            p.stdin.flush()
+            line = json.loads(p.stdout.readline())  # blocks until this frame's answer: stdin is still open
+            assert line["query"] == i and line["name"] == str(path)
+        p.stdin.close()
+        assert p.wait(timeout=60) == 0, p.stderr.read()
+    finally:
+        p.kill()
