@@ -89,7 +89,7 @@ def main(argv=None) -> int:
     results = {}
     with tempfile.TemporaryDirectory() as tmp:
         paths = [str(Path(tmp) / f"{i:05d}.{args.format}") for i in range(len(frames))]
-        for path, im in zip(paths, frames):
+        for path, im in zip(paths, frames, strict=True):
             if not cv2.imwrite(path, im):
                 raise OSError(f"could not write {path}")
         results["imread"] = rates(lambda: [cv2.imread(q) for q in paths], len(paths), args.repeats)
@@ -109,9 +109,9 @@ def main(argv=None) -> int:
         enc = encoders.get(name, **conf)
         if label == "projection":
             desc = encoders.get("pixel").describe(frames)
-            results[label] = rates(lambda: enc.encode_descriptors(desc), len(desc), args.repeats)
+            results[label] = rates(lambda enc=enc, desc=desc: enc.encode_descriptors(desc), len(desc), args.repeats)
         else:
-            results[label] = rates(lambda: enc.encode(frames), len(frames), args.repeats)
+            results[label] = rates(lambda enc=enc: enc.encode(frames), len(frames), args.repeats)
         units[label] = unit
 
     imread_med = float(np.median(results["imread"]))

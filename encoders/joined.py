@@ -13,7 +13,7 @@ Configuration
 ``PART.key=value`` sets ``key`` of one part (``pixel.k=100``, ``cnn.n_bits=1024``);
 a key without a prefix is given to every part (``standardise=fit``) and must
 be known to all of them. ``conf["standardise"]`` reads ``"fit"`` when any
-part fits, so pipelines that check it fit the joined encoder on each traverse.
+part fits, so callers that check it fit the joined encoder on each traverse.
 A part named twice (``pixel+pixel``) is addressed as
 ``pixel``, ``pixel#2``. Unless set, the parts share the width of one encoder's
 default SDR and its density: ``n_bits`` is 2,048 split evenly and ``k`` is each
@@ -83,7 +83,7 @@ def joined_class(name: str) -> type[JoinedEncoder]:
 
     parts, _ = split_name(name)
     classes = [get_class(p) for p in parts]  # raises for an unknown part, listing the known ones
-    # only when every part has a dense descriptor does the joined encoder offer one; the pipelines
+    # only when every part has a dense descriptor does the joined encoder offer one; callers
     # test for encode_descriptors to decide whether to describe once and fit on the descriptors
     described = all(hasattr(c, "encode_descriptors") and hasattr(c, "fit_descriptors") for c in classes)
     base = DescribedJoinedEncoder if described else JoinedEncoder
@@ -158,7 +158,7 @@ class JoinedEncoder(BaseEncoder):
         for prefix, enc in zip(prefixes, self.encoders, strict=True):
             for k, v in enc.conf.items():
                 self.conf[f"{prefix}.{k}"] = v
-        # callers decide whether to fit a traverse by conf["standardise"] == "fit" (pipelines/extract.py);
+        # callers decide whether to fit a traverse by conf["standardise"] == "fit";
         # fitting a part that does not standardise is harmless, so "fit" if any part needs it. Passing
         # the conf back to get() gives the same encoder: the part keys override this shared one.
         std = [e.conf["standardise"] for e in self.encoders if "standardise" in e.conf]

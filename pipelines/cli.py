@@ -11,9 +11,11 @@ Each pipeline module listed in :data:`MODULES` contributes its sub-commands:
 without importing them, and only the chosen command's module is imported, so
 the help and typos stay fast.
 
-Bad input (missing or corrupt files, wrong arguments) ends the run with one line
-on stderr and exit status 2; Ctrl-C with ``vpr: interrupted`` and status 130;
-an unexpected failure with a traceback and status 1.
+Bad input (missing or corrupt files, wrong arguments) and file-system errors
+(read-only or full disk, permissions) end the run with one line on stderr and exit
+status 2; Ctrl-C, also during start-up, with ``vpr: interrupted`` and status 130;
+an unexpected failure with a traceback and status 1. Warnings are one line each
+(``vpr: warning: ...``), and progress bars are drawn only when stderr is a terminal.
 """
 from __future__ import annotations
 
@@ -21,7 +23,9 @@ import argparse
 import ast
 import importlib
 import importlib.util
+import os
 import sys
+import warnings
 from pathlib import Path
 
 __all__ = ["MODULES", "commands", "build_parser", "main"]
@@ -73,34 +77,68 @@ def build_parser(only: str | None = None, table: dict | None = None) -> argparse
     return ap
 
 
-def main(argv=None) -> int:
-    """Run ``vpr`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit status."""
-    argv = sys.argv[1:] if argv is None else list(argv)
-    table = commands()
-    # build only the chosen command's arguments (cheap imports for --help and typos)
-    cmd = next((a for a in argv if not a.startswith("-")), None)
-    only = cmd if cmd in table else "__none__"
-    try:
-        ap = build_parser(only, table)
-    except ModuleNotFoundError as e:
-        print(f"vpr: error: command {cmd!r} is unavailable ({e})", file=sys.stderr)
-        return 2
-    args = ap.parse_args(argv)
-    if not args.command:
-        ap.print_help()
-        return 2
-    from vpr.memory import MemoryFileError
+def _format_warning(message, category, filename, lineno, line=None) -> str:
+    # one line in the project's words: no source path, no line of code
+    return f"vpr: warning: {' '.join(str(message).split())}\n"
 
+
+def _os_error_line(e: OSError) -> str:
+    """One line naming the path and the reason of an OSError."""
+    reason = e.strerror or " ".join(str(e).split())
+    if e.filename is not None:
+        extra = f" -> {e.filename2}" if getattr(e, "filename2", None) else ""
+        return f"{e.filename}{extra}: {reason}"
+    return reason
+
+
+def main(argv=None) -> int:
+    """Run ``vpr`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit status.
+
+    Bad input and file-system errors: one line on stderr, status 2; Ctrl-C (also
+    while the modules load): ``vpr: interrupted``, status 130. Warnings are
+    printed as ``vpr: warning: ...``; progress bars only on a terminal.
+    """
+    argv = sys.argv[1:] if argv is None else list(argv)
+    # FFmpeg's decoder log (hundreds of lines for a damaged video) would bury the project's own
+    # one-line report of skipped frames; read when OpenCV first opens a video, so set before any
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+    os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
+    saved_format = warnings.formatwarning
+    warnings.formatwarning = _format_warning
+    command = "vpr"
     try:
-        return int(importlib.import_module(table[args.command][0]).run_command(args) or 0)
+        table = commands()
+        # build only the chosen command's arguments (cheap imports for --help and typos)
+        cmd = next((a for a in argv if not a.startswith("-")), None)
+        only = cmd if cmd in table else "__none__"
+        try:
+            ap = build_parser(only, table)
+        except ModuleNotFoundError as e:
+            print(f"vpr: error: command {cmd!r} is unavailable ({e})", file=sys.stderr)
+            return 2
+        args = ap.parse_args(argv)
+        if not args.command:
+            ap.print_help()
+            return 2
+        command = f"vpr {args.command}"
+        if hasattr(args, "no_progress") and not sys.stderr.isatty():
+            args.no_progress = True  # bars redrawn into a log file are noise
+        from vpr.memory import MemoryFileError
+
+        try:
+            return int(importlib.import_module(table[args.command][0]).run_command(args) or 0)
+        except (ValueError, MemoryFileError) as e:
+            print(f"{command}: error: {' '.join(str(e).split())}", file=sys.stderr)
+            return 2
+        except OSError as e:
+            # read-only or full file system, permissions, missing files: the path and the reason
+            print(f"{command}: error: {_os_error_line(e)}", file=sys.stderr)
+            return 2
     except KeyboardInterrupt:
         print("vpr: interrupted", file=sys.stderr)
         return 130
-    except (ValueError, FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError,
-            MemoryFileError) as e:
-        msg = " ".join(str(e).split())
-        print(f"vpr {args.command}: error: {msg}", file=sys.stderr)
-        return 2
+    finally:
+        warnings.formatwarning = saved_format
 
 
 if __name__ == "__main__":

@@ -137,7 +137,12 @@ def encode_chunk(source: Source, encoder, start: int, stop: int, parts=PARTS, th
     def flush(batch):
         images = [f.image for f in batch]
         if need_desc or (need_sdr and projected):
-            descs.append(np.asarray(encoder.describe(images), dtype=np.float32))
+            try:
+                d = encoder.describe(images)
+            except NotImplementedError as e:  # the base class's "no dense descriptor"
+                raise ValueError(f"a method needs dense descriptors (e.g. seqslam-desc), but {e}; "
+                                 "choose an encoder with one (pixel, projection, cnn, orb)") from e
+            descs.append(np.asarray(d, dtype=np.float32))
         if need_sdr and not projected:
             sdr_rows.append(sp.csr_matrix(encoder.encode(images)))
         if need_pixels:

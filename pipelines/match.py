@@ -1,12 +1,17 @@
 """``vpr match``, ``vpr compare`` and ``vpr loops``: image folders, videos or lists in,
 similarity matrices, matches, metrics and plots out.
 
-Outputs in ``out`` (one method: in it; several: one sub-folder per method):
-``similarity.npy`` (float32 db x query; a top-K sparse ``similarity_topk.npz`` for
-large inputs), ``matches.csv`` (query, best_db, score, accepted, ...),
-``similarity.png``; and in ``out`` ``pr.png`` (with ground truth), ``metrics.json``
-and ``config.json`` (everything needed to repeat the run). Encodings are cached
-in ``out/cache``.
+Outputs: each method writes ``out/METHOD``: ``similarity.npy`` (float32 db x query;
+a top-K sparse ``similarity_topk.npz`` for large inputs), ``matches.csv`` (query,
+best_db, score, accepted, ...), ``similarity.png``, ``pr_curve.npz`` and
+``config.json`` (everything needed to repeat the run); ``out/metrics.json`` and
+``out/pr.png`` hold every method run into ``out`` on the same inputs, merged
+under a lock (:func:`merge_metrics`). Encodings are cached in ``out/cache``.
+
+Faults: every option, source and ground-truth file is checked before the first
+frame is encoded, and a refused run writes nothing; every file is written
+atomically, so an interrupted run leaves only complete files and a rerun gives
+the uninterrupted result.
 
 :func:`run_compare` and :func:`run_loops` do the work from explicit parameters
 (:class:`RunOptions`); :func:`run_command` only adapts the parsed command line.
@@ -15,9 +20,13 @@ from __future__ import annotations
 
 import argparse
 import csv
+import errno
+import json
+import os
 import platform
 import sys
 import time
+import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -30,7 +39,7 @@ from vpr import evaluate, io, methods, plots
 from vpr.config import parse_key_values
 from vpr.groundtruth import GroundTruthSpec, build_gt, positions_of_frames
 from vpr.methods import MatchResult
-from vpr.sources import open_source
+from vpr.sources import FrameSkippedWarning, open_source
 
 __all__ = ["COMMANDS", "add_arguments", "run_command", "RunOptions", "run_compare", "run_loops", "method_confs",
            "metrics_table", "method_metrics", "write_similarity", "write_matches", "versions"]
@@ -61,6 +70,10 @@ class RunOptions:
     gt: GroundTruthSpec = field(default_factory=GroundTruthSpec)
     verify: int = 0
     min_inliers: int = 15
+    #: methods whose candidates are verified (None: all); verification costs ~5-15 ms per candidate pair
+    verify_methods: tuple | None = None
+    #: further :class:`vpr.verify.Verifier` conf (e.g. ``{"n_features": 500}``)
+    verify_conf: dict = field(default_factory=dict)
     progress: bool = True
     cache: Path | None = None
 
@@ -206,105 +219,290 @@ def metrics_table(table: dict) -> str:
     return "\n".join(lines)
 
 
+def _at(S, rows) -> np.ndarray:
+    """``S[rows[j], j]`` per column (rows >= 0), dense or sparse."""
+    cols = np.arange(len(rows))
+    rows = np.maximum(rows, 0)
+    return np.asarray(S[rows, cols], dtype=np.float64).ravel()
+
+
 def _config(opts: RunOptions, **inputs) -> dict:
     return {"argv": sys.argv[1:], **inputs, **asdict(opts)}
 
 
-# ----------------------------------------------------------------- pipeline
-def _extract_all(paths, runners: dict, opts: RunOptions):
-    """Open the sources and encode them once with what every method needs."""
-    srcs = [open_source(p, fps=opts.fps, step=opts.step, max_frames=opts.max_frames) for p in paths]
-    encoder = encoders.get(opts.encoder, **opts.encoder_conf)
-    needed = set().union(*(r.inputs() for r in runners.values()))
-    exs = [extract(s, encoder, need_sdr="sdr" in needed, need_desc="desc" in needed,
-                   need_pixels="pixels" in needed, thumbs=opts.verify > 0, cache_dir=opts.cache or Path(opts.out) / "cache",
-                   progress=opts.progress) for s in srcs]
-    return srcs, encoder, exs
+# ------------------------------------------------------- checks before work
+def _warn(msg: str) -> None:
+    warnings.warn(msg, UserWarning, stacklevel=3)
+
+
+def _check_run_options(opts: RunOptions) -> None:
+    """Options that are wrong whatever the inputs (``--verify``, ``--min-inliers``)."""
+    if isinstance(opts.verify, bool) or not isinstance(opts.verify, (int, np.integer)) or opts.verify < 0:
+        raise ValueError(f"--verify must be an integer >= 0, got {opts.verify!r}")
+    if opts.min_inliers < 0:
+        raise ValueError(f"--min-inliers must be >= 0, got {opts.min_inliers}")
+    if not opts.verify and opts.min_inliers != RunOptions.min_inliers:
+        _warn(f"--min-inliers {opts.min_inliers} has no effect without --verify N; ignored")
+
+
+def _probe(name: str, runner) -> None:
+    """Run a configured method once on a tiny synthetic traverse, so that a bad conf value fails now.
+
+    Some values are only checked where they are used (SeqSLAM's ``ds``, the
+    memory's ``p_extra``): without this they would fail after encoding.
+    """
+    rng = np.random.default_rng(0)
+    n, width = 12, int(runner.conf.get("n_inputs", 2048))
+    bits = rng.random((n, width)) < min(1.0, 40 / width)
+    tiny = methods.EncodedTraverse(names=list(range(n)), sdr=sp.csr_matrix(bits),
+                                   desc=rng.random((n, 32)).astype(np.float32),
+                                   pixels=rng.random((n, 64 * 32)).astype(np.float32))
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            runner.match(tiny, tiny)
+    except ValueError as exc:
+        raise ValueError(f"--method-conf {name}: {exc}") from None
 
 
 def _runners(names: list[str], opts: RunOptions) -> dict:
-    """Configured methods by name, built before any work so that a bad conf fails at once."""
+    """Configured methods by name, built (and their confs tried) before any work so that a bad conf fails at once."""
     if not names:
         raise ValueError("--methods is empty")
-    # a conf for a method this run does not use is still checked: a typo should not pass silently
+    unique = list(dict.fromkeys(names))
+    if len(unique) < len(names):
+        twice = sorted({m for m in names if names.count(m) > 1})
+        _warn(f"--methods names {', '.join(twice)} more than once; each method runs once")
+    for m in unique:
+        methods.get_class(m)  # unknown names fail here, with the list of methods
+    # a conf for a method this run does not use is still checked (a typo should not pass silently), then ignored
     built = {m: methods.get(m, **c) for m, c in opts.method_conf.items()}
-    return {m: built.get(m) or methods.get(m) for m in names}
+    unused = [m for m in built if m not in unique]
+    if unused:
+        _warn(f"--method-conf for {', '.join(unused)}, which this run does not use ({', '.join(unique)}); ignored")
+    for m in unique:
+        if m in built:
+            _probe(m, built[m])
+    return {m: built.get(m) or methods.get(m) for m in unique}
+
+
+def _check_out(out: Path, srcs, folders) -> None:
+    """Refuse an output folder whose writes would land in a source folder (they would be read back as frames)."""
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out}: exists and is not a folder")
+    # a read-only or forbidden --out would otherwise fail only when the first encoding is cached
+    anc = out.absolute()
+    while not anc.exists() and anc != anc.parent:
+        anc = anc.parent
+    if not os.access(anc, os.W_OK | os.X_OK):
+        readonly = hasattr(os, "statvfs") and os.statvfs(anc).f_flag & getattr(os, "ST_RDONLY", 1)
+        code = errno.EROFS if readonly else errno.EACCES
+        raise OSError(code, f"cannot write ({os.strerror(code)})", str(out))
+    written = {(out / f).resolve(): f for f in folders}
+    for src in srcs:
+        if src.kind == "folder" and src.path.resolve() in written:
+            where = "--out" if written[src.path.resolve()] == "." else f"--out's {written[src.path.resolve()]}/"
+            raise ValueError(f"--out {out}: {where} folder is the source folder {src.path}; the run would write its "
+                             "outputs among the frames it reads. Choose another --out")
+
+
+def _open_sources(paths, opts: RunOptions):
+    return [open_source(p, fps=opts.fps, step=opts.step, max_frames=opts.max_frames) for p in paths]
+
+
+def _gt_rows(attempted, read) -> list[int]:
+    """Rows of the frames read (source numbers ``read``) in a ground truth built for ``attempted``."""
+    row = {k: r for r, k in enumerate(attempted)}
+    return [row[k] for k in read]
+
+
+# ----------------------------------------------------------------- pipeline
+def _extract_all(srcs, roles, encoder, runners: dict, opts: RunOptions):
+    """Encode the sources once with what every method needs; one warning per source with skipped frames."""
+    needed = set().union(*(r.inputs() for r in runners.values()))
+    exs = []
+    for src, role in zip(srcs, roles, strict=True):
+        attempted = len(src.indices())
+        with warnings.catch_warnings():
+            # one summary line per source below, not one line per bad frame
+            warnings.simplefilter("ignore", FrameSkippedWarning)
+            ex = extract(src, encoder, need_sdr="sdr" in needed, need_desc="desc" in needed,
+                         need_pixels="pixels" in needed, thumbs=opts.verify > 0,
+                         cache_dir=opts.cache or Path(opts.out) / "cache", progress=opts.progress)
+        lost = attempted - len(ex.features)
+        if lost > 0 or ex.skipped:
+            first = f" (first: {ex.skipped[0][0]}: {ex.skipped[0][1]})" if ex.skipped else ""
+            _warn(f"{role} {src.path}: {lost} of {attempted} frames could not be read and were skipped{first}")
+        exs.append(ex)
+    return exs
+
+
+def _write_method(folder: Path, m: str, res, db_names, q_names, gt_hard, gt_soft, verifier, opts, mask=None,
+                  title="") -> dict:
+    """Write one method's files in its folder; return its metrics entries (``m`` and ``m+verify``)."""
+    sim_file = write_similarity(folder, res.similarity)
+    entries = {}
+    metrics, curve = method_metrics(res, gt_hard, gt_soft, mask=mask)
+    metrics["similarity_file"] = f"{folder.name}/{sim_file}"
+    entries[m] = (metrics, curve)
+    extra = {}
+    if verifier is not None and (opts.verify_methods is None or m in opts.verify_methods):
+        t0 = time.perf_counter()
+        vr = verifier.verify(res.similarity, opts.verify, progress=opts.progress)
+        # the method's matrix with only each query's candidates re-ordered by inliers: its AP compares
+        # with the unverified one (vpr.verify.rerank); seconds: the method's plus verification
+        # (pairs shared with earlier methods are cached)
+        S_v = vr.reranked(res.similarity)
+        score_v = np.where(vr.best_db >= 0, _at(S_v, vr.best_db), -np.inf)
+        verified = MatchResult(m + "+verify", S_v, vr.best_db, score_v, vr.accepted,
+                               res.seconds + time.perf_counter() - t0, res.conf)
+        extra = {"verified_db": vr.best_db.tolist(),
+                 "inliers": np.where(vr.best_db >= 0, vr.score, -1).astype(int).tolist(),
+                 "verified": vr.accepted.astype(int).tolist()}
+        vm, vcurve = method_metrics(verified, gt_hard, gt_soft)
+        vm["similarity_file"] = metrics["similarity_file"]
+        entries[m + "+verify"] = (vm, vcurve)
+    write_matches(folder, res, db_names, q_names, extra)
+    plots.plot_similarity(res.similarity, folder / "similarity.png", best_db=res.best_db, accepted=res.accepted,
+                          gt_hard=gt_hard, title=title or f"{m}: database x query")
+    out = {}
+    for name, (mm, c) in entries.items():
+        if c is not None:
+            fname = "pr_curve_verify.npz" if name.endswith("+verify") else "pr_curve.npz"
+            with io.atomic_path(folder / fname) as tmp:
+                with open(tmp, "wb") as fh:
+                    np.savez(fh, precision=np.asarray(c[0], np.float64), recall=np.asarray(c[1], np.float64))
+            mm["pr_curve"] = f"{folder.name}/{fname}"
+        out[name] = mm
+    return out
+
+
+def _jsonable(o):
+    return o.item() if isinstance(o, np.generic) else o.tolist() if isinstance(o, np.ndarray) else str(o)
+
+
+def merge_metrics(out: Path, report: dict, pr_title: str) -> dict:
+    """Merge this run's ``report`` into ``out/metrics.json`` and redraw ``out/pr.png``; return the merged report.
+
+    Runs on the same inputs (``params["inputs"]``) add or replace their
+    methods; a metrics.json of other inputs is replaced (with a warning). The
+    read-modify-write holds a lock (``out/.metrics.lock``), so that concurrent
+    runs into one folder keep each other's methods.
+    """
+    with io.locked(out / ".metrics.lock"):
+        old = None
+        path = out / "metrics.json"
+        if path.is_file():
+            try:
+                old = json.loads(path.read_text(encoding="utf-8"))
+            except ValueError:
+                _warn(f"{path}: unreadable, replaced")
+        merged = report
+        if isinstance(old, dict) and isinstance(old.get("methods"), dict):
+            # compared as JSON: tuples and NumPy scalars of this run read back as lists and numbers
+            same = json.loads(json.dumps(report["params"]["inputs"], default=_jsonable))
+            if old.get("params", {}).get("inputs") == same:
+                merged = {**report, "methods": {**old["methods"], **report["methods"]}}
+                merged["params"] = {**report["params"], "method_conf": {**old["params"].get("method_conf", {}),
+                                                                        **report["params"]["method_conf"]}}
+            else:
+                _warn(f"{path} held results of other inputs or settings "
+                      f"({', '.join(old['methods'])}); replaced by this run's")
+        curves = {}
+        for name, m in merged["methods"].items():
+            f = m.get("pr_curve")
+            if f and (out / f).is_file():
+                try:
+                    with np.load(out / f) as z:
+                        curves[name] = (z["precision"], z["recall"])
+                except (OSError, ValueError, KeyError):
+                    pass  # a damaged curve file is not drawn; the metrics stay
+        io.save_json(path, merged)
+        if curves:
+            plots.plot_pr(curves, out / "pr.png", title=pr_title)
+    return merged
+
+
+def _prepare(out: Path, paths, roles, method_names, opts: RunOptions, loops_exclude: int | None = None):
+    """Every check that can be made before reading a frame; returns (runners, encoder, sources, gt...)."""
+    _check_run_options(opts)
+    opts.gt.check(loops=loops_exclude is not None)
+    runners = _runners(method_names, opts)
+    encoder = encoders.get(opts.encoder, **opts.encoder_conf)
+    srcs = _open_sources(paths, opts)
+    _check_out(out, srcs, [".", "cache", *runners])
+    return runners, encoder, srcs
 
 
 def run_compare(db, query, method_names: list[str], opts: RunOptions, command: str = "compare") -> dict:
     """Encode ``db`` and ``query`` once, run every method, write the outputs; return metrics.json's content.
+
+    Every option, file and the ground truth is checked before any frame is
+    encoded; a refused run writes nothing. Each method writes its files in
+    ``opts.out/METHOD``; ``opts.out/metrics.json`` and ``pr.png`` hold every
+    method run into ``opts.out`` on the same inputs (see :func:`merge_metrics`).
 
     Parameters
     ----------
     db, query : str or Path
         Image folders, videos or image lists (see :func:`vpr.sources.open_source`).
     method_names : list of str
-        Methods (see :func:`vpr.methods.available`); one writes its outputs in
-        ``opts.out``, several one sub-folder each.
+        Methods (see :func:`vpr.methods.available`).
     opts : RunOptions
         Encoder, method confs, sources, ground truth, verification, output.
     command : str
         Recorded in ``metrics.json``.
     """
-    if opts.verify < 0:
-        raise ValueError(f"--verify must be >= 0, got {opts.verify}")
-    runners = _runners(method_names, opts)
     out = Path(opts.out)
-    (db_src, q_src), encoder, (db_ex, q_ex) = _extract_all([db, query], runners, opts)
-    gt_hard, gt_soft = build_gt(opts.gt, db_ex.features.names, q_ex.features.names, db_ex.indices, q_ex.indices,
-                                db_src.name, q_src.name)
-    single = len(runners) == 1
-    results, metrics, curves = {}, {}, {}
+    runners, encoder, (db_src, q_src) = _prepare(out, [db, query], ["database", "query"], method_names, opts)
+    unknown = set(opts.verify_methods or ()) - set(runners)
+    if unknown:
+        raise ValueError(f"verify_methods: {', '.join(sorted(unknown))} not among the methods run")
+    db_att, q_att = db_src.indices(), q_src.indices()
+    for runner in runners.values():
+        runner.check_size(len(db_att), len(q_att))  # too large for a method: refused now, not after encoding
+    gt_hard, gt_soft = build_gt(opts.gt, db_src.names(), q_src.names(), db_att, q_att, db_src.name, q_src.name)
+    if gt_hard is not None and not gt_hard.any():
+        raise opts.gt.no_match_error(db_att, q_att)
+    # ---- the work starts here: nothing above wrote a file
+    db_ex, q_ex = _extract_all([db_src, q_src], ["database", "query"], encoder, runners, opts)
+    if gt_hard is not None:
+        rows, cols = _gt_rows(db_att, db_ex.indices), _gt_rows(q_att, q_ex.indices)
+        gt_hard = gt_hard[np.ix_(rows, cols)]
+        gt_soft = gt_soft[np.ix_(rows, cols)] if gt_soft is not None else None
+        if not gt_hard.any():
+            raise opts.gt.no_match_error(db_ex.indices, q_ex.indices)
     verifier = None
     if opts.verify:
         from vpr.verify import Verifier  # pycolmap: loaded only when verifying
 
         # one verifier for all methods: features and pair inliers are computed once
-        verifier = Verifier(db_ex.thumbs, q_ex.thumbs, min_inliers=opts.min_inliers)
+        verifier = Verifier(db_ex.thumbs, q_ex.thumbs, **{"min_inliers": opts.min_inliers, **opts.verify_conf})
+    metrics, confs = {}, {}
     for m, runner in runners.items():
         res = runner.match(db_ex.features, q_ex.features, progress=opts.progress)
-        results[m] = res
-        folder = out if single else out / m
-        folder.mkdir(parents=True, exist_ok=True)
-        sim_file = write_similarity(folder, res.similarity)
-        metrics[m], curve = method_metrics(res, gt_hard, gt_soft)
-        if curve is not None:
-            curves[m] = curve
-        metrics[m]["similarity_file"] = str(Path(folder.name if not single else ".") / sim_file)
-        extra = {}
-        if opts.verify:
-            t0 = time.perf_counter()
-            vr = verifier.verify(res.similarity, opts.verify, progress=opts.progress)
-            # seconds: the method's plus verification (pairs shared with earlier methods are cached)
-            verified = MatchResult(m + "+verify", vr.similarity(), vr.best_db, vr.score, vr.accepted,
-                                   res.seconds + time.perf_counter() - t0, res.conf)
-            extra = {"verified_db": vr.best_db.tolist(), "inliers": vr.score.astype(int).tolist(),
-                     "verified": vr.accepted.astype(int).tolist()}
-            metrics[m + "+verify"], curve = method_metrics(verified, gt_hard, gt_soft)
-            if curve is not None:
-                curves[m + "+verify"] = curve
-        write_matches(folder, res, db_ex.features.names, q_ex.features.names, extra)
-        plots.plot_similarity(res.similarity, folder / "similarity.png", best_db=res.best_db,
-                              accepted=res.accepted, gt_hard=gt_hard, title=f"{m}: database x query")
-    if curves:
-        plots.plot_pr(curves, out / "pr.png", title=f"{db_src.name} vs {q_src.name} ({encoder.name})")
+        confs[m] = res.conf
+        folder = out / m
+        metrics.update(_write_method(folder, m, res, db_ex.features.names, q_ex.features.names, gt_hard, gt_soft,
+                                     verifier, opts))
+        io.save_json(folder / "config.json", _config(opts, command=command, db=str(db), query=str(query),
+                                                     methods=list(runners)))
+    # what makes two runs' metrics comparable: same frames (content keys), encoding and ground truth
+    inputs = {"kind": "match", "db": db_src.key(), "query": q_src.key(), "encoder": encoder.name,
+              "encoder_conf": encoder.conf, "ground_truth": opts.gt.describe()}
     report = {
         "methods": metrics,
         "params": {"command": command, "db": str(db), "query": str(query),
-                   "encoder": encoder.name, "encoder_conf": encoder.conf,
-                   "method_conf": {m: r.conf for m, r in results.items()},
+                   "encoder": encoder.name, "encoder_conf": encoder.conf, "method_conf": confs,
                    "n_db": len(db_ex.features), "n_query": len(q_ex.features),
                    "encode_seconds": {"db": db_ex.seconds, "query": q_ex.seconds},
                    "cached": {"db": db_ex.cached, "query": q_ex.cached},
                    "skipped": {"db": db_ex.skipped, "query": q_ex.skipped},
                    "ignored_files": {"db": db_ex.ignored, "query": q_ex.ignored},
-                   "ground_truth": opts.gt.describe()},
+                   "ground_truth": opts.gt.describe(), "inputs": inputs},
         "versions": versions(),
     }
-    io.save_json(out / "metrics.json", report)
-    io.save_json(out / "config.json", _config(opts, command=command, db=str(db), query=str(query),
-                                              methods=list(runners)))
-    return report
+    return merge_metrics(out, report, f"{db_src.name} vs {q_src.name} ({encoder.name})")
 
 
 def exclude_frames(exclude, source) -> int:
@@ -343,39 +541,47 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = 30) -> di
 
     ``exclude``: frames, or ``"Ns"`` seconds for a video (:func:`exclude_frames`).
     Ground truth: ``opts.gt.files`` holds one positions file (``frame,x,y`` or
-    ``traverse,frame,x,y``) used with ``opts.gt.radius``.
+    ``traverse,frame,x,y``) used with ``opts.gt.radius``. Checks as in :func:`run_compare`.
     """
-    runner = _runners([method], opts)[method]
-    if opts.gt.files and opts.gt.radius is None:
-        raise ValueError("loops: --gt needs --radius")
-    if len(opts.gt.files) > 1:
-        raise ValueError("loops: --gt takes one positions file")
+    if opts.gt.tolerance is not None or opts.gt.soft is not None:
+        raise ValueError("loops: ground truth is --gt FILE --radius R (no --tolerance or --gt-soft)")
     out = Path(opts.out)
-    # before encoding, so that a bad --exclude fails at once
-    exclude = exclude_frames(exclude, open_source(seq, fps=opts.fps, step=opts.step, max_frames=opts.max_frames))
-    (src,), encoder, (ex,) = _extract_all([seq], {method: runner}, opts)
-    res = runner.loops(ex.features, exclude=exclude, progress=opts.progress)
-    out.mkdir(parents=True, exist_ok=True)
-    sim_file = write_similarity(out, res.similarity)
+    runners, encoder, (src,) = _prepare(out, [seq], ["sequence"], [method], opts, loops_exclude=exclude)
+    exclude = exclude_frames(exclude, src)  # frames, or seconds with the video's rate
+    runner = runners[method]
+    if type(runner)._loops is methods.Method._loops:
+        raise ValueError(runner.no_loops_reason or f"{method} does not support loop closure within one traverse")
+    attempted = src.indices()
+    runner.check_size(len(attempted), len(attempted))
+    if exclude >= len(attempted):
+        raise ValueError(f"--exclude {exclude} leaves no pair to compare: {src.path} has {len(attempted)} frames "
+                         "to read, and a loop closure needs frames at least --exclude apart")
     gt_hard = mask = None
     if opts.gt.files:
-        xy = positions_of_frames(opts.gt.files[0], src.name, ex.indices)
+        xy = positions_of_frames(opts.gt.files[0], src.name, attempted)
         gt_hard = evaluate.gt_from_positions(xy, xy, opts.gt.radius)
-        mask = evaluate.loop_closure_mask(len(ex.features), exclude=exclude)
-    metrics = {}
-    metrics[method], curve = method_metrics(res, gt_hard, None, mask=mask)
-    metrics[method]["similarity_file"] = sim_file
-    write_matches(out, res, ex.features.names, ex.features.names)
-    plots.plot_similarity(res.similarity, out / "similarity.png", best_db=res.best_db, accepted=res.accepted,
-                          gt_hard=gt_hard, title=f"{method}: loop closures")
+        mask = evaluate.loop_closure_mask(len(attempted), exclude=exclude)
+        if not (gt_hard & mask).any():
+            raise opts.gt.no_match_error(exclude=exclude)
+    # ---- the work starts here: nothing above wrote a file
+    (ex,) = _extract_all([src], ["sequence"], encoder, runners, opts)
     if gt_hard is not None:
-        plots.plot_pr({method: curve}, out / "pr.png", title=f"loop closures in {src.name}")
+        rows = _gt_rows(attempted, ex.indices)
+        gt_hard = gt_hard[np.ix_(rows, rows)]
+        mask = evaluate.loop_closure_mask(len(ex.features), exclude=exclude)
+        if not (gt_hard & mask).any():  # skipped frames took the last true pairs
+            raise opts.gt.no_match_error(exclude=exclude)
+    res = runner.loops(ex.features, exclude=exclude, progress=opts.progress)
+    folder = out / method
+    metrics = _write_method(folder, method, res, ex.features.names, ex.features.names, gt_hard, None, None, opts,
+                            mask=mask, title=f"{method}: loop closures")
+    io.save_json(folder / "config.json", _config(opts, command="loops", seq=str(seq), method=method, exclude=exclude))
+    inputs = {"kind": "loops", "seq": src.key(), "exclude": exclude,
+              "encoder": encoder.name, "encoder_conf": encoder.conf, "ground_truth": opts.gt.describe()}
     report = {"methods": metrics,
               "params": {"command": "loops", "seq": str(seq), "exclude": exclude,
-                         "encoder": encoder.name, "encoder_conf": encoder.conf, "method_conf": res.conf,
+                         "encoder": encoder.name, "encoder_conf": encoder.conf, "method_conf": {method: res.conf},
                          "n_frames": len(ex.features), "encode_seconds": ex.seconds, "skipped": ex.skipped,
-                         "ground_truth": opts.gt.describe()},
+                         "ground_truth": opts.gt.describe(), "inputs": inputs},
               "versions": versions()}
-    io.save_json(out / "metrics.json", report)
-    io.save_json(out / "config.json", _config(opts, command="loops", seq=str(seq), method=method, exclude=exclude))
-    return report
+    return merge_metrics(out, report, f"loop closures in {src.name}")

@@ -45,12 +45,12 @@ def test_match_every_method(scene, tmp_path, capsys, method):
     assert code == 0
     n_db = len(list(scene["db"].glob("*.png")))
     n_q = len(list(scene["q"].glob("*.png")))
-    _check_outputs(out, n_db, n_q)
+    _check_outputs(out / method, n_db, n_q)  # a folder per method, also for one method
     m = json.loads((out / "metrics.json").read_text())
     assert set(m) == {"methods", "params", "versions"}
     for key in ("auc_pr", "recall_at_100p", "recall_at_1", "seconds"):
         assert 0 <= m["methods"][method][key] <= (1 if key != "seconds" else 1e6)
-    assert (out / "pr.png").stat().st_size > 0 and (out / "config.json").is_file()
+    assert (out / "pr.png").stat().st_size > 0 and (out / method / "config.json").is_file()
     assert method in stdout
 
 
@@ -79,7 +79,7 @@ def test_video_source_and_verification(scene, tmp_path, capsys):
     m = json.loads((out / "metrics.json").read_text())
     assert m["params"]["n_query"] == (len(frames) + 1) // 2
     assert "pairwise+verify" in m["methods"]
-    header = open(out / "matches.csv").readline().strip().split(",")
+    header = open(out / "pairwise" / "matches.csv").readline().strip().split(",")
     assert {"inliers", "verified_db"} <= set(header)
 
 
@@ -94,7 +94,7 @@ def test_loops_on_a_loop_scene(tmp_path, capsys):
     assert code == 0
     m = json.loads((out / "metrics.json").read_text())["methods"]["rshosm"]
     assert 0 <= m["auc_pr"] <= 1
-    rows = list(csv.DictReader(open(out / "matches.csv")))
+    rows = list(csv.DictReader(open(out / "rshosm" / "matches.csv")))
     assert all(int(r["best_db"]) <= int(r["query"]) - 5 for r in rows if r["accepted"] == "1")
 
 
@@ -135,15 +135,16 @@ def test_bad_input_gives_one_line_and_exit_2(scene, tmp_path, capsys, case):
     code, _, err = _run(argv, capsys)
     lines = err.strip().splitlines()
     assert code == 2 and len(lines) == 1 and expect in lines[0]
-    assert not (out / "metrics.json").exists()
+    assert not out.exists()  # a refused run writes nothing
 
 
 def test_demo_tiny(tmp_path, capsys):
     code, stdout, _ = _run(["demo", "--out", tmp_path / "demo", "--size", "64x48", "--frames", 30,
                             "--verify", 1], capsys)
     assert code == 0
-    for m in ("rshosm", "seqslam", "pairwise", "rshosm+verify"):
+    for m in ("rshosm", "seqslam", "seqslam-desc", "pairwise", "rshosm-seq+verify"):
         assert m in stdout
+    assert "pairwise+verify" not in stdout  # the demo verifies rshosm-seq only
     assert (tmp_path / "demo" / "scene" / "contact_sheet.png").is_file()
     assert (tmp_path / "demo" / "pr.png").is_file()
 

@@ -154,7 +154,7 @@ def test_bad_arguments_raise(data, tmp_path):
         encode_sources([data["day"]], tmp_path, workers=0, parts=["sdr", "colour"])
     with pytest.raises(ValueError, match="chunk_frames"):
         encode_sources([data["day"]], tmp_path, workers=0, chunk_frames=0)
-    with pytest.raises(ValueError, match="unknown conf"):
+    with pytest.raises(ValueError, match="unknown pixel encoder option"):
         encode_sources([data["day"]], tmp_path, workers=0, encoder_conf={"nope": 1})
 
 

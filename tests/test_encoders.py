@@ -386,5 +386,5 @@ def test_same_place_overlap_beats_different_place_on_rendered_route(route, name,
     fit = conf.get("standardise") == "fit"
     A = enc.fit(db.images).encode(db.images) if fit else enc.encode(db.images)
     B = enc.fit(q.images).encode(q.images) if fit else enc.encode(q.images)
-    O = overlap_count(A, B)
-    assert O[same].mean() > O[different].mean() + 1.0, (O[same].mean(), O[different].mean())
+    ov = overlap_count(A, B)
+    assert ov[same].mean() > ov[different].mean() + 1.0, (ov[same].mean(), ov[different].mean())

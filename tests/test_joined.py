@@ -66,7 +66,7 @@ def test_per_part_and_shared_keys(frames):
 def test_bad_conf_is_named():
     with pytest.raises(ValueError, match="names no part.*pixel"):
         encoders.get("pixel+cnn", **{"hog.k": 3})
-    with pytest.raises(ValueError, match="pixel.*unknown conf key.*'kk'"):
+    with pytest.raises(ValueError, match="unknown pixel encoder option.*'kk'"):
         encoders.get("pixel+cnn", **{"pixel.kk": 3})
     with pytest.raises(ValueError, match="without a part prefix.*'orb'"):
         encoders.get("pixel+orb", patch=4)
@@ -147,7 +147,8 @@ def test_rshosm_seq_runs_on_joined_sdrs(frames):
     for images in (db, q):
         e = encoders.get("pixel+cnn", standardise="fit", **{"pixel.k": 100, "cnn.k": 100, **SMALL_CNN})
         d = e.describe(images)
-        feats.append(EncodedTraverse(names=list(range(len(images))), sdr=e.fit_descriptors(d).encode_descriptors(d), desc=d))
+        sdr = e.fit_descriptors(d).encode_descriptors(d)
+        feats.append(EncodedTraverse(names=list(range(len(images))), sdr=sdr, desc=d))
     res = match("rshosm-seq", *feats)
     assert res.similarity.shape == (len(db), len(q)) and np.isfinite(res.similarity).all()
     pw = match("pairwise", *feats, conf={"on": "descriptor", "metric": "cosine"})

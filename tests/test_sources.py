@@ -33,7 +33,7 @@ def _video(path, n=30, fps=30.0, size=(64, 48), fourcc="mp4v"):
     w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*fourcc), fps, size)
     assert w.isOpened()
     rng = np.random.default_rng(0)
-    for i in range(n):
+    for _ in range(n):
         # a different random texture per frame makes frames easy to tell apart after compression
         w.write(rng.integers(0, 255, (size[1], size[0], 3), dtype=np.uint8))
     w.release()

@@ -3,13 +3,17 @@ import cv2
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from vpr.evaluate import average_precision
 from vpr.verify import (
     MODELS,
     Keypoints,
     Verifier,
     extract_features,
     match_features,
+    rerank,
     top_candidates,
     two_view_inliers,
 )
@@ -343,3 +347,92 @@ def test_verifier_bad_args(place):
         Verifier(42, q)
     with pytest.raises(ValueError, match="query image 1"):
         Verifier(db, lambda j: None if j == 1 else q[0]).verify(S, 1, progress=False)
+
+
+# --------------------------------------------------------------------------- #
+# rerank: verification changes only the order within each query's candidates
+# --------------------------------------------------------------------------- #
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), n_db=st.integers(1, 8), n_q=st.integers(1, 6), n=st.integers(1, 4),
+       levels=st.integers(2, 6), sparse=st.booleans())
+def test_rerank_permutes_only_the_candidates_values(seed, n_db, n_q, n, levels, sparse):
+    rng = np.random.default_rng(seed)
+    S = rng.integers(0, levels, (n_db, n_q)).astype(float)  # few levels: many ties
+    if sparse:
+        S[rng.random(S.shape) < 0.3] = 0
+        S = sp.csc_matrix(S)  # zeros unstored: those pairs were never matched
+    cand = top_candidates(S, n)
+    inl = rng.integers(0, 4, cand.shape)
+    R = rerank(S, cand, inl)
+    assert sp.issparse(R) == sparse and R.shape == S.shape
+    D, RD = (S.toarray(), R.toarray()) if sparse else (S, R)
+    if sparse:
+        np.testing.assert_array_equal(sp.csc_matrix(R).indices, S.indices)  # same stored pattern
+    for j in range(n_q):
+        c = cand[j][cand[j] >= 0]
+        others = np.setdiff1d(np.arange(n_db), c)
+        np.testing.assert_array_equal(RD[others, j], D[others, j])       # unverified pairs keep their score
+        np.testing.assert_array_equal(np.sort(RD[c, j]), np.sort(D[c, j]))  # same values, re-ordered
+        v, k = RD[c, j], inl[j][: len(c)]
+        for a in range(len(c)):
+            for b in range(len(c)):
+                if k[a] > k[b]:
+                    assert v[a] >= v[b]                                  # more inliers rank higher
+                if k[a] == k[b] and a < b:
+                    assert v[a] >= v[b]                                  # ties keep the S order
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), sparse=st.booleans())
+def test_rerank_keeps_ap_when_inliers_agree_with_S(seed, sparse):
+    rng = np.random.default_rng(seed)
+    S = rng.random((12, 7))
+    gt = rng.random(S.shape) < 0.2
+    if sparse:
+        S[rng.random(S.shape) < 0.4] = 0
+        S = sp.csc_matrix(S)
+    cand = top_candidates(S, 3)
+    # inliers decreasing along each query's candidates (which are in S order): no change at all
+    inl = np.where(cand >= 0, 100 - np.arange(3), -1)
+    R = rerank(S, cand, inl)
+    D = S.toarray() if sparse else S
+    np.testing.assert_array_equal(R.toarray() if sparse else R, D)
+    assert average_precision(R, gt) == average_precision(S, gt)
+
+
+def test_rerank_moves_the_verified_true_match_up_and_ap_rises():
+    # query 0's true match (db 2) is S's third candidate, query 1's (db 3) its first
+    S = np.array([[0.9, 0.2], [0.8, 0.1], [0.7, 0.3], [0.1, 0.95], [0.05, 0.05]])
+    gt = np.zeros(S.shape, bool)
+    gt[2, 0] = gt[3, 1] = True
+    cand = top_candidates(S, 3)
+    R = rerank(S, cand, np.array([[2, 5, 90], [80, 3, 3]]))
+    np.testing.assert_array_equal(R[:, 0], [0.7, 0.8, 0.9, 0.1, 0.05])  # by inliers 2 < 5 < 90
+    np.testing.assert_array_equal(R[:, 1], S[:, 1])  # inliers agreed with S
+    assert R[4, 0] == S[4, 0] and R[3, 0] == S[3, 0]
+    assert average_precision(R, gt) > average_precision(S, gt)
+
+
+def test_rerank_bad_args():
+    S = np.array([[0.9, 0.2], [0.8, -np.inf]])
+    cand = np.array([[0, 1], [0, -1]])
+    with pytest.raises(ValueError, match="candidates must be an integer"):
+        rerank(S, cand[:1], np.zeros((1, 2), int))
+    with pytest.raises(ValueError, match="inliers must have the shape"):
+        rerank(S, cand, np.zeros((2, 1), int))
+    with pytest.raises(ValueError, match="beyond the 2 database rows"):
+        rerank(S, np.array([[0, 2], [0, -1]]), np.zeros((2, 2), int))
+    with pytest.raises(ValueError, match="repeated"):
+        rerank(S, np.array([[0, 0], [0, -1]]), np.zeros((2, 2), int))
+    with pytest.raises(ValueError, match="-inf"):
+        rerank(S, np.array([[0, 1], [1, -1]]), np.zeros((2, 2), int))
+    with pytest.raises(ValueError, match="stored entry"):
+        rerank(sp.csc_matrix(np.array([[0.9, 0.0], [0.8, 0.5]])), np.array([[0, 1], [0, -1]]), np.zeros((2, 2), int))
+
+
+def test_verify_result_reranked_agrees_with_best_db(place):
+    db, q, S = place
+    res = Verifier(db, q, min_inliers=15).verify(S, 3, progress=False)
+    R = res.reranked(S)
+    np.testing.assert_array_equal(R.argmax(axis=0), res.best_db)
+    np.testing.assert_array_equal(np.sort(R, axis=0), np.sort(S, axis=0))

@@ -157,6 +157,10 @@ def load_pairs_csv(path, n_db: int, n_q: int, db_names: Sequence[str] | None = N
     ----------
     path : str or Path
         CSV file; each line is one matching (query frame, database frame).
+        A header names the columns ``query`` and ``db`` (case-insensitive,
+        either order) and the columns are read by name; any other header is
+        refused. Without a header the first column is the query frame, the
+        second the database frame.
     n_db, n_q : int
         Number of database and query frames read.
     db_names, q_names : sequence of str, optional
@@ -217,16 +221,26 @@ def load_pairs_csv(path, n_db: int, n_q: int, db_names: Sequence[str] | None = N
         return None, f"{where}: {role} frame number {k} out of range 0..{n - 1}"
 
     first_line, first = rows[0]
-    resolved_first = [resolve(t, r, "") for t, r in zip(first, ("query", "db"), strict=False)]
-    if all(pos is None and err is not None and _parse_int(t) is None
-           for t, (pos, err) in zip(first, resolved_first, strict=False)):
-        rows = rows[1:]  # a header: neither field is a frame
-        if not rows:
-            raise ValueError(f"{path}: no pairs after the header on line {first_line}")
+    order = (0, 1)  # headerless files are query,db
+    columns = [t.casefold() for t in first]
+    if sorted(columns) == ["db", "query"]:
+        # columns by name: a "db,query" header must not be read as query,db
+        order = (columns.index("query"), columns.index("db"))
+        rows = rows[1:]
+    else:
+        resolved_first = [resolve(t, r, "") for t, r in zip(first, ("query", "db"), strict=False)]
+        if all(pos is None and err is not None and _parse_int(t) is None
+               for t, (pos, err) in zip(first, resolved_first, strict=False)):
+            # neither field is a frame: a header, but not one we can read
+            raise ValueError(f"{path}:{first_line}: unknown header {','.join(first)!r}; expected the columns "
+                             "query and db (in either order), or no header and query,db pairs")
+    if not rows:
+        raise ValueError(f"{path}: no pairs after the header on line {first_line}")
 
     gt = np.zeros((n_db, n_q), dtype=bool)
     dropped = 0
-    for lineno, (q_tok, db_tok) in rows:
+    for lineno, fields in rows:
+        q_tok, db_tok = fields[order[0]], fields[order[1]]
         where = f"{path}:{lineno}"
         q, err = resolve(q_tok, "query", where)
         if err:
@@ -458,6 +472,75 @@ class GroundTruthSpec:
         return {"tolerance": self.tolerance, "gt": list(self.files) or None, "radius": self.radius,
                 "gt_soft": self.soft}
 
+    def check(self, loops: bool = False) -> None:
+        """Refuse contradictory, ignored or out-of-range options and missing files, before any work.
+
+        ``loops``: the ground truth of ``vpr loops`` (one positions file with ``--radius``).
+
+        Raises
+        ------
+        ValueError
+            The message names the options (``--tolerance``, ``--gt``, ``--radius``, ``--gt-soft``).
+        FileNotFoundError
+            A ``--gt`` file does not exist.
+        """
+        tol, files, radius, soft = self.tolerance, list(self.files), self.radius, self.soft
+        if tol is not None and (isinstance(tol, bool) or not isinstance(tol, (int, np.integer)) or tol < 0):
+            raise ValueError(f"--tolerance must be an integer >= 0 (frames), got {tol!r}")
+        for name, v in (("--radius", radius), ("--gt-soft", soft)):
+            if v is not None and (isinstance(v, bool) or _parse_float(str(v)) is None or not math.isfinite(v)
+                                  or v < 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {v!r}")
+        if tol is not None and files:
+            raise ValueError("give either --tolerance or --gt, not both")
+        if tol is not None and radius is not None:
+            raise ValueError("--radius applies to position ground truth (--gt FILE), not to --tolerance")
+        if radius is not None and not files:
+            raise ValueError("--radius needs --gt FILE (positions)")
+        if soft is not None:
+            if tol is None and not files:
+                raise ValueError("--gt-soft needs ground truth: --tolerance K, or --gt FILE with --radius R")
+            if files and radius is None:
+                raise ValueError("--gt-soft needs position ground truth (--radius) or --tolerance")
+            hard, name = (tol, "--tolerance") if tol is not None else (radius, "--radius")
+            if soft < hard:
+                raise ValueError(f"--gt-soft {soft:g} is smaller than {name} {hard:g}: the soft ground truth "
+                                 f"(pairs ignored) must reach at least as far as the true matches")
+        if len(files) > (1 if loops else 2):
+            raise ValueError(f"--gt takes {'one positions file' if loops else 'one or two files'}, got {len(files)}")
+        if files and radius is None and (loops or len(files) == 2):
+            raise ValueError("loops: --gt needs --radius" if loops else
+                             "two --gt files are positions files and need --radius")
+        for f in files:
+            fp = Path(f)
+            if not fp.exists():
+                raise FileNotFoundError(f"no such ground-truth file: {fp}")
+            if not fp.is_file():
+                raise ValueError(f"{fp}: is a folder, expected a ground-truth CSV file")
+
+    def no_match_error(self, db_indices=None, q_indices=None, exclude: int | None = None) -> ValueError:
+        """The error for a ground truth in which no query frame has a true match, in the options' words.
+
+        ``exclude``: loop closures (only pairs at least ``exclude`` frames apart count).
+        """
+        def span(idx) -> str:
+            return f"{min(idx)}..{max(idx)}" if idx is not None and len(idx) else "none"
+
+        if self.tolerance is not None:
+            return ValueError(f"ground truth --tolerance {self.tolerance}: no query frame has a database frame "
+                              f"within {self.tolerance} frame numbers (database frames {span(db_indices)}, "
+                              f"query frames {span(q_indices)}); recall is undefined")
+        files = ", ".join(str(f) for f in self.files)
+        if exclude is not None:
+            return ValueError(f"ground truth --gt {files} --radius {self.radius:g}: no frame is within "
+                              f"{self.radius:g} of a frame at least --exclude {exclude} frames earlier; "
+                              "there is no loop closure to find")
+        if self.radius is not None:
+            return ValueError(f"ground truth --gt {files} --radius {self.radius:g}: no query frame is within "
+                              f"{self.radius:g} of a database frame; recall is undefined")
+        return ValueError(f"ground truth {files}: none of its pairs names a query and a database frame that "
+                          "are read; recall is undefined")
+
 
 def build_gt(spec: GroundTruthSpec, db_names: Sequence[str], q_names: Sequence[str], db_indices: Sequence[int],
              q_indices: Sequence[int], db_traverse: str = "database", q_traverse: str = "query"):
@@ -471,24 +554,15 @@ def build_gt(spec: GroundTruthSpec, db_names: Sequence[str], q_names: Sequence[s
     ValueError
         Contradictory or incomplete options (the message names them), or a bad file.
     """
+    spec.check()
     files = list(spec.files)
     if spec.tolerance is not None:
-        if files:
-            raise ValueError("give either --tolerance or --gt, not both")
         db_i, q_i = np.asarray(db_indices), np.asarray(q_indices)
         d = np.abs(db_i[:, None] - q_i[None, :])
         return d <= spec.tolerance, (d <= spec.soft if spec.soft is not None else None)
     if not files:
-        if spec.radius is not None:
-            raise ValueError("--radius needs --gt FILE")
         return None, None
-    if len(files) > 2:
-        raise ValueError(f"--gt takes one or two files, got {len(files)}")
-    if spec.radius is None:
-        if len(files) != 1:
-            raise ValueError("two --gt files are positions files and need --radius")
-        if spec.soft is not None:
-            raise ValueError("--gt-soft needs position ground truth (--radius) or --tolerance")
+    if spec.radius is None:  # one pairs file (check() refused the rest)
         hard = load_pairs_csv(files[0], len(db_names), len(q_names), db_names=db_names, q_names=q_names,
                               db_indices=db_indices, q_indices=q_indices)
         return hard, None

@@ -124,7 +124,7 @@ def seqslam_descriptors(images, size: tuple[int, int] = (64, 32), patch: int = 8
     """The SeqSLAM pixel descriptor of every image: :func:`seqslam_preprocess` flattened row-major.
 
     The one implementation behind the ``pixel`` encoder, SeqSLAM on images and
-    the pipelines' pixel descriptors (2,048 dims with the defaults).
+    the SeqSLAM pixel descriptors (2,048 dims with the defaults).
 
     Parameters
     ----------

@@ -1,6 +1,8 @@
 """Atomic output helpers: write to a temporary file beside the target, then rename.
 
-A crash mid-write therefore never leaves a half-written result under the final name.
+A crash mid-write therefore never leaves a half-written result under the final name. An
+``OSError`` while writing (read-only or full file system, no permission) names the result
+being written, not its temporary file.
 """
 from __future__ import annotations
 
@@ -12,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["atomic_path", "atomic_open", "save_npy", "save_json", "save_figure", "save_image"]
+__all__ = ["atomic_path", "atomic_open", "save_npy", "save_json", "save_figure", "save_image", "locked"]
 
 
 @contextlib.contextmanager
@@ -23,21 +25,62 @@ def atomic_path(path, suffix: str | None = None):
     format from the file name (matplotlib, OpenCV, NumPy) still work.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix if suffix is not None else path.suffix,
-                               dir=path.parent)
-    os.close(fd)
-    # mkstemp creates 0600; results should get the permissions of an ordinary new file
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix if suffix is not None else path.suffix,
+                                   dir=path.parent)
+    except OSError as exc:
+        raise _write_error(exc, path) from exc
+    os.close(fd)
+    try:
+        # mkstemp creates 0600; results should get the permissions of an ordinary new file
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
         yield Path(tmp)
         os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
             os.unlink(tmp)
+        if isinstance(exc, OSError) and not isinstance(exc, _TargetWriteError):
+            # the temporary name means nothing to the user: name the file being written
+            raise _write_error(exc, path) from exc
         raise
+
+
+class _TargetWriteError(OSError):
+    """An OSError while writing a result, naming the result (not its temporary file)."""
+
+
+def _write_error(exc: OSError, path: Path) -> OSError:
+    return _TargetWriteError(exc.errno, f"cannot write ({exc.strerror or exc})", str(path))
+
+
+@contextlib.contextmanager
+def locked(path):
+    """Hold an exclusive lock on the file ``path`` (created if missing) for a read-modify-write.
+
+    Uses ``fcntl.flock`` (advisory, released if the process dies); where
+    ``fcntl`` does not exist (Windows) the block runs unlocked.
+    """
+    try:
+        import fcntl  # POSIX only
+    except ImportError:  # pragma: no cover - Windows
+        fcntl = None
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fh = open(path, "a")
+    except OSError as exc:
+        raise _write_error(exc, path) from exc
+    with fh:
+        if fcntl is not None:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            if fcntl is not None:
+                fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
 
 
 @contextlib.contextmanager

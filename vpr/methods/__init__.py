@@ -7,6 +7,8 @@ Registered methods (see each module for its conf keys):
 - ``rshosm-seq``: our extension for a query against a learned database; graded
   sequence evidence (:class:`~vpr.methods.rshosm_seq.RshosmSeq`).
 - ``seqslam``: SeqSLAM on pixel or encoder descriptors (:class:`~vpr.methods.seqslam.SeqSlam`).
+- ``seqslam-desc``: SeqSLAM on the encoder's dense descriptors, cosine distance
+  (:class:`~vpr.methods.seqslam.SeqSlamDesc`).
 - ``pairwise``: single-frame comparison of SDRs or descriptors (:class:`~vpr.methods.pairwise.Pairwise`).
 
 ::
@@ -39,6 +41,7 @@ _REGISTRY = {
     "rshosm": ("vpr.methods.rshosm", "Rshosm"),
     "rshosm-seq": ("vpr.methods.rshosm_seq", "RshosmSeq"),
     "seqslam": ("vpr.methods.seqslam", "SeqSlam"),
+    "seqslam-desc": ("vpr.methods.seqslam", "SeqSlamDesc"),
     "pairwise": ("vpr.methods.pairwise", "Pairwise"),
 }
 

@@ -9,14 +9,12 @@ part contributes on Nordland.
 """
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
 from vpr.evidence import accept_loops, loop_evidence
 from vpr.memory import SequenceMemory
 
-from .base import EncodedTraverse, MatchResult, Method, best_matches, check_dense, need
+from .base import EncodedTraverse, Method, best_matches, check_dense, need
 from .rshosm import warm_up_memory
 
 __all__ = ["RshosmSeq"]
@@ -78,7 +76,7 @@ class RshosmSeq(Method):
         best, score = best_matches(S)
         return S, best, score, None
 
-    def loops(self, seq: EncodedTraverse, exclude: int = 30, progress: bool = False) -> MatchResult:
+    def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool):
         """Loop closures within one stream, learned online, scored by forward sequence evidence.
 
         :func:`vpr.evidence.loop_evidence`: the stream is learned frame by frame
@@ -89,14 +87,10 @@ class RshosmSeq(Method):
         to 20,000 frames, top-50 sparse beyond. A closure is accepted when its
         z-score is at least ``z_min`` (:func:`vpr.evidence.accept_loops`).
         """
-        if int(exclude) < 1:
-            raise ValueError(f"exclude must be >= 1, got {exclude}")
         c = self.conf
         x = need(seq, "sdr", self.name, "loop")
-        self.warm_up()
-        t = time.perf_counter()
         S, _ = loop_evidence(x, exclude=int(exclude), decay=c["decay"], stay=c["stay"], skip=c["skip"],
                              normalise=c["normalise"], memory={k: c[k] for k in SequenceMemory.default_params()},
                              progress=progress)
-        best, score, ok = accept_loops(S, z_min=c["z_min"])
-        return MatchResult(self.name, S, best, score, ok, time.perf_counter() - t, dict(c))
+        _, _, ok = accept_loops(S, z_min=c["z_min"])
+        return S, ok

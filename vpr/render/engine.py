@@ -205,7 +205,7 @@ class ConditionAtlas:
             self.fog_colour = _finish((np.float32(0.35) * amb)[None, None, :], cond)[0, 0].astype(np.float32)
         self.sprites = []
         sppm = world.extras.get("sprite_ppm", 24.0)
-        for (typ, _), params in zip(world.sprite_keys, world.sprite_params):
+        for (typ, _), params in zip(world.sprite_keys, world.sprite_params, strict=False):
             alb, alpha, emit = make_sprite(typ, params, cond["season"], sppm)
             strength = light["lamps"] * 2.0 if typ in ("lamp", "exitsign") else light["lamps"]
             lin = _season_albedo(alb, cond["season"]) * amb + (emit * strength)[..., None] * _WARM
@@ -214,7 +214,7 @@ class ConditionAtlas:
             lv_a = [alpha]
             for lv in lv_rgb[1:]:
                 lv_a.append(cv2.resize(lv_a[-1], (lv.shape[1], lv.shape[0]), interpolation=cv2.INTER_AREA))
-            self.sprites.append([(_pack(r), a > 0.5) for r, a in zip(lv_rgb, lv_a)])
+            self.sprites.append([(_pack(r), a > 0.5) for r, a in zip(lv_rgb, lv_a, strict=False)])
         # the same sprites in one flat array (alpha in the top byte) for drawing many small objects at once
         flat, tab, off = [], [], 0
         for levels in self.sprites:
@@ -337,7 +337,7 @@ class FrameRenderer:
                 y0 = rng.uniform(-H * 0.1, H, k)
                 ln = rng.uniform(0.04, 0.12, k) * H
                 slant = rng.normal(0.15, 0.03, k)
-                for xa, ya, la, sa in zip(x0, y0, ln, slant):
+                for xa, ya, la, sa in zip(x0, y0, ln, slant, strict=False):
                     cv2.line(m, (int(xa), int(ya)), (int(xa + sa * la), int(ya + la)), 1.0, 1)
                 m = cv2.GaussianBlur(m, (0, 0), 0.6) * np.float32(60.0 * (0.35 + 0.65 * light) * cond["rain"])
                 self.rain.append(cv2.cvtColor(m, cv2.COLOR_GRAY2BGR))
@@ -382,7 +382,7 @@ class FrameRenderer:
                noise_off=(0, 0), rain_pick: int = 0) -> np.ndarray:
         """One uint8 BGR frame with the camera at route position ``p`` (metres, world z)."""
         w, cam, tmax = self.w, self.cam, self.tmax
-        H, W, f = cam.H, cam.W, cam.f
+        W, f = cam.W, cam.f
         c, s = math.cos(yaw), math.sin(yaw)
         dx = s + cam.tx * c
         dz = c - cam.tx * s

@@ -167,7 +167,7 @@ def write_scene(spec, out_dir, preview: bool = False, video: bool = False, trave
             tr = r.make_traverse(t, plans[t["name"]], None)
             i, j = np.nonzero(np.triu(loop_pairs(tr, loop_radius)))
             d = np.linalg.norm(tr.xy[i] - tr.xy[j], axis=1)
-            lw.writerows([t["name"], a, b, f"{dd:.3f}"] for a, b, dd in zip(i.tolist(), j.tolist(), d))
+            lw.writerows([t["name"], a, b, f"{dd:.3f}"] for a, b, dd in zip(i.tolist(), j.tolist(), d, strict=False))
         with atomic_open(out / "loop_pairs.csv", "w", encoding="utf-8", newline="") as fh:
             fh.write(lp.getvalue())
         summary["loop_pairs"] = str(out / "loop_pairs.csv")

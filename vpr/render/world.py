@@ -632,7 +632,7 @@ def build_world(wspec: dict, ppm: float, gppm: float, max_depth: float, sprite_p
     hr = (np.arange(hpx) + 0.5) / ppm
 
     walls_alb, walls_emit, walls_snow, walls_top, plans = [], [], [], [], []
-    for side in range(2):
+    for _side in range(2):
         alb = np.zeros((hpx, ncols, 3), np.float32)
         emit = np.zeros((hpx, ncols), np.float32)
         snow = np.zeros((hpx, ncols), bool)
@@ -668,7 +668,7 @@ def build_world(wspec: dict, ppm: float, gppm: float, max_depth: float, sprite_p
 
     types = OBJECT_TYPES[kind]
     nvar = [6, 2, 6, 3, 1, 8] if kind == "street" else [1, 3, 2, 1, 1, 2]
-    vparams = [[_variant_params(rng_plan, t) for _ in range(n)] for t, n in zip(types, nvar)]
+    vparams = [[_variant_params(rng_plan, t) for _ in range(n)] for t, n in zip(types, nvar, strict=False)]
     if kind == "street":
         rows = _place_street_objects(rng_plan, a, b, hw, wspec["density"], nvar)
     else:
