@@ -33,7 +33,7 @@ __all__ = ["MODULES", "commands", "build_parser", "main"]
 #: The pipeline modules providing sub-commands, in the order ``vpr --help`` lists them.
 MODULES = ("pipelines.demo", "pipelines.match", "pipelines.render", "pipelines.encoders_cmd", "pipelines.encode",
            "pipelines.paper_fig3",
-           "pipelines.nordland")
+           "pipelines.nordland", "pipelines.localize")
 
 
 def _declared_commands(module: str) -> dict:

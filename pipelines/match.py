@@ -122,8 +122,9 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     _add_source_args(ap)
     gt = ap.add_argument_group("ground truth (optional; enables metrics and pr.png)")
     if command == "loops":
-        ap.add_argument("--exclude", type=int, default=10,
-                        help="ignore matches fewer than W frames back (default 10)")
+        ap.add_argument("--exclude", default="30", metavar="W",
+                        help="ignore matches fewer than W frames back, or W seconds for videos with 'Ws' "
+                             "(e.g. 5s; default 30 frames)")
         gt.add_argument("--gt", nargs="+", metavar="FILE",
                         help="positions CSV (frame,x,y or traverse,frame,x,y) with --radius")
     else:
@@ -528,18 +529,49 @@ def run_compare(db, query, method_names: list[str], opts: RunOptions, command: s
     return merge_metrics(out, report, f"{db_src.name} vs {q_src.name} ({encoder.name})")
 
 
-def run_loops(seq, method: str, opts: RunOptions, exclude: int = 10) -> dict:
+def exclude_frames(exclude, source) -> int:
+    """``--exclude`` in frames: an int, a string of digits, or ``"Ns"`` (seconds; videos only).
+
+    Seconds are converted with the frame rate of the frames kept from the video
+    (``--fps`` if it lowers the rate, else the video's rate divided by ``--step``).
+    Image folders and lists have no time base, so seconds are refused there.
+    """
+    text = str(exclude).strip().lower()
+    try:
+        if not text.endswith("s"):
+            n = int(text)
+        else:
+            seconds = float(text[:-1])
+            rate = getattr(source, "video_fps", 0.0)
+            if not rate:
+                raise ValueError(f"--exclude {exclude}: seconds need a frame rate, and {source.path} "
+                                 f"({source.kind}) has none; give frames instead (e.g. --exclude 30)")
+            if source.fps is not None and source.fps < rate:
+                rate = source.fps
+            else:
+                rate /= source.step or 1
+            n = round(seconds * rate)
+    except (TypeError, ValueError) as e:
+        if "--exclude" in str(e):
+            raise
+        raise ValueError(f"--exclude must be a number of frames or seconds like 5s, got {exclude!r}") from None
+    if n < 1:
+        raise ValueError(f"--exclude must be at least 1 frame, got {exclude!r} ({n} frames)")
+    return n
+
+
+def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = 30) -> dict:
     """Loop closures within the traverse ``seq`` with ``method``; writes the same outputs as ``match``.
 
+    ``exclude``: frames, or ``"Ns"`` seconds for a video (:func:`exclude_frames`).
     Ground truth: ``opts.gt.files`` holds one positions file (``frame,x,y`` or
     ``traverse,frame,x,y``) used with ``opts.gt.radius``. Checks as in :func:`run_compare`.
     """
-    if isinstance(exclude, bool) or not isinstance(exclude, (int, np.integer)) or exclude < 1:
-        raise ValueError(f"--exclude must be an integer >= 1, got {exclude!r}")
     if opts.gt.tolerance is not None or opts.gt.soft is not None:
         raise ValueError("loops: ground truth is --gt FILE --radius R (no --tolerance or --gt-soft)")
     out = Path(opts.out)
     runners, encoder, (src,) = _prepare(out, [seq], ["sequence"], [method], opts, loops_exclude=exclude)
+    exclude = exclude_frames(exclude, src)  # frames, or seconds with the video's rate
     runner = runners[method]
     if type(runner)._loops is methods.Method._loops:
         raise ValueError(runner.no_loops_reason or f"{method} does not support loop closure within one traverse")

@@ -11,6 +11,7 @@ optionally Nordland summer then winter (358 frames each, ``--nordland DIR``: the
 Loop AP: sklearn average precision over the pairs i <= j - exclude (soft pairs ignored).
 
 Usage: python -m studies.loops_evidence [--frames 150] [--size 96x72] [--nordland DIR]
+       [--standardise traverse|fit|causal] [--skip-paper]
 """
 from __future__ import annotations
 
@@ -30,7 +31,7 @@ def loop_ap(S, gt, exclude, soft=None):
     return evaluate.average_precision(S, gt, soft, mask=evaluate.loop_closure_mask(S.shape[0], exclude=exclude))
 
 
-def run(name, sdr, pixels, gt, exclude, soft=None, forward_only=False, z_min=4.5, **kw):
+def run(name, sdr, pixels, gt, exclude, soft=None, forward_only=False, z_min=5.0, **kw):
     t = time.perf_counter()
     S, _ = loop_evidence(sdr, exclude=exclude, **kw)
     t_ev = time.perf_counter() - t
@@ -52,7 +53,20 @@ def run(name, sdr, pixels, gt, exclude, soft=None, forward_only=False, z_min=4.5
     print(line, flush=True)
 
 
-def rendered(frames, size, exclude, forward_only=False, scene="two_seasons"):
+def encode_stream(traverses, standardise="traverse"):
+    """SDRs of the traverses as one stream: pixel encoder k=200, standardised per traverse (an oracle that knows
+    where the condition changes), on the whole stream (``fit``), or causally (a sliding window, ``causal``)."""
+    if standardise == "traverse":
+        enc = encoders.get("pixel", k=200, standardise="fit")
+        return sp.vstack([enc.fit(t).encode(t) for t in traverses]).tocsr()
+    images = [im for t in traverses for im in t]
+    enc = encoders.get("pixel", k=200, standardise=standardise)
+    if standardise == "fit":
+        enc.fit(images)
+    return sp.csr_matrix(enc.encode(images))
+
+
+def rendered(frames, size, exclude, forward_only=False, scene="two_seasons", standardise="traverse"):
     from vpr.render import render_scene
 
     scene = render_scene(scene, size=size, n_frames=frames)
@@ -60,9 +74,7 @@ def rendered(frames, size, exclude, forward_only=False, scene="two_seasons"):
     images = np.concatenate([t.images for t in trs])
     xy = np.concatenate([t.xy for t in trs])
     trav = np.concatenate([np.full(len(t.images), k) for k, t in enumerate(trs)])
-    enc = encoders.get("pixel", k=200, standardise="fit")
-    # each traverse standardised on its own frames (the setting for camera images, README)
-    sdr = sp.vstack([enc.fit(t.images).encode(t.images) for t in trs]).tocsr()
+    sdr = encode_stream([list(t.images) for t in trs], standardise)
     from vpr import imageproc
 
     pixels = np.stack([imageproc.seqslam_preprocess(im).ravel() for im in images]).astype(np.float32)
@@ -72,20 +84,19 @@ def rendered(frames, size, exclude, forward_only=False, scene="two_seasons"):
     return sdr, pixels, gt, soft
 
 
-def nordland(path, exclude):
+def nordland(path, exclude, standardise="traverse"):
     from pathlib import Path
 
     from vpr import imageproc
     from vpr.sources import open_source
 
-    enc = encoders.get("pixel", k=200, standardise="fit")
-    sdrs, pix = [], []
+    seasons, pix = [], []
     for season in ("summer", "winter"):
         images = [f.image for f in open_source(Path(path) / season, step=10)]
-        sdrs.append(enc.fit(images).encode(images))
+        seasons.append(images)
         pix.append(np.stack([imageproc.seqslam_preprocess(im).ravel() for im in images]))
-    n = [s.shape[0] for s in sdrs]
-    sdr = sp.vstack(sdrs).tocsr()
+    n = [len(t) for t in seasons]
+    sdr = encode_stream(seasons, standardise)
     pos = np.concatenate([np.arange(k) for k in n])
     trav = np.repeat([0, 1], n)
     d = np.abs(pos[:, None] - pos[None])
@@ -98,9 +109,11 @@ def main(argv=None):
     ap.add_argument("--frames", type=int, default=150)
     ap.add_argument("--size", default="96x72")
     ap.add_argument("--exclude", type=int, default=30)
-    ap.add_argument("--z-min", type=float, default=4.5)
+    ap.add_argument("--z-min", type=float, default=5.0)
     ap.add_argument("--nordland", default=None)
     ap.add_argument("--skip-paper", action="store_true")
+    ap.add_argument("--standardise", choices=("traverse", "fit", "causal"), default="traverse",
+                    help="two-traverse streams: fit per traverse (oracle), on the whole stream, or causal")
     a = ap.parse_args(argv)
     size = tuple(int(v) for v in a.size.split("x"))
     for alias, noise in ((0, 0.0), (5, 0.3), (10, 0.5)) if not a.skip_paper else ():
@@ -108,15 +121,15 @@ def main(argv=None):
         gt = traj[:, None] == traj[None]
         for kw in ({}, {"stay": None, "skip": None}):
             run(f"paper loops a={alias} n={noise} {kw or ''}", obs, None, gt, 10, z_min=a.z_min, **kw)
-    sdr, pixels, gt, soft = rendered(a.frames, size, a.exclude)
-    run("rendered two_seasons day+night", sdr, pixels, gt, a.exclude, soft, z_min=a.z_min)
+    sdr, pixels, gt, soft = rendered(a.frames, size, a.exclude, standardise=a.standardise)
+    run(f"rendered two_seasons day+night ({a.standardise})", sdr, pixels, gt, a.exclude, soft, z_min=a.z_min)
     sdr, pixels, gt, soft = rendered(a.frames, size, a.exclude, forward_only=True)
     run("forward-only two_seasons day", sdr, pixels, gt, a.exclude, soft, z_min=a.z_min)
     sdr, pixels, gt, soft = rendered(a.frames, size, a.exclude, forward_only=True, scene="speed_change")
     run("forward-only speed_change slow", sdr, pixels, gt, a.exclude, soft, z_min=a.z_min)
     if a.nordland:
-        sdr, pixels, gt, soft = nordland(a.nordland, a.exclude)
-        run("nordland summer+winter 358", sdr, pixels, gt, a.exclude, soft, z_min=a.z_min)
+        sdr, pixels, gt, soft = nordland(a.nordland, a.exclude, a.standardise)
+        run(f"nordland summer+winter 358 ({a.standardise})", sdr, pixels, gt, a.exclude, soft, z_min=a.z_min)
 
 
 if __name__ == "__main__":

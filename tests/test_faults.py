@@ -251,15 +251,15 @@ def test_loops_without_true_match_is_refused_in_user_words(tmp_path, capsys):
     folder = res["traverses"][list(res["traverses"])[0]]["folder"]
     out = tmp_path / "out"
     # a straight drive never comes back: no loop closure within 1 m
-    code, _, err = _run(["loops", folder, "--method", "rshosm", "--out", out, "--gt", res["ground_truth"],
-                         "--radius", 1, "--exclude", 5], capsys)
+    code, _, err = _run(["loops", folder, "--out", out, "--gt", res["ground_truth"], "--radius", 1,
+                         "--exclude", 5], capsys)
     _one_error_line(code, err, "no frame is within 1", "--exclude 5")
     assert not out.exists()
 
 
 # ------------------------------------------------------------ 6. options silently ignored
-@pytest.mark.parametrize("case", ["soft_without_gt", "soft_below_radius", "soft_below_tolerance", "exclude",
-                                  "no_loops"])
+# (a "no_loops" case went away: every method supports loop closure since rshosm-seq does, issue 12)
+@pytest.mark.parametrize("case", ["soft_without_gt", "soft_below_radius", "soft_below_tolerance", "exclude"])
 def test_ignored_options_are_errors(scene, tmp_path, capsys, case):
     out = tmp_path / "out"
     argv, expect = {
@@ -268,9 +268,7 @@ def test_ignored_options_are_errors(scene, tmp_path, capsys, case):
                                "--gt-soft", 2], ["--gt-soft 2", "--radius 3"]),
         "soft_below_tolerance": (["match", scene["db"], scene["q"], "--tolerance", 3, "--gt-soft", 1],
                                  ["--gt-soft 1", "--tolerance 3"]),
-        "exclude": (["loops", scene["db"], "--method", "rshosm", "--exclude", 100],
-                    ["--exclude 100", f"{scene['n_db']} frames"]),
-        "no_loops": (["loops", scene["db"], "--method", "rshosm-seq"], ["rshosm-seq"]),
+        "exclude": (["loops", scene["db"], "--exclude", 100], ["--exclude 100", f"{scene['n_db']} frames"]),
     }[case]
     code, _, err = _run(argv + ["--out", out], capsys)
     _one_error_line(code, err, *expect)

@@ -5,6 +5,7 @@ memory of Neubert, Ahmad and Protzel (KI 2018). Submodules:
 
 - :mod:`vpr.sdr`: SDR batches (bool CSR matrices) and their helpers
 - :mod:`vpr.memory`: the rSHOSM / SHOSM memory
+- :mod:`vpr.localize`: online localisation against a learned database (:class:`vpr.Localizer`)
 - :mod:`vpr.similarity`: overlap / cosine similarity matrices (db x query)
 - :mod:`vpr.baselines`: pairwise comparison and SeqSLAM
 - :mod:`vpr.evaluate`: precision-recall, AUC, recall@K, ground-truth builders
@@ -14,7 +15,7 @@ from importlib import import_module
 
 __version__ = "0.1.0"
 
-_LAZY = {"SequenceMemory": "vpr.memory"}
+_LAZY = {"SequenceMemory": "vpr.memory", "Localizer": "vpr.localize"}
 
 
 def __getattr__(name):
@@ -24,4 +25,4 @@ def __getattr__(name):
     raise AttributeError(f"module 'vpr' has no attribute {name!r}")
 
 
-__all__ = ["SequenceMemory", "__version__"]
+__all__ = ["Localizer", "SequenceMemory", "__version__"]

@@ -655,7 +655,7 @@ def loop_evidence(sdr_batch, exclude: int = 30, decay: float = 0.9, stay: float 
     return S, codes
 
 
-def accept_loops(S, z_min: float = 4.5):
+def accept_loops(S, z_min: float = 5.0):
     """Best earlier frame per frame of a :func:`loop_evidence` matrix and whether it is accepted.
 
     A closure is accepted when its z-score (how far the best earlier frame's

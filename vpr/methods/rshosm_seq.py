@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from vpr.evidence import accept_loops, loop_evidence
 from vpr.memory import SequenceMemory
 
 from .base import EncodedTraverse, Method, best_matches, check_dense, need
@@ -44,17 +45,15 @@ class RshosmSeq(Method):
     arguments of :meth:`~vpr.memory.SequenceMemory.evidence`: ``decay``,
     ``stay`` and ``skip`` (a float >= 0, or ``None`` -- ``"none"`` on the
     command line -- to disable that transition), ``direction``; ``normalise``
-    (``"query"`` or ``"none"``).
+    (``"query"`` or ``"none"``); ``z_min``: a loop closure is accepted when
+    its z-score is at least this (:meth:`loops`; see :func:`vpr.evidence.accept_loops`).
     """
 
     name = "rshosm-seq"
     default_conf = {**SequenceMemory.default_params(), "threshold": 0.75, "decay": 0.9, "stay": 0.05,
                     "skip": 0.05, "direction": "both", "normalise": "query"}
+    default_conf["z_min"] = 5.0  # loops only: acceptance threshold on the closure's z-score
     nullable_conf = frozenset({"seed", "stay", "skip"})
-    # within one traverse every frame's own evidence leaks, through the stay/skip and
-    # backward paths, onto the frames just before it, which loop closure must not see
-    no_loops_reason = ("rshosm-seq matches a query traverse against a database; "
-                       "for loop closure within one traverse use rshosm")
 
     def check_size(self, n_db: int, n_q: int) -> None:
         check_dense("rshosm-seq", n_db, n_q, hint="split the traverses")
@@ -76,3 +75,22 @@ class RshosmSeq(Method):
         S = normalise_columns(S, c["normalise"])
         best, score = best_matches(S)
         return S, best, score, None
+
+    def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool):
+        """Loop closures within one stream, learned online, scored by forward sequence evidence.
+
+        :func:`vpr.evidence.loop_evidence`: the stream is learned frame by frame
+        with Algorithm 1; at frame ``j`` the frames ``i <= j - exclude`` are
+        scored with causal (forward) evidence over what the memory had learned
+        by ``j - exclude`` (only the past counts; the backward pass of
+        :meth:`match` would see the future). T x T over pairs i < j, dense up
+        to 20,000 frames, top-50 sparse beyond. A closure is accepted when its
+        z-score is at least ``z_min`` (:func:`vpr.evidence.accept_loops`).
+        """
+        c = self.conf
+        x = need(seq, "sdr", self.name, "loop")
+        S, _ = loop_evidence(x, exclude=int(exclude), decay=c["decay"], stay=c["stay"], skip=c["skip"],
+                             normalise=c["normalise"], memory={k: c[k] for k in SequenceMemory.default_params()},
+                             progress=progress)
+        _, _, ok = accept_loops(S, z_min=c["z_min"])
+        return S, ok

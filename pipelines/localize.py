@@ -1,0 +1,391 @@
+"""``vpr learn`` and ``vpr localize``: learn a map once, then localise a query stream frame by frame.
+
+``vpr learn DB --out map.npz`` encodes the database traverse, learns it
+(:meth:`vpr.Localizer.from_database`) and writes one file with the memory, the
+database names and codes, the localizer conf and the encoder: its name, its
+conf and, with ``standardise=fit``, the statistics fitted on the database.
+
+``vpr localize MAP_OR_DB QUERY --out DIR`` reads a map (or learns a database
+first), then encodes and localises each query frame as it arrives: QUERY is a
+folder, a video, an image list or ``-`` (image paths on stdin, one per line).
+Stdout gets one JSON line per frame, flushed as soon as it is done::
+
+    {"query": 0, "name": ..., "best_db": 12, "db_name": ..., "score": 5.1, "accepted": true, "latency_ms": 3.2}
+
+(``latency_ms``: encoding and localisation of the frame, reading the file
+excluded; ``score`` null when no database frame has evidence). ``DIR`` gets
+``matches.csv`` and ``metrics.json`` (latency median / p95 / max with and
+without encoding; with ground truth options AP and R@1 as ``vpr match``).
+
+Query standardisation (encoders with ``standardise=fit``): the batch commands
+standardise the query traverse on its own frames, which needs the whole
+traverse. Online that is impossible, so ``--query-standardise`` chooses
+``running`` (default: per-dimension mean and variance of the last ``--window``
+query frames, default 50, plus the database's statistics with the weight of
+``--prior-frames`` frames, default 10) or ``db`` (the database's statistics, fixed).
+The state of the running statistics is kept in ``--state-out`` files.
+Measured on Nordland, see ``docs/localize.md``.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+import encoders
+from pipelines.extract import extract
+from pipelines.match import _add_source_args, method_metrics, versions
+from vpr import io
+from vpr.config import parse_key_values
+from vpr.groundtruth import GroundTruthSpec, build_gt
+from vpr.localize import Localizer
+from vpr.memory import MemoryFileError
+from vpr.methods import MatchResult
+from vpr.sources import _decode_image, open_source
+
+__all__ = ["COMMANDS", "add_arguments", "run_command", "learn", "load_map", "localize", "QueryEncoder"]
+
+COMMANDS = {
+    "learn": "learn a database traverse once and write a map file for `vpr localize`",
+    "localize": "localise a query stream (folder, video, list or stdin) frame by frame against a map",
+}
+
+_MAP_FORMAT = "vpr-map"
+
+
+# ------------------------------------------------------------------ encoder state
+def _projections(encoder) -> list:
+    """The encoder's TopKProjection objects (the parts of a joined encoder in order)."""
+    if hasattr(encoder, "projection"):
+        return [encoder.projection]
+    return [p for e in getattr(encoder, "encoders", []) for p in _projections(e)]
+
+
+def _fitted(encoder) -> bool:
+    return encoder.conf.get("standardise") == "fit"
+
+
+class QueryEncoder:
+    """Encode one query frame at a time with the database's encoder.
+
+    ``standardise``: ``"running"`` (causal statistics of the last ``window``
+    query frames, or of all so far when ``window`` is None, plus the
+    database's with the weight of ``prior_frames`` frames) or ``"db"`` (the
+    database's, fixed). Only used when the encoder was fitted (``standardise=fit``).
+    """
+
+    def __init__(self, encoder, db_stats: list | None, standardise: str = "running", prior_frames: float = 10.0,
+                 window: int | None = None):
+        if standardise not in ("running", "db"):
+            raise ValueError(f"--query-standardise must be 'running' or 'db', got {standardise!r}")
+        if encoder.conf.get("standardise") in ("per_batch", "causal"):
+            raise ValueError(f"encoders with standardise={encoder.conf['standardise']} cannot encode one frame at "
+                             "a time; learn the map with standardise=fit or none")
+        if not prior_frames > 0:
+            raise ValueError(f"--prior-frames must be > 0, got {prior_frames}")
+        if window is not None and int(window) < 2:
+            raise ValueError(f"--window must be at least 2 frames, got {window}")
+        self.window = None if window is None else int(window)
+        self._recent: list = []
+        self.encoder = encoder
+        self.projected = hasattr(encoder, "encode_descriptors")
+        self.fitted = _fitted(encoder) and self.projected
+        self.standardise = standardise
+        self.projs = _projections(encoder) if self.fitted else []
+        if self.fitted:
+            if db_stats is None or len(db_stats) != len(self.projs):
+                raise ValueError("the map has no fitted encoder statistics for its standardise=fit encoder")
+            for p, (mean, std) in zip(self.projs, db_stats, strict=True):
+                p.mean_, p.std_ = mean.astype(np.float32), std.astype(np.float32)
+            # running sums over (prior, frames): the database's statistics count as prior_frames frames
+            self._n = float(prior_frames)
+            self._db = [(m.astype(np.float64), s.astype(np.float64)) for m, s in db_stats]
+            self._sum = [prior_frames * m for m, _ in self._db]
+            self._sq = [prior_frames * (np.where(np.isfinite(s), s, 0.0) ** 2 + m ** 2) for m, s in self._db]
+
+    def state(self) -> dict:
+        """The running statistics as arrays (stored in ``--state-out`` files, so a restart continues them)."""
+        if not (self.fitted and self.standardise == "running"):
+            return {}
+        out = {"q_n": np.array(self._n)}
+        for i in range(len(self.projs)):
+            out[f"q_sum_{i}"], out[f"q_sq_{i}"] = self._sum[i], self._sq[i]
+            if self._recent:
+                out[f"q_recent_{i}"] = np.stack([xs[i] for xs in self._recent])
+        return out
+
+    def load_state(self, arrays: dict) -> None:
+        """Continue the running statistics of :meth:`state` (no-op when ``arrays`` holds none)."""
+        if not (self.fitted and self.standardise == "running") or "q_n" not in arrays:
+            return
+        self._n = float(arrays["q_n"])
+        for i in range(len(self.projs)):
+            self._sum[i], self._sq[i] = arrays[f"q_sum_{i}"].astype(np.float64), arrays[f"q_sq_{i}"].astype(np.float64)
+        recent = [arrays[f"q_recent_{i}"] for i in range(len(self.projs))] if "q_recent_0" in arrays else []
+        self._recent = [list(rows) for rows in zip(*recent, strict=True)] if recent else []
+
+    def encode(self, image) -> sp.csr_matrix:
+        if not self.projected:
+            return sp.csr_matrix(self.encoder.encode([image]))
+        desc = np.asarray(self.encoder.describe([image]), np.float32)
+        if self.fitted and self.standardise == "running":
+            blocks = self.encoder.split_descriptors(desc) if len(self.projs) > 1 else [desc]
+            self._n += 1.0
+            xs = [b[0].astype(np.float64) for b in blocks]
+            if self.window is not None:
+                self._recent.append(xs)
+                if len(self._recent) > self.window:  # a sliding window: the oldest frame leaves the sums
+                    old = self._recent.pop(0)
+                    self._n -= 1.0
+                    for i, o in enumerate(old):
+                        self._sum[i] -= o
+                        self._sq[i] -= o * o
+            for i, (p, x) in enumerate(zip(self.projs, xs, strict=True)):
+                self._sum[i] += x
+                self._sq[i] += x * x
+                mean = self._sum[i] / self._n
+                std = np.sqrt(np.maximum(self._sq[i] / self._n - mean ** 2, 0.0))
+                # dimensions constant in the database stay ignored (inf), as in the batch fit
+                std = np.where(np.isfinite(self._db[i][1]) & (std >= 1e-6), std, np.inf)
+                p.mean_, p.std_ = mean.astype(np.float32), std.astype(np.float32)
+        return sp.csr_matrix(self.encoder.encode_descriptors(desc))
+
+
+# ------------------------------------------------------------------ learn
+def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, localizer_conf: dict | None = None,
+          fps=None, step=None, max_frames=None, progress: bool = True) -> Localizer:
+    """Encode and learn the database traverse ``db``; write the map to ``out`` (atomic) and return it."""
+    src = open_source(db, fps=fps, step=step, max_frames=max_frames)
+    enc = encoders.get(encoder, **(encoder_conf or {}))
+    if enc.conf.get("standardise") in ("per_batch", "causal"):
+        raise ValueError(f"encoders with standardise={enc.conf['standardise']} cannot encode one query frame at a "
+                         "time; use standardise=fit (vpr localize then standardises the query causally, --window)")
+    t = time.perf_counter()
+    ex = extract(src, enc, need_sdr=True, progress=progress)  # fits standardise=fit on the database
+    t_enc = time.perf_counter() - t
+    t = time.perf_counter()
+    loc = Localizer.from_database(ex.features.sdr, ex.features.names, progress=progress, **(localizer_conf or {}))
+    stats = [(p.mean_, p.std_) for p in _projections(enc)] if _fitted(enc) and hasattr(enc, "encode_descriptors") \
+        else []
+    loc.meta = {"format": _MAP_FORMAT, "encoder": enc.name, "encoder_conf": enc.conf, "db": str(db),
+                "db_source": src.name, "db_indices": list(ex.indices or []), "n_stats": len(stats),
+                "skipped": ex.skipped, "encode_seconds": t_enc, "learn_seconds": time.perf_counter() - t}
+    loc.arrays = {}
+    for i, (m, s) in enumerate(stats):
+        loc.arrays[f"enc_mean_{i}"], loc.arrays[f"enc_std_{i}"] = m, s
+    loc.save(out)
+    return loc
+
+
+def load_map(path) -> tuple[Localizer, object, list | None]:
+    """(localizer, encoder, the database's fitted statistics or None) of a map written by :func:`learn`."""
+    loc = Localizer.load(path)
+    if loc.meta.get("format") != _MAP_FORMAT:
+        raise MemoryFileError(f"{path}: a localizer file without an encoder: write maps with `vpr learn`")
+    enc = encoders.get(loc.meta["encoder"], **loc.meta["encoder_conf"])
+    n = int(loc.meta.get("n_stats", 0))
+    stats = [(loc.arrays[f"enc_mean_{i}"], loc.arrays[f"enc_std_{i}"]) for i in range(n)] if n else None
+    return loc, enc, stats
+
+
+# ------------------------------------------------------------------ localize
+def _stdin_frames(stream):
+    """(index, name, image) of the image paths read from ``stream`` as they arrive; unreadable ones skipped."""
+    index = 0
+    for line in stream:
+        name = line.strip()
+        if not name or name.startswith("#"):
+            continue
+        img, reason = _decode_image(Path(name))
+        if img is None:
+            yield index, name, None, reason
+        else:
+            yield index, name, img, ""
+        index += 1
+
+
+def _source_frames(src):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # skipped frames are reported in metrics.json
+        for f in src:
+            yield f.index, f.name, f.image, ""
+    for name, reason in src.skipped:
+        yield -1, name, None, reason
+
+
+def _latency(ms) -> dict:
+    ms = np.asarray(ms, np.float64)
+    if not ms.size:
+        return {"median": None, "p95": None, "max": None}
+    return {"median": float(np.median(ms)), "p95": float(np.percentile(ms, 95)), "max": float(ms.max())}
+
+
+def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: str = "running",
+             prior_frames: float = 10.0, window: int | None = 50, gt: GroundTruthSpec | None = None,
+             learn_options: dict | None = None,
+             fps=None, step=None, max_frames=None, state_out=None) -> dict:
+    """Localise every frame of ``query`` against a map (or a database learned first); return metrics.json's content.
+
+    Parameters
+    ----------
+    map_or_db : path of a map written by :func:`learn`, or a database source (learned with ``learn_options``).
+    query : folder, video, image list, or ``"-"`` (paths read from ``stdin``).
+    out : output folder (matches.csv, metrics.json).
+    stdout : where the JSON lines go (default ``sys.stdout``).
+    query_standardise, prior_frames, window : see :class:`QueryEncoder` (window None or 0: all frames so far).
+    gt : ground truth (as ``vpr match``), optional.
+    state_out : optional path: the localizer with its streaming state after the last frame (a robot's restart file).
+    """
+    stdout = sys.stdout if stdout is None else stdout
+    out = Path(out)
+    p = Path(map_or_db)
+    if p.is_file() and p.suffix == ".npz":
+        loc, enc, stats = load_map(p)
+    else:
+        lo = dict(learn_options or {})
+        learn_to = out / "map.npz"
+        learn(map_or_db, learn_to, fps=fps, step=step, max_frames=max_frames, progress=False, **lo)
+        loc, enc, stats = load_map(learn_to)
+    qenc = QueryEncoder(enc, stats, query_standardise, prior_frames, window or None)
+    qenc.load_state(loc.arrays)  # a --state-out file continues its query's running statistics
+    q_src = None if str(query) == "-" else open_source(query, fps=fps, step=step, max_frames=max_frames)
+    frames = _stdin_frames(stdin if stdin is not None else sys.stdin) if q_src is None else _source_frames(q_src)
+    loc.warm_up()
+    if qenc.projected:  # first calls (loading a CNN, the projection matrix) are not a frame's latency
+        enc.encode_descriptors(enc.describe([np.zeros((48, 64, 3), np.uint8)]))
+    rows, skipped, cols = [], [], []
+    piped = True
+    lat_all, lat_loc = [], []
+    t_run = time.perf_counter()
+    for index, name, image, reason in frames:
+        if image is None:
+            skipped.append([name, reason])
+            print(f"vpr localize: skipped {name}: {reason}", file=sys.stderr, flush=True)
+            continue
+        t0 = time.perf_counter()
+        x = qenc.encode(image)
+        t1 = time.perf_counter()
+        r = loc.update(x)
+        t2 = time.perf_counter()
+        ms, ms_loc = (t2 - t0) * 1e3, (t2 - t1) * 1e3
+        lat_all.append(ms)
+        lat_loc.append(ms_loc)
+        q = len(rows)
+        score = r.score if np.isfinite(r.score) else None
+        line = {"query": q, "name": name, "best_db": r.best_db, "db_name": r.db_name, "score": score,
+                "accepted": r.accepted, "latency_ms": round(ms, 3)}
+        if piped:
+            try:
+                stdout.write(json.dumps(line) + "\n")
+                stdout.flush()
+            except BrokenPipeError:  # the reader stopped (e.g. `| head`): keep going for the files
+                piped = False
+        rows.append([q, name, index, r.best_db, r.db_name or "", score, int(r.accepted), round(ms, 3),
+                     round(ms_loc, 3)])
+        cols.append((r.db_idx, r.scores))
+    seconds = time.perf_counter() - t_run
+    if not rows:
+        raise ValueError(f"no readable query frames in {query}")
+    out.mkdir(parents=True, exist_ok=True)
+    with io.atomic_open(out / "matches.csv", "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["query", "name", "frame", "best_db", "db_name", "score", "accepted", "latency_ms",
+                    "latency_localize_ms"])
+        w.writerows(rows)
+    metrics = {"frames": len(rows), "seconds": seconds,
+               "latency_ms": {"with_encoding": _latency(lat_all), "without_encoding": _latency(lat_loc)},
+               "accepted": int(sum(r[6] for r in rows))}
+    gt = gt or GroundTruthSpec()
+    if gt.tolerance is not None or gt.files:
+        n_db = loc.n_db
+        data = np.concatenate([c[1] for c in cols]).astype(np.float32)
+        ind = np.concatenate([c[0] for c in cols]).astype(np.int64)
+        ptr = np.r_[0, np.cumsum([c[0].size for c in cols])]
+        S = sp.csc_matrix((data, ind, ptr), shape=(n_db, len(rows))).tocsr()
+        best = np.array([r[3] for r in rows], np.int64)
+        score = np.array([-np.inf if r[5] is None else r[5] for r in rows])
+        res = MatchResult("rshosm-seq-online", S, best, score, np.array([bool(r[6]) for r in rows]), seconds,
+                          dict(loc.conf))
+        q_idx = [r[2] if r[2] >= 0 else r[0] for r in rows]
+        gt_hard, gt_soft = build_gt(gt, loc.names, [r[1] for r in rows], loc.meta.get("db_indices") or
+                                    list(range(n_db)), q_idx, loc.meta.get("db_source", "database"),
+                                    q_src.name if q_src is not None else "query")
+        m, _ = method_metrics(res, gt_hard, gt_soft)
+        m.pop("seconds", None)
+        metrics.update(m)
+    if state_out:
+        loc.arrays = {**{k: v for k, v in loc.arrays.items() if not k.startswith("q_")}, **qenc.state()}
+        loc.save(state_out)
+    report = {"metrics": metrics,
+              "params": {"command": "localize", "map_or_db": str(map_or_db), "query": str(query),
+                         "encoder": loc.meta.get("encoder"), "encoder_conf": loc.meta.get("encoder_conf"),
+                         "localizer_conf": loc.conf, "n_db": loc.n_db, "query_standardise": query_standardise,
+                         "prior_frames": prior_frames, "window": window, "skipped": skipped,
+                         "ground_truth": gt.describe()},
+              "versions": versions()}
+    io.save_json(out / "metrics.json", report)
+    return report
+
+
+# ------------------------------------------------------------------ command line
+def _add_learn_args(ap):
+    encoders.add_arguments(ap)
+    ap.add_argument("--localizer-conf", action="append", default=[], metavar="KEY=VALUE",
+                    help="vpr.Localizer option, repeatable (e.g. z_min=4, decay=0.9, threshold=0.75)")
+
+
+def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
+    if command == "learn":
+        ap.add_argument("db", metavar="DB", help="database traverse: image folder, video or image list")
+        ap.add_argument("--out", required=True, metavar="MAP.npz", help="map file to write")
+        _add_learn_args(ap)
+        _add_source_args(ap)
+        ap.add_argument("--no-progress", action="store_true", help="no progress bars")
+        return
+    ap.add_argument("map", metavar="MAP_OR_DB", help="map from `vpr learn` (.npz), or a database traverse to learn")
+    ap.add_argument("query", metavar="QUERY", help="image folder, video, image list, or - (paths on stdin)")
+    ap.add_argument("--out", required=True, help="output folder (matches.csv, metrics.json)")
+    ap.add_argument("--query-standardise", choices=("running", "db"), default="running",
+                    help="standardise=fit encoders: running statistics of the query so far (default) or the "
+                         "database's")
+    ap.add_argument("--prior-frames", type=float, default=10.0,
+                    help="weight of the database's statistics in the running ones, in frames (default 10)")
+    ap.add_argument("--window", type=int, default=50,
+                    help="running statistics over the last N query frames (default 50; 0: all frames so far)")
+    ap.add_argument("--state-out", metavar="FILE.npz", help="also write the localizer with its state at the end")
+    learn_group = ap.add_argument_group("learning MAP_OR_DB when it is a database")
+    _add_learn_args(learn_group)
+    _add_source_args(ap)
+    gt = ap.add_argument_group("ground truth (optional; enables AP and R@1)")
+    gt.add_argument("--tolerance", type=int, metavar="K", help="frame-aligned traverses: |i - j| <= K")
+    gt.add_argument("--gt", nargs="+", metavar="FILE", help="as `vpr match`")
+    gt.add_argument("--radius", type=float, help="match radius for position ground truth")
+    gt.add_argument("--gt-soft", type=float, metavar="R2", help="soft ground truth radius/tolerance")
+
+
+def run_command(args) -> int:
+    learn_opts = {"encoder": args.encoder, "encoder_conf": encoders.parse_conf(args.encoder_conf),
+                  "localizer_conf": parse_key_values(args.localizer_conf, "--localizer-conf")}
+    if args.command == "learn":
+        loc = learn(args.db, args.out, fps=args.fps, step=args.step, max_frames=args.max_frames,
+                    progress=not args.no_progress, **learn_opts)
+        print(f"learned {loc.n_db} frames ({loc.memory!r}); wrote {args.out}")
+        return 0
+    src_opts = {"fps": args.fps, "step": args.step, "max_frames": args.max_frames}
+    report = localize(args.map, args.query, args.out, query_standardise=args.query_standardise,
+                      prior_frames=args.prior_frames, window=args.window, state_out=args.state_out,
+                      gt=GroundTruthSpec(tolerance=args.tolerance, files=tuple(args.gt or ()), radius=args.radius,
+                                         soft=args.gt_soft),
+                      learn_options=learn_opts, **src_opts)
+    lat = report["metrics"]["latency_ms"]
+    print(f"vpr localize: {report['metrics']['frames']} frames, latency median "
+          f"{lat['with_encoding']['median']:.2f} ms ({lat['without_encoding']['median']:.2f} ms without encoding); "
+          f"wrote {args.out}/metrics.json", file=sys.stderr)
+    return 0

@@ -1,0 +1,209 @@
+"""vpr.Localizer (online localisation) and the `vpr learn` / `vpr localize` commands."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import vpr
+from vpr import evidence as ev
+from vpr import simulate
+from vpr.memory import MemoryFileError
+
+
+@pytest.fixture(scope="module")
+def traverses():
+    db, q, dp, qp = simulate.aliased_traverses(300, 30, seed=5)
+    return db, q, dp, qp
+
+
+def test_localizer_equals_batch_forward_and_restarts(traverses, tmp_path):
+    db, q, dp, qp = traverses
+    names = [f"db{i:04d}.png" for i in range(db.shape[0])]
+    loc = vpr.Localizer.from_database(db, names, z_min=3.0)
+    n_conn = loc.memory.n_connections
+    batch = ev.sparse_evidence(loc.memory, q, loc.db_codes, direction="forward", top_k=50)
+    answers = []
+    for j in range(q.shape[0]):
+        if j == 100:  # the robot stops, and a new process continues from the file
+            loc.save(tmp_path / "loc.npz")
+            loc = vpr.Localizer.load(tmp_path / "loc.npz")
+            assert loc.frames == 100
+        r = loc.update(q[j])
+        assert r.best_db == batch.best_db[j] and abs(r.score - batch.score[j]) <= 1e-6
+        assert r.db_name == names[r.best_db]
+        assert r.accepted == (r.score >= 3.0)
+        answers.append(r)
+    assert loc.memory.n_connections == n_conn  # queries do not change the memory
+    best = np.array([a.best_db for a in answers])
+    assert np.mean(np.abs(dp[best] - qp) <= 1) >= 0.85
+    acc = np.array([a.accepted for a in answers])
+    assert acc.sum() > 0.5 * acc.size and np.mean(np.abs(dp[best[acc]] - qp[acc]) <= 1) >= 0.95
+    # same memory, same query, same answers after reset
+    loc.reset()
+    again = [loc.update(q[j]).best_db for j in range(q.shape[0])]
+    assert np.array_equal(again, best)
+
+
+def test_localizer_file_keeps_conf_meta_and_arrays(traverses, tmp_path):
+    db, q, _, _ = traverses
+    loc = vpr.Localizer.from_database(db[:50], [str(i) for i in range(50)], decay=0.8, stay=None, top_k=5,
+                                      seed=3)
+    loc.meta = {"encoder": "pixel", "encoder_conf": {"k": 200}}
+    loc.arrays = {"mean": np.arange(4, dtype=np.float32)}
+    loc.update(q[0])
+    p = loc.save(tmp_path / "m.npz")
+    back = vpr.Localizer.load(p)
+    assert back.conf == loc.conf and back.conf["stay"] is None and back.conf["top_k"] == 5
+    assert back.meta == loc.meta and np.array_equal(back.arrays["mean"], loc.arrays["mean"])
+    assert back.names == loc.names and (back.db_codes != loc.db_codes).nnz == 0
+    a, b = loc.update(q[1]), back.update(q[1])
+    assert (a.best_db, a.score) == (b.best_db, b.score) and len(b.db_idx) <= 5
+    assert not list(tmp_path.glob(".*"))  # atomic: no temporary file left
+
+
+def test_localizer_bad_input(traverses, tmp_path):
+    db, q, _, _ = traverses
+    with pytest.raises(ValueError, match="names"):
+        vpr.Localizer.from_database(db[:10], ["a"])
+    with pytest.raises(ValueError, match="unknown Localizer option"):
+        vpr.Localizer.from_database(db[:10], list("abcdefghij"), zmin=3)
+    loc = vpr.Localizer.from_database(db[:10], list("abcdefghij"))
+    with pytest.raises(ValueError, match="shape"):
+        loc.update(np.zeros(10, bool))
+    (tmp_path / "x.npz").write_bytes(b"not a zip")
+    with pytest.raises(MemoryFileError, match="not a readable localizer"):
+        vpr.Localizer.load(tmp_path / "x.npz")
+    with pytest.raises(MemoryFileError, match="no such"):
+        vpr.Localizer.load(tmp_path / "missing.npz")
+    np.savez(tmp_path / "y.npz", header=np.array(json.dumps({"format": "other"})))
+    with pytest.raises(MemoryFileError, match="not a localizer file"):
+        vpr.Localizer.load(tmp_path / "y.npz")
+
+
+# ---------------------------------------------------------------- command line
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    from vpr.render import write_scene
+
+    root = tmp_path_factory.mktemp("scene")
+    res = write_scene("two_seasons", root / "s", size=(48, 36), n_frames=40, progress=False)
+    return {name: t["folder"] for name, t in res["traverses"].items()}
+
+
+def _cli(argv, capsys, stdin=None, monkeypatch=None):
+    import io as _io
+
+    from pipelines.cli import main
+
+    if stdin is not None:
+        monkeypatch.setattr("sys.stdin", _io.StringIO(stdin))
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_learn_and_localize_folder_stdin_and_restart(scene, tmp_path, capsys, monkeypatch):
+    from pathlib import Path
+
+    day, night = scene["summer_day"], scene["winter_night"]
+    enc = ["--encoder-conf", "k=100", "--encoder-conf", "standardise=fit"]
+    code, out, err = _cli(["learn", day, "--out", tmp_path / "map.npz", "--no-progress", *enc], capsys)
+    assert code == 0, err
+    code, out, err = _cli(["localize", tmp_path / "map.npz", day, "--out", tmp_path / "a", "--tolerance", 1], capsys)
+    assert code == 0, err
+    lines = [json.loads(s) for s in out.splitlines()]
+    assert len(lines) == 40 and set(lines[0]) == {"query", "name", "best_db", "db_name", "score", "accepted",
+                                                  "latency_ms"}
+    # the database's own frames localise on themselves once the sequence is under way
+    assert np.mean([abs(r["best_db"] - r["query"]) <= 1 for r in lines[5:]]) >= 0.9
+    m = json.loads((tmp_path / "a" / "metrics.json").read_text())["metrics"]
+    assert m["frames"] == 40 and m["recall_at_1"] >= 0.8
+    for k in ("with_encoding", "without_encoding"):
+        assert m["latency_ms"][k]["median"] <= m["latency_ms"][k]["p95"] <= m["latency_ms"][k]["max"]
+    assert (tmp_path / "a" / "matches.csv").read_text().count("\n") == 41
+    # stdin: paths as they arrive, the same answers; a restart from --state-out continues identically
+    paths = sorted(str(p) for p in Path(night).glob("*.png"))
+    code, full, err = _cli(["localize", tmp_path / "map.npz", "-", "--out", tmp_path / "b", "--window", 5], capsys,
+                           "\n".join(paths) + "\n", monkeypatch)
+    assert code == 0, err
+    full = [json.loads(s) for s in full.splitlines()]
+    code, first, _ = _cli(["localize", tmp_path / "map.npz", "-", "--out", tmp_path / "c", "--window", 5, "--state-out",
+                           tmp_path / "state.npz"], capsys, "\n".join(paths[:15]) + "\n", monkeypatch)
+    code, rest, _ = _cli(["localize", tmp_path / "state.npz", "-", "--out", tmp_path / "d", "--window", 5], capsys,
+                         "\n".join(paths[15:]) + "\n", monkeypatch)
+    both = [json.loads(s) for s in (first + rest).splitlines()]
+    key = lambda r: (r["best_db"], r["score"], r["accepted"])  # noqa: E731
+    assert [key(r) for r in both] == [key(r) for r in full]
+    code, folder, _ = _cli(["localize", tmp_path / "map.npz", night, "--out", tmp_path / "e", "--window", 5], capsys)
+    assert [key(json.loads(s)) for s in folder.splitlines()] == [key(r) for r in full]
+
+
+def test_localize_bad_input(scene, tmp_path, capsys):
+    code, _, err = _cli(["localize", tmp_path / "nothing.npz", scene["summer_day"], "--out", tmp_path / "o"], capsys)
+    assert code == 2 and "nothing.npz" in err
+    np.savez(tmp_path / "mem.npz", header=np.array("{}"))
+    code, _, err = _cli(["localize", tmp_path / "mem.npz", scene["summer_day"], "--out", tmp_path / "o"], capsys)
+    assert code == 2 and "not a localizer file" in err
+    code, _, err = _cli(["learn", scene["summer_day"], "--out", tmp_path / "m.npz", "--no-progress",
+                         "--encoder-conf", "standardise=per_batch"], capsys)
+    assert code == 2 and "per_batch" in err
+
+
+def test_exclude_seconds():
+    from types import SimpleNamespace
+
+    from pipelines.match import exclude_frames
+
+    video = SimpleNamespace(path="v.mp4", kind="video", video_fps=30.0, fps=None, step=3)
+    assert exclude_frames("5s", video) == 50 and exclude_frames("12", video) == 12 and exclude_frames(7, video) == 7
+    assert exclude_frames("2s", SimpleNamespace(path="v.mp4", kind="video", video_fps=30.0, fps=5.0, step=None)) == 10
+    folder = SimpleNamespace(path="imgs", kind="folder")
+    with pytest.raises(ValueError, match="seconds need a frame rate.*imgs"):
+        exclude_frames("5s", folder)
+    for bad in ("x", "0", "0.01s", "-3"):
+        with pytest.raises(ValueError, match="--exclude"):
+            exclude_frames(bad, video)
+
+
+def test_causal_standardisation_only_looks_back():
+    import encoders
+    from encoders.projection import CAUSAL_MIN, CAUSAL_WINDOW
+
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(CAUSAL_WINDOW + 60, 32)).astype(np.float32)
+    d[80:] += 5.0  # the condition changes at frame 80
+    enc = encoders.get("projection", descriptor="pixel", standardise="causal", k=10, n_bits=256)
+    x = enc.projection.standardised(d)
+    # a frame's value does not depend on later frames
+    y = enc.projection.standardised(np.vstack([d[:120], rng.normal(size=(40, 32)).astype(np.float32)]))
+    np.testing.assert_allclose(x[CAUSAL_MIN:120], y[CAUSAL_MIN:120], rtol=1e-5, atol=1e-5)
+    t = CAUSAL_WINDOW + 30
+    w = d[t - CAUSAL_WINDOW + 1:t + 1].astype(np.float64)
+    np.testing.assert_allclose(x[t], (d[t] - w.mean(0)) / w.std(0), rtol=1e-4, atol=1e-4)
+    assert enc.encode_descriptors(d).shape == (d.shape[0], 256)
+
+
+def test_localize_stdin_answers_each_path_before_the_next_arrives(scene, tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from pipelines.localize import learn
+
+    learn(scene["summer_day"], tmp_path / "map.npz", encoder_conf={"k": 100, "standardise": "fit"}, progress=False)
+    paths = sorted(Path(scene["winter_night"]).glob("*.png"))[:3]
+    p = subprocess.Popen([sys.executable, "-m", "pipelines.cli", "localize", str(tmp_path / "map.npz"), "-",
+                          "--out", str(tmp_path / "o")], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True, cwd=Path(__file__).resolve().parents[1])
+    try:
+        for i, path in enumerate(paths):
+            p.stdin.write(f"{path}\n")
+            p.stdin.flush()
+            line = json.loads(p.stdout.readline())  # blocks until this frame's answer: stdin is still open
+            assert line["query"] == i and line["name"] == str(path)
+        p.stdin.close()
+        assert p.wait(timeout=60) == 0, p.stderr.read()
+    finally:
+        p.kill()
