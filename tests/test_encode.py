@@ -169,8 +169,8 @@ def test_local_cluster_run_command_equals_serial(data, tmp_path, capsys):
     add_arguments(ap, "encode")
     cache = tmp_path / "dask"
     args = ap.parse_args([str(data["day"]), str(data["night"]), "--cache", str(cache), "--workers", "2",
-                          "--chunk-frames", "5", "--encoder", "pixel", "--encoder-conf", "standardise=fit", "--encoder-conf", "k=50",
-                          "--no-progress"])
+                          "--chunk-frames", "5", "--encoder", "pixel", "--encoder-conf", "standardise=fit",
+                          "--encoder-conf", "k=50", "--no-progress"])
     assert run_command(args) == 0
     assert "35 frames" in capsys.readouterr().out
     want = _serial_bytes([data["day"], data["night"]], tmp_path)
