@@ -41,8 +41,8 @@ import scipy.sparse as sp
 
 import encoders
 from pipelines.extract import extract
-from pipelines.match import _add_source_args, method_metrics, versions
-from vpr import io
+from pipelines.match import _add_source_args, add_preset_argument, method_metrics, versions
+from vpr import io, presets
 from vpr.config import parse_key_values
 from vpr.groundtruth import GroundTruthSpec, build_gt
 from vpr.localize import Localizer
@@ -336,7 +336,8 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
 
 # ------------------------------------------------------------------ command line
 def _add_learn_args(ap):
-    encoders.add_arguments(ap)
+    add_preset_argument(ap)
+    encoders.add_arguments(ap, default=None)
     ap.add_argument("--localizer-conf", action="append", default=[], metavar="KEY=VALUE",
                     help="vpr.Localizer option, repeatable (e.g. z_min=4, decay=0.9, threshold=0.75)")
 
@@ -371,7 +372,9 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
 
 
 def run_command(args) -> int:
-    learn_opts = {"encoder": args.encoder, "encoder_conf": encoders.parse_conf(args.encoder_conf),
+    # the preset's encoder unless --encoder names another (vpr.presets.resolve)
+    settings = presets.resolve(args.preset, encoder=args.encoder, encoder_conf=encoders.parse_conf(args.encoder_conf))
+    learn_opts = {"encoder": settings["encoder"], "encoder_conf": settings["encoder_conf"],
                   "localizer_conf": parse_key_values(args.localizer_conf, "--localizer-conf")}
     if args.command == "learn":
         loc = learn(args.db, args.out, fps=args.fps, step=args.step, max_frames=args.max_frames,

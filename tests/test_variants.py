@@ -5,7 +5,7 @@ import scipy.sparse as sp
 
 from vpr import evaluate, methods, sdr
 from vpr.memory import SequenceMemory
-from vpr.methods import EncodedTraverse, loops, match
+from vpr.methods import EncodedTraverse, match
 from vpr.similarity import overlap_similarity
 
 
@@ -158,8 +158,3 @@ def test_rshosm_seq_normalise_and_disabled_transitions():
     with pytest.raises(ValueError, match="stay must be >= 0 or None"):
         match("rshosm-seq", EncodedTraverse(names, sdr=db), EncodedTraverse(names, sdr=q), {"stay": -1})
 
-
-def test_rshosm_seq_refuses_loop_closure():
-    obs = sdr.random_sdrs(10, 2048, 40, seed=5)
-    with pytest.raises(ValueError, match="loop closure"):
-        loops("rshosm-seq", EncodedTraverse(list(range(10)), sdr=obs), exclude=2)
