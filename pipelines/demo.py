@@ -25,7 +25,7 @@ from vpr.groundtruth import GroundTruthSpec
 
 __all__ = ["COMMANDS", "add_arguments", "run_command", "run_demo", "render_once", "DEFAULTS"]
 
-COMMANDS = {"demo": "render the two_seasons scene and compare rSHOSM, SeqSLAM and pairwise on it"}
+COMMANDS = {"demo": "render the two_seasons scene and compare the default preset's methods on it (no download)"}
 
 # every setting of the demo, in one place (a preset can replace it). Verification is the expensive part
 # (ORB matching, ~5 ms per candidate pair at 500 keypoints, ~15 ms at 1,000): only rshosm-seq's 3 best
