@@ -177,7 +177,7 @@ def test_save_load_continues_identically(tmp_path):
 
 
 def test_load_rejects_bad_files(tmp_path):
-    with pytest.raises(MemoryFileError, match="no such memory file"):
+    with pytest.raises(MemoryFileError, match="no such SequenceMemory file"):
         SequenceMemory.load(tmp_path / "missing.npz")
     junk = tmp_path / "junk.npz"
     junk.write_bytes(b"not a zip file at all")

@@ -132,3 +132,36 @@ def save_image(path, img) -> Path:
         if not cv2.imwrite(str(tmp), img):
             raise OSError(f"{path}: OpenCV could not encode the image")
     return Path(path)
+
+
+def save_versioned_npz(path, header: dict, arrays: dict, default=None) -> Path:
+    """Atomically write ``arrays`` and a JSON ``header`` (with ``format`` and ``version``) as one ``.npz``."""
+    path = Path(path)
+    with atomic_path(path, suffix=".npz") as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, header=np.array(json.dumps(header, default=default)), **arrays)
+    return path
+
+
+def load_versioned_npz(path, fmt: str, version: int, what: str, error: type[Exception] = ValueError,
+                       hint: str = "") -> tuple[dict, dict]:
+    """Read a file of :func:`save_versioned_npz`: ``(header, arrays)``.
+
+    Raises ``error`` naming ``path`` when the file is missing, unreadable, of
+    another format (``what`` names the expected one, ``hint`` says what writes
+    it) or of another version.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise error(f"{path}: no such {what} file")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+        header = json.loads(str(data.pop("header")))
+    except Exception as e:  # zip, format and JSON errors all mean "not our file"
+        raise error(f"{path}: not a readable {what} file ({type(e).__name__}: {e})") from e
+    if not isinstance(header, dict) or header.get("format") != fmt:
+        raise error(f"{path}: not a {what} file{hint}")
+    if header.get("version") != version:
+        raise error(f"{path}: unsupported {what} format version {header.get('version')}")
+    return header, data

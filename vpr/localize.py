@@ -26,7 +26,6 @@ caller encodes each frame with the encoder used for the database.
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -170,10 +169,7 @@ class Localizer:
         arrays["names"] = np.array(self.names, dtype=str)
         arrays["db_indptr"] = self.db_codes.indptr.astype(np.int64)
         arrays["db_indices"] = self.db_codes.indices.astype(np.int64)
-        with _io.atomic_path(path, suffix=".npz") as tmp:
-            with open(tmp, "wb") as fh:
-                np.savez_compressed(fh, header=np.array(json.dumps(header, default=_json_default)), **arrays)
-        return path
+        return _io.save_versioned_npz(path, header, arrays, default=_json_default)
 
     @classmethod
     def load(cls, path) -> Localizer:
@@ -184,19 +180,8 @@ class Localizer:
         MemoryFileError
             Missing, corrupt or foreign file, or an unsupported format version.
         """
-        path = Path(path)
-        if not path.is_file():
-            raise MemoryFileError(f"{path}: no such localizer file")
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                data = {k: z[k] for k in z.files}
-            header = json.loads(str(data["header"]))
-        except Exception as e:  # zip, format and JSON errors all mean "not our file"
-            raise MemoryFileError(f"{path}: not a readable localizer file ({type(e).__name__}: {e})") from e
-        if not isinstance(header, dict) or header.get("format") != _FORMAT:
-            raise MemoryFileError(f"{path}: not a localizer file (written by `vpr learn` / Localizer.save)")
-        if header.get("version") != _FORMAT_VERSION:
-            raise MemoryFileError(f"{path}: unsupported localizer format version {header.get('version')}")
+        header, data = _io.load_versioned_npz(path, _FORMAT, _FORMAT_VERSION, "localizer", MemoryFileError,
+                                              hint=" (written by `vpr learn` / Localizer.save)")
         try:
             mem = SequenceMemory(**header["memory_params"])
             mem._rng.bit_generator.state = header["memory_rng"]

@@ -20,7 +20,6 @@ What the memory has learned is read through :attr:`SequenceMemory.connections`
 from __future__ import annotations
 
 import inspect
-import json
 from pathlib import Path
 
 import numpy as np
@@ -516,10 +515,7 @@ class SequenceMemory:
         path = Path(path)
         header = {"format": _FORMAT, "version": _FORMAT_VERSION, "params": self.get_params(),
                   "rng": self._rng.bit_generator.state}
-        with _io.atomic_path(path, suffix=".npz") as tmp:
-            with open(tmp, "wb") as fh:
-                np.savez_compressed(fh, header=np.array(json.dumps(header)), **self._arrays())
-        return path
+        return _io.save_versioned_npz(path, header, self._arrays())
 
     @classmethod
     def load(cls, path) -> SequenceMemory:
@@ -530,19 +526,7 @@ class SequenceMemory:
         MemoryFileError
             Missing, corrupt or foreign file, or an unsupported format version.
         """
-        path = Path(path)
-        if not path.is_file():
-            raise MemoryFileError(f"{path}: no such memory file")
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                data = {k: z[k] for k in z.files}
-            header = json.loads(str(data["header"]))
-        except Exception as e:  # zip, format and JSON errors all mean "not our file"
-            raise MemoryFileError(f"{path}: not a readable SequenceMemory file ({type(e).__name__}: {e})") from e
-        if not isinstance(header, dict) or header.get("format") != _FORMAT:
-            raise MemoryFileError(f"{path}: not a SequenceMemory file")
-        if header.get("version") != _FORMAT_VERSION:
-            raise MemoryFileError(f"{path}: unsupported SequenceMemory format version {header.get('version')}")
+        header, data = _io.load_versioned_npz(path, _FORMAT, _FORMAT_VERSION, "SequenceMemory", MemoryFileError)
         try:
             m = cls(**header["params"])
             m._rng.bit_generator.state = header["rng"]
