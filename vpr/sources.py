@@ -489,36 +489,42 @@ class VideoSource(Source):
         raw = f"video|{token}|fps={self.fps}|step={self.step}|max={self.max_frames}"
         return f"video:{hashlib.sha256(raw.encode()).hexdigest()}"
 
+    def _decode(self, cap, targets, pos: int, ended: str) -> Iterator[Frame]:
+        """Frames ``targets`` (increasing numbers) from ``cap``, whose next grab() returns frame ``pos``.
+
+        The first frame that cannot be read ends the run (recorded with ``ended``).
+        """
+        for target in targets:
+            # grab() without retrieve() skips decoding into BGR for dropped frames
+            while pos < target:
+                if not cap.grab():
+                    break
+                pos += 1
+            if pos < target or not cap.grab():
+                self._end_of_stream(target)
+                return
+            pos += 1
+            ok, img = cap.retrieve()
+            if not ok or img is None:
+                self._skip(self.frame_name(target), f"frame could not be decoded; {ended}")
+                return
+            try:
+                img = to_bgr(img, f"{self.path} frame {target}")
+            except ValueError as exc:
+                self._skip(self.frame_name(target), f"{exc}; {ended}")
+                return
+            yield Frame(target, self.frame_name(target), img)
+
     def __iter__(self) -> Iterator[Frame]:
         self.skipped = []
         cap = self._open()
         n_yielded = 0
         try:
-            wanted = self._selection()
-            target = next(wanted)
-            pos = 0  # number of the frame the next grab() returns
-            while not (self.max_frames and n_yielded >= self.max_frames):
-                # grab() without retrieve() skips decoding into BGR for dropped frames
-                while pos < target:
-                    if not cap.grab():
-                        break
-                    pos += 1
-                if pos < target or not cap.grab():
-                    self._end_of_stream(target)
-                    break
-                pos += 1
-                ok, img = cap.retrieve()
-                if not ok or img is None:
-                    self._skip(self.frame_name(target), "frame could not be decoded; stream ended")
-                    break
-                try:
-                    img = to_bgr(img, f"{self.path} frame {target}")
-                except ValueError as exc:
-                    self._skip(self.frame_name(target), f"{exc}; stream ended")
-                    break
+            for frame in self._decode(cap, self._selection(), 0, "stream ended"):
                 n_yielded += 1
-                yield Frame(target, self.frame_name(target), img)
-                target = next(wanted)
+                yield frame
+                if self.max_frames and n_yielded >= self.max_frames:
+                    break
         finally:
             cap.release()
         if n_yielded == 0:
@@ -541,25 +547,7 @@ class VideoSource(Source):
                     # the backend could not seek exactly: decode from the start rather than misnumber frames
                     cap.release()
                     cap = self._open()
-            for target in wanted:
-                while pos < target:
-                    if not cap.grab():
-                        break
-                    pos += 1
-                if pos < target or not cap.grab():
-                    self._end_of_stream(target)
-                    break
-                pos += 1
-                ok, img = cap.retrieve()
-                if not ok or img is None:
-                    self._skip(self.frame_name(target), "frame could not be decoded; range ended")
-                    break
-                try:
-                    img = to_bgr(img, f"{self.path} frame {target}")
-                except ValueError as exc:
-                    self._skip(self.frame_name(target), f"{exc}; range ended")
-                    break
-                yield Frame(target, self.frame_name(target), img)
+            yield from self._decode(cap, wanted, pos, "range ended")
         finally:
             cap.release()
 
