@@ -55,7 +55,8 @@ def run_curve(method: str, p_extra: float, aliasing: int, noise: float, seed: in
     gt = evaluate.gt_from_labels(places, places)
     mask = evaluate.loop_closure_mask(len(places), exclude=1)
     prec, rec, _ = evaluate.pr_curve(S, gt, mask=mask)
-    return {"auc_pr": evaluate.auc_from_pr(prec, rec), "recall_at_100p": evaluate.recall_at_100p(S, gt, mask=mask),
+    return {"ap": evaluate.average_precision(S, gt, mask=mask), "auc_pr": evaluate.auc_from_pr(prec, rec),
+            "recall_at_100p": evaluate.recall_at_100p(S, gt, mask=mask),
             "seconds": seconds, "precision": prec, "recall": rec}
 
 
@@ -79,28 +80,32 @@ def run(out_dir, seeds: int = 5, n_loops: int = 10, progress: bool = True) -> di
         plot_curves = {}
         for name, (method, p, a, n) in curves.items():
             rs = results[(panel, name)]
+            ap = [r["ap"] for r in rs]
             auc = [r["auc_pr"] for r in rs]
             r100 = [r["recall_at_100p"] for r in rs]
             metrics["curves"][name] = {
                 "panel": panel, "method": method, "p_extra": p, "aliasing": a, "noise": n,
+                "ap": float(np.mean(ap)), "ap_std": float(np.std(ap)),
                 "auc_pr": float(np.mean(auc)), "auc_pr_std": float(np.std(auc)),
                 "recall_at_100p": float(np.mean(r100)), "recall_at_100p_std": float(np.std(r100)),
-                "per_seed": {"auc_pr": auc, "recall_at_100p": r100},
+                "per_seed": {"ap": ap, "auc_pr": auc, "recall_at_100p": r100},
                 "seconds": float(np.mean([r["seconds"] for r in rs])),
             }
             # the curves drawn are seed 0's; metrics.json has the means over all seeds
             plot_curves[name] = (rs[0]["precision"], rs[0]["recall"])
         title = ("SHOSM vs rSHOSM (no noise, no aliasing)" if panel == "left"
                  else "pairwise vs rSHOSM (a = aliased pairs, n = noise)")
-        plots.plot_pr(plot_curves, out / f"fig3_{panel}.png", title=f"{title}; seed 0")
+        plots.plot_pr(plot_curves, out / f"fig3_{panel}.png", title=f"{title}; seed 0",
+                      ap={name: results[(panel, name)][0]["ap"] for name in curves})
     io.save_json(out / "metrics.json", metrics)
     return metrics
 
 
 def format_table(metrics: dict) -> str:
-    lines = [f"{'curve':<28} {'AUC':>7} {'(std)':>7} {'R@100P':>7} {'(std)':>7}"]
+    lines = [f"{'curve':<28} {'AP':>7} {'(std)':>7} {'AUC':>7} {'(std)':>7} {'R@100P':>7} {'(std)':>7}"]
     for name, m in metrics["curves"].items():
-        lines.append(f"{name:<28} {m['auc_pr']:7.3f} {m['auc_pr_std']:7.3f} {m['recall_at_100p']:7.3f}"
+        lines.append(f"{name:<28} {m['ap']:7.3f} {m['ap_std']:7.3f} {m['auc_pr']:7.3f} {m['auc_pr_std']:7.3f}"
+                     f" {m['recall_at_100p']:7.3f}"
                      f" {m['recall_at_100p_std']:7.3f}")
     return "\n".join(lines)
 
