@@ -39,3 +39,18 @@ def test_every_sdr_method_keeps_top_k_above_the_limit(monkeypatch):
         S = methods.match(name, db, q, {"top_k": 5}).similarity
         assert sp.issparse(S), name
         assert np.diff(sp.csc_matrix(S).indptr).max() <= 5, name
+
+
+def test_tolerance_ground_truth_is_a_sparse_band_above_the_limit(monkeypatch):
+    from vpr import groundtruth
+
+    rng = np.random.default_rng(3)
+    db_i, q_i = np.sort(rng.choice(200, 60, replace=False)), rng.integers(0, 210, 50)  # e.g. --step, unsorted query
+    spec = groundtruth.GroundTruthSpec(tolerance=2, soft=4)
+    names_db, names_q = [str(i) for i in db_i], [str(i) for i in q_i]
+    dense = groundtruth.build_gt(spec, names_db, names_q, db_i, q_i)
+    monkeypatch.setattr(groundtruth, "DENSE_PAIRS_LIMIT", 100)
+    band = groundtruth.build_gt(spec, names_db, names_q, db_i, q_i)
+    for d, b in zip(dense, band, strict=True):
+        assert sp.issparse(b) and b.dtype == bool
+        assert np.array_equal(b.toarray(), d)

@@ -29,8 +29,10 @@ from dataclasses import dataclass
 from pathlib import Path, PurePath
 
 import numpy as np
+import scipy.sparse as sp
 
 from vpr.evaluate import gt_from_positions, gt_from_tolerance  # re-exported: the CLI takes all GT here
+from vpr.similarity import DENSE_PAIRS_LIMIT
 
 __all__ = [
     "load_pairs_csv",
@@ -459,6 +461,17 @@ class GroundTruthSpec:
                 "gt_soft": self.soft}
 
 
+def _tolerance_band(db_i: np.ndarray, q_i: np.ndarray, tol) -> sp.csr_matrix:
+    """Sparse bool (db x query): ``|db_i - q_i| <= tol``, built from the sorted database indices."""
+    order = np.argsort(db_i, kind="stable")
+    lo = np.searchsorted(db_i[order], q_i - tol, side="left")
+    hi = np.searchsorted(db_i[order], q_i + tol, side="right")
+    n = hi - lo
+    cols = np.repeat(np.arange(q_i.size), n)
+    rows = order[np.repeat(lo, n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)]
+    return sp.csr_matrix((np.ones(rows.size, bool), (rows, cols)), shape=(db_i.size, q_i.size))
+
+
 def build_gt(spec: GroundTruthSpec, db_names: Sequence[str], q_names: Sequence[str], db_indices: Sequence[int],
              q_indices: Sequence[int], db_traverse: str = "database", q_traverse: str = "query"):
     """(gt_hard, gt_soft) of the frames read, or (None, None) without ground truth.
@@ -475,7 +488,10 @@ def build_gt(spec: GroundTruthSpec, db_names: Sequence[str], q_names: Sequence[s
     if spec.tolerance is not None:
         if files:
             raise ValueError("give either --tolerance or --gt, not both")
-        db_i, q_i = np.asarray(db_indices), np.asarray(q_indices)
+        db_i, q_i = np.asarray(db_indices, np.int64), np.asarray(q_indices, np.int64)
+        if db_i.size * q_i.size > DENSE_PAIRS_LIMIT:  # 50,000 x 50,000 frames: a band, never the dense matrix
+            return (_tolerance_band(db_i, q_i, spec.tolerance),
+                    _tolerance_band(db_i, q_i, spec.soft) if spec.soft is not None else None)
         d = np.abs(db_i[:, None] - q_i[None, :])
         return d <= spec.tolerance, (d <= spec.soft if spec.soft is not None else None)
     if not files:
