@@ -54,3 +54,20 @@ def test_tolerance_ground_truth_is_a_sparse_band_above_the_limit(monkeypatch):
     for d, b in zip(dense, band, strict=True):
         assert sp.issparse(b) and b.dtype == bool
         assert np.array_equal(b.toarray(), d)
+
+
+def test_position_ground_truth_is_sparse_above_the_limit(tmp_path, monkeypatch):
+    from vpr import groundtruth
+
+    rng = np.random.default_rng(4)
+    files = []
+    for name, n in (("db", 40), ("q", 30)):
+        xy = rng.uniform(0, 10, (n, 2))
+        (tmp_path / f"{name}.csv").write_text("frame,x,y\n" + "".join(f"{i},{x},{y}\n" for i, (x, y) in enumerate(xy)))
+        files.append(str(tmp_path / f"{name}.csv"))
+    spec = groundtruth.GroundTruthSpec(files=tuple(files), radius=1.5, soft=3.0)
+    args = ([str(i) for i in range(40)], [str(i) for i in range(30)], list(range(40)), list(range(30)))
+    dense = groundtruth.build_gt(spec, *args)
+    monkeypatch.setattr(groundtruth, "DENSE_PAIRS_LIMIT", 100)
+    for d, b in zip(dense, groundtruth.build_gt(spec, *args), strict=True):
+        assert sp.issparse(b) and np.array_equal(b.toarray(), d) and d.any()

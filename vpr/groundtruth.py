@@ -359,15 +359,15 @@ def gt_from_position_files(db_csv, q_csv, radius: float, db_names: Sequence[str]
 
     Returns
     -------
-    numpy.ndarray
-        bool (n_db, n_q).
+    numpy.ndarray or scipy.sparse.csr_matrix
+        bool (n_db, n_q); sparse above :data:`~vpr.similarity.DENSE_PAIRS_LIMIT` pairs.
     """
     r = _parse_float(str(radius)) if not isinstance(radius, bool) else None
     if r is None or not math.isfinite(r) or r < 0:
         raise ValueError(f"radius must be a finite number >= 0, got {radius!r}")
     db_xy = _positions_for_frames(db_csv, db_names, db_indices, "database")
     q_xy = _positions_for_frames(q_csv, q_names, q_indices, "query")
-    return gt_from_positions(db_xy, q_xy, r)
+    return gt_from_positions(db_xy, q_xy, r, sparse=len(db_xy) * len(q_xy) > DENSE_PAIRS_LIMIT)
 
 
 # --------------------------------------------------------------------------- #
@@ -515,6 +515,7 @@ def build_gt(spec: GroundTruthSpec, db_names: Sequence[str], q_names: Sequence[s
         return hard, soft
     db_xy = _xy_for(load_traverse_positions(files[0], db_traverse), db_indices, files[0], db_traverse)
     q_xy = _xy_for(load_traverse_positions(files[0], q_traverse), q_indices, files[0], q_traverse)
-    hard = gt_from_positions(db_xy, q_xy, spec.radius)
-    soft = gt_from_positions(db_xy, q_xy, spec.soft) if spec.soft is not None else None
+    big = len(db_xy) * len(q_xy) > DENSE_PAIRS_LIMIT
+    hard = gt_from_positions(db_xy, q_xy, spec.radius, sparse=big)
+    soft = gt_from_positions(db_xy, q_xy, spec.soft, sparse=big) if spec.soft is not None else None
     return hard, soft
