@@ -57,8 +57,9 @@ class RshosmSeq(Method):
     synthetic traverses of 5,000 x 4,987 frames (``benchmarks/bench_scale.py
     --agree 5000``; ``tests/test_scale.py`` asserts >= 97 % at 600 frames).
     Cost: 50,000 x 49,737 frames of 40-of-2,048-bit SDRs in 75 s on one core,
-    1.3 GiB peak. The beam follows the active bits, so denser SDRs cost much
-    more: 4,000 x 4,000 pixel-encoder frames with 200 active bits took 197 s
+    1.3 GiB peak. The beam follows the minicolumns a query frame overlaps, so
+    SDRs that share many bits between places cost much more: pixel-encoder
+    SDRs of 2,000 / 4,000 synthetic image frames took 22 s / 148 s
     (docs/benchmarks.md, "Large inputs").
     """
 
