@@ -1,10 +1,12 @@
 """SeqSLAM beyond the dense limit: time, peak RSS and R@1 from 5,000 to 50,000 frames, one thread.
 
-Data: synthetic aliased SDR traverses (:func:`aliased_traverses`): ``n``
-database places shown by ``n / 10`` appearances (each reused at about ten
-random places, so single frames are ambiguous), a query traverse over the
-same places at a speed varying smoothly within 0.8-1.2, 35 % of each query
-frame's bits moved.
+Data: the synthetic aliased SDR traverses of ``bench_scale.py``
+(:func:`vpr.simulate.aliased_traverses`): ``n`` database places shown by
+``n / 10`` appearances (each reused at about ten random places, so single
+frames are ambiguous), a query traverse over the same places at a speed
+drawn within 0.8-1.2 (a new value every 50-200 frames), 35 % of each query
+frame's bits moved. ``bench_scale.py`` has the one-line figures of all
+methods; this one adds the exact and dense SeqSLAM and their agreement.
 
 For each size, in a fresh child process (so that its peak RSS is its own):
 
@@ -43,50 +45,16 @@ import sys  # noqa: E402
 import time  # noqa: E402
 
 import numpy as np  # noqa: E402
-import scipy.sparse as sp  # noqa: E402
 
+from vpr import simulate  # noqa: E402
 from vpr.baselines.seqslam import difference_matrix, seqslam, seqslam_topk  # noqa: E402
 
 
-def aliased_traverses(n: int, n_appearances: int | None = None, n_bits: int = 2048, n_active: int = 40,
-                      noise: float = 0.35, v_min: float = 0.8, v_max: float = 1.2, seed: int = 0):
-    """Database and query SDR traverses of ``n`` places with aliasing.
-
-    Returns ``(db, q, gt)``: SDR batches (csr bool) and the database place of
-    every query frame. Place ``p`` shows appearance ``app[p]``, drawn uniformly
-    from ``n_appearances`` (default ``n // 10``) random SDRs; the query moves at
-    ``1 + 0.2 sin(...)`` places per frame (a random period of 300-1,500 frames,
-    rescaled to ``[v_min, v_max]``) and each frame has ``noise`` of its bits
-    moved to random inactive positions.
-    """
-    rng = np.random.default_rng(seed)
-    n_app = n_appearances or max(1, n // 10)
-    app = np.argsort(rng.random((n_app, n_bits)), axis=1)[:, :n_active]
-    place_app = rng.integers(0, n_app, size=n)
-    db_idx = app[place_app]
-    period = rng.uniform(300, 1500)
-    mid, amp = (v_min + v_max) / 2, (v_max - v_min) / 2
-    speed = mid + amp * np.sin(2 * np.pi * np.arange(2 * n) / period + rng.uniform(0, 2 * np.pi))
-    pos = np.concatenate([[0.0], np.cumsum(speed)])
-    gt = np.round(pos[pos <= n - 1]).astype(np.int64)
-    n_move = int(round(noise * n_active))
-    q_idx = np.empty((len(gt), n_active), dtype=np.int64)
-    for r0 in range(0, len(gt), 4096):
-        src = db_idx[gt[r0:r0 + 4096]]
-        m = len(src)
-        keep = np.take_along_axis(src, np.argsort(rng.random((m, n_active)), axis=1)[:, :n_active - n_move], 1)
-        key = rng.random((m, n_bits))
-        np.put_along_axis(key, src, 2.0, axis=1)          # never re-draw an active bit
-        new = np.argpartition(key, n_move, axis=1)[:, :n_move]
-        q_idx[r0:r0 + m] = np.concatenate([keep, new], axis=1)
-
-    def batch(idx):
-        m = sp.csr_matrix((np.ones(idx.size, bool), idx.ravel(), np.arange(0, idx.size + 1, idx.shape[1])),
-                          shape=(len(idx), n_bits))
-        m.sort_indices()
-        return m
-
-    return batch(db_idx), batch(q_idx), gt
+def aliased_traverses(n: int, seed: int = 0):
+    """``(db, q, gt)``: :func:`vpr.simulate.aliased_traverses` with ``n / 10`` appearances (as ``bench_scale.py``)
+    and the database place of every query frame."""
+    db, q, db_place, q_place = simulate.aliased_traverses(n, max(1, n // 10), seed=seed)
+    return db, q, db_place[q_place]
 
 
 def peak_rss_mib() -> float:

@@ -243,6 +243,11 @@ def metrics_table(table: dict) -> str:
     return "\n".join(lines)
 
 
+def _any_true(G) -> bool:
+    """Whether a dense or sparse bool ground truth holds any true pair (sparse has no ``any``)."""
+    return bool(G.count_nonzero()) if sp.issparse(G) else bool(np.any(G))
+
+
 def _at(S, rows) -> np.ndarray:
     """``S[rows[j], j]`` per column (rows >= 0), dense or sparse."""
     cols = np.arange(len(rows))
@@ -486,7 +491,7 @@ def run_compare(db, query, method_names: list[str], opts: RunOptions, command: s
     for runner in runners.values():
         runner.check_size(len(db_att), len(q_att))  # too large for a method: refused now, not after encoding
     gt_hard, gt_soft = build_gt(opts.gt, db_src.names(), q_src.names(), db_att, q_att, db_src.name, q_src.name)
-    if gt_hard is not None and not gt_hard.any():
+    if gt_hard is not None and not _any_true(gt_hard):
         raise opts.gt.no_match_error(db_att, q_att)
     # ---- the work starts here: nothing above wrote a file
     db_ex, q_ex = _extract_all([db_src, q_src], ["database", "query"], encoder, runners, opts)
@@ -494,7 +499,7 @@ def run_compare(db, query, method_names: list[str], opts: RunOptions, command: s
         rows, cols = _gt_rows(db_att, db_ex.indices), _gt_rows(q_att, q_ex.indices)
         gt_hard = gt_hard[np.ix_(rows, cols)]
         gt_soft = gt_soft[np.ix_(rows, cols)] if gt_soft is not None else None
-        if not gt_hard.any():
+        if not _any_true(gt_hard):
             raise opts.gt.no_match_error(db_ex.indices, q_ex.indices)
     verifier = None
     if opts.verify:
@@ -585,7 +590,7 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = 30) -> di
         xy = positions_of_frames(opts.gt.files[0], src.name, attempted)
         gt_hard = evaluate.gt_from_positions(xy, xy, opts.gt.radius)
         mask = evaluate.loop_closure_mask(len(attempted), exclude=exclude)
-        if not (gt_hard & mask).any():
+        if not _any_true(gt_hard & mask):
             raise opts.gt.no_match_error(exclude=exclude)
     # ---- the work starts here: nothing above wrote a file
     (ex,) = _extract_all([src], ["sequence"], encoder, runners, opts)
@@ -593,7 +598,7 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = 30) -> di
         rows = _gt_rows(attempted, ex.indices)
         gt_hard = gt_hard[np.ix_(rows, rows)]
         mask = evaluate.loop_closure_mask(len(ex.features), exclude=exclude)
-        if not (gt_hard & mask).any():  # skipped frames took the last true pairs
+        if not _any_true(gt_hard & mask):  # skipped frames took the last true pairs
             raise opts.gt.no_match_error(exclude=exclude)
     res = runner.loops(ex.features, exclude=exclude, progress=opts.progress)
     folder = out / method

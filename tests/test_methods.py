@@ -71,12 +71,7 @@ def test_large_inputs_go_sparse_or_are_refused(monkeypatch):
     assert sp.issparse(res.similarity)
     with pytest.raises(ValueError, match="dense descriptors"):
         methods.match("pairwise", db, q, {"on": "descriptor"})
-    # refused before any work: rshosm-seq learns nothing from a database it cannot match
-    calls = []
-    monkeypatch.setattr(methods.get_class("rshosm-seq"), "_match", lambda *a: calls.append(a))
-    with pytest.raises(ValueError, match="rshosm-seq needs a dense 30 x 30 matrix"):
-        methods.match("rshosm-seq", db, q)
-    assert not calls
+    # rshosm-seq goes sparse above the limit: tests/test_scale.py
 
 
 def test_loops_only_look_back_far_enough():

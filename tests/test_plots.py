@@ -228,3 +228,30 @@ def test_plot_similarity_sparse_marker_needs_a_stored_entry(tmp_path, monkeypatc
     # a single database frame has nothing to tie with: its stored entry is the candidate
     plot_similarity(np.zeros((1, 2)), tmp_path / "S.png", best_db=np.array([0, -1]))
     assert _markers(figs[1]) == {(0.0, 0.0)}
+
+
+def test_plot_similarity_bins_a_sparse_matrix_max_per_bin_with_thinned_markers(tmp_path, monkeypatch):
+    # a small top-3 sparse matrix forced through the binning of a 50k x 50k one by max_pixels
+    rng = np.random.default_rng(5)
+    n_db, n_q, k, px = 60, 45, 3, 10
+    rows = np.stack([rng.choice(n_db, k, replace=False) for _ in range(n_q)], axis=1)
+    vals = rng.normal(size=(k, n_q))
+    S = sp.csr_matrix((vals.ravel(), (rows.ravel(), np.tile(np.arange(n_q), k))), shape=(n_db, n_q))
+    best = rows[vals.argmax(0), np.arange(n_q)]
+    figs = _capture(monkeypatch)
+    plot_similarity(S, tmp_path / "S.png", best_db=best, gt_hard=gt_from_tolerance(n_db, n_q, 1, sparse=True),
+                    max_pixels=px)
+    shown = np.ma.filled(figs[0].axes[0].images[0].get_array().astype(float), np.nan)
+    fr, fc = -(-n_db // px), -(-n_q // px)
+    assert shown.shape == (-(-n_db // fr), -(-n_q // fc)) and max(shown.shape) <= px
+    dense = np.full((n_db, n_q), np.nan)
+    dense[rows, np.arange(n_q)] = vals
+    for a in range(shown.shape[0]):
+        for b in range(shown.shape[1]):
+            block = dense[a * fr:(a + 1) * fr, b * fc:(b + 1) * fc]
+            expect = np.nanmax(block) if np.isfinite(block).any() else np.nan
+            assert np.isnan(shown[a, b]) if np.isnan(expect) else shown[a, b] == pytest.approx(expect)
+    # 45 markers exceed 2 * max_pixels: every second query's, each at its exact best match
+    marks = _markers(figs[0])
+    assert 0 < len(marks) <= 2 * px
+    assert all(best[int(x)] == int(y) for x, y in marks)

@@ -29,8 +29,10 @@ from dataclasses import dataclass
 from pathlib import Path, PurePath
 
 import numpy as np
+import scipy.sparse as sp
 
 from vpr.evaluate import gt_from_positions, gt_from_tolerance  # re-exported: the CLI takes all GT here
+from vpr.similarity import DENSE_PAIRS_LIMIT
 
 __all__ = [
     "load_pairs_csv",
@@ -371,15 +373,15 @@ def gt_from_position_files(db_csv, q_csv, radius: float, db_names: Sequence[str]
 
     Returns
     -------
-    numpy.ndarray
-        bool (n_db, n_q).
+    numpy.ndarray or scipy.sparse.csr_matrix
+        bool (n_db, n_q); sparse above :data:`~vpr.similarity.DENSE_PAIRS_LIMIT` pairs.
     """
     r = _parse_float(str(radius)) if not isinstance(radius, bool) else None
     if r is None or not math.isfinite(r) or r < 0:
         raise ValueError(f"radius must be a finite number >= 0, got {radius!r}")
     db_xy = _positions_for_frames(db_csv, db_names, db_indices, "database")
     q_xy = _positions_for_frames(q_csv, q_names, q_indices, "query")
-    return gt_from_positions(db_xy, q_xy, r)
+    return gt_from_positions(db_xy, q_xy, r, sparse=len(db_xy) * len(q_xy) > DENSE_PAIRS_LIMIT)
 
 
 # --------------------------------------------------------------------------- #
@@ -542,6 +544,17 @@ class GroundTruthSpec:
                           "are read; recall is undefined")
 
 
+def _tolerance_band(db_i: np.ndarray, q_i: np.ndarray, tol) -> sp.csr_matrix:
+    """Sparse bool (db x query): ``|db_i - q_i| <= tol``, built from the sorted database indices."""
+    order = np.argsort(db_i, kind="stable")
+    lo = np.searchsorted(db_i[order], q_i - tol, side="left")
+    hi = np.searchsorted(db_i[order], q_i + tol, side="right")
+    n = hi - lo
+    cols = np.repeat(np.arange(q_i.size), n)
+    rows = order[np.repeat(lo, n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)]
+    return sp.csr_matrix((np.ones(rows.size, bool), (rows, cols)), shape=(db_i.size, q_i.size))
+
+
 def build_gt(spec: GroundTruthSpec, db_names: Sequence[str], q_names: Sequence[str], db_indices: Sequence[int],
              q_indices: Sequence[int], db_traverse: str = "database", q_traverse: str = "query"):
     """(gt_hard, gt_soft) of the frames read, or (None, None) without ground truth.
@@ -557,7 +570,10 @@ def build_gt(spec: GroundTruthSpec, db_names: Sequence[str], q_names: Sequence[s
     spec.check()
     files = list(spec.files)
     if spec.tolerance is not None:
-        db_i, q_i = np.asarray(db_indices), np.asarray(q_indices)
+        db_i, q_i = np.asarray(db_indices, np.int64), np.asarray(q_indices, np.int64)
+        if db_i.size * q_i.size > DENSE_PAIRS_LIMIT:  # 50,000 x 50,000 frames: a band, never the dense matrix
+            return (_tolerance_band(db_i, q_i, spec.tolerance),
+                    _tolerance_band(db_i, q_i, spec.soft) if spec.soft is not None else None)
         d = np.abs(db_i[:, None] - q_i[None, :])
         return d <= spec.tolerance, (d <= spec.soft if spec.soft is not None else None)
     if not files:
@@ -573,6 +589,7 @@ def build_gt(spec: GroundTruthSpec, db_names: Sequence[str], q_names: Sequence[s
         return hard, soft
     db_xy = _xy_for(load_traverse_positions(files[0], db_traverse), db_indices, files[0], db_traverse)
     q_xy = _xy_for(load_traverse_positions(files[0], q_traverse), q_indices, files[0], q_traverse)
-    hard = gt_from_positions(db_xy, q_xy, spec.radius)
-    soft = gt_from_positions(db_xy, q_xy, spec.soft) if spec.soft is not None else None
+    big = len(db_xy) * len(q_xy) > DENSE_PAIRS_LIMIT
+    hard = gt_from_positions(db_xy, q_xy, spec.radius, sparse=big)
+    soft = gt_from_positions(db_xy, q_xy, spec.soft, sparse=big) if spec.soft is not None else None
     return hard, soft
