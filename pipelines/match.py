@@ -248,7 +248,7 @@ def _any_true(G) -> bool:
     return bool(G.count_nonzero()) if sp.issparse(G) else bool(np.any(G))
 
 
-def _at(S, rows) -> np.ndarray:
+def _score_at(S, rows) -> np.ndarray:
     """``S[rows[j], j]`` per column (rows >= 0), dense or sparse."""
     cols = np.arange(len(rows))
     rows = np.maximum(rows, 0)
@@ -382,7 +382,7 @@ def _write_method(folder: Path, m: str, res, db_names, q_names, gt_hard, gt_soft
         # with the unverified one (vpr.verify.rerank); seconds: the method's plus verification
         # (pairs shared with earlier methods are cached)
         S_v = vr.reranked(res.similarity)
-        score_v = np.where(vr.best_db >= 0, _at(S_v, vr.best_db), -np.inf)
+        score_v = np.where(vr.best_db >= 0, _score_at(S_v, vr.best_db), -np.inf)
         verified = MatchResult(m + "+verify", S_v, vr.best_db, score_v, vr.accepted,
                                res.seconds + time.perf_counter() - t0, res.conf)
         extra = {"verified_db": vr.best_db.tolist(),

@@ -31,6 +31,7 @@ from pathlib import Path, PurePath
 import numpy as np
 import scipy.sparse as sp
 
+from vpr._checks import check_count
 from vpr.evaluate import gt_from_positions, gt_from_tolerance  # re-exported: the CLI takes all GT here
 from vpr.similarity import DENSE_PAIRS_LIMIT
 
@@ -126,11 +127,6 @@ class _NameIndex:
         return None, False
 
 
-def _check_count(n, what: str) -> int:
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-        raise ValueError(f"{what} must be a positive integer, got {n!r}")
-    return int(n)
-
 
 def _index_rows(indices, n: int, what: str) -> dict[int, int]:
     """Frame number -> output row."""
@@ -186,8 +182,8 @@ def load_pairs_csv(path, n_db: int, n_q: int, db_names: Sequence[str] | None = N
         Empty file, wrong column count, unknown name, non-integer or
         out-of-range frame number: ``"FILE:LINE: reason"``.
     """
-    n_db = _check_count(n_db, "n_db")
-    n_q = _check_count(n_q, "n_q")
+    n_db = check_count(n_db, "n_db", minimum=1)
+    n_q = check_count(n_q, "n_q", minimum=1)
     _check_names(db_names, n_db, "db_names")
     _check_names(q_names, n_q, "q_names")
     sides = {
