@@ -113,10 +113,12 @@ def test_beam_caps_bound_the_cells_carried_and_keep_the_dense_best_matches(rende
     # candidates: at most max_enter minicolumns by feed-forward plus what the beam predicts (stay, one and two
     # connections: each cell here has few lateral connections)
     assert small["max_candidates"] <= 5 * mem.cells_per_column + 100 * 8, small
+    # here the floors carry every cell of the database codes (1,600): under the default caps, so the same result
+    assert free["max_beam"] <= ev.BEAM_DEFAULTS["max_beam"]
+    assert np.array_equal(r_cap.best_db, r_free.best_db)
     D = _zscore(mem.evidence(q, codes))
     bd = D.argmax(axis=0)
-    assert np.mean(r_cap.best_db == bd) >= 0.97
-    assert np.mean(r_free.best_db == bd) >= 0.97
+    assert np.mean(r_cap.best_db == bd) >= 0.95
     # the capped beam's z-scores come from what it kept: still those of the dense column at the best match
     C = r_cap.similarity.tocoo()
     best = (C.row == r_cap.best_db[C.col]) & (r_cap.best_db[C.col] == bd[C.col])

@@ -36,7 +36,7 @@ __all__ = ["dense_evidence", "sparse_evidence", "EvidenceResult", "ForwardEviden
            "loop_evidence", "accept_loops", "BEAM_DEFAULTS"]
 
 #: Floors of the sparse beam (see :func:`sparse_evidence`).
-BEAM_DEFAULTS = {"floor": 0.0, "rel_floor": 0.1, "z_floor": 0.15, "max_beam": 4096, "max_enter": 256}
+BEAM_DEFAULTS = {"floor": 0.0, "rel_floor": 0.1, "z_floor": 0.15, "max_beam": 8192, "max_enter": 256}
 
 _BIG = np.iinfo(np.int64).max // 4
 
@@ -257,8 +257,9 @@ def sparse_evidence(mem, query_batch, db_codes, decay: float = 0.9, stay: float 
                     skip: float | None = 0.05, direction: str = "both", top_k: int | None = 50,
                     normalise: str = "query", floor: float = BEAM_DEFAULTS["floor"],
                     rel_floor: float = BEAM_DEFAULTS["rel_floor"], z_floor: float = BEAM_DEFAULTS["z_floor"],
-                    max_beam: int | None = BEAM_DEFAULTS["max_beam"], max_enter: int | None = BEAM_DEFAULTS["max_enter"],
-                    progress: bool = False, stats: dict | None = None) -> EvidenceResult:
+                    max_beam: int | None = BEAM_DEFAULTS["max_beam"],
+                    max_enter: int | None = BEAM_DEFAULTS["max_enter"], progress: bool = False,
+                    stats: dict | None = None) -> EvidenceResult:
     """Graded sequence evidence carried only where it is; the top-K database frames per query.
 
     The same evidence as :func:`dense_evidence`, but per query frame only the
