@@ -13,7 +13,8 @@ mean evidence of ``j``'s winner cells, standardised per query.
   :meth:`SequenceMemory.evidence` returns).
 * :func:`sparse_evidence`: only the cells above a floor are carried (a beam
   entered through the inverted index input bit -> minicolumns and through the
-  learned connections); top-K database frames per query as a sparse matrix,
+  learned connections, capped in size so that SDRs sharing many bits do not
+  make it grow with the database); top-K database frames per query as a sparse matrix,
   with the z-scores of the full column (its mean and standard deviation come
   from the carried entries: absent ones are 0). For 50,000 x 50,000 frames.
 * :class:`ForwardEvidence`: the causal (forward) evidence one query frame at a
