@@ -49,10 +49,11 @@ def test_beam_without_floors_equals_dense_clamped(aliased, direction):
     q = q[:120]
     D = ev.dense_evidence(mem, q, codes, direction=direction, clamp=True)
     r = ev.sparse_evidence(mem, q, codes, direction=direction, top_k=None, normalise="none",
-                           floor=0.0, rel_floor=0.0, z_floor=0.0)
+                           floor=0.0, rel_floor=0.0, z_floor=0.0, max_beam=None, max_enter=None)
     np.testing.assert_allclose(r.similarity.toarray(), D, atol=1e-5)
     # z-scores from the sparse column's sums equal the dense column's
-    rz = ev.sparse_evidence(mem, q, codes, direction=direction, top_k=7, floor=0.0, rel_floor=0.0, z_floor=0.0)
+    rz = ev.sparse_evidence(mem, q, codes, direction=direction, top_k=7, floor=0.0, rel_floor=0.0, z_floor=0.0,
+                            max_beam=None, max_enter=None)
     Z = _zscore(D)
     C = rz.similarity.tocoo()
     np.testing.assert_allclose(C.data, Z[C.row, C.col], atol=1e-4)
@@ -81,6 +82,47 @@ def test_default_beam_gives_the_dense_best_matches(aliased):
     Z = _zscore(D)
     best = C.row == r.best_db[C.col]
     assert np.median(np.abs(C.data[best] - Z[C.row[best], C.col[best]])) < 0.1
+
+
+@pytest.fixture(scope="module")
+def rendered_pixel():
+    """Pixel SDRs of a rendered scene: neighbouring (and other) places share many bits, so without caps
+    the beam takes in most of the memory."""
+    import encoders
+    from vpr.render import render_scene
+
+    d, n = render_scene("two_seasons", size=(64, 48), n_frames=160).traverses
+    enc = encoders.get("pixel", k=200, standardise="fit")
+    db, q = enc.fit(d.images).encode(d.images), enc.fit(n.images).encode(n.images)
+    mem = SequenceMemory(threshold=0.75, seed=0)
+    codes = mem.run(db)
+    mem.reset()
+    return mem, codes, q
+
+
+def test_beam_caps_bound_the_cells_carried_and_keep_the_dense_best_matches(rendered_pixel):
+    mem, codes, q = rendered_pixel
+    free, capped, small = {}, {}, {}
+    r_free = ev.sparse_evidence(mem, q, codes, max_beam=None, max_enter=None, stats=free)
+    r_cap = ev.sparse_evidence(mem, q, codes, stats=capped)
+    ev.sparse_evidence(mem, q, codes, max_beam=100, max_enter=5, stats=small)
+    # on these SDRs the floors alone let most of the memory in; the caps hold whatever the data
+    assert free["max_beam"] > 1000, free
+    assert small["max_beam"] <= 100 < free["max_beam"]
+    assert capped["max_beam"] <= ev.BEAM_DEFAULTS["max_beam"]
+    # candidates: at most max_enter minicolumns by feed-forward plus what the beam predicts (stay, one and two
+    # connections: each cell here has few lateral connections)
+    assert small["max_candidates"] <= 5 * mem.cells_per_column + 100 * 8, small
+    # here the floors carry every cell of the database codes (1,600): under the default caps, so the same result
+    assert free["max_beam"] <= ev.BEAM_DEFAULTS["max_beam"]
+    assert np.array_equal(r_cap.best_db, r_free.best_db)
+    D = _zscore(mem.evidence(q, codes))
+    bd = D.argmax(axis=0)
+    assert np.mean(r_cap.best_db == bd) >= 0.95
+    # the capped beam's z-scores come from what it kept: still those of the dense column at the best match
+    C = r_cap.similarity.tocoo()
+    best = (C.row == r_cap.best_db[C.col]) & (r_cap.best_db[C.col] == bd[C.col])
+    assert np.median(np.abs(C.data[best] - D[C.row[best], C.col[best]])) < 0.25
 
 
 def test_forward_stream_equals_batch_and_restarts(aliased, tmp_path):
@@ -186,6 +228,10 @@ def test_bad_arguments(aliased):
         ev.sparse_evidence(mem, q, codes, rel_floor=1.5)
     with pytest.raises(ValueError, match="direction"):
         ev.sparse_evidence(mem, q, codes, direction="backward")
+    with pytest.raises(ValueError, match="max_beam"):
+        ev.sparse_evidence(mem, q, codes, max_beam=0)
+    with pytest.raises(ValueError, match="max_enter"):
+        ev.sparse_evidence(mem, q, codes, max_enter=2.5)
     with pytest.raises(ValueError, match="shape"):
         ev.ForwardEvidence(mem, codes).update(np.zeros(100, bool))
     with pytest.raises(ValueError, match="exclude"):

@@ -22,9 +22,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-# indices into the int64 state vector of beam_frames
-B_SIZE, B_OUT_POS, B_NEED, B_FRAMES = range(4)
-BEAM_STATE_SIZE = 4
+# indices into the int64 state vector of beam_frames; the last two are counters (largest beam and
+# candidate set of any frame so far) that tests and benchmarks read to check the caps
+B_SIZE, B_OUT_POS, B_NEED, B_FRAMES, B_MAX_BEAM, B_MAX_CAND = range(6)
+BEAM_STATE_SIZE = 6
 
 
 @njit(cache=True)
@@ -101,7 +102,7 @@ def evidence_frames(q_ptr, q_ind, order, bit_cols, bit_len, col_size, rel_col, e
 @njit(cache=True)
 def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
                 a_head, a_next, a_dst, c_head, c_next, c_frame, relevant, birth, db_norm,
-                decay, stay, skip, z_weight, floor, rel_floor, z_floor,
+                decay, stay, skip, z_weight, floor, rel_floor, z_floor, max_beam, max_enter,
                 st, beam, beam_e, e_cur, counts, touched_cols, p1, p2, z, mark, cand, e_new,
                 acc, db_mark, db_touch, out_ptr, out_idx, out_val):
     """Sparse graded evidence for the query frames ``order`` (one direction).
@@ -124,7 +125,15 @@ def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
         ``max(floor, rel_floor * (largest evidence this frame))``.
     z_floor : a minicolumn's cells enter by feed-forward alone when its overlap fraction is
         above it (a cell that enters by prediction gets its feed-forward term whatever it is).
-    st : int64 state: beam size, output position, need-flag, frames done.
+    max_beam : at most this many cells are carried to the next frame (those of largest
+        evidence: above the ``max_beam + 1``-th largest; ties at it drop out together);
+        every cell above the floors still counts in this frame's column; <= 0: no cap.
+    max_enter : at most this many minicolumns enter by feed-forward per frame (those of
+        largest overlap, the same way); <= 0: no cap. Together the two caps bound the
+        candidates per frame by ``max_enter * cpc + max_beam * (out-degree)`` whatever
+        the SDRs share.
+    st : int64 state: beam size, output position, need-flag, frames done, largest beam
+        and largest candidate set so far.
     beam, beam_e : the beam (cells, evidence), carried from call to call.
     out_ptr, out_idx, out_val : per processed frame the sparse column
         (database frame, evidence); ``out_ptr[t + 1]`` ends frame ``order[t]``.
@@ -149,12 +158,30 @@ def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
                 counts[col] += 1.0
         # counts become overlap fractions; they stay until the end of the frame so that every
         # candidate (also one that enters by prediction) gets its feed-forward term
-        n_c = 0
+        n_above = 0
         for i in range(n_tc):
             col = touched_cols[i]
             zz = counts[col] / col_size[col] if col_size[col] > 0 else 0.0
             counts[col] = zz
             if zz > z_floor:
+                n_above += 1
+        zf = z_floor
+        if max_enter > 0 and n_above > max_enter:
+            # SDRs that share many bits between places pass the floor in very many minicolumns:
+            # only the max_enter of largest overlap enter (partial selection, O(touched))
+            vals = np.empty(n_above, np.float64)
+            m = 0
+            for i in range(n_tc):
+                zz = counts[touched_cols[i]]
+                if zz > z_floor:
+                    vals[m] = zz
+                    m += 1
+            zf = max(zf, np.partition(vals, n_above - max_enter - 1)[n_above - max_enter - 1])
+        n_c = 0
+        for i in range(n_tc):
+            col = touched_cols[i]
+            zz = counts[col]
+            if zz > zf:
                 for k in range(cpc):
                     c = col * cpc + k
                     if relevant[c] and birth[c] <= limit:
@@ -219,6 +246,8 @@ def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
             if en > emax:
                 emax = en
         thr = max(floor, rel_floor * emax)
+        if n_c > st[B_MAX_CAND]:
+            st[B_MAX_CAND] = n_c
         # ---- capacity of the output for this frame (cells x their database frames)
         need = st[B_OUT_POS]
         for i in range(n_c):
@@ -239,6 +268,23 @@ def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
             st[B_NEED] = need
             st[B_FRAMES] = t
             return t
+        keep = thr
+        if max_beam > 0 and n_c > max_beam:
+            n_above = 0
+            for i in range(n_c):
+                if e_new[i] > thr:
+                    n_above += 1
+            if n_above > max_beam:
+                # only the max_beam cells of largest evidence are carried to the next frame; all
+                # above the floor still go to this frame's column, so the z-score's sums hold
+                # every cell that has evidence this frame, as without the cap
+                vals = np.empty(n_above, np.float64)
+                m = 0
+                for i in range(n_c):
+                    if e_new[i] > thr:
+                        vals[m] = e_new[i]
+                        m += 1
+                keep = max(thr, np.partition(vals, n_above - max_beam - 1)[n_above - max_beam - 1])
         # ---- new beam and the output column
         for i in range(nb):
             e_cur[beam[i]] = 0.0
@@ -253,10 +299,11 @@ def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
             z[c] = 0.0
             en = e_new[i]
             if en > thr:
-                beam[nb2] = c
-                beam_e[nb2] = en
-                e_cur[c] = en
-                nb2 += 1
+                if en > keep:
+                    beam[nb2] = c
+                    beam_e[nb2] = en
+                    e_cur[c] = en
+                    nb2 += 1
                 node = c_head[c]
                 while node >= 0:
                     j = c_frame[node]
@@ -268,6 +315,8 @@ def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
                         acc[j] += (en - z_weight * zc) / db_norm[j]
                     node = c_next[node]
         st[B_SIZE] = nb2
+        if nb2 > st[B_MAX_BEAM]:
+            st[B_MAX_BEAM] = nb2
         for i in range(n_tc):
             counts[touched_cols[i]] = 0.0
         pos = st[B_OUT_POS]

@@ -13,7 +13,8 @@ mean evidence of ``j``'s winner cells, standardised per query.
   :meth:`SequenceMemory.evidence` returns).
 * :func:`sparse_evidence`: only the cells above a floor are carried (a beam
   entered through the inverted index input bit -> minicolumns and through the
-  learned connections); top-K database frames per query as a sparse matrix,
+  learned connections, capped in size so that SDRs sharing many bits do not
+  make it grow with the database); top-K database frames per query as a sparse matrix,
   with the z-scores of the full column (its mean and standard deviation come
   from the carried entries: absent ones are 0). For 50,000 x 50,000 frames.
 * :class:`ForwardEvidence`: the causal (forward) evidence one query frame at a
@@ -36,7 +37,7 @@ __all__ = ["dense_evidence", "sparse_evidence", "EvidenceResult", "ForwardEviden
            "loop_evidence", "accept_loops", "BEAM_DEFAULTS"]
 
 #: Floors of the sparse beam (see :func:`sparse_evidence`).
-BEAM_DEFAULTS = {"floor": 0.0, "rel_floor": 0.1, "z_floor": 0.15}
+BEAM_DEFAULTS = {"floor": 0.0, "rel_floor": 0.1, "z_floor": 0.15, "max_beam": 8192, "max_enter": 256}
 
 _BIG = np.iinfo(np.int64).max // 4
 
@@ -208,13 +209,18 @@ class _Beam:
         return out_ptr, self.out_idx[:end].copy(), self.out_val[:end].copy()
 
 
-def _beam_params(decay, stay, skip, z_weight, floor, rel_floor, z_floor):
+def _beam_params(decay, stay, skip, z_weight, floor, rel_floor, z_floor, max_beam=None, max_enter=None):
     for name, v in (("floor", floor), ("rel_floor", rel_floor), ("z_floor", z_floor)):
         if not float(v) >= 0.0:
             raise ValueError(f"{name} must be >= 0, got {v}")
     if float(rel_floor) >= 1.0:
         raise ValueError(f"rel_floor must be < 1, got {rel_floor}")
-    return (float(decay), stay, skip, float(z_weight), float(floor), float(rel_floor), float(z_floor))
+    caps = []
+    for name, v in (("max_beam", max_beam), ("max_enter", max_enter)):
+        if v is not None and (int(v) != v or int(v) < 1):
+            raise ValueError(f"{name} must be an int >= 1 or None (no cap), got {v}")
+        caps.append(0 if v is None else int(v))
+    return (float(decay), stay, skip, float(z_weight), float(floor), float(rel_floor), float(z_floor), *caps)
 
 
 def _db_graph(mem, db) -> dict:
@@ -252,7 +258,9 @@ def sparse_evidence(mem, query_batch, db_codes, decay: float = 0.9, stay: float 
                     skip: float | None = 0.05, direction: str = "both", top_k: int | None = 50,
                     normalise: str = "query", floor: float = BEAM_DEFAULTS["floor"],
                     rel_floor: float = BEAM_DEFAULTS["rel_floor"], z_floor: float = BEAM_DEFAULTS["z_floor"],
-                    progress: bool = False) -> EvidenceResult:
+                    max_beam: int | None = BEAM_DEFAULTS["max_beam"],
+                    max_enter: int | None = BEAM_DEFAULTS["max_enter"], progress: bool = False,
+                    stats: dict | None = None) -> EvidenceResult:
     """Graded sequence evidence carried only where it is; the top-K database frames per query.
 
     The same evidence as :func:`dense_evidence`, but per query frame only the
@@ -276,8 +284,17 @@ def sparse_evidence(mem, query_batch, db_codes, decay: float = 0.9, stay: float 
         deviation are sums over the carried entries; absent frames are 0).
     floor, rel_floor, z_floor : float
         The beam's floors (defaults :data:`BEAM_DEFAULTS`).
+    max_beam, max_enter : int or None
+        Caps (None: none) that bound the cost per query frame whatever the
+        SDRs share: at most ``max_beam`` cells stay in the beam (those of
+        largest evidence) and at most ``max_enter`` minicolumns enter by
+        feed-forward (those of largest overlap above ``z_floor``). Defaults
+        :data:`BEAM_DEFAULTS`.
     progress : bool
         tqdm progress bar.
+    stats : dict, optional
+        Filled with ``max_beam`` and ``max_candidates``: the largest beam and
+        candidate set of any frame (to check the caps).
 
     Returns
     -------
@@ -294,8 +311,9 @@ def sparse_evidence(mem, query_batch, db_codes, decay: float = 0.9, stay: float 
     n_q, n_db = q.shape[0], db.shape[0]
     q_ptr, q_ind = q.indptr.astype(np.int64), q.indices.astype(np.int64)
     zw = 0.5 if direction == "both" else 0.0
-    params = _beam_params(decay, st, sk, zw, floor, rel_floor, z_floor)
+    params = _beam_params(decay, st, sk, zw, floor, rel_floor, z_floor, max_beam, max_enter)
     limits = np.full(n_q, _BIG, np.int64)
+    seen = {"max_beam": 0, "max_candidates": 0}
     cols = []
     bar = None
     if progress:
@@ -322,7 +340,11 @@ def sparse_evidence(mem, query_batch, db_codes, decay: float = 0.9, stay: float 
         if adj_name == "bwd":  # columns came in reverse query order
             ptr, idx, val = _reverse_columns(ptr, idx, val)
         cols.append((ptr, idx, val))
+        seen["max_beam"] = max(seen["max_beam"], int(beam.st[K.B_MAX_BEAM]))
+        seen["max_candidates"] = max(seen["max_candidates"], int(beam.st[K.B_MAX_CAND]))
         del beam
+    if stats is not None:
+        stats.update(seen)
     if bar is not None:
         bar.close()
     b = cols[1] if len(cols) == 2 else (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
@@ -408,13 +430,14 @@ class ForwardEvidence:
     exact : bool
         Dense evidence (cost per frame linear in the number of connections)
         instead of the beam.
-    floor, rel_floor, z_floor : the beam's floors (:func:`sparse_evidence`).
+    floor, rel_floor, z_floor, max_beam, max_enter : the beam's floors and caps (:func:`sparse_evidence`).
     """
 
     def __init__(self, mem, db_codes, decay: float = 0.9, stay: float | None = 0.05, skip: float | None = 0.05,
                  top_k: int | None = 50, normalise: str = "query", exact: bool = False,
                  floor: float = BEAM_DEFAULTS["floor"], rel_floor: float = BEAM_DEFAULTS["rel_floor"],
-                 z_floor: float = BEAM_DEFAULTS["z_floor"]):
+                 z_floor: float = BEAM_DEFAULTS["z_floor"], max_beam: int | None = BEAM_DEFAULTS["max_beam"],
+                 max_enter: int | None = BEAM_DEFAULTS["max_enter"]):
         st, sk = _check_params(decay, stay, skip)
         if normalise not in ("query", "none"):
             raise ValueError(f"normalise must be 'query' or 'none', got {normalise!r}")
@@ -425,7 +448,7 @@ class ForwardEvidence:
         self.n_db = self.db.shape[0]
         self.conf = {"decay": float(decay), "stay": stay, "skip": skip, "top_k": top_k, "normalise": normalise,
                      "exact": bool(exact), "floor": float(floor), "rel_floor": float(rel_floor),
-                     "z_floor": float(z_floor)}
+                     "z_floor": float(z_floor), "max_beam": max_beam, "max_enter": max_enter}
         self.frames = 0
         self._acc = np.zeros(self.n_db, np.float64)
         self._mark = np.zeros(self.n_db, bool)
@@ -446,7 +469,7 @@ class ForwardEvidence:
         else:
             self._g = _db_graph(mem, self.db)
             self._beam = _Beam(self._g["n_cells"], self._g["n_cols"], self.n_db)
-            self._params = _beam_params(decay, st, sk, 0.0, floor, rel_floor, z_floor)
+            self._params = _beam_params(decay, st, sk, 0.0, floor, rel_floor, z_floor, max_beam, max_enter)
 
     def update(self, sdr_row) -> FrameEvidence:
         """Score one query frame (SDR row: 1-row batch, bool vector or bit indices)."""
@@ -525,6 +548,7 @@ def loop_evidence(sdr_batch, exclude: int = 30, decay: float = 0.9, stay: float 
                   skip: float | None = 0.05, top_k: int | None = None, normalise: str = "query",
                   memory: dict | None = None, floor: float = BEAM_DEFAULTS["floor"],
                   rel_floor: float = BEAM_DEFAULTS["rel_floor"], z_floor: float = BEAM_DEFAULTS["z_floor"],
+                  max_beam: int | None = BEAM_DEFAULTS["max_beam"], max_enter: int | None = BEAM_DEFAULTS["max_enter"],
                   dense_max: int = 20_000, progress: bool = False):
     """Loop closure within one stream with graded forward sequence evidence, learned online.
 
@@ -541,7 +565,7 @@ def loop_evidence(sdr_batch, exclude: int = 30, decay: float = 0.9, stay: float 
     sdr_batch : SDR batch (T x n_inputs), the stream.
     exclude : int >= 1
         Frames closer than this are not candidates.
-    decay, stay, skip, floor, rel_floor, z_floor : as :func:`sparse_evidence`.
+    decay, stay, skip, floor, rel_floor, z_floor, max_beam, max_enter : as :func:`sparse_evidence`.
     top_k : int or None
         Earlier frames kept per frame (None: dense T x T up to ``dense_max``
         frames, top-50 beyond).
@@ -575,7 +599,7 @@ def loop_evidence(sdr_batch, exclude: int = 30, decay: float = 0.9, stay: float 
     if top_k is None and T > int(dense_max):
         top_k = 50  # a dense T x T would not fit (the project's limit on dense matrices)
     q_ptr, q_ind = x.indptr.astype(np.int64), x.indices.astype(np.int64)
-    params = _beam_params(decay, st, sk, 0.0, floor, rel_floor, z_floor)
+    params = _beam_params(decay, st, sk, 0.0, floor, rel_floor, z_floor, max_beam, max_enter)
     cpc = mem.cells_per_column
     cap = 1024 * cpc
     g = {"cpc": cpc, "n_cells": cap, "col_size": np.zeros(cap // cpc), "relevant": np.zeros(cap, bool),
