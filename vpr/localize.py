@@ -48,7 +48,7 @@ _FORMAT_VERSION = 1
 LOCALIZER_DEFAULTS = {**SequenceMemory.default_params(), "threshold": 0.75, "decay": 0.9, "stay": 0.05,
                       "skip": 0.05, "top_k": 50, "exact": False, "z_min": 4.0, **BEAM_DEFAULTS}
 _NULLABLE = frozenset({"seed", "stay", "skip", "top_k"})
-_EVIDENCE_KEYS = ("decay", "stay", "skip", "top_k", "exact", "floor", "rel_floor", "z_floor")
+_EVIDENCE_KEYS = ("decay", "stay", "skip", "top_k", "exact", "floor", "rel_floor", "z_floor", "max_beam", "max_enter")
 
 
 @dataclass
