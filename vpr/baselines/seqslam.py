@@ -353,6 +353,17 @@ def _trajectory_scores(DD: np.ndarray, offsets: np.ndarray, ds: int, causal: boo
     return S, P
 
 
+def _check_sequence_params(ds, causal, v_min, v_max, v_step, R, rwindow, ratio_threshold):
+    """The trajectory and enhancement parameters shared by :func:`seqslam` and :func:`seqslam_topk`."""
+    ds = check_int(ds, "ds", 0)
+    if not causal and ds % 2:
+        raise ValueError(f"ds: must be even for the centred window (OpenSeqSLAM rounds it up), got {ds}")
+    velocities, offsets = trajectory_offsets(ds, v_min, v_max, v_step)
+    R = check_int(R, "R", 2)
+    rwindow = check_int(rwindow, "rwindow", 0)
+    return ds, velocities, offsets, R, rwindow, _check_float(ratio_threshold, "ratio_threshold")
+
+
 def seqslam(D, ds: int = 10, v_min: float = 0.8, v_max: float = 1.2, v_step: float = 0.1,
             R: int = 10, rwindow: int = 10, ratio_threshold: float = 0.9, causal: bool = False,
             enhance: bool = True, chunk: int = 256) -> SeqSLAMResult:
@@ -447,13 +458,8 @@ def seqslam(D, ds: int = 10, v_min: float = 0.8, v_max: float = 1.2, v_step: flo
         names the argument).
     """
     D = _check_matrix(D, "D")
-    ds = check_int(ds, "ds", 0)
-    if not causal and ds % 2:
-        raise ValueError(f"ds: must be even for the centred window (OpenSeqSLAM rounds it up), got {ds}")
-    velocities, offsets = trajectory_offsets(ds, v_min, v_max, v_step)
-    R = check_int(R, "R", 2)
-    rwindow = check_int(rwindow, "rwindow", 0)
-    ratio_threshold = _check_float(ratio_threshold, "ratio_threshold")
+    ds, velocities, offsets, R, rwindow, ratio_threshold = _check_sequence_params(
+        ds, causal, v_min, v_max, v_step, R, rwindow, ratio_threshold)
     chunk = check_int(chunk, "chunk", 1)
     if enhance:
         DD = enhance_contrast(D, R)
@@ -958,13 +964,8 @@ def seqslam_topk(db_desc, q_desc, top_k: int = 50, metric: str = "sad", block: i
     desc = _Descriptors(db_desc, q_desc, metric)
     n_db, n_q = desc.n_db, desc.n_q
     top_k = check_int(top_k, "top_k", 1)
-    ds = check_int(ds, "ds", 0)
-    if not causal and ds % 2:
-        raise ValueError(f"ds: must be even for the centred window (OpenSeqSLAM rounds it up), got {ds}")
-    velocities, offsets = trajectory_offsets(ds, v_min, v_max, v_step)
-    R = check_int(R, "R", 2)
-    rwindow = check_int(rwindow, "rwindow", 0)
-    ratio_threshold = _check_float(ratio_threshold, "ratio_threshold")
+    ds, velocities, offsets, R, rwindow, ratio_threshold = _check_sequence_params(
+        ds, causal, v_min, v_max, v_step, R, rwindow, ratio_threshold)
     n_windows = check_int(n_windows, "n_windows", 1)
     n_candidates = check_int(n_candidates, "n_candidates", 1)
     candidate_stride = check_int(candidate_stride, "candidate_stride", 1)
