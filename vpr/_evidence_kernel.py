@@ -99,6 +99,24 @@ def evidence_frames(q_ptr, q_ind, order, bit_cols, bit_len, col_size, rel_col, e
     return out
 
 
+@njit(cache=True, inline="always")
+def _relax(s, v, a_head, a_dst, a_next, birth, limit, p, mark, cand, n_c):  # pragma: no cover - compiled
+    """Offer evidence ``v`` of cell ``s`` along its connections: ``p[d] = max(p[d], v)`` for every
+    target ``d`` learned by ``limit``; new targets join the candidates. Returns the candidate count."""
+    e = a_head[s]
+    while e >= 0:
+        d = a_dst[e]
+        if birth[d] <= limit:
+            if v > p[d]:
+                p[d] = v
+            if not mark[d]:
+                mark[d] = True
+                cand[n_c] = d
+                n_c += 1
+        e = a_next[e]
+    return n_c
+
+
 @njit(cache=True)
 def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
                 a_head, a_next, a_dst, c_head, c_next, c_frame, relevant, birth, db_norm,
@@ -200,17 +218,7 @@ def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
                 mark[s] = True
                 cand[n_c] = s
                 n_c += 1
-            e = a_head[s]
-            while e >= 0:
-                d = a_dst[e]
-                if birth[d] <= limit:
-                    if v > p1[d]:
-                        p1[d] = v
-                    if not mark[d]:
-                        mark[d] = True
-                        cand[n_c] = d
-                        n_c += 1
-                e = a_next[e]
+            n_c = _relax(s, v, a_head, a_dst, a_next, birth, limit, p1, mark, cand, n_c)
         # ---- two connections (a skipped database frame); only p1 > skip can win
         if skip >= 0.0:
             n1 = n_c
@@ -218,17 +226,7 @@ def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
                 s = cand[i]
                 v = p1[s]
                 if v > skip:
-                    e = a_head[s]
-                    while e >= 0:
-                        d = a_dst[e]
-                        if birth[d] <= limit:
-                            if v > p2[d]:
-                                p2[d] = v
-                            if not mark[d]:
-                                mark[d] = True
-                                cand[n_c] = d
-                                n_c += 1
-                        e = a_next[e]
+                    n_c = _relax(s, v, a_head, a_dst, a_next, birth, limit, p2, mark, cand, n_c)
         # ---- new evidence of the candidates
         emax = 0.0
         for i in range(n_c):
