@@ -453,7 +453,7 @@ def merge_metrics(out: Path, report: dict, pr_title: str) -> dict:
 
 
 def _prepare(out: Path, paths, roles, method_names, opts: RunOptions, loops_exclude: int | None = None):
-    """Every check that can be made before reading a frame; returns (runners, encoder, sources, gt...)."""
+    """Every check that can be made before reading a frame; returns (runners, encoder, sources)."""
     _check_run_options(opts)
     opts.gt.check(loops=loops_exclude is not None)
     runners = _runners(method_names, opts)

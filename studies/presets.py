@@ -55,14 +55,9 @@ from vpr import evaluate as E
 from vpr import io
 from vpr.methods import EncodedTraverse, match
 
-__all__ = ["average_precision", "CANDIDATES", "REFERENCES", "DATASETS", "run_study", "choose", "markdown"]
+__all__ = ["CANDIDATES", "REFERENCES", "DATASETS", "run_study", "choose", "markdown"]
 
 DEFAULT_CACHE = Path("/tmp/vpr_presets_cache")
-
-
-def average_precision(S, gt_hard, gt_soft=None) -> float:
-    """Non-interpolated AP over the evaluated pairs (:func:`vpr.evaluate.average_precision`)."""
-    return E.average_precision(S, gt_hard, gt_soft)
 
 
 # ----------------------------------------------------------------------------- rows
@@ -263,7 +258,7 @@ def run_study(rows: dict, datasets: dict, cache: Path = DEFAULT_CACHE, log=print
             t_enc = time.perf_counter() - t
             res = match(row["method"], db, q, row["method_conf"])
             S = res.similarity
-            m = {"ap": average_precision(S, data.gt_hard, data.gt_soft),
+            m = {"ap": E.average_precision(S, data.gt_hard, data.gt_soft),
                  "r1": E.recall_at_k(S, data.gt_hard, data.gt_soft, k=1),
                  "seconds": res.seconds, "sdr_seconds": t_enc}
             results[label][key] = m
