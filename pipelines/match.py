@@ -157,7 +157,7 @@ def settings_from_args(args) -> dict:
     else:
         names = [args.method] if getattr(args, "method", None) else None
     s = presets.resolve(args.preset, encoder=args.encoder, encoder_conf=encoders.parse_conf(args.encoder_conf),
-                        methods=names, method_conf=method_confs(args.method_conf))
+                        methods=names, method_conf=method_confs(args.method_conf), loops=args.command == "loops")
     if names is None and args.command != "compare":  # one method: the preset's headline or loop method
         s["methods"] = [s["loop_method"] if args.command == "loops" else s["methods"][0]]
     return s

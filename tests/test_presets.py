@@ -155,3 +155,18 @@ def test_config_json_records_the_resolved_settings(tmp_path):
     params = json.loads((tmp_path / "out" / "metrics.json").read_text())["params"]
     assert params["preset"] == "paper" and params["encoder_conf"]["k"] == 40
     assert params["method_conf"]["rshosm"]["p_extra"] == 0.05
+
+
+def test_loops_standardise_causally_unless_told_otherwise():
+    for name, p in presets.PRESETS.items():
+        s = presets.resolve(name, loops=True)
+        assert s["encoder_conf"] == {**p["encoder_conf"], **p["loop_encoder_conf"]}
+    assert presets.resolve("default", loops=True)["encoder_conf"]["standardise"] == "causal"
+    assert presets.resolve("paper", loops=True)["encoder_conf"]["standardise"] == "none"
+    assert presets.resolve("default")["encoder_conf"]["standardise"] == "fit"
+    s = match.settings_from_args(_args("loops", ["s", "--out", "o", "--encoder-conf", "standardise=fit"]))
+    assert s["encoder_conf"]["standardise"] == "fit"
+    assert match.options_from_args(_args("loops", ["s", "--out", "o"])).encoder_conf["standardise"] == "causal"
+    # another encoder than the preset's takes only the conf given
+    s = match.settings_from_args(_args("loops", ["s", "--out", "o", "--encoder", "orb"]))
+    assert s["encoder_conf"] == {}
