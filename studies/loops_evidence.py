@@ -31,7 +31,7 @@ def loop_ap(S, gt, exclude, soft=None):
     return evaluate.average_precision(S, gt, soft, mask=evaluate.loop_closure_mask(S.shape[0], exclude=exclude))
 
 
-def run(name, sdr, pixels, gt, exclude, soft=None, forward_only=False, z_min=5.0, **kw):
+def run(name, sdr, pixels, gt, exclude, soft=None, forward_only=False, z_min=6.0, confirm=2, **kw):
     t = time.perf_counter()
     S, _ = loop_evidence(sdr, exclude=exclude, **kw)
     t_ev = time.perf_counter() - t
@@ -39,7 +39,7 @@ def run(name, sdr, pixels, gt, exclude, soft=None, forward_only=False, z_min=5.0
                          desc=None if pixels is not None else sdr.toarray().astype(np.float32))
     conf = {} if pixels is not None else {"descriptor": "desc"}
     r = methods.loops("seqslam", f, exclude=exclude, conf=conf)
-    best, score, ok = accept_loops(S, z_min=z_min)
+    best, score, ok = accept_loops(S, z_min=z_min, confirm=confirm)
     T = sdr.shape[0]
     far = ok & (np.arange(T) - best >= 30)
     line = f"{name:34s} T={T:4d} exclude={exclude:3d}"
@@ -109,27 +109,30 @@ def main(argv=None):
     ap.add_argument("--frames", type=int, default=150)
     ap.add_argument("--size", default="96x72")
     ap.add_argument("--exclude", type=int, default=30)
-    ap.add_argument("--z-min", type=float, default=5.0)
+    seq_conf = methods.get_class("rshosm-seq").default_conf
+    ap.add_argument("--z-min", type=float, default=seq_conf["z_min"])
+    ap.add_argument("--confirm", type=int, default=seq_conf["confirm"])
     ap.add_argument("--nordland", default=None)
     ap.add_argument("--skip-paper", action="store_true")
     ap.add_argument("--standardise", choices=("traverse", "fit", "causal"), default="traverse",
                     help="two-traverse streams: fit per traverse (oracle), on the whole stream, or causal")
     a = ap.parse_args(argv)
     size = tuple(int(v) for v in a.size.split("x"))
+    rule = {"z_min": a.z_min, "confirm": a.confirm}
     for alias, noise in ((0, 0.0), (5, 0.3), (10, 0.5)) if not a.skip_paper else ():
         obs, traj = simulate.simulate_loops(aliasing=alias, noise=noise, seed=0)
         gt = traj[:, None] == traj[None]
         for kw in ({}, {"stay": None, "skip": None}):
-            run(f"paper loops a={alias} n={noise} {kw or ''}", obs, None, gt, 10, z_min=a.z_min, **kw)
+            run(f"paper loops a={alias} n={noise} {kw or ''}", obs, None, gt, 10, **rule, **kw)
     sdr, pixels, gt, soft = rendered(a.frames, size, a.exclude, standardise=a.standardise)
-    run(f"rendered two_seasons day+night ({a.standardise})", sdr, pixels, gt, a.exclude, soft, z_min=a.z_min)
+    run(f"rendered two_seasons day+night ({a.standardise})", sdr, pixels, gt, a.exclude, soft, **rule)
     sdr, pixels, gt, soft = rendered(a.frames, size, a.exclude, forward_only=True)
-    run("forward-only two_seasons day", sdr, pixels, gt, a.exclude, soft, z_min=a.z_min)
+    run("forward-only two_seasons day", sdr, pixels, gt, a.exclude, soft, **rule)
     sdr, pixels, gt, soft = rendered(a.frames, size, a.exclude, forward_only=True, scene="speed_change")
-    run("forward-only speed_change slow", sdr, pixels, gt, a.exclude, soft, z_min=a.z_min)
+    run("forward-only speed_change slow", sdr, pixels, gt, a.exclude, soft, **rule)
     if a.nordland:
         sdr, pixels, gt, soft = nordland(a.nordland, a.exclude, a.standardise)
-        run(f"nordland summer+winter 358 ({a.standardise})", sdr, pixels, gt, a.exclude, soft, z_min=a.z_min)
+        run(f"nordland summer+winter 358 ({a.standardise})", sdr, pixels, gt, a.exclude, soft, **rule)
 
 
 if __name__ == "__main__":

@@ -270,3 +270,44 @@ def test_rshosm_seq_loops_method_defaults():
     r, gt = _rendered_loops("two_seasons", 150)
     far = r.accepted & (np.arange(gt.shape[0]) - r.best_db >= 30)
     assert not far.any(), r.score[far]
+
+
+def test_accept_loops_needs_a_confirmed_run_of_consistent_closures():
+    T = 12
+    S = np.full((T, T), -np.inf)
+    i, j = np.indices((T, T))
+    S[i < j] = 0.0
+    # frames 4..7 close onto 0..3 (z 6); frame 9 jumps alone onto 8 (z 9); frame 11 onto 1 after 10 onto 7
+    for q, b, z in ((4, 0, 6), (5, 1, 6), (6, 2, 6), (7, 3, 6), (9, 8, 9), (10, 7, 6), (11, 0, 6)):
+        S[b, q] = z
+    best, score, ok = ev.accept_loops(S, z_min=5.5, confirm=2)
+    assert np.flatnonzero(ok).tolist() == [6, 7]  # the third and fourth frame of the run
+    assert best[9] == 8 and score[9] == 9 and not ok[9]
+    assert np.flatnonzero(ev.accept_loops(S, z_min=5.5, confirm=0)[2]).tolist() == [4, 5, 6, 7, 9, 10, 11]
+    assert np.flatnonzero(ev.accept_loops(S, z_min=7, confirm=0)[2]).tolist() == [9]
+    assert np.flatnonzero(ev.accept_loops(sp.csr_matrix(np.where(np.isfinite(S), S + 10, 0)), z_min=15.5,
+                                          confirm=1)[2]).tolist() == [5, 6, 7, 10]  # 9 -> 10 steps back by one
+    with pytest.raises(ValueError, match="confirm"):
+        ev.accept_loops(S, confirm=-1)
+
+
+def test_default_loop_rule_finds_revisits_and_no_closure_on_a_forward_drive():
+    # the fast preset's loop encoder (causal standardisation) on the scenes' native frame counts at 160x120,
+    # where studies/loops_acceptance.py chose z_min and confirm
+    import encoders
+    from vpr import methods, presets
+    from vpr.render import render_scene
+
+    s = presets.resolve("fast", loops=True)
+    for scene, traverse in (("loop_revisits", "laps"), ("two_seasons", "summer_day")):
+        t = render_scene(scene, size=(160, 120), traverses=[traverse]).traverses[0]
+        x = encoders.get(s["encoder"], **s["encoder_conf"]).encode(list(t.images))
+        r = methods.get("rshosm-seq").loops(methods.EncodedTraverse(names=list(range(x.shape[0])), sdr=x), exclude=30)
+        T = x.shape[0]
+        ok = r.accepted & (np.arange(T) - r.best_db >= 30)
+        dist = np.linalg.norm(t.xy[r.best_db[ok]] - t.xy[ok], axis=1)
+        if scene == "loop_revisits":  # closures in the second and third lap, all within 5 m
+            assert ok.sum() >= 20 and np.all(dist <= 5.0), dist
+            assert set(np.flatnonzero(ok) * 3 // T) == {1, 2}
+        else:  # driven once, through a stretch that repeats one 210 m earlier
+            assert not ok.any(), (np.flatnonzero(ok), dist)

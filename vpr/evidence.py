@@ -32,6 +32,7 @@ import scipy.sparse as sp
 
 from vpr import _evidence_kernel as K
 from vpr import sdr as _sdr
+from vpr._checks import check_count
 
 __all__ = ["dense_evidence", "sparse_evidence", "EvidenceResult", "ForwardEvidence", "FrameEvidence",
            "loop_evidence", "accept_loops", "BEAM_DEFAULTS"]
@@ -679,11 +680,31 @@ def loop_evidence(sdr_batch, exclude: int = 30, decay: float = 0.9, stay: float 
     return S, codes
 
 
-def accept_loops(S, z_min: float = 5.0):
+#: Steps of the best earlier frame between two frames that still continue one closure: a stop (0),
+#: a faster revisit (up to 6 frames per frame) or a small step back where neighbouring frames tie.
+_CONTINUES = (-2, 6)
+
+
+def accept_loops(S, z_min: float = 6.0, confirm: int = 2):
     """Best earlier frame per frame of a :func:`loop_evidence` matrix and whether it is accepted.
 
-    A closure is accepted when its z-score (how far the best earlier frame's
-    evidence stands out from all candidate frames') is at least ``z_min``.
+    A closure at frame ``j`` is accepted when its z-score (how far the best
+    earlier frame's evidence stands out from all candidate frames') is at least
+    ``z_min`` at ``j`` and at the ``confirm`` frames before it, and the best
+    earlier frame moved on consistently over them (as a revisit does: between
+    -2 and +6 frames per frame). Causal: only frames up to ``j`` are used.
+
+    Why two conditions: on forward-only drives a wrong earlier frame can stand
+    out for a frame or two (a repeated facade), a revisit keeps standing out
+    (``studies/loops_acceptance.py``, ``docs/localize.md``).
+
+    Parameters
+    ----------
+    S : dense or sparse T x T loop matrix (rows earlier frame, columns frame).
+    z_min : float
+        z-score the closure must reach at every frame of the confirmation.
+    confirm : int >= 0
+        Frames before ``j`` that must also pass (0: ``j`` alone).
 
     Returns
     -------
@@ -691,7 +712,14 @@ def accept_loops(S, z_min: float = 5.0):
     """
     from vpr.methods import best_matches  # methods imports the memory; only needed here
 
+    confirm = check_count(confirm, "confirm")
     best, score = best_matches(S)
-    ok = (best >= 0) & np.isfinite(score) & (score >= float(z_min))
     best = np.where(np.isfinite(score), best, -1)
-    return best, score, ok
+    ok = (best >= 0) & (score >= float(z_min))
+    step = np.diff(best, prepend=-1)
+    link = np.zeros_like(ok)  # frame j continues frame j - 1's closure
+    link[1:] = ok[1:] & ok[:-1] & (step[1:] >= _CONTINUES[0]) & (step[1:] <= _CONTINUES[1])
+    run = np.zeros(len(ok), np.int64)  # frames in a row that pass, ending at j
+    for j in np.flatnonzero(ok):
+        run[j] = run[j - 1] + 1 if j and link[j] else 1
+    return best, score, run > confirm

@@ -36,7 +36,8 @@ __all__ = ["PRESETS", "DEFAULT", "available", "get", "resolve", "describe"]
 DEFAULT = "default"
 
 #: name -> encoder, encoder_conf, methods (first = the headline), method_conf (method -> conf),
-#: loop_method, loop_encoder_conf (over encoder_conf in ``vpr loops``), and a one-line ``use`` shown by ``--help`` and the README
+#: loop_method, loop_encoder_conf (over encoder_conf in ``vpr loops``), and a one-line ``use`` shown by
+#: ``--help`` and the README
 PRESETS: dict[str, dict] = {
     "default": {
         "encoder": "pixel+cnn",

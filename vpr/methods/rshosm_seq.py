@@ -46,8 +46,9 @@ class RshosmSeq(Method):
     arguments of :meth:`~vpr.memory.SequenceMemory.evidence`: ``decay``,
     ``stay`` and ``skip`` (a float >= 0, or ``None`` -- ``"none"`` on the
     command line -- to disable that transition), ``direction``; ``normalise``
-    (``"query"`` or ``"none"``); ``z_min``: a loop closure is accepted when
-    its z-score is at least this (:meth:`loops`; see :func:`vpr.evidence.accept_loops`);
+    (``"query"`` or ``"none"``); ``z_min`` and ``confirm``: a loop closure is
+    accepted when its z-score is at least ``z_min`` at the frame and at the
+    ``confirm`` frames before it (:meth:`loops`; :func:`vpr.evidence.accept_loops`);
     ``top_k`` (database frames kept per query
     when database x query exceeds :data:`~vpr.similarity.DENSE_PAIRS_LIMIT`).
 
@@ -74,7 +75,10 @@ class RshosmSeq(Method):
     name = "rshosm-seq"
     default_conf = {**SequenceMemory.default_params(), "threshold": 0.75, "decay": 0.9, "stay": 0.05,
                     "skip": 0.05, "direction": "both", "normalise": "query", "top_k": 50}
-    default_conf["z_min"] = 5.0  # loops only: acceptance threshold on the closure's z-score
+    # loops only: a closure is accepted when its z-score is at least z_min at the frame and at the confirm
+    # frames before it (vpr.evidence.accept_loops; chosen in studies/loops_acceptance.py)
+    default_conf["z_min"] = 6.0
+    default_conf["confirm"] = 2
     nullable_conf = frozenset({"seed", "stay", "skip"})
 
     def inputs(self) -> set[str]:
@@ -113,12 +117,13 @@ class RshosmSeq(Method):
         by ``j - exclude`` (only the past counts; the backward pass of
         :meth:`match` would see the future). T x T over pairs i < j, dense up
         to 20,000 frames, top-50 sparse beyond. A closure is accepted when its
-        z-score is at least ``z_min`` (:func:`vpr.evidence.accept_loops`).
+        z-score is at least ``z_min`` over ``confirm`` + 1 frames
+        (:func:`vpr.evidence.accept_loops`).
         """
         c = self.conf
         x = need(seq, "sdr", self.name, "loop")
         S, _ = loop_evidence(x, exclude=int(exclude), decay=c["decay"], stay=c["stay"], skip=c["skip"],
                              normalise=c["normalise"], memory={k: c[k] for k in SequenceMemory.default_params()},
                              progress=progress)
-        _, _, ok = accept_loops(S, z_min=c["z_min"])
+        _, _, ok = accept_loops(S, z_min=c["z_min"], confirm=c["confirm"])
         return S, ok
