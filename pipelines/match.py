@@ -227,8 +227,10 @@ def method_metrics(res: MatchResult, gt_hard, gt_soft, mask=None):
         return m, None
     ev, (prec, rec, _) = evaluate.evaluate(res.similarity, gt_hard, gt_soft, mask=mask, return_curve=True)
     m.update({k: float(v) for k, v in ev.items()})
-    if mask is None:
-        m.update(evaluate.accepted_precision(res.best_db, res.accepted, gt_hard, gt_soft))
+    if mask is not None:  # loop closures: only the pairs evaluated count, for the recall's frames too
+        gt_hard, gt_soft = (None if g is None else g.multiply(mask).tocsr() if sp.issparse(g) else np.asarray(g) & mask
+                            for g in (gt_hard, gt_soft))
+    m.update(evaluate.accepted_precision(res.best_db, res.accepted, gt_hard, gt_soft))
     return m, (prec, rec)
 
 
@@ -570,10 +572,11 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = 30) -> di
 
     ``exclude``: frames, or ``"Ns"`` seconds for a video (:func:`exclude_frames`).
     Ground truth: ``opts.gt.files`` holds one positions file (``frame,x,y`` or
-    ``traverse,frame,x,y``) used with ``opts.gt.radius``. Checks as in :func:`run_compare`.
+    ``traverse,frame,x,y``) used with ``opts.gt.radius``; pairs within ``opts.gt.soft``
+    but not ``radius`` are ignored. Checks as in :func:`run_compare`.
     """
-    if opts.gt.tolerance is not None or opts.gt.soft is not None:
-        raise ValueError("loops: ground truth is --gt FILE --radius R (no --tolerance or --gt-soft)")
+    if opts.gt.tolerance is not None:
+        raise ValueError("loops: ground truth is --gt FILE --radius R [--gt-soft R2] (no --tolerance)")
     out = Path(opts.out)
     runners, encoder, (src,) = _prepare(out, [seq], ["sequence"], [method], opts, loops_exclude=exclude)
     exclude = exclude_frames(exclude, src)  # frames, or seconds with the video's rate
@@ -585,10 +588,12 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = 30) -> di
     if exclude >= len(attempted):
         raise ValueError(f"--exclude {exclude} leaves no pair to compare: {src.path} has {len(attempted)} frames "
                          "to read, and a loop closure needs frames at least --exclude apart")
-    gt_hard = mask = None
+    gt_hard = gt_soft = mask = None
     if opts.gt.files:
         xy = positions_of_frames(opts.gt.files[0], src.name, attempted)
         gt_hard = evaluate.gt_from_positions(xy, xy, opts.gt.radius)
+        if opts.gt.soft is not None:
+            gt_soft = evaluate.gt_from_positions(xy, xy, opts.gt.soft)
         mask = evaluate.loop_closure_mask(len(attempted), exclude=exclude)
         if not _any_true(gt_hard & mask):
             raise opts.gt.no_match_error(exclude=exclude)
@@ -597,12 +602,13 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = 30) -> di
     if gt_hard is not None:
         rows = _gt_rows(attempted, ex.indices)
         gt_hard = gt_hard[np.ix_(rows, rows)]
+        gt_soft = gt_soft[np.ix_(rows, rows)] if gt_soft is not None else None
         mask = evaluate.loop_closure_mask(len(ex.features), exclude=exclude)
         if not _any_true(gt_hard & mask):  # skipped frames took the last true pairs
             raise opts.gt.no_match_error(exclude=exclude)
     res = runner.loops(ex.features, exclude=exclude, progress=opts.progress)
     folder = out / method
-    metrics = _write_method(folder, method, res, ex.features.names, ex.features.names, gt_hard, None, None, opts,
+    metrics = _write_method(folder, method, res, ex.features.names, ex.features.names, gt_hard, gt_soft, None, opts,
                             mask=mask, title=f"{method}: loop closures")
     io.save_json(folder / "config.json", _config(opts, command="loops", seq=str(seq), method=method, exclude=exclude))
     inputs = {"kind": "loops", "seq": src.key(), "exclude": exclude,

@@ -95,7 +95,18 @@ def test_loops_on_a_loop_scene(tmp_path, capsys):
     m = json.loads((out / "metrics.json").read_text())["methods"]["rshosm"]
     assert 0 <= m["auc_pr"] <= 1
     rows = list(csv.DictReader(open(out / "rshosm" / "matches.csv")))
+    assert m["n_accepted"] == sum(r["accepted"] == "1" for r in rows) and 0 <= m["precision_accepted"] <= 1
     assert all(int(r["best_db"]) <= int(r["query"]) - 5 for r in rows if r["accepted"] == "1")
+    # soft ground truth: pairs within 8 but not 3 are ignored, which can only raise AP
+    code, _, _ = _run(["loops", res["traverses"][name]["folder"], "--method", "rshosm", "--out", tmp_path / "soft",
+                       "--exclude", 5, "--gt", res["ground_truth"], "--radius", 3, "--gt-soft", 8], capsys)
+    assert code == 0
+    soft = json.loads((tmp_path / "soft" / "metrics.json").read_text())
+    assert soft["params"]["ground_truth"]["gt_soft"] == 8
+    assert soft["methods"]["rshosm"]["ap"] > m["ap"]
+    code, _, err = _run(["loops", res["traverses"][name]["folder"], "--out", tmp_path / "bad", "--gt",
+                         res["ground_truth"], "--radius", 3, "--gt-soft", 2], capsys)
+    assert code == 2 and "--gt-soft 2" in err
 
 
 def test_corrupt_png_is_skipped_and_recorded(scene, tmp_path, capsys):
