@@ -224,6 +224,12 @@ _COMBINED = "traverse,frame,x,y,yaw\nsummer,0,0,0,0\nsummer,1,5,0,0\nsummer,2,10
 def test_load_traverse_positions_reads_one_traverse(tmp_path):
     p = _file(tmp_path, "gt.csv", _COMBINED)
     assert load_traverse_positions(p, "winter") == {0: (1.0, 0.0), 1: (9.0, 0.0)}
+    # the video `vpr render --video` writes beside the folder: winter.mp4 -> the rows of winter
+    assert load_traverse_positions(p, "winter.mp4") == {0: (1.0, 0.0), 1: (9.0, 0.0)}
+    with_video = _file(tmp_path, "v.csv", _COMBINED + "winter.mp4,0,7,0,0\n")
+    assert load_traverse_positions(with_video, "winter.mp4") == {0: (7.0, 0.0)}
+    with pytest.raises(ValueError, match="no rows for traverse 'autumn.mp4'"):
+        load_traverse_positions(p, "autumn.mp4")
     with pytest.raises(ValueError, match="no rows for traverse 'autumn'"):
         load_traverse_positions(p, "autumn")
     with pytest.raises(ValueError, match=_line_error(p.parent / "bad.csv", 3)):

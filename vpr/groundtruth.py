@@ -386,6 +386,10 @@ def gt_from_position_files(db_csv, q_csv, radius: float, db_names: Sequence[str]
 def load_traverse_positions(path, traverse: str) -> dict[int, tuple[float, float]]:
     """Rows ``traverse,frame,x,y[,...]`` (as written by ``vpr render``) of one traverse: frame -> (x, y).
 
+    A source named like a file (``laps.mp4``, the video ``vpr render --video``
+    writes beside the folder ``laps``) also matches the rows of its stem
+    (``laps``) when the file has none under the full name.
+
     Raises
     ------
     FileNotFoundError
@@ -408,17 +412,20 @@ def load_traverse_positions(path, traverse: str) -> dict[int, tuple[float, float
         if not need <= set(cols):
             raise ValueError(f"{path}:1: expected a header with columns {sorted(need)}, got {header}")
         ti, fi, xi, yi = (cols.index(c) for c in ("traverse", "frame", "x", "y"))
+        names = (traverse, Path(traverse).stem)
+        by_name: dict[str, dict] = {n: {} for n in names}
         for line_no, row in enumerate(reader, start=2):
             if not row or row[0].startswith("#"):
                 continue
             if len(row) != len(cols):
                 raise ValueError(f"{path}:{line_no}: expected {len(cols)} columns, got {len(row)}")
-            if row[ti] != traverse:
+            if row[ti] not in by_name:
                 continue
             try:
-                rows[int(row[fi])] = (float(row[xi]), float(row[yi]))
+                by_name[row[ti]][int(row[fi])] = (float(row[xi]), float(row[yi]))
             except ValueError:
                 raise ValueError(f"{path}:{line_no}: frame must be an integer and x, y numbers") from None
+    rows = by_name[traverse] or by_name[names[1]]
     if not rows:
         raise ValueError(f"{path}: no rows for traverse {traverse!r}")
     return rows
