@@ -95,7 +95,8 @@ def main(argv=None) -> int:
     """Run ``vpr`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit status.
 
     Bad input and file-system errors: one line on stderr, status 2; Ctrl-C (also
-    while the modules load): ``vpr: interrupted``, status 130. Warnings are
+    while the modules load): ``vpr: interrupted``, status 130; stdout closed by
+    its reader: no message, status 141 (as a process killed by SIGPIPE). Warnings are
     printed as ``vpr: warning: ...``; progress bars only on a terminal.
     """
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -130,6 +131,14 @@ def main(argv=None) -> int:
         except (ValueError, MemoryFileError) as e:
             print(f"{command}: error: {' '.join(str(e).split())}", file=sys.stderr)
             return 2
+        except BrokenPipeError:
+            # the reader of stdout went away (`vpr loops ... | head`): quiet, as Unix tools are; the
+            # results were written before the table; stdout to devnull so the flush at exit cannot fail
+            try:
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            except (OSError, ValueError):  # a stdout without a file descriptor (captured, e.g. in tests)
+                pass
+            return 141
         except OSError as e:
             # read-only or full file system, permissions, missing files: the path and the reason
             print(f"{command}: error: {_os_error_line(e)}", file=sys.stderr)

@@ -199,3 +199,14 @@ def test_import_direction_of_the_layout():
                     [node.module or ""] if isinstance(node, ast.ImportFrom) and node.level == 0 else [])
                 assert not [n for n in names if n.split(".")[0] in bad], f"{path} imports {names}"
             assert "pipelines" not in text, f"{path} names pipelines"
+
+
+def test_closed_stdout_ends_quietly(monkeypatch, capsys):
+    import pipelines.encoders_cmd as cmd
+
+    def closed(args):
+        raise BrokenPipeError(32, "Broken pipe")
+
+    monkeypatch.setattr(cmd, "run_command", closed)
+    code = main(["encoders", "list"])
+    assert code == 141 and capsys.readouterr().err == ""
