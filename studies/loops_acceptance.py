@@ -16,7 +16,10 @@ native frame counts at 5 fps) and counts, for each rule
 - ``loop_revisits`` (three laps): accepted closures within 5 m are true; the
   recall is over the frames that have an earlier frame within 5 m.
 - optionally Nordland summer then winter as one stream (``--nordland DIR``, 358
-  + 358 frames, true within 1 frame of the other traverse).
+  + 358 frames, true within 1 frame of the other traverse), and each whole
+  Nordland traverse alone (3,576 frames, a forward-only train ride: any accepted
+  closure more than 3 frames from its own frame is false; the train stands at
+  stations, which :func:`vpr.evidence.stationary_closures` must tell from loops).
 
 Worlds: the scenes' own (``spec``) and ``--select`` seeds choose the rule; the
 ``--confirm-seeds`` worlds were not looked at while choosing it.
@@ -61,7 +64,8 @@ def rendered_stream(enc, scene: str, traverse: str, seed):
 
     sc = render_scene(scene, size=(160, 120), traverses=[traverse], seed=seed)
     t = sc.traverses[0]
-    S, _ = loop_evidence(encode(enc, list(t.images)), exclude=30)
+    x = encode(enc, list(t.images))
+    S, _ = loop_evidence(x, exclude=30)
     pos = t.route_pos
     alias = np.zeros((len(pos), len(pos)), bool)
     for a in sc.spec["world"].get("aliasing", []):
@@ -69,7 +73,7 @@ def rendered_stream(enc, scene: str, traverse: str, seed):
         dst = (pos >= a["target"] - 5) & (pos <= a["target"] + a["length"] + 5)
         shift = np.abs((pos[None] - pos[:, None]) - (a["target"] - a["source"])) <= 10
         alias |= src[:, None] & dst[None] & shift
-    return S, np.linalg.norm(t.xy[:, None] - t.xy[None], axis=-1), alias
+    return S, np.linalg.norm(t.xy[:, None] - t.xy[None], axis=-1), alias, x
 
 
 def nordland_stream(enc, path):
@@ -79,16 +83,29 @@ def nordland_stream(enc, path):
     from vpr.sources import open_source
 
     frames = [[f.image for f in open_source(Path(path) / s, step=10)] for s in ("summer", "winter")]
-    S, _ = loop_evidence(encode(enc, frames[0] + frames[1]), exclude=30)
+    x = encode(enc, frames[0] + frames[1])
+    S, _ = loop_evidence(x, exclude=30)
     pos = np.concatenate([np.arange(len(f)) for f in frames]).astype(float)
     trav = np.repeat([0, 1], [len(f) for f in frames])
     d = np.abs(pos[:, None] - pos[None])
-    return S, np.where(trav[:, None] != trav[None], d, 99.0), np.zeros(d.shape, bool)
+    return S, np.where(trav[:, None] != trav[None], d, 99.0), np.zeros(d.shape, bool), x
 
 
-def count(S, d, alias, z_min, confirm, near, far, exclude=30):
+def nordland_forward(enc, path, season):
+    """One whole Nordland traverse (3,576 frames): a ride with stops at stations; distance = frames apart."""
+    from pathlib import Path
+
+    from vpr.sources import open_source
+
+    x = encode(enc, [f.image for f in open_source(Path(path) / season)])
+    S, _ = loop_evidence(x, exclude=30)
+    idx = np.arange(x.shape[0], dtype=float)
+    return S, np.abs(idx[:, None] - idx[None]), np.zeros((len(idx), len(idx)), bool), x
+
+
+def count(S, d, alias, x, z_min, confirm, near, far, exclude=30, stop_ratio=0.35):
     """Accepted (false, onto an alias, true) and frames with a true closure, of one stream under one rule."""
-    best, _, ok = accept_loops(S, z_min=z_min, confirm=confirm)
+    best, _, ok = accept_loops(S, z_min=z_min, confirm=confirm, sdr=x, stop_ratio=stop_ratio)
     T = len(best)
     back = np.arange(T) - best
     dist = d[np.maximum(best, 0), np.arange(T)]
@@ -106,6 +123,7 @@ def main(argv=None):
     ap.add_argument("--select", default="spec,101", help="worlds the rule was chosen on")
     ap.add_argument("--confirm-seeds", default="102", help="worlds held out from the choice")
     ap.add_argument("--nordland", default=None, help="the nordland_trimmed folder")
+    ap.add_argument("--stop-ratio", type=float, default=0.35, help="vpr.evidence.stationary_closures (0: off)")
     a = ap.parse_args(argv)
     enc = encoder_for(a.encoder)
     print(f"encoder {enc.name} {enc.conf}")
@@ -119,22 +137,29 @@ def main(argv=None):
                     streams[(group, kind, f"{scene}/{trav}/{seed}")] = rendered_stream(enc, scene, trav, s)
     if a.nordland:
         streams[("real", "nordland", "nordland summer+winter")] = nordland_stream(enc, a.nordland)
+        for season in ("summer", "winter"):
+            streams[("real", "forward", season)] = nordland_forward(enc, a.nordland, season)
     print("| z_min | confirm | " + " | ".join(
         f"{g}: forward-only false (onto the alias) | {g}: corridor false | {g}: loop_revisits true / frames (false)"
-        for g in groups) + (" | Nordland true / winter frames (false)" if a.nordland else "") + " |")
+        for g in groups) + (" | Nordland true / winter frames (false) | Nordland summer, winter alone (3,576 "
+                             "frames each): false" if a.nordland else "") + " |")
     for z_min, confirm in RULES:
         cells = []
         for g in groups:
             tot = {"forward": [0] * 4, "aliased": [0] * 4, "revisits": [0] * 4}
-            for (group, kind, _), (S, d, alias) in streams.items():
+            for (group, kind, _), (S, d, alias, x) in streams.items():
                 if group == g:
-                    c = count(S, d, alias, z_min, confirm, 5.0, 10.0)
+                    c = count(S, d, alias, x, z_min, confirm, 5.0, 10.0, stop_ratio=a.stop_ratio)
                     tot[kind] = [x + y for x, y in zip(tot[kind], c, strict=True)]
             fw, al, rv = tot["forward"], tot["aliased"], tot["revisits"]
             cells += [f"{fw[0]} ({fw[1]})", str(al[0] + al[1]), f"{rv[2]} / {rv[3]} ({rv[0]})"]
         if a.nordland:
-            f, _, t, n = count(*streams[("real", "nordland", "nordland summer+winter")], z_min, confirm, 1.0, 3.0)
+            f, _, t, n = count(*streams[("real", "nordland", "nordland summer+winter")], z_min, confirm, 1.0, 3.0,
+                               stop_ratio=a.stop_ratio)
             cells.append(f"{t} / {n} ({f})")
+            fw = [count(*streams[("real", "forward", s)], z_min, confirm, 1.0, 3.0, stop_ratio=a.stop_ratio)[0]
+                  for s in ("summer", "winter")]
+            cells.append(f"{fw[0]}, {fw[1]}")
         print(f"| {z_min} | {confirm} | " + " | ".join(cells) + " |", flush=True)
 
 

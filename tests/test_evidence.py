@@ -311,3 +311,28 @@ def test_default_loop_rule_finds_revisits_and_no_closure_on_a_forward_drive():
             assert set(np.flatnonzero(ok) * 3 // T) == {1, 2}
         else:  # driven once, through a stretch that repeats one 210 m earlier
             assert not ok.any(), (np.flatnonzero(ok), dist)
+
+
+def test_a_closure_onto_a_place_never_left_is_a_stop():
+    rng = np.random.default_rng(0)
+    a = rng.choice(256, 20, replace=False)
+    others = [rng.choice(256, 20, replace=False) for _ in range(10)]
+    # frames 0-5 stand at place A, 6-15 drive elsewhere, 16 is back at A; 17 creeps: A with 5 bits changed
+    rows = [a] * 6 + others + [a, np.concatenate([a[:15], others[0][:5]])]
+    x = sdr.from_indices(rows, 256)
+    T = x.shape[0]
+    best = np.full(T, -1)
+    best[5], best[16], best[17] = 0, 0, 16
+    acc = best >= 0
+    stop = ev.stationary_closures(x, best, acc)
+    assert np.flatnonzero(stop).tolist() == [5, 17]  # 16 left A in between; 17 never left 16
+    S = np.full((T, T), -np.inf)
+    S[np.triu_indices(T, 1)] = 0.0
+    S[best[acc], np.flatnonzero(acc)] = 9.0
+    assert np.flatnonzero(ev.accept_loops(S, z_min=8, confirm=0)[2]).tolist() == [5, 16, 17]
+    assert np.flatnonzero(ev.accept_loops(S, z_min=8, confirm=0, sdr=x)[2]).tolist() == [16]
+    assert np.flatnonzero(ev.accept_loops(S, z_min=8, confirm=0, sdr=x, stop_ratio=0)[2]).tolist() == [5, 16, 17]
+    with pytest.raises(ValueError, match="stop_ratio"):
+        ev.accept_loops(S, sdr=x, stop_ratio=1.5)
+    with pytest.raises(ValueError, match="one entry per frame"):
+        ev.stationary_closures(x, best[:-1], acc)

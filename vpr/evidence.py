@@ -35,7 +35,7 @@ from vpr import sdr as _sdr
 from vpr._checks import check_count
 
 __all__ = ["dense_evidence", "sparse_evidence", "EvidenceResult", "ForwardEvidence", "FrameEvidence",
-           "loop_evidence", "accept_loops", "BEAM_DEFAULTS"]
+           "loop_evidence", "accept_loops", "stationary_closures", "BEAM_DEFAULTS"]
 
 #: Floors of the sparse beam (see :func:`sparse_evidence`).
 BEAM_DEFAULTS = {"floor": 0.0, "rel_floor": 0.1, "z_floor": 0.15, "max_beam": 8192, "max_enter": 256}
@@ -685,7 +685,7 @@ def loop_evidence(sdr_batch, exclude: int = 30, decay: float = 0.9, stay: float 
 _CONTINUES = (-2, 6)
 
 
-def accept_loops(S, z_min: float = 6.0, confirm: int = 2):
+def accept_loops(S, z_min: float = 6.0, confirm: int = 2, sdr=None, stop_ratio: float = 0.35):
     """Best earlier frame per frame of a :func:`loop_evidence` matrix and whether it is accepted.
 
     A closure at frame ``j`` is accepted when its z-score (how far the best
@@ -693,10 +693,14 @@ def accept_loops(S, z_min: float = 6.0, confirm: int = 2):
     ``z_min`` at ``j`` and at the ``confirm`` frames before it, and the best
     earlier frame moved on consistently over them (as a revisit does: between
     -2 and +6 frames per frame). Causal: only frames up to ``j`` are used.
+    With the stream's SDRs (``sdr``), a closure onto a place the camera never
+    left is not a loop but a stop, and is refused (:func:`stationary_closures`).
 
-    Why two conditions: on forward-only drives a wrong earlier frame can stand
-    out for a frame or two (a repeated facade), a revisit keeps standing out
-    (``studies/loops_acceptance.py``, ``docs/localize.md``).
+    Why: on forward-only drives a wrong earlier frame can stand out for a frame
+    or two (a repeated facade), a revisit keeps standing out; and a vehicle
+    standing at a station or a traffic light for longer than ``exclude`` sees
+    the same place again without any loop (``studies/loops_acceptance.py``,
+    ``docs/localize.md``).
 
     Parameters
     ----------
@@ -705,6 +709,10 @@ def accept_loops(S, z_min: float = 6.0, confirm: int = 2):
         z-score the closure must reach at every frame of the confirmation.
     confirm : int >= 0
         Frames before ``j`` that must also pass (0: ``j`` alone).
+    sdr : SDR batch (T rows), optional
+        The stream; without it stops are not checked.
+    stop_ratio : float in [0, 1)
+        See :func:`stationary_closures` (0: stops are not checked).
 
     Returns
     -------
@@ -713,6 +721,8 @@ def accept_loops(S, z_min: float = 6.0, confirm: int = 2):
     from vpr.methods import best_matches  # methods imports the memory; only needed here
 
     confirm = check_count(confirm, "confirm")
+    if not 0.0 <= float(stop_ratio) < 1.0:
+        raise ValueError(f"stop_ratio must be in [0, 1) (0: stops are not checked), got {stop_ratio}")
     best, score = best_matches(S)
     best = np.where(np.isfinite(score), best, -1)
     ok = (best >= 0) & (score >= float(z_min))
@@ -722,4 +732,55 @@ def accept_loops(S, z_min: float = 6.0, confirm: int = 2):
     run = np.zeros(len(ok), np.int64)  # frames in a row that pass, ending at j
     for j in np.flatnonzero(ok):
         run[j] = run[j - 1] + 1 if j and link[j] else 1
-    return best, score, run > confirm
+    ok = run > confirm
+    if sdr is not None and float(stop_ratio) > 0:
+        ok &= ~stationary_closures(sdr, best, ok, stop_ratio)
+    return best, score, ok
+
+
+def stationary_closures(sdr, best, accepted, ratio: float = 0.35, chunk: int = 256) -> np.ndarray:
+    """Which accepted closures ``best[j] -> j`` are onto a place the camera never left.
+
+    A loop closure means the camera went elsewhere and came back: some frame
+    between ``i = best[j]`` and ``j`` looks less like ``j`` than ``ratio`` times
+    the overlap of ``i`` and ``j`` (SDR overlap, as a fraction of ``j``'s
+    bits). When every frame in between keeps at least that much, the vehicle
+    stood still or crept (a station, a traffic light) and the "closure" is a
+    stop. Measured (``docs/localize.md``): stops on Nordland 0.45-1.0 of the
+    match's overlap at the lowest frame in between, revisits and false
+    closures on the renders 0.0-0.32.
+
+    Parameters
+    ----------
+    sdr : SDR batch (T rows), the stream.
+    best : int per frame, the closure's earlier frame (-1: none).
+    accepted : bool per frame, the closures to check.
+    ratio : float in (0, 1)
+    chunk : int
+        Frames compared at once (the scan stops at the first frame that left).
+
+    Returns
+    -------
+    bool per frame: accepted and stationary.
+    """
+    ratio = float(ratio)
+    if not 0.0 < ratio < 1.0:
+        raise ValueError(f"stop_ratio must be in (0, 1), got {ratio}")
+    x = _sdr.check_batch(sdr, name="sdr").astype(np.float32).tocsr()
+    best, accepted = np.asarray(best), np.asarray(accepted, bool)
+    if len(best) != x.shape[0] or len(accepted) != x.shape[0]:
+        raise ValueError(f"best and accepted need one entry per frame of the stream ({x.shape[0]}), "
+                         f"got {len(best)} and {len(accepted)}")
+    out = np.zeros(x.shape[0], bool)
+    for j in np.flatnonzero(accepted & (best >= 0)):
+        i = int(best[j])
+        xj = x[j].T
+        o_i = (x[i] @ xj).toarray()[0, 0]
+        left = False
+        for a in range(i + 1, j, chunk):
+            o = (x[a:min(a + chunk, j)] @ xj).toarray().ravel()
+            if np.any(o < ratio * o_i):
+                left = True
+                break
+        out[j] = not left
+    return out

@@ -14,7 +14,7 @@ def test_count_splits_false_alias_and_true_closures():
     alias[10:13, 30:33] = True  # 30-32 look exactly like 10-12
     for q, b in ((30, 10), (31, 11), (32, 12), (40, 0), (41, 1), (42, 2), (20, 5)):
         S[b, q] = 9.0
-    false, onto_alias, true, has = count(S, d, alias, z_min=8.0, confirm=0, near=2.0, far=4.0, exclude=5)
+    false, onto_alias, true, has = count(S, d, alias, None, z_min=8.0, confirm=0, near=2.0, far=4.0, exclude=5)
     assert (false, onto_alias, true, has) == (1, 3, 3, 3)
     # confirm=2 keeps only the third frame of each run; frame 20 alone is dropped
-    assert count(S, d, alias, z_min=8.0, confirm=2, near=2.0, far=4.0, exclude=5) == (0, 1, 1, 3)
+    assert count(S, d, alias, None, z_min=8.0, confirm=2, near=2.0, far=4.0, exclude=5) == (0, 1, 1, 3)

@@ -48,7 +48,9 @@ class RshosmSeq(Method):
     command line -- to disable that transition), ``direction``; ``normalise``
     (``"query"`` or ``"none"``); ``z_min`` and ``confirm``: a loop closure is
     accepted when its z-score is at least ``z_min`` at the frame and at the
-    ``confirm`` frames before it (:meth:`loops`; :func:`vpr.evidence.accept_loops`);
+    ``confirm`` frames before it (:meth:`loops`; :func:`vpr.evidence.accept_loops`),
+    and not onto a place the camera never left (``stop_ratio``,
+    :func:`vpr.evidence.stationary_closures`);
     ``top_k`` (database frames kept per query
     when database x query exceeds :data:`~vpr.similarity.DENSE_PAIRS_LIMIT`).
 
@@ -79,6 +81,8 @@ class RshosmSeq(Method):
     # frames before it (vpr.evidence.accept_loops; chosen in studies/loops_acceptance.py)
     default_conf["z_min"] = 6.0
     default_conf["confirm"] = 2
+    # loops only: a closure onto a place the camera never left is a stop (vpr.evidence.stationary_closures; 0: off)
+    default_conf["stop_ratio"] = 0.35
     nullable_conf = frozenset({"seed", "stay", "skip"})
 
     def inputs(self) -> set[str]:
@@ -117,13 +121,13 @@ class RshosmSeq(Method):
         by ``j - exclude`` (only the past counts; the backward pass of
         :meth:`match` would see the future). T x T over pairs i < j, dense up
         to 20,000 frames, top-50 sparse beyond. A closure is accepted when its
-        z-score is at least ``z_min`` over ``confirm`` + 1 frames
-        (:func:`vpr.evidence.accept_loops`).
+        z-score is at least ``z_min`` over ``confirm`` + 1 frames and the
+        camera left the place in between (:func:`vpr.evidence.accept_loops`).
         """
         c = self.conf
         x = need(seq, "sdr", self.name, "loop")
         S, _ = loop_evidence(x, exclude=int(exclude), decay=c["decay"], stay=c["stay"], skip=c["skip"],
                              normalise=c["normalise"], memory={k: c[k] for k in SequenceMemory.default_params()},
                              progress=progress)
-        _, _, ok = accept_loops(S, z_min=c["z_min"], confirm=c["confirm"])
+        _, _, ok = accept_loops(S, z_min=c["z_min"], confirm=c["confirm"], sdr=x, stop_ratio=c["stop_ratio"])
         return S, ok
