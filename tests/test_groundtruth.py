@@ -5,6 +5,7 @@ import re
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 from vpr.groundtruth import (
     GroundTruthSpec,
@@ -39,6 +40,17 @@ def test_pairs_with_and_without_header(tmp_path):
     assert np.array_equal(load_pairs_csv(header, 4, 3), expected)
     spaces = _file(tmp_path, "s.txt", "query db\n0 2\n1\t0\n1 3\n")
     assert np.array_equal(load_pairs_csv(spaces, 4, 3), expected)
+
+
+def test_pairs_beyond_the_dense_limit_are_sparse(tmp_path, monkeypatch):
+    import vpr.groundtruth as g
+
+    monkeypatch.setattr(g, "DENSE_PAIRS_LIMIT", 10)
+    gt = load_pairs_csv(_file(tmp_path, "p.csv", "0,2\n1,0\n1,3\n1,3\n"), 4, 3)
+    assert sp.issparse(gt) and gt.dtype == bool and gt.nnz == 3
+    expected = np.zeros((4, 3), dtype=bool)
+    expected[[2, 0, 3], [0, 1, 1]] = True
+    assert np.array_equal(gt.toarray(), expected)
 
 
 def test_pairs_by_name(tmp_path):

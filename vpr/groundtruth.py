@@ -148,7 +148,7 @@ def _check_names(names, n: int, what: str):
 
 def load_pairs_csv(path, n_db: int, n_q: int, db_names: Sequence[str] | None = None,
                    q_names: Sequence[str] | None = None, *, db_indices: Sequence[int] | None = None,
-                   q_indices: Sequence[int] | None = None) -> np.ndarray:
+                   q_indices: Sequence[int] | None = None):
     """Ground truth from a CSV of ``query,db`` pairs (header optional).
 
     Parameters
@@ -171,8 +171,8 @@ def load_pairs_csv(path, n_db: int, n_q: int, db_names: Sequence[str] | None = N
 
     Returns
     -------
-    numpy.ndarray
-        bool (n_db, n_q).
+    numpy.ndarray or scipy.sparse.csr_matrix
+        bool (n_db, n_q); sparse above :data:`~vpr.similarity.DENSE_PAIRS_LIMIT` pairs.
 
     Raises
     ------
@@ -235,7 +235,7 @@ def load_pairs_csv(path, n_db: int, n_q: int, db_names: Sequence[str] | None = N
     if not rows:
         raise ValueError(f"{path}: no pairs after the header on line {first_line}")
 
-    gt = np.zeros((n_db, n_q), dtype=bool)
+    rows_db, cols_q = [], []
     dropped = 0
     for lineno, fields in rows:
         q_tok, db_tok = fields[order[0]], fields[order[1]]
@@ -249,9 +249,17 @@ def load_pairs_csv(path, n_db: int, n_q: int, db_names: Sequence[str] | None = N
         if q is None or d is None:
             dropped += 1
             continue
-        gt[d, q] = True
+        rows_db.append(d)
+        cols_q.append(q)
     if dropped:
         warnings.warn(f"{path}: {dropped} pairs name frames that were not read; ignored", stacklevel=2)
+    rows_db, cols_q = np.asarray(rows_db, np.int64), np.asarray(cols_q, np.int64)
+    if n_db * n_q > DENSE_PAIRS_LIMIT:  # a dense bool matrix of 50,000 x 50,000 frames would take 2.5 GB
+        gt = sp.csr_matrix((np.ones(rows_db.size, bool), (rows_db, cols_q)), shape=(n_db, n_q))
+        gt.sum_duplicates()
+        return gt
+    gt = np.zeros((n_db, n_q), dtype=bool)
+    gt[rows_db, cols_q] = True
     return gt
 
 
