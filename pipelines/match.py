@@ -280,7 +280,8 @@ def _probe(name: str, runner) -> None:
     """Run a configured method once on a tiny synthetic traverse, so that a bad conf value fails now.
 
     Some values are only checked where they are used (SeqSLAM's ``ds``, the
-    memory's ``p_extra``): without this they would fail after encoding.
+    memory's ``p_extra``, the loop acceptance of ``rshosm-seq``): without this
+    they would fail after encoding. Methods with loop closure run it too.
     """
     rng = np.random.default_rng(0)
     n, width = 12, int(runner.conf.get("n_inputs", 2048))
@@ -292,6 +293,8 @@ def _probe(name: str, runner) -> None:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             runner.match(tiny, tiny)
+            if type(runner)._loops is not methods.Method._loops:
+                runner.loops(tiny, exclude=2)
     except ValueError as exc:
         raise ValueError(f"--method-conf {name}: {exc}") from None
 

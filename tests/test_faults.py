@@ -257,6 +257,14 @@ def test_loops_without_true_match_is_refused_in_user_words(tmp_path, capsys):
     assert not out.exists()
 
 
+@pytest.mark.parametrize("conf", ["stop_ratio=2", "confirm=-1"])
+def test_bad_loop_acceptance_conf_is_refused_before_any_work(scene, tmp_path, capsys, conf):
+    out = tmp_path / "out"
+    code, _, err = _run(["loops", scene["db"], "--out", out, "--method-conf", f"rshosm-seq.{conf}"], capsys)
+    _one_error_line(code, err, "--method-conf rshosm-seq", conf.split("=")[0])
+    assert not out.exists()
+
+
 # ------------------------------------------------------------ 6. options silently ignored
 # (a "no_loops" case went away: every method supports loop closure since rshosm-seq does, issue 12)
 @pytest.mark.parametrize("case", ["soft_without_gt", "soft_below_radius", "soft_below_tolerance", "exclude"])
