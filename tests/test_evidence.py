@@ -236,6 +236,8 @@ def test_bad_arguments(aliased):
         ev.ForwardEvidence(mem, codes).update(np.zeros(100, bool))
     with pytest.raises(ValueError, match="exclude"):
         ev.loop_evidence(sdr.random_sdrs(5, seed=0), exclude=0)
+    with pytest.raises(ValueError, match="max_enter"):
+        ev.loop_evidence(sdr.random_sdrs(5, seed=0), exclude=1, max_enter="some")
     with pytest.raises(ValueError, match="another memory"):
         ev.ForwardEvidence(mem, sp.csr_matrix((1, mem.n_cells + 10), dtype=bool) + sp.eye(1, mem.n_cells + 10,
                                                                                           mem.n_cells + 5, dtype=bool))
@@ -336,3 +338,19 @@ def test_a_closure_onto_a_place_never_left_is_a_stop():
         ev.accept_loops(S, sdr=x, stop_ratio=1.5)
     with pytest.raises(ValueError, match="one entry per frame"):
         ev.stationary_closures(x, best[:-1], acc)
+
+
+def test_loop_evidence_caps_the_beam_only_beyond_the_dense_output():
+    # pixel-like SDRs sharing many bits, so that caps of a few cells would bind
+    rng = np.random.default_rng(1)
+    base = rng.random((60, 256)) < 0.5
+    rows = [np.flatnonzero(base[i // 3] ^ (rng.random(256) < 0.05))[:60] for i in range(90)]
+    x = sdr.from_indices(rows, 256)
+    mem = {"n_inputs": 256}
+    auto, _ = ev.loop_evidence(x, exclude=5, memory=mem)
+    free, _ = ev.loop_evidence(x, exclude=5, memory=mem, max_beam=None, max_enter=None)
+    tight, _ = ev.loop_evidence(x, exclude=5, memory=mem, max_beam=16, max_enter=2)
+    np.testing.assert_array_equal(auto, free)
+    assert not np.array_equal(tight, free)
+    beyond, _ = ev.loop_evidence(x, exclude=5, memory=mem, dense_max=50)  # top-50 sparse and capped
+    assert sp.issparse(beyond)

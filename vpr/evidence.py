@@ -549,7 +549,7 @@ def loop_evidence(sdr_batch, exclude: int = 30, decay: float = 0.9, stay: float 
                   skip: float | None = 0.05, top_k: int | None = None, normalise: str = "query",
                   memory: dict | None = None, floor: float = BEAM_DEFAULTS["floor"],
                   rel_floor: float = BEAM_DEFAULTS["rel_floor"], z_floor: float = BEAM_DEFAULTS["z_floor"],
-                  max_beam: int | None = BEAM_DEFAULTS["max_beam"], max_enter: int | None = BEAM_DEFAULTS["max_enter"],
+                  max_beam: int | None | str = "auto", max_enter: int | None | str = "auto",
                   dense_max: int = 20_000, progress: bool = False):
     """Loop closure within one stream with graded forward sequence evidence, learned online.
 
@@ -566,7 +566,14 @@ def loop_evidence(sdr_batch, exclude: int = 30, decay: float = 0.9, stay: float 
     sdr_batch : SDR batch (T x n_inputs), the stream.
     exclude : int >= 1
         Frames closer than this are not candidates.
-    decay, stay, skip, floor, rel_floor, z_floor, max_beam, max_enter : as :func:`sparse_evidence`.
+    decay, stay, skip, floor, rel_floor, z_floor : as :func:`sparse_evidence`.
+    max_beam, max_enter : int, None or "auto"
+        Caps of the beam, as :func:`sparse_evidence`. ``"auto"``: none while
+        the output is dense (up to ``dense_max`` frames), :data:`BEAM_DEFAULTS`
+        beyond. Why: in one stream that changes condition, the frames of the
+        current condition fill a capped beam and the other condition's frames
+        of the same place never enter it (Nordland summer + winter, all 7,152
+        frames: loop AP 0.000 capped, 0.409 without caps; ``docs/localize.md``).
     top_k : int or None
         Earlier frames kept per frame (None: dense T x T up to ``dense_max``
         frames, top-50 beyond).
@@ -599,8 +606,15 @@ def loop_evidence(sdr_batch, exclude: int = 30, decay: float = 0.9, stay: float 
     T = x.shape[0]
     if top_k is None and T > int(dense_max):
         top_k = 50  # a dense T x T would not fit (the project's limit on dense matrices)
+    caps = {}
+    for name, value in (("max_beam", max_beam), ("max_enter", max_enter)):
+        if isinstance(value, str):
+            if value != "auto":
+                raise ValueError(f"{name} must be a positive integer, None or 'auto', got {value!r}")
+            value = None if T <= int(dense_max) else BEAM_DEFAULTS[name]
+        caps[name] = value
     q_ptr, q_ind = x.indptr.astype(np.int64), x.indices.astype(np.int64)
-    params = _beam_params(decay, st, sk, 0.0, floor, rel_floor, z_floor, max_beam, max_enter)
+    params = _beam_params(decay, st, sk, 0.0, floor, rel_floor, z_floor, caps["max_beam"], caps["max_enter"])
     cpc = mem.cells_per_column
     cap = 1024 * cpc
     g = {"cpc": cpc, "n_cells": cap, "col_size": np.zeros(cap // cpc), "relevant": np.zeros(cap, bool),
