@@ -43,7 +43,7 @@ FORWARD = [("two_seasons", "summer_day"), ("two_seasons", "winter_night"), ("spe
 ALIASED = [("aliased_corridor", "lights_on")]
 REVISITS = [("loop_revisits", "laps")]
 RULES = [(4.5, 0), (5.0, 0), (5.5, 0), (6.0, 0), (4.5, 2), (5.0, 2), (5.5, 2), (6.0, 2), (4.5, 4), (5.0, 4), (5.5, 4),
-         (4.5, 8), (5.0, 8)]
+         (6.0, 4), (4.5, 8), (5.0, 8), (6.0, 8)]
 
 
 def encoder_for(name: str):

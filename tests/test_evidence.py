@@ -192,7 +192,7 @@ def test_loop_evidence_beats_seqslam_on_the_paper_world():
     r = methods.loops("seqslam", f, exclude=10, conf={"descriptor": "desc"})
     ap, ap_seqslam = _loop_ap(S, gt, 10), _loop_ap(r.similarity, gt, 10)
     assert ap >= 0.95 and ap > ap_seqslam, (ap, ap_seqslam)
-    best, score, ok = ev.accept_loops(S, z_min=4.0)
+    best, score, ok = ev.accept_loops(S, z_min=4.0, confirm=2)
     assert ok.sum() > 100 and np.all(gt[best[ok], np.flatnonzero(ok)])
     # top-K: the kept entries are the dense matrix's
     Sk, codes_k = ev.loop_evidence(obs, exclude=10, stay=None, skip=None, top_k=5)
@@ -260,8 +260,8 @@ def test_rshosm_seq_loops_method_defaults():
     from vpr import evaluate
 
     # three laps of one loop: closures are found, and every accepted one is true (at this small size
-    # their z-scores stay below the default threshold 5.0, chosen for forward-only drives at 160x120)
-    r, gt = _rendered_loops("loop_revisits", 200, z_min=4.0)
+    # their z-scores stay below the default rule, z 6.0 over 9 frames, chosen at 160x120)
+    r, gt = _rendered_loops("loop_revisits", 200, z_min=4.0, confirm=2)
     T = gt.shape[0]
     assert r.similarity.shape == (T, T) and np.all(r.best_db[:30] == -1)
     ok = r.accepted
@@ -283,7 +283,8 @@ def test_accept_loops_needs_a_confirmed_run_of_consistent_closures():
     for q, b, z in ((4, 0, 6), (5, 1, 6), (6, 2, 6), (7, 3, 6), (9, 8, 9), (10, 7, 6), (11, 0, 6)):
         S[b, q] = z
     best, score, ok = ev.accept_loops(S, z_min=5.5, confirm=2)
-    assert np.flatnonzero(ok).tolist() == [6, 7]  # the third and fourth frame of the run
+    assert np.flatnonzero(ok).tolist() == [6, 7]
+    assert not ev.accept_loops(S, z_min=5.5)[2].any()  # the default confirm (8) needs a longer run  # the third and fourth frame of the run
     assert best[9] == 8 and score[9] == 9 and not ok[9]
     assert np.flatnonzero(ev.accept_loops(S, z_min=5.5, confirm=0)[2]).tolist() == [4, 5, 6, 7, 9, 10, 11]
     assert np.flatnonzero(ev.accept_loops(S, z_min=7, confirm=0)[2]).tolist() == [9]
@@ -309,7 +310,7 @@ def test_default_loop_rule_finds_revisits_and_no_closure_on_a_forward_drive():
         ok = r.accepted & (np.arange(T) - r.best_db >= 30)
         dist = np.linalg.norm(t.xy[r.best_db[ok]] - t.xy[ok], axis=1)
         if scene == "loop_revisits":  # closures in the second and third lap, all within 5 m
-            assert ok.sum() >= 20 and np.all(dist <= 5.0), dist
+            assert ok.sum() >= 10 and np.all(dist <= 5.0), dist
             assert set(np.flatnonzero(ok) * 3 // T) == {1, 2}
         else:  # driven once, through a stretch that repeats one 210 m earlier
             assert not ok.any(), (np.flatnonzero(ok), dist)

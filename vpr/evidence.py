@@ -699,7 +699,7 @@ def loop_evidence(sdr_batch, exclude: int = 30, decay: float = 0.9, stay: float 
 _CONTINUES = (-2, 6)
 
 
-def accept_loops(S, z_min: float = 6.0, confirm: int = 2, sdr=None, stop_ratio: float = 0.35):
+def accept_loops(S, z_min: float = 6.0, confirm: int = 8, sdr=None, stop_ratio: float = 0.35):
     """Best earlier frame per frame of a :func:`loop_evidence` matrix and whether it is accepted.
 
     A closure at frame ``j`` is accepted when its z-score (how far the best
@@ -710,8 +710,8 @@ def accept_loops(S, z_min: float = 6.0, confirm: int = 2, sdr=None, stop_ratio: 
     With the stream's SDRs (``sdr``), a closure onto a place the camera never
     left is not a loop but a stop, and is refused (:func:`stationary_closures`).
 
-    Why: on forward-only drives a wrong earlier frame can stand out for a frame
-    or two (a repeated facade), a revisit keeps standing out; and a vehicle
+    Why: on forward-only drives a wrong earlier frame can stand out for a few
+    frames (a repeated facade, a tunnel), a revisit keeps standing out; and a vehicle
     standing at a station or a traffic light for longer than ``exclude`` sees
     the same place again without any loop (``studies/loops_acceptance.py``,
     ``docs/localize.md``).

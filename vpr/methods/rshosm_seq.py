@@ -80,7 +80,7 @@ class RshosmSeq(Method):
     # loops only: a closure is accepted when its z-score is at least z_min at the frame and at the confirm
     # frames before it (vpr.evidence.accept_loops; chosen in studies/loops_acceptance.py)
     default_conf["z_min"] = 6.0
-    default_conf["confirm"] = 2
+    default_conf["confirm"] = 8
     # loops only: a closure onto a place the camera never left is a stop (vpr.evidence.stationary_closures; 0: off)
     default_conf["stop_ratio"] = 0.35
     nullable_conf = frozenset({"seed", "stay", "skip"})
