@@ -283,8 +283,8 @@ def test_accept_loops_needs_a_confirmed_run_of_consistent_closures():
     for q, b, z in ((4, 0, 6), (5, 1, 6), (6, 2, 6), (7, 3, 6), (9, 8, 9), (10, 7, 6), (11, 0, 6)):
         S[b, q] = z
     best, score, ok = ev.accept_loops(S, z_min=5.5, confirm=2)
-    assert np.flatnonzero(ok).tolist() == [6, 7]
-    assert not ev.accept_loops(S, z_min=5.5)[2].any()  # the default confirm (8) needs a longer run  # the third and fourth frame of the run
+    assert np.flatnonzero(ok).tolist() == [6, 7]  # the third and fourth frame of the run
+    assert not ev.accept_loops(S, z_min=5.5)[2].any()  # the default confirm (8) needs a longer run
     assert best[9] == 8 and score[9] == 9 and not ok[9]
     assert np.flatnonzero(ev.accept_loops(S, z_min=5.5, confirm=0)[2]).tolist() == [4, 5, 6, 7, 9, 10, 11]
     assert np.flatnonzero(ev.accept_loops(S, z_min=7, confirm=0)[2]).tolist() == [9]
