@@ -4,8 +4,9 @@ The stream is the database traverse of ``vpr.simulate.aliased_traverses(n, n // 
 n places visited once, in order (no place is revisited, so every accepted closure
 is false), each showing one of n / 10 random SDRs (40 of 2,048 bits), so every
 appearance recurs, identically, at about ten places. This is a worst case of
-perceptual aliasing. :func:`vpr.evidence.loop_evidence` is dense up to 10,000
-frames and top-50 sparse beyond (as ``vpr loops`` is beyond 20,000).
+perceptual aliasing. :func:`vpr.evidence.loop_evidence` is dense and uncapped
+up to 10,000 frames (``LOOP_UNCAPPED_MAX``) and top-50 sparse with beam caps
+beyond (``vpr loops`` is dense up to 20,000 frames, capped beyond 10,000).
 
 For each size it prints the wall time and peak RSS of ``loop_evidence`` and the
 closures :func:`vpr.evidence.accept_loops` accepts for several ``z_min`` x

@@ -355,3 +355,4 @@ def test_loop_evidence_caps_the_beam_only_beyond_the_dense_output():
     assert not np.array_equal(tight, free)
     beyond, _ = ev.loop_evidence(x, exclude=5, memory=mem, dense_max=50)  # top-50 sparse and capped
     assert sp.issparse(beyond)
+    assert ev.LOOP_UNCAPPED_MAX <= 20_000

@@ -35,10 +35,15 @@ from vpr import sdr as _sdr
 from vpr._checks import check_count
 
 __all__ = ["dense_evidence", "sparse_evidence", "EvidenceResult", "ForwardEvidence", "FrameEvidence",
-           "loop_evidence", "accept_loops", "stationary_closures", "BEAM_DEFAULTS"]
+           "loop_evidence", "accept_loops", "stationary_closures", "BEAM_DEFAULTS", "LOOP_UNCAPPED_MAX"]
 
 #: Floors of the sparse beam (see :func:`sparse_evidence`).
 BEAM_DEFAULTS = {"floor": 0.0, "rel_floor": 0.1, "z_floor": 0.15, "max_beam": 8192, "max_enter": 256}
+
+#: Streams up to this many frames are scored by :func:`loop_evidence` without beam caps (``"auto"``):
+#: 7,152 Nordland frames take 3.3 GB and 214 s, 10,000 synthetic ones 5.1 GB and 198 s; beyond, time and
+#: memory grow too fast (``benchmarks/bench_loops_scale.py``).
+LOOP_UNCAPPED_MAX = 10_000
 
 _BIG = np.iinfo(np.int64).max // 4
 
@@ -568,9 +573,9 @@ def loop_evidence(sdr_batch, exclude: int = 30, decay: float = 0.9, stay: float 
         Frames closer than this are not candidates.
     decay, stay, skip, floor, rel_floor, z_floor : as :func:`sparse_evidence`.
     max_beam, max_enter : int, None or "auto"
-        Caps of the beam, as :func:`sparse_evidence`. ``"auto"``: none while
-        the output is dense (up to ``dense_max`` frames), :data:`BEAM_DEFAULTS`
-        beyond. Why: in one stream that changes condition, the frames of the
+        Caps of the beam, as :func:`sparse_evidence`. ``"auto"``: none up to
+        :data:`LOOP_UNCAPPED_MAX` frames (and while the output is dense),
+        :data:`BEAM_DEFAULTS` beyond. Why: in one stream that changes condition, the frames of the
         current condition fill a capped beam and the other condition's frames
         of the same place never enter it (Nordland summer + winter, all 7,152
         frames: loop AP 0.000 capped, 0.409 without caps; ``docs/localize.md``).
@@ -611,7 +616,7 @@ def loop_evidence(sdr_batch, exclude: int = 30, decay: float = 0.9, stay: float 
         if isinstance(value, str):
             if value != "auto":
                 raise ValueError(f"{name} must be a positive integer, None or 'auto', got {value!r}")
-            value = None if T <= int(dense_max) else BEAM_DEFAULTS[name]
+            value = None if T <= min(int(dense_max), LOOP_UNCAPPED_MAX) else BEAM_DEFAULTS[name]
         caps[name] = value
     q_ptr, q_ind = x.indptr.astype(np.int64), x.indices.astype(np.int64)
     params = _beam_params(decay, st, sk, 0.0, floor, rel_floor, z_floor, caps["max_beam"], caps["max_enter"])
