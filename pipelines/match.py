@@ -227,10 +227,7 @@ def method_metrics(res: MatchResult, gt_hard, gt_soft, mask=None):
         return m, None
     ev, (prec, rec, _) = evaluate.evaluate(res.similarity, gt_hard, gt_soft, mask=mask, return_curve=True)
     m.update({k: float(v) for k, v in ev.items()})
-    if mask is not None:  # loop closures: only the pairs evaluated count, for the recall's frames too
-        gt_hard, gt_soft = (None if g is None else g.multiply(mask).tocsr() if sp.issparse(g) else np.asarray(g) & mask
-                            for g in (gt_hard, gt_soft))
-    m.update(evaluate.accepted_precision(res.best_db, res.accepted, gt_hard, gt_soft))
+    m.update(evaluate.accepted_precision(res.best_db, res.accepted, gt_hard, gt_soft, mask=mask))
     return m, (prec, rec)
 
 

@@ -174,6 +174,16 @@ def test_recall_at_k_matches_brute_force(problem, k):
             assert recall_at_k(*args[:3], k=k, mask=args[3]) == pytest.approx(ref, abs=1e-12)
 
 
+def _top_k(S, K):
+    """(the K best rows per column as a sparse matrix, the same dense with -inf elsewhere): a retrieval stage."""
+    top = np.argpartition(-S, K - 1, axis=0)[:K]
+    cols = np.broadcast_to(np.arange(S.shape[1]), top.shape)
+    S_topk = sp.csr_matrix((S[top, cols].ravel(), (top.ravel(), cols.ravel())), shape=S.shape)
+    S_dense = np.full(S.shape, -np.inf)
+    S_dense[top, cols] = S[top, cols]
+    return S_topk, S_dense
+
+
 @SETTINGS
 @given(problems(), st.integers(1, 4))
 def test_sparse_top_k_equals_dense_with_minus_inf(problem, K):
@@ -182,11 +192,7 @@ def test_sparse_top_k_equals_dense_with_minus_inf(problem, K):
     n_db, n_q = S.shape
     K = min(K, n_db)
     # a real top-K matrix as a retrieval stage would produce it
-    top = np.argpartition(-S, K - 1, axis=0)[:K]
-    cols = np.broadcast_to(np.arange(n_q), top.shape)
-    S_topk = sp.csr_matrix((S[top, cols].ravel(), (top.ravel(), cols.ravel())), shape=S.shape)
-    S_dense = np.full(S.shape, -np.inf)
-    S_dense[top, cols] = S[top, cols]
+    S_topk, S_dense = _top_k(S, K)
     if not (hard & (True if mask is None else mask)).any():
         return
     assert evaluate(S_topk, hard, soft, mask=mask) == evaluate(S_dense, hard, soft, mask=mask)
@@ -481,6 +487,12 @@ def test_accepted_precision_counts_one_decision_per_query():
     m = E.accepted_precision(best, accepted, sp.csr_matrix(gt), sp.csr_matrix(soft))
     assert m == {"n_accepted": 2, "precision_accepted": 0.5, "recall_accepted": 0.5}
     assert E.accepted_precision(best, np.zeros(4, bool), gt)["precision_accepted"] == 1.0
+    # a mask without query 1's true pair: its match no longer counts for the recall
+    mask = np.ones_like(gt)
+    mask[1, 1] = False
+    for g in (gt, sp.csr_matrix(gt)):
+        assert E.accepted_precision(best, accepted, g, mask=mask) == {
+            "n_accepted": 3, "precision_accepted": pytest.approx(1 / 3), "recall_accepted": 1.0}
 
 
 # --------------------------------------------------------------------------- #
@@ -526,11 +538,7 @@ def test_average_precision_top_k_sparse_equals_sklearn(n_db, n_q, K, levels, wit
     soft = (hard | (rng.random((n_db, n_q)) < 0.1)) if with_soft else None
     mask = rng.random((n_db, n_q)) < 0.8 if with_mask else None
     K = min(K, n_db)
-    top = np.argpartition(-S, K - 1, axis=0)[:K]
-    cols = np.broadcast_to(np.arange(n_q), top.shape)
-    S_topk = sp.csr_matrix((S[top, cols].ravel(), (top.ravel(), cols.ravel())), shape=S.shape)
-    S_dense = np.full(S.shape, -np.inf)
-    S_dense[top, cols] = S[top, cols]
+    S_topk, S_dense = _top_k(S, K)
     ref = _sklearn_ap(S_dense, hard, soft, mask)
     if ref is None:
         with pytest.raises(ValueError, match="gt_hard"):

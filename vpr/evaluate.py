@@ -725,7 +725,7 @@ def loop_closure_gt(labels_or_xy, radius=None, exclude=0, sparse=False):
 __all__.append("accepted_precision")
 
 
-def accepted_precision(best_db, accepted, gt_hard, gt_soft=None) -> dict:
+def accepted_precision(best_db, accepted, gt_hard, gt_soft=None, mask=None) -> dict:
     """Precision and recall of the accepted best matches (one decision per query).
 
     Parameters
@@ -737,6 +737,9 @@ def accepted_precision(best_db, accepted, gt_hard, gt_soft=None) -> dict:
     gt_hard, gt_soft : bool (n_db, n_q), dense or sparse
         Ground truth; a best match that is only a soft pair counts neither as
         right nor as wrong.
+    mask : bool (n_db, n_q), optional
+        Pairs evaluated (e.g. :func:`loop_closure_mask`); ground truth outside
+        it counts as no match, for the recall's queries too.
 
     Returns
     -------
@@ -745,6 +748,9 @@ def accepted_precision(best_db, accepted, gt_hard, gt_soft=None) -> dict:
         and ``recall_accepted`` (correct accepted matches over queries that
         have a true match).
     """
+    if mask is not None:
+        gt_hard, gt_soft = (None if g is None else g.multiply(mask).tocsr() if sp.issparse(g) else np.asarray(g) & mask
+                            for g in (gt_hard, gt_soft))
     best_db = np.asarray(best_db)
     q = np.flatnonzero(np.asarray(accepted, bool) & (best_db >= 0))
     correct = at(gt_hard, best_db[q], q).astype(bool)
