@@ -12,6 +12,7 @@ Loop AP: sklearn average precision over the pairs i <= j - exclude (soft pairs i
 
 Usage: python -m studies.loops_evidence [--frames 150] [--size 96x72] [--nordland DIR]
        [--standardise traverse|fit|causal] [--skip-paper]
+       python -m studies.loops_evidence --cross-condition 160x120
 """
 from __future__ import annotations
 
@@ -104,6 +105,52 @@ def nordland(path, exclude, standardise="traverse"):
     return sdr, np.concatenate(pix).astype(np.float32), (d <= 1) & other, (d <= 3) & other
 
 
+def cross_condition(size):
+    """Why the rendered day + night stream fails: how well night frames match day frames at all.
+
+    Prints, for two_seasons at ``size`` with the scenes' native frame counts: the
+    loop stream with the ``default`` loop encoder (loop AP; AP and R@1 when only
+    the day frames are candidates for the night frames, so no night frame can
+    compete), and the two traverses matched as database (day) and query (night),
+    each standardised on its own frames, with forward (causal) and both-direction
+    rSHOSM-seq evidence, per encoder.
+    """
+    from vpr import presets
+    from vpr.render import render_scene
+
+    day, night = render_scene("two_seasons", size=size).traverses
+    T, nd = len(day.images) + len(night.images), len(day.images)
+    s = presets.resolve("default", loops=True)
+    x = sp.csr_matrix(encoders.get(s["encoder"], **s["encoder_conf"]).encode(list(day.images) + list(night.images)))
+    xy = np.concatenate([day.xy, night.xy])
+    trav = np.repeat([0, 1], [nd, T - nd])
+    d = np.linalg.norm(xy[:, None] - xy[None], axis=-1)
+    other = trav[:, None] != trav[None]
+    gt, soft = (d <= 4.0) & other, (d <= 10.0) & other
+    S, _ = loop_evidence(x, exclude=30)
+    cross = np.zeros((T, T), bool)
+    cross[:nd, nd:] = True
+    mask = evaluate.loop_closure_mask(T, exclude=30)
+    best_day = np.argmax(S[:nd, nd:], axis=0)
+    print(f"two_seasons day+night stream {size}: loop AP {loop_ap(S, gt, 30, soft):.3f}; day frames only as "
+          f"candidates: AP {evaluate.average_precision(S, gt, soft, mask=mask & cross):.3f}, "
+          f"R@1 {np.mean(gt[best_day, np.arange(nd, T)]):.3f}", flush=True)
+    dq = np.linalg.norm(day.xy[:, None] - night.xy[None], axis=-1)
+    for name, (enc, conf) in {
+        "pixel k=200": ("pixel", {"k": 200}),
+        "HOG k=200": ("projection", {"k": 200, "descriptor": "hog"}),
+        "cnn k=200": ("cnn", {"k": 200}),
+        "default (pixel+cnn)": (presets.PRESETS["default"]["encoder"], presets.PRESETS["default"]["encoder_conf"]),
+    }.items():
+        e = encoders.get(enc, **{**conf, "standardise": "fit"})
+        db, q = (methods.EncodedTraverse(names=list(range(len(t.images))), sdr=e.fit(list(t.images)).encode(
+            list(t.images))) for t in (day, night))
+        aps = [evaluate.average_precision(methods.get("rshosm-seq", direction=dr).match(db, q).similarity,
+                                          dq <= 4.0, dq <= 10.0) for dr in ("forward", "both")]
+        print(f"  day -> night as two traverses, {name}: rshosm-seq AP forward {aps[0]:.3f}, both {aps[1]:.3f}",
+              flush=True)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=150)
@@ -114,9 +161,14 @@ def main(argv=None):
     ap.add_argument("--confirm", type=int, default=seq_conf["confirm"])
     ap.add_argument("--nordland", default=None)
     ap.add_argument("--skip-paper", action="store_true")
+    ap.add_argument("--cross-condition", default=None, metavar="WxH",
+                    help="only: how well night matches day on two_seasons at this size (e.g. 160x120)")
     ap.add_argument("--standardise", choices=("traverse", "fit", "causal"), default="traverse",
                     help="two-traverse streams: fit per traverse (oracle), on the whole stream, or causal")
     a = ap.parse_args(argv)
+    if a.cross_condition:
+        cross_condition(tuple(int(v) for v in a.cross_condition.split("x")))
+        return
     size = tuple(int(v) for v in a.size.split("x"))
     rule = {"z_min": a.z_min, "confirm": a.confirm}
     for alias, noise in ((0, 0.0), (5, 0.3), (10, 0.5)) if not a.skip_paper else ():
