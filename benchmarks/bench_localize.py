@@ -25,7 +25,7 @@ import numpy as np
 
 def latency(n, frames, exact, seed=0):
     from vpr import simulate
-    from vpr.localize import Localizer
+    from vpr.shosm import Localizer
 
     db, q, dp, qp = simulate.aliased_traverses(n, max(n // 10, 1), seed=seed)
     t = time.perf_counter()
@@ -48,8 +48,7 @@ def nordland(path):
     from pathlib import Path
 
     import encoders
-    from vpr import evidence
-    from vpr.memory import SequenceMemory
+    from vpr.shosm import ForwardEvidence, SequenceMemory
     from vpr.sources import open_source
 
     enc = encoders.get("pixel", k=200, standardise="fit")
@@ -61,7 +60,7 @@ def nordland(path):
     codes = mem.run(x["summer"])
     mem.reset()
     for exact in (False, True):
-        loc = evidence.ForwardEvidence(mem, codes, top_k=50, exact=exact)
+        loc = ForwardEvidence(mem, codes, top_k=50, exact=exact)
         w = x["winter"]
         best = np.array([loc.update(w[j]).best_db for j in range(w.shape[0])])
         r1 = np.mean(np.abs(best - np.arange(w.shape[0])) <= 1)

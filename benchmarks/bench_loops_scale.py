@@ -4,12 +4,12 @@ The stream is the database traverse of ``vpr.simulate.aliased_traverses(n, n // 
 n places visited once, in order (no place is revisited, so every accepted closure
 is false), each showing one of n / 10 random SDRs (40 of 2,048 bits), so every
 appearance recurs, identically, at about ten places. This is a worst case of
-perceptual aliasing. :func:`vpr.evidence.loop_evidence` is dense and uncapped
+perceptual aliasing. :func:`vpr.shosm.loop_evidence` is dense and uncapped
 up to 10,000 frames (``LOOP_UNCAPPED_MAX``) and top-50 sparse with beam caps
 beyond (``vpr loops`` is dense up to 20,000 frames, capped beyond 10,000).
 
 For each size it prints the wall time and peak RSS of ``loop_evidence`` and the
-closures :func:`vpr.evidence.accept_loops` accepts for several ``z_min`` x
+closures :func:`vpr.shosm.accept_loops` accepts for several ``z_min`` x
 ``confirm`` (the default rule is z_min 6.0, confirm 2).
 
 Usage: python benchmarks/bench_loops_scale.py [--sizes 2000,5000,10000,25000]
@@ -26,7 +26,7 @@ CONFIRM = (2, 4, 8, 16)
 
 def run(n: int, seed: int = 0) -> None:
     from vpr import simulate
-    from vpr.evidence import accept_loops, loop_evidence
+    from vpr.shosm import accept_loops, loop_evidence
 
     x = simulate.aliased_traverses(n, max(n // 10, 1), seed=seed)[0]
     t = time.perf_counter()

@@ -55,7 +55,7 @@ def _timed_run(mem, obs, window):
 
 
 def child_random_walk(T, seed):
-    from vpr.memory import SequenceMemory
+    from vpr.shosm import SequenceMemory
 
     SequenceMemory(seed=0).run(_world_walk(50, 99))  # compile / load the kernel outside the timing
     obs = _world_walk(T, seed)
@@ -72,7 +72,7 @@ def child_random_walk(T, seed):
 
 def child_new_places(T, seed):
     from vpr import sdr
-    from vpr.memory import SequenceMemory
+    from vpr.shosm import SequenceMemory
 
     SequenceMemory(seed=0).run(sdr.random_sdrs(50, seed=1))
     obs = sdr.random_sdrs(T, seed=seed)
@@ -139,7 +139,7 @@ def main():
           f" peak RSS {r['peak_rss_mb']:.0f} MB")
 
     print("\n== ratio to the literal set-based reference (same process, same observations, T = 2,000)")
-    from vpr.memory import SequenceMemory
+    from vpr.shosm import SequenceMemory
     sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # tests/ is not installed
     from tests.reference import ReferenceMemory
 

@@ -42,15 +42,15 @@ def _method(name: str, conf: dict):
 def encode(preset: dict, images, need_pixels: bool):
     """EncodedTraverse of one traverse the way the compare pipeline builds them."""
     import encoders
-    from vpr import imageproc
-    from vpr.methods import EncodedTraverse
+    from vpr.seqslam import pixel_descriptors
+    from vpr.types import EncodedTraverse
 
     enc = encoders.get(preset["encoder"], **preset["encoder_conf"])
     desc = enc.describe(images)
     if any(v == "fit" for k, v in enc.conf.items() if k.endswith("standardise")):
         enc.fit_descriptors(desc)
     sdr = enc.encode_descriptors(desc)
-    pixels = np.stack([imageproc.seqslam_preprocess(im).ravel() for im in images]) if need_pixels else None
+    pixels = pixel_descriptors(images) if need_pixels else None
     return EncodedTraverse(names=list(range(len(images))), sdr=sdr, desc=desc, pixels=pixels)
 
 

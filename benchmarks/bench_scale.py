@@ -15,7 +15,7 @@ own; one thread: NUMBA / OMP / OPENBLAS / MKL threads = 1):
   20,000 pairs) and top-50 sparse per query above; here the sparse path runs
   at every size (the limit is set to 0 in the child) so that the exponent is
   that of the large-input path (``--dense-below-limit``: as ``vpr`` does);
-* ``seqslam``: ``vpr.baselines.seqslam.seqslam_topk(db, q, candidates="pairwise")``
+* ``seqslam``: ``vpr.seqslam.seqslam_topk(db, q, candidates="pairwise")``
   (candidate windows from the single-frame top-50 by overlap, top-50 output).
 
 Prints CPU seconds of the process (min / median / max over repeats; wall
@@ -50,6 +50,8 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 import scipy.sparse as sp  # noqa: E402
 
+from vpr.types import EncodedTraverse  # noqa: E402
+
 METHODS = ("rshosm-seq", "seqslam", "pairwise", "rshosm")
 
 
@@ -62,31 +64,30 @@ def _data(n, seed):
 def _run(method, db, q):
     """(best_db, similarity) of one method; kernels already compiled."""
     from vpr import methods
-    from vpr.baselines.seqslam import seqslam_topk
+    from vpr.seqslam import seqslam_topk
 
     if method == "seqslam":
         r = seqslam_topk(db, q, candidates="pairwise")
         return r.best_db, getattr(r, "similarity", None)
     names = list(range(db.shape[0])), list(range(q.shape[0]))
-    r = methods.match(method, methods.EncodedTraverse(names=names[0], sdr=db),
-                      methods.EncodedTraverse(names=names[1], sdr=q))
+    r = methods.match(method, EncodedTraverse(names=names[0], sdr=db),
+                      EncodedTraverse(names=names[1], sdr=q))
     return r.best_db, r.similarity
 
 
 def child(method, n, seed, agree, dense_below_limit):
     if not dense_below_limit:
-        from vpr.methods import base
+        from vpr import similarity
 
-        base.DENSE_PAIRS_LIMIT = 0  # the large-input path (top-K sparse) at every size, for the growth exponent
+        similarity.DENSE_PAIRS_LIMIT = 0  # the large-input path (top-K sparse) at every size, for the growth exponent
     db, q, dp, qp = _data(n, seed)
     tdb, tq, _, _ = _data(200, seed + 1)
     _run(method, tdb, tq)  # compile / load the numba kernels outside the timing
     if method == "rshosm-seq":  # and the sparse beam's, which 200 frames do not reach
-        from vpr import evidence
-        from vpr.memory import SequenceMemory
+        from vpr.shosm import SequenceMemory, sparse_evidence
 
         m0 = SequenceMemory(threshold=0.75)
-        evidence.sparse_evidence(m0, tq[:20], m0.run(tdb[:50]))
+        sparse_evidence(m0, tq[:20], m0.run(tdb[:50]))
     c0, t0 = time.process_time(), time.perf_counter()
     best, S = _run(method, db, q)
     out = {"method": method, "n_db": int(db.shape[0]), "n_q": int(q.shape[0]), "cpu_s": time.process_time() - c0,
@@ -95,16 +96,15 @@ def child(method, n, seed, agree, dense_below_limit):
            "entries": int(S.nnz) if S is not None and sp.issparse(S) else (int(S.size) if S is not None else -1),
            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
     if agree:
-        from vpr import evidence
-        from vpr.memory import SequenceMemory
+        from vpr.shosm import SequenceMemory, dense_evidence, sparse_evidence
 
         mem = SequenceMemory(threshold=0.75, seed=seed)
         codes = mem.run(db)
         mem.reset()
         c1 = time.process_time()
-        r = evidence.sparse_evidence(mem, q, codes, top_k=50)
+        r = sparse_evidence(mem, q, codes, top_k=50)
         c2 = time.process_time()
-        dense = mem.evidence(q, codes).argmax(axis=0)
+        dense = dense_evidence(mem, q, codes).argmax(axis=0)
         out.update(sparse_s=c2 - c1, dense_s=time.process_time() - c2, agree=float(np.mean(dense == r.best_db)),
                    dense_r1=float(np.mean(np.abs(dp[dense] - qp) <= 1)),
                    sparse_r1=float(np.mean(np.abs(dp[r.best_db] - qp) <= 1)))

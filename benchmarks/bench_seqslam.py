@@ -35,7 +35,7 @@ from scipy.spatial.distance import cdist  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from test_seqslam import ref_enhance, ref_offsets, ref_score_column  # noqa: E402
 
-from vpr.baselines.seqslam import difference_matrix, enhance_contrast, seqslam, seqslam_topk  # noqa: E402
+from vpr.seqslam import difference_matrix, enhance_contrast, seqslam, seqslam_topk  # noqa: E402
 
 
 def synthetic_route(n: int, dim: int, noise: float = 10.0, seed: int = 0):

@@ -47,7 +47,7 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 
 from vpr import simulate  # noqa: E402
-from vpr.baselines.seqslam import difference_matrix, seqslam, seqslam_topk  # noqa: E402
+from vpr.seqslam import difference_matrix, seqslam, seqslam_topk  # noqa: E402
 
 
 def aliased_traverses(n: int, seed: int = 0):

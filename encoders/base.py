@@ -1,10 +1,21 @@
-"""Base class of the image encoders: configuration merging and input checks.
+"""Base classes of the image encoders: configuration merging, input checks, and the two kinds of encoder.
 
 Each encoder is a small class with a ``default_conf`` dict (as in hloc); the
 user's configuration is merged over the defaults of the class and all its
 bases. Values given as strings (``--encoder-conf key=value`` on the command
 line) are coerced to the type of the default they replace
 (:func:`vpr.config.merge_conf`).
+
+Two kinds:
+
+- :class:`BaseEncoder`: images in, SDRs out (``encode``), e.g. ORB votes.
+- :class:`DescriptorEncoder`: the SDR is computed from a dense descriptor
+  (``describe`` -> ``fit_descriptors`` -> ``encode_descriptors``), so a
+  pipeline describes each frame once, fits per-dimension statistics on a whole
+  traverse (``standardise="fit"``) and keeps the descriptor for methods that
+  read it (``seqslam-desc``). Its fitted statistics can be read and restored
+  (:meth:`DescriptorEncoder.statistics`), and overridden per call, which is
+  how :mod:`encoders.stream` encodes one frame at a time.
 """
 from __future__ import annotations
 
@@ -14,7 +25,8 @@ import scipy.sparse as sp
 from vpr.config import merge_conf
 from vpr.imageproc import to_uint8
 
-__all__ = ["BaseEncoder", "as_image_list", "check_descriptors"]
+__all__ = ["BaseEncoder", "DescriptorEncoder", "as_image_list", "check_descriptors"]
+
 
 def as_image_list(images, name: str = "images") -> list[np.ndarray]:
     """Validate a batch of images and return a list of uint8 arrays.
@@ -115,3 +127,47 @@ class BaseEncoder:
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({', '.join(f'{k}={v!r}' for k, v in self.conf.items())})"
+
+
+class DescriptorEncoder(BaseEncoder):
+    """An encoder whose SDR is the sparsification of a dense descriptor (frames x dims).
+
+    Subclasses implement :meth:`describe`, :meth:`fit_descriptors`,
+    :meth:`encode_descriptors` and the statistics hooks; :meth:`fit` and
+    :meth:`encode` are built on them. The SDR may depend on per-dimension
+    statistics (mean, std) of one or more blocks of the descriptor (one block
+    per sparsified part: one for a plain encoder, one per part of a joined
+    one), fitted by :meth:`fit_descriptors` when ``standardise="fit"``.
+    """
+
+    def describe(self, images) -> np.ndarray:
+        """Dense float32 descriptor, (frames, dims)."""
+        raise NotImplementedError
+
+    def fit_descriptors(self, desc) -> DescriptorEncoder:
+        """Learn the standardisation statistics from precomputed descriptors. Returns self."""
+        raise NotImplementedError
+
+    def encode_descriptors(self, desc, statistics: list | None = None) -> sp.csr_matrix:
+        """SDR batch from precomputed descriptors; ``statistics`` (one (mean, std) per block) override the
+        fitted ones for this call."""
+        raise NotImplementedError
+
+    def blocks(self, desc) -> list[np.ndarray]:
+        """The descriptor cut into the blocks that have their own statistics (default: one)."""
+        return [check_descriptors(desc, name=f"{self.name} descriptors")]
+
+    def statistics(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The fitted (mean, std) of every block; empty when nothing was fitted."""
+        raise NotImplementedError
+
+    def set_statistics(self, stats: list) -> DescriptorEncoder:
+        """Restore statistics read from :meth:`statistics` (e.g. stored in a map). Returns self."""
+        raise NotImplementedError
+
+    def fit(self, images) -> DescriptorEncoder:
+        """Learn the standardisation statistics from ``images``, describing them once. Returns self."""
+        return self.fit_descriptors(self.describe(images))
+
+    def encode(self, images) -> sp.csr_matrix:
+        return self.encode_descriptors(self.describe(images))

@@ -45,7 +45,7 @@ import math
 import numpy as np
 import scipy.sparse as sp
 
-from .base import BaseEncoder, as_image_list, check_descriptors
+from .base import BaseEncoder, DescriptorEncoder, as_image_list, check_descriptors
 
 __all__ = ["JoinedEncoder", "DescribedJoinedEncoder", "joined_class", "split_name"]
 
@@ -83,9 +83,8 @@ def joined_class(name: str) -> type[JoinedEncoder]:
 
     parts, _ = split_name(name)
     classes = [get_class(p) for p in parts]  # raises for an unknown part, listing the known ones
-    # only when every part has a dense descriptor does the joined encoder offer one; callers
-    # test for encode_descriptors to decide whether to describe once and fit on the descriptors
-    described = all(hasattr(c, "encode_descriptors") and hasattr(c, "fit_descriptors") for c in classes)
+    # only when every part has a dense descriptor is the joined encoder a DescriptorEncoder
+    described = all(issubclass(c, DescriptorEncoder) for c in classes)
     base = DescribedJoinedEncoder if described else JoinedEncoder
     return type(base.__name__ + "_" + "_".join(parts), (base,), {"parts": tuple(parts), "name": "+".join(parts)})
 
@@ -178,7 +177,7 @@ class JoinedEncoder(BaseEncoder):
         return [int(v) for v in np.cumsum([0] + [e.n_bits for e in self.encoders[:-1]])]
 
     def describe(self, images) -> np.ndarray:
-        bad = [p for p, e in zip(self.prefixes, self.encoders, strict=True) if not hasattr(e, "encode_descriptors")]
+        bad = [p for p, e in zip(self.prefixes, self.encoders, strict=True) if not isinstance(e, DescriptorEncoder)]
         raise NotImplementedError(f"encoder {self.name!r} has no dense descriptor: part(s) {bad} have none")
 
     def fit(self, images) -> JoinedEncoder:
@@ -198,13 +197,12 @@ class JoinedEncoder(BaseEncoder):
         return f"JoinedEncoder[{self.name}](describe={self.conf['describe']!r}, {inner})"
 
 
-class DescribedJoinedEncoder(JoinedEncoder):
-    """A :class:`JoinedEncoder` whose parts all have a dense descriptor: it passes the joined one on.
+class DescribedJoinedEncoder(JoinedEncoder, DescriptorEncoder):
+    """A :class:`JoinedEncoder` whose parts all have a dense descriptor: a :class:`DescriptorEncoder` too.
 
-    Like the projection encoders it offers ``fit_descriptors`` and
-    ``encode_descriptors``, so a pipeline describes each frame once, fits on the
-    traverse's descriptors and keeps them for ``seqslam-desc`` or ``pairwise``
-    on descriptors.
+    A pipeline describes each frame once, fits on the traverse's descriptors
+    and keeps them for ``seqslam-desc`` or ``pairwise`` on descriptors. Each
+    part's block of the joined descriptor has its own statistics.
     """
 
     @property
@@ -260,11 +258,31 @@ class DescribedJoinedEncoder(JoinedEncoder):
             e.fit_descriptors(block)
         return self
 
-    def encode_descriptors(self, desc) -> sp.csr_matrix:
-        """Joined SDR batch from a joined descriptor, without recomputing the descriptors."""
+    def encode_descriptors(self, desc, statistics: list | None = None) -> sp.csr_matrix:
+        """Joined SDR batch from a joined descriptor, without recomputing the descriptors.
+
+        ``statistics``: one (mean, std) per part, overriding the fitted ones for this call.
+        """
         blocks = self.split_descriptors(desc)
-        return sp.hstack([e.encode_descriptors(b) for e, b in zip(self.encoders, blocks, strict=True)],
+        if statistics is not None and len(statistics) != len(blocks):
+            raise ValueError(f"{self.name}: expected the statistics of {len(blocks)} parts, got {len(statistics)}")
+        stats = [None] * len(blocks) if statistics is None else [[s] for s in statistics]
+        return sp.hstack([e.encode_descriptors(b, st) for e, b, st in zip(self.encoders, blocks, stats, strict=True)],
                          format="csr", dtype=bool)
+
+    def blocks(self, desc) -> list[np.ndarray]:
+        return self.split_descriptors(desc)
+
+    def statistics(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        parts = [e.statistics() for e in self.encoders]
+        return [s for p in parts for s in p] if all(parts) else []
+
+    def set_statistics(self, stats: list) -> DescribedJoinedEncoder:
+        if len(stats) != len(self.encoders):
+            raise ValueError(f"{self.name}: expected the statistics of {len(self.encoders)} parts, got {len(stats)}")
+        for e, st in zip(self.encoders, stats, strict=True):
+            e.set_statistics([st])
+        return self
 
     def fit(self, images) -> DescribedJoinedEncoder:
         """Fit every part on ``images``, describing them once. Returns self."""

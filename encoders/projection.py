@@ -27,6 +27,10 @@ Standardisation (``standardise``):
   loops``): a fit on the whole stream mixes the conditions, a sliding window
   follows them, and only the past counts.
 
+Encoding one frame at a time (:mod:`encoders.stream`, ``vpr localize``) uses
+:class:`RunningStandardiser`: the statistics of a sliding window of the frames
+so far, with the fitted statistics as a prior.
+
 The registered ``projection`` encoder wraps a descriptor by name:
 ``descriptor="pixel"`` (SeqSLAM patch-normalised thumbnail), ``"hog"``
 (scikit-image HOG) or ``"cnn"`` (pooled ONNX CNN features); ``descriptor_conf``
@@ -43,13 +47,12 @@ from vpr import sdr
 from vpr.config import merge_conf
 from vpr.imageproc import resize, to_grey
 
-from .base import BaseEncoder, as_image_list, check_descriptors
+from .base import DescriptorEncoder, as_image_list, check_descriptors
 
-__all__ = ["TopKProjection", "ProjectedEncoder", "ProjectionEncoder", "HogDescriptor"]
+__all__ = ["TopKProjection", "ProjectedEncoder", "ProjectionEncoder", "HogDescriptor", "RunningStandardiser"]
 
 _STANDARDISE = ("none", "fit", "per_batch", "causal")
-#: Frames in the sliding window of ``standardise="causal"`` (Nordland summer+winter loops: 50 -> AP 0.91,
-#: 100 -> 0.92, whole stream 0.71; docs/localize.md).
+#: Frames in the sliding window of ``standardise="causal"`` (chosen in docs/localize.md).
 CAUSAL_WINDOW = 100
 #: Frames the window needs before it is used (earlier frames share the statistics of the first ones).
 CAUSAL_MIN = 10
@@ -126,15 +129,22 @@ class TopKProjection:
         self.mean_, self.std_ = self._stats(d)
         return self
 
-    def standardised(self, desc) -> np.ndarray:
-        """The descriptors after the configured standardisation (float32)."""
+    def standardised(self, desc, stats: tuple | None = None) -> np.ndarray:
+        """The descriptors after the configured standardisation (float32).
+
+        ``stats``: a (mean, std) pair to use instead of the fitted one (for
+        ``standardise="fit"``; see :class:`RunningStandardiser`).
+        """
         d = check_descriptors(desc)
         if self.standardise == "fit":
-            if self.mean_ is None:
+            mean, std = (self.mean_, self.std_) if stats is None else stats
+            if mean is None:
                 raise ValueError("standardise='fit' but the encoder was not fitted: call fit() first")
-            if d.shape[1] != self.mean_.size:
-                raise ValueError(f"descriptors: fitted on {self.mean_.size} dims, got {d.shape[1]}")
-            return (d - self.mean_) / self.std_
+            if d.shape[1] != mean.size:
+                raise ValueError(f"descriptors: fitted on {mean.size} dims, got {d.shape[1]}")
+            return (d - mean) / std
+        if stats is not None:
+            raise ValueError(f"statistics are only used with standardise='fit', not {self.standardise!r}")
         if self.standardise == "per_batch":
             if d.shape[0] < 2:
                 raise ValueError(f"descriptors: standardise='per_batch' needs at least 2 frames, "
@@ -145,18 +155,18 @@ class TopKProjection:
             return _causal_standardised(d)
         return d
 
-    def project(self, desc) -> np.ndarray:
+    def project(self, desc, stats: tuple | None = None) -> np.ndarray:
         """Projections (frames, n_bits or n_bits/2), float32."""
-        d = self.standardised(desc)
+        d = self.standardised(desc, stats)
         return d @ self.matrix(d.shape[1])
 
-    def __call__(self, desc) -> sp.csr_matrix:
-        """SDR batch with exactly ``k`` bits per row.
+    def __call__(self, desc, stats: tuple | None = None) -> sp.csr_matrix:
+        """SDR batch with exactly ``k`` bits per row (``stats``: see :meth:`standardised`).
 
         Ties (e.g. an all-zero descriptor) go to the lower bit index, so the
         result is deterministic.
         """
-        p = self.project(desc)
+        p = self.project(desc, stats)
         if not self.two_sided:
             return sdr.from_topk(p, self.k)
         half = p.shape[1]
@@ -182,7 +192,69 @@ def _causal_standardised(d: np.ndarray) -> np.ndarray:
     return ((x - mean) / std).astype(np.float32)
 
 
-class ProjectedEncoder(BaseEncoder):
+class RunningStandardiser:
+    """Per-dimension mean and std of the frames seen so far, for encoding one frame at a time.
+
+    The statistics are those of the last ``window`` frames (all frames so far
+    when ``window`` is None) plus fitted statistics counted as
+    ``prior_frames`` frames, so the first frames are standardised sensibly and
+    the statistics follow a change of condition. Dimensions with no spread in
+    the fitted statistics stay ignored (std ``inf``), as in a batch fit.
+
+    Parameters
+    ----------
+    mean, std : float arrays (dims,)
+        The fitted statistics (the prior).
+    prior_frames : float > 0
+    window : int >= 2 or None
+    """
+
+    def __init__(self, mean, std, prior_frames: float = 10.0, window: int | None = 50):
+        if not prior_frames > 0:
+            raise ValueError(f"prior_frames must be > 0, got {prior_frames}")
+        if window is not None and int(window) < 2:
+            raise ValueError(f"window must be at least 2 frames, got {window}")
+        self.window = None if window is None else int(window)
+        self._prior_std = np.asarray(std, np.float64)
+        m = np.asarray(mean, np.float64)
+        self.n = float(prior_frames)
+        self.sum = prior_frames * m
+        self.sq = prior_frames * (np.where(np.isfinite(self._prior_std), self._prior_std, 0.0) ** 2 + m ** 2)
+        self.recent: list[np.ndarray] = []
+
+    def update(self, x) -> tuple[np.ndarray, np.ndarray]:
+        """Add one frame's descriptor block ``x`` (dims,); return the (mean, std) to standardise it with."""
+        x = np.asarray(x, np.float64).ravel()
+        self.n += 1.0
+        if self.window is not None:
+            self.recent.append(x)
+            if len(self.recent) > self.window:  # a sliding window: the oldest frame leaves the sums
+                old = self.recent.pop(0)
+                self.n -= 1.0
+                self.sum -= old
+                self.sq -= old * old
+        self.sum += x
+        self.sq += x * x
+        mean = self.sum / self.n
+        std = np.sqrt(np.maximum(self.sq / self.n - mean ** 2, 0.0))
+        std = np.where(np.isfinite(self._prior_std) & (std >= 1e-6), std, np.inf)
+        return mean.astype(np.float32), std.astype(np.float32)
+
+    def state(self) -> dict:
+        """The running sums as arrays (a restart continues them with :meth:`load_state`)."""
+        out = {"n": np.array(self.n), "sum": self.sum, "sq": self.sq}
+        if self.recent:
+            out["recent"] = np.stack(self.recent)
+        return out
+
+    def load_state(self, state: dict) -> RunningStandardiser:
+        self.n = float(state["n"])
+        self.sum, self.sq = np.asarray(state["sum"], np.float64), np.asarray(state["sq"], np.float64)
+        self.recent = list(np.asarray(state["recent"], np.float64)) if "recent" in state else []
+        return self
+
+
+class ProjectedEncoder(DescriptorEncoder):
     """Base of encoders whose SDR is the :class:`TopKProjection` of a dense descriptor.
 
     Subclasses implement :meth:`describe`; :meth:`encode` is
@@ -209,22 +281,25 @@ class ProjectedEncoder(BaseEncoder):
     def describe(self, images) -> np.ndarray:
         raise NotImplementedError
 
-    def fit(self, images) -> ProjectedEncoder:
-        """Learn the standardisation statistics from ``images`` (used by ``standardise="fit"``)."""
-        self.projection.fit(self.describe(images))
-        return self
-
     def fit_descriptors(self, desc) -> ProjectedEncoder:
         """As :meth:`fit`, from precomputed descriptors."""
         self.projection.fit(desc)
         return self
 
-    def encode_descriptors(self, desc) -> sp.csr_matrix:
+    def encode_descriptors(self, desc, statistics: list | None = None) -> sp.csr_matrix:
         """Sparsify precomputed dense descriptors (frames, dims) without recomputing them."""
-        return self.projection(desc)
+        return self.projection(desc, None if statistics is None else statistics[0])
 
-    def encode(self, images) -> sp.csr_matrix:
-        return self.encode_descriptors(self.describe(images))
+    def statistics(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        p = self.projection
+        return [] if p.mean_ is None else [(p.mean_, p.std_)]
+
+    def set_statistics(self, stats: list) -> ProjectedEncoder:
+        if len(stats) != 1:
+            raise ValueError(f"{self.name}: expected the statistics of 1 block, got {len(stats)}")
+        mean, std = stats[0]
+        self.projection.mean_, self.projection.std_ = np.asarray(mean, np.float32), np.asarray(std, np.float32)
+        return self
 
 
 class HogDescriptor:

@@ -124,11 +124,9 @@ def main(argv=None) -> int:
         command = f"vpr {args.command}"
         if hasattr(args, "no_progress") and not sys.stderr.isatty():
             args.no_progress = True  # bars redrawn into a log file are noise
-        from vpr.memory import MemoryFileError  # numba: slow; only after the arguments parsed
-
         try:
             return int(importlib.import_module(table[args.command][0]).run_command(args) or 0)
-        except (ValueError, MemoryFileError) as e:
+        except ValueError as e:  # bad input, including vpr.shosm.MemoryFileError
             print(f"{command}: error: {' '.join(str(e).split())}", file=sys.stderr)
             return 2
         except BrokenPipeError:

@@ -17,8 +17,10 @@ import json
 import time
 from pathlib import Path
 
-from pipelines import match
+from pipelines.args import add_common_arguments, add_preset_argument, method_confs
+from pipelines.outputs import metrics_table
 from pipelines.render import parse_size
+from pipelines.runs import RunOptions, run_compare
 from vpr import io, presets, render
 from vpr.config import parse_key_values
 from vpr.groundtruth import GroundTruthSpec
@@ -38,7 +40,7 @@ DEFAULTS = {"scene": "two_seasons", "preset": presets.DEFAULT, "radius": 3.0, "s
 def add_arguments(ap: argparse.ArgumentParser, command: str = "demo") -> None:
     ap.add_argument("--out", required=True, help="output folder")
     ap.add_argument("--scene", default=DEFAULTS["scene"], help="builtin scene or spec file (default two_seasons)")
-    match.add_preset_argument(ap)
+    add_preset_argument(ap)
     ap.add_argument("--encoder", help="encoder (default: the preset's)")
     ap.add_argument("--encoder-conf", action="append", metavar="KEY=VALUE",
                     help="encoder option, repeatable, merged over the preset's conf of the same encoder")
@@ -53,7 +55,7 @@ def add_arguments(ap: argparse.ArgumentParser, command: str = "demo") -> None:
                          f"{', '.join(DEFAULTS['verify_methods'])} (default {DEFAULTS['verify']}; 0 = off)")
     ap.add_argument("--size", type=parse_size, metavar="WxH", help="render size override (default: the scene's)")
     ap.add_argument("--frames", type=int, help="frames per traverse override (for a quick run)")
-    ap.add_argument("--no-progress", action="store_true")
+    add_common_arguments(ap)
 
 
 def render_once(scene, out: Path, size=None, n_frames=None, progress=True) -> dict:
@@ -81,7 +83,7 @@ def run_demo(out, scene=DEFAULTS["scene"], preset=DEFAULTS["preset"], encoder=No
 
     ``encoder_conf`` (dict, default ``DEFAULTS["encoder_conf"]``) and
     ``method_conf`` (method -> dict) values may be strings; ``methods`` is a
-    comma-separated string or a list. Returns :func:`pipelines.match.run_compare`'s report.
+    comma-separated string or a list. Returns :func:`pipelines.runs.run_compare`'s report.
     """
     out = Path(out)
     if isinstance(methods, str):
@@ -95,14 +97,14 @@ def run_demo(out, scene=DEFAULTS["scene"], preset=DEFAULTS["preset"], encoder=No
     if len(names) < 2:
         raise ValueError(f"scene {scene!r} has {len(names)} traverse(s); the demo needs two")
     db, query = (rendered["traverses"][n]["folder"] for n in names[:2])
-    opts = match.RunOptions(out=out, preset=s["preset"], encoder=encoder, encoder_conf=s["encoder_conf"],
+    opts = RunOptions(out=out, preset=s["preset"], encoder=encoder, encoder_conf=s["encoder_conf"],
                             method_conf=s["method_conf"],
                             gt=GroundTruthSpec(files=(rendered["ground_truth"],), radius=radius, soft=soft_radius),
                             verify=verify, progress=progress,
                             verify_methods=tuple(m for m in DEFAULTS["verify_methods"] if m in methods) or None,
                             verify_conf=dict(DEFAULTS["verify_conf"]))
     t_render = time.perf_counter() - t0
-    report = match.run_compare(db, query, methods, opts, command="demo")
+    report = run_compare(db, query, methods, opts, command="demo")
     ms = report["methods"]
     t_verify = sum(v["seconds"] - ms[k[:-len("+verify")]]["seconds"] for k, v in ms.items() if k.endswith("+verify"))
     t_methods = sum(v["seconds"] for k, v in ms.items() if not k.endswith("+verify"))
@@ -112,7 +114,7 @@ def run_demo(out, scene=DEFAULTS["scene"], preset=DEFAULTS["preset"], encoder=No
     print(f"database: {names[0]} ({report['params']['n_db']} frames), query: {names[1]} "
           f"({report['params']['n_query']} frames), encoder {encoder}, ground truth: within "
           f"{radius:g} m (pairs within {soft_radius:g} m ignored)")
-    print(match.metrics_table(report["methods"]))
+    print(metrics_table(report["methods"]))
     if verify:
         print(f"'+verify': each query's {verify} best candidates re-ordered by ORB + pycolmap RANSAC inliers "
               f"(other pairs keep their scores, so AP compares); P(acc) = precision of the accepted best matches")
@@ -124,7 +126,7 @@ def run_demo(out, scene=DEFAULTS["scene"], preset=DEFAULTS["preset"], encoder=No
 def run_command(args) -> int:
     run_demo(args.out, scene=args.scene, preset=args.preset, encoder=args.encoder,
              encoder_conf=None if args.encoder_conf is None else parse_key_values(args.encoder_conf, "--encoder-conf"),
-             methods=args.methods, method_conf=match.method_confs(args.method_conf), radius=args.radius,
+             methods=args.methods, method_conf=method_confs(args.method_conf), radius=args.radius,
              soft_radius=args.soft_radius, verify=args.verify, size=args.size, n_frames=args.frames,
              progress=not args.no_progress)
     return 0

@@ -29,15 +29,16 @@ import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from pipelines.args import add_common_arguments, add_preset_argument, add_source_arguments
 from pipelines.extract import (
     DEFAULT_CHUNK_FRAMES,
-    PARTS,
-    _check_parts,
-    _held,
     assemble,
+    available_inputs,
     cache_path,
+    check_inputs,
     chunk_ranges,
     encode_chunk,
+    held_inputs,
     load_cache,
     save_cache,
 )
@@ -115,7 +116,7 @@ def _check_workers(workers, scheduler) -> int | None:
 
 def encode_sources(sources, cache_dir, encoder_name: str = "pixel", encoder_conf: dict | None = None,
                    workers: int | None = None, scheduler: str | None = None,
-                   chunk_frames: int = DEFAULT_CHUNK_FRAMES, parts=PARTS, overwrite: bool = False,
+                   chunk_frames: int = DEFAULT_CHUNK_FRAMES, parts=None, overwrite: bool = False,
                    batch_size: int = 64, progress=True) -> list[Encoded]:
     """Encode ``sources`` into ``cache_dir``, one cache file per source.
 
@@ -130,8 +131,9 @@ def encode_sources(sources, cache_dir, encoder_name: str = "pixel", encoder_conf
         process; None (default) is the number of cores. Not with ``scheduler``.
     scheduler : address of a running Dask scheduler (``tcp://host:port``).
     chunk_frames : frames per task.
-    parts : what to store, a subset of ``("sdr", "desc", "pixels")`` (default
-        all, so any later method finds what it needs).
+    parts : the inputs to store, a subset of :func:`pipelines.extract.available_inputs`
+        (default all: ``sdr``, ``desc`` and every method's image inputs, so any
+        later method finds what it needs).
     overwrite : encode again even when a cache file with these parts exists.
     batch_size : frames per encoder call inside a task.
     progress : True for a progress bar, False for none, or a callable receiving
@@ -149,9 +151,9 @@ def encode_sources(sources, cache_dir, encoder_name: str = "pixel", encoder_conf
     import encoders
 
     n_workers = _check_workers(workers, scheduler)
-    parts = _check_parts(parts)
+    parts = available_inputs() if parts is None else check_inputs(parts, "part")
     if not parts:
-        raise ValueError(f"parts is empty; choose from {', '.join(PARTS)}")
+        raise ValueError(f"parts is empty; choose from {', '.join(available_inputs())}")
     srcs = [s if isinstance(s, Source) else open_source(s) for s in sources]
     if not srcs:
         raise ValueError("no sources given")
@@ -165,7 +167,7 @@ def encode_sources(sources, cache_dir, encoder_name: str = "pixel", encoder_conf
     for i, src in enumerate(srcs):
         path = cache_path(cache_dir, src, encoder)
         hit = None if overwrite or not path.is_file() else load_cache(path)
-        if hit is not None and set(parts) <= set(_held(hit)):
+        if hit is not None and set(parts) <= set(held_inputs(hit)):
             results[i] = Encoded(str(src.path), path, len(hit.features), hit.skipped, True, 0.0)
             continue
         ranges = chunk_ranges(len(src.names()), chunk_frames)
@@ -256,13 +258,9 @@ def add_arguments(ap: argparse.ArgumentParser, command: str = "encode") -> None:
     ap.add_argument("--cache", required=True, metavar="DIR",
                     help="cache folder; give the same to match/compare/loops/localize --cache")
     # the preset's encoder unless --encoder is given, so that `vpr compare --cache DIR` with the same preset hits
-    ap.add_argument("--preset", default=presets.DEFAULT, choices=presets.available(),
-                    help=f"encoder and conf of this preset unless --encoder/--encoder-conf override them: "
-                         f"{presets.describe()} (default: {presets.DEFAULT})")
+    add_preset_argument(ap)
     encoders.add_arguments(ap, default=None)
-    ap.add_argument("--fps", type=float, help="videos: resample to this frame rate (as later for match)")
-    ap.add_argument("--step", type=int, help="keep every STEP-th frame (as later for match)")
-    ap.add_argument("--max-frames", type=int, help="read at most this many frames per source (as later for match)")
+    add_source_arguments(ap)  # as later for match: the frame selection is part of the cache key
     where = ap.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, metavar="N",
                        help=f"local Dask worker processes, 1 thread each (default: the number of cores, "
@@ -270,10 +268,10 @@ def add_arguments(ap: argparse.ArgumentParser, command: str = "encode") -> None:
     where.add_argument("--scheduler", metavar="ADDRESS", help="use a running Dask cluster, e.g. tcp://host:8786")
     ap.add_argument("--chunk-frames", type=int, default=DEFAULT_CHUNK_FRAMES,
                     help=f"frames per task (default {DEFAULT_CHUNK_FRAMES})")
-    ap.add_argument("--parts", default=",".join(PARTS),
-                    help=f"what to store, comma-separated subset of {','.join(PARTS)} (default: all)")
+    ap.add_argument("--parts", default=",".join(available_inputs()),
+                    help=f"what to store, comma-separated subset of {','.join(available_inputs())} (default: all)")
     ap.add_argument("--overwrite", action="store_true", help="encode again even when the cache has the result")
-    ap.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_common_arguments(ap)
 
 
 def run_command(args) -> int:

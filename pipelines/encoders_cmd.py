@@ -31,10 +31,11 @@ import numpy as np
 import scipy.sparse as sp
 
 import encoders
+from pipelines.args import add_common_arguments
 from vpr import evaluate, methods, render
 from vpr import io as _io
 from vpr.evaluate import recall_at_k
-from vpr.methods import EncodedTraverse
+from vpr.types import EncodedTraverse
 
 __all__ = ["COMMANDS", "EncoderTest", "add_arguments", "run_command", "list_encoders", "format_list",
            "test_encoder", "format_table"]
@@ -208,7 +209,7 @@ def _size(text: str) -> tuple[int, int]:
 def add_arguments(parser: argparse.ArgumentParser, command: str = "encoders") -> None:
     """Sub-commands ``list`` and ``test`` of ``vpr encoders``."""
     sub = parser.add_subparsers(dest="encoders_action", metavar="{list,test}", required=True)
-    sub.add_parser("list", help="registered encoders and their default confs")
+    add_common_arguments(sub.add_parser("list", help="registered encoders and their default confs"))
     p = sub.add_parser("test", help="score one encoder on the synthetic scenes (pairwise and rshosm-seq)",
                        description=__doc__.split("\n\n")[1])
     p.add_argument("--encoder", required=True, help=f"encoder name ({', '.join(encoders.available())})")
@@ -221,6 +222,7 @@ def add_arguments(parser: argparse.ArgumentParser, command: str = "encoders") ->
     p.add_argument("--frames", type=int, default=None, help="frames per traverse (default: the spec's)")
     p.add_argument("--radius", type=float, default=5.0, help="hard ground-truth radius in metres (default 5)")
     p.add_argument("--out", type=Path, required=True, help="output folder (metrics.json, metrics.png)")
+    add_common_arguments(p)
 
 
 def run_command(args) -> int:

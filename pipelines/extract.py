@@ -1,11 +1,13 @@
 """Encoding stage: stream a source through an encoder, with an on-disk cache.
 
 Frames are read in batches (never all images at once); what is kept per frame
-is only what the methods need: the SDR row, the encoder's dense descriptor,
-SeqSLAM's 64x32 patch-normalised pixels and, for geometric verification, a
-grey thumbnail. Results are cached in ``cache_dir`` (``vpr match --out DIR``
-uses ``DIR/cache``; ``vpr encode --cache DIR`` fills any folder ahead of time)
-in one file per source and encoder conf, so a second run with another method
+is only what the methods need, by name (:class:`vpr.types.EncodedTraverse`):
+``"sdr"`` and ``"desc"`` from the encoder, and every input a method computes
+from the images itself (a :class:`vpr.types.ImageInput` it declares, e.g.
+SeqSLAM's ``"pixels"``); for geometric verification also a grey thumbnail.
+Results are cached in ``cache_dir`` (``vpr match --out DIR`` uses
+``DIR/cache``; ``vpr encode --cache DIR`` fills any folder ahead of time) in
+one file per source and encoder conf, so a second run with another method
 skips encoding (as hloc's extractors skip work done).
 
 The work is split into frame ranges of the source (:func:`chunk_ranges`):
@@ -27,21 +29,35 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
-from vpr import imageproc, io
-from vpr.methods import EncodedTraverse
+from encoders.base import DescriptorEncoder
+from vpr import imageproc, io, methods
 from vpr.sources import Source
+from vpr.types import ENCODER_INPUTS, EncodedTraverse
 
 __all__ = ["Extracted", "Chunk", "extract", "cache_key", "cache_path", "chunk_ranges", "encode_chunk", "assemble",
-           "load_cache", "save_cache", "PARTS", "DEFAULT_CHUNK_FRAMES"]
+           "load_cache", "save_cache", "available_inputs", "check_inputs", "DEFAULT_CHUNK_FRAMES"]
 
-# v2: one file per source + encoder conf holding any subset of PARTS, no timings (byte-reproducible)
+# v2: one file per source + encoder conf holding any subset of the inputs, no timings (byte-reproducible)
 CACHE_VERSION = 2
 THUMB_MAX_SIDE = 640
-#: What a cache file can hold per frame: SDR rows, the encoder's dense descriptor, SeqSLAM pixels.
-PARTS = ("sdr", "desc", "pixels")
 #: Frames per unit of work. Part of what the cache bytes depend on only for encoders whose
 #: descriptor depends on the batch (e.g. cnn with batch_size > 1); all chunkings agree otherwise.
 DEFAULT_CHUNK_FRAMES = 256
+
+
+def available_inputs() -> tuple[str, ...]:
+    """Every input the extraction can provide: the encoder's, then each method's image inputs (sorted)."""
+    return (*ENCODER_INPUTS, *sorted(methods.image_inputs()))
+
+
+def check_inputs(inputs, what: str = "input") -> tuple[str, ...]:
+    """``inputs`` checked against :func:`available_inputs`, in that order (``what`` names them in the error)."""
+    inputs = tuple(inputs)
+    known = available_inputs()
+    bad = [p for p in inputs if p not in known]
+    if bad:
+        raise ValueError(f"unknown {what}(s) {bad}; available: {', '.join(known)}")
+    return tuple(p for p in known if p in inputs)
 
 
 @dataclass
@@ -59,8 +75,9 @@ class Extracted:
 class Chunk:
     """What one frame range of a source gives: the unit of (parallel) work.
 
-    ``sdr`` is only set for encoders without a dense descriptor; the others are
-    sparsified in :func:`assemble`, after fitting on the whole traverse.
+    ``arrays`` holds the dense inputs (the encoder's ``"desc"`` and the image
+    inputs); ``sdr`` is only set for encoders without a dense descriptor (the
+    others are sparsified in :func:`assemble`, after fitting on the whole traverse).
     """
 
     start: int
@@ -68,26 +85,9 @@ class Chunk:
     names: list
     indices: list
     skipped: list
-    desc: np.ndarray | None = None
+    arrays: dict = field(default_factory=dict)
     sdr: sp.csr_matrix | None = None
-    pixels: np.ndarray | None = None
     thumbs: list | None = None
-
-
-def _projected(encoder) -> bool:
-    return hasattr(encoder, "encode_descriptors") and hasattr(encoder, "fit_descriptors")
-
-
-def _check_parts(parts) -> tuple[str, ...]:
-    parts = tuple(parts)
-    bad = [p for p in parts if p not in PARTS]
-    if bad:
-        raise ValueError(f"unknown part(s) {bad}; available: {', '.join(PARTS)}")
-    return tuple(p for p in PARTS if p in parts)
-
-
-def _needs(need_sdr: bool, need_desc: bool, need_pixels: bool) -> tuple[str, ...]:
-    return tuple(p for p, need in zip(PARTS, (need_sdr, need_desc, need_pixels), strict=True) if need)
 
 
 def cache_key(source: Source, encoder) -> str:
@@ -115,39 +115,42 @@ def _thumb(im: np.ndarray) -> np.ndarray:
     return imageproc.resize(g, (round(g.shape[1] * s), round(g.shape[0] * s))) if s < 1 else g
 
 
-def encode_chunk(source: Source, encoder, start: int, stop: int, parts=PARTS, thumbs: bool = False,
+def encode_chunk(source: Source, encoder, start: int, stop: int, inputs=("sdr",), thumbs: bool = False,
                  batch_size: int = 64, on_batch=None) -> Chunk:
     """Read and describe the frames at positions ``start:stop`` of ``source``.
 
     Parameters
     ----------
     encoder : an encoder from :func:`encoders.get` (not fitted: fitting needs the whole traverse)
-    parts : subset of :data:`PARTS` to compute.
+    inputs : names of the inputs to compute (:func:`available_inputs`).
     thumbs : keep grey thumbnails (longest side <= 640 px).
     batch_size : frames passed to the encoder at once.
     on_batch : optional callable(n_frames) after each batch (progress).
     """
-    parts = _check_parts(parts)
+    inputs = check_inputs(inputs)
     if isinstance(batch_size, bool) or not isinstance(batch_size, (int, np.integer)) or batch_size < 1:
         raise ValueError(f"batch_size must be a positive integer, got {batch_size!r}")
-    projected = _projected(encoder)
-    need_sdr, need_desc, need_pixels = (p in parts for p in PARTS)
-    names, indices, sdr_rows, descs, pixels, small = [], [], [], [], [], []
+    described = isinstance(encoder, DescriptorEncoder)
+    image_inputs = methods.image_inputs()
+    need_desc = "desc" in inputs or ("sdr" in inputs and described)
+    dense = [p for p in inputs if p not in ENCODER_INPUTS]
+    names, indices, sdr_rows, small = [], [], [], []
+    blocks: dict[str, list] = {p: [] for p in (["desc"] if need_desc else []) + dense}
 
     def flush(batch):
         images = [f.image for f in batch]
-        if need_desc or (need_sdr and projected):
+        if need_desc:
             try:
                 d = encoder.describe(images)
             except NotImplementedError as e:  # the base class's "no dense descriptor"
                 raise ValueError(f"a method needs dense descriptors (e.g. seqslam-desc), but {e}; "
                                  "choose an encoder with one (pixel, projection, cnn, orb)") from e
-            descs.append(np.asarray(d, dtype=np.float32))
-        if need_sdr and not projected:
+            blocks["desc"].append(np.asarray(d, dtype=np.float32))
+        if "sdr" in inputs and not described:
             sdr_rows.append(sp.csr_matrix(encoder.encode(images)))
-        if need_pixels:
-            pixels.append(np.stack([imageproc.seqslam_preprocess(im, name=f.name).ravel()
-                                    for im, f in zip(images, batch, strict=True)]).astype(np.float32))
+        for p in dense:
+            name = f"{source.path}: frames {batch[0].name}..{batch[-1].name}"
+            blocks[p].append(np.asarray(image_inputs[p].compute(images, name), np.float32))
         if thumbs:
             small.extend(_thumb(im) for im in images)
         if on_batch is not None:
@@ -164,26 +167,24 @@ def encode_chunk(source: Source, encoder, start: int, stop: int, parts=PARTS, th
     if batch:
         flush(batch)
     return Chunk(start, stop, names, indices, [tuple(s) for s in source.skipped],
-                 desc=np.concatenate(descs) if descs else None,
-                 sdr=sp.vstack(sdr_rows).tocsr() if sdr_rows else None,
-                 pixels=np.concatenate(pixels) if pixels else None,
-                 thumbs=small if thumbs else None)
+                 arrays={p: np.concatenate(b) for p, b in blocks.items() if b},
+                 sdr=sp.vstack(sdr_rows).tocsr() if sdr_rows else None, thumbs=small if thumbs else None)
 
 
-def assemble(source: Source, encoder, chunks, parts=PARTS) -> Extracted:
+def assemble(source: Source, encoder, chunks, inputs=("sdr",)) -> Extracted:
     """Join ``chunks`` (in frame order) into one encoded traverse; fit the encoder where its conf asks.
 
-    Encoders built on a dense descriptor (``encode_descriptors``) are fitted on
-    the whole traverse when their conf asks for it (``standardise="fit"``): the
-    descriptors of all chunks are joined first, then standardised and
-    sparsified together.
+    Encoders built on a dense descriptor (:class:`encoders.base.DescriptorEncoder`)
+    are fitted on the whole traverse when their conf asks for it
+    (``standardise="fit"``): the descriptors of all chunks are joined first,
+    then standardised and sparsified together.
 
     Raises
     ------
     ValueError
         No readable frame in the whole source.
     """
-    parts = _check_parts(parts)
+    inputs = check_inputs(inputs)
     chunks = sorted(chunks, key=lambda c: c.start)
     names = [n for c in chunks for n in c.names]
     skipped = [s for c in chunks for s in c.skipped]
@@ -193,22 +194,16 @@ def assemble(source: Source, encoder, chunks, parts=PARTS) -> Extracted:
             msg += f" ({len(skipped)} skipped; first: {skipped[0][0]}: {skipped[0][1]})"
         raise ValueError(msg)
     full = [c for c in chunks if c.names]  # chunks with every frame skipped carry no arrays
-
-    def joined(attr):
-        arrays = [getattr(c, attr) for c in full]
-        return np.concatenate(arrays) if arrays and arrays[0] is not None else None
-
-    desc, pixels = joined("desc"), joined("pixels")
+    arrays = {p: np.concatenate([c.arrays[p] for c in full]) for p in full[0].arrays}
     sdr = None
-    if "sdr" in parts:
-        if _projected(encoder):
+    if "sdr" in inputs:
+        if isinstance(encoder, DescriptorEncoder):
             if encoder.conf.get("standardise") == "fit":
-                encoder.fit_descriptors(desc)
-            sdr = sp.csr_matrix(encoder.encode_descriptors(desc))
+                encoder.fit_descriptors(arrays["desc"])
+            sdr = sp.csr_matrix(encoder.encode_descriptors(arrays["desc"]))
         else:
             sdr = sp.vstack([c.sdr for c in full]).tocsr()
-    feats = EncodedTraverse(names=names, sdr=sdr, desc=desc if "desc" in parts else None,
-                     pixels=pixels if "pixels" in parts else None)
+    feats = EncodedTraverse(names, sdr=sdr, **{p: a for p, a in arrays.items() if p in inputs})
     thumbs = [t for c in chunks for t in (c.thumbs or [])] if any(c.thumbs is not None for c in chunks) else None
     return Extracted(feats, skipped, source.ignored, 0.0, False, thumbs, [i for c in chunks for i in c.indices])
 
@@ -225,19 +220,18 @@ def _write_npz(fh, arrays: dict) -> None:
 def save_cache(path, ex: Extracted, source: Source, encoder) -> Path:
     """Write ``ex`` (without thumbnails) atomically; equal content gives equal bytes."""
     f = ex.features
-    held = [p for p, a in zip(PARTS, (f.sdr, f.desc, f.pixels), strict=True) if a is not None]
+    held = [p for p in available_inputs() if p in f.inputs]
     meta = {"version": CACHE_VERSION, "parts": held, "skipped": ex.skipped, "ignored": ex.ignored,
             "source": str(source.path), "source_key": source.key(), "encoder": encoder.name, "conf": encoder.conf}
     arrays = {"names": np.array(f.names, dtype=str), "indices": np.array(ex.indices or [], dtype=np.int64),
               "meta": np.array(json.dumps(meta, sort_keys=True, default=str))}
-    if f.sdr is not None:
-        s = sp.csr_matrix(f.sdr)
-        arrays.update(sdr_indptr=s.indptr.astype(np.int64), sdr_indices=s.indices.astype(np.int32),
-                      sdr_shape=np.array(s.shape, dtype=np.int64))
-    if f.desc is not None:
-        arrays["desc"] = np.asarray(f.desc, np.float32)
-    if f.pixels is not None:
-        arrays["pixels"] = np.asarray(f.pixels, np.float32)
+    for p in held:
+        if p == "sdr":
+            s = sp.csr_matrix(f.sdr)
+            arrays.update(sdr_indptr=s.indptr.astype(np.int64), sdr_indices=s.indices.astype(np.int32),
+                          sdr_shape=np.array(s.shape, dtype=np.int64))
+        else:
+            arrays[p] = np.asarray(f.inputs[p], np.float32)
     with io.atomic_path(path, suffix=".npz") as tmp:
         with open(tmp, "wb") as fh:
             _write_npz(fh, arrays)
@@ -252,43 +246,39 @@ def load_cache(path) -> Extracted | None:
         meta = json.loads(str(d["meta"]))
         if meta.get("version") != CACHE_VERSION:
             return None
-        sdr = None
-        if "sdr_indptr" in d:
-            idx = d["sdr_indices"]
-            sdr = sp.csr_matrix((np.ones(idx.size, bool), idx, d["sdr_indptr"]), shape=tuple(d["sdr_shape"]))
-        feats = EncodedTraverse(names=d["names"].tolist(), sdr=sdr, desc=d.get("desc"), pixels=d.get("pixels"))
+        held = {}
+        for p in meta["parts"]:
+            if p == "sdr":
+                idx = d["sdr_indices"]
+                held[p] = sp.csr_matrix((np.ones(idx.size, bool), idx, d["sdr_indptr"]), shape=tuple(d["sdr_shape"]))
+            else:
+                held[p] = d[p]
+        feats = EncodedTraverse(d["names"].tolist(), **held)
         return Extracted(feats, [tuple(s) for s in meta["skipped"]], meta["ignored"], 0.0, True,
                          indices=d["indices"].tolist())
     except Exception:  # a damaged cache is recomputed, never trusted
         return None
 
 
-def _held(ex: Extracted) -> tuple[str, ...]:
-    f = ex.features
-    return tuple(p for p, a in zip(PARTS, (f.sdr, f.desc, f.pixels), strict=True) if a is not None)
+def held_inputs(ex: Extracted) -> tuple[str, ...]:
+    """The inputs an extraction (or a cache file) holds."""
+    return tuple(p for p in available_inputs() if p in ex.features.inputs)
 
 
-def _only(ex: Extracted, parts) -> Extracted:
-    """``ex`` with the parts not asked for dropped (a cache may hold more)."""
-    f = ex.features
-    ex.features = EncodedTraverse(f.names, f.sdr if "sdr" in parts else None, f.desc if "desc" in parts else None,
-                           f.pixels if "pixels" in parts else None)
-    return ex
-
-
-def extract(source: Source, encoder, need_sdr=True, need_desc=False, need_pixels=False, thumbs=False,
-            cache_dir=None, batch_size=64, progress=True, chunk_frames=DEFAULT_CHUNK_FRAMES) -> Extracted:
+def extract(source: Source, encoder, inputs=("sdr",), thumbs=False, cache_dir=None, batch_size=64, progress=True,
+            chunk_frames=DEFAULT_CHUNK_FRAMES) -> Extracted:
     """Encode every readable frame of ``source``, or read it from the cache.
 
     Parameters
     ----------
     encoder : an encoder from :func:`encoders.get`
-    need_sdr, need_desc, need_pixels : what to compute (SDRs, the encoder's dense
-        descriptor, SeqSLAM's patch-normalised 64x32 pixels).
+    inputs : names of what to compute: ``"sdr"``, ``"desc"`` (the encoder's dense
+        descriptor) and any image input of a method (:func:`available_inputs`;
+        e.g. the union of the methods' ``required_inputs``).
     thumbs : keep grey thumbnails (longest side <= 640 px) for geometric verification;
         they are not cached (a cache hit reads the frames again for them only).
     cache_dir : folder of the cache (e.g. one filled by ``vpr encode --cache DIR``), or None.
-        A cache file holding more parts than asked for is used; one holding fewer
+        A cache file holding more inputs than asked for is used; one holding fewer
         is recomputed with the union of both and replaced.
     chunk_frames : frames per unit of work (see :data:`DEFAULT_CHUNK_FRAMES`).
 
@@ -298,11 +288,11 @@ def extract(source: Source, encoder, need_sdr=True, need_desc=False, need_pixels
     """
     from tqdm import tqdm
 
-    parts = _needs(need_sdr, need_desc, need_pixels)
+    inputs = check_inputs(inputs)
     t = time.perf_counter()
     path = cache_path(cache_dir, source, encoder) if cache_dir is not None else None
     hit = load_cache(path) if path is not None and path.is_file() else None
-    if hit is not None and set(parts) <= set(_held(hit)):
+    if hit is not None and set(inputs) <= set(held_inputs(hit)):
         if thumbs:
             chunks = [encode_chunk(source, encoder, a, b, (), thumbs=True, batch_size=batch_size)
                       for a, b in chunk_ranges(len(source.names()), chunk_frames)]
@@ -311,9 +301,9 @@ def extract(source: Source, encoder, need_sdr=True, need_desc=False, need_pixels
                                  "delete it and run again")
             hit.thumbs = [t for c in chunks for t in c.thumbs]
         hit.seconds = time.perf_counter() - t
-        return _only(hit, parts)
-    stored = _held(hit) if hit is not None else ()
-    todo = tuple(p for p in PARTS if p in parts or p in stored)
+        hit.features = hit.features.only(inputs)
+        return hit
+    todo = check_inputs(set(inputs) | set(held_inputs(hit) if hit is not None else ()))
     total = len(source.names())
     with tqdm(total=total, desc=f"encode {source.name}", unit="frame", disable=not progress, leave=False) as bar:
         chunks = [encode_chunk(source, encoder, a, b, todo, thumbs=thumbs, batch_size=batch_size,
@@ -323,4 +313,5 @@ def extract(source: Source, encoder, need_sdr=True, need_desc=False, need_pixels
     if path is not None:
         save_cache(path, ex, source, encoder)
     ex.seconds = time.perf_counter() - t
-    return _only(ex, parts)
+    ex.features = ex.features.only(inputs)
+    return ex

@@ -21,10 +21,10 @@ Query standardisation (encoders with ``standardise=fit``): the batch commands
 standardise the query traverse on its own frames, which needs the whole
 traverse. Online that is impossible, so ``--query-standardise`` chooses
 ``running`` (default: per-dimension mean and variance of the last ``--window``
-query frames, default 50, plus the database's statistics with the weight of
-``--prior-frames`` frames, default 10) or ``db`` (the database's statistics, fixed).
-The state of the running statistics is kept in ``--state-out`` files.
-Measured on Nordland, see ``docs/localize.md``.
+query frames plus the database's statistics with the weight of
+``--prior-frames`` frames) or ``db`` (the database's statistics, fixed); see
+:class:`encoders.stream.StreamEncoder`. The state of the running statistics is
+kept in ``--state-out`` files. Measured on Nordland, see ``docs/localize.md``.
 """
 from __future__ import annotations
 
@@ -40,17 +40,25 @@ import numpy as np
 import scipy.sparse as sp
 
 import encoders
+from encoders.base import DescriptorEncoder
+from encoders.stream import StreamEncoder
+from pipelines.args import (
+    add_common_arguments,
+    add_gt_arguments,
+    add_preset_argument,
+    add_source_arguments,
+    gt_spec_from_args,
+)
 from pipelines.extract import extract
-from pipelines.match import _add_source_args, add_preset_argument, method_metrics, versions
+from pipelines.outputs import method_metrics, versions
 from vpr import io, presets
 from vpr.config import parse_key_values
 from vpr.groundtruth import GroundTruthSpec, build_gt
-from vpr.localize import Localizer
-from vpr.memory import MemoryFileError
-from vpr.methods import MatchResult
-from vpr.sources import _decode_image, open_source
+from vpr.shosm import Localizer, MemoryFileError
+from vpr.sources import decode_image, open_source
+from vpr.types import MatchResult
 
-__all__ = ["COMMANDS", "add_arguments", "run_command", "learn", "load_map", "localize", "QueryEncoder"]
+__all__ = ["COMMANDS", "add_arguments", "run_command", "learn", "load_map", "localize"]
 
 COMMANDS = {
     "learn": "learn a database traverse once and write a map file for `vpr localize`",
@@ -58,104 +66,6 @@ COMMANDS = {
 }
 
 _MAP_FORMAT = "vpr-map"
-
-
-# ------------------------------------------------------------------ encoder state
-def _projections(encoder) -> list:
-    """The encoder's TopKProjection objects (the parts of a joined encoder in order)."""
-    if hasattr(encoder, "projection"):
-        return [encoder.projection]
-    return [p for e in getattr(encoder, "encoders", []) for p in _projections(e)]
-
-
-def _fitted(encoder) -> bool:
-    return encoder.conf.get("standardise") == "fit"
-
-
-class QueryEncoder:
-    """Encode one query frame at a time with the database's encoder.
-
-    ``standardise``: ``"running"`` (causal statistics of the last ``window``
-    query frames, or of all so far when ``window`` is None, plus the
-    database's with the weight of ``prior_frames`` frames) or ``"db"`` (the
-    database's, fixed). Only used when the encoder was fitted (``standardise=fit``).
-    """
-
-    def __init__(self, encoder, db_stats: list | None, standardise: str = "running", prior_frames: float = 10.0,
-                 window: int | None = None):
-        if standardise not in ("running", "db"):
-            raise ValueError(f"--query-standardise must be 'running' or 'db', got {standardise!r}")
-        if encoder.conf.get("standardise") in ("per_batch", "causal"):
-            raise ValueError(f"encoders with standardise={encoder.conf['standardise']} cannot encode one frame at "
-                             "a time; learn the map with standardise=fit or none")
-        if not prior_frames > 0:
-            raise ValueError(f"--prior-frames must be > 0, got {prior_frames}")
-        if window is not None and int(window) < 2:
-            raise ValueError(f"--window must be at least 2 frames, got {window}")
-        self.window = None if window is None else int(window)
-        self._recent: list = []
-        self.encoder = encoder
-        self.projected = hasattr(encoder, "encode_descriptors")
-        self.fitted = _fitted(encoder) and self.projected
-        self.standardise = standardise
-        self.projs = _projections(encoder) if self.fitted else []
-        if self.fitted:
-            if db_stats is None or len(db_stats) != len(self.projs):
-                raise ValueError("the map has no fitted encoder statistics for its standardise=fit encoder")
-            for p, (mean, std) in zip(self.projs, db_stats, strict=True):
-                p.mean_, p.std_ = mean.astype(np.float32), std.astype(np.float32)
-            # running sums over (prior, frames): the database's statistics count as prior_frames frames
-            self._n = float(prior_frames)
-            self._db = [(m.astype(np.float64), s.astype(np.float64)) for m, s in db_stats]
-            self._sum = [prior_frames * m for m, _ in self._db]
-            self._sq = [prior_frames * (np.where(np.isfinite(s), s, 0.0) ** 2 + m ** 2) for m, s in self._db]
-
-    def state(self) -> dict:
-        """The running statistics as arrays (stored in ``--state-out`` files, so a restart continues them)."""
-        if not (self.fitted and self.standardise == "running"):
-            return {}
-        out = {"q_n": np.array(self._n)}
-        for i in range(len(self.projs)):
-            out[f"q_sum_{i}"], out[f"q_sq_{i}"] = self._sum[i], self._sq[i]
-            if self._recent:
-                out[f"q_recent_{i}"] = np.stack([xs[i] for xs in self._recent])
-        return out
-
-    def load_state(self, arrays: dict) -> None:
-        """Continue the running statistics of :meth:`state` (no-op when ``arrays`` holds none)."""
-        if not (self.fitted and self.standardise == "running") or "q_n" not in arrays:
-            return
-        self._n = float(arrays["q_n"])
-        for i in range(len(self.projs)):
-            self._sum[i], self._sq[i] = arrays[f"q_sum_{i}"].astype(np.float64), arrays[f"q_sq_{i}"].astype(np.float64)
-        recent = [arrays[f"q_recent_{i}"] for i in range(len(self.projs))] if "q_recent_0" in arrays else []
-        self._recent = [list(rows) for rows in zip(*recent, strict=True)] if recent else []
-
-    def encode(self, image) -> sp.csr_matrix:
-        if not self.projected:
-            return sp.csr_matrix(self.encoder.encode([image]))
-        desc = np.asarray(self.encoder.describe([image]), np.float32)
-        if self.fitted and self.standardise == "running":
-            blocks = self.encoder.split_descriptors(desc) if len(self.projs) > 1 else [desc]
-            self._n += 1.0
-            xs = [b[0].astype(np.float64) for b in blocks]
-            if self.window is not None:
-                self._recent.append(xs)
-                if len(self._recent) > self.window:  # a sliding window: the oldest frame leaves the sums
-                    old = self._recent.pop(0)
-                    self._n -= 1.0
-                    for i, o in enumerate(old):
-                        self._sum[i] -= o
-                        self._sq[i] -= o * o
-            for i, (p, x) in enumerate(zip(self.projs, xs, strict=True)):
-                self._sum[i] += x
-                self._sq[i] += x * x
-                mean = self._sum[i] / self._n
-                std = np.sqrt(np.maximum(self._sq[i] / self._n - mean ** 2, 0.0))
-                # dimensions constant in the database stay ignored (inf), as in the batch fit
-                std = np.where(np.isfinite(self._db[i][1]) & (std >= 1e-6), std, np.inf)
-                p.mean_, p.std_ = mean.astype(np.float32), std.astype(np.float32)
-        return sp.csr_matrix(self.encoder.encode_descriptors(desc))
 
 
 # ------------------------------------------------------------------ learn
@@ -168,12 +78,12 @@ def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, loc
         raise ValueError(f"encoders with standardise={enc.conf['standardise']} cannot encode one query frame at a "
                          "time; use standardise=fit (vpr localize then standardises the query causally, --window)")
     t = time.perf_counter()
-    ex = extract(src, enc, need_sdr=True, progress=progress)  # fits standardise=fit on the database
+    ex = extract(src, enc, ("sdr",), progress=progress)  # fits standardise=fit on the database
     t_enc = time.perf_counter() - t
     t = time.perf_counter()
     loc = Localizer.from_database(ex.features.sdr, ex.features.names, progress=progress, **(localizer_conf or {}))
-    stats = [(p.mean_, p.std_) for p in _projections(enc)] if _fitted(enc) and hasattr(enc, "encode_descriptors") \
-        else []
+    fitted = isinstance(enc, DescriptorEncoder) and enc.conf.get("standardise") == "fit"
+    stats = enc.statistics() if fitted else []
     loc.meta = {"format": _MAP_FORMAT, "encoder": enc.name, "encoder_conf": enc.conf, "db": str(db),
                 "db_source": src.name, "db_indices": list(ex.indices or []), "n_stats": len(stats),
                 "skipped": ex.skipped, "encode_seconds": t_enc, "learn_seconds": time.perf_counter() - t}
@@ -184,15 +94,16 @@ def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, loc
     return loc
 
 
-def load_map(path) -> tuple[Localizer, object, list | None]:
-    """(localizer, encoder, the database's fitted statistics or None) of a map written by :func:`learn`."""
+def load_map(path) -> tuple[Localizer, object]:
+    """(localizer, encoder with the database's fitted statistics) of a map written by :func:`learn`."""
     loc = Localizer.load(path)
     if loc.meta.get("format") != _MAP_FORMAT:
         raise MemoryFileError(f"{path}: a localizer file without an encoder: write maps with `vpr learn`")
     enc = encoders.get(loc.meta["encoder"], **loc.meta["encoder_conf"])
     n = int(loc.meta.get("n_stats", 0))
-    stats = [(loc.arrays[f"enc_mean_{i}"], loc.arrays[f"enc_std_{i}"]) for i in range(n)] if n else None
-    return loc, enc, stats
+    if n:
+        enc.set_statistics([(loc.arrays[f"enc_mean_{i}"], loc.arrays[f"enc_std_{i}"]) for i in range(n)])
+    return loc, enc
 
 
 # ------------------------------------------------------------------ localize
@@ -203,7 +114,7 @@ def _stdin_frames(stream):
         name = line.strip()
         if not name or name.startswith("#"):
             continue
-        img, reason = _decode_image(Path(name))
+        img, reason = decode_image(Path(name))
         if img is None:
             yield index, name, None, reason
         else:
@@ -230,7 +141,7 @@ def _latency(ms) -> dict:
 def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: str = "running",
              prior_frames: float = 10.0, window: int | None = 50, gt: GroundTruthSpec | None = None,
              learn_options: dict | None = None,
-             fps=None, step=None, max_frames=None, state_out=None) -> dict:
+             fps=None, step=None, max_frames=None, state_out=None, progress: bool = False) -> dict:
     """Localise every frame of ``query`` against a map (or a database learned first); return metrics.json's content.
 
     Parameters
@@ -239,27 +150,28 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
     query : folder, video, image list, or ``"-"`` (paths read from ``stdin``).
     out : output folder (matches.csv, metrics.json).
     stdout : where the JSON lines go (default ``sys.stdout``).
-    query_standardise, prior_frames, window : see :class:`QueryEncoder` (window None or 0: all frames so far).
+    query_standardise, prior_frames, window : see :class:`encoders.stream.StreamEncoder` (window None or 0: all
+        frames so far).
     gt : ground truth (as ``vpr match``), optional.
     state_out : optional path: the localizer with its streaming state after the last frame (a robot's restart file).
+    progress : progress bar while learning a database (``map_or_db`` a traverse).
     """
     stdout = sys.stdout if stdout is None else stdout
     out = Path(out)
     p = Path(map_or_db)
     if p.is_file() and p.suffix == ".npz":
-        loc, enc, stats = load_map(p)
+        loc, enc = load_map(p)
     else:
         lo = dict(learn_options or {})
         learn_to = out / "map.npz"
-        learn(map_or_db, learn_to, fps=fps, step=step, max_frames=max_frames, progress=False, **lo)
-        loc, enc, stats = load_map(learn_to)
-    qenc = QueryEncoder(enc, stats, query_standardise, prior_frames, window or None)
+        learn(map_or_db, learn_to, fps=fps, step=step, max_frames=max_frames, progress=progress, **lo)
+        loc, enc = load_map(learn_to)
+    qenc = StreamEncoder(enc, query_standardise, prior_frames, window or None)
     qenc.load_state(loc.arrays)  # a --state-out file continues its query's running statistics
     q_src = None if str(query) == "-" else open_source(query, fps=fps, step=step, max_frames=max_frames)
     frames = _stdin_frames(stdin if stdin is not None else sys.stdin) if q_src is None else _source_frames(q_src)
     loc.warm_up()
-    if qenc.projected:  # first calls (loading a CNN, the projection matrix) are not a frame's latency
-        enc.encode_descriptors(enc.describe([np.zeros((48, 64, 3), np.uint8)]))
+    qenc.warm_up()  # first calls (loading a CNN, the projection matrix) are not a frame's latency
     rows, skipped, cols = [], [], []
     piped = True
     lat_all, lat_loc = [], []
@@ -347,8 +259,8 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
         ap.add_argument("db", metavar="DB", help="database traverse: image folder, video or image list")
         ap.add_argument("--out", required=True, metavar="MAP.npz", help="map file to write")
         _add_learn_args(ap)
-        _add_source_args(ap)
-        ap.add_argument("--no-progress", action="store_true", help="no progress bars")
+        add_source_arguments(ap)
+        add_common_arguments(ap)
         return
     ap.add_argument("map", metavar="MAP_OR_DB", help="map from `vpr learn` (.npz), or a database traverse to learn")
     ap.add_argument("query", metavar="QUERY", help="image folder, video, image list, or - (paths on stdin)")
@@ -363,12 +275,9 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     ap.add_argument("--state-out", metavar="FILE.npz", help="also write the localizer with its state at the end")
     learn_group = ap.add_argument_group("learning MAP_OR_DB when it is a database")
     _add_learn_args(learn_group)
-    _add_source_args(ap)
-    gt = ap.add_argument_group("ground truth (optional; enables AP and R@1)")
-    gt.add_argument("--tolerance", type=int, metavar="K", help="frame-aligned traverses: |i - j| <= K")
-    gt.add_argument("--gt", nargs="+", metavar="FILE", help="as `vpr match`")
-    gt.add_argument("--radius", type=float, help="match radius for position ground truth")
-    gt.add_argument("--gt-soft", type=float, metavar="R2", help="soft ground truth radius/tolerance")
+    add_source_arguments(ap)
+    add_gt_arguments(ap, title="ground truth (optional; enables AP and R@1)")
+    add_common_arguments(ap)
 
 
 def run_command(args) -> int:
@@ -384,9 +293,8 @@ def run_command(args) -> int:
     src_opts = {"fps": args.fps, "step": args.step, "max_frames": args.max_frames}
     report = localize(args.map, args.query, args.out, query_standardise=args.query_standardise,
                       prior_frames=args.prior_frames, window=args.window, state_out=args.state_out,
-                      gt=GroundTruthSpec(tolerance=args.tolerance, files=tuple(args.gt or ()), radius=args.radius,
-                                         soft=args.gt_soft),
-                      learn_options=learn_opts, **src_opts)
+                      gt=gt_spec_from_args(args), learn_options=learn_opts, progress=not args.no_progress,
+                      **src_opts)
     lat = report["metrics"]["latency_ms"]
     print(f"vpr localize: {report['metrics']['frames']} frames, latency median "
           f"{lat['with_encoding']['median']:.2f} ms ({lat['without_encoding']['median']:.2f} ms without encoding); "

@@ -19,9 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from vpr import evaluate, io, plots, simulate
-from vpr.baselines.pairwise import pairwise
-from vpr.memory import SequenceMemory
+from pipelines.args import add_common_arguments
+from vpr import evaluate, groundtruth, io, plots, simulate
+from vpr.pairwise import pairwise
+from vpr.shosm import SequenceMemory
 from vpr.similarity import overlap_similarity
 
 __all__ = ["CURVES_LEFT", "CURVES_RIGHT", "run_curve", "run", "main"]
@@ -52,8 +53,8 @@ def run_curve(method: str, p_extra: float, aliasing: int, noise: float, seed: in
     else:
         raise ValueError(f"unknown method {method!r}")
     seconds = time.perf_counter() - t
-    gt = evaluate.gt_from_labels(places, places)
-    mask = evaluate.loop_closure_mask(len(places), exclude=1)
+    gt = groundtruth.gt_from_labels(places, places)
+    mask = groundtruth.loop_closure_mask(len(places), exclude=1)
     prec, rec, _ = evaluate.pr_curve(S, gt, mask=mask)
     return {"ap": evaluate.average_precision(S, gt, mask=mask), "auc_pr": evaluate.auc_from_pr(prec, rec),
             "recall_at_100p": evaluate.recall_at_100p(S, gt, mask=mask),
@@ -114,10 +115,11 @@ def add_arguments(ap: argparse.ArgumentParser, command: str = "paper-fig3") -> N
     ap.add_argument("--out", required=True, help="output folder (plots and metrics.json)")
     ap.add_argument("--seeds", type=int, default=5, help="seeds to average over (default 5)")
     ap.add_argument("--loops", type=int, default=10, help="laps of the 20-place loop (default 10)")
+    add_common_arguments(ap)
 
 
 def run_command(args) -> int:
-    metrics = run(args.out, seeds=args.seeds, n_loops=args.loops)
+    metrics = run(args.out, seeds=args.seeds, n_loops=args.loops, progress=not args.no_progress)
     print(format_table(metrics))
     print(f"wrote {Path(args.out) / 'fig3_left.png'}, fig3_right.png, metrics.json")
     return 0

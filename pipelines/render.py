@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from pipelines.args import add_common_arguments
 from vpr import render
 
 __all__ = ["COMMANDS", "add_arguments", "run_command", "run_render", "parse_size"]
@@ -36,7 +37,8 @@ def add_arguments(parser: argparse.ArgumentParser, command: str = "render") -> N
     parser.add_argument("--frames", type=int, default=None, metavar="N",
                         help="override the number of frames per traverse")
     parser.add_argument("--seed", type=int, default=None, help="override the world seed")
-    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_common_arguments(parser)
+    parser.add_argument("--quiet", dest="no_progress", action="store_true", help="the same as --no-progress")
 
 
 def run_render(spec, out: str | Path, preview: bool = False, video: bool = False, traverses=None,
@@ -59,5 +61,5 @@ def run_render(spec, out: str | Path, preview: bool = False, video: bool = False
 
 def run_command(args) -> int:
     run_render(args.spec, args.out, preview=args.preview, video=args.video, traverses=args.traverse,
-               size=args.size, n_frames=args.frames, seed=args.seed, progress=not args.quiet)
+               size=args.size, n_frames=args.frames, seed=args.seed, progress=not args.no_progress)
     return 0

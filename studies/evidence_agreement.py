@@ -15,9 +15,10 @@ import time
 import numpy as np
 
 import encoders
-from vpr import evidence as ev
-from vpr.evaluate import auc_pr, gt_from_tolerance
-from vpr.memory import SequenceMemory
+from vpr import shosm as ev
+from vpr.evaluate import auc_pr
+from vpr.groundtruth import gt_from_tolerance
+from vpr.shosm import SequenceMemory
 
 
 def _zscore(D):
@@ -32,7 +33,7 @@ def compare(name, a, b, gt):
     n_q = b.shape[0]
     for direction in ("both", "forward"):
         t = time.process_time()
-        D = _zscore(mem.evidence(b, codes, direction=direction).astype(np.float64))
+        D = _zscore(ev.dense_evidence(mem, b, codes, direction=direction).astype(np.float64))
         t_d = time.process_time() - t
         t = time.process_time()
         r = ev.sparse_evidence(mem, b, codes, direction=direction, top_k=50)

@@ -48,7 +48,7 @@ class SegmentedMemory:
     Parameters
     ----------
     n_inputs, cells_per_column, new_columns, connectivity, threshold, p_extra, k_active, seed
-        As in :class:`vpr.memory.SequenceMemory` (paper defaults; ``k_active``
+        As in :class:`vpr.shosm.SequenceMemory` (paper defaults; ``k_active``
         is our fallback for a query frame that activates no minicolumn).
     teach_below : int
         With ``teach=True``: teach when fewer than this many minicolumns reach

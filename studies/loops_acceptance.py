@@ -2,9 +2,9 @@
 
 ``vpr loops`` must report no false closure on a forward-only drive by default,
 and still find revisits. This study scores every frame of rendered streams with
-:func:`vpr.evidence.loop_evidence` (exclude 30 frames, 160x120, the scenes'
+:func:`vpr.shosm.loop_evidence` (exclude 30 frames, 160x120, the scenes'
 native frame counts at 5 fps) and counts, for each rule
-:func:`vpr.evidence.accept_loops` (``z_min``, ``confirm``):
+:func:`vpr.shosm.accept_loops` (``z_min``, ``confirm``):
 
 - forward-only drives, no place revisited: ``two_seasons`` summer_day and
   winter_night, ``speed_change`` slow and fast. An accepted closure at least 30
@@ -19,7 +19,7 @@ native frame counts at 5 fps) and counts, for each rule
   + 358 frames, true within 1 frame of the other traverse), and each whole
   Nordland traverse alone (3,576 frames, a forward-only train ride: any accepted
   closure more than 3 frames from its own frame is false; the train stands at
-  stations, which :func:`vpr.evidence.stationary_closures` must tell from loops).
+  stations, which :func:`vpr.shosm.stationary_closures` must tell from loops).
 
 Worlds: the scenes' own (``spec``) and ``--select`` seeds choose the rule; the
 ``--confirm-seeds`` worlds were not looked at while choosing it.
@@ -36,7 +36,7 @@ import scipy.sparse as sp
 
 import encoders
 from vpr import presets
-from vpr.evidence import accept_loops, loop_evidence
+from vpr.shosm import accept_loops, loop_evidence
 
 FORWARD = [("two_seasons", "summer_day"), ("two_seasons", "winter_night"), ("speed_change", "slow"),
            ("speed_change", "fast")]
@@ -123,7 +123,7 @@ def main(argv=None):
     ap.add_argument("--select", default="spec,101", help="worlds the rule was chosen on")
     ap.add_argument("--confirm-seeds", default="102", help="worlds held out from the choice")
     ap.add_argument("--nordland", default=None, help="the nordland_trimmed folder")
-    ap.add_argument("--stop-ratio", type=float, default=0.35, help="vpr.evidence.stationary_closures (0: off)")
+    ap.add_argument("--stop-ratio", type=float, default=0.35, help="vpr.shosm.stationary_closures (0: off)")
     a = ap.parse_args(argv)
     enc = encoder_for(a.encoder)
     print(f"encoder {enc.name} {enc.conf}")

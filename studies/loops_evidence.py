@@ -1,4 +1,4 @@
-"""Loop closure with rSHOSM-seq sequence evidence (vpr.evidence.loop_evidence) against SeqSLAM.
+"""Loop closure with rSHOSM-seq sequence evidence (vpr.shosm.loop_evidence) against SeqSLAM.
 
 Streams: the paper's simulated loops; the rendered two_seasons route driven by
 day then by night as one stream; rendered forward-only drives (no place is
@@ -23,20 +23,21 @@ import numpy as np
 import scipy.sparse as sp
 
 import encoders
-from vpr import evaluate, methods, simulate
-from vpr.evidence import accept_loops, loop_evidence
+from vpr import evaluate, groundtruth, methods, simulate
+from vpr.shosm import EvidenceConf, accept_loops, loop_evidence
+from vpr.types import EncodedTraverse
 
 
 def loop_ap(S, gt, exclude, soft=None):
     """AP over the loop-closure pairs i <= j - exclude (soft-only pairs ignored)."""
-    return evaluate.average_precision(S, gt, soft, mask=evaluate.loop_closure_mask(S.shape[0], exclude=exclude))
+    return evaluate.average_precision(S, gt, soft, mask=groundtruth.loop_closure_mask(S.shape[0], exclude=exclude))
 
 
 def run(name, sdr, pixels, gt, exclude, soft=None, forward_only=False, z_min=6.0, confirm=2, **kw):
     t = time.perf_counter()
-    S, _ = loop_evidence(sdr, exclude=exclude, **kw)
+    S, _ = loop_evidence(sdr, exclude=exclude, conf=EvidenceConf(**kw))
     t_ev = time.perf_counter() - t
-    f = methods.EncodedTraverse(names=list(range(sdr.shape[0])), sdr=sdr, pixels=pixels,
+    f = EncodedTraverse(names=list(range(sdr.shape[0])), sdr=sdr, pixels=pixels,
                          desc=None if pixels is not None else sdr.toarray().astype(np.float32))
     conf = {} if pixels is not None else {"descriptor": "desc"}
     r = methods.loops("seqslam", f, exclude=exclude, conf=conf)
@@ -130,7 +131,7 @@ def cross_condition(size):
     S, _ = loop_evidence(x, exclude=30)
     cross = np.zeros((T, T), bool)
     cross[:nd, nd:] = True
-    mask = evaluate.loop_closure_mask(T, exclude=30)
+    mask = groundtruth.loop_closure_mask(T, exclude=30)
     best_day = np.argmax(S[:nd, nd:], axis=0)
     print(f"two_seasons day+night stream {size}: loop AP {loop_ap(S, gt, 30, soft):.3f}; day frames only as "
           f"candidates: AP {evaluate.average_precision(S, gt, soft, mask=mask & cross):.3f}, "
@@ -143,7 +144,7 @@ def cross_condition(size):
         "default (pixel+cnn)": (presets.PRESETS["default"]["encoder"], presets.PRESETS["default"]["encoder_conf"]),
     }.items():
         e = encoders.get(enc, **{**conf, "standardise": "fit"})
-        db, q = (methods.EncodedTraverse(names=list(range(len(t.images))), sdr=e.fit(list(t.images)).encode(
+        db, q = (EncodedTraverse(names=list(range(len(t.images))), sdr=e.fit(list(t.images)).encode(
             list(t.images))) for t in (day, night))
         aps = [evaluate.average_precision(methods.get("rshosm-seq", direction=dr).match(db, q).similarity,
                                           dq <= 4.0, dq <= 10.0) for dr in ("forward", "both")]

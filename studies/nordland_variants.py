@@ -41,10 +41,12 @@ from pipelines.nordland.data import DatasetError, find_dataset, frame_names, pix
 from studies.ff_segments import segment_codes
 from tests.reference import activate_cells
 from vpr import evaluate as E
+from vpr import groundtruth
 from vpr import io as _io
-from vpr.memory import SequenceMemory, pad_codes
-from vpr.methods import EncodedTraverse, match
+from vpr.methods import match
+from vpr.shosm import SequenceMemory, pad_codes
 from vpr.similarity import overlap_similarity
+from vpr.types import EncodedTraverse
 
 __all__ = ["binary_topk_query", "grid_rows", "run_grid", "main"]
 
@@ -175,7 +177,7 @@ def run_grid(subset: str, out, data=None, progress: bool = True) -> str:
     db_desc = pixel_descriptors(root, "summer", names, out / "cache", progress)
     q_desc = pixel_descriptors(root, "winter", names, out / "cache", progress)
     n = len(names)
-    gh, gs = E.gt_from_tolerance(n, n, 1), E.gt_from_tolerance(n, n, 3)
+    gh, gs = groundtruth.gt_from_tolerance(n, n, 1), groundtruth.gt_from_tolerance(n, n, 3)
     sdrs, results, shifted = {}, [], {}
 
     def teach_sdrs():

@@ -52,8 +52,9 @@ import numpy as np
 import encoders
 from encoders.joined import split_name
 from vpr import evaluate as E
-from vpr import io
-from vpr.methods import EncodedTraverse, match
+from vpr import groundtruth, io
+from vpr.methods import match
+from vpr.types import EncodedTraverse
 
 __all__ = ["CANDIDATES", "REFERENCES", "DATASETS", "run_study", "choose", "markdown"]
 
@@ -159,7 +160,7 @@ class Traverses:
             self.names = frame_names(self.root, spec["subset"])
             self.traverse_names = ("summer", "winter")
             n = len(self.names)
-            self.gt_hard, self.gt_soft = E.gt_from_tolerance(n, n, 1), E.gt_from_tolerance(n, n, 3)
+            self.gt_hard, self.gt_soft = groundtruth.gt_from_tolerance(n, n, 1), groundtruth.gt_from_tolerance(n, n, 3)
         else:
             xy = self._render_positions()
             self.gt_hard = _gt(xy[0], xy[1], spec["radius"])
@@ -220,7 +221,7 @@ class Traverses:
 
 
 def _gt(a, b, radius):
-    return E.gt_from_positions(a, b, radius)
+    return groundtruth.gt_from_positions(a, b, radius)
 
 
 def features(data: Traverses, row: dict, which: int) -> EncodedTraverse:

@@ -2,7 +2,7 @@
 
 :class:`ReferenceMemory` follows the paper's listing line by line and draws its
 random numbers from the same generator in the same order as
-:class:`vpr.memory.SequenceMemory`, so for the same seed both must produce
+:class:`vpr.shosm.SequenceMemory`, so for the same seed both must produce
 identical winner cells (with learning off neither draws any: ties between
 bursting cells are broken by :func:`query_tie_key`). The tests compare them;
 ``benchmarks/bench_memory.py`` uses it for a speed ratio and the studies in
@@ -20,7 +20,7 @@ _M64 = (1 << 64) - 1
 
 
 def query_tie_key(cell: int) -> float:
-    """splitmix64 of ``cell`` in [0, 1): the same fixed tie-break as ``vpr._memory_kernel.query_tie_key``."""
+    """splitmix64 of ``cell`` in [0, 1): the same fixed tie-break as ``vpr.shosm.kernels.memory.query_tie_key``."""
     z = (int(cell) + 0x9E3779B97F4A7C15) & _M64
     z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _M64
     z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _M64
@@ -74,7 +74,7 @@ def learn_lateral(forward, backward, prev_winners, winners, cpc, p_extra, rng) -
 
 
 class ReferenceMemory:
-    """Same parameters and semantics as :class:`vpr.memory.SequenceMemory`."""
+    """Same parameters and semantics as :class:`vpr.shosm.SequenceMemory`."""
 
     def __init__(self, n_inputs=2048, cells_per_column=32, new_columns=10, connectivity=0.5, threshold=0.25,
                  p_extra=0.05, k_active=10, seed=0):

@@ -79,7 +79,7 @@ def test_frame_ranges_give_the_frames_of_the_stream(data, kind):
 def _assert_same_features(a, b):
     fa, fb = a.features, b.features
     assert fa.names == fb.names and a.indices == b.indices and a.skipped == b.skipped
-    for x, y in ((fa.desc, fb.desc), (fa.pixels, fb.pixels)):
+    for x, y in ((fa.desc, fb.desc), (fa.inputs["pixels"], fb.inputs["pixels"])):
         assert (x is None) == (y is None)
         if x is not None:
             assert x.dtype == y.dtype and np.array_equal(x, y)
@@ -99,15 +99,15 @@ def test_serial_encode_is_the_cache_extract_reads_and_writes(data, tmp_path):
     assert out[1].n_frames == N_FRAMES // 2 and not any(r.cached for r in out)
     for src, res in zip(srcs, out, strict=True):
         # what match reads with --cache: a hit for any subset of the stored parts
-        hit = extract(src, encoders.get("pixel", **CONF), need_sdr=True, need_pixels=True, cache_dir=cache,
+        hit = extract(src, encoders.get("pixel", **CONF), inputs=("sdr", "pixels"), cache_dir=cache,
                       progress=False)
-        fresh = extract(src, encoders.get("pixel", **CONF), need_sdr=True, need_pixels=True, progress=False)
+        fresh = extract(src, encoders.get("pixel", **CONF), inputs=("sdr", "pixels"), progress=False)
         assert hit.cached and not fresh.cached
         _assert_same_features(hit, fresh)
         assert hit.features.desc is None  # stored, but not asked for
         # extract writing the cache itself (same chunks) gives the same bytes
         own = tmp_path / "own"
-        extract(src, encoders.get("pixel", **CONF), need_sdr=True, need_desc=True, need_pixels=True,
+        extract(src, encoders.get("pixel", **CONF), inputs=("sdr", "desc", "pixels"),
                 cache_dir=own, chunk_frames=7, progress=False)
         assert (own / res.path.name).read_bytes() == res.path.read_bytes()
     # verification needs thumbnails: read from the frames, the rest from the cache
@@ -137,12 +137,12 @@ def test_missing_parts_are_added_and_other_encoders_work(data, tmp_path):
                             progress=False)
     assert [s[0] for s in res.skipped] == ["missing.png"] and res.n_frames == N_FRAMES // 3
     enc = encoders.get("orb", mode="grid")
-    ex = extract(src, enc, need_sdr=True, need_desc=True, cache_dir=tmp_path, progress=False)
+    ex = extract(src, enc, inputs=("sdr", "desc"), cache_dir=tmp_path, progress=False)
     assert not ex.cached  # desc was not stored: encoded again with the union of both
     stored = load_cache(res.path)
     assert stored.features.desc is not None and stored.features.sdr is not None
     assert (stored.features.sdr != ex.features.sdr).nnz == 0
-    assert extract(src, enc, need_sdr=True, need_desc=True, cache_dir=tmp_path, progress=False).cached
+    assert extract(src, enc, inputs=("sdr", "desc"), cache_dir=tmp_path, progress=False).cached
 
 
 def test_bad_arguments_raise(data, tmp_path):

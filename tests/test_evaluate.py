@@ -13,15 +13,11 @@ from vpr.evaluate import (
     auc_pr,
     average_precision,
     evaluate,
-    gt_from_labels,
-    gt_from_positions,
-    gt_from_tolerance,
-    loop_closure_gt,
-    loop_closure_mask,
     pr_curve,
     recall_at_100p,
     recall_at_k,
 )
+from vpr.groundtruth import gt_from_labels, gt_from_positions, gt_from_tolerance, loop_closure_gt, loop_closure_mask
 
 SETTINGS = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

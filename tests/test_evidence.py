@@ -1,13 +1,14 @@
-"""vpr.evidence: sparse (beam, top-K), streaming and loop-closure rSHOSM-seq evidence."""
+"""vpr.shosm evidence: dense, sparse (beam, top-K), streaming and loop-closure rSHOSM-seq evidence."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from vpr import evidence as ev
-from vpr import sdr, simulate
-from vpr.memory import SequenceMemory
+from vpr import groundtruth, sdr, simulate
+from vpr import shosm as ev
+from vpr.shosm import BeamConf, EvidenceConf, SequenceMemory
+from vpr.types import EncodedTraverse
 
 
 def _zscore(D):
@@ -48,12 +49,12 @@ def test_beam_without_floors_equals_dense_clamped(aliased, direction):
     mem, codes, q, _, _ = aliased
     q = q[:120]
     D = ev.dense_evidence(mem, q, codes, direction=direction, clamp=True)
-    r = ev.sparse_evidence(mem, q, codes, direction=direction, top_k=None, normalise="none",
-                           floor=0.0, rel_floor=0.0, z_floor=0.0, max_beam=None, max_enter=None)
+    open_beam = BeamConf(floor=0.0, rel_floor=0.0, z_floor=0.0, max_beam=None, max_enter=None)
+    r = ev.sparse_evidence(mem, q, codes, EvidenceConf(normalise="none"), direction=direction, top_k=None,
+                           beam=open_beam)
     np.testing.assert_allclose(r.similarity.toarray(), D, atol=1e-5)
     # z-scores from the sparse column's sums equal the dense column's
-    rz = ev.sparse_evidence(mem, q, codes, direction=direction, top_k=7, floor=0.0, rel_floor=0.0, z_floor=0.0,
-                            max_beam=None, max_enter=None)
+    rz = ev.sparse_evidence(mem, q, codes, direction=direction, top_k=7, beam=open_beam)
     Z = _zscore(D)
     C = rz.similarity.tocoo()
     np.testing.assert_allclose(C.data, Z[C.row, C.col], atol=1e-4)
@@ -63,16 +64,21 @@ def test_beam_without_floors_equals_dense_clamped(aliased, direction):
     assert np.all(C.data >= kth[C.col] - 1e-4)
 
 
-def test_dense_evidence_is_the_memory_method(aliased):
+def test_query_evidence_is_the_dense_or_the_sparse_evidence(aliased):
     mem, codes, q, _, _ = aliased
-    a = mem.evidence(q[:50], codes, decay=0.8, stay=None, skip=0.1)
-    b = ev.dense_evidence(mem, q[:50], codes, decay=0.8, stay=None, skip=0.1)
-    assert np.array_equal(a, b)
+    conf = EvidenceConf(decay=0.8, stay=None, skip=0.1)
+    a = ev.query_evidence(mem, q[:50], codes, conf)
+    Z = _zscore(ev.dense_evidence(mem, q[:50], codes, conf))
+    np.testing.assert_allclose(a.similarity, Z, atol=1e-5)
+    assert np.array_equal(a.best_db, Z.argmax(axis=0))
+    b = ev.query_evidence(mem, q[:50], codes, conf, top_k=5)
+    c = ev.sparse_evidence(mem, q[:50], codes, conf, top_k=5)
+    assert (b.similarity != c.similarity).nnz == 0 and np.array_equal(b.best_db, c.best_db)
 
 
 def test_default_beam_gives_the_dense_best_matches(aliased):
     mem, codes, q, dp, qp = aliased
-    D = mem.evidence(q, codes)  # the method as it was: unclamped, dense
+    D = ev.dense_evidence(mem, q, codes)  # the method as it was: unclamped, dense
     r = ev.sparse_evidence(mem, q, codes)
     agree = np.mean(r.best_db == D.argmax(axis=0))
     assert agree >= 0.99, agree
@@ -103,20 +109,20 @@ def rendered_pixel():
 def test_beam_caps_bound_the_cells_carried_and_keep_the_dense_best_matches(rendered_pixel):
     mem, codes, q = rendered_pixel
     free, capped, small = {}, {}, {}
-    r_free = ev.sparse_evidence(mem, q, codes, max_beam=None, max_enter=None, stats=free)
+    r_free = ev.sparse_evidence(mem, q, codes, beam=BeamConf().uncapped(), stats=free)
     r_cap = ev.sparse_evidence(mem, q, codes, stats=capped)
-    ev.sparse_evidence(mem, q, codes, max_beam=100, max_enter=5, stats=small)
+    ev.sparse_evidence(mem, q, codes, beam=BeamConf(max_beam=100, max_enter=5), stats=small)
     # on these SDRs the floors alone let most of the memory in; the caps hold whatever the data
     assert free["max_beam"] > 1000, free
     assert small["max_beam"] <= 100 < free["max_beam"]
-    assert capped["max_beam"] <= ev.BEAM_DEFAULTS["max_beam"]
+    assert capped["max_beam"] <= BeamConf().max_beam
     # candidates: at most max_enter minicolumns by feed-forward plus what the beam predicts (stay, one and two
     # connections: each cell here has few lateral connections)
     assert small["max_candidates"] <= 5 * mem.cells_per_column + 100 * 8, small
     # here the floors carry every cell of the database codes (1,600): under the default caps, so the same result
-    assert free["max_beam"] <= ev.BEAM_DEFAULTS["max_beam"]
+    assert free["max_beam"] <= BeamConf().max_beam
     assert np.array_equal(r_cap.best_db, r_free.best_db)
-    D = _zscore(mem.evidence(q, codes))
+    D = _zscore(ev.dense_evidence(mem, q, codes))
     bd = D.argmax(axis=0)
     assert np.mean(r_cap.best_db == bd) >= 0.95
     # the capped beam's z-scores come from what it kept: still those of the dense column at the best match
@@ -135,7 +141,7 @@ def test_forward_stream_equals_batch_and_restarts(aliased, tmp_path):
         if j == 150:  # a robot restarts from its saved state
             np.savez(tmp_path / "state.npz", **f.state_dict())
             with np.load(tmp_path / "state.npz") as z:
-                f = ev.ForwardEvidence.from_state(mem, codes, dict(z), top_k=10)
+                f = ev.ForwardEvidence(mem, codes, top_k=10).load_state(dict(z))
         o = f.update(q[j])
         assert o.best_db == batch.best_db[j]
         assert abs(o.score - batch.score[j]) <= 1e-6
@@ -149,12 +155,12 @@ def test_forward_stream_equals_batch_and_restarts(aliased, tmp_path):
 def test_exact_forward_stream_equals_dense_forward(aliased):
     mem, codes, q, _, _ = aliased
     q = q[:80]
-    Z = _zscore(mem.evidence(q, codes, direction="forward"))
+    Z = _zscore(ev.dense_evidence(mem, q, codes, direction="forward"))
     f = ev.ForwardEvidence(mem, codes, top_k=None, exact=True)
     rows = [q.indices[q.indptr[j]:q.indptr[j + 1]] for j in range(q.shape[0])]
     for j, bits in enumerate(rows):
         if j == 40:
-            f = ev.ForwardEvidence.from_state(mem, codes, f.state_dict(), top_k=None, exact=True)
+            f = ev.ForwardEvidence(mem, codes, top_k=None, exact=True).load_state(f.state_dict())
         o = f.update(bits)
         np.testing.assert_allclose(o.scores, Z[:, j], atol=1e-6)
         assert o.best_db == int(np.argmax(Z[:, j]))
@@ -163,10 +169,7 @@ def test_exact_forward_stream_equals_dense_forward(aliased):
 
 
 def _traverse(**kw):
-    from vpr import methods
-
-    # EncodedTraverse on main (method registry), Features before it
-    return methods.EncodedTraverse(**kw) if hasattr(methods, "EncodedTraverse") else methods.Features(**kw)
+    return EncodedTraverse(**kw)
 
 
 def _loop_ap(S, gt, exclude):
@@ -178,12 +181,15 @@ def _loop_ap(S, gt, exclude):
     return average_precision_score(gt[m], np.where(np.isfinite(S[m]), S[m], -1e9))
 
 
+NO_TRANSITIONS = EvidenceConf(stay=None, skip=None)
+
+
 def test_loop_evidence_beats_seqslam_on_the_paper_world():
     from vpr import methods
 
     obs, traj = simulate.simulate_loops(aliasing=5, noise=0.3, seed=0)
     gt = traj[:, None] == traj[None]
-    S, codes = ev.loop_evidence(obs, exclude=10, stay=None, skip=None)
+    S, codes = ev.loop_evidence(obs, exclude=10, conf=NO_TRANSITIONS)
     T = obs.shape[0]
     assert S.shape == (T, T) and codes.shape[0] == T
     i, j = np.indices((T, T))
@@ -195,12 +201,12 @@ def test_loop_evidence_beats_seqslam_on_the_paper_world():
     best, score, ok = ev.accept_loops(S, z_min=4.0, confirm=2)
     assert ok.sum() > 100 and np.all(gt[best[ok], np.flatnonzero(ok)])
     # top-K: the kept entries are the dense matrix's
-    Sk, codes_k = ev.loop_evidence(obs, exclude=10, stay=None, skip=None, top_k=5)
+    Sk, codes_k = ev.loop_evidence(obs, exclude=10, conf=NO_TRANSITIONS, top_k=5)
     assert (codes_k != codes).nnz == 0
     C = Sk.tocoo()
     np.testing.assert_allclose(C.data, S[C.row, C.col], atol=1e-5)
     assert np.all(np.diff(Sk.tocsc().indptr) <= 5)
-    Sa, _ = ev.loop_evidence(obs, exclude=10, stay=None, skip=None, dense_max=100)  # beyond the limit: top-50
+    Sa, _ = ev.loop_evidence(obs, exclude=10, conf=NO_TRANSITIONS, dense_max=100)  # beyond the limit: top-50
     assert sp.issparse(Sa) and np.all(np.diff(Sa.tocsc().indptr) <= 50) and Sa.nnz > 50
 
 
@@ -221,23 +227,25 @@ def test_loop_evidence_forward_only_drive_accepts_no_far_closure():
 def test_bad_arguments(aliased):
     mem, codes, q, _, _ = aliased
     with pytest.raises(ValueError, match="decay"):
-        ev.sparse_evidence(mem, q, codes, decay=1.0)
+        EvidenceConf(decay=1.0)
+    with pytest.raises(ValueError, match="normalise"):
+        EvidenceConf(normalise="column")
     with pytest.raises(ValueError, match="top_k"):
         ev.sparse_evidence(mem, q, codes, top_k=0)
     with pytest.raises(ValueError, match="rel_floor"):
-        ev.sparse_evidence(mem, q, codes, rel_floor=1.5)
+        BeamConf(rel_floor=1.5)
     with pytest.raises(ValueError, match="direction"):
         ev.sparse_evidence(mem, q, codes, direction="backward")
     with pytest.raises(ValueError, match="max_beam"):
-        ev.sparse_evidence(mem, q, codes, max_beam=0)
+        BeamConf(max_beam=0)
     with pytest.raises(ValueError, match="max_enter"):
-        ev.sparse_evidence(mem, q, codes, max_enter=2.5)
+        BeamConf(max_enter=2.5)
     with pytest.raises(ValueError, match="shape"):
         ev.ForwardEvidence(mem, codes).update(np.zeros(100, bool))
     with pytest.raises(ValueError, match="exclude"):
         ev.loop_evidence(sdr.random_sdrs(5, seed=0), exclude=0)
-    with pytest.raises(ValueError, match="max_enter"):
-        ev.loop_evidence(sdr.random_sdrs(5, seed=0), exclude=1, max_enter="some")
+    with pytest.raises(ValueError, match="caps"):
+        ev.loop_evidence(sdr.random_sdrs(5, seed=0), exclude=1, caps="some")
     with pytest.raises(ValueError, match="another memory"):
         ev.ForwardEvidence(mem, sp.csr_matrix((1, mem.n_cells + 10), dtype=bool) + sp.eye(1, mem.n_cells + 10,
                                                                                           mem.n_cells + 5, dtype=bool))
@@ -250,7 +258,7 @@ def _rendered_loops(spec, n_frames, traverse=0, **conf):
 
     t = render_scene(spec, size=(64, 48), n_frames=n_frames).traverses[traverse]
     x = encoders.get("pixel", k=200, standardise="fit").fit(t.images).encode(t.images)
-    r = methods.get("rshosm-seq", **conf).loops(methods.EncodedTraverse(names=list(range(x.shape[0])), sdr=x),
+    r = methods.get("rshosm-seq", **conf).loops(EncodedTraverse(names=list(range(x.shape[0])), sdr=x),
                                                 exclude=30)
     gt = np.linalg.norm(t.xy[:, None] - t.xy[None], axis=-1) <= 5.0
     return r, gt
@@ -266,7 +274,7 @@ def test_rshosm_seq_loops_method_defaults():
     assert r.similarity.shape == (T, T) and np.all(r.best_db[:30] == -1)
     ok = r.accepted
     assert ok.sum() >= 3 and np.all(gt[r.best_db[ok], np.flatnonzero(ok)])
-    mask = evaluate.loop_closure_mask(T, exclude=30)
+    mask = groundtruth.loop_closure_mask(T, exclude=30)
     assert evaluate.average_precision(r.similarity, gt, None, mask=mask) >= 0.5
     # a forward-only drive (two_seasons by day; its world repeats a stretch 210 m later): no closure accepted
     r, gt = _rendered_loops("two_seasons", 150)
@@ -305,7 +313,7 @@ def test_default_loop_rule_finds_revisits_and_no_closure_on_a_forward_drive():
     for scene, traverse in (("loop_revisits", "laps"), ("two_seasons", "summer_day")):
         t = render_scene(scene, size=(160, 120), traverses=[traverse]).traverses[0]
         x = encoders.get(s["encoder"], **s["encoder_conf"]).encode(list(t.images))
-        r = methods.get("rshosm-seq").loops(methods.EncodedTraverse(names=list(range(x.shape[0])), sdr=x), exclude=30)
+        r = methods.get("rshosm-seq").loops(EncodedTraverse(names=list(range(x.shape[0])), sdr=x), exclude=30)
         T = x.shape[0]
         ok = r.accepted & (np.arange(T) - r.best_db >= 30)
         dist = np.linalg.norm(t.xy[r.best_db[ok]] - t.xy[ok], axis=1)
@@ -349,8 +357,8 @@ def test_loop_evidence_caps_the_beam_only_beyond_the_dense_output():
     x = sdr.from_indices(rows, 256)
     mem = {"n_inputs": 256}
     auto, _ = ev.loop_evidence(x, exclude=5, memory=mem)
-    free, _ = ev.loop_evidence(x, exclude=5, memory=mem, max_beam=None, max_enter=None)
-    tight, _ = ev.loop_evidence(x, exclude=5, memory=mem, max_beam=16, max_enter=2)
+    free, _ = ev.loop_evidence(x, exclude=5, memory=mem, caps=False)
+    tight, _ = ev.loop_evidence(x, exclude=5, memory=mem, beam=BeamConf(max_beam=16, max_enter=2), caps=True)
     np.testing.assert_array_equal(auto, free)
     assert not np.array_equal(tight, free)
     beyond, _ = ev.loop_evidence(x, exclude=5, memory=mem, dense_max=50)  # top-50 sparse and capped

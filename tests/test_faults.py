@@ -168,7 +168,7 @@ def test_two_concurrent_runs_keep_both_methods(scene, tmp_path):
 
 
 def _merge_worker(args):
-    from pipelines.match import merge_metrics
+    from pipelines.outputs import merge_metrics
 
     out, name, rounds = args
     for r in range(rounds):

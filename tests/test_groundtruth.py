@@ -43,7 +43,7 @@ def test_pairs_with_and_without_header(tmp_path):
 
 
 def test_pairs_beyond_the_dense_limit_are_sparse(tmp_path, monkeypatch):
-    import vpr.groundtruth as g
+    from vpr import similarity as g
 
     monkeypatch.setattr(g, "DENSE_PAIRS_LIMIT", 10)
     gt = load_pairs_csv(_file(tmp_path, "p.csv", "0,2\n1,0\n1,3\n1,3\n"), 4, 3)

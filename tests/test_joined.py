@@ -10,7 +10,8 @@ import scipy.sparse as sp
 import encoders
 from encoders.joined import DescribedJoinedEncoder, JoinedEncoder, split_name
 from vpr import render
-from vpr.methods import EncodedTraverse, match
+from vpr.methods import match
+from vpr.types import EncodedTraverse
 
 # a small CNN input keeps the ONNX runs in milliseconds; the tests are about joining, not the CNN
 SMALL_CNN = {"cnn.input_size": (64, 64)}
@@ -185,7 +186,7 @@ def test_compare_pipeline_extracts_joined_features(frames, tmp_path):
     for i, im in enumerate(db):
         cv2.imwrite(str(tmp_path / f"{i:03d}.png"), im)
     e = encoders.get("pixel+cnn", standardise="fit", **SMALL_CNN)
-    ex = extract(open_source(str(tmp_path)), e, need_sdr=True, need_desc=True, progress=False)
+    ex = extract(open_source(str(tmp_path)), e, inputs=("sdr", "desc"), progress=False)
     ref = encoders.get("pixel+cnn", standardise="fit", **SMALL_CNN)
     d = ref.describe(list(db))
     assert ex.features.desc.shape == d.shape

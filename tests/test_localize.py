@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 import vpr
-from vpr import evidence as ev
+from vpr import shosm as ev
 from vpr import simulate
-from vpr.memory import MemoryFileError
+from vpr.shosm import MemoryFileError
 
 
 @pytest.fixture(scope="module")
@@ -154,7 +154,7 @@ def test_localize_bad_input(scene, tmp_path, capsys):
 def test_exclude_seconds():
     from types import SimpleNamespace
 
-    from pipelines.match import exclude_frames
+    from pipelines.runs import exclude_frames
 
     video = SimpleNamespace(path="v.mp4", kind="video", video_fps=30.0, fps=None, step=3)
     assert exclude_frames("5s", video) == 50 and exclude_frames("12", video) == 12 and exclude_frames(7, video) == 7

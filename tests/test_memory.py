@@ -3,7 +3,7 @@ import pytest
 
 from tests.reference import ReferenceMemory
 from vpr import sdr, simulate
-from vpr.memory import MemoryFileError, SequenceMemory, pad_codes
+from vpr.shosm import MemoryFileError, SequenceMemory, pad_codes
 
 
 def _small_walk(seed=0, n_places=30, steps=500, noise=0.3):

@@ -2,9 +2,10 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from vpr import methods, simulate
-from vpr.memory import SequenceMemory
-from vpr.methods import base
+from vpr import methods, similarity, simulate
+from vpr.shosm import SequenceMemory
+from vpr.similarity import best_matches
+from vpr.types import EncodedTraverse
 
 
 def _features(n=30, seed=0):
@@ -14,7 +15,7 @@ def _features(n=30, seed=0):
     q = simulate.observe(world, traj, 0.1, seed=2)
     rng = np.random.default_rng(seed)
     pix = rng.random((n, 64)).astype(np.float32)
-    mk = lambda s, p: methods.EncodedTraverse(names=[str(i) for i in range(n)], sdr=s, desc=p, pixels=p)  # noqa: E731
+    mk = lambda s, p: EncodedTraverse(names=[str(i) for i in range(n)], sdr=s, desc=p, pixels=p)  # noqa: E731
     return mk(db, pix), mk(q, pix + 0.01 * rng.random((n, 64)).astype(np.float32))
 
 
@@ -37,7 +38,7 @@ def test_registry_builds_methods_and_rejects_unknown_names_and_keys():
 
 
 def test_methods_refuse_loop_closure_they_cannot_do():
-    seq = methods.EncodedTraverse(names=list(range(5)), sdr=sp.csr_matrix((5, 64), dtype=bool))
+    seq = EncodedTraverse(names=list(range(5)), sdr=sp.csr_matrix((5, 64), dtype=bool))
 
     class NoLoops(methods.Method):
         name = "noloops"
@@ -58,13 +59,13 @@ def test_every_method_finds_an_aligned_route(method):
 def test_best_matches_sparse_marks_empty_queries():
     S = sp.csr_matrix(np.array([[0.0, 0.5, 0], [0.7, 0, 0]]))
     S.eliminate_zeros()
-    best, score = methods.best_matches(S)
+    best, score = best_matches(S)
     assert best.tolist() == [1, 0, -1] and score[2] == -np.inf
 
 
 def test_large_inputs_go_sparse_or_are_refused(monkeypatch):
     db, q = _features()
-    monkeypatch.setattr(base, "DENSE_PAIRS_LIMIT", 100)
+    monkeypatch.setattr(similarity, "DENSE_PAIRS_LIMIT", 100)
     res = methods.match("rshosm", db, q, {"top_k": 3})
     assert sp.issparse(res.similarity) and res.similarity.nnz <= 3 * 30
     res = methods.match("pairwise", db, q, {"top_k": 2})
@@ -76,7 +77,7 @@ def test_large_inputs_go_sparse_or_are_refused(monkeypatch):
 
 def test_loops_only_look_back_far_enough():
     obs, places = simulate.simulate_loops(n_loops=3, seed=0)
-    feats = methods.EncodedTraverse(names=list(range(len(places))), sdr=obs)
+    feats = EncodedTraverse(names=list(range(len(places))), sdr=obs)
     res = methods.loops("rshosm", feats, exclude=5)
     ok = res.best_db >= 0
     assert np.all(res.best_db[ok] <= np.flatnonzero(ok) - 5)
@@ -89,7 +90,7 @@ def test_loops_only_look_back_far_enough():
 
 def test_missing_features_are_named():
     db, q = _features()
-    db.sdr = None
+    db = db.only(["desc", "pixels"])
     with pytest.raises(ValueError, match="rshosm needs SDRs of the database traverse"):
         methods.match("rshosm", db, q)
 
@@ -97,16 +98,16 @@ def test_missing_features_are_named():
 def test_seqslam_desc_is_seqslam_on_the_encoder_descriptors_with_cosine():
     db, q = _features()
     m = methods.get("seqslam-desc", ds=4)
-    assert m.inputs() == {"desc"} and m.conf["metric"] == "cosine" and "descriptor" not in m.conf
+    assert m.required_inputs == ("desc",) and m.conf["metric"] == "cosine" and "descriptor" not in m.conf
     res = m.match(db, q)
     ref = methods.match("seqslam", db, q, {"ds": 4, "descriptor": "encoder", "metric": "cosine"})
     np.testing.assert_array_equal(res.similarity, ref.similarity)
     np.testing.assert_array_equal(res.best_db, ref.best_db)
     # "desc" is accepted as an alias of "encoder" (the spelling of EncodedTraverse.desc)
-    assert methods.get("seqslam", descriptor="desc").inputs() == {"desc"}
-    assert methods.get("seqslam").inputs() == {"pixels"}
+    assert methods.get("seqslam", descriptor="desc").required_inputs == ("desc",)
+    assert methods.get("seqslam").required_inputs == ("pixels",)
     # the pixel thumbnails are not read: without the encoder's descriptors it says what is missing
-    db.desc = None
+    db = db.only(["sdr", "pixels"])
     with pytest.raises(ValueError, match="seqslam-desc needs dense descriptors of the database traverse"):
         m.match(db, q)
 
@@ -121,7 +122,7 @@ def test_seqslam_rejects_bad_choices(bad):
 def test_seqslam_above_the_dense_limit_runs_blocked_top_k(monkeypatch, name):
     db, q = _features(n=60)
     dense = methods.match(name, db, q, {"ds": 4})
-    monkeypatch.setattr(base, "DENSE_PAIRS_LIMIT", 100)
+    monkeypatch.setattr(similarity, "DENSE_PAIRS_LIMIT", 100)
     exact = methods.match(name, db, q, {"ds": 4, "large": "exact", "top_k": 5})
     assert sp.issparse(exact.similarity) and exact.similarity.shape == (60, 60)
     assert exact.similarity.getnnz(axis=0).max() == 5
@@ -167,7 +168,7 @@ def test_every_encoder_with_a_dense_descriptor_feeds_seqslam_desc(image_folders,
     encoder = encoders.get(enc)
     feats = []
     for folder in image_folders:
-        kw = dict(need_sdr=False, need_desc="desc" in m.inputs(), cache_dir=tmp_path, progress=False)
+        kw = dict(inputs=tuple(i for i in m.required_inputs if i == "desc"), cache_dir=tmp_path, progress=False)
         ex = extract(open_source(folder), encoder, **kw)
         again = extract(open_source(folder), encoder, **kw)  # from the cache, with the descriptors
         assert again.cached and again.features.desc is not None
@@ -188,4 +189,4 @@ def test_an_encoder_without_a_dense_descriptor_is_named(image_folders):
         name = "nodesc"
 
     with pytest.raises(ValueError, match="needs dense descriptors .*encoder 'nodesc' has no dense descriptor"):
-        extract(open_source(image_folders[0]), NoDesc(), need_sdr=False, need_desc=True, progress=False)
+        extract(open_source(image_folders[0]), NoDesc(), inputs=("desc",), progress=False)

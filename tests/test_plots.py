@@ -7,7 +7,8 @@ import pytest
 import scipy.sparse as sp
 
 import vpr.plots
-from vpr.evaluate import evaluate, gt_from_tolerance, pr_curve
+from vpr.evaluate import evaluate, pr_curve
+from vpr.groundtruth import gt_from_tolerance
 from vpr.plots import _block_any, _block_max, plot_bars, plot_pr, plot_similarity
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

@@ -2,28 +2,29 @@
 import numpy as np
 import scipy.sparse as sp
 
-from vpr import methods, simulate
-from vpr.methods import base
+from vpr import methods, similarity, simulate
+from vpr.similarity import best_matches
+from vpr.types import EncodedTraverse
 
 
 def _aliased(n, seed=0):
     db, q, dp, qp = simulate.aliased_traverses(n, n // 10, seed=seed)
-    return (methods.EncodedTraverse(names=list(range(db.shape[0])), sdr=db),
-            methods.EncodedTraverse(names=list(range(q.shape[0])), sdr=q), dp, qp)
+    return (EncodedTraverse(names=list(range(db.shape[0])), sdr=db),
+            EncodedTraverse(names=list(range(q.shape[0])), sdr=q), dp, qp)
 
 
 def test_rshosm_seq_goes_sparse_above_the_limit_with_the_dense_best_matches(monkeypatch):
     db, q, dp, qp = _aliased(600)
     dense = methods.match("rshosm-seq", db, q, {"seed": 0})
     assert isinstance(dense.similarity, np.ndarray)
-    monkeypatch.setattr(base, "DENSE_PAIRS_LIMIT", 100)
+    monkeypatch.setattr(similarity, "DENSE_PAIRS_LIMIT", 100)
     res = methods.match("rshosm-seq", db, q, {"seed": 0, "top_k": 7})
     S = res.similarity
     assert sp.issparse(S) and S.shape == (len(db), len(q))
     per_query = np.diff(sp.csc_matrix(S).indptr)
     assert per_query.max() == 7
     # the best match is the largest stored entry of its column (up to float32 ties), and the dense computation's
-    assert np.allclose(res.score, methods.best_matches(S)[1], rtol=1e-6)
+    assert np.allclose(res.score, best_matches(S)[1], rtol=1e-6)
     assert np.mean(res.best_db == dense.best_db) >= 0.97
     # aliasing: single frames are ambiguous, the sequence is not
     assert np.mean(np.abs(dp[res.best_db] - qp) <= 1) >= 0.9
@@ -34,7 +35,7 @@ def test_rshosm_seq_goes_sparse_above_the_limit_with_the_dense_best_matches(monk
 
 def test_every_sdr_method_keeps_top_k_above_the_limit(monkeypatch):
     db, q, _, _ = _aliased(300, seed=1)
-    monkeypatch.setattr(base, "DENSE_PAIRS_LIMIT", 100)
+    monkeypatch.setattr(similarity, "DENSE_PAIRS_LIMIT", 100)
     for name in ("rshosm", "pairwise", "rshosm-seq"):
         S = methods.match(name, db, q, {"top_k": 5}).similarity
         assert sp.issparse(S), name
@@ -49,7 +50,7 @@ def test_tolerance_ground_truth_is_a_sparse_band_above_the_limit(monkeypatch):
     spec = groundtruth.GroundTruthSpec(tolerance=2, soft=4)
     names_db, names_q = [str(i) for i in db_i], [str(i) for i in q_i]
     dense = groundtruth.build_gt(spec, names_db, names_q, db_i, q_i)
-    monkeypatch.setattr(groundtruth, "DENSE_PAIRS_LIMIT", 100)
+    monkeypatch.setattr(similarity, "DENSE_PAIRS_LIMIT", 100)
     band = groundtruth.build_gt(spec, names_db, names_q, db_i, q_i)
     for d, b in zip(dense, band, strict=True):
         assert sp.issparse(b) and b.dtype == bool
@@ -68,6 +69,6 @@ def test_position_ground_truth_is_sparse_above_the_limit(tmp_path, monkeypatch):
     spec = groundtruth.GroundTruthSpec(files=tuple(files), radius=1.5, soft=3.0)
     args = ([str(i) for i in range(40)], [str(i) for i in range(30)], list(range(40)), list(range(30)))
     dense = groundtruth.build_gt(spec, *args)
-    monkeypatch.setattr(groundtruth, "DENSE_PAIRS_LIMIT", 100)
+    monkeypatch.setattr(similarity, "DENSE_PAIRS_LIMIT", 100)
     for d, b in zip(dense, groundtruth.build_gt(spec, *args), strict=True):
         assert sp.issparse(b) and np.array_equal(b.toarray(), d) and d.any()

@@ -1,4 +1,4 @@
-"""Tests for vpr.baselines.seqslam.
+"""Tests for vpr.seqslam.
 
 The brute-force reference below (``ref_*``) is a deliberately plain per-query,
 per-row loop written from the documented semantics; the vectorised module is
@@ -17,7 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.signal import convolve2d
 
-from vpr.baselines.seqslam import (
+from vpr.seqslam import (
     SeqSLAMResult,
     difference_matrix,
     enhance_contrast,
@@ -483,7 +483,7 @@ def test_too_many_velocities_is_an_error():
 # seqslam_topk: blocked, from descriptors, top-K output
 # --------------------------------------------------------------------------- #
 from vpr import sdr as _sdr  # noqa: E402
-from vpr.baselines.seqslam import SeqSLAMTopK, seqslam_topk  # noqa: E402
+from vpr.seqslam import SeqSLAMTopK, seqslam_topk  # noqa: E402
 
 
 def _dense_topk_values(sim, k):

@@ -1,12 +1,13 @@
-"""rSHOSM variants: SequenceMemory.evidence (the rshosm-seq method) against a literal version."""
+"""rSHOSM variants: the dense evidence of rshosm-seq (vpr.shosm.dense_evidence) against a literal version."""
 import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from vpr import evaluate, methods, sdr
-from vpr.memory import SequenceMemory
-from vpr.methods import EncodedTraverse, match
+from vpr import evaluate, groundtruth, methods, sdr
+from vpr.methods import match
+from vpr.shosm import EvidenceConf, SequenceMemory, dense_evidence
 from vpr.similarity import overlap_similarity
+from vpr.types import EncodedTraverse
 
 
 def _literal_evidence(mem, q, db_codes, decay, stay, skip, direction):
@@ -65,7 +66,7 @@ def test_evidence_matches_literal_rule(direction, stay, skip):
     mem = SequenceMemory(n_inputs=256, cells_per_column=4, new_columns=3, p_extra=0.2, seed=3)
     codes = mem.run(db)
     mem.reset()
-    got = mem.evidence(q, codes, decay=0.8, stay=stay, skip=skip, direction=direction)
+    got = dense_evidence(mem, q, codes, EvidenceConf(decay=0.8, stay=stay, skip=skip), direction=direction)
     want = _literal_evidence(mem, q, codes, 0.8, stay, skip, direction)
     assert got.shape == (40, 25) and got.dtype == np.float32
     np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
@@ -77,9 +78,9 @@ def test_evidence_forward_is_causal_and_learns_nothing():
     codes = mem.run(places)
     before = (mem.n_columns, mem.n_connections)
     q = sdr.add_noise(places, 0.3, seed=4)
-    a = mem.evidence(q, codes, direction="forward")
+    a = dense_evidence(mem, q, codes, direction="forward")
     q2 = sp.vstack([q[:20], sdr.random_sdrs(20, 256, 16, seed=9)]).tocsr()
-    b = mem.evidence(q2, codes, direction="forward")
+    b = dense_evidence(mem, q2, codes, direction="forward")
     np.testing.assert_array_equal(a[:, :20], b[:, :20])
     assert not np.array_equal(a[:, 20:], b[:, 20:])
     assert (mem.n_columns, mem.n_connections) == before
@@ -89,14 +90,15 @@ def test_evidence_argument_errors():
     places = _route(5)
     mem = SequenceMemory(n_inputs=256, seed=0)
     codes = mem.run(places)
-    for kw, msg in [({"decay": 1.0}, "decay"), ({"stay": -0.1}, "stay"), ({"skip": float("nan")}, "skip"),
-                    ({"direction": "backward"}, "direction")]:
+    for kw, msg in [({"decay": 1.0}, "decay"), ({"stay": -0.1}, "stay"), ({"skip": float("nan")}, "skip")]:
         with pytest.raises(ValueError, match=msg):
-            mem.evidence(places, codes, **kw)
+            EvidenceConf(**kw)
+    with pytest.raises(ValueError, match="direction"):
+        dense_evidence(mem, places, codes, direction="backward")
     with pytest.raises(ValueError, match="sparse winner-code"):
-        mem.evidence(places, codes.toarray())
+        dense_evidence(mem, places, codes.toarray())
     with pytest.raises(ValueError, match="n_bits|bits"):
-        mem.evidence(sdr.random_sdrs(3, 128, 8, seed=0), codes)
+        dense_evidence(mem, sdr.random_sdrs(3, 128, 8, seed=0), codes)
 
 
 def _aliased_traverses(seed=0, n=120):
@@ -115,7 +117,7 @@ def test_rshosm_seq_beats_pairwise_and_paper_memory_under_aliasing_and_noise():
     db, q = _aliased_traverses()
     n = db.shape[0]
     # the benchmark's tolerances: |i - j| <= 1 true, <= 3 ignored
-    gh, gs = evaluate.gt_from_tolerance(n, n, 1), evaluate.gt_from_tolerance(n, n, 3)
+    gh, gs = groundtruth.gt_from_tolerance(n, n, 1), groundtruth.gt_from_tolerance(n, n, 3)
     names = list(range(n))
     a, b = EncodedTraverse(names, sdr=db), EncodedTraverse(names, sdr=q)
 
@@ -151,7 +153,7 @@ def test_rshosm_seq_normalise_and_disabled_transitions():
                 {"normalise": "none", "stay": None, "skip": "none"}).similarity
     mem = SequenceMemory(threshold=0.75, seed=0)
     codes = mem.run(db)
-    np.testing.assert_allclose(raw, mem.evidence(q, codes, stay=None, skip=None), rtol=1e-6)
+    np.testing.assert_allclose(raw, dense_evidence(mem, q, codes, EvidenceConf(stay=None, skip=None)), rtol=1e-6)
     with pytest.raises(ValueError, match="normalise"):
         match("rshosm-seq", EncodedTraverse(names, sdr=db), EncodedTraverse(names, sdr=q), {"normalise": "global"})
     # a negative cost is an error, not a second way of saying "disabled"

@@ -1,21 +1,25 @@
 """vpr: sequence-based visual place recognition.
 
 The core of the library is :class:`vpr.SequenceMemory`, the rSHOSM sequence
-memory of Neubert, Ahmad and Protzel (KI 2018). Submodules:
+memory of Neubert, Ahmad and Protzel (KI 2018), in :mod:`vpr.shosm` with
+rSHOSM-seq, our graded evidence over it. The house, from the bottom floor up:
 
-- :mod:`vpr.sdr`: SDR batches (bool CSR matrices) and their helpers
-- :mod:`vpr.memory`: the rSHOSM / SHOSM memory
-- :mod:`vpr.localize`: online localisation against a learned database (:class:`vpr.Localizer`)
-- :mod:`vpr.similarity`: overlap / cosine similarity matrices (db x query)
-- :mod:`vpr.baselines`: pairwise comparison and SeqSLAM
-- :mod:`vpr.evaluate`: precision-recall, AUC, recall@K, ground-truth builders
-- :mod:`vpr.simulate`: the paper's simulated grid world
+- shared types and helpers: :mod:`vpr.types` (encoded traverse, match result),
+  :mod:`vpr.sdr`, :mod:`vpr.similarity`, :mod:`vpr.config`, :mod:`vpr.checks`,
+  :mod:`vpr.io`, :mod:`vpr.imageproc`;
+- algorithms, one package each: :mod:`vpr.shosm`, :mod:`vpr.seqslam`,
+  :mod:`vpr.pairwise`; geometry: :mod:`vpr.verify`;
+- data in: :mod:`vpr.sources`, :mod:`vpr.render`, :mod:`vpr.simulate`;
+- evaluation: :mod:`vpr.evaluate` (metrics), :mod:`vpr.groundtruth`;
+- output: :mod:`vpr.plots`;
+- on top: :mod:`vpr.methods` (every method behind one interface, by name) and
+  :mod:`vpr.presets` (named settings).
 """
 from importlib import import_module
 
 __version__ = "0.1.0"
 
-_LAZY = {"SequenceMemory": "vpr.memory", "Localizer": "vpr.localize"}
+_LAZY = {"SequenceMemory": "vpr.shosm", "Localizer": "vpr.shosm"}
 
 
 def __getattr__(name):

@@ -20,7 +20,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
-from vpr._checks import check_int, check_similarity
+from vpr.checks import check_int, check_similarity
 from vpr.io import save_figure
 
 __all__ = ["plot_pr", "plot_similarity", "plot_bars"]

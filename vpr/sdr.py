@@ -16,6 +16,7 @@ __all__ = [
     "from_dense",
     "from_topk",
     "to_indices",
+    "row_bits",
     "check_batch",
     "overlap_count",
     "union",
@@ -123,6 +124,52 @@ def to_indices(batch: sp.csr_matrix) -> list[np.ndarray]:
     """List of active-bit index arrays, one per row."""
     b = check_batch(batch)
     return [b.indices[b.indptr[i]:b.indptr[i + 1]].copy() for i in range(b.shape[0])]
+
+
+def row_bits(row, n_bits: int, name: str = "SDR row") -> np.ndarray:
+    """Sorted active-bit indices (int64) of one SDR row given as a 1-row batch, a dense row or bit indices.
+
+    A 1-D array of exactly ``n_bits`` values is a dense row: bool, or integer /
+    float 0/1 (anything else raises: it is ambiguous). Any other integer array
+    holds the indices of the active bits (so ``n_bits`` indices cannot be given
+    this way: pass a dense row). The one reading of "one SDR row" of every
+    frame-by-frame entry point (:meth:`vpr.shosm.SequenceMemory.step`,
+    :meth:`vpr.shosm.ForwardEvidence.update`, ...).
+
+    Raises
+    ------
+    ValueError
+        Several rows, a wrong width or an index out of range, naming ``name``.
+    """
+    n_bits = int(n_bits)
+    if sp.issparse(row):
+        b = check_batch(row, n_bits=n_bits, name=name)
+        if b.shape[0] != 1:
+            raise ValueError(f"{name}: one SDR row expected, got {b.shape[0]} rows")
+        return b.indices.astype(np.int64)
+    a = np.asarray(row)
+    if a.ndim == 2 and a.shape[0] == 1:
+        a = a[0]
+    if a.ndim != 1:
+        raise ValueError(f"{name} has shape {a.shape}: one row expected (dense {n_bits} bits or bit indices)")
+    if a.dtype == bool:
+        if a.size != n_bits:
+            raise ValueError(f"{name} has shape {a.shape}, expected ({n_bits},)")
+        return np.flatnonzero(a).astype(np.int64)
+    if a.size == n_bits and a.size > 0:
+        if not np.issubdtype(a.dtype, np.integer) and not np.issubdtype(a.dtype, np.floating):
+            raise ValueError(f"{name} of dtype {a.dtype}: expected bool, 0/1 or bit indices")
+        if not np.isin(a, (0, 1)).all():
+            raise ValueError(f"{name} of {a.size} values (= n_bits) that are not all 0/1: ambiguous; "
+                             f"pass a dense bool/0-1 row of {n_bits} values or fewer bit indices")
+        return np.flatnonzero(a).astype(np.int64)
+    if a.size and not np.issubdtype(a.dtype, np.integer):
+        raise ValueError(f"{name}: bit indices must be integers, got dtype {a.dtype}")
+    a = np.unique(a.astype(np.int64))
+    if a.size and (a[0] < 0 or a[-1] >= n_bits):
+        bad = a[0] if a[0] < 0 else a[-1]
+        raise ValueError(f"{name}: bit index {bad} outside [0, {n_bits})")
+    return a
 
 
 def check_batch(batch, n_bits: int | None = None, name: str = "SDR batch") -> sp.csr_matrix:

@@ -1,8 +1,13 @@
-"""Similarity matrices between SDR batches or dense descriptors.
+"""Similarity matrices between SDR batches or dense descriptors, and what every method does with them.
 
 Every function returns **database x query** (rows of the first argument by
 rows of the second), higher = more similar. For a single stream pass one
-argument and get T x T.
+argument and get T x T (rows: earlier frame, columns: frame).
+
+Above :data:`DENSE_PAIRS_LIMIT` pairs a matrix is kept as top-K sparse
+(:func:`top_k_or_dense` says which, :func:`check_dense` refuses what has no
+sparse form); :func:`best_matches` reads the best database frame per query of
+either, :func:`mask_recent` keeps the pairs a loop closure may use.
 """
 from __future__ import annotations
 
@@ -12,7 +17,8 @@ from numba import njit
 
 from vpr import sdr as _sdr
 
-__all__ = ["overlap_similarity", "cosine", "neg_sad", "mean_abs_diff", "topk_sparse", "DENSE_PAIRS_LIMIT"]
+__all__ = ["overlap_similarity", "cosine", "neg_sad", "mean_abs_diff", "topk_sparse", "DENSE_PAIRS_LIMIT",
+           "best_matches", "mask_recent", "fits_dense", "top_k_or_dense", "check_dense"]
 
 #: Above this many database x query pairs a dense similarity matrix is refused: use ``top_k``.
 #: The one size limit of the project (also used to choose dense or top-K output).
@@ -72,7 +78,7 @@ def overlap_similarity(A, B=None, top_k: int | None = None, normalise: bool = Tr
     if not normalise:
         na = nb = None
     if top_k is None:
-        if A.shape[0] * B.shape[0] > DENSE_PAIRS_LIMIT:
+        if not fits_dense(A.shape[0], B.shape[0]):
             raise ValueError(
                 f"{A.shape[0]} x {B.shape[0]} pairs exceed the dense limit of {DENSE_PAIRS_LIMIT} "
                 f"(DENSE_PAIRS_LIMIT); pass top_k")
@@ -185,3 +191,61 @@ def neg_sad(X, Y=None) -> np.ndarray:
     (more negative) for more different ones.
     """
     return -mean_abs_diff(X, Y)
+
+
+# ------------------------------------------------------------------ what methods do with S
+def fits_dense(n_db: int, n_q: int) -> bool:
+    """Whether a dense ``n_db x n_q`` matrix is within :data:`DENSE_PAIRS_LIMIT` (read at call time)."""
+    return n_db * n_q <= DENSE_PAIRS_LIMIT
+
+
+def top_k_or_dense(n_db: int, n_q: int, top_k: int) -> int | None:
+    """``top_k`` when a dense ``n_db x n_q`` matrix would exceed :data:`DENSE_PAIRS_LIMIT`, else None."""
+    return None if fits_dense(n_db, n_q) else top_k
+
+
+def check_dense(what: str, n_db: int, n_q: int, hint: str = "subsample the traverses (--step)") -> None:
+    """Refuse a dense ``n_db x n_q`` matrix above :data:`DENSE_PAIRS_LIMIT` (before any work is done)."""
+    if not fits_dense(n_db, n_q):
+        raise ValueError(f"{what} needs a dense {n_db} x {n_q} matrix ({n_db * n_q * 4 / 2**30:.1f} GiB, above "
+                         f"the limit of {DENSE_PAIRS_LIMIT} pairs); {hint}")
+
+
+def best_matches(S) -> tuple[np.ndarray, np.ndarray]:
+    """Best database index and its score per query of a dense or sparse db x query matrix.
+
+    Ties go to the lowest database index. Queries without any stored entry
+    (sparse) get ``best_db = -1`` and score ``-inf``.
+    """
+    if sp.issparse(S):
+        S = sp.csc_matrix(S)
+        n_q = S.shape[1]
+        best = np.full(n_q, -1, dtype=np.int64)
+        score = np.full(n_q, -np.inf, dtype=np.float64)
+        counts = np.diff(S.indptr)
+        cols = np.repeat(np.arange(n_q), counts)
+        # within each column: highest value first, then the lowest row
+        order = np.lexsort((S.indices, -S.data.astype(np.float64), cols))
+        have = np.flatnonzero(counts)
+        first = order[S.indptr[have]]
+        best[have], score[have] = S.indices[first], S.data[first]
+        return best, score
+    S = np.asarray(S)
+    best = np.argmax(S, axis=0).astype(np.int64)
+    return best, S[best, np.arange(S.shape[1])].astype(np.float64)
+
+
+def mask_recent(S, exclude: int):
+    """Keep only pairs (i, j) with i <= j - exclude of a T x T loop matrix: earlier frames, far enough back.
+
+    Dense: other entries become ``-inf`` (a float32 copy); sparse: they are dropped.
+    """
+    exclude = max(int(exclude), 1)
+    if sp.issparse(S):
+        C = sp.coo_matrix(S)
+        keep = C.row <= C.col - exclude
+        return sp.csr_matrix((C.data[keep], (C.row[keep], C.col[keep])), shape=S.shape)
+    S = np.array(S, dtype=np.float32, copy=True)
+    i, j = np.indices(S.shape)
+    S[i > j - exclude] = -np.inf
+    return S

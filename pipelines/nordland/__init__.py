@@ -15,6 +15,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from pipelines.args import add_common_arguments
+
 from .benchmark import METHOD_SPECS, markdown_table, run_benchmark
 from .data import DATASET_NAME, DATASETS_ENV, SUBSETS, DatasetError
 
@@ -34,7 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser, command: str = "nordland") ->
     parser.add_argument("--k", type=int, default=200, help="active bits of the 2048-bit SDRs (default 200)")
     parser.add_argument("--threshold", type=float, default=None,
                         help="minicolumn threshold of both rSHOSM methods (default: each method's own)")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_common_arguments(parser)
 
 
 def run_command(args) -> int:

@@ -8,15 +8,15 @@ appearance; see ``docs/experiments.md`` for why).
 """
 from __future__ import annotations
 
-import resource
 import time
 from pathlib import Path
 
 import encoders
-from vpr import evaluate as E
+from pipelines.runs import peak_rss_mb
+from pipelines.runs import run_methods as run_harness
+from vpr import groundtruth, methods
 from vpr import io as _io
-from vpr import methods
-from vpr.methods import EncodedTraverse, match
+from vpr.types import EncodedTraverse
 
 from .data import SUBSETS, find_dataset, frame_names, pixel_descriptors
 
@@ -32,11 +32,6 @@ METHOD_SPECS = {
 }
 
 
-def peak_rss_mb() -> float:
-    """Peak resident memory of this process so far, MB (Linux reports kB)."""
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-
 def encode_sdrs(db_desc, q_desc, n_bits: int = 2048, k: int = 40, standardise: str = "fit", seed: int = 0):
     """Random-projection top-k SDRs of both traverses; with ``"fit"`` each traverse is fitted on itself."""
 
@@ -50,31 +45,20 @@ def encode_sdrs(db_desc, q_desc, n_bits: int = 2048, k: int = 40, standardise: s
 
 
 def run_methods(db_desc, q_desc, db_sdr, q_sdr, specs: dict, progress: bool = False) -> tuple[dict, dict]:
-    """Run and evaluate every ``specs`` entry, one at a time (one dense matrix alive at once).
+    """Run and evaluate every ``specs`` entry with the project's harness (:func:`pipelines.runs.run_methods`).
 
     Ground truth: |i - j| <= 1 true, 1 < |i - j| <= 3 ignored. Returns
-    ``(metrics, curves)``: label -> metric dict (with wall and CPU seconds and the
-    process's peak RSS after the method), label -> (precision, recall).
+    ``(metrics, curves)``: label -> metric dict (with the method's seconds, CPU
+    seconds and the process's peak RSS after it), label -> (precision, recall).
     """
     n_db, n_q = len(db_desc), len(q_desc)
     names = [str(i) for i in range(max(n_db, n_q))]
     db = EncodedTraverse(names[:n_db], sdr=db_sdr, desc=db_desc, pixels=db_desc)
     q = EncodedTraverse(names[:n_q], sdr=q_sdr, desc=q_desc, pixels=q_desc)
-    gh, gs = E.gt_from_tolerance(n_db, n_q, 1), E.gt_from_tolerance(n_db, n_q, 3)
-    for method, conf in specs.values():
-        methods.get(method, **conf)  # bad conf fails before any work
-    metrics, curves = {}, {}
-    for label, (method, conf) in specs.items():
-        t0, c0 = time.perf_counter(), time.process_time()
-        S = match(method, db, q, conf, progress=progress).similarity
-        sec, cpu = time.perf_counter() - t0, time.process_time() - c0
-        m, (p, r, _) = E.evaluate(S, gh, gs, return_curve=True)
-        del S
-        curves[label] = (p, r)
-        metrics[label] = {"ap": m["ap"], "auc_pr": m["auc_pr"], "recall_at_100p": m["recall_at_100p"],
-                          "recall_at_1": m["recall_at_1"], "recall_at_5": m["recall_at_5"],
-                          "seconds": sec, "cpu_seconds": cpu, "peak_rss_mb_after": peak_rss_mb()}
-    return metrics, curves
+    gh, gs = groundtruth.gt_from_tolerance(n_db, n_q, 1), groundtruth.gt_from_tolerance(n_db, n_q, 3)
+    runners = {label: methods.get(method, **conf) for label, (method, conf) in specs.items()}  # bad conf: now
+    done = run_harness(runners, lambda r: r.match(db, q, progress=progress), gh, gs, resources=True)
+    return {k: m for k, (m, _) in done.items()}, {k: c for k, (_, c) in done.items()}
 
 
 def markdown_table(metrics: dict, title: str | None = None) -> str:

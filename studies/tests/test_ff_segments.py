@@ -5,7 +5,7 @@ import pytest
 from studies.ff_segments import SegmentedMemory, segment_codes, teach_from_labels, teacher_precision
 from tests.reference import ReferenceMemory
 from vpr import sdr, simulate
-from vpr.memory import SequenceMemory
+from vpr.shosm import SequenceMemory
 
 N_PLACES = 6
 

@@ -4,7 +4,7 @@ import numpy as np
 from studies import nordland_variants as nv
 from tests.reference import ReferenceMemory
 from vpr import sdr
-from vpr.memory import SequenceMemory
+from vpr.shosm import SequenceMemory
 
 
 def test_grid_rows_are_unique_and_the_358_subset_adds_the_pure_python_rows():

@@ -18,23 +18,32 @@ Registered methods (see each module for its conf keys):
     res = m.match(db, query)                   # db, query: EncodedTraverse
     res = methods.match("rshosm", db, query)   # the same in one call
 
-Each method takes encoded traverses (:class:`EncodedTraverse`: SDRs and/or
-dense descriptors) and returns a :class:`MatchResult` with a database x query
-similarity matrix (dense, or a top-K sparse matrix above
-:data:`DENSE_PAIRS_LIMIT` pairs), the best database frame per query, its score
-and an accept flag. ``match`` compares a query traverse with a database
-traverse; ``loops`` finds loop closures within one traverse (only earlier
-frames, at least ``exclude`` frames back). A new method is a :class:`Method`
-subclass registered in ``_REGISTRY``.
+Each method takes encoded traverses (:class:`vpr.types.EncodedTraverse`: SDRs,
+dense descriptors, or inputs it computes from the images itself) and returns a
+:class:`vpr.types.MatchResult` with a database x query similarity matrix
+(dense, or a top-K sparse matrix above :data:`vpr.similarity.DENSE_PAIRS_LIMIT`
+pairs), the best database frame per query, its score and an accept flag.
+``match`` compares a query traverse with a database traverse; ``loops`` finds
+loop closures within one traverse (only earlier frames, at least ``exclude``
+frames back).
+
+A new method is one module in this package with a :class:`Method` subclass
+(its ``name``, ``default_conf``, ``required_inputs``, ``_match`` and, for loop
+closure, ``_loops``; an input it computes from the images is an
+:class:`vpr.types.ImageInput` in its ``image_inputs``) and one line in
+``_REGISTRY``: two files. The algorithm itself, when it is more than a few
+lines, is a subpackage of :mod:`vpr` beside :mod:`vpr.shosm` and
+:mod:`vpr.seqslam`, which this adapter imports.
 """
 from __future__ import annotations
 
 from importlib import import_module
 
-from .base import DENSE_PAIRS_LIMIT, EncodedTraverse, MatchResult, Method, best_matches
+from vpr.types import EncodedTraverse, ImageInput, MatchResult
 
-__all__ = ["get", "available", "get_class", "match", "loops", "Method", "EncodedTraverse", "MatchResult",
-           "best_matches", "DENSE_PAIRS_LIMIT"]
+from .base import Method
+
+__all__ = ["get", "available", "get_class", "match", "loops", "image_inputs", "Method"]
 
 # name -> (module, class); imported on first use, so that e.g. the SeqSLAM kernels load only for seqslam
 _REGISTRY = {
@@ -63,6 +72,14 @@ def get_class(name: str) -> type[Method]:
         raise ValueError(f"unknown method {name!r}; available: {', '.join(available())}")
     module, cls = _REGISTRY[name]
     return getattr(import_module(module), cls)
+
+
+def image_inputs() -> dict[str, ImageInput]:
+    """Every input that a registered method computes from the images itself, by name (imports every method)."""
+    out: dict[str, ImageInput] = {}
+    for name in available():
+        out.update(get_class(name).image_inputs)
+    return out
 
 
 def get(name: str, **conf) -> Method:

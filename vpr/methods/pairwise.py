@@ -4,9 +4,12 @@ from __future__ import annotations
 import numpy as np
 
 from vpr import similarity
-from vpr.baselines.pairwise import pairwise
+from vpr.checks import check_choice
+from vpr.pairwise import pairwise
+from vpr.similarity import best_matches, check_dense, top_k_or_dense
+from vpr.types import EncodedTraverse
 
-from .base import EncodedTraverse, Method, best_matches, check_dense, need, top_k_or_dense
+from .base import Method
 
 __all__ = ["Pairwise"]
 
@@ -14,7 +17,7 @@ __all__ = ["Pairwise"]
 class Pairwise(Method):
     """Pairwise comparison of SDRs (``on="sdr"``, overlap) or dense descriptors (``on="descriptor"``).
 
-    Conf: ``on``, ``metric`` (see :func:`vpr.baselines.pairwise.pairwise`) and
+    Conf: ``on``, ``metric`` (see :func:`vpr.pairwise.pairwise`) and
     ``top_k`` (entries kept per query when the SDR similarity is too large to
     be dense; dense descriptors have no sparse form and are refused then).
     """
@@ -22,16 +25,21 @@ class Pairwise(Method):
     name = "pairwise"
     default_conf = {"on": "sdr", "metric": "auto", "top_k": 50}
 
+    def __init__(self, **conf):
+        super().__init__(**conf)
+        check_choice(self.conf["on"], f"{self.name}: on", ("sdr", "descriptor"))
+
     @property
     def _attr(self) -> str:
         return "sdr" if self.conf["on"] == "sdr" else "desc"
 
+    @property
+    def required_inputs(self) -> tuple:
+        return (self._attr,)
+
     def check_size(self, n_db: int, n_q: int) -> None:
         if self._attr != "sdr":
             check_dense("pairwise comparison of dense descriptors", n_db, n_q)
-
-    def inputs(self) -> set[str]:
-        return {self._attr}
 
     def warm_up(self) -> None:
         similarity.mean_abs_diff(np.zeros((2, 2), np.float32))
@@ -42,8 +50,8 @@ class Pairwise(Method):
         return ok & (score > 0) if self._attr == "sdr" else ok
 
     def _similarity(self, db: EncodedTraverse, query: EncodedTraverse | None):
-        a = need(db, self._attr, self.name, "database" if query is not None else "sequence")
-        b = None if query is None else need(query, self._attr, self.name, "query")
+        a = self.need(db, self._attr, "database" if query is not None else "sequence")
+        b = None if query is None else self.need(query, self._attr, "query")
         n_q = len(db) if query is None else len(query)
         top_k = top_k_or_dense(len(db), n_q, self.conf["top_k"]) if self._attr == "sdr" else None
         return pairwise(a, b, metric=self.conf["metric"], top_k=top_k)

@@ -2,26 +2,27 @@
 from __future__ import annotations
 
 from vpr import sdr, similarity
-from vpr.memory import SequenceMemory, pad_codes
+from vpr.shosm import SequenceMemory, pad_codes
+from vpr.similarity import best_matches, top_k_or_dense
+from vpr.types import EncodedTraverse
 
-from .base import EncodedTraverse, Method, best_matches, need, top_k_or_dense
+from .base import Method
 
 __all__ = ["Rshosm", "warm_up_memory"]
 
 
-def warm_up_memory(evidence: bool = False) -> None:
-    """Compile (or load from numba's cache) the memory's kernels on a tiny input."""
+def warm_up_memory() -> SequenceMemory:
+    """Compile (or load from numba's cache) the memory's kernels on a tiny input; returns the tiny memory."""
     tiny = sdr.from_indices([[0, 1, 2, 3]] * 2, 64)
     mem = SequenceMemory(n_inputs=64, cells_per_column=2, new_columns=1)
-    codes = mem.run(tiny)
-    if evidence:
-        mem.evidence(tiny, codes)
+    mem.run(tiny)
+    return mem
 
 
 class Rshosm(Method):
     """rSHOSM (Neubert et al. 2018): learn the database, run the query without learning, compare winner codes.
 
-    Conf: the :class:`~vpr.memory.SequenceMemory` parameters, and ``top_k``
+    Conf: the :class:`~vpr.shosm.SequenceMemory` parameters, and ``top_k``
     (entries kept per query when the similarity matrix is too large to be dense).
     In :meth:`loops` the memory learns while it runs, as in the paper.
     """
@@ -29,13 +30,11 @@ class Rshosm(Method):
     name = "rshosm"
     default_conf = {**SequenceMemory.default_params(), "top_k": 50}
     nullable_conf = frozenset({"seed"})
+    required_inputs = ("sdr",)
 
     def memory(self) -> SequenceMemory:
         """A new, empty memory with this method's parameters."""
         return SequenceMemory(**{k: self.conf[k] for k in SequenceMemory.default_params()})
-
-    def inputs(self) -> set[str]:
-        return {"sdr"}
 
     def warm_up(self) -> None:
         warm_up_memory()
@@ -46,9 +45,9 @@ class Rshosm(Method):
 
     def _match(self, db: EncodedTraverse, query: EncodedTraverse, progress: bool):
         mem = self.memory()
-        db_codes = mem.run(need(db, "sdr", self.name, "database"), progress=progress)
+        db_codes = mem.run(self.need(db, "sdr", "database"), progress=progress)
         mem.reset()
-        q_codes = mem.run(need(query, "sdr", self.name, "query"), learn=False, progress=progress)
+        q_codes = mem.run(self.need(query, "sdr", "query"), learn=False, progress=progress)
         db_codes, q_codes = pad_codes(db_codes, q_codes)
         top_k = top_k_or_dense(len(db), len(query), self.conf["top_k"])
         S = similarity.overlap_similarity(db_codes, q_codes, top_k=top_k)
@@ -57,6 +56,5 @@ class Rshosm(Method):
 
     def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool):
         n = len(seq)
-        codes = self.memory().run(need(seq, "sdr", self.name, "sequence"), progress=progress)
+        codes = self.memory().run(self.need(seq, "sdr", "sequence"), progress=progress)
         return similarity.overlap_similarity(codes, top_k=top_k_or_dense(n, n, self.conf["top_k"])), None
-

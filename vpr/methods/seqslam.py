@@ -13,36 +13,41 @@ from __future__ import annotations
 import numpy as np
 
 from vpr import similarity
-from vpr.baselines.seqslam import difference_matrix, seqslam, seqslam_topk
+from vpr.checks import check_choice
+from vpr.seqslam import difference_matrix, pixel_descriptors, seqslam, seqslam_topk
+from vpr.similarity import check_dense, top_k_or_dense
+from vpr.types import EncodedTraverse, ImageInput
 
-from .base import EncodedTraverse, Method, check_dense, need, top_k_or_dense
+from .base import Method
 
-__all__ = ["SeqSlam", "SeqSlamDesc"]
+__all__ = ["SeqSlam", "SeqSlamDesc", "PIXELS"]
 
 _SEQSLAM_ARGS = ("ds", "v_min", "v_max", "v_step", "R", "rwindow", "ratio_threshold", "causal")
 _DESCRIPTORS = {"pixel": "pixels", "encoder": "desc", "desc": "desc"}
 _LARGE = ("pairwise", "exact")
 
+#: SeqSLAM's own image descriptor, computed from the images by the extraction stage (not by the encoder).
+PIXELS = ImageInput("pixels", "SeqSLAM pixel descriptors (64 x 32 grey, patch-normalised)", pixel_descriptors)
+
 
 class SeqSlam(Method):
     """SeqSLAM: difference matrix, local contrast enhancement, best constant-velocity trajectory.
 
-    Conf: the arguments of :func:`vpr.baselines.seqslam.seqslam`, ``metric``
+    Conf: the arguments of :func:`vpr.seqslam.seqslam`, ``metric``
     of the difference matrix (``"sad"`` or ``"cosine"``) and ``descriptor``:
     ``"pixel"`` (the SeqSLAM thumbnails) or ``"encoder"`` (alias ``"desc"``:
     the encoder's dense descriptors).
 
-    Large inputs: above :data:`~vpr.methods.DENSE_PAIRS_LIMIT` database x
+    Large inputs: above :data:`~vpr.similarity.DENSE_PAIRS_LIMIT` database x
     query pairs the dense difference matrix is not built;
-    :func:`vpr.baselines.seqslam.seqslam_topk` runs by blocks of queries and
+    :func:`vpr.seqslam.seqslam_topk` runs by blocks of queries and
     keeps the ``top_k`` best entries per query (a sparse similarity). With
     ``large="pairwise"`` (default) it searches only database windows around
     each query block's ``n_candidates`` best single-frame matches under the
-    same metric (approximate: the best match equals the exact one for
-    99.8-99.9 % of queries in the benchmark, at about 1 % of the cells);
-    ``large="exact"`` searches every cell (same result as the dense run,
-    quadratic time: about a minute at 20,000 x 20,000). Loop closure within
-    one traverse has no sparse form and is refused above the limit.
+    same metric (approximate; how often its best match equals the exact one is
+    measured by ``benchmarks/bench_seqslam_scale.py``); ``large="exact"``
+    searches every cell (same result as the dense run, quadratic time). Loop
+    closure within one traverse has no sparse form and is refused above the limit.
     """
 
     name = "seqslam"
@@ -50,27 +55,26 @@ class SeqSlam(Method):
                     "ratio_threshold": 0.9, "causal": False, "metric": "sad", "descriptor": "pixel",
                     "large": "pairwise", "top_k": 50, "n_candidates": 50}
 
+    image_inputs = {"pixels": PIXELS}
+
     def __init__(self, **conf):
         super().__init__(**conf)
-        if self.conf.get("descriptor", "encoder") not in _DESCRIPTORS:
-            raise ValueError(f"{self.name}: descriptor must be 'pixel' or 'encoder' (alias 'desc'), "
-                             f"got {self.conf['descriptor']!r}")
-        if self.conf["metric"] not in ("sad", "cosine"):
-            raise ValueError(f"{self.name}: metric must be 'sad' or 'cosine', got {self.conf['metric']!r}")
-        if self.conf["large"] not in _LARGE:
-            raise ValueError(f"{self.name}: large must be one of {', '.join(_LARGE)}, got {self.conf['large']!r}")
+        check_choice(self.conf.get("descriptor", "encoder"), f"{self.name}: descriptor", _DESCRIPTORS)
+        check_choice(self.conf["metric"], f"{self.name}: metric", ("sad", "cosine"))
+        check_choice(self.conf["large"], f"{self.name}: large", _LARGE)
         self._large = False
 
     @property
     def _attr(self) -> str:
         return _DESCRIPTORS[self.conf.get("descriptor", "encoder")]
 
+    @property
+    def required_inputs(self) -> tuple:
+        return (self._attr,)
+
     def check_size(self, n_db: int, n_q: int) -> None:
         # remembered for warm_up: the blocked kernels are compiled only when they will run
         self._large = top_k_or_dense(n_db, n_q, 1) is not None
-
-    def inputs(self) -> set[str]:
-        return {self._attr}
 
     def warm_up(self) -> None:
         # the difference matrix and pairwise SAD share one compiled kernel
@@ -81,7 +85,7 @@ class SeqSlam(Method):
 
     def descriptors(self, feat: EncodedTraverse, role: str):
         """The descriptors ``conf["descriptor"]`` selects."""
-        return need(feat, self._attr, self.name, role)
+        return self.need(feat, self._attr, role)
 
     def _run(self, D):
         res = seqslam(D, **{k: self.conf[k] for k in _SEQSLAM_ARGS})

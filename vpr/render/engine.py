@@ -16,7 +16,8 @@ import cv2
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
-from .world import LANE_CENTRE, WorldRaster, make_sprite, route_polyline
+from .objects import make_sprite
+from .world import LANE_CENTRE, WorldRaster, route_polyline
 
 __all__ = ["Camera", "ConditionAtlas", "TraversePlan", "plan_traverse", "FrameRenderer", "texture_resolution"]
 

@@ -16,34 +16,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 
-__all__ = ["WorldRaster", "build_world", "route_polyline", "make_sprite", "OBJECT_TYPES", "LANE_CENTRE"]
+from .objects import OBJECT_TYPES, place_corridor_objects, place_street_objects, variant_params
+from .palettes import CORRIDOR_WALLS, FACADE_PALETTE, VIVID, smooth_noise
 
-# BGR albedos
-_FACADE_PALETTE = np.array([
-    [0.22, 0.30, 0.52],  # red brick
-    [0.50, 0.64, 0.76],  # sandstone
-    [0.80, 0.82, 0.83],  # white render
-    [0.52, 0.53, 0.54],  # grey concrete
-    [0.72, 0.60, 0.48],  # pastel blue
-    [0.46, 0.74, 0.84],  # pastel yellow
-    [0.28, 0.28, 0.30],  # dark stone
-    [0.50, 0.62, 0.52],  # sage
-    [0.40, 0.48, 0.66],  # terracotta
-], np.float32)
-_VIVID = np.array([[0.15, 0.15, 0.70], [0.20, 0.55, 0.15], [0.65, 0.35, 0.10], [0.10, 0.70, 0.85],
-                   [0.45, 0.15, 0.45], [0.10, 0.10, 0.10]], np.float32)
-_CORRIDOR_WALLS = np.array([[0.78, 0.86, 0.88], [0.70, 0.80, 0.70], [0.82, 0.74, 0.62], [0.80, 0.80, 0.80],
-                            [0.62, 0.78, 0.86]], np.float32)
+__all__ = ["WorldRaster", "build_world", "route_polyline", "LANE_CENTRE"]
 
 LANE_CENTRE = 1.75  # metres right of a street's centre line: where the camera drives
 
-OBJECT_TYPES = {
-    "street": ("tree", "lamp", "sign", "bin", "bollard", "car"),
-    "corridor": ("extinguisher", "plant", "bin", "pillar", "exitsign", "bench"),
-}
 
 
 @dataclass
@@ -119,15 +100,6 @@ def route_polyline(length: float, loop: bool, seed: int, step: float = 0.5) -> n
 
 # ----------------------------------------------------------------------------- helpers
 
-def _smooth_noise(rng, shape, scale):
-    """Value noise with feature size ~``scale`` pixels, zero mean, unit-ish std."""
-    h, w = shape
-    sh, sw = max(2, int(np.ceil(h / scale)) + 2), max(2, int(np.ceil(w / scale)) + 2)
-    small = rng.standard_normal((sh, sw)).astype(np.float32)
-    big = cv2.resize(small, (int(sw * scale), int(sh * scale)), interpolation=cv2.INTER_CUBIC)
-    return big[:h, :w]
-
-
 def _cols(zc, z0, z1):
     """Column slice covering [z0, z1) given sorted column centres ``zc``."""
     return slice(int(np.searchsorted(zc, z0)), int(np.searchsorted(zc, z1)))
@@ -142,7 +114,7 @@ def _plan_street_side(rng, a, b, loop):
         if segs and rng.random() < 0.12:
             w = rng.uniform(2.0, 6.0)
             segs.append({"type": "gap", "z0": z, "w": w, "height": rng.uniform(1.8, 9.0),
-                         "colour": _FACADE_PALETTE[rng.integers(len(_FACADE_PALETTE))] * 0.45,
+                         "colour": FACADE_PALETTE[rng.integers(len(FACADE_PALETTE))] * 0.45,
                          "fence": bool(rng.random() < 0.5)})
         else:
             w = rng.uniform(7.0, 22.0)
@@ -152,12 +124,12 @@ def _plan_street_side(rng, a, b, loop):
             segs.append({
                 "type": "building", "z0": z, "w": w, "floor_h": fh, "floors": nfl,
                 "height": nfl * fh + rng.uniform(0.5, 1.2),
-                "colour": np.clip(_FACADE_PALETTE[rng.integers(len(_FACADE_PALETTE))] +
+                "colour": np.clip(FACADE_PALETTE[rng.integers(len(FACADE_PALETTE))] +
                                   rng.uniform(-0.06, 0.06, 3), 0.05, 0.95).astype(np.float32),
                 "win_w": ww, "win_h": rng.uniform(1.2, 1.8), "spacing": ww + rng.uniform(0.8, 2.2),
                 "sill": rng.uniform(0.7, 1.0), "frame": np.float32(rng.choice([0.85, 0.2, 0.6])),
                 "glass": np.array([0.33, 0.28, 0.24], np.float32) * rng.uniform(0.7, 1.3),
-                "shop": bool(rng.random() < 0.55), "awning": _VIVID[rng.integers(len(_VIVID))],
+                "shop": bool(rng.random() < 0.55), "awning": VIVID[rng.integers(len(VIVID))],
                 "brick": bool(rng.random() < 0.4), "band": bool(rng.random() < 0.35),
                 "door": rng.uniform(0.15, 0.85),
                 "win_seed": int(rng.integers(1 << 31)),
@@ -268,7 +240,7 @@ def _plan_corridor_side(rng, a, b, loop):
             d += doors[-1]["w"] + rng.uniform(2.0, 7.0)
         boards = [{"z": float(rng.uniform(z, z + w - 1.5)), "w": float(rng.uniform(0.8, 1.6)),
                    "seed": int(rng.integers(1 << 31))} for _ in range(int(rng.integers(0, 3)))]
-        zones.append({"z0": z, "w": w, "colour": np.clip(_CORRIDOR_WALLS[rng.integers(len(_CORRIDOR_WALLS))] +
+        zones.append({"z0": z, "w": w, "colour": np.clip(CORRIDOR_WALLS[rng.integers(len(CORRIDOR_WALLS))] +
                                                           rng.uniform(-0.04, 0.04, 3), 0, 1).astype(np.float32),
                       "doors": doors, "boards": boards, "rail": bool(rng.random() < 0.5)})
         z += w
@@ -323,7 +295,7 @@ def _raster_street_ground(rng, xg, zg, hw, alb, kind, a, b):
     sw = 2.5
     road_hw = hw - sw
     ax = np.abs(xg)[:, None]
-    noise = 0.04 * _smooth_noise(rng, alb.shape[:2], 6) + 0.03 * rng.standard_normal(alb.shape[:2]).astype(np.float32)
+    noise = 0.04 * smooth_noise(rng, alb.shape[:2], 6) + 0.03 * rng.standard_normal(alb.shape[:2]).astype(np.float32)
     side = ax > road_hw
     alb[:] = 0.27
     kind[:] = 0
@@ -368,7 +340,7 @@ def _raster_corridor_floor(rng, xg, zg, hw, alb, kind, zones):
         alb[:, cz] = np.clip(zn["colour"] * 0.55 + rng.uniform(-0.05, 0.05, 3), 0, 1)
     tiles = (np.mod(xg + hw, 0.6) < 0.03)[:, None] | (np.mod(zg, 0.6) < 0.03)[None, :]
     alb[tiles] *= 0.85
-    worn = np.exp(-(xg / 0.45) ** 2)[:, None] * (0.12 + 0.08 * _smooth_noise(rng, alb.shape[:2], 10))
+    worn = np.exp(-(xg / 0.45) ** 2)[:, None] * (0.12 + 0.08 * smooth_noise(rng, alb.shape[:2], 10))
     alb *= (1.0 - worn)[..., None]
     alb *= (1.0 + 0.03 * rng.standard_normal(alb.shape[:2]).astype(np.float32))[..., None]
     kind[:] = 1
@@ -390,214 +362,6 @@ def _raster_ceiling(rng, xg, zg, alb, emit, a, b):
         cz, cx = _cols(zg, z0, z0 + 0.6), _cols(xg, 0.5, 1.1) if rng.random() < 0.5 else _cols(xg, -1.1, -0.5)
         alb[cx, cz] = 0.55
         alb[cx, cz][::2] = 0.4
-
-
-# ----------------------------------------------------------------------------- objects
-
-def _variant_params(rng, typ):
-    u = rng.uniform
-    if typ == "tree":
-        return {"w": u(2.5, 5.0), "h": u(5.0, 9.0), "base": 0.0, "trunk": u(0.2, 0.4), "crown": u(0.45, 0.7),
-                "hue": u(-0.08, 0.08), "seed": int(rng.integers(1 << 31))}
-    if typ == "lamp":
-        return {"w": 1.4, "h": u(5.5, 7.0), "base": 0.0, "seed": int(rng.integers(1 << 31))}
-    if typ == "sign":
-        return {"w": 0.7, "h": u(2.5, 3.0), "base": 0.0, "shape": int(rng.integers(3)),
-                "colour": _VIVID[rng.integers(4)].tolist(), "seed": int(rng.integers(1 << 31))}
-    if typ == "bin":
-        return {"w": u(0.5, 0.8), "h": u(0.9, 1.2), "base": 0.0,
-                "colour": (np.array([0.2, 0.35, 0.15]) * u(0.6, 1.6)).tolist(), "seed": int(rng.integers(1 << 31))}
-    if typ == "bollard":
-        return {"w": 0.22, "h": 0.9, "base": 0.0, "seed": int(rng.integers(1 << 31))}
-    if typ == "car":
-        return {"w": 1.8, "h": u(1.4, 1.7), "base": 0.0,
-                "colour": np.clip(rng.choice(_FACADE_PALETTE) * u(0.5, 1.3), 0.05, 0.95).tolist(),
-                "seed": int(rng.integers(1 << 31))}
-    if typ == "extinguisher":
-        return {"w": 0.2, "h": 0.6, "base": 0.35, "seed": int(rng.integers(1 << 31))}
-    if typ == "plant":
-        return {"w": u(0.5, 0.9), "h": u(0.9, 1.6), "base": 0.0, "hue": u(-0.05, 0.05),
-                "seed": int(rng.integers(1 << 31))}
-    if typ == "pillar":
-        return {"w": 0.5, "h": 3.0, "base": 0.0, "colour": u(0.55, 0.75), "seed": int(rng.integers(1 << 31))}
-    if typ == "exitsign":
-        return {"w": 0.45, "h": 0.22, "base": 2.25, "seed": int(rng.integers(1 << 31))}
-    if typ == "bench":
-        return {"w": 1.3, "h": 0.85, "base": 0.0, "colour": u(0.2, 0.5), "seed": int(rng.integers(1 << 31))}
-    raise ValueError(f"unknown object type {typ!r}")
-
-
-def _place_street_objects(rng, a, b, hw, density, variants):
-    rows = []  # (type, variant, x, z)
-    sw = 2.5
-    for side in (-1, 1):
-        xs = side * (hw - 1.0)
-        z = a + rng.uniform(0, 10)
-        while z < b:  # tree stretches
-            if rng.random() < 0.5 * min(1.0, density):
-                z1 = z + rng.uniform(30, 90)
-                tz = z
-                while tz < min(z1, b):
-                    rows.append((0, int(rng.integers(variants[0])), xs + rng.uniform(-0.3, 0.3), tz))
-                    tz += rng.uniform(7, 13) / max(density, 0.2)
-                z = z1
-            else:
-                z += rng.uniform(20, 60)
-        for lz in np.arange(a + rng.uniform(0, 30), b, 30.0 / max(density, 0.2)):
-            rows.append((1, int(rng.integers(variants[1])), side * (hw - 0.5), lz + rng.uniform(-2, 2)))
-        n = int((b - a) / 25 * density)
-        for t, nv, dx in ((2, variants[2], -0.4), (3, variants[3], -0.6), (4, variants[4], -2.3)):
-            for z0 in rng.uniform(a, b, int(n * (0.5 if t != 2 else 0.8))):
-                rows.append((t, int(rng.integers(nv)), side * (hw + dx), z0))
-        z = a + rng.uniform(0, 30)
-        while z < b:  # parked cars in clusters
-            if rng.random() < 0.4 * min(1.0, density):
-                for _ in range(int(rng.integers(1, 5))):
-                    rows.append((5, int(rng.integers(variants[5])), side * (hw - sw - 1.1), z))
-                    z += rng.uniform(5.0, 6.5)
-            z += rng.uniform(15, 50)
-    return rows
-
-
-def _place_corridor_objects(rng, a, b, hw, density, variants):
-    rows = []
-    for side in (-1, 1):
-        for t, every, dx in ((0, 25, 0.12), (1, 30, 0.4), (2, 35, 0.35), (5, 45, 0.35)):
-            for z0 in rng.uniform(a, b, int((b - a) / every * density)):
-                rows.append((t, int(rng.integers(variants[t])), side * (hw - dx), z0))
-    for z0 in np.arange(a + rng.uniform(5, 20), b, 24.0 / max(density, 0.2)):  # pillars pairs
-        if rng.random() < 0.5:
-            for side in (-1, 1):
-                rows.append((3, 0, side * (hw - 0.25), z0))
-    for z0 in np.arange(a + rng.uniform(5, 20), b, 20.0 / max(density, 0.2)):
-        rows.append((4, 0, 0.0, z0 + rng.uniform(-3, 3)))
-    return rows
-
-
-# ----------------------------------------------------------------------------- sprites
-
-def make_sprite(typ: str, p: dict, season: str, ppm: float = 24.0):
-    """Albedo (h, w, 3), alpha (h, w), emissive (h, w) float32 of one object, bottom row at its base."""
-    h_px = max(4, int(round(p["h"] * ppm)))
-    w_px = max(2, int(round(p["w"] * ppm)))
-    alb = np.zeros((h_px, w_px, 3), np.float32)
-    alpha = np.zeros((h_px, w_px), np.float32)
-    emit = np.zeros((h_px, w_px), np.float32)
-    rng = np.random.default_rng(p["seed"])
-    cx = w_px / 2.0
-
-    def rect(x0, y0, x1, y1, col, a=1.0):
-        # y measured upwards from the base in metres, x from the left edge
-        r0, r1 = h_px - int(round(y1 * ppm)), h_px - int(round(y0 * ppm))
-        c0, c1 = int(round(x0 * ppm)), int(round(x1 * ppm))
-        r0, c0 = max(r0, 0), max(c0, 0)
-        if r1 > r0 and c1 > c0:
-            alb[r0:r1, c0:c1] = col
-            alpha[r0:r1, c0:c1] = a
-        return slice(r0, r1), slice(c0, c1)
-
-    W, H = p["w"], p["h"]
-    if typ == "tree":
-        rect(W / 2 - p["trunk"] / 2, 0, W / 2 + p["trunk"] / 2, H * 0.75, [0.12, 0.18, 0.25])
-        yy, xx = np.mgrid[0:h_px, 0:w_px].astype(np.float32)
-        ry, rx = h_px * p["crown"] / 2, w_px / 2
-        ccy = h_px * p["crown"] / 2
-        n = _smooth_noise(rng, (h_px, w_px), max(2.0, w_px / 6))
-        d = np.sqrt(((yy - ccy) / ry) ** 2 + ((xx - cx) / rx) ** 2) + 0.15 * n
-        crown = d < 0.95
-        shade = (0.8 + 0.25 * n - 0.25 * (yy - ccy) / ry)[..., None]
-        if season == "winter":
-            # bare branches: a few thick strokes from the trunk upwards
-            br = np.zeros((h_px, w_px), np.uint8)
-            for _ in range(9):
-                x1 = int(cx + rng.uniform(-1, 1) * rx * 0.9)
-                y1 = int(ccy + rng.uniform(-1, 0.6) * ry)
-                cv2.line(br, (int(cx), int(h_px * 0.7)), (x1, y1), 1, max(1, w_px // 40))
-            m = (br > 0) | ((d < 0.95) & (rng.random((h_px, w_px)) < 0.07))
-            alb[m] = [0.14, 0.17, 0.2]
-            alpha[m] = 1.0
-        else:
-            base = {"summer": [0.12, 0.42, 0.22], "spring": [0.2, 0.6, 0.35],
-                    "autumn": [0.08, 0.38, 0.72]}[season]
-            col = np.clip(np.array(base, np.float32) + [0, p["hue"], -p["hue"]], 0, 1)
-            alb[crown] = (col[None, None, :] * shade)[crown]
-            alpha[crown] = 1.0
-    elif typ == "lamp":
-        rect(0.05, 0, 0.2, H, [0.22, 0.22, 0.24])
-        rect(0.05, H - 0.12, 1.3, H, [0.22, 0.22, 0.24])
-        rows, cols = rect(0.9, H - 0.3, 1.4, H - 0.05, [0.35, 0.38, 0.4])
-        emit[rows, cols] = 1.0
-    elif typ == "sign":
-        rect(W / 2 - 0.04, 0, W / 2 + 0.04, H - 0.3, [0.5, 0.5, 0.5])
-        plate = np.zeros((h_px, w_px), np.uint8)
-        r = int(W * ppm / 2) - 1
-        cyp = int(h_px - (H - 0.3) * ppm)
-        if p["shape"] == 0:
-            cv2.circle(plate, (int(cx), cyp), r, 1, -1)
-        elif p["shape"] == 1:
-            cv2.rectangle(plate, (1, max(0, cyp - r)), (w_px - 2, cyp + r), 1, -1)
-        else:
-            pts = np.array([[int(cx), max(0, cyp - r)], [w_px - 1, cyp], [int(cx), cyp + r], [0, cyp]], np.int32)
-            cv2.fillPoly(plate, [pts], 1)
-        m = plate > 0
-        alb[m] = p["colour"]
-        inner = cv2.erode(plate, np.ones((3, 3), np.uint8), iterations=max(1, r // 3)) > 0
-        alb[inner] = 0.9
-        alpha[m] = 1.0
-    elif typ == "bin":
-        rect(0, 0, W, H, p["colour"])
-        rect(0, H - 0.1, W, H, np.array(p["colour"]) * 0.6)
-    elif typ == "bollard":
-        rect(0, 0, W, H, [0.3, 0.3, 0.32])
-        rect(0, H - 0.25, W, H - 0.15, [0.9, 0.9, 0.9])
-    elif typ == "car":
-        c = np.array(p["colour"], np.float32)
-        rect(0, 0.25, W, H * 0.62, c)
-        rect(0.22, H * 0.62, W - 0.22, H, c * 0.9)
-        rect(0.3, H * 0.64, W - 0.3, H * 0.95, [0.12, 0.1, 0.1])
-        rect(0.05, 0, 0.35, 0.35, [0.05, 0.05, 0.05])
-        rect(W - 0.35, 0, W - 0.05, 0.35, [0.05, 0.05, 0.05])
-        for x0 in (0.05, W - 0.3):
-            rows, cols = rect(x0, H * 0.45, x0 + 0.25, H * 0.55, [0.1, 0.1, 0.7])
-            emit[rows, cols] = 0.8
-        rect(W / 2 - 0.25, 0.35, W / 2 + 0.25, 0.48, [0.92, 0.92, 0.92])
-    elif typ == "extinguisher":
-        rect(0.02, 0, W - 0.02, H * 0.85, [0.1, 0.1, 0.75])
-        rect(W * 0.3, H * 0.85, W * 0.7, H, [0.1, 0.1, 0.1])
-    elif typ == "plant":
-        rect(W * 0.25, 0, W * 0.75, 0.4, [0.15, 0.3, 0.5])
-        yy, xx = np.mgrid[0:h_px, 0:w_px].astype(np.float32)
-        n = _smooth_noise(rng, (h_px, w_px), max(2.0, w_px / 5))
-        ccy, ry = h_px * 0.35, h_px * 0.38
-        d = np.sqrt(((yy - ccy) / ry) ** 2 + ((xx - cx) / (w_px / 2)) ** 2) + 0.2 * n
-        m = d < 0.95
-        alb[m] = np.clip(np.array([0.15, 0.45 + p["hue"], 0.2]) * (0.8 + 0.3 * n[m, None]), 0, 1)
-        alpha[m] = 1.0
-    elif typ == "pillar":
-        rect(0, 0, W, H, p["colour"])
-        rect(0, 0, W, 0.12, 0.2)
-    elif typ == "exitsign":
-        rect(0, 0, W, H, [0.2, 0.6, 0.1])
-        rows, cols = rect(0.05, 0.04, W - 0.05, H - 0.04, [0.3, 0.85, 0.2])
-        emit[rows, cols] = 0.9
-        rect(0.1, 0.07, 0.2, H - 0.07, 0.95)
-        rect(W / 2 - 0.01, H, W / 2 + 0.01, H, 0.3)
-    elif typ == "bench":
-        rect(0, 0.4, W, 0.5, p["colour"])
-        rect(0, 0.6, W, 0.85, p["colour"] * 0.9)
-        rect(0.1, 0, 0.18, 0.45, 0.15)
-        rect(W - 0.18, 0, W - 0.1, 0.45, 0.15)
-    if season == "winter":
-        # snow caps: the top few opaque pixels of every column
-        op = alpha > 0
-        first = np.argmax(op, axis=0)
-        has = op.any(axis=0)
-        depth = max(1, int(round(0.12 * ppm)))
-        r = np.arange(h_px)[:, None]
-        cap = has[None, :] & (r >= first[None, :]) & (r < first[None, :] + depth) & op
-        if typ not in ("extinguisher", "exitsign", "plant", "pillar", "bench"):
-            alb[cap] = 0.92
-    return alb, alpha, emit
 
 
 # ----------------------------------------------------------------------------- the world
@@ -645,7 +409,7 @@ def build_world(wspec: dict, ppm: float, gppm: float, max_depth: float, sprite_p
             _raster_corridor_side(segs, zc, hr, alb, emit, snow, top, float(ceiling))
         plans.append(segs)
         # stains and grain so that plain walls still carry some texture
-        alb *= (1.0 + 0.06 * _smooth_noise(rng_tex, (hpx, ncols), max(2.0, ppm * 1.5))
+        alb *= (1.0 + 0.06 * smooth_noise(rng_tex, (hpx, ncols), max(2.0, ppm * 1.5))
                 + 0.03 * rng_tex.standard_normal((hpx, ncols)).astype(np.float32))[..., None]
         np.clip(alb, 0.0, 1.0, out=alb)
         walls_alb.append(alb)
@@ -668,11 +432,11 @@ def build_world(wspec: dict, ppm: float, gppm: float, max_depth: float, sprite_p
 
     types = OBJECT_TYPES[kind]
     nvar = [6, 2, 6, 3, 1, 8] if kind == "street" else [1, 3, 2, 1, 1, 2]
-    vparams = [[_variant_params(rng_plan, t) for _ in range(n)] for t, n in zip(types, nvar, strict=False)]
+    vparams = [[variant_params(rng_plan, t) for _ in range(n)] for t, n in zip(types, nvar, strict=False)]
     if kind == "street":
-        rows = _place_street_objects(rng_plan, a, b, hw, wspec["density"], nvar)
+        rows = place_street_objects(rng_plan, a, b, hw, wspec["density"], nvar)
     else:
-        rows = _place_corridor_objects(rng_plan, a, b, hw, wspec["density"], nvar)
+        rows = place_corridor_objects(rng_plan, a, b, hw, wspec["density"], nvar)
     obj = np.array(rows, np.float64).reshape(-1, 4)
     if loop:
         obj[:, 3] = np.mod(obj[:, 3], L)
@@ -741,5 +505,5 @@ def build_world(wspec: dict, ppm: float, gppm: float, max_depth: float, sprite_p
         ppm=ppm, gppm=gppm, wall_alb=walls_alb, wall_emit=walls_emit, wall_snow=walls_snow, wall_top=walls_top,
         ground_alb=galb, ground_kind=gkind, ground_emit=gemit, ceil_alb=calb, ceil_emit=cemit,
         objects=objects, sprite_keys=[(types[t], v) for t, v in keys], sprite_params=sp,
-        sky_noise=_smooth_noise(np.random.default_rng([seed, 3]), (48, 360), 8), seed=seed,
+        sky_noise=smooth_noise(np.random.default_rng([seed, 3]), (48, 360), 8), seed=seed,
         extras={"sprite_ppm": sprite_ppm})

@@ -1,21 +1,14 @@
-"""Compiled kernels of :mod:`vpr.evidence` (numba): graded sequence evidence.
+"""Compiled kernels of the sparse graded evidence (numba): the beam, and lists that grow online.
 
-Not Algorithm 1 of the paper: our extension ``rshosm-seq`` scores query frames
-against a learned database with graded feed-forward and prediction evidence
-along the memory's learned lateral connections.
-
-* :func:`evidence_frames`: the dense version, every relevant cell every frame
-  (cost per frame linear in the number of connections; output n_db x n_q).
-* :func:`beam_frames`: the sparse version: per frame only the cells whose
-  evidence is above a floor (the "beam") are carried; a cell enters through the
-  inverted index input bit -> minicolumns (feed-forward) or through a learned
-  connection from a beam cell (prediction). Evidence is never negative here:
-  a cell outside the beam has evidence 0, which is what makes the beam exact
-  when its floors are 0 (tests compare it with ``evidence_frames(clamp=True)``).
-  Output per frame is the sparse column of database frames that a beam cell
-  belongs to.
-* :func:`finish_columns`: per-query z-scores (mean and standard deviation over
-  all database frames, from the sparse column: absent frames are 0) and top-K.
+* :func:`beam_frames`: per frame only the cells whose evidence is above a floor
+  (the "beam") are carried; a cell enters through the inverted index input bit
+  -> minicolumns (feed-forward) or through a learned connection from a beam
+  cell (prediction). Evidence is never negative here: a cell outside the beam
+  has evidence 0, which is what makes the beam exact when its floors are 0
+  (tests compare it with ``evidence_frames(clamp=True)``). Output per frame is
+  the sparse column of database frames that a beam cell belongs to.
+* :func:`append_lists`, :func:`count_new_entries`: follow a memory that learns
+  while it is read (loop closure in one stream).
 """
 from __future__ import annotations
 
@@ -26,77 +19,6 @@ from numba import njit
 # candidate set of any frame so far) that tests and benchmarks read to check the caps
 B_SIZE, B_OUT_POS, B_NEED, B_FRAMES, B_MAX_BEAM, B_MAX_CAND = range(6)
 BEAM_STATE_SIZE = 6
-
-
-@njit(cache=True)
-def evidence_frames(q_ptr, q_ind, order, bit_cols, bit_len, col_size, rel_col, e_src, e_dst,
-                    db_ptr, db_ind, db_norm, decay, stay, skip, z_weight, out, e, fresh, clamp=False):
-    """Graded sequence evidence of a query traverse along the learned lateral connections.
-
-    Not Algorithm 1: an extension for database-vs-query matching
-    (:func:`vpr.evidence.dense_evidence`). Cells are the memory's "relevant" cells (those in
-    database codes or on a connection), renumbered ``0 .. n_rel-1``; ``rel_col``
-    is each one's minicolumn. For query frames in ``order``, a cell's evidence is
-    its minicolumn's feed-forward overlap fraction ``z`` plus ``decay`` times the
-    best evidence that predicts it: over its incoming connections (the learned
-    sequence), two connections back minus ``skip`` (a skipped frame) or itself
-    minus ``stay`` (a repeated frame); a negative ``stay``/``skip`` disables that
-    path. ``out[j, q] += mean over database code j of (evidence - z_weight * z)``.
-    ``e`` carries the evidence from one call to the next (chunks of ``order``);
-    ``fresh`` marks the first chunk. ``clamp`` floors the predicted term at 0
-    (the semantics of :func:`beam_frames`, whose absent cells are 0), for tests.
-    """
-    n_rel = rel_col.shape[0]
-    n_cols = col_size.shape[0]
-    n_db = db_ptr.shape[0] - 1
-    n_e = e_src.shape[0]
-    counts = np.zeros(n_cols, np.float64)
-    z = np.zeros(n_rel, np.float64)
-    p1 = np.empty(n_rel, np.float64)
-    p2 = np.empty(n_rel, np.float64)
-    for t in range(order.shape[0]):
-        q = order[t]
-        for i in range(q_ptr[q], q_ptr[q + 1]):
-            b = q_ind[i]
-            for j in range(bit_len[b]):
-                counts[bit_cols[b, j]] += 1.0
-        for c in range(n_rel):
-            col = rel_col[c]
-            z[c] = counts[col] / col_size[col] if col_size[col] > 0 else 0.0
-        for i in range(q_ptr[q], q_ptr[q + 1]):
-            b = q_ind[i]
-            for j in range(bit_len[b]):
-                counts[bit_cols[b, j]] = 0.0
-        if t == 0 and fresh:
-            for c in range(n_rel):
-                e[c] = z[c]
-        else:
-            p1[:] = -np.inf
-            for k in range(n_e):
-                if e[e_src[k]] > p1[e_dst[k]]:
-                    p1[e_dst[k]] = e[e_src[k]]
-            if skip >= 0.0:
-                p2[:] = -np.inf
-                for k in range(n_e):
-                    if p1[e_src[k]] > p2[e_dst[k]]:
-                        p2[e_dst[k]] = p1[e_src[k]]
-            for c in range(n_rel):
-                p = p1[c]
-                if skip >= 0.0 and p2[c] - skip > p:
-                    p = p2[c] - skip
-                if stay >= 0.0 and e[c] - stay > p:
-                    p = e[c] - stay
-                if p == -np.inf or (clamp and p < 0.0):
-                    p = 0.0  # nothing predicts this cell: no sequence evidence either way
-                e[c] = z[c] + decay * p
-        for j in range(n_db):
-            s = 0.0
-            for i in range(db_ptr[j], db_ptr[j + 1]):
-                c = db_ind[i]
-                s += e[c] - z_weight * z[c]
-            if db_norm[j] > 0:
-                out[j, q] += s / db_norm[j]
-    return out
 
 
 @njit(cache=True, inline="always")
@@ -330,89 +252,6 @@ def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
     st[B_FRAMES] = n
     st[B_NEED] = 0
     return n
-
-
-@njit(cache=True)
-def finish_columns(a_ptr, a_idx, a_val, b_ptr, b_idx, b_val, n_db, top_k, normalise, acc, mark, touch):
-    """Per query: sum the two passes' sparse columns (``b_ptr`` empty: one pass),
-    standardise over all database frames and keep the ``top_k`` largest (``top_k <= 0``: all).
-
-    ``n_db`` is an array (per query, the number of database frames it is scored
-    against). Returns (ptr, idx, val, best, score, mean, sd); ``best`` is -1 for
-    a query without any evidence. Ties go to the smaller database index, as
-    ``argmax`` of the dense column.
-    """
-    n_q = a_ptr.shape[0] - 1
-    two = b_ptr.shape[0] == n_q + 1
-    cap = 0
-    for q in range(n_q):
-        m = a_ptr[q + 1] - a_ptr[q]
-        if two:
-            m += b_ptr[q + 1] - b_ptr[q]
-        cap += m if top_k <= 0 else min(m, top_k)
-    ptr = np.zeros(n_q + 1, np.int64)
-    idx = np.empty(cap, np.int64)
-    val = np.empty(cap, np.float32)
-    best = np.full(n_q, -1, np.int64)
-    score = np.full(n_q, -np.inf, np.float64)
-    mean = np.zeros(n_q, np.float64)
-    sd = np.ones(n_q, np.float64)
-    pos = 0
-    for q in range(n_q):
-        n_t = 0
-        for i in range(a_ptr[q], a_ptr[q + 1]):
-            j = a_idx[i]
-            if not mark[j]:
-                mark[j] = True
-                touch[n_t] = j
-                n_t += 1
-            acc[j] += a_val[i]
-        if two:
-            for i in range(b_ptr[q], b_ptr[q + 1]):
-                j = b_idx[i]
-                if not mark[j]:
-                    mark[j] = True
-                    touch[n_t] = j
-                    n_t += 1
-                acc[j] += b_val[i]
-        s = 0.0
-        s2 = 0.0
-        for i in range(n_t):
-            v = acc[touch[i]]
-            s += v
-            s2 += v * v
-        nd = n_db[q]
-        mu = 0.0
-        sig = 1.0
-        if normalise and nd > 0:
-            mu = s / nd
-            var = s2 / nd - mu * mu
-            sig = np.sqrt(var) if var > 0 else 1.0
-        mean[q] = mu
-        sd[q] = sig
-        keys = np.empty(n_t, np.float64)
-        for i in range(n_t):
-            keys[i] = -acc[touch[i]]
-        tj = touch[:n_t].copy()
-        # sort by value descending, then index ascending (ties as argmax)
-        o = np.argsort(tj, kind="mergesort")
-        o2 = np.argsort(keys[o], kind="mergesort")
-        o = o[o2]
-        k = n_t if top_k <= 0 else min(n_t, top_k)
-        if n_t > 0:
-            best[q] = tj[o[0]]
-            score[q] = (acc[tj[o[0]]] - mu) / sig
-        for i in range(k):
-            j = tj[o[i]]
-            idx[pos] = j
-            val[pos] = (acc[j] - mu) / sig
-            pos += 1
-        ptr[q + 1] = pos
-        for i in range(n_t):
-            j = touch[i]
-            acc[j] = 0.0
-            mark[j] = False
-    return ptr, idx[:pos], val[:pos], best, score, mean, sd
 
 
 @njit(cache=True)

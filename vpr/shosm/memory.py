@@ -4,32 +4,35 @@ Protzel, "A Sequence-Based Neuronal Model for Mobile Robot Localization", KI 201
 :class:`SequenceMemory` implements Algorithm 1 of the paper (SHOSM) with the
 randomised extra connections of section 4.3 (rSHOSM, ``p_extra > 0``). The
 output of every step is the set of winner cells; place recognition compares
-winner codes of different time steps by their overlap.
-:meth:`SequenceMemory.evidence` (our extension, method ``rshosm-seq``) instead
-scores a query traverse against a learned database with graded feed-forward
-and prediction evidence along the learned connections.
+winner codes of different time steps by their overlap. The graded evidence of
+rSHOSM-seq (our extension, :mod:`vpr.shosm.evidence`) reads a learned memory
+and never changes it.
 
 Data layout (why it is fast): minicolumns are found through an inverted index
 *input bit -> minicolumns*, and lateral connections are kept as linked lists per
 source and per target cell in append-only arrays; the per-observation loop is
-compiled with numba (:mod:`vpr._memory_kernel`, one function per phase of
+compiled with numba (:mod:`vpr.shosm.kernels.memory`, one function per phase of
 Algorithm 1). ``benchmarks/bench_memory.py`` prints the cost per observation.
-What the memory has learned is read through :attr:`SequenceMemory.connections`
-(SciPy matrices, a read-only copy), never through the private arrays.
+What the memory has learned is read through :meth:`SequenceMemory.view`
+(read-only views of the arrays, for compiled kernels) or
+:attr:`SequenceMemory.connections` (the same as SciPy matrices, a copy), never
+through the private arrays.
 """
 from __future__ import annotations
 
 import inspect
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
 
-from vpr import _memory_kernel as K
 from vpr import io as _io
 from vpr import sdr as _sdr
 
-__all__ = ["SequenceMemory", "Connections", "MemoryFileError", "pad_codes"]
+from .kernels import memory as K
+
+__all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pad_codes"]
 
 _FORMAT = "vpr.SequenceMemory"
 _FORMAT_VERSION = 1
@@ -37,6 +40,48 @@ _FORMAT_VERSION = 1
 
 class MemoryFileError(ValueError):
     """A saved memory file is missing, corrupt, or not a SequenceMemory file."""
+
+
+class MemoryView(NamedTuple):
+    """Read-only views of what a :class:`SequenceMemory` has learned (``mem.view()``), for compiled kernels.
+
+    No copy is made: the views are valid until the memory learns again (growing
+    replaces the arrays), so take a new view after every learning step.
+
+    Attributes
+    ----------
+    bit_cols : int32 array, n_inputs x width
+        The inverted index: row ``b`` holds the minicolumns connected to input
+        bit ``b`` in its first ``bit_len[b]`` entries (Alg. 1 line 3).
+    bit_len : int32 array, n_inputs
+    e_src, e_dst : int64 arrays, n_connections
+        The lateral connections ``e_src[k] -> e_dst[k]`` in the order they were
+        learned (append-only: a view taken later starts with the same entries).
+    column_sizes : int64 array, n_columns
+        Feed-forward connections (input bits) of every minicolumn.
+    thresholds : int32 array, n_columns
+        Overlap a minicolumn needs to be active.
+    n_columns, cells_per_column : int
+    """
+
+    bit_cols: np.ndarray
+    bit_len: np.ndarray
+    e_src: np.ndarray
+    e_dst: np.ndarray
+    column_sizes: np.ndarray
+    thresholds: np.ndarray
+    n_columns: int
+    cells_per_column: int
+
+    @property
+    def n_cells(self) -> int:
+        return self.n_columns * self.cells_per_column
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    v = a.view()
+    v.flags.writeable = False
+    return v
 
 
 class Connections:
@@ -214,7 +259,7 @@ class SequenceMemory:
         self._e_src, self._e_dst = g(self._e_src, cap), g(self._e_dst, cap)
         self._e_onext = g(self._e_onext, cap)
 
-    # the kernel's array groups (see vpr._memory_kernel); rebuilt per call because growing replaces arrays
+    # the kernel's array groups (see vpr.shosm.kernels.memory); rebuilt per call because growing replaces arrays
     def _ff(self):
         return self._bit_cols, self._bit_len, self._col_thr
 
@@ -261,19 +306,26 @@ class SequenceMemory:
         """Number of lateral (prediction) connections."""
         return int(self._st[K.N_EDGES])
 
+    def view(self) -> MemoryView:
+        """Read-only views of the learned arrays (see :class:`MemoryView`); what kernels read."""
+        nc, ne = self.n_columns, self.n_connections
+        return MemoryView(_readonly(self._bit_cols), _readonly(self._bit_len), _readonly(self._e_src[:ne]),
+                          _readonly(self._e_dst[:ne]), self.column_sizes(), _readonly(self._col_thr[:nc]), nc,
+                          self.cells_per_column)
+
     @property
     def connections(self) -> Connections:
         """What the memory has learned, as SciPy matrices (a read-only copy; see :class:`Connections`)."""
-        nc, ne = self.n_columns, self.n_connections
-        cells = nc * self.cells_per_column
-        rows = np.arange(self._bit_cols.shape[1])[None, :] < self._bit_len[:, None]
-        bits = np.repeat(np.arange(self.n_inputs, dtype=np.int64), self._bit_len)
-        ff = sp.csr_matrix((np.ones(bits.size, bool), (self._bit_cols[rows].astype(np.int64), bits)),
-                           shape=(nc, self.n_inputs))
-        lat = sp.csr_matrix((np.ones(ne, bool), (self._e_src[:ne], self._e_dst[:ne])), shape=(cells, cells))
+        v = self.view()
+        cells = v.n_cells
+        rows = np.arange(v.bit_cols.shape[1])[None, :] < v.bit_len[:, None]
+        bits = np.repeat(np.arange(self.n_inputs, dtype=np.int64), v.bit_len)
+        ff = sp.csr_matrix((np.ones(bits.size, bool), (v.bit_cols[rows].astype(np.int64), bits)),
+                           shape=(v.n_columns, self.n_inputs))
+        lat = sp.csr_matrix((np.ones(v.e_src.size, bool), (v.e_src, v.e_dst)), shape=(cells, cells))
         for m in (ff, lat):
             m.sort_indices()
-        return Connections(ff, lat, self._col_thr[:nc].astype(np.int64), self.cells_per_column)
+        return Connections(ff, lat, v.thresholds.astype(np.int64), self.cells_per_column)
 
     @property
     def active_columns(self) -> np.ndarray:
@@ -300,32 +352,8 @@ class SequenceMemory:
 
     # ------------------------------------------------------------------- API
     def _input_bits(self, sdr_row) -> sp.csr_matrix:
-        """One input row as a checked 1-row SDR batch; see :meth:`step` for what a row may be."""
-        if sp.issparse(sdr_row):
-            b = _sdr.check_batch(sdr_row, n_bits=self.n_inputs, name="input SDR")
-            if b.shape[0] != 1:
-                raise ValueError(f"step() takes one SDR row, got {b.shape[0]} rows; use run()")
-            return b
-        a = np.asarray(sdr_row)
-        if a.ndim == 2 and a.shape[0] == 1:
-            a = a[0]
-        if a.ndim != 1:
-            raise ValueError(f"input SDR has shape {a.shape}: step() takes one row (dense {self.n_inputs} bits "
-                             f"or bit indices); use run() for several")
-        if a.dtype == bool:
-            if a.size != self.n_inputs:
-                raise ValueError(f"input SDR has shape {a.shape}, memory expects ({self.n_inputs},)")
-            a = np.flatnonzero(a)
-        elif a.size == self.n_inputs and a.size > 0:
-            if not np.issubdtype(a.dtype, np.integer) and not np.issubdtype(a.dtype, np.floating):
-                raise ValueError(f"input SDR of dtype {a.dtype}: expected bool, 0/1 or bit indices")
-            if not np.isin(a, (0, 1)).all():
-                raise ValueError(f"input SDR of {a.size} values (= n_inputs) that are not all 0/1: ambiguous; "
-                                 f"pass a dense bool/0-1 row of {self.n_inputs} values or fewer bit indices")
-            a = np.flatnonzero(a)  # dense 0/1 row, as run() reads it
-        elif a.size and not np.issubdtype(a.dtype, np.integer):
-            raise ValueError(f"input SDR bit indices must be integers, got dtype {a.dtype}")
-        return _sdr.from_indices([a.astype(np.int64)], self.n_inputs)
+        """One input row as a checked 1-row SDR batch (see :func:`vpr.sdr.row_bits` for what a row may be)."""
+        return _sdr.from_indices([_sdr.row_bits(sdr_row, self.n_inputs, name="input SDR")], self.n_inputs)
 
     def _run_batch(self, batch: sp.csr_matrix, learn: bool, progress: bool = False):
         """Run the kernel over all rows of a checked batch; return (indptr, indices) of winners."""
@@ -380,11 +408,10 @@ class SequenceMemory:
         Parameters
         ----------
         sdr_row : 1-row SDR batch (sparse), dense row or bit indices
-            A 1-D array of exactly ``n_inputs`` values is a dense row: bool,
-            or integer/float 0/1 (anything else raises: it is ambiguous). Any
-            other integer array holds the indices of the active bits (so
-            ``n_inputs`` indices cannot be given this way: pass a dense row).
-            :meth:`run` reads a dense row the same way.
+            As :func:`vpr.sdr.row_bits` reads them: a 1-D array of exactly
+            ``n_inputs`` values is a dense row (bool or 0/1), any other integer
+            array holds the indices of the active bits. :meth:`run` reads a
+            dense row the same way.
         learn : bool
             With learning off no minicolumns are created and no connections are
             learned (a query traverse against a learned database), and no
@@ -431,58 +458,6 @@ class SequenceMemory:
         """Number of feed-forward connections (input bit, minicolumn) of all minicolumns."""
         return int(self._st[K.N_ENTRIES])
 
-    def evidence(self, query_batch, db_codes, decay: float = 0.9, stay: float | None = 0.05,
-                 skip: float | None = 0.05, direction: str = "both", progress: bool = False) -> np.ndarray:
-        """Graded sequence evidence of every query frame for every database frame.
-
-        **Our extension, not the paper's** (Algorithm 1 gives binary winner
-        cells, whose overlap cannot rank a query that is only partly like its
-        place; on Nordland summer vs winter that is most of them). The learned
-        memory is used as it is, nothing is learned or changed:
-
-        * feed-forward: a cell's input evidence ``z`` is the fraction of its
-          minicolumn's connections that are 1-bits of the query SDR (the
-          quantity Alg. 1 line 1 thresholds at ``threshold``);
-        * sequence: a cell's evidence is ``z + decay * p``, where ``p`` is the
-          best evidence of a cell that predicts it through a learned lateral
-          connection at the previous query frame (the prediction of lines 7 and
-          10, graded instead of binary); ``stay`` and ``skip`` admit a repeated
-          or a skipped database frame at that cost (velocity tolerance, as
-          SeqSLAM's velocity search), ``None`` disables them;
-        * ``direction="both"`` also runs the query traverse backwards along the
-          reversed connections and adds the two (the input term counted once),
-          so that evidence, like OpenSeqSLAM's centred window, comes from both
-          sides of a frame; ``"forward"`` is causal (online use).
-
-        The similarity of database frame ``j`` and query frame ``q`` is the mean
-        evidence of ``j``'s winner cells at ``q``. Cost per query frame is
-        linear in the number of learned connections; the output is dense
-        (:func:`vpr.evidence.sparse_evidence` gives the top-K version for large
-        inputs, :class:`vpr.evidence.ForwardEvidence` the streaming one).
-
-        Parameters
-        ----------
-        query_batch : SDR batch (n_q x n_inputs)
-        db_codes : csr matrix (n_db x cells), winner codes of the database traverse
-            from :meth:`run` on this memory.
-        decay : float in [0, 1)
-            Weight of the predicted evidence (1 / (1 - decay) frames of memory).
-        stay, skip : float >= 0 or None
-        direction : {"both", "forward"}
-        progress : bool
-            tqdm progress bar.
-
-        Returns
-        -------
-        ndarray, float32, n_db x n_q (higher = more similar).
-        """
-        # the computation lives in vpr.evidence (dense, sparse, streaming); imported here because
-        # vpr.evidence reads this memory
-        from vpr.evidence import dense_evidence
-
-        return dense_evidence(self, query_batch, db_codes, decay=decay, stay=stay, skip=skip, direction=direction,
-                              progress=progress)
-
     # ------------------------------------------------------------ persistence
     @classmethod
     def default_params(cls) -> dict:
@@ -507,15 +482,37 @@ class SequenceMemory:
             "tape": self._tape[st[K.TAPE_POS]: st[K.TAPE_LEN]],
         }
 
+    def to_arrays(self) -> tuple[dict, dict]:
+        """(header, arrays): everything :meth:`from_arrays` needs to continue exactly as this memory would.
+
+        The header is JSON-serialisable (parameters and the random generator's
+        state); the arrays are the learned state and the sequence context. What
+        :meth:`save` writes, for containers that hold a memory among other
+        things (:class:`vpr.shosm.Localizer`).
+        """
+        return {"params": self.get_params(), "rng": self._rng.bit_generator.state}, self._arrays()
+
+    @classmethod
+    def from_arrays(cls, header: dict, arrays: dict) -> SequenceMemory:
+        """The memory of a :meth:`to_arrays` pair.
+
+        Raises
+        ------
+        MemoryFileError
+            Arrays that are inconsistent (the kernels do not bounds-check).
+        """
+        m = cls(**header["params"])
+        m._rng.bit_generator.state = header["rng"]
+        m._restore(arrays)
+        return m
+
     def save(self, path) -> Path:
         """Save the learned memory and its sequence context to a versioned ``.npz`` (atomically).
 
         A loaded memory continues exactly as this one would (same random stream).
         """
-        path = Path(path)
-        header = {"format": _FORMAT, "version": _FORMAT_VERSION, "params": self.get_params(),
-                  "rng": self._rng.bit_generator.state}
-        return _io.save_versioned_npz(path, header, self._arrays())
+        header, arrays = self.to_arrays()
+        return _io.save_versioned_npz(Path(path), {"format": _FORMAT, "version": _FORMAT_VERSION, **header}, arrays)
 
     @classmethod
     def load(cls, path) -> SequenceMemory:
@@ -528,14 +525,11 @@ class SequenceMemory:
         """
         header, data = _io.load_versioned_npz(path, _FORMAT, _FORMAT_VERSION, "SequenceMemory", MemoryFileError)
         try:
-            m = cls(**header["params"])
-            m._rng.bit_generator.state = header["rng"]
-            m._restore(data)
+            return cls.from_arrays(header, data)
         except MemoryFileError:
             raise
         except Exception as e:
             raise MemoryFileError(f"{path}: corrupt SequenceMemory file ({type(e).__name__}: {e})") from e
-        return m
 
     def _restore(self, d: dict) -> None:
         nc, nd = d["col_thr"].size, d["e_src"].size

@@ -1,4 +1,4 @@
-"""Compiled inner loop of :class:`vpr.memory.SequenceMemory` (numba).
+"""Compiled inner loop of :class:`vpr.shosm.SequenceMemory` (numba).
 
 A pure NumPy version of one Algorithm 1 step needs a few hundred small array
 operations, about 400 us per observation here; the paper's target regime (many

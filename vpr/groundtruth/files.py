@@ -1,4 +1,4 @@
-"""Ground-truth matrices from files: (query, db) pairs, per-frame positions, or frame alignment.
+"""Ground truth read from files: (query, db) pairs, per-frame positions, positions of rendered traverses.
 
 Every builder returns a ``bool`` array of shape (n_db, n_query) with
 ``gt[i, j]`` true when database frame ``i`` shows the same place as query
@@ -25,26 +25,19 @@ import math
 import re
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path, PurePath
 
 import numpy as np
 import scipy.sparse as sp
 
-from vpr._checks import check_count
-from vpr.evaluate import gt_from_positions, gt_from_tolerance  # re-exported: the CLI takes all GT here
-from vpr.similarity import DENSE_PAIRS_LIMIT
+from vpr.checks import check_count
+from vpr.similarity import fits_dense
 
-__all__ = [
-    "load_pairs_csv",
-    "load_positions_csv",
-    "gt_from_position_files",
-    "gt_from_tolerance",
-    "load_traverse_positions",
-    "positions_of_frames",
-    "GroundTruthSpec",
-    "build_gt",
-]
+from .matrices import gt_from_positions
+
+__all__ = ["load_pairs_csv", "load_positions_csv", "gt_from_position_files", "load_traverse_positions",
+           "positions_of_frames", "positions_for"]
+
 
 _INT = re.compile(r"[+-]?\d+(?:\.0*)?")
 
@@ -254,7 +247,7 @@ def load_pairs_csv(path, n_db: int, n_q: int, db_names: Sequence[str] | None = N
     if dropped:
         warnings.warn(f"{path}: {dropped} pairs name frames that were not read; ignored", stacklevel=2)
     rows_db, cols_q = np.asarray(rows_db, np.int64), np.asarray(cols_q, np.int64)
-    if n_db * n_q > DENSE_PAIRS_LIMIT:  # a dense bool matrix of 50,000 x 50,000 frames would take 2.5 GB
+    if not fits_dense(n_db, n_q):  # a dense bool matrix of 50,000 x 50,000 frames would take 2.5 GB
         gt = sp.csr_matrix((np.ones(rows_db.size, bool), (rows_db, cols_q)), shape=(n_db, n_q))
         gt.sum_duplicates()
         return gt
@@ -385,7 +378,7 @@ def gt_from_position_files(db_csv, q_csv, radius: float, db_names: Sequence[str]
         raise ValueError(f"radius must be a finite number >= 0, got {radius!r}")
     db_xy = _positions_for_frames(db_csv, db_names, db_indices, "database")
     q_xy = _positions_for_frames(q_csv, q_names, q_indices, "query")
-    return gt_from_positions(db_xy, q_xy, r, sparse=len(db_xy) * len(q_xy) > DENSE_PAIRS_LIMIT)
+    return gt_from_positions(db_xy, q_xy, r, sparse=not fits_dense(len(db_xy), len(q_xy)))
 
 
 # --------------------------------------------------------------------------- #
@@ -439,7 +432,7 @@ def load_traverse_positions(path, traverse: str) -> dict[int, tuple[float, float
     return rows
 
 
-def _xy_for(rows, indices, path, traverse) -> np.ndarray:
+def positions_for(rows, indices, path, traverse) -> np.ndarray:
     missing = [i for i in indices if i not in rows]
     if missing:
         raise ValueError(f"{path}: no position for frame {missing[0]} of traverse {traverse!r}")
@@ -451,156 +444,7 @@ def positions_of_frames(path, traverse: str, indices: Sequence[int]) -> np.ndarr
     with open(path, encoding="utf-8") as fh:
         first = fh.readline().lower()
     if "traverse" in first:
-        return _xy_for(load_traverse_positions(path, traverse), indices, path, traverse)
+        return positions_for(load_traverse_positions(path, traverse), indices, path, traverse)
     keys, xy = load_positions_csv(path)
     rows = {int(k) if not isinstance(k, str) else k: tuple(v) for k, v in zip(keys, xy, strict=True)}
-    return _xy_for(rows, indices, path, traverse)
-
-
-@dataclass(frozen=True)
-class GroundTruthSpec:
-    """Where the ground truth of a database/query pair comes from (the ``vpr match`` options).
-
-    Attributes
-    ----------
-    tolerance : int, optional
-        Frame-aligned traverses: ``|i - j| <= tolerance`` (source frame numbers).
-    files : tuple of str
-        One CSV of ``query,db`` pairs; or, with ``radius``, one positions CSV
-        per traverse (``frame,x,y``) or one with ``traverse,frame,x,y`` rows
-        for both.
-    radius : float, optional
-        Match radius for position ground truth.
-    soft : float, optional
-        Larger radius (or tolerance) within which pairs are ignored.
-    """
-
-    tolerance: int | None = None
-    files: tuple[str, ...] = ()
-    radius: float | None = None
-    soft: float | None = None
-
-    def describe(self) -> dict:
-        """The spec under the command line's names (for ``metrics.json``)."""
-        return {"tolerance": self.tolerance, "gt": list(self.files) or None, "radius": self.radius,
-                "gt_soft": self.soft}
-
-    def check(self, loops: bool = False) -> None:
-        """Refuse contradictory, ignored or out-of-range options and missing files, before any work.
-
-        ``loops``: the ground truth of ``vpr loops`` (one positions file with ``--radius``).
-
-        Raises
-        ------
-        ValueError
-            The message names the options (``--tolerance``, ``--gt``, ``--radius``, ``--gt-soft``).
-        FileNotFoundError
-            A ``--gt`` file does not exist.
-        """
-        tol, files, radius, soft = self.tolerance, list(self.files), self.radius, self.soft
-        if tol is not None and (isinstance(tol, bool) or not isinstance(tol, (int, np.integer)) or tol < 0):
-            raise ValueError(f"--tolerance must be an integer >= 0 (frames), got {tol!r}")
-        for name, v in (("--radius", radius), ("--gt-soft", soft)):
-            if v is not None and (isinstance(v, bool) or _parse_float(str(v)) is None or not math.isfinite(v)
-                                  or v < 0):
-                raise ValueError(f"{name} must be a finite number >= 0, got {v!r}")
-        if tol is not None and files:
-            raise ValueError("give either --tolerance or --gt, not both")
-        if tol is not None and radius is not None:
-            raise ValueError("--radius applies to position ground truth (--gt FILE), not to --tolerance")
-        if radius is not None and not files:
-            raise ValueError("--radius needs --gt FILE (positions)")
-        if soft is not None:
-            if tol is None and not files:
-                raise ValueError("--gt-soft needs ground truth: --tolerance K, or --gt FILE with --radius R")
-            if files and radius is None:
-                raise ValueError("--gt-soft needs position ground truth (--radius) or --tolerance")
-            hard, name = (tol, "--tolerance") if tol is not None else (radius, "--radius")
-            if soft < hard:
-                raise ValueError(f"--gt-soft {soft:g} is smaller than {name} {hard:g}: the soft ground truth "
-                                 f"(pairs ignored) must reach at least as far as the true matches")
-        if len(files) > (1 if loops else 2):
-            raise ValueError(f"--gt takes {'one positions file' if loops else 'one or two files'}, got {len(files)}")
-        if files and radius is None and (loops or len(files) == 2):
-            raise ValueError("loops: --gt needs --radius" if loops else
-                             "two --gt files are positions files and need --radius")
-        for f in files:
-            fp = Path(f)
-            if not fp.exists():
-                raise FileNotFoundError(f"no such ground-truth file: {fp}")
-            if not fp.is_file():
-                raise ValueError(f"{fp}: is a folder, expected a ground-truth CSV file")
-
-    def no_match_error(self, db_indices=None, q_indices=None, exclude: int | None = None) -> ValueError:
-        """The error for a ground truth in which no query frame has a true match, in the options' words.
-
-        ``exclude``: loop closures (only pairs at least ``exclude`` frames apart count).
-        """
-        def span(idx) -> str:
-            return f"{min(idx)}..{max(idx)}" if idx is not None and len(idx) else "none"
-
-        if self.tolerance is not None:
-            return ValueError(f"ground truth --tolerance {self.tolerance}: no query frame has a database frame "
-                              f"within {self.tolerance} frame numbers (database frames {span(db_indices)}, "
-                              f"query frames {span(q_indices)}); recall is undefined")
-        files = ", ".join(str(f) for f in self.files)
-        if exclude is not None:
-            return ValueError(f"ground truth --gt {files} --radius {self.radius:g}: no frame is within "
-                              f"{self.radius:g} of a frame at least --exclude {exclude} frames earlier; "
-                              "there is no loop closure to find")
-        if self.radius is not None:
-            return ValueError(f"ground truth --gt {files} --radius {self.radius:g}: no query frame is within "
-                              f"{self.radius:g} of a database frame; recall is undefined")
-        return ValueError(f"ground truth {files}: none of its pairs names a query and a database frame that "
-                          "are read; recall is undefined")
-
-
-def _tolerance_band(db_i: np.ndarray, q_i: np.ndarray, tol) -> sp.csr_matrix:
-    """Sparse bool (db x query): ``|db_i - q_i| <= tol``, built from the sorted database indices."""
-    order = np.argsort(db_i, kind="stable")
-    lo = np.searchsorted(db_i[order], q_i - tol, side="left")
-    hi = np.searchsorted(db_i[order], q_i + tol, side="right")
-    n = hi - lo
-    cols = np.repeat(np.arange(q_i.size), n)
-    rows = order[np.repeat(lo, n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)]
-    return sp.csr_matrix((np.ones(rows.size, bool), (rows, cols)), shape=(db_i.size, q_i.size))
-
-
-def build_gt(spec: GroundTruthSpec, db_names: Sequence[str], q_names: Sequence[str], db_indices: Sequence[int],
-             q_indices: Sequence[int], db_traverse: str = "database", q_traverse: str = "query"):
-    """(gt_hard, gt_soft) of the frames read, or (None, None) without ground truth.
-
-    ``db_traverse`` / ``q_traverse`` name the traverses in a combined
-    ``traverse,frame,x,y`` file; ``*_indices`` are the source frame numbers.
-
-    Raises
-    ------
-    ValueError
-        Contradictory or incomplete options (the message names them), or a bad file.
-    """
-    spec.check()
-    files = list(spec.files)
-    if spec.tolerance is not None:
-        db_i, q_i = np.asarray(db_indices, np.int64), np.asarray(q_indices, np.int64)
-        if db_i.size * q_i.size > DENSE_PAIRS_LIMIT:  # 50,000 x 50,000 frames: a band, never the dense matrix
-            return (_tolerance_band(db_i, q_i, spec.tolerance),
-                    _tolerance_band(db_i, q_i, spec.soft) if spec.soft is not None else None)
-        d = np.abs(db_i[:, None] - q_i[None, :])
-        return d <= spec.tolerance, (d <= spec.soft if spec.soft is not None else None)
-    if not files:
-        return None, None
-    if spec.radius is None:  # one pairs file (check() refused the rest)
-        hard = load_pairs_csv(files[0], len(db_names), len(q_names), db_names=db_names, q_names=q_names,
-                              db_indices=db_indices, q_indices=q_indices)
-        return hard, None
-    if len(files) == 2:
-        kw = dict(db_names=db_names, q_names=q_names, db_indices=db_indices, q_indices=q_indices)
-        hard = gt_from_position_files(files[0], files[1], spec.radius, **kw)
-        soft = gt_from_position_files(files[0], files[1], spec.soft, **kw) if spec.soft is not None else None
-        return hard, soft
-    db_xy = _xy_for(load_traverse_positions(files[0], db_traverse), db_indices, files[0], db_traverse)
-    q_xy = _xy_for(load_traverse_positions(files[0], q_traverse), q_indices, files[0], q_traverse)
-    big = len(db_xy) * len(q_xy) > DENSE_PAIRS_LIMIT
-    hard = gt_from_positions(db_xy, q_xy, spec.radius, sparse=big)
-    soft = gt_from_positions(db_xy, q_xy, spec.soft, sparse=big) if spec.soft is not None else None
-    return hard, soft
+    return positions_for(rows, indices, path, traverse)

@@ -12,7 +12,7 @@ import numbers
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["check_similarity", "check_int", "check_count", "at"]
+__all__ = ["check_similarity", "check_int", "check_count", "check_float", "check_choice", "at"]
 
 _SPARSE_FORMATS = ("coo", "csr", "csc")
 
@@ -95,6 +95,43 @@ def check_int(value, name: str, minimum: int | None = None, maximum: int | None 
 def check_count(value, name: str, minimum: int = 0) -> int:
     """A size or count: :func:`check_int` with a lower bound (default 0)."""
     return check_int(value, name, minimum=minimum)
+
+
+def check_float(value, name: str, minimum: float | None = None, maximum: float | None = None,
+                open_min: bool = False, open_max: bool = False) -> float:
+    """``value`` as a finite float within [minimum, maximum] (``open_*``: the bound itself excluded).
+
+    Raises
+    ------
+    ValueError
+        Naming ``name``: not a number (bools are refused), not finite, or out of range.
+    """
+    if isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name}: expected a number, got {value!r}")
+    try:
+        f = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected a number, got {value!r}") from None
+    if not np.isfinite(f):
+        raise ValueError(f"{name}: must be finite, got {value!r}")
+    lo = minimum is not None and (f <= minimum if open_min else f < minimum)
+    hi = maximum is not None and (f >= maximum if open_max else f > maximum)
+    if lo or hi:
+        if minimum is not None and maximum is not None:
+            span = f"in {'(' if open_min else '['}{minimum}, {maximum}{')' if open_max else ']'}"
+        elif minimum is not None:
+            span = f"{'>' if open_min else '>='} {minimum}"
+        else:
+            span = f"{'<' if open_max else '<='} {maximum}"
+        raise ValueError(f"{name}: must be {span}, got {value!r}")
+    return f
+
+
+def check_choice(value, name: str, choices) -> str:
+    """``value`` if it is one of ``choices``, else a ValueError listing them."""
+    if value not in tuple(choices):
+        raise ValueError(f"{name} must be one of {', '.join(repr(c) for c in choices)}, got {value!r}")
+    return value
 
 
 def at(G, rows, cols) -> np.ndarray:

@@ -1,9 +1,9 @@
 """Online localisation against a learned database: one query frame in, one place out.
 
 **Our extension, not the paper's** (the method is ``rshosm-seq``'s forward
-evidence, :class:`vpr.evidence.ForwardEvidence`). A robot learns its map once
+evidence, :class:`vpr.shosm.ForwardEvidence`). A robot learns its map once
 (:meth:`Localizer.from_database`: the database traverse is learned with
-Algorithm 1, threshold 0.75, as ``rshosm-seq``), then calls :meth:`Localizer.update`
+Algorithm 1 with rSHOSM-seq's learning threshold), then calls :meth:`Localizer.update`
 with the SDR of each new camera frame and gets the best database frame, its
 name, its score and whether it is accepted. Only the past counts (causal), and
 the cost per frame does not depend on how many frames were seen before: the
@@ -12,8 +12,7 @@ state is the evidence carried from the last frame. The memory is only read.
 Acceptance rule: the score is the z-score of the best database frame's
 evidence against all database frames' evidence for this query frame (what
 ``normalise="query"`` computes); the answer is accepted when it is at least
-``z_min`` (default 4.0: on Nordland 358 winter against summer the wrong best
-matches of the causal run stay below it, see ``docs/localize.md``).
+``z_min`` (chosen in ``docs/localize.md``).
 
 :meth:`Localizer.save` writes one versioned ``.npz`` (atomically): the memory,
 the database names and winner codes, the streaming state, the conf and
@@ -35,20 +34,22 @@ import scipy.sparse as sp
 from vpr import io as _io
 from vpr import sdr as _sdr
 from vpr.config import merge_conf
-from vpr.evidence import BEAM_DEFAULTS, ForwardEvidence
-from vpr.memory import MemoryFileError, SequenceMemory
+
+from .conf import BeamConf, EvidenceConf, memory_params
+from .memory import MemoryFileError, SequenceMemory
+from .streaming import ForwardEvidence
 
 __all__ = ["Localizer", "LocalizerResult", "LOCALIZER_DEFAULTS"]
 
 _FORMAT = "vpr.Localizer"
 _FORMAT_VERSION = 1
 
-#: Conf of :class:`Localizer`: the memory's parameters (threshold 0.75, as ``rshosm-seq``), the forward
-#: evidence's (:class:`vpr.evidence.ForwardEvidence`) and the acceptance threshold ``z_min``.
-LOCALIZER_DEFAULTS = {**SequenceMemory.default_params(), "threshold": 0.75, "decay": 0.9, "stay": 0.05,
-                      "skip": 0.05, "top_k": 50, "exact": False, "z_min": 4.0, **BEAM_DEFAULTS}
-_NULLABLE = frozenset({"seed", "stay", "skip", "top_k"})
-_EVIDENCE_KEYS = ("decay", "stay", "skip", "top_k", "exact", "floor", "rel_floor", "z_floor", "max_beam", "max_enter")
+#: Conf of :class:`Localizer`: the memory's parameters (rSHOSM-seq's), the forward evidence's
+#: (:class:`vpr.shosm.ForwardEvidence`: :class:`vpr.shosm.EvidenceConf`, ``top_k``, ``exact``,
+#: :class:`vpr.shosm.BeamConf`) and the acceptance threshold ``z_min``.
+LOCALIZER_DEFAULTS = {**memory_params(), **EvidenceConf().as_dict(), "top_k": 50, "exact": False, "z_min": 4.0,
+                      **BeamConf().as_dict()}
+_NULLABLE = frozenset({"seed", "stay", "skip", "top_k", "max_beam", "max_enter"})
 
 
 @dataclass
@@ -105,7 +106,8 @@ class Localizer:
         self.memory = memory
         self.names = names
         self.db_codes = sp.csr_matrix(db_codes, dtype=bool)
-        self._fwd = ForwardEvidence(memory, self.db_codes, **{k: self.conf[k] for k in _EVIDENCE_KEYS})
+        self._fwd = ForwardEvidence(memory, self.db_codes, EvidenceConf.from_conf(self.conf), top_k=self.conf["top_k"],
+                                    exact=self.conf["exact"], beam=BeamConf.from_conf(self.conf))
         self._initial = self._fwd.state_dict()
         self.meta: dict = {}
         self.arrays: dict = {}
@@ -117,7 +119,7 @@ class Localizer:
         ``conf``: :data:`LOCALIZER_DEFAULTS` overrides (memory parameters included).
         """
         c = merge_conf(LOCALIZER_DEFAULTS, conf, "Localizer", nullable=_NULLABLE)
-        params = {k: c[k] for k in SequenceMemory.default_params()}
+        params = memory_params(c)
         x = _sdr.check_batch(db_sdr, n_bits=params["n_inputs"], name="database SDR batch")
         names = list(names)
         if x.shape[0] != len(names):
@@ -159,11 +161,11 @@ class Localizer:
     def save(self, path) -> Path:
         """Write memory, database names and codes, streaming state, conf, ``meta`` and ``arrays`` (atomic ``.npz``)."""
         path = Path(path)
-        mem = self.memory
+        mem_header, mem_arrays = self.memory.to_arrays()
         header = {"format": _FORMAT, "version": _FORMAT_VERSION, "conf": self.conf,
-                  "memory_params": mem.get_params(), "memory_rng": mem._rng.bit_generator.state,
+                  "memory_params": mem_header["params"], "memory_rng": mem_header["rng"],
                   "meta": self.meta, "db_shape": list(self.db_codes.shape)}
-        arrays = {f"mem_{k}": v for k, v in mem._arrays().items()}
+        arrays = {f"mem_{k}": v for k, v in mem_arrays.items()}
         arrays.update({f"state_{k}": np.asarray(v) for k, v in self._fwd.state_dict().items()})
         arrays.update({f"user_{k}": np.asarray(v) for k, v in self.arrays.items()})
         arrays["names"] = np.array(self.names, dtype=str)
@@ -183,9 +185,8 @@ class Localizer:
         header, data = _io.load_versioned_npz(path, _FORMAT, _FORMAT_VERSION, "localizer", MemoryFileError,
                                               hint=" (written by `vpr learn` / Localizer.save)")
         try:
-            mem = SequenceMemory(**header["memory_params"])
-            mem._rng.bit_generator.state = header["memory_rng"]
-            mem._restore({k[4:]: v for k, v in data.items() if k.startswith("mem_")})
+            mem = SequenceMemory.from_arrays({"params": header["memory_params"], "rng": header["memory_rng"]},
+                                             {k[4:]: v for k, v in data.items() if k.startswith("mem_")})
             n_db, width = header["db_shape"]
             idx = data["db_indices"]
             codes = sp.csr_matrix((np.ones(idx.size, bool), idx, data["db_indptr"]), shape=(n_db, width))

@@ -1,0 +1,76 @@
+"""Command-line pieces that several sub-commands share: common flags, sources, presets, ground truth, confs.
+
+Every sub-command calls :func:`add_common_arguments` (``--no-progress``), so the
+same common flags work everywhere; the others are added where they apply.
+"""
+from __future__ import annotations
+
+import argparse
+
+from vpr import methods, presets
+from vpr.config import parse_key_values
+from vpr.groundtruth import GroundTruthSpec
+
+__all__ = ["add_common_arguments", "add_source_arguments", "add_preset_argument", "add_gt_arguments",
+           "gt_spec_from_args", "method_confs"]
+
+
+def add_common_arguments(ap) -> None:
+    """The flags every sub-command takes."""
+    ap.add_argument("--no-progress", action="store_true", help="no progress bars (none are drawn off a terminal)")
+
+
+def add_source_arguments(ap) -> None:
+    """``--fps``, ``--step`` and ``--max-frames``: which frames of the sources are read."""
+    ap.add_argument("--fps", type=float, help="videos: resample to this frame rate")
+    ap.add_argument("--step", type=int, help="keep every STEP-th frame")
+    ap.add_argument("--max-frames", type=int, help="read at most this many frames per source")
+
+
+def add_preset_argument(ap) -> None:
+    """``--preset NAME`` (default ``default``): the settings that flags not given take."""
+    ap.add_argument("--preset", default=presets.DEFAULT, choices=presets.available(),
+                    help=f"named settings (encoder, its conf, methods, their confs) that explicit flags override: "
+                         f"{presets.describe()} (default: {presets.DEFAULT})")
+
+
+def add_gt_arguments(ap, loops: bool = False, title: str = "ground truth (optional; enables metrics and pr.png)"):
+    """The ground-truth options (``--gt``, ``--radius``, ``--gt-soft``; ``--tolerance`` between two traverses)."""
+    gt = ap.add_argument_group(title)
+    if loops:
+        gt.add_argument("--gt", nargs="+", metavar="FILE",
+                        help="positions CSV (frame,x,y or traverse,frame,x,y) with --radius")
+    else:
+        gt.add_argument("--tolerance", type=int, metavar="K", help="frame-aligned traverses: |i - j| <= K")
+        gt.add_argument("--gt", nargs="+", metavar="FILE",
+                        help="CSV of query,db pairs; or with --radius: one positions CSV per traverse "
+                             "(frame,x,y), or one CSV with traverse,frame,x,y rows for both")
+    gt.add_argument("--radius", type=float, help="match radius for position ground truth (same unit as x, y)")
+    gt.add_argument("--gt-soft", type=float, metavar="R2",
+                    help="also ignore pairs within this larger radius/tolerance (soft ground truth)")
+    return gt
+
+
+def gt_spec_from_args(args) -> GroundTruthSpec:
+    """The :class:`GroundTruthSpec` of the options added by :func:`add_gt_arguments`."""
+    return GroundTruthSpec(tolerance=getattr(args, "tolerance", None), files=tuple(args.gt or ()),
+                           radius=args.radius, soft=args.gt_soft)
+
+
+def method_confs(items) -> dict:
+    """Per-method conf (strings) from ``--method-conf METHOD.key=value`` items (repeatable)."""
+    confs: dict = {}
+    for head, value in parse_key_values(items, "--method-conf").items():
+        method, dot, key = head.partition(".")
+        if not dot or not key:
+            raise ValueError(f"--method-conf: expected METHOD.key=value, got {head}={value!r}")
+        if method not in methods.available():
+            raise ValueError(f"--method-conf: unknown method {method!r}; available: {', '.join(methods.available())}")
+        confs.setdefault(method, {})[key] = value
+    return confs
+
+
+def add_method_conf_argument(ap: argparse.ArgumentParser) -> None:
+    """``--method-conf METHOD.KEY=VALUE`` (repeatable)."""
+    ap.add_argument("--method-conf", action="append", default=[], metavar="METHOD.KEY=VALUE",
+                    help="method option, repeatable, e.g. seqslam.ds=20 or rshosm.p_extra=0.01")

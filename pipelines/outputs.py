@@ -1,0 +1,182 @@
+"""What a run writes: similarity matrices, matches, per-method files, the metrics table and ``metrics.json``.
+
+Every file is written atomically (:mod:`vpr.io`): an interrupted run leaves
+only complete files. ``DIR/metrics.json`` and ``DIR/pr.png`` hold every method
+run into ``DIR`` on the same inputs, merged under a lock (:func:`merge_metrics`).
+"""
+from __future__ import annotations
+
+import csv
+import json
+import platform
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+from vpr import evaluate, io, plots
+from vpr.types import MatchResult
+
+__all__ = ["versions", "write_similarity", "write_matches", "method_metrics", "metrics_table", "write_method",
+           "merge_metrics", "warn"]
+
+
+def warn(msg: str) -> None:
+    """A one-line warning of the run (``vpr: warning: ...`` on the command line)."""
+    warnings.warn(msg, UserWarning, stacklevel=3)
+
+
+def versions() -> dict:
+    """Versions of the libraries behind a result (recorded in ``metrics.json``)."""
+    import cv2
+    import scipy
+
+    import vpr
+
+    return {"vpr": vpr.__version__, "python": platform.python_version(), "numpy": np.__version__,
+            "scipy": scipy.__version__, "opencv": cv2.__version__}
+
+
+def write_similarity(folder: Path, S) -> str:
+    """Write ``S`` as ``similarity.npy`` (dense) or ``similarity_topk.npz`` (sparse); returns the file name."""
+    if sp.issparse(S):
+        with io.atomic_path(folder / "similarity_topk.npz") as tmp:
+            sp.save_npz(tmp, sp.csr_matrix(S, dtype=np.float32))
+        return "similarity_topk.npz"
+    io.save_npy(folder / "similarity.npy", np.asarray(S, dtype=np.float32))
+    return "similarity.npy"
+
+
+def write_matches(folder: Path, res: MatchResult, db_names, q_names, extra: dict | None = None) -> None:
+    """``matches.csv``: one row per query with its best database frame, score, decision and ``extra`` columns."""
+    extra = extra or {}
+    with io.atomic_open(folder / "matches.csv", "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(["query", "query_name", "best_db", "db_name", "score", "accepted", *extra])
+        for j in range(len(q_names)):
+            b = int(res.best_db[j])
+            w.writerow([j, q_names[j], b, db_names[b] if b >= 0 else "", f"{res.score[j]:.6g}",
+                        int(bool(res.accepted[j])), *(v[j] for v in extra.values())])
+
+
+def method_metrics(res: MatchResult, gt_hard, gt_soft, mask=None):
+    """(metrics dict, (precision, recall) or None without ground truth)."""
+    m = {"seconds": round(res.seconds, 4)}
+    if gt_hard is None:
+        return m, None
+    ev, (prec, rec, _) = evaluate.evaluate(res.similarity, gt_hard, gt_soft, mask=mask, return_curve=True)
+    m.update({k: float(v) for k, v in ev.items()})
+    m.update(evaluate.accepted_precision(res.best_db, res.accepted, gt_hard, gt_soft, mask=mask))
+    return m, (prec, rec)
+
+
+def metrics_table(table: dict) -> str:
+    """The printed table: one row per method of ``{method: metrics}``."""
+    keys = [("ap", "AP"), ("auc_pr", "AUC"), ("recall_at_100p", "R@100P"), ("recall_at_1", "R@1"),
+            ("precision_accepted", "P(acc)"), ("seconds", "seconds")]
+    lines = [f"{'method':<22}" + "".join(f"{h:>10}" for _, h in keys)]
+    for name, m in table.items():
+        cells = "".join(f"{m[k]:10.3f}" if isinstance(m.get(k), (int, float)) else f"{'-':>10}" for k, _ in keys)
+        lines.append(f"{name:<22}{cells}")
+    return "\n".join(lines)
+
+
+def _score_at(S, rows) -> np.ndarray:
+    """``S[rows[j], j]`` per column (rows >= 0), dense or sparse."""
+    cols = np.arange(len(rows))
+    rows = np.maximum(rows, 0)
+    return np.asarray(S[rows, cols], dtype=np.float64).ravel()
+
+
+def write_method(folder: Path, m: str, res: MatchResult, evaluated: tuple, db_names, q_names, gt_hard, gt_soft,
+                 verifier=None, verify: int = 0, progress: bool = False, title: str = "") -> dict:
+    """Write one method's files in its folder; return its metrics entries (``m`` and ``m+verify``).
+
+    ``evaluated``: the (metrics, curve) of :func:`method_metrics` for ``res``.
+    With a ``verifier``, each query's ``verify`` best candidates are re-ordered
+    by geometric inliers (:meth:`vpr.verify.Verifier.verify`): the entry
+    ``m+verify`` evaluates that matrix and its decisions.
+    """
+    sim_file = write_similarity(folder, res.similarity)
+    entries = {}
+    metrics, curve = evaluated
+    metrics["similarity_file"] = f"{folder.name}/{sim_file}"
+    entries[m] = (metrics, curve)
+    extra = {}
+    if verifier is not None:
+        t0 = time.perf_counter()
+        vr = verifier.verify(res.similarity, verify, progress=progress)
+        # the method's matrix with only each query's candidates re-ordered by inliers: its AP compares
+        # with the unverified one (vpr.verify.rerank); seconds: the method's plus verification
+        # (pairs shared with earlier methods are cached)
+        S_v = vr.reranked(res.similarity)
+        score_v = np.where(vr.best_db >= 0, _score_at(S_v, vr.best_db), -np.inf)
+        verified = MatchResult(m + "+verify", S_v, vr.best_db, score_v, vr.accepted,
+                               res.seconds + time.perf_counter() - t0, res.conf)
+        extra = {"verified_db": vr.best_db.tolist(),
+                 "inliers": np.where(vr.best_db >= 0, vr.score, -1).astype(int).tolist(),
+                 "verified": vr.accepted.astype(int).tolist()}
+        vm, vcurve = method_metrics(verified, gt_hard, gt_soft)
+        vm["similarity_file"] = metrics["similarity_file"]
+        entries[m + "+verify"] = (vm, vcurve)
+    write_matches(folder, res, db_names, q_names, extra)
+    plots.plot_similarity(res.similarity, folder / "similarity.png", best_db=res.best_db, accepted=res.accepted,
+                          gt_hard=gt_hard, title=title or f"{m}: database x query")
+    out = {}
+    for name, (mm, c) in entries.items():
+        if c is not None:
+            fname = "pr_curve_verify.npz" if name.endswith("+verify") else "pr_curve.npz"
+            with io.atomic_path(folder / fname) as tmp:
+                with open(tmp, "wb") as fh:
+                    np.savez(fh, precision=np.asarray(c[0], np.float64), recall=np.asarray(c[1], np.float64))
+            mm["pr_curve"] = f"{folder.name}/{fname}"
+        out[name] = mm
+    return out
+
+
+def _jsonable(o):
+    return o.item() if isinstance(o, np.generic) else o.tolist() if isinstance(o, np.ndarray) else str(o)
+
+
+def merge_metrics(out: Path, report: dict, pr_title: str) -> dict:
+    """Merge this run's ``report`` into ``out/metrics.json`` and redraw ``out/pr.png``; return the merged report.
+
+    Runs on the same inputs (``params["inputs"]``) add or replace their
+    methods; a metrics.json of other inputs is replaced (with a warning). The
+    read-modify-write holds a lock (``out/.metrics.lock``), so that concurrent
+    runs into one folder keep each other's methods.
+    """
+    with io.locked(out / ".metrics.lock"):
+        old = None
+        path = out / "metrics.json"
+        if path.is_file():
+            try:
+                old = json.loads(path.read_text(encoding="utf-8"))
+            except ValueError:
+                warn(f"{path}: unreadable, replaced")
+        merged = report
+        if isinstance(old, dict) and isinstance(old.get("methods"), dict):
+            # compared as JSON: tuples and NumPy scalars of this run read back as lists and numbers
+            same = json.loads(json.dumps(report["params"]["inputs"], default=_jsonable))
+            if old.get("params", {}).get("inputs") == same:
+                merged = {**report, "methods": {**old["methods"], **report["methods"]}}
+                merged["params"] = {**report["params"], "method_conf": {**old["params"].get("method_conf", {}),
+                                                                        **report["params"]["method_conf"]}}
+            else:
+                warn(f"{path} held results of other inputs or settings "
+                     f"({', '.join(old['methods'])}); replaced by this run's")
+        curves = {}
+        for name, m in merged["methods"].items():
+            f = m.get("pr_curve")
+            if f and (out / f).is_file():
+                try:
+                    with np.load(out / f) as z:
+                        curves[name] = (z["precision"], z["recall"])
+                except (OSError, ValueError, KeyError):
+                    pass  # a damaged curve file is not drawn; the metrics stay
+        io.save_json(path, merged)
+        if curves:
+            plots.plot_pr(curves, out / "pr.png", title=pr_title)
+    return merged

@@ -1,0 +1,410 @@
+"""The runs behind ``vpr match``, ``compare`` and ``loops``: checks before work, encoding, the methods, outputs.
+
+:func:`run_compare` and :func:`run_loops` do the work from explicit parameters
+(:class:`RunOptions`); :func:`run_methods` is the one evaluation harness (every
+method on the same encoded traverses, evaluated against the same ground truth,
+one result alive at a time), which the Nordland benchmark uses too.
+
+Faults: every option, source and ground-truth file is checked before the first
+frame is encoded, and a refused run writes nothing; every file is written
+atomically, so an interrupted run leaves only complete files and a rerun gives
+the uninterrupted result.
+"""
+from __future__ import annotations
+
+import errno
+import os
+import resource
+import sys
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+import encoders
+from pipelines.extract import extract
+from pipelines.outputs import merge_metrics, method_metrics, versions, warn, write_method
+from vpr import groundtruth, io, methods
+from vpr.groundtruth import GroundTruthSpec, build_gt, positions_of_frames
+from vpr.sources import FrameSkippedWarning, open_source
+from vpr.types import EncodedTraverse, MatchResult
+
+__all__ = ["RunOptions", "run_compare", "run_loops", "run_methods", "exclude_frames", "peak_rss_mb"]
+
+
+@dataclass
+class RunOptions:
+    """Everything but the inputs and the methods of a ``match`` / ``compare`` / ``loops`` run.
+
+    ``encoder_conf`` and ``method_conf`` (method -> conf) values may be strings
+    (from the command line): they are read as the defaults' types.
+    ``fps``, ``step`` and ``max_frames`` are passed to :func:`vpr.sources.open_source`.
+    """
+
+    out: Path
+    encoder: str = "pixel"
+    #: the preset the settings came from (recorded in config.json), None when given explicitly
+    preset: str | None = None
+    encoder_conf: dict = field(default_factory=dict)
+    method_conf: dict = field(default_factory=dict)
+    fps: float | None = None
+    step: int | None = None
+    max_frames: int | None = None
+    gt: GroundTruthSpec = field(default_factory=GroundTruthSpec)
+    verify: int = 0
+    min_inliers: int = 15
+    #: methods whose candidates are verified (None: all); verification costs ~5-15 ms per candidate pair
+    verify_methods: tuple | None = None
+    #: further :class:`vpr.verify.Verifier` conf (e.g. ``{"n_features": 500}``)
+    verify_conf: dict = field(default_factory=dict)
+    progress: bool = True
+    cache: Path | None = None
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process so far, MB (Linux reports kB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+# ------------------------------------------------------------------ the harness
+def run_methods(runners: dict, call: Callable, gt_hard=None, gt_soft=None, mask=None,
+                on_result: Callable | None = None, resources: bool = False) -> dict:
+    """Run and evaluate every method, one at a time (one similarity matrix alive at once).
+
+    Parameters
+    ----------
+    runners : dict
+        Label -> configured :class:`vpr.methods.Method`.
+    call : callable
+        ``call(runner) -> MatchResult``: the run (``runner.match(db, q)`` or ``runner.loops(seq, exclude)``).
+    gt_hard, gt_soft, mask
+        Ground truth and evaluated pairs (None: no metrics but the seconds).
+    on_result : callable, optional
+        ``on_result(label, result, (metrics, curve))``, e.g. writing the
+        method's files; may return further entries ``{label: (metrics, curve)}``
+        (a verified twin).
+    resources : bool
+        Also record ``cpu_seconds`` and the process's ``peak_rss_mb`` after each method.
+
+    Returns
+    -------
+    dict: label -> (metrics, curve or None), in the order run. Each metrics
+    dict holds the method's ``seconds`` (matching alone).
+    """
+    out = {}
+    for label, runner in runners.items():
+        c0 = time.process_time()
+        res = call(runner)
+        cpu = time.process_time() - c0
+        metrics, curve = method_metrics(res, gt_hard, gt_soft, mask=mask)
+        if resources:
+            metrics.update(cpu_seconds=round(cpu, 4), peak_rss_mb=round(peak_rss_mb(), 1))
+        out[label] = (metrics, curve)
+        if on_result is not None:
+            out.update(on_result(label, res, (metrics, curve)) or {})
+        del res
+    return out
+
+
+# ------------------------------------------------------- checks before work
+def _any_true(G) -> bool:
+    """Whether a dense or sparse bool ground truth holds any true pair (sparse has no ``any``)."""
+    return bool(G.count_nonzero()) if sp.issparse(G) else bool(np.any(G))
+
+
+def _config(opts: RunOptions, **inputs) -> dict:
+    return {"argv": sys.argv[1:], **inputs, **asdict(opts)}
+
+
+def _check_run_options(opts: RunOptions) -> None:
+    """Options that are wrong whatever the inputs (``--verify``, ``--min-inliers``)."""
+    if isinstance(opts.verify, bool) or not isinstance(opts.verify, (int, np.integer)) or opts.verify < 0:
+        raise ValueError(f"--verify must be an integer >= 0, got {opts.verify!r}")
+    if opts.min_inliers < 0:
+        raise ValueError(f"--min-inliers must be >= 0, got {opts.min_inliers}")
+    if not opts.verify and opts.min_inliers != RunOptions.min_inliers:
+        warn(f"--min-inliers {opts.min_inliers} has no effect without --verify N; ignored")
+
+
+def _tiny_traverse(runner, n: int = 12) -> EncodedTraverse:
+    """A tiny synthetic traverse holding every input ``runner`` reads."""
+    rng = np.random.default_rng(0)
+    width = int(runner.conf.get("n_inputs", 2048))
+    inputs = {"sdr": sp.csr_matrix(rng.random((n, width)) < min(1.0, 40 / width)),
+              "desc": rng.random((n, 32)).astype(np.float32)}
+    images = [rng.integers(0, 256, (48, 64, 3), dtype=np.uint8) for _ in range(n)]
+    for key, spec in runner.image_inputs.items():
+        inputs[key] = np.asarray(spec.compute(images, "probe images"), np.float32)
+    return EncodedTraverse(list(range(n)), **{k: v for k, v in inputs.items() if k in runner.required_inputs})
+
+
+def _probe(name: str, runner) -> None:
+    """Run a configured method once on a tiny synthetic traverse, so that a bad conf value fails now.
+
+    Some values are only checked where they are used (SeqSLAM's ``ds``, the
+    memory's ``p_extra``, the loop acceptance of ``rshosm-seq``): without this
+    they would fail after encoding. Methods with loop closure run it too.
+    """
+    tiny = _tiny_traverse(runner)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            runner.match(tiny, tiny)
+            if type(runner)._loops is not methods.Method._loops:
+                runner.loops(tiny, exclude=2)
+    except ValueError as exc:
+        raise ValueError(f"--method-conf {name}: {exc}") from None
+
+
+def _runners(names: list[str], opts: RunOptions) -> dict:
+    """Configured methods by name, built (and their confs tried) before any work so that a bad conf fails at once."""
+    if not names:
+        raise ValueError("--methods is empty")
+    unique = list(dict.fromkeys(names))
+    if len(unique) < len(names):
+        twice = sorted({m for m in names if names.count(m) > 1})
+        warn(f"--methods names {', '.join(twice)} more than once; each method runs once")
+    for m in unique:
+        methods.get_class(m)  # unknown names fail here, with the list of methods
+    # a conf for a method this run does not use is still checked (a typo should not pass silently), then ignored
+    built = {m: methods.get(m, **c) for m, c in opts.method_conf.items()}
+    unused = [m for m in built if m not in unique]
+    if unused:
+        warn(f"--method-conf for {', '.join(unused)}, which this run does not use ({', '.join(unique)}); ignored")
+    for m in unique:
+        if m in built:
+            _probe(m, built[m])
+    return {m: built.get(m) or methods.get(m) for m in unique}
+
+
+def _check_out(out: Path, srcs, folders) -> None:
+    """Refuse an output folder whose writes would land in a source folder (they would be read back as frames)."""
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out}: exists and is not a folder")
+    # a read-only or forbidden --out would otherwise fail only when the first encoding is cached
+    anc = out.absolute()
+    while not anc.exists() and anc != anc.parent:
+        anc = anc.parent
+    if not os.access(anc, os.W_OK | os.X_OK):
+        readonly = hasattr(os, "statvfs") and os.statvfs(anc).f_flag & getattr(os, "ST_RDONLY", 1)
+        code = errno.EROFS if readonly else errno.EACCES
+        raise OSError(code, f"cannot write ({os.strerror(code)})", str(out))
+    written = {(out / f).resolve(): f for f in folders}
+    for src in srcs:
+        if src.kind == "folder" and src.path.resolve() in written:
+            where = "--out" if written[src.path.resolve()] == "." else f"--out's {written[src.path.resolve()]}/"
+            raise ValueError(f"--out {out}: {where} folder is the source folder {src.path}; the run would write its "
+                             "outputs among the frames it reads. Choose another --out")
+
+
+def _gt_rows(attempted, read) -> list[int]:
+    """Rows of the frames read (source numbers ``read``) in a ground truth built for ``attempted``."""
+    row = {k: r for r, k in enumerate(attempted)}
+    return [row[k] for k in read]
+
+
+def _prepare(out: Path, paths, roles, method_names, opts: RunOptions, loops: bool = False):
+    """Every check that can be made before reading a frame; returns (runners, encoder, sources)."""
+    _check_run_options(opts)
+    opts.gt.check(loops=loops)
+    runners = _runners(method_names, opts)
+    encoder = encoders.get(opts.encoder, **opts.encoder_conf)
+    srcs = [open_source(p, fps=opts.fps, step=opts.step, max_frames=opts.max_frames) for p in paths]
+    _check_out(out, srcs, [".", "cache", *runners])
+    return runners, encoder, srcs
+
+
+# ----------------------------------------------------------------- encoding
+def _extract_all(srcs, roles, encoder, runners: dict, opts: RunOptions):
+    """Encode the sources once with what every method needs; one warning per source with skipped frames."""
+    needed = set().union(*(r.required_inputs for r in runners.values()))
+    exs = []
+    for src, role in zip(srcs, roles, strict=True):
+        attempted = len(src.indices())
+        with warnings.catch_warnings():
+            # one summary line per source below, not one line per bad frame
+            warnings.simplefilter("ignore", FrameSkippedWarning)
+            ex = extract(src, encoder, needed, thumbs=opts.verify > 0,
+                         cache_dir=opts.cache or Path(opts.out) / "cache", progress=opts.progress)
+        lost = attempted - len(ex.features)
+        if lost > 0 or ex.skipped:
+            first = f" (first: {ex.skipped[0][0]}: {ex.skipped[0][1]})" if ex.skipped else ""
+            warn(f"{role} {src.path}: {lost} of {attempted} frames could not be read and were skipped{first}")
+        exs.append(ex)
+    return exs
+
+
+# ----------------------------------------------------------------- the runs
+def run_compare(db, query, method_names: list[str], opts: RunOptions, command: str = "compare") -> dict:
+    """Encode ``db`` and ``query`` once, run every method, write the outputs; return metrics.json's content.
+
+    Every option, file and the ground truth is checked before any frame is
+    encoded; a refused run writes nothing. Each method writes its files in
+    ``opts.out/METHOD``; ``opts.out/metrics.json`` and ``pr.png`` hold every
+    method run into ``opts.out`` on the same inputs (see
+    :func:`pipelines.outputs.merge_metrics`).
+
+    Parameters
+    ----------
+    db, query : str or Path
+        Image folders, videos or image lists (see :func:`vpr.sources.open_source`).
+    method_names : list of str
+        Methods (see :func:`vpr.methods.available`).
+    opts : RunOptions
+        Encoder, method confs, sources, ground truth, verification, output.
+    command : str
+        Recorded in ``metrics.json``.
+    """
+    out = Path(opts.out)
+    runners, encoder, (db_src, q_src) = _prepare(out, [db, query], ["database", "query"], method_names, opts)
+    unknown = set(opts.verify_methods or ()) - set(runners)
+    if unknown:
+        raise ValueError(f"verify_methods: {', '.join(sorted(unknown))} not among the methods run")
+    db_att, q_att = db_src.indices(), q_src.indices()
+    for runner in runners.values():
+        runner.check_size(len(db_att), len(q_att))  # too large for a method: refused now, not after encoding
+    gt_hard, gt_soft = build_gt(opts.gt, db_src.names(), q_src.names(), db_att, q_att, db_src.name, q_src.name)
+    if gt_hard is not None and not _any_true(gt_hard):
+        raise opts.gt.no_match_error(db_att, q_att)
+    # ---- the work starts here: nothing above wrote a file
+    db_ex, q_ex = _extract_all([db_src, q_src], ["database", "query"], encoder, runners, opts)
+    if gt_hard is not None:
+        rows, cols = _gt_rows(db_att, db_ex.indices), _gt_rows(q_att, q_ex.indices)
+        gt_hard = gt_hard[np.ix_(rows, cols)]
+        gt_soft = gt_soft[np.ix_(rows, cols)] if gt_soft is not None else None
+        if not _any_true(gt_hard):
+            raise opts.gt.no_match_error(db_ex.indices, q_ex.indices)
+    verifier = None
+    if opts.verify:
+        from vpr.verify import Verifier  # pycolmap: loaded only when verifying
+
+        # one verifier for all methods: features and pair inliers are computed once
+        verifier = Verifier(db_ex.thumbs, q_ex.thumbs, **{"min_inliers": opts.min_inliers, **opts.verify_conf})
+    confs = {}
+    db_names, q_names = db_ex.features.names, q_ex.features.names
+
+    def write(m: str, res: MatchResult, evaluated) -> dict:
+        confs[m] = res.conf
+        folder = out / m
+        v = verifier if opts.verify_methods is None or m in opts.verify_methods else None
+        entries = write_method(folder, m, res, evaluated, db_names, q_names, gt_hard, gt_soft, v, opts.verify,
+                               opts.progress)
+        io.save_json(folder / "config.json", _config(opts, command=command, db=str(db), query=str(query),
+                                                     methods=list(runners)))
+        return {k: (e, None) for k, e in entries.items() if k != m}
+
+    done = run_methods(runners, lambda r: r.match(db_ex.features, q_ex.features, progress=opts.progress),
+                       gt_hard, gt_soft, on_result=write)
+    metrics = {k: e for k, (e, _) in done.items()}
+    # what makes two runs' metrics comparable: same frames (content keys), encoding and ground truth
+    inputs = {"kind": "match", "db": db_src.key(), "query": q_src.key(), "encoder": encoder.name,
+              "encoder_conf": encoder.conf, "ground_truth": opts.gt.describe()}
+    report = {
+        "methods": metrics,
+        "params": {"command": command, "db": str(db), "query": str(query), "preset": opts.preset,
+                   "encoder": encoder.name, "encoder_conf": encoder.conf, "method_conf": confs,
+                   "n_db": len(db_ex.features), "n_query": len(q_ex.features),
+                   "encode_seconds": {"db": db_ex.seconds, "query": q_ex.seconds},
+                   "cached": {"db": db_ex.cached, "query": q_ex.cached},
+                   "skipped": {"db": db_ex.skipped, "query": q_ex.skipped},
+                   "ignored_files": {"db": db_ex.ignored, "query": q_ex.ignored},
+                   "ground_truth": opts.gt.describe(), "inputs": inputs},
+        "versions": versions(),
+    }
+    return merge_metrics(out, report, f"{db_src.name} vs {q_src.name} ({encoder.name})")
+
+
+def exclude_frames(exclude, source) -> int:
+    """``--exclude`` in frames: an int, a string of digits, or ``"Ns"`` (seconds; videos only).
+
+    Seconds are converted with the frame rate of the frames kept from the video
+    (``--fps`` if it lowers the rate, else the video's rate divided by ``--step``).
+    Image folders and lists have no time base, so seconds are refused there.
+    """
+    text = str(exclude).strip().lower()
+    try:
+        if not text.endswith("s"):
+            n = int(text)
+        else:
+            seconds = float(text[:-1])
+            rate = getattr(source, "video_fps", 0.0)
+            if not rate:
+                raise ValueError(f"--exclude {exclude}: seconds need a frame rate, and {source.path} "
+                                 f"({source.kind}) has none; give frames instead (e.g. --exclude 30)")
+            if source.fps is not None and source.fps < rate:
+                rate = source.fps
+            else:
+                rate /= source.step or 1
+            n = round(seconds * rate)
+    except (TypeError, ValueError) as e:
+        if "--exclude" in str(e):
+            raise
+        raise ValueError(f"--exclude must be a number of frames or seconds like 5s, got {exclude!r}") from None
+    if n < 1:
+        raise ValueError(f"--exclude must be at least 1 frame, got {exclude!r} ({n} frames)")
+    return n
+
+
+def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = 30) -> dict:
+    """Loop closures within the traverse ``seq`` with ``method``; writes the same outputs as ``match``.
+
+    ``exclude``: frames, or ``"Ns"`` seconds for a video (:func:`exclude_frames`).
+    Ground truth: ``opts.gt.files`` holds one positions file (``frame,x,y`` or
+    ``traverse,frame,x,y``) used with ``opts.gt.radius``; pairs within ``opts.gt.soft``
+    but not ``radius`` are ignored. Checks as in :func:`run_compare`.
+    """
+    if opts.gt.tolerance is not None:
+        raise ValueError("loops: ground truth is --gt FILE --radius R [--gt-soft R2] (no --tolerance)")
+    out = Path(opts.out)
+    runners, encoder, (src,) = _prepare(out, [seq], ["sequence"], [method], opts, loops=True)
+    exclude = exclude_frames(exclude, src)  # frames, or seconds with the video's rate
+    runner = runners[method]
+    if type(runner)._loops is methods.Method._loops:
+        raise ValueError(runner.no_loops_reason or f"{method} does not support loop closure within one traverse")
+    attempted = src.indices()
+    runner.check_size(len(attempted), len(attempted))
+    if exclude >= len(attempted):
+        raise ValueError(f"--exclude {exclude} leaves no pair to compare: {src.path} has {len(attempted)} frames "
+                         "to read, and a loop closure needs frames at least --exclude apart")
+    gt_hard = gt_soft = mask = None
+    if opts.gt.files:
+        xy = positions_of_frames(opts.gt.files[0], src.name, attempted)
+        gt_hard = groundtruth.gt_from_positions(xy, xy, opts.gt.radius)
+        if opts.gt.soft is not None:
+            gt_soft = groundtruth.gt_from_positions(xy, xy, opts.gt.soft)
+        mask = groundtruth.loop_closure_mask(len(attempted), exclude=exclude)
+        if not _any_true(gt_hard & mask):
+            raise opts.gt.no_match_error(exclude=exclude)
+    # ---- the work starts here: nothing above wrote a file
+    (ex,) = _extract_all([src], ["sequence"], encoder, runners, opts)
+    if gt_hard is not None:
+        rows = _gt_rows(attempted, ex.indices)
+        gt_hard = gt_hard[np.ix_(rows, rows)]
+        gt_soft = gt_soft[np.ix_(rows, rows)] if gt_soft is not None else None
+        mask = groundtruth.loop_closure_mask(len(ex.features), exclude=exclude)
+        if not _any_true(gt_hard & mask):  # skipped frames took the last true pairs
+            raise opts.gt.no_match_error(exclude=exclude)
+    names = ex.features.names
+    confs = {}
+
+    def write(m: str, res: MatchResult, evaluated) -> dict:
+        confs[m] = res.conf
+        write_method(out / m, m, res, evaluated, names, names, gt_hard, gt_soft, title=f"{m}: loop closures")
+        io.save_json(out / m / "config.json", _config(opts, command="loops", seq=str(seq), method=m,
+                                                      exclude=exclude))
+
+    done = run_methods(runners, lambda r: r.loops(ex.features, exclude=exclude, progress=opts.progress),
+                       gt_hard, gt_soft, mask, on_result=write)
+    inputs = {"kind": "loops", "seq": src.key(), "exclude": exclude,
+              "encoder": encoder.name, "encoder_conf": encoder.conf, "ground_truth": opts.gt.describe()}
+    report = {"methods": {k: e for k, (e, _) in done.items()},
+              "params": {"command": "loops", "seq": str(seq), "exclude": exclude,
+                         "encoder": encoder.name, "encoder_conf": encoder.conf, "method_conf": confs,
+                         "n_frames": len(ex.features), "encode_seconds": ex.seconds, "skipped": ex.skipped,
+                         "ground_truth": opts.gt.describe(), "inputs": inputs},
+              "versions": versions()}
+    return merge_metrics(out, report, f"loop closures in {src.name}")

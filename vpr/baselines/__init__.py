@@ -1,1 +1,0 @@
-"""Baselines evaluated in the same harness as rSHOSM: pairwise comparison and SeqSLAM."""

@@ -1,0 +1,33 @@
+"""Ground truth: which database frame shows the same place as which query frame.
+
+- :mod:`~vpr.groundtruth.matrices`: matrices from labels, frame numbers or
+  positions (``gt_from_labels``, ``gt_from_frames``, ``gt_from_tolerance``,
+  ``gt_from_positions``) and the pairs of a loop closure (``loop_closure_mask``,
+  ``loop_closure_gt``);
+- :mod:`~vpr.groundtruth.files`: ground truth read from files (pairs,
+  positions);
+- :mod:`~vpr.groundtruth.spec`: a run's ground-truth options
+  (:class:`GroundTruthSpec`) and :func:`build_gt`, the choice ``vpr match`` makes.
+
+The metrics over them are in :mod:`vpr.evaluate`.
+"""
+from .files import (
+    gt_from_position_files,
+    load_pairs_csv,
+    load_positions_csv,
+    load_traverse_positions,
+    positions_of_frames,
+)
+from .matrices import (
+    gt_from_frames,
+    gt_from_labels,
+    gt_from_positions,
+    gt_from_tolerance,
+    loop_closure_gt,
+    loop_closure_mask,
+)
+from .spec import GroundTruthSpec, build_gt
+
+__all__ = ["gt_from_labels", "gt_from_frames", "gt_from_tolerance", "gt_from_positions", "loop_closure_mask",
+           "loop_closure_gt", "load_pairs_csv", "load_positions_csv", "gt_from_position_files",
+           "load_traverse_positions", "positions_of_frames", "GroundTruthSpec", "build_gt"]

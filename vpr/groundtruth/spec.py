@@ -1,0 +1,152 @@
+"""Where a run's ground truth comes from (the command line's options), and building it for the frames read."""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from vpr.similarity import fits_dense
+
+from .files import _parse_float, gt_from_position_files, load_pairs_csv, load_traverse_positions, positions_for
+from .matrices import gt_from_frames, gt_from_positions
+
+__all__ = ["GroundTruthSpec", "build_gt"]
+
+
+@dataclass(frozen=True)
+class GroundTruthSpec:
+    """Where the ground truth of a database/query pair comes from (the ``vpr match`` options).
+
+    Attributes
+    ----------
+    tolerance : int, optional
+        Frame-aligned traverses: ``|i - j| <= tolerance`` (source frame numbers).
+    files : tuple of str
+        One CSV of ``query,db`` pairs; or, with ``radius``, one positions CSV
+        per traverse (``frame,x,y``) or one with ``traverse,frame,x,y`` rows
+        for both.
+    radius : float, optional
+        Match radius for position ground truth.
+    soft : float, optional
+        Larger radius (or tolerance) within which pairs are ignored.
+    """
+
+    tolerance: int | None = None
+    files: tuple[str, ...] = ()
+    radius: float | None = None
+    soft: float | None = None
+
+    def describe(self) -> dict:
+        """The spec under the command line's names (for ``metrics.json``)."""
+        return {"tolerance": self.tolerance, "gt": list(self.files) or None, "radius": self.radius,
+                "gt_soft": self.soft}
+
+    def check(self, loops: bool = False) -> None:
+        """Refuse contradictory, ignored or out-of-range options and missing files, before any work.
+
+        ``loops``: the ground truth of ``vpr loops`` (one positions file with ``--radius``).
+
+        Raises
+        ------
+        ValueError
+            The message names the options (``--tolerance``, ``--gt``, ``--radius``, ``--gt-soft``).
+        FileNotFoundError
+            A ``--gt`` file does not exist.
+        """
+        tol, files, radius, soft = self.tolerance, list(self.files), self.radius, self.soft
+        if tol is not None and (isinstance(tol, bool) or not isinstance(tol, (int, np.integer)) or tol < 0):
+            raise ValueError(f"--tolerance must be an integer >= 0 (frames), got {tol!r}")
+        for name, v in (("--radius", radius), ("--gt-soft", soft)):
+            if v is not None and (isinstance(v, bool) or _parse_float(str(v)) is None or not math.isfinite(v)
+                                  or v < 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {v!r}")
+        if tol is not None and files:
+            raise ValueError("give either --tolerance or --gt, not both")
+        if tol is not None and radius is not None:
+            raise ValueError("--radius applies to position ground truth (--gt FILE), not to --tolerance")
+        if radius is not None and not files:
+            raise ValueError("--radius needs --gt FILE (positions)")
+        if soft is not None:
+            if tol is None and not files:
+                raise ValueError("--gt-soft needs ground truth: --tolerance K, or --gt FILE with --radius R")
+            if files and radius is None:
+                raise ValueError("--gt-soft needs position ground truth (--radius) or --tolerance")
+            hard, name = (tol, "--tolerance") if tol is not None else (radius, "--radius")
+            if soft < hard:
+                raise ValueError(f"--gt-soft {soft:g} is smaller than {name} {hard:g}: the soft ground truth "
+                                 f"(pairs ignored) must reach at least as far as the true matches")
+        if len(files) > (1 if loops else 2):
+            raise ValueError(f"--gt takes {'one positions file' if loops else 'one or two files'}, got {len(files)}")
+        if files and radius is None and (loops or len(files) == 2):
+            raise ValueError("loops: --gt needs --radius" if loops else
+                             "two --gt files are positions files and need --radius")
+        for f in files:
+            fp = Path(f)
+            if not fp.exists():
+                raise FileNotFoundError(f"no such ground-truth file: {fp}")
+            if not fp.is_file():
+                raise ValueError(f"{fp}: is a folder, expected a ground-truth CSV file")
+
+    def no_match_error(self, db_indices=None, q_indices=None, exclude: int | None = None) -> ValueError:
+        """The error for a ground truth in which no query frame has a true match, in the options' words.
+
+        ``exclude``: loop closures (only pairs at least ``exclude`` frames apart count).
+        """
+        def span(idx) -> str:
+            return f"{min(idx)}..{max(idx)}" if idx is not None and len(idx) else "none"
+
+        if self.tolerance is not None:
+            return ValueError(f"ground truth --tolerance {self.tolerance}: no query frame has a database frame "
+                              f"within {self.tolerance} frame numbers (database frames {span(db_indices)}, "
+                              f"query frames {span(q_indices)}); recall is undefined")
+        files = ", ".join(str(f) for f in self.files)
+        if exclude is not None:
+            return ValueError(f"ground truth --gt {files} --radius {self.radius:g}: no frame is within "
+                              f"{self.radius:g} of a frame at least --exclude {exclude} frames earlier; "
+                              "there is no loop closure to find")
+        if self.radius is not None:
+            return ValueError(f"ground truth --gt {files} --radius {self.radius:g}: no query frame is within "
+                              f"{self.radius:g} of a database frame; recall is undefined")
+        return ValueError(f"ground truth {files}: none of its pairs names a query and a database frame that "
+                          "are read; recall is undefined")
+
+
+def build_gt(spec: GroundTruthSpec, db_names: Sequence[str], q_names: Sequence[str], db_indices: Sequence[int],
+             q_indices: Sequence[int], db_traverse: str = "database", q_traverse: str = "query"):
+    """(gt_hard, gt_soft) of the frames read, or (None, None) without ground truth.
+
+    ``db_traverse`` / ``q_traverse`` name the traverses in a combined
+    ``traverse,frame,x,y`` file; ``*_indices`` are the source frame numbers.
+
+    Raises
+    ------
+    ValueError
+        Contradictory or incomplete options (the message names them), or a bad file.
+    """
+    spec.check()
+    files = list(spec.files)
+    if spec.tolerance is not None:
+        big = not fits_dense(len(db_indices), len(q_indices))  # a band, never the dense matrix
+        hard = gt_from_frames(db_indices, q_indices, spec.tolerance, sparse=big)
+        soft = gt_from_frames(db_indices, q_indices, spec.soft, sparse=big) if spec.soft is not None else None
+        return hard, soft
+    if not files:
+        return None, None
+    if spec.radius is None:  # one pairs file (check() refused the rest)
+        hard = load_pairs_csv(files[0], len(db_names), len(q_names), db_names=db_names, q_names=q_names,
+                              db_indices=db_indices, q_indices=q_indices)
+        return hard, None
+    if len(files) == 2:
+        kw = dict(db_names=db_names, q_names=q_names, db_indices=db_indices, q_indices=q_indices)
+        hard = gt_from_position_files(files[0], files[1], spec.radius, **kw)
+        soft = gt_from_position_files(files[0], files[1], spec.soft, **kw) if spec.soft is not None else None
+        return hard, soft
+    db_xy = positions_for(load_traverse_positions(files[0], db_traverse), db_indices, files[0], db_traverse)
+    q_xy = positions_for(load_traverse_positions(files[0], q_traverse), q_indices, files[0], q_traverse)
+    big = not fits_dense(len(db_xy), len(q_xy))
+    hard = gt_from_positions(db_xy, q_xy, spec.radius, sparse=big)
+    soft = gt_from_positions(db_xy, q_xy, spec.soft, sparse=big) if spec.soft is not None else None
+    return hard, soft

@@ -1,0 +1,121 @@
+"""Frame sources: image folders, video files and text files listing images.
+
+Every source streams its frames: iterating over it decodes one image at a
+time, so a long traverse never has to fit in memory. A frame that cannot be
+read is skipped with a :class:`FrameSkippedWarning` and recorded in
+``source.skipped``; a run never stops half-way because of one bad file.
+
+Frame numbering
+---------------
+``Frame.index`` is the frame's number *in the source*, independent of
+``step``, ``fps`` and ``max_frames``: the position in the naturally sorted
+folder listing, the line order of a list file, or the video frame number.
+Ground-truth files with integer frame columns use the same numbering (see
+:mod:`vpr.groundtruth`), so subsampling a traverse does not shift its ground
+truth. ``Source.indices()`` gives the numbers of the frames that will be
+attempted, parallel to ``Source.names()``; ``Source.iter_range(start, stop)``
+reads only the frames at those positions (the unit of parallel encoding).
+"""
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from .base import (
+    IMAGE_EXTENSIONS,
+    LIST_EXTENSIONS,
+    VIDEO_EXTENSIONS,
+    Frame,
+    FrameSkippedWarning,
+    Source,
+    check_positive_int,
+    decode_image,
+    natural_key,
+)
+from .files import FolderSource, ListSource
+from .video import VideoSource
+
+__all__ = ["Frame", "FrameSkippedWarning", "Source", "FolderSource", "ListSource", "VideoSource",
+           "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS", "LIST_EXTENSIONS", "natural_key", "decode_image", "open_source",
+           "load_all", "iter_batches"]
+
+
+def open_source(path, fps=None, step=None, max_frames=None) -> Source:
+    """Open a folder, video file or image-list file as a :class:`Source`.
+
+    Parameters
+    ----------
+    path : str or Path
+        A folder of images, a video (.mp4 .avi .mov .mkv .m4v .webm .mpg .mpeg
+        .wmv) or a list file (.txt .lst).
+    fps : float, optional
+        Video only: resample to this frame rate.
+    step : int, optional
+        Keep every ``step``-th frame.
+    max_frames : int, optional
+        Cap on the number of frames attempted.
+
+    Raises
+    ------
+    FileNotFoundError
+        ``path`` does not exist.
+    ValueError
+        Unknown kind of path, ``fps`` for a non-video, or an error from the
+        source's constructor (empty folder, unreadable video, ...).
+    """
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"no such file or folder: {p}")
+    if p.is_dir():
+        if fps is not None:
+            raise ValueError(f"{p}: fps only applies to videos; use step for image folders")
+        return FolderSource(p, step=step, max_frames=max_frames)
+    ext = p.suffix.lower()
+    if ext in VIDEO_EXTENSIONS:
+        return VideoSource(p, fps=fps, step=step, max_frames=max_frames)
+    if ext in LIST_EXTENSIONS:
+        if fps is not None:
+            raise ValueError(f"{p}: fps only applies to videos; use step for image lists")
+        return ListSource(p, step=step, max_frames=max_frames)
+    raise ValueError(
+        f"{p}: unknown source kind {ext or '(no extension)'!r}; expected a folder of images, a video "
+        f"({' '.join(sorted(VIDEO_EXTENSIONS))}) or an image list ({' '.join(sorted(LIST_EXTENSIONS))})")
+
+
+def load_all(source: Source, progress: bool = True) -> tuple[list[np.ndarray], list[str]]:
+    """Read every frame of ``source`` into memory.
+
+    Returns
+    -------
+    images : list of numpy.ndarray
+        uint8 BGR images of the frames that could be read.
+    names : list of str
+        Their names; skipped frames are in ``source.skipped``.
+    """
+    from tqdm import tqdm
+
+    images, names = [], []
+    total = len(source.names()) if progress else None
+    with tqdm(total=total, desc=source.name, unit="frame", disable=not progress) as bar:
+        for frame in source:
+            images.append(frame.image)
+            names.append(frame.name)
+            bar.update(1)
+    return images, names
+
+
+def iter_batches(source: Source, batch_size: int) -> Iterator[list[Frame]]:
+    """Yield lists of up to ``batch_size`` frames; only one batch is held at a time."""
+    batch_size = check_positive_int(batch_size, "batch_size")
+    if batch_size is None:
+        raise ValueError("batch_size must be a positive integer, got None")
+    batch: list[Frame] = []
+    for frame in source:
+        batch.append(frame)
+        if len(batch) == batch_size:
+            yield batch
+            batch = []
+    if batch:
+        yield batch

@@ -1,0 +1,175 @@
+"""The frame source: a named, re-iterable stream of decoded frames, and what every kind shares."""
+from __future__ import annotations
+
+import logging
+import re
+import warnings
+from collections.abc import Iterator
+from pathlib import Path
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+
+from vpr.imageproc import to_bgr
+
+__all__ = ["Frame", "FrameSkippedWarning", "Source", "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS", "LIST_EXTENSIONS",
+           "natural_key", "decode_image", "check_range", "check_positive_int", "stat_token"]
+
+log = logging.getLogger(__name__)
+
+IMAGE_EXTENSIONS = frozenset({".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff"})
+VIDEO_EXTENSIONS = frozenset({".mp4", ".avi", ".mov", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv"})
+LIST_EXTENSIONS = frozenset({".txt", ".lst"})
+
+# ANYDEPTH|ANYCOLOR keeps 16-bit and grey images as they are (to_bgr converts
+# them) while still honouring EXIF orientation, which IMREAD_UNCHANGED ignores.
+_IMREAD_FLAGS = cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR
+
+
+class FrameSkippedWarning(UserWarning):
+    """A frame could not be read and was left out of the stream."""
+
+
+class Frame(NamedTuple):
+    """One decoded frame.
+
+    Attributes
+    ----------
+    index : int
+        Frame number within the source (see the module docstring).
+    name : str
+        File name (folder), entry as written (list file) or ``frame_000123``
+        (video).
+    image : numpy.ndarray
+        uint8 BGR image, shape (H, W, 3).
+    """
+
+    index: int
+    name: str
+    image: np.ndarray
+
+
+_DIGITS = re.compile(r"(\d+)")
+
+
+def natural_key(name: str) -> tuple:
+    """Sort key putting ``img2`` before ``img10``; text compares case-insensitively."""
+    parts = _DIGITS.split(name)
+    key = tuple((0, int(p), "") if i % 2 else (1, 0, p.casefold()) for i, p in enumerate(parts))
+    # the raw name breaks ties such as "a01" vs "a1" deterministically
+    return key + ((2, 0, name),)
+
+
+def check_range(start, stop) -> tuple[int, int]:
+    for v, what in ((start, "start"), (stop, "stop")):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+            raise ValueError(f"frame range {what} must be a non-negative integer, got {v!r}")
+    if stop < start:
+        raise ValueError(f"frame range stop ({stop}) is before start ({start})")
+    return int(start), int(stop)
+
+
+def check_positive_int(value, what: str) -> int | None:
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{what} must be a positive integer, got {value!r}")
+    if value < 1:
+        raise ValueError(f"{what} must be a positive integer, got {value}")
+    return int(value)
+
+
+def stat_token(path: Path) -> str:
+    try:
+        st = path.stat()
+    except OSError:
+        return f"{path}|missing"
+    return f"{path}|{st.st_size}|{st.st_mtime_ns}"
+
+
+def decode_image(path: Path) -> tuple[np.ndarray | None, str]:
+    """Read and decode one image file; return (image, "") or (None, reason)."""
+    try:
+        # imdecode on bytes rather than imread: works with non-ASCII paths on
+        # every platform and separates "cannot read" from "cannot decode"
+        buf = np.fromfile(str(path), dtype=np.uint8)
+    except FileNotFoundError:
+        return None, "file not found"
+    except OSError as exc:
+        return None, f"cannot read file ({exc.strerror or exc})"
+    if buf.size == 0:
+        return None, "empty file (0 bytes)"
+    try:
+        img = cv2.imdecode(buf, _IMREAD_FLAGS)
+    except cv2.error as exc:
+        return None, f"OpenCV error while decoding ({str(exc).strip().splitlines()[-1]})"
+    if img is None:
+        return None, "not a decodable image (corrupt, truncated or unsupported format)"
+    try:
+        return to_bgr(img, str(path)), ""
+    except ValueError as exc:
+        return None, str(exc)
+
+
+class Source:
+    """Base class: a named, re-iterable stream of :class:`Frame` objects.
+
+    Attributes
+    ----------
+    path : pathlib.Path
+        The folder, video or list file.
+    name : str
+        Short human-readable name (the folder or file name).
+    skipped : list of (str, str)
+        (frame name, reason) for every frame left out during the latest
+        iteration; reset when a new iteration starts.
+    ignored : int
+        Non-image files ignored in a folder (0 for other sources).
+    """
+
+    kind = "source"
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self.name = self.path.resolve().name or str(self.path)
+        self.skipped: list[tuple[str, str]] = []
+        self.ignored = 0
+
+    def names(self) -> list[str]:
+        """Names of the frames that will be attempted, in order."""
+        raise NotImplementedError
+
+    def indices(self) -> list[int]:
+        """Source frame numbers parallel to :meth:`names`."""
+        raise NotImplementedError
+
+    def key(self) -> str:
+        """A string that changes when the source's content or selection changes."""
+        raise NotImplementedError
+
+    def __iter__(self) -> Iterator[Frame]:
+        raise NotImplementedError
+
+    def iter_range(self, start: int, stop: int) -> Iterator[Frame]:
+        """Frames at positions ``start:stop`` of :meth:`names` (as a slice; unreadable ones skipped).
+
+        The unit of parallel encoding: a worker reads only its range (a video
+        seeks to it). Unlike iteration, an empty result does not raise;
+        ``skipped`` holds the range's skipped frames.
+        """
+        raise NotImplementedError
+
+    def _skip(self, name: str, reason: str) -> None:
+        self.skipped.append((name, reason))
+        warnings.warn(f"{self.path}: skipped frame {name}: {reason}", FrameSkippedWarning, stacklevel=3)
+
+    def _no_frames_error(self) -> ValueError:
+        msg = f"no readable frames in {self.path}"
+        if self.skipped:
+            first = self.skipped[0]
+            msg += f" ({len(self.skipped)} skipped; first: {first[0]}: {first[1]})"
+        return ValueError(msg)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({str(self.path)!r})"

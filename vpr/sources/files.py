@@ -1,0 +1,170 @@
+"""Sources made of image files: a folder of images, or a text file listing image paths."""
+from __future__ import annotations
+
+import hashlib
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+from .base import (
+    IMAGE_EXTENSIONS,
+    Frame,
+    Source,
+    check_positive_int,
+    check_range,
+    decode_image,
+    log,
+    natural_key,
+    stat_token,
+)
+
+__all__ = ["FolderSource", "ListSource"]
+
+
+class _FileListSource(Source):
+    """Shared logic for sources made of individual image files."""
+
+    def __init__(self, path, step=None, max_frames=None):
+        super().__init__(path)
+        self.step = check_positive_int(step, "step") or 1
+        self.max_frames = check_positive_int(max_frames, "max_frames")
+        # filled by subclasses: (frame name, file path) for every image, in source order
+        self._entries: list[tuple[str, Path]] = []
+
+    def _selected(self) -> list[tuple[int, str, Path]]:
+        sel = [(i, n, p) for i, (n, p) in enumerate(self._entries)][::self.step]
+        return sel[:self.max_frames] if self.max_frames else sel
+
+    def names(self) -> list[str]:
+        return [n for _, n, _ in self._selected()]
+
+    def indices(self) -> list[int]:
+        return [i for i, _, _ in self._selected()]
+
+    def key(self) -> str:
+        h = hashlib.sha256()
+        h.update(f"{self.kind}|{self._key_header()}|step={self.step}|max={self.max_frames}\n".encode())
+        for _, name, p in self._selected():
+            h.update(f"{name}|{stat_token(p.resolve())}\n".encode())
+        return f"{self.kind}:{h.hexdigest()}"
+
+    def _key_header(self) -> str:
+        return str(self.path.resolve())
+
+    def __iter__(self) -> Iterator[Frame]:
+        self.skipped = []
+        n_yielded = 0
+        for index, name, p in self._selected():
+            img, reason = decode_image(p)
+            if img is None:
+                self._skip(name, reason)
+                continue
+            n_yielded += 1
+            yield Frame(index, name, img)
+        if n_yielded == 0:
+            raise self._no_frames_error()
+
+    def iter_range(self, start: int, stop: int) -> Iterator[Frame]:
+        start, stop = check_range(start, stop)
+        self.skipped = []
+        for index, name, p in self._selected()[start:stop]:
+            img, reason = decode_image(p)
+            if img is None:
+                self._skip(name, reason)
+                continue
+            yield Frame(index, name, img)
+
+
+class FolderSource(_FileListSource):
+    """The images in one folder (not recursive), in natural order.
+
+    Parameters
+    ----------
+    path : str or Path
+        Folder holding .jpg/.jpeg/.png/.bmp/.tif/.tiff files (extension case
+        ignored). Hidden files are ignored; other files are ignored and counted
+        in ``ignored``.
+    step : int, optional
+        Keep every ``step``-th image.
+    max_frames : int, optional
+        Attempt at most this many images (after ``step``).
+
+    Raises
+    ------
+    FileNotFoundError
+        ``path`` does not exist.
+    NotADirectoryError
+        ``path`` is not a folder.
+    ValueError
+        The folder holds no images.
+    """
+
+    kind = "folder"
+
+    def __init__(self, path, step=None, max_frames=None):
+        super().__init__(path, step, max_frames)
+        if not self.path.exists():
+            raise FileNotFoundError(f"no such folder: {self.path}")
+        if not self.path.is_dir():
+            raise NotADirectoryError(f"not a folder: {self.path}")
+        images = []
+        with os.scandir(self.path) as it:
+            for entry in it:
+                if entry.name.startswith("."):
+                    continue
+                try:
+                    is_file = entry.is_file()
+                except OSError:
+                    is_file = False
+                if not is_file:
+                    continue
+                if Path(entry.name).suffix.lower() in IMAGE_EXTENSIONS:
+                    images.append(entry.name)
+                else:
+                    self.ignored += 1
+        if not images:
+            raise ValueError(f"no images in {self.path} ({self.ignored} other files ignored)")
+        images.sort(key=natural_key)
+        self._entries = [(n, self.path / n) for n in images]
+        if self.ignored:
+            log.info("%s: %d non-image files ignored", self.path, self.ignored)
+
+
+class ListSource(_FileListSource):
+    """Images named in a text file, one path per line.
+
+    Relative paths are relative to the list file's folder. Blank lines and
+    lines starting with ``#`` are ignored. A listed file that is missing or
+    cannot be decoded is skipped at iteration time, like a corrupt image in a
+    folder. Frame names are the paths as written in the list.
+
+    Raises
+    ------
+    FileNotFoundError
+        The list file does not exist.
+    ValueError
+        The list is not UTF-8 text or names no images.
+    """
+
+    kind = "list"
+
+    def __init__(self, path, step=None, max_frames=None):
+        super().__init__(path, step, max_frames)
+        if not self.path.is_file():
+            raise FileNotFoundError(f"no such list file: {self.path}")
+        try:
+            text = self.path.read_text(encoding="utf-8-sig")
+        except UnicodeDecodeError as exc:
+            raise ValueError(f"{self.path}: not a UTF-8 text file (byte {exc.start})") from None
+        base = self.path.parent
+        for line in text.splitlines():
+            entry = line.strip()
+            if not entry or entry.startswith("#"):
+                continue
+            p = Path(entry).expanduser()
+            self._entries.append((entry, p if p.is_absolute() else base / p))
+        if not self._entries:
+            raise ValueError(f"no image paths in {self.path}")
+
+    def _key_header(self) -> str:
+        return stat_token(self.path.resolve())

@@ -1,0 +1,109 @@
+"""The types every floor shares: an encoded traverse in, a match result out.
+
+* :class:`EncodedTraverse`: what a method reads, frame by frame: the names of
+  the frames and, by name, their encodings: ``"sdr"`` (an SDR batch, bool CSR
+  frames x bits), ``"desc"`` (the encoder's dense descriptor, float32 frames x
+  dims) and any input a method computes from the images itself
+  (:class:`ImageInput`, e.g. SeqSLAM's ``"pixels"``).
+* :class:`ImageInput`: an input that a method declares and computes from the
+  raw images rather than taking it from the encoder. The extraction stage
+  computes (and caches) it for every method that asks, so a method with a new
+  kind of input touches only its own module.
+* :class:`MatchResult`: a database x query similarity (dense, or top-K
+  sparse), the best database frame per query, its score and the decision.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+__all__ = ["EncodedTraverse", "ImageInput", "MatchResult", "ENCODER_INPUTS"]
+
+#: Inputs that come from the encoder (every other input is an :class:`ImageInput` of a method).
+ENCODER_INPUTS = {"sdr": "SDRs", "desc": "dense descriptors"}
+
+
+@dataclass(frozen=True)
+class ImageInput:
+    """An input a method computes from the images itself (not from the encoder).
+
+    Attributes
+    ----------
+    name : str
+        Key in :attr:`EncodedTraverse.inputs` and in the encoding cache.
+    description : str
+        What it is, for messages ("SeqSLAM pixel descriptors").
+    compute : callable
+        ``compute(images, name)`` -> float32 array (frames x dims) for a list of
+        images; ``name`` prefixes error messages (``name[i]`` is image ``i``).
+        A module-level function, so that it can be shipped to Dask workers.
+    """
+
+    name: str
+    description: str
+    compute: Callable
+
+
+class EncodedTraverse:
+    """An encoded traverse: frame names and, by name, what the methods read per frame.
+
+    Parameters
+    ----------
+    names : sequence
+        One name per frame.
+    sdr : SDR batch (frames x bits), optional
+    desc : float32 array (frames x dims), optional
+        The encoder's dense descriptor.
+    **inputs
+        Further inputs by name (e.g. ``pixels=...``, see :class:`ImageInput`).
+        ``None`` values are left out.
+    """
+
+    def __init__(self, names, sdr=None, desc=None, **inputs):
+        self.names = list(names)
+        self.inputs = {k: v for k, v in {"sdr": sdr, "desc": desc, **inputs}.items() if v is not None}
+        for key, value in self.inputs.items():
+            if value.shape[0] != len(self.names):
+                raise ValueError(f"encoded traverse: input {key!r} has {value.shape[0]} rows for "
+                                 f"{len(self.names)} frame names")
+
+    @property
+    def sdr(self) -> sp.csr_matrix | None:
+        """The SDR batch, or None."""
+        return self.inputs.get("sdr")
+
+    @property
+    def desc(self) -> np.ndarray | None:
+        """The encoder's dense descriptors, or None."""
+        return self.inputs.get("desc")
+
+    def only(self, keys) -> EncodedTraverse:
+        """The same frames with only the inputs ``keys`` (those held)."""
+        return EncodedTraverse(self.names, **{k: v for k, v in self.inputs.items() if k in set(keys)})
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def __repr__(self) -> str:
+        held = ", ".join(f"{k}={getattr(v, 'shape', '?')}" for k, v in self.inputs.items())
+        return f"EncodedTraverse({len(self)} frames, {held})"
+
+
+@dataclass
+class MatchResult:
+    """Database x query similarity (dense, or top-K sparse), best database frame per query, its score,
+    the accept decision, the matching time in seconds and the conf used.
+
+    ``best_db`` is -1 (score ``-inf``) for a query without any candidate.
+    """
+
+    method: str
+    similarity: np.ndarray | sp.csr_matrix
+    best_db: np.ndarray
+    score: np.ndarray
+    accepted: np.ndarray
+    seconds: float
+    conf: dict = field(default_factory=dict)

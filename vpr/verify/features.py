@@ -1,0 +1,143 @@
+"""ORB keypoints of one image and their matches (the first step of geometric verification)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from vpr.checks import check_float, check_int
+from vpr.imageproc import to_grey
+
+__all__ = ["Keypoints", "extract_features", "match_features", "check_keypoints"]
+
+_DESCRIPTOR_BYTES = 32  # ORB descriptors are 256 bits
+
+
+@dataclass(frozen=True, eq=False)
+class Keypoints:
+    """ORB keypoints and descriptors of one image.
+
+    Attributes
+    ----------
+    xy : numpy.ndarray
+        float64 (K, 2) keypoint positions (x, y) in the original image's pixel
+        coordinates.
+    descriptors : numpy.ndarray
+        uint8 (K, 32) ORB descriptors, row ``k`` belongs to ``xy[k]``.
+    scale : numpy.ndarray
+        float64 (2,) factors (sx, sy) from the original image to the frame the
+        keypoints were detected in (1 unless the image was upscaled).
+    """
+
+    xy: np.ndarray
+    descriptors: np.ndarray
+    scale: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.xy.shape[0])
+
+    def detection_xy(self) -> np.ndarray:
+        """Keypoint positions in the detection (possibly upscaled) frame, (K, 2) float64."""
+        # pixel centres: cv2.resize maps x_orig to (x_orig + 0.5) * s - 0.5
+        return (self.xy + 0.5) * self.scale - 0.5
+
+
+def check_keypoints(f, name: str) -> Keypoints:
+    """``f`` if it is a :class:`Keypoints`, else a ValueError naming ``name``."""
+    if not isinstance(f, Keypoints):
+        raise ValueError(f"{name} must be a Keypoints object (see extract_features), got {type(f).__name__}")
+    return f
+
+
+def extract_features(image, n_features: int = 1000, min_side: int = 240, name: str = "image") -> Keypoints:
+    """Detect ORB keypoints and compute their descriptors.
+
+    Parameters
+    ----------
+    image : array_like
+        Grey (H, W) or BGR/BGRA (H, W, C) image of any size and of any dtype
+        accepted by :func:`vpr.imageproc.to_grey`.
+    n_features : int
+        Maximum number of keypoints ORB keeps.
+    min_side : int
+        Images whose shorter side is smaller are upscaled (bilinear) so that
+        it equals ``min_side`` before detection; keypoints are mapped back to
+        the original pixel coordinates (see the module docstring).
+    name : str
+        Used in error messages, e.g. ``"query image 12"``.
+
+    Returns
+    -------
+    Keypoints
+        Possibly empty: an image without texture (e.g. blank) gives K = 0.
+
+    Raises
+    ------
+    ValueError
+        Invalid image (message starts with ``name``) or parameters.
+    """
+    n_features = check_int(n_features, "n_features", 1)
+    min_side = check_int(min_side, "min_side", 1)
+    grey = to_grey(image, name)
+    h, w = grey.shape
+    if min(h, w) < min_side:
+        f = min_side / min(h, w)
+        size = (max(1, round(w * f)), max(1, round(h * f)))
+        grey = cv2.resize(grey, size, interpolation=cv2.INTER_LINEAR)
+    scale = np.array([grey.shape[1] / w, grey.shape[0] / h], dtype=np.float64)
+    orb = cv2.ORB_create(nfeatures=n_features)
+    keypoints, desc = orb.detectAndCompute(grey, None)
+    if desc is None or len(keypoints) == 0:
+        return Keypoints(np.zeros((0, 2)), np.zeros((0, _DESCRIPTOR_BYTES), np.uint8), scale)
+    xy_det = np.array([kp.pt for kp in keypoints], dtype=np.float64).reshape(-1, 2)
+    xy = (xy_det + 0.5) / scale - 0.5
+    return Keypoints(xy, np.ascontiguousarray(desc, dtype=np.uint8), scale)
+
+
+def match_features(f1: Keypoints, f2: Keypoints, ratio: float = 0.8, mutual: bool = True) -> np.ndarray:
+    """Match ORB descriptors by Hamming distance with Lowe's ratio test.
+
+    Parameters
+    ----------
+    f1, f2 : Keypoints
+        Keypoints of the two images.
+    ratio : float
+        A match ``i -> j`` is kept if its distance is below ``ratio`` times
+        the distance to ``f1``'s second-nearest neighbour in ``f2``. When
+        ``f2`` has a single descriptor there is no second neighbour and the
+        test passes.
+    mutual : bool
+        Also require ``i`` to be the nearest neighbour of ``j`` in ``f1``,
+        which removes many-to-one matches onto repetitive texture.
+
+    Returns
+    -------
+    numpy.ndarray
+        intp (M, 2) index pairs ``(i, j)`` into ``f1`` and ``f2``, sorted by
+        ``i``; (0, 2) when nothing matches.
+    """
+    f1 = check_keypoints(f1, "f1")
+    f2 = check_keypoints(f2, "f2")
+    ratio = check_float(ratio, "ratio", 0.0, 1.0, open_min=True)
+    empty = np.zeros((0, 2), dtype=np.intp)
+    if len(f1) == 0 or len(f2) == 0:
+        return empty
+    matcher = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=False)
+    pairs = []
+    for knn in matcher.knnMatch(f1.descriptors, f2.descriptors, k=2):
+        if not knn:
+            continue
+        best = knn[0]
+        if len(knn) > 1 and not best.distance < ratio * knn[1].distance:
+            continue
+        pairs.append((best.queryIdx, best.trainIdx))
+    if not pairs:
+        return empty
+    out = np.array(pairs, dtype=np.intp)
+    if mutual:
+        reverse = np.full(len(f2), -1, dtype=np.intp)
+        for m in matcher.match(f2.descriptors, f1.descriptors):
+            reverse[m.queryIdx] = m.trainIdx
+        out = out[reverse[out[:, 1]] == out[:, 0]]
+    return out[np.argsort(out[:, 0], kind="stable")]

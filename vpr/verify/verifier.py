@@ -1,0 +1,231 @@
+"""The verifier: the top candidates of a similarity matrix, checked by ORB matches and two-view RANSAC."""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from tqdm import tqdm
+
+from vpr.checks import check_choice, check_float, check_int, check_similarity
+from vpr.config import merge_conf
+
+from .features import Keypoints, extract_features, match_features
+from .rerank import rerank, top_candidates
+from .twoview import MODELS, check_seed, two_view_inliers
+
+__all__ = ["Verifier", "VerifyResult"]
+
+
+@dataclass(frozen=True, eq=False)
+class VerifyResult:
+    """Outcome of :meth:`Verifier.verify`.
+
+    Attributes
+    ----------
+    candidates : numpy.ndarray
+        intp (n_q, N) database indices ordered by ``S`` (best first); -1 pads
+        queries with fewer than N candidates.
+    inliers : numpy.ndarray
+        int64 (n_q, N) RANSAC inlier counts, -1 at padding.
+    best_db : numpy.ndarray
+        intp (n_q,) candidate with the most inliers, ties by ``S`` order; -1
+        for a query without candidates.
+    accepted : numpy.ndarray
+        bool (n_q,) ``best`` inlier count >= ``min_inliers``.
+    score : numpy.ndarray
+        float64 (n_q,) inlier count of ``best_db``; -inf for a query without
+        candidates. Thresholding it sweeps ``min_inliers``.
+    n_db : int
+        Number of database entries (rows of ``S``).
+    """
+
+    candidates: np.ndarray
+    inliers: np.ndarray
+    best_db: np.ndarray
+    accepted: np.ndarray
+    score: np.ndarray
+    n_db: int
+
+    def reranked(self, S):
+        """``S`` (the matrix the candidates came from) re-ordered by inliers within each query's candidates.
+
+        The verified similarity to evaluate and compare with ``S``: see :func:`rerank`.
+        """
+        return rerank(S, self.candidates, self.inliers)
+
+    def similarity(self) -> sp.csc_matrix:
+        """Inlier-only similarity, sparse n_db x n_q: the candidates and nothing else.
+
+        Not comparable with the unverified matrix (every other pair is
+        missing); use :meth:`reranked` for that.
+
+        Each candidate's entry is its inlier count plus a bonus in (0, 1)
+        that decreases with its rank under ``S``, so the ordering of every
+        column -- and hence the best entry -- matches ``best_db``;
+        non-candidates are not stored. With ``matching="single"`` the
+        precision-recall curve then sweeps the inlier threshold.
+        """
+        n_q, n = self.candidates.shape
+        q, r = np.nonzero(self.candidates >= 0)
+        vals = self.inliers[q, r] + (n - r) / (n + 1.0)
+        return sp.csc_matrix((vals, (self.candidates[q, r], q)), shape=(self.n_db, n_q))
+
+
+ImageSource = Callable[[int], np.ndarray] | Sequence[np.ndarray]
+
+
+class Verifier:
+    """Geometric verification of the top candidates of a similarity matrix.
+
+    Parameters
+    ----------
+    db_images, q_images : callable or sequence
+        ``i -> image`` callables, or sequences (lists, stacked arrays) of
+        images; any layout accepted by :func:`extract_features`. Sequences
+        also let :meth:`verify` check the shape of ``S``.
+    **conf
+        Overrides of ``Verifier.default_conf``, merged by
+        :func:`vpr.config.merge_conf` (unknown keys raise; strings are read as
+        the default's type):
+    n_features : int
+        ORB keypoints per image.
+    model : {"fundamental", "homography"}
+        Two-view model, see :func:`two_view_inliers`.
+    ratio : float
+        Lowe ratio, see :func:`match_features`.
+    min_inliers : int
+        Inliers the best candidate needs for the query to be accepted.
+    cache : bool
+        Keep every image's features after first use, so each image is
+        processed once even across several :meth:`verify` calls (about
+        48 kB per image at 1000 features). Without it, database features are
+        recomputed for every query that lists them.
+    max_error, seed, max_trials
+        RANSAC settings, see :func:`two_view_inliers`.
+    mutual : bool
+        Mutual nearest-neighbour check, see :func:`match_features`.
+    min_side : int
+        Upscaling threshold, see :func:`extract_features`.
+    """
+
+    default_conf = {"n_features": 1000, "model": "fundamental", "ratio": 0.8, "min_inliers": 15, "cache": True,
+                    "max_error": 4.0, "seed": 0, "max_trials": 2000, "mutual": True, "min_side": 240}
+
+    def __init__(self, db_images: ImageSource, q_images: ImageSource, **conf):
+        self._db = self._check_images(db_images, "db_images")
+        self._q = self._check_images(q_images, "q_images")
+        # strings (from a command line) are read as the default's type, then every value is checked
+        self.conf = c = merge_conf(self.default_conf, conf, "verifier", nullable=("seed",))
+        self.n_features = check_int(c["n_features"], "n_features", 1)
+        self.model = check_choice(c["model"], "model", MODELS)
+        self.ratio = check_float(c["ratio"], "ratio", 0.0, 1.0, open_min=True)
+        self.min_inliers = check_int(c["min_inliers"], "min_inliers", 0)
+        self.cache = c["cache"]
+        self.max_error = check_float(c["max_error"], "max_error", 0.0, open_min=True)
+        check_seed(c["seed"])
+        self.seed = c["seed"]
+        self.max_trials = check_int(c["max_trials"], "max_trials", 1)
+        self.mutual = c["mutual"]
+        self.min_side = check_int(c["min_side"], "min_side", 1)
+        self._cache = {"database": {}, "query": {}}
+        # (db, query) -> inliers: several methods often propose the same candidates
+        self._pairs: dict[tuple[int, int], int] = {}
+
+    @staticmethod
+    def _check_images(images, name):
+        if callable(images):
+            return images
+        if hasattr(images, "__getitem__") and hasattr(images, "__len__"):
+            return images
+        raise ValueError(f"{name} must be a callable i -> image or a sequence of images, "
+                         f"got {type(images).__name__}")
+
+    def _features(self, which: str, images, i: int) -> Keypoints:
+        store = self._cache[which]
+        f = store.get(i)
+        if f is None:
+            name = f"{which} image {i}"
+            img = images(i) if callable(images) else images[i]
+            if img is None:
+                raise ValueError(f"{name}: could not be loaded (got None)")
+            f = extract_features(img, self.n_features, self.min_side, name=name)
+            if self.cache:
+                store[i] = f
+        return f
+
+    def db_features(self, i: int) -> Keypoints:
+        """Keypoints of database image ``i`` (computed on first use when caching)."""
+        return self._features("database", self._db, int(i))
+
+    def query_features(self, j: int) -> Keypoints:
+        """Keypoints of query image ``j`` (computed on first use when caching)."""
+        return self._features("query", self._q, int(j))
+
+    def pair_inliers(self, db_index: int, q_index: int) -> int:
+        """RANSAC inliers between database image ``db_index`` and query ``q_index``."""
+        key = (int(db_index), int(q_index))
+        n = self._pairs.get(key)
+        if n is None:
+            n = self._inliers(self.db_features(db_index), self.query_features(q_index))
+            if self.cache:
+                self._pairs[key] = n
+        return n
+
+    def _inliers(self, fd: Keypoints, fq: Keypoints) -> int:
+        m = match_features(fq, fd, self.ratio, self.mutual)
+        return two_view_inliers(fq, fd, m, self.model, self.max_error, self.seed, self.max_trials)
+
+    def verify(self, S, n_candidates: int, progress: bool = True) -> VerifyResult:
+        """Verify each query's ``n_candidates`` best database entries under ``S``.
+
+        Parameters
+        ----------
+        S : array_like or scipy.sparse matrix
+            Similarity, database x query (n_db x n_q), higher = more similar.
+            With a sparse (e.g. top-K) matrix only stored entries are
+            candidates; ``-inf`` entries never are.
+        n_candidates : int
+            Candidates per query (>= 1).
+        progress : bool
+            Show a tqdm progress bar over the queries.
+
+        Returns
+        -------
+        VerifyResult
+
+        Raises
+        ------
+        ValueError
+            ``n_candidates < 1``, ``S`` not 2-D or containing NaN, ``S``'s
+            shape differs from the image sequences' lengths, or an image
+            cannot be read.
+        """
+        n_candidates = check_int(n_candidates, "n_candidates", 1)
+        S = check_similarity(S, sparse_format="csc")
+        n_db, n_q = S.shape
+        for images, n, what, axis in ((self._db, n_db, "db_images", "rows"),
+                                      (self._q, n_q, "q_images", "columns")):
+            if not callable(images) and len(images) != n:
+                raise ValueError(f"S has {n} {axis} (shape {S.shape}) but {what} has {len(images)} images")
+        cand = top_candidates(S, n_candidates)
+        inl = np.full(cand.shape, -1, dtype=np.int64)
+
+        for j in tqdm(range(n_q), desc="verify", unit="query", disable=not progress):
+            if cand[j, 0] < 0:
+                continue
+            for r, i in enumerate(cand[j]):
+                if i < 0:
+                    break
+                inl[j, r] = self.pair_inliers(i, j)
+
+        # argmax returns the first maximum, i.e. ties go to the candidate S ranks higher
+        best_r = np.argmax(inl, axis=1)
+        rows = np.arange(n_q)
+        has = cand[:, 0] >= 0
+        best_db = np.where(has, cand[rows, best_r], -1)
+        best_inl = inl[rows, best_r]
+        score = np.where(has, best_inl.astype(np.float64), -np.inf)
+        accepted = has & (best_inl >= self.min_inliers)
+        return VerifyResult(cand, inl, best_db, accepted, score, n_db)
