@@ -30,9 +30,8 @@ __all__ = ["COMMANDS", "add_arguments", "run_command", "run_demo", "render_once"
 COMMANDS = {"demo": "render the two_seasons scene and compare the default preset's methods on it (no download)"}
 
 # every setting of the demo, in one place (a preset can replace it). Verification is the expensive part
-# (ORB matching, ~5 ms per candidate pair at 500 keypoints, ~15 ms at 1,000): only rshosm-seq's 3 best
-# candidates per query are verified, with 500 keypoints, so that the demo stays under a minute on 2 cores
-# (its AP changes by -0.001 on two_seasons; all 5 candidates with 1,000 keypoints cost ~55 s of CPU).
+# (ORB matching per candidate pair): only rshosm-seq's 3 best candidates per query are verified, with 500
+# keypoints, so that the demo stays near a minute on 2 cores (docs/benchmarks.md has the cost).
 DEFAULTS = {"scene": "two_seasons", "preset": presets.DEFAULT, "radius": 3.0, "soft_radius": 10.0,
             "verify": 3, "verify_methods": ("rshosm-seq",), "verify_conf": {"n_features": 500}}
 

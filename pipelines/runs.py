@@ -57,7 +57,7 @@ class RunOptions:
     gt: GroundTruthSpec = field(default_factory=GroundTruthSpec)
     verify: int = 0
     min_inliers: int = 15
-    #: methods whose candidates are verified (None: all); verification costs ~5-15 ms per candidate pair
+    #: methods whose candidates are verified (None: all); verification is the expensive part of a run
     verify_methods: tuple | None = None
     #: further :class:`vpr.verify.Verifier` conf (e.g. ``{"n_features": 500}``)
     verify_conf: dict = field(default_factory=dict)

@@ -163,6 +163,7 @@ def _serial_bytes(paths, tmp_path, **kw):
     return {r.path.name: r.path.read_bytes() for r in out}
 
 
+@pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::UserWarning")
 def test_local_cluster_run_command_equals_serial(data, tmp_path, capsys):
     ap = argparse.ArgumentParser()
@@ -220,6 +221,7 @@ def _stop(procs):
             p.wait(timeout=10)
 
 
+@pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::UserWarning")
 def test_killed_worker_chunks_are_retried_and_output_is_identical(data, tmp_path):
     from distributed import Client

@@ -302,6 +302,7 @@ def test_accept_loops_needs_a_confirmed_run_of_consistent_closures():
         ev.accept_loops(S, confirm=-1)
 
 
+@pytest.mark.slow
 def test_default_loop_rule_finds_revisits_and_no_closure_on_a_forward_drive():
     # the fast preset's loop encoder (causal standardisation) on the scenes' native frame counts at 160x120,
     # where studies/loops_acceptance.py chose z_min and confirm

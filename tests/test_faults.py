@@ -24,20 +24,17 @@ import pytest
 from pipelines.cli import main
 from vpr.groundtruth import load_pairs_csv
 
+pytestmark = pytest.mark.slow  # faults, signals and concurrent runs through the command line
+
 ROOT = Path(__file__).resolve().parents[1]
 N_FRAMES = 30
 
 
 @pytest.fixture(scope="module")
-def scene(tmp_path_factory):
-    from vpr.render import write_scene
-
-    out = tmp_path_factory.mktemp("scene")
-    res = write_scene("two_seasons", out, size=(48, 32), n_frames=N_FRAMES, progress=False)
-    names = list(res["traverses"])
-    db, q = out / names[0], out / names[1]
-    return {"dir": out, "db": db, "q": q, "gt": out / "ground_truth.csv",
-            "n_db": len(list(db.glob("*.png"))), "n_q": len(list(q.glob("*.png")))}
+def scene(scene_on_disk):
+    s = scene_on_disk("two_seasons", (48, 32), N_FRAMES)
+    db, q = s[s["names"][0]], s[s["names"][1]]
+    return {**s, "db": db, "q": q, "n_db": len(list(db.glob("*.png"))), "n_q": len(list(q.glob("*.png")))}
 
 
 def _run(argv, capsys):

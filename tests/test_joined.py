@@ -9,7 +9,6 @@ import scipy.sparse as sp
 
 import encoders
 from encoders.joined import DescribedJoinedEncoder, JoinedEncoder, split_name
-from vpr import render
 from vpr.methods import match
 from vpr.types import EncodedTraverse
 
@@ -18,8 +17,8 @@ SMALL_CNN = {"cnn.input_size": (64, 64)}
 
 
 @pytest.fixture(scope="module")
-def scene():
-    return render.render_scene("two_seasons", size=(64, 48), n_frames=24)
+def scene(rendered):
+    return rendered("two_seasons", (64, 48), 24)
 
 
 @pytest.fixture(scope="module")

@@ -84,12 +84,9 @@ def test_localizer_bad_input(traverses, tmp_path):
 
 # ---------------------------------------------------------------- command line
 @pytest.fixture(scope="module")
-def scene(tmp_path_factory):
-    from vpr.render import write_scene
-
-    root = tmp_path_factory.mktemp("scene")
-    res = write_scene("two_seasons", root / "s", size=(48, 36), n_frames=40, progress=False)
-    return {name: t["folder"] for name, t in res["traverses"].items()}
+def scene(scene_on_disk):
+    s = scene_on_disk("two_seasons", (48, 36), 40)
+    return {name: s[name] for name in s["names"]}
 
 
 def _cli(argv, capsys, stdin=None, monkeypatch=None):
@@ -104,6 +101,7 @@ def _cli(argv, capsys, stdin=None, monkeypatch=None):
     return code, out, err
 
 
+@pytest.mark.slow
 def test_learn_and_localize_folder_stdin_and_restart(scene, tmp_path, capsys, monkeypatch):
     from pathlib import Path
 
@@ -185,6 +183,7 @@ def test_causal_standardisation_only_looks_back():
     assert enc.encode_descriptors(d).shape == (d.shape[0], 256)
 
 
+@pytest.mark.slow
 def test_localize_stdin_answers_each_path_before_the_next_arrives(scene, tmp_path):
     import subprocess
     import sys

@@ -26,13 +26,13 @@ def _desc(images):
 
 
 @pytest.fixture(scope="module")
-def two_seasons():
-    return render_scene("two_seasons", size=SMALL, n_frames=50)
+def two_seasons(rendered):
+    return rendered("two_seasons", SMALL, 50)
 
 
 @pytest.fixture(scope="module")
-def loop_scene():
-    return render_scene("loop_revisits", size=SMALL, n_frames=120)
+def loop_scene(rendered):
+    return rendered("loop_revisits", SMALL, 120)
 
 
 # ----------------------------------------------------------------------------- specs

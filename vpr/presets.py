@@ -19,8 +19,7 @@ Each preset also names the ``loop_method`` of ``vpr loops`` and the
 ``loop_encoder_conf`` merged over its encoder conf there: one stream may change
 condition part-way (summer then winter, day then night), so loops standardise
 causally, each frame by the frames just before it, instead of fitting the whole
-stream (``docs/localize.md``: Nordland summer + winter loop AP 0.80 causal
-against 0.44 fitted with the ``default`` encoder).
+stream (``docs/localize.md`` has the figures).
 
 This module is plain data: encoder and method names are checked when a run
 builds them (``encoders.get``, :func:`vpr.methods.get`), so that ``vpr`` needs

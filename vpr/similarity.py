@@ -158,8 +158,8 @@ def cosine(X, Y=None) -> np.ndarray:
 @njit(cache=True, fastmath=True, nogil=True)
 def _sad_block(a, b, out):  # pragma: no cover - compiled
     # Tiling over b keeps a few rows of b in L2 while every row of a streams
-    # past them (about 2x faster than untiled at 2,048 dims); NumPy broadcasting
-    # was 25x slower at Nordland size (3,576 x 3,576 x 2,048).
+    # past them (faster than untiled at 2,048 dims; NumPy broadcasting was far
+    # slower at Nordland size: benchmarks/bench_seqslam.py).
     n, d = a.shape
     m = b.shape[0]
     tile = 64

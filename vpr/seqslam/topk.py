@@ -227,12 +227,10 @@ def seqslam_topk(db_desc, q_desc, top_k: int = 50, metric: str = "sad", block: i
     cells only. When the windows of every block cover the whole database the
     result is the exact one (``exact`` is True).
 
-    Measured (``benchmarks/bench_seqslam_scale.py``, aliased SDR traverses,
-    one thread, CPU time): candidate mode 0.4 s at 5,000 x 5,000 and 6.7 s at
-    50,000 x 50,000 (1 % of the cells searched, growth exponent 1.17), peak RSS
-    0.42 GB; its best match equals the exact one for 99.8-99.9 % of the
-    queries (5,000 to 20,000 frames). Exact mode 3.4 s at 5,000, 16 s at
-    10,000, 66 s and 0.68 GB at 20,000 (exponent 2: about 7 minutes at 50,000).
+    Candidate mode grows about linearly with the frames, exact mode
+    quadratically; ``benchmarks/bench_seqslam_scale.py`` prints the time,
+    memory and how often the candidate mode's best match is the exact one
+    (figures in ``docs/benchmarks.md``).
 
     Parameters
     ----------

@@ -19,7 +19,7 @@ compiled loops. Nothing outside this package reads the memory's private
 state: kernels read :meth:`SequenceMemory.view`, users :attr:`SequenceMemory.connections`.
 """
 from .conf import LEARN_THRESHOLD, BeamConf, EvidenceConf, memory_params
-from .evidence import EvidenceResult, dense_evidence, normalise_columns, query_evidence, sparse_evidence
+from .evidence import EvidenceResult, dense_evidence, query_evidence, sparse_evidence, zscore_columns
 from .localizer import LOCALIZER_DEFAULTS, Localizer, LocalizerResult
 from .loops import LOOP_DENSE_MAX, LOOP_UNCAPPED_MAX, accept_loops, loop_evidence, stationary_closures
 from .memory import Connections, MemoryFileError, MemoryView, SequenceMemory, pad_codes
@@ -27,6 +27,6 @@ from .streaming import ForwardEvidence, FrameEvidence
 
 __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pad_codes",
            "LEARN_THRESHOLD", "EvidenceConf", "BeamConf", "memory_params",
-           "query_evidence", "dense_evidence", "sparse_evidence", "normalise_columns", "EvidenceResult",
+           "query_evidence", "dense_evidence", "sparse_evidence", "zscore_columns", "EvidenceResult",
            "ForwardEvidence", "FrameEvidence", "Localizer", "LocalizerResult", "LOCALIZER_DEFAULTS",
            "loop_evidence", "accept_loops", "stationary_closures", "LOOP_UNCAPPED_MAX", "LOOP_DENSE_MAX"]

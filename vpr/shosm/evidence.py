@@ -37,6 +37,7 @@ import scipy.sparse as sp
 from tqdm import tqdm
 
 from vpr import sdr as _sdr
+from vpr.checks import check_choice, check_int
 from vpr.similarity import best_matches
 
 from .beam import BIG, NO_PASS, Beam, beam_params, check_codes, db_graph, finish, reverse_columns
@@ -44,7 +45,7 @@ from .conf import BeamConf, EvidenceConf
 from .kernels import evidence as KE
 from .memory import SequenceMemory
 
-__all__ = ["query_evidence", "dense_evidence", "sparse_evidence", "normalise_columns", "EvidenceResult"]
+__all__ = ["query_evidence", "dense_evidence", "sparse_evidence", "zscore_columns", "EvidenceResult"]
 
 _DIRECTIONS = ("both", "forward")
 
@@ -62,16 +63,8 @@ class EvidenceResult:
     score: np.ndarray
 
 
-def _check_direction(direction: str) -> str:
-    if direction not in _DIRECTIONS:
-        raise ValueError(f"direction must be 'both' or 'forward', got {direction!r}")
-    return direction
-
-
 def _check_top_k(top_k) -> int | None:
-    if top_k is not None and int(top_k) < 1:
-        raise ValueError(f"top_k must be >= 1 or None, got {top_k}")
-    return None if top_k is None else int(top_k)
+    return None if top_k is None else check_int(top_k, "top_k", 1)
 
 
 def query_evidence(mem: SequenceMemory, query_batch, db_codes, conf: EvidenceConf | None = None,
@@ -101,22 +94,20 @@ def query_evidence(mem: SequenceMemory, query_batch, db_codes, conf: EvidenceCon
     conf = conf or EvidenceConf()
     if _check_top_k(top_k) is not None:
         return sparse_evidence(mem, query_batch, db_codes, conf, direction, top_k=top_k, beam=beam, progress=progress)
-    S = normalise_columns(dense_evidence(mem, query_batch, db_codes, conf, direction, progress), conf.normalise)
+    S = dense_evidence(mem, query_batch, db_codes, conf, direction, progress)
+    if conf.normalise == "query":
+        S = zscore_columns(S)
     best, score = best_matches(S)
     return EvidenceResult(S, best, score)
 
 
-def normalise_columns(S: np.ndarray, how: str) -> np.ndarray:
-    """Standardise every query column of a dense S in place (``how="query"``) or leave it (``"none"``).
+def zscore_columns(S: np.ndarray) -> np.ndarray:
+    """Standardise every query column of a dense S in place (``EvidenceConf.normalise == "query"``).
 
     Each query's evidence has its own scale (how well that frame matches
     anything); z-scores make one threshold mean the same for every query, as
     SeqSLAM's contrast enhancement does.
     """
-    if how == "none":
-        return S
-    if how != "query":
-        raise ValueError(f"normalise must be 'query' or 'none', got {how!r}")
     for c0 in range(0, S.shape[1], 1024):
         blk = S[:, c0:c0 + 1024]
         sd = blk.std(axis=0)
@@ -156,7 +147,7 @@ def dense_evidence(mem: SequenceMemory, query_batch, db_codes, conf: EvidenceCon
     ndarray, float32, n_db x n_q (higher = more similar).
     """
     conf = conf or EvidenceConf()
-    _check_direction(direction)
+    check_choice(direction, "direction", _DIRECTIONS)
     stay, skip = conf.costs
     q = _sdr.check_batch(query_batch, n_bits=mem.n_inputs, name="query SDR batch")
     db = check_codes(mem, db_codes)
@@ -215,7 +206,7 @@ def sparse_evidence(mem: SequenceMemory, query_batch, db_codes, conf: EvidenceCo
     EvidenceResult (similarity: csr n_db x n_q float32).
     """
     conf, beam = conf or EvidenceConf(), beam or BeamConf()
-    _check_direction(direction)
+    check_choice(direction, "direction", _DIRECTIONS)
     top_k = _check_top_k(top_k)
     q = _sdr.check_batch(query_batch, n_bits=mem.n_inputs, name="query SDR batch")
     db = check_codes(mem, db_codes)

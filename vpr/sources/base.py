@@ -11,6 +11,7 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
+from vpr.checks import check_int
 from vpr.imageproc import to_bgr
 
 __all__ = ["Frame", "FrameSkippedWarning", "Source", "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS", "LIST_EXTENSIONS",
@@ -71,13 +72,8 @@ def check_range(start, stop) -> tuple[int, int]:
 
 
 def check_positive_int(value, what: str) -> int | None:
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise ValueError(f"{what} must be a positive integer, got {value!r}")
-    if value < 1:
-        raise ValueError(f"{what} must be a positive integer, got {value}")
-    return int(value)
+    """``None``, or a positive integer (:func:`vpr.checks.check_int`)."""
+    return None if value is None else check_int(value, what, 1)
 
 
 def stat_token(path: Path) -> str:

@@ -27,7 +27,7 @@ def _ransac_options(max_error: float, seed: int, max_trials: int) -> pycolmap.RA
     opts.max_error = max_error
     opts.random_seed = seed
     # colmap's default (100000 trials) makes a wrong candidate, whose matches
-    # are nearly all outliers, cost ~1 s; a few thousand trials still find a
+    # are nearly all outliers, expensive; a few thousand trials still find a
     # true pair's model, which has a high inlier ratio.
     opts.max_num_trials = max_trials
     opts.min_num_trials = min(opts.min_num_trials, max_trials)

@@ -1,13 +1,13 @@
 """Compiled inner loop of :class:`vpr.shosm.SequenceMemory` (numba).
 
 A pure NumPy version of one Algorithm 1 step needs a few hundred small array
-operations, about 400 us per observation here; the paper's target regime (many
-thousands of observations) needs well under 100 us, hence this kernel
-(`benchmarks/bench_memory.py` prints the figures).
+operations per observation, too slow for the paper's regime of many thousands
+of observations, hence this kernel (``benchmarks/bench_memory.py`` prints the
+cost per observation).
 
 All state lives in NumPy arrays owned by the Python object. The inverted index
 input bit -> minicolumns is a 2-D array with one contiguous row per bit (the
-matching loop reads it sequentially: a linked list here was 10x slower once it
+matching loop reads it sequentially, which a linked list did not once it
 outgrew the cache); cell -> outgoing connections are singly linked lists threaded
 through append-only arrays; line 13's tests use two open-addressing hash sets,
 (source minicolumn, cell) and (source cell, cell). The space one step needs is known
@@ -100,8 +100,8 @@ def query_tie_key(cell):
     return np.float64(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
 
 
-# The phases are inlined into run_frames (inline="always"): separately called they cost ~10 %
-# per observation in bench_memory's random walk.
+# The phases are inlined into run_frames (inline="always"): calls between them cost measurably in
+# bench_memory's random walk.
 # The phases below share the memory's arrays in four groups (tuples, unpacked by name):
 #   ff      feed-forward: (bit_cols, bit_len, col_thr), the inverted index input bit -> minicolumns
 #   lat     lateral: (out_head, outdeg, e_src, e_dst, e_onext, col_cell, edge_set)
