@@ -39,11 +39,14 @@ def add_gt_arguments(ap, loops: bool = False, title: str = "ground truth (option
     gt = ap.add_argument_group(title)
     if loops:
         gt.add_argument("--gt", nargs="+", metavar="FILE",
-                        help="positions CSV (frame,x,y or traverse,frame,x,y) with --radius")
+                        help="positions CSV (frame,x,y or traverse,frame,x,y) with --radius; a CSV of frame,earlier "
+                             "pairs; or a frame x frame matrix: .npy, .png/.bmp (nonzero = loop) or .mat[:VARIABLE] "
+                             "(a second matrix: the soft ground truth)")
     else:
         gt.add_argument("--tolerance", type=int, metavar="K", help="frame-aligned traverses: |i - j| <= K")
         gt.add_argument("--gt", nargs="+", metavar="FILE",
-                        help="CSV of query,db pairs; or with --radius: one positions CSV per traverse "
+                        help="CSV of query,db pairs; a db x query matrix (GThard.npy [GTsoft.npy]) or VPR-Bench's "
+                             "ground_truth_new.npy; or with --radius: one positions CSV per traverse "
                              "(frame,x,y), or one CSV with traverse,frame,x,y rows for both")
     gt.add_argument("--radius", type=float, help="match radius for position ground truth (same unit as x, y)")
     gt.add_argument("--gt-soft", type=float, metavar="R2",

@@ -21,6 +21,7 @@ from pipelines.args import (
 from pipelines.outputs import metrics_table
 from pipelines.runs import RunOptions, run_compare, run_loops
 from vpr import methods, presets
+from vpr.shosm import LOOP_EXCLUDE
 
 __all__ = ["COMMANDS", "add_arguments", "settings_from_args", "options_from_args", "run_command"]
 
@@ -50,9 +51,9 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     encoders.add_arguments(ap, default=None)
     add_source_arguments(ap)
     if command == "loops":
-        ap.add_argument("--exclude", default="30", metavar="W",
+        ap.add_argument("--exclude", default=None, metavar="W",
                         help="ignore matches fewer than W frames back, or W seconds for videos with 'Ws' "
-                             "(e.g. 5s; default 30 frames)")
+                             f"(e.g. 5s; default {LOOP_EXCLUDE} frames)")
     add_gt_arguments(ap, loops=command == "loops")
     if command != "loops":
         ap.add_argument("--verify", type=int, default=0, metavar="N",
@@ -91,9 +92,9 @@ def run_command(args) -> int:
     opts = options_from_args(args)
     names = settings_from_args(args)["methods"]
     if args.command == "loops":
-        report = run_loops(args.seq, names[0], opts, exclude=args.exclude)
+        report = run_loops(args.seq, names[0], opts, exclude=LOOP_EXCLUDE if args.exclude is None else args.exclude)
     else:
         report = run_compare(args.db, args.query, names, opts, command=args.command)
-    print(metrics_table(report["methods"]))
+    print(metrics_table(report["methods"], "loops" if args.command == "loops" else "match"))
     print(f"wrote {args.out}/metrics.json")
     return 0

@@ -61,24 +61,46 @@ def write_matches(folder: Path, res: MatchResult, db_names, q_names, extra: dict
                         int(bool(res.accepted[j])), *(v[j] for v in extra.values())])
 
 
-def method_metrics(res: MatchResult, gt_hard, gt_soft, mask=None):
-    """(metrics dict, (precision, recall) or None without ground truth)."""
-    m = {"seconds": round(res.seconds, 4)}
+def method_metrics(res: MatchResult, gt_hard, gt_soft, mask=None, loops: bool = False):
+    """(metrics dict, (precision, recall) or None without ground truth).
+
+    Always the seconds and the number of accepted matches; with ground truth
+    the metrics of :func:`vpr.evaluate.evaluate` over the (evaluated) pairs and
+    the precision and recall of the accepted matches. ``loops``: one stream's
+    loop closures, where the curve is that of the per-frame decisions
+    (:func:`vpr.evaluate.decision_curve`: ``frame_ap``, ``frame_recall_at_100p``),
+    what loop-closure detectors report; the pairs' metrics stay (``ap``, ...).
+    """
+    m = {"seconds": round(res.seconds, 4), "n_accepted": int(np.count_nonzero(res.accepted & (res.best_db >= 0)))}
     if gt_hard is None:
         return m, None
     ev, (prec, rec, _) = evaluate.evaluate(res.similarity, gt_hard, gt_soft, mask=mask, return_curve=True)
     m.update({k: float(v) for k, v in ev.items()})
     m.update(evaluate.accepted_precision(res.best_db, res.accepted, gt_hard, gt_soft, mask=mask))
+    if loops:
+        dm, (prec, rec, _) = evaluate.decision_curve(res.best_db, res.score, gt_hard, gt_soft, mask=mask)
+        m.update(frame_ap=dm["ap"], frame_recall_at_100p=dm["recall_at_100p"], frames_with_loop=dm["n_with_match"])
     return m, (prec, rec)
 
 
-def metrics_table(table: dict) -> str:
-    """The printed table: one row per method of ``{method: metrics}``."""
-    keys = [("ap", "AP"), ("auc_pr", "AUC"), ("recall_at_100p", "R@100P"), ("recall_at_1", "R@1"),
-            ("precision_accepted", "P(acc)"), ("seconds", "seconds")]
+#: Columns of the printed table: (metrics key, header).
+TABLE = {"match": [("ap", "AP"), ("recall_at_100p", "R@100P"), ("recall_at_1", "R@1"), ("n_accepted", "accepted"),
+                   ("precision_accepted", "P(acc)"), ("recall_accepted", "R(acc)"), ("seconds", "seconds")],
+         "loops": [("ap", "AP"), ("recall_at_1", "R@1"), ("frame_recall_at_100p", "R@100P"), ("n_accepted", "accepted"),
+                   ("precision_accepted", "P(acc)"), ("recall_accepted", "R(acc)"), ("seconds", "seconds")]}
+
+
+def metrics_table(table: dict, kind: str = "match") -> str:
+    """The printed table: one row per method of ``{method: metrics}`` (``kind``: ``"match"`` or ``"loops"``).
+
+    A metric that is not there (no ground truth) or undefined (the precision
+    of no accepted match) prints as ``-``.
+    """
+    keys = TABLE[kind]
     lines = [f"{'method':<22}" + "".join(f"{h:>10}" for _, h in keys)]
     for name, m in table.items():
-        cells = "".join(f"{m[k]:10.3f}" if isinstance(m.get(k), (int, float)) else f"{'-':>10}" for k, _ in keys)
+        cells = "".join((f"{m[k]:10d}" if isinstance(m[k], int) else f"{m[k]:10.3f}")
+                        if isinstance(m.get(k), (int, float)) else f"{'-':>10}" for k, _ in keys)
         lines.append(f"{name:<22}{cells}")
     return "\n".join(lines)
 
@@ -119,6 +141,7 @@ def write_method(folder: Path, m: str, res: MatchResult, evaluated: tuple, db_na
                  "inliers": np.where(vr.best_db >= 0, vr.score, -1).astype(int).tolist(),
                  "verified": vr.accepted.astype(int).tolist()}
         vm, vcurve = method_metrics(verified, gt_hard, gt_soft)
+        vm["seconds"] = round(verified.seconds, 4)
         vm["similarity_file"] = metrics["similarity_file"]
         entries[m + "+verify"] = (vm, vcurve)
     write_matches(folder, res, db_names, q_names, extra)

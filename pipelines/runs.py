@@ -29,7 +29,8 @@ import encoders
 from pipelines.extract import extract
 from pipelines.outputs import merge_metrics, method_metrics, versions, warn, write_method
 from vpr import groundtruth, io, methods
-from vpr.groundtruth import GroundTruthSpec, build_gt, positions_of_frames
+from vpr.groundtruth import GroundTruthSpec, build_gt, build_loop_gt
+from vpr.shosm import LOOP_EXCLUDE
 from vpr.sources import FrameSkippedWarning, open_source
 from vpr.types import EncodedTraverse, MatchResult
 
@@ -72,7 +73,7 @@ def peak_rss_mb() -> float:
 
 # ------------------------------------------------------------------ the harness
 def run_methods(runners: dict, call: Callable, gt_hard=None, gt_soft=None, mask=None,
-                on_result: Callable | None = None, resources: bool = False) -> dict:
+                on_result: Callable | None = None, resources: bool = False, loops: bool = False) -> dict:
     """Run and evaluate every method, one at a time (one similarity matrix alive at once).
 
     Parameters
@@ -89,6 +90,8 @@ def run_methods(runners: dict, call: Callable, gt_hard=None, gt_soft=None, mask=
         (a verified twin).
     resources : bool
         Also record ``cpu_seconds`` and the process's ``peak_rss_mb`` after each method.
+    loops : bool
+        Loop closures within one stream (per-frame decision metrics, :func:`pipelines.outputs.method_metrics`).
 
     Returns
     -------
@@ -100,7 +103,7 @@ def run_methods(runners: dict, call: Callable, gt_hard=None, gt_soft=None, mask=
         c0 = time.process_time()
         res = call(runner)
         cpu = time.process_time() - c0
-        metrics, curve = method_metrics(res, gt_hard, gt_soft, mask=mask)
+        metrics, curve = method_metrics(res, gt_hard, gt_soft, mask=mask, loops=loops)
         if resources:
             metrics.update(cpu_seconds=round(cpu, 4), peak_rss_mb=round(peak_rss_mb(), 1))
         out[label] = (metrics, curve)
@@ -171,7 +174,12 @@ def _runners(names: list[str], opts: RunOptions) -> dict:
     for m in unique:
         methods.get_class(m)  # unknown names fail here, with the list of methods
     # a conf for a method this run does not use is still checked (a typo should not pass silently), then ignored
-    built = {m: methods.get(m, **c) for m, c in opts.method_conf.items()}
+    built = {}
+    for m, c in opts.method_conf.items():
+        try:
+            built[m] = methods.get(m, **c)
+        except ValueError as exc:
+            raise ValueError(f"--method-conf {m}: {exc}") from None
     unused = [m for m in built if m not in unique]
     if unused:
         warn(f"--method-conf for {', '.join(unused)}, which this run does not use ({', '.join(unique)}); ignored")
@@ -349,16 +357,16 @@ def exclude_frames(exclude, source) -> int:
     return n
 
 
-def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = 30) -> dict:
+def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCLUDE) -> dict:
     """Loop closures within the traverse ``seq`` with ``method``; writes the same outputs as ``match``.
 
     ``exclude``: frames, or ``"Ns"`` seconds for a video (:func:`exclude_frames`).
-    Ground truth: ``opts.gt.files`` holds one positions file (``frame,x,y`` or
-    ``traverse,frame,x,y``) used with ``opts.gt.radius``; pairs within ``opts.gt.soft``
-    but not ``radius`` are ignored. Checks as in :func:`run_compare`.
+    Ground truth (:func:`vpr.groundtruth.build_loop_gt`): a positions file
+    (``frame,x,y`` or ``traverse,frame,x,y``) with ``opts.gt.radius`` (pairs
+    within ``opts.gt.soft`` but not ``radius`` are ignored), a ``frame,earlier``
+    pairs CSV, or loop matrices (``.npy``, ``.png``, ``.bmp``, ``.mat``).
+    Checks as in :func:`run_compare`.
     """
-    if opts.gt.tolerance is not None:
-        raise ValueError("loops: ground truth is --gt FILE --radius R [--gt-soft R2] (no --tolerance)")
     out = Path(opts.out)
     runners, encoder, (src,) = _prepare(out, [seq], ["sequence"], [method], opts, loops=True)
     exclude = exclude_frames(exclude, src)  # frames, or seconds with the video's rate
@@ -370,12 +378,9 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = 30) -> di
     if exclude >= len(attempted):
         raise ValueError(f"--exclude {exclude} leaves no pair to compare: {src.path} has {len(attempted)} frames "
                          "to read, and a loop closure needs frames at least --exclude apart")
-    gt_hard = gt_soft = mask = None
-    if opts.gt.files:
-        xy = positions_of_frames(opts.gt.files[0], src.name, attempted)
-        gt_hard = groundtruth.gt_from_positions(xy, xy, opts.gt.radius)
-        if opts.gt.soft is not None:
-            gt_soft = groundtruth.gt_from_positions(xy, xy, opts.gt.soft)
+    gt_hard, gt_soft = build_loop_gt(opts.gt, src.names(), attempted, src.name)
+    mask = None
+    if gt_hard is not None:
         mask = groundtruth.loop_closure_mask(len(attempted), exclude=exclude)
         if not _any_true(gt_hard & mask):
             raise opts.gt.no_match_error(exclude=exclude)
@@ -398,7 +403,7 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = 30) -> di
                                                       exclude=exclude))
 
     done = run_methods(runners, lambda r: r.loops(ex.features, exclude=exclude, progress=opts.progress),
-                       gt_hard, gt_soft, mask, on_result=write)
+                       gt_hard, gt_soft, mask, on_result=write, loops=True)
     inputs = {"kind": "loops", "seq": src.key(), "exclude": exclude,
               "encoder": encoder.name, "encoder_conf": encoder.conf, "ground_truth": opts.gt.describe()}
     report = {"methods": {k: e for k, (e, _) in done.items()},

@@ -7,7 +7,7 @@ import scipy.sparse as sp
 
 from vpr import groundtruth, sdr, simulate
 from vpr import shosm as ev
-from vpr.shosm import BeamConf, EvidenceConf, SequenceMemory
+from vpr.shosm import BeamConf, EvidenceConf, LoopConf, SequenceMemory
 from vpr.types import EncodedTraverse
 
 
@@ -189,7 +189,8 @@ def test_loop_evidence_beats_seqslam_on_the_paper_world():
 
     obs, traj = simulate.simulate_loops(aliasing=5, noise=0.3, seed=0)
     gt = traj[:, None] == traj[None]
-    S, codes = ev.loop_evidence(obs, exclude=10, conf=NO_TRANSITIONS)
+    loop = ev.loop_evidence(obs, exclude=10, conf=NO_TRANSITIONS)
+    S, codes = loop
     T = obs.shape[0]
     assert S.shape == (T, T) and codes.shape[0] == T
     i, j = np.indices((T, T))
@@ -198,8 +199,18 @@ def test_loop_evidence_beats_seqslam_on_the_paper_world():
     r = methods.loops("seqslam", f, exclude=10, conf={"descriptor": "desc"})
     ap, ap_seqslam = _loop_ap(S, gt, 10), _loop_ap(r.similarity, gt, 10)
     assert ap >= 0.95 and ap > ap_seqslam, (ap, ap_seqslam)
-    best, score, ok = ev.accept_loops(S, z_min=4.0, confirm=2)
-    assert ok.sum() > 100 and np.all(gt[best[ok], np.flatnonzero(ok)])
+    d = loop.decisions  # the default rule: ten laps of one loop, every place revisited
+    ok = d.accepted
+    assert ok.sum() > 100 and np.all(gt[d.best[ok], np.flatnonzero(ok)])
+    # decided on each frame's full column: the same decisions when the matrix is kept top-K
+    top = ev.loop_evidence(obs, exclude=10, conf=NO_TRANSITIONS, top_k=50)
+    for a in ("best", "score", "accepted"):
+        assert np.array_equal(getattr(top.decisions, a), getattr(d, a)), a
+    # deciding again on the stored dense matrix gives them too
+    again = ev.accept_loops(loop, sdr=obs)
+    assert np.array_equal(again.accepted, ok) and np.array_equal(again.best, d.best)
+    with pytest.raises(ValueError, match="LoopEvidence"):
+        ev.accept_loops(top.similarity, exclude=10)
     # top-K: the kept entries are the dense matrix's
     Sk, codes_k = ev.loop_evidence(obs, exclude=10, conf=NO_TRANSITIONS, top_k=5)
     assert (codes_k != codes).nnz == 0
@@ -217,11 +228,10 @@ def test_loop_evidence_forward_only_drive_accepts_no_far_closure():
     # a street without aliased stretches, driven once with stops
     day = render_scene("speed_change", size=(64, 48), n_frames=150, traverses=["slow"]).traverses[0]
     x = encoders.get("pixel", k=200, standardise="fit").fit(day.images).encode(day.images)
-    S, _ = ev.loop_evidence(x)  # defaults: exclude 30
-    best, score, ok = ev.accept_loops(S)
+    d = ev.accept_loops(ev.loop_evidence(x), sdr=x)  # defaults: exclude 30
     T = x.shape[0]
-    assert np.all(best[:30] == -1)
-    assert not np.any(ok & (np.arange(T) - best >= 30)), score[ok]
+    assert np.all(d.best[:30] == -1) and np.all(d.score[:30] == 0)
+    assert not np.any(d.accepted & (np.arange(T) - d.best >= 30)), d.score[d.accepted]
 
 
 def test_bad_arguments(aliased):
@@ -251,7 +261,7 @@ def test_bad_arguments(aliased):
                                                                                           mem.n_cells + 5, dtype=bool))
 
 
-def _rendered_loops(spec, n_frames, traverse=0, **conf):
+def _rendered_loops(spec, n_frames, traverse=0, radius=5.0, **conf):
     import encoders
     from vpr import methods
     from vpr.render import render_scene
@@ -260,52 +270,90 @@ def _rendered_loops(spec, n_frames, traverse=0, **conf):
     x = encoders.get("pixel", k=200, standardise="fit").fit(t.images).encode(t.images)
     r = methods.get("rshosm-seq", **conf).loops(EncodedTraverse(names=list(range(x.shape[0])), sdr=x),
                                                 exclude=30)
-    gt = np.linalg.norm(t.xy[:, None] - t.xy[None], axis=-1) <= 5.0
+    gt = np.linalg.norm(t.xy[:, None] - t.xy[None], axis=-1) <= radius
     return r, gt
 
 
 def test_rshosm_seq_loops_method_defaults():
     from vpr import evaluate
 
-    # three laps of one loop: closures are found, and every accepted one is true (at this small size
-    # their z-scores stay below the default rule, z 6.0 over 9 frames, chosen at 160x120)
-    r, gt = _rendered_loops("loop_revisits", 200, z_min=4.0, confirm=2)
+    # three laps of one loop (a small render, 4.6 m between frames): closures are found, each within 6 m
+    r, gt = _rendered_loops("loop_revisits", 200, radius=6.0)
     T = gt.shape[0]
     assert r.similarity.shape == (T, T) and np.all(r.best_db[:30] == -1)
     ok = r.accepted
-    assert ok.sum() >= 3 and np.all(gt[r.best_db[ok], np.flatnonzero(ok)])
+    assert ok.sum() >= 20 and np.all(gt[r.best_db[ok], np.flatnonzero(ok)])
+    # the result's score is the decision's (the path score): every accepted frame has reached min_score
+    assert np.all(r.score[ok] >= LoopConf().min_score) and np.all(r.score[r.best_db >= 0] >= 0)
     mask = groundtruth.loop_closure_mask(T, exclude=30)
     assert evaluate.average_precision(r.similarity, gt, None, mask=mask) >= 0.5
-    # a forward-only drive (two_seasons by day; its world repeats a stretch 210 m later): no closure accepted
+    # a forward-only drive (two_seasons by day, before the stretch its world repeats): no closure accepted
     r, gt = _rendered_loops("two_seasons", 150)
     far = r.accepted & (np.arange(gt.shape[0]) - r.best_db >= 30)
     assert not far.any(), r.score[far]
 
 
-def test_accept_loops_needs_a_confirmed_run_of_consistent_closures():
-    T = 12
+def _column_stream(T, peaks, exclude=2, base=0.0):
+    """A dense T x T loop matrix: every candidate z ``base``, ``peaks`` {frame: [(earlier frame, z), ...]}."""
     S = np.full((T, T), -np.inf)
     i, j = np.indices((T, T))
-    S[i < j] = 0.0
-    # frames 4..7 close onto 0..3 (z 6); frame 9 jumps alone onto 8 (z 9); frame 11 onto 1 after 10 onto 7
-    for q, b, z in ((4, 0, 6), (5, 1, 6), (6, 2, 6), (7, 3, 6), (9, 8, 9), (10, 7, 6), (11, 0, 6)):
-        S[b, q] = z
-    best, score, ok = ev.accept_loops(S, z_min=5.5, confirm=2)
-    assert np.flatnonzero(ok).tolist() == [6, 7]  # the third and fourth frame of the run
-    assert not ev.accept_loops(S, z_min=5.5)[2].any()  # the default confirm (8) needs a longer run
-    assert best[9] == 8 and score[9] == 9 and not ok[9]
-    assert np.flatnonzero(ev.accept_loops(S, z_min=5.5, confirm=0)[2]).tolist() == [4, 5, 6, 7, 9, 10, 11]
-    assert np.flatnonzero(ev.accept_loops(S, z_min=7, confirm=0)[2]).tolist() == [9]
-    assert np.flatnonzero(ev.accept_loops(sp.csr_matrix(np.where(np.isfinite(S), S + 10, 0)), z_min=15.5,
-                                          confirm=1)[2]).tolist() == [5, 6, 7, 10]  # 9 -> 10 steps back by one
-    with pytest.raises(ValueError, match="confirm"):
-        ev.accept_loops(S, confirm=-1)
+    S[i <= j - exclude] = base
+    for q, entries in peaks.items():
+        for b, z in entries:
+            S[b, q] = z
+    return S
+
+
+def test_accept_loops_accumulates_margins_along_a_consistent_path():
+    # frames 10..19 revisit 0..9 with a margin of 3 over every other place; drift 1, min_score 5: the score grows
+    # by 2 a frame, reaches 6 at the third frame, which is accepted
+    S = _column_stream(20, {10 + k: [(k, 3.0)] for k in range(10)})
+    d = ev.accept_loops(S, LoopConf(drift=1.0, min_score=5.0, stop_ratio=0.0), exclude=2)
+    np.testing.assert_allclose(d.margin[10:], 3.0)
+    np.testing.assert_allclose(d.score[10:14], [2.0, 4.0, 6.0, 8.0])
+    assert np.flatnonzero(d.accepted).tolist() == list(range(12, 20))
+    assert np.all(d.best[10:] == np.arange(10))
+    # a jump of the best earlier frame breaks the path: the score starts again
+    S2 = _column_stream(40, {**{20 + k: [(k, 3.0)] for k in range(20)}, 30: [(0, 3.0)]})
+    d2 = ev.accept_loops(S2, LoopConf(drift=1.0, min_score=5.0, stop_ratio=0.0), exclude=2)
+    assert d2.score[29] == 20.0 and d2.score[30] == 2.0 and not d2.accepted[30] and d2.score[31] == 2.0
+    # a margin below the drift never accumulates: the new-place hypothesis wins
+    S3 = _column_stream(20, {10 + k: [(k, 0.9)] for k in range(10)})
+    assert not ev.accept_loops(S3, LoopConf(drift=1.0, min_score=1.0, stop_ratio=0.0), exclude=2).accepted.any()
+    with pytest.raises(ValueError, match="exclude"):
+        ev.accept_loops(S)
+    with pytest.raises(ValueError, match="min_score"):
+        LoopConf(min_score=0)
+    with pytest.raises(ValueError, match="back"):
+        LoopConf(back=-1)
+
+
+def test_accept_loops_margin_is_against_other_places_not_other_visits():
+    # frames 20..29 revisit 10..19 (z 3); a look-alike place at 0..9 (z 2.5): the margin is 0.5
+    peaks = {20 + k: [(10 + k, 3.0), (k, 2.5)] for k in range(10)}
+    d = ev.accept_loops(_column_stream(30, peaks), LoopConf(drift=1.0, min_score=1.0, stop_ratio=0.0), exclude=2)
+    np.testing.assert_allclose(d.margin[20:], 0.5)
+    assert not d.accepted.any()
+    # ... unless 10..19 were themselves closures onto 0..9: then 0..9 is an earlier visit of the same place,
+    # not another place, and the margin is against the rest (z 0)
+    peaks.update({10 + k: [(k, 3.0)] for k in range(10)})
+    d = ev.accept_loops(_column_stream(30, peaks), LoopConf(drift=1.0, min_score=4.0, stop_ratio=0.0), exclude=2)
+    assert d.accepted[12:20].all() and d.accepted[21:].all()
+    np.testing.assert_allclose(d.margin[21:], 3.0)
+
+
+def test_accept_loops_a_best_place_just_left_is_no_loop():
+    # the candidates nearest to the frame (exclude frames back) stand out: the place the camera is leaving
+    T, exclude = 40, 5
+    peaks = {j: [(j - exclude - k, 4.0) for k in range(3)] for j in range(10, T)}
+    d = ev.accept_loops(_column_stream(T, peaks, exclude), LoopConf(drift=1.0, min_score=2.0, stop_ratio=0.0),
+                        exclude=exclude)
+    assert d.near[10:].all() and not d.accepted.any() and d.score[20] > 2.0
 
 
 @pytest.mark.slow
 def test_default_loop_rule_finds_revisits_and_no_closure_on_a_forward_drive():
-    # the fast preset's loop encoder (causal standardisation) on the scenes' native frame counts at 160x120,
-    # where studies/loops_acceptance.py chose z_min and confirm
+    # the fast preset's loop encoder (causal standardisation) on the scenes' native frame counts at 160x120
     import encoders
     from vpr import methods, presets
     from vpr.render import render_scene
@@ -319,10 +367,11 @@ def test_default_loop_rule_finds_revisits_and_no_closure_on_a_forward_drive():
         ok = r.accepted & (np.arange(T) - r.best_db >= 30)
         dist = np.linalg.norm(t.xy[r.best_db[ok]] - t.xy[ok], axis=1)
         if scene == "loop_revisits":  # closures in the second and third lap, all within 5 m
-            assert ok.sum() >= 10 and np.all(dist <= 5.0), dist
+            assert ok.sum() >= 250 and np.all(dist <= 5.0), dist
             assert set(np.flatnonzero(ok) * 3 // T) == {1, 2}
-        else:  # driven once, through a stretch that repeats one 210 m earlier
-            assert not ok.any(), (np.flatnonzero(ok), dist)
+        else:  # driven once: no closure but onto the stretch its world repeats identically 210 m later
+            onto_copy = np.abs(t.route_pos[ok] - t.route_pos[r.best_db[ok]] - 210.0) <= 10.0
+            assert onto_copy.all(), (np.flatnonzero(ok), dist)
 
 
 def test_a_closure_onto_a_place_never_left_is_a_stop():
@@ -341,11 +390,14 @@ def test_a_closure_onto_a_place_never_left_is_a_stop():
     S = np.full((T, T), -np.inf)
     S[np.triu_indices(T, 1)] = 0.0
     S[best[acc], np.flatnonzero(acc)] = 9.0
-    assert np.flatnonzero(ev.accept_loops(S, z_min=8, confirm=0)[2]).tolist() == [5, 16, 17]
-    assert np.flatnonzero(ev.accept_loops(S, z_min=8, confirm=0, sdr=x)[2]).tolist() == [16]
-    assert np.flatnonzero(ev.accept_loops(S, z_min=8, confirm=0, sdr=x, stop_ratio=0)[2]).tolist() == [5, 16, 17]
+    conf = LoopConf(drift=1.0, min_score=8.0, island=5.0)  # one frame standing out by 9 is accepted
+    # 17's best is the frame just before it: the place it is leaving, never a loop
+    assert np.flatnonzero(ev.accept_loops(S, conf, exclude=1).accepted).tolist() == [5, 16]
+    assert np.flatnonzero(ev.accept_loops(S, conf, sdr=x, exclude=1).accepted).tolist() == [16]
+    no_stops = LoopConf(drift=1.0, min_score=8.0, island=5.0, stop_ratio=0)
+    assert np.flatnonzero(ev.accept_loops(S, no_stops, sdr=x, exclude=1).accepted).tolist() == [5, 16]
     with pytest.raises(ValueError, match="stop_ratio"):
-        ev.accept_loops(S, sdr=x, stop_ratio=1.5)
+        LoopConf(stop_ratio=1.5)
     with pytest.raises(ValueError, match="one entry per frame"):
         ev.stationary_closures(x, best[:-1], acc)
 

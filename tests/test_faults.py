@@ -254,7 +254,7 @@ def test_loops_without_true_match_is_refused_in_user_words(tmp_path, capsys):
     assert not out.exists()
 
 
-@pytest.mark.parametrize("conf", ["stop_ratio=2", "confirm=-1"])
+@pytest.mark.parametrize("conf", ["stop_ratio=2", "min_score=-1", "confirm=2"])
 def test_bad_loop_acceptance_conf_is_refused_before_any_work(scene, tmp_path, capsys, conf):
     out = tmp_path / "out"
     code, _, err = _run(["loops", scene["db"], "--out", out, "--method-conf", f"rshosm-seq.{conf}"], capsys)

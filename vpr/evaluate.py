@@ -66,6 +66,7 @@ __all__ = [
     "recall_at_k",
     "evaluate",
     "accepted_precision",
+    "decision_curve",
 ]
 
 _MATCHINGS = ("multi", "single")
@@ -525,19 +526,71 @@ def accepted_precision(best_db, accepted, gt_hard, gt_soft=None, mask=None) -> d
     Returns
     -------
     dict
-        ``n_accepted``, ``precision_accepted`` (1.0 when nothing is accepted)
-        and ``recall_accepted`` (correct accepted matches over queries that
-        have a true match).
+        ``n_accepted`` (accepted best matches), ``precision_accepted`` (over
+        those not onto a soft-only pair; None when there are none: a precision
+        of nothing is not 1.0) and ``recall_accepted`` (correct accepted
+        matches over queries that have a true match).
     """
     if mask is not None:
         gt_hard, gt_soft = (None if g is None else g.multiply(mask).tocsr() if sp.issparse(g) else np.asarray(g) & mask
                             for g in (gt_hard, gt_soft))
     best_db = np.asarray(best_db)
     q = np.flatnonzero(np.asarray(accepted, bool) & (best_db >= 0))
+    n_accepted = int(q.size)
     correct = at(gt_hard, best_db[q], q).astype(bool)
     if gt_soft is not None:
         keep = correct | ~at(gt_soft, best_db[q], q).astype(bool)
         q, correct = q[keep], correct[keep]
     n_with_match = int((np.asarray((gt_hard != 0).sum(axis=0)).ravel() > 0).sum())
-    return {"n_accepted": int(q.size), "precision_accepted": float(correct.mean()) if q.size else 1.0,
+    return {"n_accepted": n_accepted, "precision_accepted": float(correct.mean()) if q.size else None,
             "recall_accepted": float(correct.sum() / max(1, n_with_match))}
+
+
+def decision_curve(best, score, gt_hard, gt_soft=None, mask=None) -> tuple[dict, tuple]:
+    """One decision per query (loop closure: per frame), with its own score: the metrics loop-closure users report.
+
+    Query ``j`` decides for its best database (earlier) frame ``best[j]`` with
+    ``score[j]``; thresholding the score accepts the decisions above it.
+    Precision is over the accepted decisions (one onto a soft-only pair counts
+    neither way), recall over the queries that have a true match inside
+    ``mask``. Sweeping the threshold over every distinct score gives the
+    precision-recall curve, its average precision and the recall at 100 %
+    precision.
+
+    Parameters
+    ----------
+    best : int array (n_q,); -1: no decision.
+    score : float array (n_q,); higher = more confident.
+    gt_hard, gt_soft, mask : as :func:`evaluate` (n_db x n_q).
+
+    Returns
+    -------
+    (metrics, (precision, recall, thresholds)): metrics ``ap``,
+    ``recall_at_100p`` and ``n_with_match`` (queries with a true match).
+    """
+    if mask is not None:
+        gt_hard, gt_soft = (None if g is None else g.multiply(mask).tocsr() if sp.issparse(g) else np.asarray(g) & mask
+                            for g in (gt_hard, gt_soft))
+    best = np.asarray(best, np.int64)
+    score = np.asarray(score, np.float64)
+    if best.shape != score.shape or best.ndim != 1:
+        raise ValueError(f"best and score must be 1-D of one length, got {best.shape} and {score.shape}")
+    q = np.flatnonzero((best >= 0) & np.isfinite(score))
+    correct = at(gt_hard, best[q], q).astype(bool)
+    if gt_soft is not None:
+        keep = correct | ~at(gt_soft, best[q], q).astype(bool)
+        q, correct = q[keep], correct[keep]
+    n_with = int((np.asarray((gt_hard != 0).sum(axis=0)).ravel() > 0).sum())
+    order = np.argsort(-score[q], kind="stable")
+    s, c = score[q][order], correct[order]
+    last = np.r_[s[1:] != s[:-1], True] if s.size else np.zeros(0, bool)  # the last decision of each score
+    tp, n = np.cumsum(c)[last], (np.arange(s.size) + 1)[last]
+    precision = tp / np.maximum(n, 1)
+    recall = tp / max(n_with, 1)
+    ap = float(np.sum(np.diff(np.r_[0.0, recall]) * precision)) if n_with else 0.0
+    perfect = precision >= 1.0
+    first_bad = np.flatnonzero(~perfect)
+    upto = first_bad[0] if first_bad.size else perfect.size
+    r100 = float(recall[upto - 1]) if upto > 0 else 0.0
+    return ({"ap": ap, "recall_at_100p": r100, "n_with_match": n_with},
+            (np.r_[1.0, precision] if precision.size else np.ones(1), np.r_[0.0, recall], s[last]))

@@ -4,8 +4,10 @@
   positions (``gt_from_labels``, ``gt_from_frames``, ``gt_from_tolerance``,
   ``gt_from_positions``) and the pairs of a loop closure (``loop_closure_mask``,
   ``loop_closure_gt``);
-- :mod:`~vpr.groundtruth.files`: ground truth read from files (pairs,
-  positions);
+- :mod:`~vpr.groundtruth.files`: ground truth read from CSV files (pairs,
+  positions); :mod:`~vpr.groundtruth.formats`: matrices as benchmarks ship
+  them (``GThard.npy``, VPR-Bench's ``ground_truth_new.npy``, loop matrices in
+  ``.npy``, ``.png``, ``.bmp``, ``.mat``);
 - :mod:`~vpr.groundtruth.spec`: a run's ground-truth options
   (:class:`GroundTruthSpec`) and :func:`build_gt`, the choice ``vpr match`` makes.
 
@@ -13,11 +15,13 @@ The metrics over them are in :mod:`vpr.evaluate`.
 """
 from .files import (
     gt_from_position_files,
+    load_loop_pairs,
     load_pairs_csv,
     load_positions_csv,
     load_traverse_positions,
     positions_of_frames,
 )
+from .formats import db_query_matrix, loop_matrix
 from .matrices import (
     gt_from_frames,
     gt_from_labels,
@@ -26,8 +30,9 @@ from .matrices import (
     loop_closure_gt,
     loop_closure_mask,
 )
-from .spec import GroundTruthSpec, build_gt
+from .spec import GroundTruthSpec, build_gt, build_loop_gt, check_loop_gt_files
 
 __all__ = ["gt_from_labels", "gt_from_frames", "gt_from_tolerance", "gt_from_positions", "loop_closure_mask",
-           "loop_closure_gt", "load_pairs_csv", "load_positions_csv", "gt_from_position_files",
-           "load_traverse_positions", "positions_of_frames", "GroundTruthSpec", "build_gt"]
+           "loop_closure_gt", "load_pairs_csv", "load_loop_pairs", "load_positions_csv", "gt_from_position_files",
+           "load_traverse_positions", "positions_of_frames", "db_query_matrix", "loop_matrix", "GroundTruthSpec",
+           "build_gt", "build_loop_gt", "check_loop_gt_files"]

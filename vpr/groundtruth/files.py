@@ -141,8 +141,11 @@ def _check_names(names, n: int, what: str):
 
 def load_pairs_csv(path, n_db: int, n_q: int, db_names: Sequence[str] | None = None,
                    q_names: Sequence[str] | None = None, *, db_indices: Sequence[int] | None = None,
-                   q_indices: Sequence[int] | None = None):
+                   q_indices: Sequence[int] | None = None, columns: tuple[str, str] = ("query", "db")):
     """Ground truth from a CSV of ``query,db`` pairs (header optional).
+
+    ``columns`` names the two columns (query first): ``("frame", "earlier")``
+    for the loop closures of one stream.
 
     Parameters
     ----------
@@ -185,38 +188,40 @@ def load_pairs_csv(path, n_db: int, n_q: int, db_names: Sequence[str] | None = N
         "db": (_NameIndex(db_names) if db_names is not None else None, _index_rows(db_indices, n_db, "db_indices"),
                db_indices is not None, n_db),
     }
-    rows = _read_rows(path, 2, "query,db")
+    label = {"query": columns[0], "db": columns[1]}
+    rows = _read_rows(path, 2, ",".join(columns))
 
     def resolve(token: str, role: str, where: str) -> tuple[int | None, str | None]:
         """(output row or None if the frame was not read, error message or None)."""
         lookup, by_index, has_indices, n = sides[role]
+        name = label[role]
         if not token:
-            return None, f"{where}: empty {role} field"
+            return None, f"{where}: empty {name} field"
         if lookup is not None:
             pos, ambiguous = lookup.find(token)
             if ambiguous:
-                return None, f"{where}: {role} frame name {token!r} matches several frames"
+                return None, f"{where}: {name} frame name {token!r} matches several frames"
             if pos is not None:
                 return pos, None
         k = _parse_int(token)
         if k is None:
             hint = "" if lookup is not None else f" (pass {'q' if role == 'query' else 'db'}_names to match names)"
             kind = "a known frame name or an integer frame number" if lookup is not None else "an integer"
-            return None, f"{where}: {role} {token!r} is not {kind}{hint}"
+            return None, f"{where}: {name} {token!r} is not {kind}{hint}"
         if k < 0:
-            return None, f"{where}: {role} frame number {k} is negative"
+            return None, f"{where}: {name} frame number {k} is negative"
         if k in by_index:
             return by_index[k], None
         if has_indices:
             return None, None
-        return None, f"{where}: {role} frame number {k} out of range 0..{n - 1}"
+        return None, f"{where}: {name} frame number {k} out of range 0..{n - 1}"
 
     first_line, first = rows[0]
     order = (0, 1)  # headerless files are query,db
-    columns = [t.casefold() for t in first]
-    if sorted(columns) == ["db", "query"]:
+    header = [t.casefold() for t in first]
+    if sorted(header) == sorted(c.casefold() for c in columns):
         # columns by name: a "db,query" header must not be read as query,db
-        order = (columns.index("query"), columns.index("db"))
+        order = (header.index(columns[0].casefold()), header.index(columns[1].casefold()))
         rows = rows[1:]
     else:
         resolved_first = [resolve(t, r, "") for t, r in zip(first, ("query", "db"), strict=False)]
@@ -224,7 +229,8 @@ def load_pairs_csv(path, n_db: int, n_q: int, db_names: Sequence[str] | None = N
                for t, (pos, err) in zip(first, resolved_first, strict=False)):
             # neither field is a frame: a header, but not one we can read
             raise ValueError(f"{path}:{first_line}: unknown header {','.join(first)!r}; expected the columns "
-                             "query and db (in either order), or no header and query,db pairs")
+                             f"{columns[0]} and {columns[1]} (in either order), or no header and "
+                             f"{columns[0]},{columns[1]} pairs")
     if not rows:
         raise ValueError(f"{path}: no pairs after the header on line {first_line}")
 
@@ -384,8 +390,11 @@ def gt_from_position_files(db_csv, q_csv, radius: float, db_names: Sequence[str]
 # --------------------------------------------------------------------------- #
 # rows "traverse,frame,x,y" (as written by vpr render) and the match pipeline's choice
 # --------------------------------------------------------------------------- #
-def load_traverse_positions(path, traverse: str) -> dict[int, tuple[float, float]]:
+def load_traverse_positions(path, traverse: str | None) -> dict[int, tuple[float, float]]:
     """Rows ``traverse,frame,x,y[,...]`` (as written by ``vpr render``) of one traverse: frame -> (x, y).
+
+    ``traverse`` None: the file must hold one traverse (a stream read from
+    stdin has no name).
 
     A source named like a file (``laps.mp4``, the video ``vpr render --video``
     writes beside the folder ``laps``) also matches the rows of its stem
@@ -413,19 +422,26 @@ def load_traverse_positions(path, traverse: str) -> dict[int, tuple[float, float
         if not need <= set(cols):
             raise ValueError(f"{path}:1: expected a header with columns {sorted(need)}, got {header}")
         ti, fi, xi, yi = (cols.index(c) for c in ("traverse", "frame", "x", "y"))
-        names = (traverse, Path(traverse).stem)
+        names = (traverse, Path(traverse).stem) if traverse is not None else ()
         by_name: dict[str, dict] = {n: {} for n in names}
         for line_no, row in enumerate(reader, start=2):
             if not row or row[0].startswith("#"):
                 continue
             if len(row) != len(cols):
                 raise ValueError(f"{path}:{line_no}: expected {len(cols)} columns, got {len(row)}")
-            if row[ti] not in by_name:
+            if traverse is None:
+                by_name.setdefault(row[ti], {})
+            elif row[ti] not in by_name:
                 continue
             try:
                 by_name[row[ti]][int(row[fi])] = (float(row[xi]), float(row[yi]))
             except ValueError:
                 raise ValueError(f"{path}:{line_no}: frame must be an integer and x, y numbers") from None
+    if traverse is None:  # a stream without a name (stdin): the file's only traverse
+        if len(by_name) != 1:
+            raise ValueError(f"{path}: {len(by_name)} traverses ({', '.join(sorted(by_name)) or 'none'}); a stream "
+                             "without a name needs a file with one traverse, or frame,x,y rows")
+        return next(iter(by_name.values()))
     rows = by_name[traverse] or by_name[names[1]]
     if not rows:
         raise ValueError(f"{path}: no rows for traverse {traverse!r}")
@@ -439,7 +455,7 @@ def positions_for(rows, indices, path, traverse) -> np.ndarray:
     return np.array([rows[i] for i in indices])
 
 
-def positions_of_frames(path, traverse: str, indices: Sequence[int]) -> np.ndarray:
+def positions_of_frames(path, traverse: str | None, indices: Sequence[int]) -> np.ndarray:
     """(x, y) of the frames numbered ``indices`` from a ``frame,x,y`` or ``traverse,frame,x,y`` file."""
     with open(path, encoding="utf-8") as fh:
         first = fh.readline().lower()
@@ -448,3 +464,42 @@ def positions_of_frames(path, traverse: str, indices: Sequence[int]) -> np.ndarr
     keys, xy = load_positions_csv(path)
     rows = {int(k) if not isinstance(k, str) else k: tuple(v) for k, v in zip(keys, xy, strict=True)}
     return positions_for(rows, indices, path, traverse)
+
+
+#: Header of the loop pairs ``vpr render`` writes (``loop_pairs.csv``).
+LOOP_PAIRS_HEADER = ("traverse", "frame_a", "frame_b", "distance")
+
+
+def is_loop_pairs_file(path) -> bool:
+    """Whether ``path`` is a CSV with the header of ``vpr render``'s ``loop_pairs.csv``."""
+    try:
+        with open(path, encoding="utf-8-sig") as fh:
+            first = next((s for s in (line.strip() for line in fh) if s and not s.startswith("#")), "")
+    except (OSError, UnicodeDecodeError):
+        return False
+    return tuple(f.strip().casefold() for f in first.split(",")) == LOOP_PAIRS_HEADER
+
+
+def load_loop_pairs(path, traverse: str | None, indices: Sequence[int]) -> np.ndarray:
+    """Loop ground truth (T x T bool, both triangles) of the frames read, from ``vpr render``'s ``loop_pairs.csv``.
+
+    Rows ``traverse,frame_a,frame_b,distance`` (source frame numbers); the
+    rows of ``traverse`` are read, or all rows when the file has one traverse
+    only (a stream read from stdin has no traverse name). Pairs with a frame
+    that was not read are left out.
+    """
+    rows = _read_rows(path, 4, ",".join(LOOP_PAIRS_HEADER))[1:]
+    names = {r[0] for _, r in rows}
+    if traverse not in names and len(names) > 1:  # None (stdin): the file's only traverse
+        raise ValueError(f"{path}: no loop pairs of traverse {traverse!r}; traverses: {', '.join(sorted(names))}")
+    pos = _index_rows(indices, len(indices), "indices")
+    out = np.zeros((len(indices), len(indices)), bool)
+    for lineno, (t, a, b, _) in rows:
+        if traverse in names and t != traverse:
+            continue
+        fa, fb = _parse_int(a), _parse_int(b)
+        if fa is None or fb is None or fa < 0 or fb < 0:
+            raise ValueError(f"{path}:{lineno}: frame_a and frame_b must be frame numbers >= 0, got {a!r}, {b!r}")
+        if fa in pos and fb in pos:
+            out[pos[fa], pos[fb]] = out[pos[fb], pos[fa]] = True
+    return out

@@ -4,16 +4,26 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from vpr.similarity import fits_dense
 
-from .files import _parse_float, gt_from_position_files, load_pairs_csv, load_traverse_positions, positions_for
+from .files import (
+    _parse_float,
+    _read_rows,
+    gt_from_position_files,
+    is_loop_pairs_file,
+    load_loop_pairs,
+    load_pairs_csv,
+    load_traverse_positions,
+    positions_for,
+    positions_of_frames,
+)
+from .formats import db_query_matrix, is_matrix_file, loop_matrix, split_variable
 from .matrices import gt_from_frames, gt_from_positions
 
-__all__ = ["GroundTruthSpec", "build_gt"]
+__all__ = ["GroundTruthSpec", "build_gt", "build_loop_gt", "check_loop_gt_files"]
 
 
 @dataclass(frozen=True)
@@ -25,9 +35,12 @@ class GroundTruthSpec:
     tolerance : int, optional
         Frame-aligned traverses: ``|i - j| <= tolerance`` (source frame numbers).
     files : tuple of str
-        One CSV of ``query,db`` pairs; or, with ``radius``, one positions CSV
-        per traverse (``frame,x,y``) or one with ``traverse,frame,x,y`` rows
-        for both.
+        One CSV of ``query,db`` pairs (``frame,earlier`` for loops); one or two
+        matrix files (hard, then soft: ``GThard.npy GTsoft.npy``, VPR-Bench's
+        ``ground_truth_new.npy``; for loops a T x T ``.npy``, ``.png``,
+        ``.bmp`` or ``.mat[:VARIABLE]``, :mod:`vpr.groundtruth.formats`); or,
+        with ``radius``, one positions CSV per traverse (``frame,x,y``) or one
+        with ``traverse,frame,x,y`` rows for both.
     radius : float, optional
         Match radius for position ground truth.
     soft : float, optional
@@ -67,28 +80,40 @@ class GroundTruthSpec:
             raise ValueError("give either --tolerance or --gt, not both")
         if tol is not None and radius is not None:
             raise ValueError("--radius applies to position ground truth (--gt FILE), not to --tolerance")
+        if loops and tol is not None:
+            raise ValueError("loops: ground truth is --gt FILE (positions with --radius, frame,earlier pairs, or a "
+                             "matrix), not --tolerance")
+        matrices = [f for f in files if is_matrix_file(f)]
+        if matrices and len(matrices) != len(files):
+            raise ValueError("--gt: matrix files (.npy, .png, .bmp, .mat) cannot be mixed with CSV files")
+        if len(files) > 2:
+            raise ValueError(f"--gt takes one or two files, got {len(files)}")
         if radius is not None and not files:
             raise ValueError("--radius needs --gt FILE (positions)")
+        if matrices and radius is not None:
+            raise ValueError("--radius applies to positions CSV files, not to matrix ground truth "
+                             f"({', '.join(matrices)})")
         if soft is not None:
             if tol is None and not files:
                 raise ValueError("--gt-soft needs ground truth: --tolerance K, or --gt FILE with --radius R")
             if files and radius is None:
-                raise ValueError("--gt-soft needs position ground truth (--radius) or --tolerance")
+                raise ValueError("--gt-soft needs position ground truth (--radius) or --tolerance; with matrix "
+                                 "files give the soft matrix as the second --gt file")
             hard, name = (tol, "--tolerance") if tol is not None else (radius, "--radius")
             if soft < hard:
                 raise ValueError(f"--gt-soft {soft:g} is smaller than {name} {hard:g}: the soft ground truth "
                                  f"(pairs ignored) must reach at least as far as the true matches")
-        if len(files) > (1 if loops else 2):
-            raise ValueError(f"--gt takes {'one positions file' if loops else 'one or two files'}, got {len(files)}")
-        if files and radius is None and (loops or len(files) == 2):
-            raise ValueError("loops: --gt needs --radius" if loops else
-                             "two --gt files are positions files and need --radius")
+        if loops and not matrices and len(files) > 1:
+            raise ValueError(f"loops: --gt takes one CSV file (positions with --radius, or frame,earlier pairs), "
+                             f"got {len(files)}")
+        if not matrices and len(files) == 2 and radius is None:
+            raise ValueError("two --gt CSV files are positions files and need --radius")
         for f in files:
-            fp = Path(f)
+            fp, _ = split_variable(f)
             if not fp.exists():
                 raise FileNotFoundError(f"no such ground-truth file: {fp}")
             if not fp.is_file():
-                raise ValueError(f"{fp}: is a folder, expected a ground-truth CSV file")
+                raise ValueError(f"{fp}: is a folder, expected a ground-truth file")
 
     def no_match_error(self, db_indices=None, q_indices=None, exclude: int | None = None) -> ValueError:
         """The error for a ground truth in which no query frame has a true match, in the options' words.
@@ -103,10 +128,13 @@ class GroundTruthSpec:
                               f"within {self.tolerance} frame numbers (database frames {span(db_indices)}, "
                               f"query frames {span(q_indices)}); recall is undefined")
         files = ", ".join(str(f) for f in self.files)
-        if exclude is not None:
+        if exclude is not None and self.radius is not None:
             return ValueError(f"ground truth --gt {files} --radius {self.radius:g}: no frame is within "
                               f"{self.radius:g} of a frame at least --exclude {exclude} frames earlier; "
                               "there is no loop closure to find")
+        if exclude is not None:
+            return ValueError(f"ground truth --gt {files}: no frame has a loop closure onto a frame at least "
+                              f"--exclude {exclude} frames earlier; there is no loop closure to find")
         if self.radius is not None:
             return ValueError(f"ground truth --gt {files} --radius {self.radius:g}: no query frame is within "
                               f"{self.radius:g} of a database frame; recall is undefined")
@@ -135,6 +163,11 @@ def build_gt(spec: GroundTruthSpec, db_names: Sequence[str], q_names: Sequence[s
         return hard, soft
     if not files:
         return None, None
+    if is_matrix_file(files[0]):  # hard (and soft) matrices over the source frames
+        hard = db_query_matrix(files[0], len(db_names), len(q_names), db_indices, q_indices)
+        soft = db_query_matrix(files[1], len(db_names), len(q_names), db_indices, q_indices) \
+            if len(files) == 2 else None
+        return hard, (soft | hard if soft is not None else None)
     if spec.radius is None:  # one pairs file (check() refused the rest)
         hard = load_pairs_csv(files[0], len(db_names), len(q_names), db_names=db_names, q_names=q_names,
                               db_indices=db_indices, q_indices=q_indices)
@@ -150,3 +183,57 @@ def build_gt(spec: GroundTruthSpec, db_names: Sequence[str], q_names: Sequence[s
     hard = gt_from_positions(db_xy, q_xy, spec.radius, sparse=big)
     soft = gt_from_positions(db_xy, q_xy, spec.soft, sparse=big) if spec.soft is not None else None
     return hard, soft
+
+
+def build_loop_gt(spec: GroundTruthSpec, names: Sequence[str], indices: Sequence[int], traverse: str | None = None):
+    """(gt_hard, gt_soft) of one stream's loop closures (T x T, rows earlier frame), or (None, None).
+
+    From a positions CSV (``frame,x,y`` or ``traverse,frame,x,y`` rows, with
+    ``radius`` and optionally ``soft``), a CSV of ``frame,earlier`` pairs,
+    ``vpr render``'s ``loop_pairs.csv``, or matrix files (hard, then soft). Both triangles are filled: a loop is a
+    pair of frames; which pairs are evaluated is the metrics' mask.
+    ``traverse``: the stream's name in a file of several traverses (None: the
+    file's only one).
+    """
+    spec.check(loops=True)
+    files = list(spec.files)
+    if not files:
+        return None, None
+    n = len(names)
+    if is_matrix_file(files[0]):
+        hard = loop_matrix(files[0], indices)
+        soft = loop_matrix(files[1], indices) | hard if len(files) == 2 else None
+        return hard, soft
+    if spec.radius is None and is_loop_pairs_file(files[0]):  # vpr render's loop_pairs.csv
+        return load_loop_pairs(files[0], traverse, indices), None
+    if spec.radius is None:
+        pairs = load_pairs_csv(files[0], n, n, db_names=names, q_names=names, db_indices=indices, q_indices=indices,
+                               columns=("frame", "earlier"))
+        pairs = pairs.toarray() if hasattr(pairs, "toarray") else pairs
+        return pairs | pairs.T, None
+    xy = positions_of_frames(files[0], traverse, indices)
+    hard = gt_from_positions(xy, xy, spec.radius)
+    return hard, (gt_from_positions(xy, xy, spec.soft) if spec.soft is not None else None)
+
+
+def check_loop_gt_files(spec: GroundTruthSpec, traverse: str | None = None) -> None:
+    """Read ``spec``'s loop ground-truth files enough to refuse a bad one before any work.
+
+    For a stream whose frames are not known yet (``vpr loops -``): the options,
+    the matrices (square, numbers), the pairs CSV's columns and the positions
+    file are checked; names in a pairs CSV can only be matched once the frames
+    are read (:func:`build_loop_gt`).
+    """
+    spec.check(loops=True)
+    files = list(spec.files)
+    if not files:
+        return
+    if is_matrix_file(files[0]):
+        for f in files:
+            loop_matrix(f, [])
+    elif spec.radius is not None:
+        positions_of_frames(files[0], traverse, [])
+    elif is_loop_pairs_file(files[0]):
+        load_loop_pairs(files[0], traverse, [])
+    else:
+        _read_rows(files[0], 2, "frame,earlier")

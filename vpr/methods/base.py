@@ -88,7 +88,9 @@ class Method:
         raise NotImplementedError
 
     def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool):
-        """(similarity before masking, accepted or None to use :meth:`accept`); not overridden: unsupported."""
+        """(similarity before masking, decisions): decisions None to use :meth:`accept` on the best matches, an
+        accepted array, or (best, score, accepted) of the method's own per-frame decision. Not overridden:
+        unsupported."""
         raise NotImplementedError
 
     # ---------------------------------------------------------------- public
@@ -104,11 +106,13 @@ class Method:
                            dict(self.conf))
 
     def loops(self, seq: EncodedTraverse, exclude: int = 1, progress: bool = False) -> MatchResult:
-        """Loop closures within one traverse: for each frame, the best earlier frame.
+        """Loop closures within one traverse: for each frame, the best earlier frame and the decision.
 
         Only pairs ``i <= j - exclude`` are candidates (``exclude >= 1``); other
         entries of the returned similarity are ``-inf`` (dense) or absent
-        (sparse). Methods that cannot do this raise ValueError.
+        (sparse). The result's ``score`` is what the decision thresholds (the
+        similarity of the best match, or a method's own per-frame score).
+        Methods that cannot do this raise ValueError.
         """
         if int(exclude) < 1:
             raise ValueError(f"exclude must be >= 1, got {exclude}")
@@ -117,12 +121,18 @@ class Method:
         self.check_size(len(seq), len(seq))
         self.warm_up()
         t = time.perf_counter()
-        S, accepted = self._loops(seq, int(exclude), progress)
+        S, decisions = self._loops(seq, int(exclude), progress)
         S = mask_recent(S, exclude)
-        best, score = best_matches(S)
-        if accepted is None:
-            accepted = self.accept(best, score)
+        if isinstance(decisions, tuple):  # the method's own decision: best frame, its score, accepted
+            best, score, accepted = (np.asarray(a) for a in decisions)
+            best = best.astype(np.int64)
+            score = np.where(best >= 0, score, -np.inf).astype(np.float64)
+            accepted = accepted.astype(bool) & (best >= 0)
         else:
-            accepted = np.asarray(accepted, bool) & np.isfinite(score)
-        best[~np.isfinite(score)] = -1
+            best, score = best_matches(S)
+            if decisions is None:
+                accepted = self.accept(best, score)
+            else:
+                accepted = np.asarray(decisions, bool) & np.isfinite(score)
+            best[~np.isfinite(score)] = -1
         return MatchResult(self.name, S, best, score, accepted, time.perf_counter() - t, dict(self.conf))

@@ -11,8 +11,8 @@ from vpr import sdr
 from vpr.shosm import (
     BeamConf,
     EvidenceConf,
+    LoopConf,
     SequenceMemory,
-    accept_loops,
     loop_evidence,
     memory_params,
     query_evidence,
@@ -36,8 +36,8 @@ class RshosmSeq(Method):
     transition -- and ``normalise``), ``direction`` (``"both"`` or the causal
     ``"forward"``), ``top_k`` (database frames kept per query when database x
     query exceeds :data:`~vpr.similarity.DENSE_PAIRS_LIMIT`); for
-    :meth:`loops`: ``z_min``, ``confirm`` and ``stop_ratio``
-    (:func:`vpr.shosm.accept_loops`).
+    :meth:`loops`: the :class:`~vpr.shosm.LoopConf` (``drift``, ``min_score``,
+    ``back``, ``ahead``, ``island``, ``stop_ratio``; :func:`vpr.shosm.accept_loops`).
 
     Below the size limit the evidence is dense (every cell, every frame); above
     it, the sparse beam (:func:`vpr.shosm.sparse_evidence`, its floors and caps
@@ -48,14 +48,14 @@ class RshosmSeq(Method):
 
     name = "rshosm-seq"
     default_conf = {**memory_params(), **EvidenceConf().as_dict(), "direction": "both", "top_k": 50,
-                    # loops only (vpr.shosm.accept_loops; chosen in studies/loops_acceptance.py)
-                    "z_min": 6.0, "confirm": 8, "stop_ratio": 0.35}
+                    **LoopConf().as_dict()}  # loops only (vpr.shosm.accept_loops; docs/loops.md)
     nullable_conf = frozenset({"seed", "stay", "skip"})
     required_inputs = ("sdr",)
 
     def __init__(self, **conf):
         super().__init__(**conf)
         self.evidence_conf = EvidenceConf.from_conf(self.conf)  # refuses bad values now
+        self.loop_conf = LoopConf.from_conf(self.conf)
 
     def warm_up(self) -> None:
         mem = warm_up_memory()
@@ -82,12 +82,12 @@ class RshosmSeq(Method):
         with Algorithm 1; at frame ``j`` the frames ``i <= j - exclude`` are
         scored with causal (forward) evidence over what the memory had learned
         by ``j - exclude`` (only the past counts; the backward pass of
-        :meth:`match` would see the future). A closure is accepted when
-        :func:`vpr.shosm.accept_loops` says so.
+        :meth:`match` would see the future). Each frame's decision (loop
+        closure or new place) and its score are those of
+        :func:`vpr.shosm.accept_loops`.
         """
-        c = self.conf
         x = self.need(seq, "sdr", "loop")
-        S, _ = loop_evidence(x, exclude=int(exclude), conf=self.evidence_conf, memory=memory_params(c),
-                             progress=progress)
-        _, _, ok = accept_loops(S, z_min=c["z_min"], confirm=c["confirm"], sdr=x, stop_ratio=c["stop_ratio"])
-        return S, ok
+        ev = loop_evidence(x, exclude=int(exclude), conf=self.evidence_conf, memory=memory_params(self.conf),
+                           loop=self.loop_conf, progress=progress)
+        d = ev.decisions
+        return ev.similarity, (d.best, d.score, d.accepted)

@@ -14,19 +14,21 @@ One entry point per use:
   stream learned online (:mod:`vpr.shosm.loops`).
 
 :mod:`vpr.shosm.conf` holds rSHOSM-seq's parameters once (:class:`EvidenceConf`,
-:class:`BeamConf`, :data:`LEARN_THRESHOLD`); :mod:`vpr.shosm.kernels` the
+:class:`BeamConf`, :class:`LoopConf`, :data:`LEARN_THRESHOLD`); :mod:`vpr.shosm.kernels` the
 compiled loops. Nothing outside this package reads the memory's private
 state: kernels read :meth:`SequenceMemory.view`, users :attr:`SequenceMemory.connections`.
 """
-from .conf import LEARN_THRESHOLD, BeamConf, EvidenceConf, memory_params
+from .conf import LEARN_THRESHOLD, LOOP_EXCLUDE, BeamConf, EvidenceConf, LoopConf, memory_params
+from .decide import LoopDecider, LoopDecisions, accept_loops, stationary_closures
 from .evidence import EvidenceResult, dense_evidence, query_evidence, sparse_evidence, zscore_columns
 from .localizer import LOCALIZER_DEFAULTS, Localizer, LocalizerResult
-from .loops import LOOP_DENSE_MAX, LOOP_UNCAPPED_MAX, accept_loops, loop_evidence, stationary_closures
+from .loops import LOOP_DENSE_MAX, LOOP_UNCAPPED_MAX, FrameLoop, LoopEvidence, LoopStream, loop_evidence
 from .memory import Connections, MemoryFileError, MemoryView, SequenceMemory, pad_codes
 from .streaming import ForwardEvidence, FrameEvidence
 
 __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pad_codes",
-           "LEARN_THRESHOLD", "EvidenceConf", "BeamConf", "memory_params",
+           "LEARN_THRESHOLD", "LOOP_EXCLUDE", "EvidenceConf", "BeamConf", "LoopConf", "memory_params",
            "query_evidence", "dense_evidence", "sparse_evidence", "zscore_columns", "EvidenceResult",
            "ForwardEvidence", "FrameEvidence", "Localizer", "LocalizerResult", "LOCALIZER_DEFAULTS",
-           "loop_evidence", "accept_loops", "stationary_closures", "LOOP_UNCAPPED_MAX", "LOOP_DENSE_MAX"]
+           "loop_evidence", "LoopEvidence", "LoopStream", "FrameLoop", "accept_loops", "LoopDecider", "LoopDecisions",
+           "stationary_closures", "LOOP_UNCAPPED_MAX", "LOOP_DENSE_MAX"]

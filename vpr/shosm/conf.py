@@ -10,18 +10,25 @@ evidence, loop closure, the localizer) reads its defaults from here:
   (``decay``, ``stay``, ``skip``) and how a frame's scores are standardised
   (``normalise``).
 * :class:`BeamConf`: the floors and caps of the sparse evidence (the beam).
+* :class:`LoopConf`: when a loop closure is accepted (:func:`vpr.shosm.accept_loops`).
 """
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
 
+import numpy as np
+
 from .memory import SequenceMemory
 
-__all__ = ["LEARN_THRESHOLD", "EvidenceConf", "BeamConf", "memory_params"]
+__all__ = ["LEARN_THRESHOLD", "LOOP_EXCLUDE", "EvidenceConf", "BeamConf", "LoopConf", "memory_params"]
 
 #: Minicolumn threshold of the memory that rSHOSM-seq learns (the paper's is 0.25).
 LEARN_THRESHOLD = 0.75
+
+#: Frames closer than this are not loop-closure candidates, unless told otherwise (``vpr loops --exclude``):
+#: the frames just before are the same place seen again a moment later, not a revisit.
+LOOP_EXCLUDE = 30
 
 _NORMALISE = ("query", "none")
 
@@ -138,3 +145,54 @@ class BeamConf(_Conf):
         """(max_beam, max_enter) as the kernels read them: 0 is no cap."""
         return (0 if self.max_beam is None else int(self.max_beam)), (0 if self.max_enter is None else
                                                                        int(self.max_enter))
+
+
+@dataclass(frozen=True)
+class LoopConf(_Conf):
+    """When a loop closure is accepted, frame by frame (:func:`vpr.shosm.accept_loops`).
+
+    A frame's best earlier frame stands out from every other place by
+    ``z_best - z_other`` (its z-score minus the best z-score outside the
+    *island* of neighbouring candidates around it whose z is at least
+    ``island``). Along a path of consistent best matches this margin minus
+    ``drift`` is accumulated (a CUSUM: never below 0); the path's score is the
+    decision statistic, and a closure is accepted when it reaches
+    ``min_score``. The defaults and how they were chosen: ``docs/loops.md``.
+
+    Attributes
+    ----------
+    drift : float > 0
+        Margin a frame must exceed on average for the score to grow (the "new
+        place" hypothesis wins below it).
+    min_score : float > 0
+        Score at which a closure is accepted.
+    back, ahead : int >= 0
+        A frame continues the path when its best earlier frame is at most
+        ``back`` frames behind and ``ahead`` frames beyond the path's furthest
+        best so far (tied neighbours, slower or faster revisits).
+    island : float
+        z-score down to which neighbouring candidates belong to the best place.
+    stop_ratio : float in [0, 1)
+        A closure onto a place the camera never left is a stop, not a loop
+        (:func:`vpr.shosm.stationary_closures`; 0: not checked).
+    """
+
+    drift: float = 1.5
+    min_score: float = 24.0
+    back: int = 4
+    ahead: int = 6
+    island: float = 1.0
+    stop_ratio: float = 0.35
+
+    def __post_init__(self):
+        for name in ("drift", "min_score"):
+            if not float(getattr(self, name)) > 0.0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        for name in ("back", "ahead"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or int(v) != v or int(v) < 0:
+                raise ValueError(f"{name} must be an integer >= 0, got {v}")
+        if not np.isfinite(float(self.island)):
+            raise ValueError(f"island must be a finite z-score, got {self.island}")
+        if not 0.0 <= float(self.stop_ratio) < 1.0:
+            raise ValueError(f"stop_ratio must be in [0, 1) (0: stops are not checked), got {self.stop_ratio}")

@@ -1,33 +1,64 @@
 """Loop closure within one stream: learned online with Algorithm 1, scored with forward graded evidence.
 
 **Our extension, not the paper's** scoring (the paper compares winner codes;
-``rshosm`` does that). :func:`loop_evidence` gives every frame's evidence for
-the frames far enough back; :func:`accept_loops` decides, frame by frame,
-which closures are accepted; :func:`stationary_closures` tells a stop from a loop.
+``rshosm`` does that). :class:`LoopStream` is the engine: frame by frame it
+learns the frame, scores every frame far enough back with the causal evidence
+of rSHOSM-seq, and decides (:class:`vpr.shosm.decide.LoopDecider`) whether the
+best of them is a loop closure or the frame is a new place.
+:func:`loop_evidence` runs it over a whole stream and assembles the T x T
+matrix; :class:`vpr.shosm.LoopDetector` runs it one frame at a time for a robot.
+Both give the same answers, because they are the same engine.
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 from tqdm import tqdm
 
 from vpr import sdr as _sdr
-from vpr.checks import check_count
-from vpr.similarity import best_matches
 
-from .beam import BIG, NO_PASS, Beam, beam_params, finish
-from .conf import BeamConf, EvidenceConf, memory_params
+from .beam import BIG, Beam, beam_params
+from .conf import LOOP_EXCLUDE, BeamConf, EvidenceConf, LoopConf, memory_params
+from .decide import LoopDecider, LoopDecisions
 from .kernels import beam as KB
 from .memory import SequenceMemory
 
-__all__ = ["loop_evidence", "accept_loops", "stationary_closures", "LOOP_UNCAPPED_MAX", "LOOP_DENSE_MAX"]
+__all__ = ["LoopStream", "FrameLoop", "loop_evidence", "LoopEvidence", "LOOP_UNCAPPED_MAX", "LOOP_DENSE_MAX"]
 
-#: Streams up to this many frames are scored by :func:`loop_evidence` without beam caps (``caps="auto"``);
-#: beyond, time and memory grow too fast (``benchmarks/bench_loops_scale.py``, ``docs/localize.md``).
+#: The beam carries every cell until the stream has this many frames; from then on the caps of
+#: :class:`vpr.shosm.BeamConf` bound the cost per frame (``caps="auto"``). Uncapped, a long stream's time and
+#: memory grow too fast; capped from the start, the frames of the current condition fill the beam and the
+#: other condition's frames of the same place never enter it (``docs/loops.md``).
 LOOP_UNCAPPED_MAX = 10_000
 
 #: Streams up to this many frames get a dense T x T loop matrix; beyond, top-50 sparse.
 LOOP_DENSE_MAX = 20_000
+
+
+@dataclass
+class FrameLoop:
+    """One frame of a :class:`LoopStream`: its winner cells, its evidence column and its decision.
+
+    ``rows`` / ``z``: the earlier frames with evidence and their z-scores (or
+    raw evidence with ``normalise="none"``), sorted by frame; ``fill``: the
+    score of an earlier frame without evidence; ``n_candidates``: frames far
+    enough back. ``best`` (-1: none), ``score`` (the path score of
+    :class:`vpr.shosm.LoopConf`), ``accepted``, ``margin``, ``near``: the
+    decision (:func:`vpr.shosm.accept_loops`).
+    """
+
+    winners: np.ndarray
+    rows: np.ndarray
+    z: np.ndarray
+    fill: float
+    n_candidates: int
+    best: int
+    score: float
+    accepted: bool
+    margin: float
+    near: bool
 
 
 def _grown(a, size, fill):
@@ -36,9 +67,190 @@ def _grown(a, size, fill):
     return out
 
 
-def loop_evidence(sdr_batch, exclude: int = 30, conf: EvidenceConf | None = None, top_k: int | None = None,
+class LoopStream:
+    """The state of one stream's loop closure: the memory learned so far, the beam, the decisions.
+
+    Parameters
+    ----------
+    exclude : int >= 1
+        Frames closer than this are not candidates.
+    conf : EvidenceConf
+    loop : LoopConf
+        The decision rule.
+    memory : dict, optional
+        :class:`SequenceMemory` parameters over rSHOSM-seq's.
+    beam : BeamConf
+        Floors and caps of the beam.
+    caps : "auto" or bool
+        Whether the caps apply: ``"auto"`` from frame :data:`LOOP_UNCAPPED_MAX` on.
+    """
+
+    def __init__(self, exclude: int = LOOP_EXCLUDE, conf: EvidenceConf | None = None, loop: LoopConf | None = None,
+                 memory: dict | None = None, beam: BeamConf | None = None, caps: str | bool = "auto"):
+        if int(exclude) < 1:
+            raise ValueError(f"exclude must be >= 1, got {exclude}")
+        if not (caps == "auto" or isinstance(caps, bool)):
+            raise ValueError(f"caps must be 'auto', True or False, got {caps!r}")
+        self.exclude = int(exclude)
+        self.conf, self.beam_conf = conf or EvidenceConf(), beam or BeamConf()
+        self.loop = loop or LoopConf()
+        self.caps = caps
+        self.mem = SequenceMemory(**memory_params(memory))
+        self.decider = LoopDecider(self.loop)
+        self.frames = 0
+        self._params = {c: beam_params(self.conf, self.beam_conf if c else self.beam_conf.uncapped(), 0.0)
+                        for c in (False, True)}
+        cpc = self.mem.cells_per_column
+        cap = 1024 * cpc
+        self._g = {"cpc": cpc, "n_cells": cap, "col_size": np.zeros(cap // cpc), "relevant": np.zeros(cap, bool),
+                   "birth": np.full(cap, BIG, np.int64), "c_head": np.full(cap, -1, np.int64),
+                   "c_next": np.zeros(4096, np.int64), "c_frame": np.zeros(4096, np.int64),
+                   "db_norm": np.ones(1024, np.float64)}
+        self._a = (np.full(cap, -1, np.int64), np.zeros(4096, np.int64), np.zeros(4096, np.int64))
+        self._n_nodes = 0
+        self._beam = Beam(cap, cap // cpc, 1024)
+
+    @property
+    def n_inputs(self) -> int:
+        return self.mem.n_inputs
+
+    def _capped(self, j: int) -> bool:
+        return j >= LOOP_UNCAPPED_MAX if self.caps == "auto" else bool(self.caps)
+
+    def _attach(self, j: int, bits: np.ndarray, winners: np.ndarray, old_len: np.ndarray, ne_old: int) -> None:
+        """Make frame ``j`` (learned, with winner cells ``winners``) a candidate of the evidence."""
+        g, cpc = self._g, self._g["cpc"]
+        v = self.mem.view()
+        a_head, a_next, a_dst = self._a
+        if v.n_cells > g["n_cells"]:  # grow everything indexed by cell or minicolumn
+            new = max(v.n_cells, 2 * g["n_cells"])
+            for name, fill in (("relevant", False), ("birth", BIG), ("c_head", -1), ("col_size", 0.0)):
+                g[name] = _grown(g[name], new if name != "col_size" else new // cpc, fill)
+            a_head = _grown(a_head, new, -1)
+            g["n_cells"] = new
+        if j >= g["db_norm"].size:
+            g["db_norm"] = _grown(g["db_norm"], 2 * (j + 1), 1.0)
+        self._beam.grow(g["n_cells"], g["n_cells"] // cpc, g["db_norm"].size)
+        KB.count_new_entries(g["col_size"], bits, old_len, v.bit_len, v.bit_cols)
+        ne = v.e_src.size
+        if ne > a_next.size:
+            a_next, a_dst = np.resize(a_next, max(ne, 2 * a_next.size)), np.resize(a_dst, max(ne, 2 * a_dst.size))
+        KB.append_lists(a_head, a_next, a_dst, ne_old, v.e_src[ne_old:], v.e_dst[ne_old:])
+        self._a = (a_head, a_next, a_dst)
+        n = self._n_nodes
+        if n + winners.size > g["c_next"].size:
+            g["c_next"] = np.resize(g["c_next"], 2 * (n + winners.size))
+            g["c_frame"] = np.resize(g["c_frame"], 2 * (n + winners.size))
+        KB.append_lists(g["c_head"], g["c_next"], g["c_frame"], n, winners, np.full(winners.size, j, np.int64))
+        self._n_nodes = n + winners.size
+        g["relevant"][winners] = True
+        g["birth"][winners] = np.minimum(g["birth"][winners], j)
+        g["db_norm"][j] = max(winners.size, 1)
+        g["bit_cols"], g["bit_len"] = v.bit_cols, v.bit_len
+
+    # ------------------------------------------------------------- state
+    _G_ARRAYS = ("col_size", "relevant", "birth", "c_head", "c_next", "c_frame", "db_norm")
+
+    def state_dict(self) -> tuple[dict, dict]:
+        """(header, arrays): the memory, the candidates' graph, the beam and the decisions so far.
+
+        The header is JSON-serialisable; :meth:`from_state` continues exactly
+        as this stream would have.
+        """
+        mem_header, mem_arrays = self.mem.to_arrays()
+        header = {"exclude": self.exclude, "conf": self.conf.as_dict(), "loop": self.loop.as_dict(),
+                  "beam": self.beam_conf.as_dict(), "caps": self.caps, "frames": self.frames,
+                  "n_nodes": self._n_nodes, "n_cells": self._g["n_cells"], "memory": mem_header}
+        arrays = {f"mem_{k}": v for k, v in mem_arrays.items()}
+        arrays.update({f"g_{k}": self._g[k] for k in self._G_ARRAYS})
+        arrays.update({"a_head": self._a[0], "a_next": self._a[1], "a_dst": self._a[2]})
+        cells, values = self._beam.cells()
+        arrays.update({"beam_cells": cells, "beam_e": values, "beam_st": self._beam.st.copy()})
+        arrays.update({f"dec_{k}": v for k, v in self.decider.state_dict().items()})
+        return header, arrays
+
+    @classmethod
+    def from_state(cls, header: dict, arrays: dict) -> LoopStream:
+        """The stream of a :meth:`state_dict` pair (raises ValueError on inconsistent arrays)."""
+        mem_h = header["memory"]
+        s = cls(header["exclude"], EvidenceConf(**header["conf"]), LoopConf(**header["loop"]), mem_h["params"],
+                BeamConf(**header["beam"]), header["caps"])
+        s.mem = SequenceMemory.from_arrays(mem_h, {k[4:]: v for k, v in arrays.items() if k.startswith("mem_")})
+        s.frames, s._n_nodes = int(header["frames"]), int(header["n_nodes"])
+        g = s._g
+        g["n_cells"] = int(header["n_cells"])
+        for k in cls._G_ARRAYS:
+            g[k] = np.array(arrays[f"g_{k}"])
+        if g["relevant"].size != g["n_cells"] or g["col_size"].size * g["cpc"] != g["n_cells"]:
+            raise ValueError("loop stream state: the candidates' graph does not match its size")
+        s._a = (np.array(arrays["a_head"]), np.array(arrays["a_next"]), np.array(arrays["a_dst"]))
+        v = s.mem.view()
+        g["bit_cols"], g["bit_len"] = v.bit_cols, v.bit_len
+        s._beam = Beam(g["n_cells"], g["n_cells"] // g["cpc"], g["db_norm"].size)
+        cells = np.asarray(arrays["beam_cells"], np.int64)
+        if cells.size and (cells.min() < 0 or cells.max() >= g["n_cells"]):
+            raise ValueError("loop stream state: beam cells outside the memory")
+        s._beam.set_beam(cells, np.asarray(arrays["beam_e"], np.float64))
+        s._beam.st[:] = arrays["beam_st"]
+        s.decider.load_state({k[4:]: v for k, v in arrays.items() if k.startswith("dec_")})
+        if s.decider.frames != s.frames:
+            raise ValueError(f"loop stream state: {s.decider.frames} decisions for {s.frames} frames")
+        return s
+
+    def step(self, sdr_row) -> FrameLoop:
+        """Learn the next frame (SDR row: 1-row batch, dense row or bit indices), score and decide it."""
+        bits = _sdr.row_bits(sdr_row, self.mem.n_inputs, name="frame SDR")
+        j = self.frames
+        old_len, ne_old = self.mem.view().bit_len.copy(), self.mem.n_connections
+        winners = self.mem.step(bits)
+        self._attach(j, bits, winners, old_len, ne_old)
+        p, rows, val = self._beam.run(self._g, self._a, np.array([0, bits.size], np.int64), bits,
+                                      np.zeros(1, np.int64), np.array([j - self.exclude], np.int64),
+                                      self._params[self._capped(j)])
+        n = max(j - self.exclude + 1, 0)
+        order = np.argsort(rows, kind="stable")
+        rows, val = rows[order], val[order]
+        if self.conf.normalise == "query" and n > 0:
+            mean = val.sum() / n
+            var = (val * val).sum() / n - mean * mean
+            sd = np.sqrt(var) if var > 0 else 1.0
+            z, fill = (val - mean) / sd, -mean / sd
+        else:
+            z, fill = val, 0.0
+        # decided on the float32 values the matrix keeps, so that deciding again on it gives the same
+        z, fill = z.astype(np.float32), float(np.float32(fill))
+        self.decider.add_sdr(bits)
+        best, score, ok, margin, near = self.decider.decide(j, rows, z, n, fill)
+        self.frames += 1
+        return FrameLoop(winners, rows, z, fill, n, int(best), float(score), bool(ok), float(margin), bool(near))
+
+
+@dataclass
+class LoopEvidence:
+    """What :func:`loop_evidence` gives: the T x T matrix, the winner codes, the decisions.
+
+    ``similarity``: rows earlier frame ``i``, columns frame ``j``; dense
+    float32 with ``-inf`` outside ``i <= j - exclude``, or a top-K csr matrix.
+    ``fill[j]``: the score of a candidate of frame ``j`` without any evidence
+    (what a missing entry of a top-K column stands for). ``decisions``: each
+    frame's decision, taken on its full evidence column, so the same whether
+    the matrix is dense or top-K.
+    """
+
+    similarity: np.ndarray | sp.csr_matrix
+    codes: sp.csr_matrix
+    fill: np.ndarray
+    exclude: int
+    decisions: LoopDecisions | None = None
+
+    def __iter__(self):  # ``S, codes = loop_evidence(...)``
+        return iter((self.similarity, self.codes))
+
+
+def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf: EvidenceConf | None = None, top_k: int | None = None,
                   memory: dict | None = None, beam: BeamConf | None = None, caps: str | bool = "auto",
-                  dense_max: int = LOOP_DENSE_MAX, progress: bool = False):
+                  dense_max: int = LOOP_DENSE_MAX, loop: LoopConf | None = None, stops: bool = True,
+                  progress: bool = False) -> LoopEvidence:
     """Loop closure within one stream with graded forward sequence evidence, learned online.
 
     Frame ``j`` is learned with Algorithm 1 (as the paper, one memory over the
@@ -47,7 +259,8 @@ def loop_evidence(sdr_batch, exclude: int = 30, conf: EvidenceConf | None = None
     past counts. Cells first learned at a frame after ``j - exclude`` take no
     part in the evidence at ``j`` at all (not only masked in the output):
     within one traverse a frame's own evidence would otherwise linger, through
-    the stay transition, on the frames just before it and win there.
+    the stay transition, on the frames just before it and win there. Each
+    frame is then decided (loop closure or new place, :class:`LoopConf`).
 
     Parameters
     ----------
@@ -57,204 +270,57 @@ def loop_evidence(sdr_batch, exclude: int = 30, conf: EvidenceConf | None = None
     conf : EvidenceConf
         Decay, transition costs, standardisation (z-scores per frame over its candidate frames).
     top_k : int or None
-        Earlier frames kept per frame (None: dense T x T up to ``dense_max``
-        frames, top-50 beyond).
+        Earlier frames kept per frame in the matrix (None: dense T x T up to
+        ``dense_max`` frames, top-50 beyond). The decisions do not depend on it.
     memory : dict, optional
         :class:`SequenceMemory` parameters over rSHOSM-seq's (:func:`vpr.shosm.conf.memory_params`).
     beam : BeamConf
-        The beam's floors and caps.
-    caps : "auto" or bool
-        Whether ``beam``'s caps apply. ``"auto"``: not up to
-        :data:`LOOP_UNCAPPED_MAX` frames (and while the output is dense), yes
-        beyond. Why: in one stream that changes condition, the frames of the
-        current condition fill a capped beam and the other condition's frames
-        of the same place never enter it (``docs/localize.md``).
+        The beam's floors and caps; ``caps`` says when they apply (:class:`LoopStream`).
+    loop : LoopConf
+        The decision rule; ``stops=False`` leaves out its stop check.
     progress : bool
         tqdm progress bar.
 
     Returns
     -------
-    S : T x T (rows: earlier frame i, columns: frame j); dense float32 with
-        ``-inf`` outside ``i <= j - exclude``, or a top-K csr matrix.
-    codes : csr bool (T x cells), the winner codes learned online.
+    LoopEvidence (unpacks as ``S, codes``).
     """
-    conf, beam = conf or EvidenceConf(), beam or BeamConf()
-    if int(exclude) < 1:
-        raise ValueError(f"exclude must be >= 1, got {exclude}")
     if top_k is not None and int(top_k) < 1:
         raise ValueError(f"top_k must be >= 1 or None, got {top_k}")
-    if not (caps == "auto" or isinstance(caps, bool)):
-        raise ValueError(f"caps must be 'auto', True or False, got {caps!r}")
-    exclude = int(exclude)
-    mem = SequenceMemory(**memory_params(memory))
-    x = _sdr.check_batch(sdr_batch, n_bits=mem.n_inputs, name="stream SDR batch")
+    loop = loop or LoopConf()
+    if not stops:
+        loop = LoopConf(**{**loop.as_dict(), "stop_ratio": 0.0})
+    stream = LoopStream(exclude, conf, loop, memory, beam, caps)
+    x = _sdr.check_batch(sdr_batch, n_bits=stream.n_inputs, name="stream SDR batch")
     T = x.shape[0]
     if top_k is None and T > int(dense_max):
         top_k = 50  # a dense T x T would not fit (the project's limit on dense matrices)
-    if caps == "auto":
-        caps = T > min(int(dense_max), LOOP_UNCAPPED_MAX)
-    q_ptr, q_ind = x.indptr.astype(np.int64), x.indices.astype(np.int64)
-    params = beam_params(conf, beam if caps else beam.uncapped(), 0.0)
-    cpc = mem.cells_per_column
-    cap = 1024 * cpc
-    g = {"cpc": cpc, "n_cells": cap, "col_size": np.zeros(cap // cpc), "relevant": np.zeros(cap, bool),
-         "birth": np.full(cap, BIG, np.int64), "c_head": np.full(cap, -1, np.int64),
-         "c_next": np.zeros(16 * T + 16, np.int64), "c_frame": np.zeros(16 * T + 16, np.int64),
-         "db_norm": np.ones(max(T, 1), np.float64)}
-    a_head, a_next, a_dst = np.full(cap, -1, np.int64), np.zeros(4096, np.int64), np.zeros(4096, np.int64)
-    scratch = Beam(cap, cap // cpc, max(T, 1))
-    n_nodes = 0
-    ptrs, idxs, vals = [np.zeros(1, np.int64)], [], []
-    base = 0
+    dense = np.full((T, T), -np.inf, np.float32) if top_k is None else None
+    cols_i, cols_v, counts = [], [], np.zeros(T, np.int64)
     codes_ptr, codes_idx = np.zeros(T + 1, np.int64), []
+    dec = np.zeros((5, T))
+    fill = np.zeros(T, np.float32)
     for j in tqdm(range(T), desc="rSHOSM loops", unit="frame", leave=False, disable=not progress):
-        old_len, ne_old = mem.view().bit_len.copy(), mem.n_connections
-        w = mem.run(x[j]).indices.astype(np.int64)
-        codes_idx.append(w)
-        codes_ptr[j + 1] = codes_ptr[j] + w.size
-        v = mem.view()
-        if v.n_cells > g["n_cells"]:  # grow everything indexed by cell or minicolumn
-            new = max(v.n_cells, 2 * g["n_cells"])
-            for name, fill in (("relevant", False), ("birth", BIG), ("c_head", -1), ("col_size", 0.0)):
-                g[name] = _grown(g[name], new if name != "col_size" else new // cpc, fill)
-            a_head = _grown(a_head, new, -1)
-            g["n_cells"] = new
-            scratch.grow(new, new // cpc, max(T, 1))
-        KB.count_new_entries(g["col_size"], q_ind[q_ptr[j]:q_ptr[j + 1]], old_len, v.bit_len, v.bit_cols)
-        ne = v.e_src.size
-        if ne > a_next.size:
-            a_next, a_dst = np.resize(a_next, max(ne, 2 * a_next.size)), np.resize(a_dst, max(ne, 2 * a_dst.size))
-        KB.append_lists(a_head, a_next, a_dst, ne_old, v.e_src[ne_old:], v.e_dst[ne_old:])
-        if n_nodes + w.size > g["c_next"].size:
-            g["c_next"] = np.resize(g["c_next"], 2 * (n_nodes + w.size))
-            g["c_frame"] = np.resize(g["c_frame"], 2 * (n_nodes + w.size))
-        KB.append_lists(g["c_head"], g["c_next"], g["c_frame"], n_nodes, w, np.full(w.size, j, np.int64))
-        n_nodes += w.size
-        g["relevant"][w] = True
-        g["birth"][w] = np.minimum(g["birth"][w], j)
-        g["db_norm"][j] = max(w.size, 1)
-        g["bit_cols"], g["bit_len"] = v.bit_cols, v.bit_len
-        p, i, val = scratch.run(g, (a_head, a_next, a_dst), q_ptr, q_ind, np.array([j], np.int64),
-                                np.array([j - exclude], np.int64), params)
-        ptrs.append(p[1:] + base)
-        idxs.append(i)
-        vals.append(val)
-        base += i.size
+        f = stream.step(x.indices[x.indptr[j]:x.indptr[j + 1]])
+        codes_idx.append(f.winners)
+        codes_ptr[j + 1] = codes_ptr[j] + f.winners.size
+        dec[:, j] = (f.best, f.score, f.accepted, f.margin, f.near)
+        fill[j] = f.fill
+        if dense is not None:
+            dense[: f.n_candidates, j] = f.fill
+            dense[f.rows, j] = f.z
+        else:
+            keep = np.lexsort((f.rows, -f.z))[: int(top_k)]
+            cols_i.append(f.rows[keep])
+            cols_v.append(f.z[keep])
+            counts[j] = keep.size
     codes = sp.csr_matrix((np.ones(int(codes_ptr[-1]), bool), np.concatenate(codes_idx + [np.zeros(0, np.int64)]),
-                           codes_ptr), shape=(T, max(mem.n_cells, 1)))
-    cols = (np.concatenate(ptrs), np.concatenate(idxs + [np.zeros(0, np.int64)]),
-            np.concatenate(vals + [np.zeros(0)]))
-    n_cand = np.maximum(np.arange(T) - exclude + 1, 0).astype(np.int64)
-    S_top, _, _, mean, sd = finish(cols, NO_PASS, n_cand, max(T, 1), top_k, conf.normalise == "query")
-    if top_k is not None:
-        return S_top[:T], codes
-    S = np.full((T, T), -np.inf, np.float32)
-    i, jj = np.indices((T, T))
-    valid = i <= jj - exclude
-    S[valid] = np.broadcast_to((-mean / sd).astype(np.float32), (T, T))[valid]
-    coo = S_top.tocoo()
-    S[coo.row, coo.col] = coo.data
-    return S, codes
-
-
-#: Steps of the best earlier frame between two frames that still continue one closure: a stop (0),
-#: a faster revisit (up to 6 frames per frame) or a small step back where neighbouring frames tie.
-_CONTINUES = (-2, 6)
-
-
-def accept_loops(S, z_min: float = 6.0, confirm: int = 8, sdr=None, stop_ratio: float = 0.35):
-    """Best earlier frame per frame of a :func:`loop_evidence` matrix and whether it is accepted.
-
-    A closure at frame ``j`` is accepted when its z-score (how far the best
-    earlier frame's evidence stands out from all candidate frames') is at least
-    ``z_min`` at ``j`` and at the ``confirm`` frames before it, and the best
-    earlier frame moved on consistently over them (as a revisit does: between
-    -2 and +6 frames per frame). Causal: only frames up to ``j`` are used.
-    With the stream's SDRs (``sdr``), a closure onto a place the camera never
-    left is not a loop but a stop, and is refused (:func:`stationary_closures`).
-
-    Why: on forward-only drives a wrong earlier frame can stand out for a few
-    frames (a repeated facade, a tunnel), a revisit keeps standing out; and a vehicle
-    standing at a station or a traffic light for longer than ``exclude`` sees
-    the same place again without any loop (``studies/loops_acceptance.py``,
-    ``docs/localize.md``).
-
-    Parameters
-    ----------
-    S : dense or sparse T x T loop matrix (rows earlier frame, columns frame).
-    z_min : float
-        z-score the closure must reach at every frame of the confirmation.
-    confirm : int >= 0
-        Frames before ``j`` that must also pass (0: ``j`` alone).
-    sdr : SDR batch (T rows), optional
-        The stream; without it stops are not checked.
-    stop_ratio : float in [0, 1)
-        See :func:`stationary_closures` (0: stops are not checked).
-
-    Returns
-    -------
-    best : int64 per frame (-1: no candidate), score : float64, accepted : bool
-    """
-    confirm = check_count(confirm, "confirm")
-    if not 0.0 <= float(stop_ratio) < 1.0:
-        raise ValueError(f"stop_ratio must be in [0, 1) (0: stops are not checked), got {stop_ratio}")
-    best, score = best_matches(S)
-    best = np.where(np.isfinite(score), best, -1)
-    ok = (best >= 0) & (score >= float(z_min))
-    step = np.diff(best, prepend=-1)
-    link = np.zeros_like(ok)  # frame j continues frame j - 1's closure
-    link[1:] = ok[1:] & ok[:-1] & (step[1:] >= _CONTINUES[0]) & (step[1:] <= _CONTINUES[1])
-    run = np.zeros(len(ok), np.int64)  # frames in a row that pass, ending at j
-    for j in np.flatnonzero(ok):
-        run[j] = run[j - 1] + 1 if j and link[j] else 1
-    ok = run > confirm
-    if sdr is not None and float(stop_ratio) > 0:
-        ok &= ~stationary_closures(sdr, best, ok, stop_ratio)
-    return best, score, ok
-
-
-def stationary_closures(sdr, best, accepted, ratio: float = 0.35, chunk: int = 256) -> np.ndarray:
-    """Which accepted closures ``best[j] -> j`` are onto a place the camera never left.
-
-    A loop closure means the camera went elsewhere and came back: some frame
-    between ``i = best[j]`` and ``j`` looks less like ``j`` than ``ratio`` times
-    the overlap of ``i`` and ``j`` (SDR overlap, as a fraction of ``j``'s
-    bits). When every frame in between keeps at least that much, the vehicle
-    stood still or crept (a station, a traffic light) and the "closure" is a
-    stop (``docs/localize.md`` has the overlaps measured at stops, revisits
-    and false closures).
-
-    Parameters
-    ----------
-    sdr : SDR batch (T rows), the stream.
-    best : int per frame, the closure's earlier frame (-1: none).
-    accepted : bool per frame, the closures to check.
-    ratio : float in (0, 1)
-    chunk : int
-        Frames compared at once (the scan stops at the first frame that left).
-
-    Returns
-    -------
-    bool per frame: accepted and stationary.
-    """
-    ratio = float(ratio)
-    if not 0.0 < ratio < 1.0:
-        raise ValueError(f"stop_ratio must be in (0, 1), got {ratio}")
-    x = _sdr.check_batch(sdr, name="sdr").astype(np.float32).tocsr()
-    best, accepted = np.asarray(best), np.asarray(accepted, bool)
-    if len(best) != x.shape[0] or len(accepted) != x.shape[0]:
-        raise ValueError(f"best and accepted need one entry per frame of the stream ({x.shape[0]}), "
-                         f"got {len(best)} and {len(accepted)}")
-    out = np.zeros(x.shape[0], bool)
-    for j in np.flatnonzero(accepted & (best >= 0)):
-        i = int(best[j])
-        xj = x[j].T
-        o_i = (x[i] @ xj).toarray()[0, 0]
-        left = False
-        for a in range(i + 1, j, chunk):
-            o = (x[a:min(a + chunk, j)] @ xj).toarray().ravel()
-            if np.any(o < ratio * o_i):
-                left = True
-                break
-        out[j] = not left
-    return out
+                           codes_ptr), shape=(T, max(stream.mem.n_cells, 1)))
+    decisions = LoopDecisions(dec[0].astype(np.int64), dec[1], dec[2].astype(bool), dec[3], dec[4].astype(bool))
+    if dense is not None:
+        return LoopEvidence(dense, codes, fill, stream.exclude, decisions)
+    S = sp.csc_matrix((np.concatenate(cols_v + [np.zeros(0, np.float32)]),
+                       np.concatenate(cols_i + [np.zeros(0, np.int64)]), np.r_[0, np.cumsum(counts)]),
+                      shape=(T, T)).tocsr()
+    S.sort_indices()
+    return LoopEvidence(S, codes, fill, stream.exclude, decisions)

@@ -1,0 +1,216 @@
+"""How ``vpr loops`` decides, frame by frame, between a loop closure and a new place: the rule behind LoopConf.
+
+Every stream of :mod:`studies.loop_streams` is encoded with the loop encoder
+of the ``default`` and of the ``fast`` preset (``--presets``) and scored with
+:func:`vpr.shosm.loop_evidence` (exclude 30 frames); :func:`vpr.shosm.accept_loops` then decides each frame under a grid
+of :class:`vpr.shosm.LoopConf` (``drift``, ``min_score``). For each rule the
+table gives, per revisit stream, the recall of the accepted closures (correct
+accepted closures over the frames that have a true loop) and how many accepted
+closures are false; for the forward-only drives the number of accepted (all
+false) closures, those onto an identical copy of a stretch counted apart.
+
+The rule is chosen as: no false closure anywhere but onto identical copies
+(which no appearance can tell from a revisit while the camera is inside them),
+on the streams of every preset; then the best recalls over the revisit
+streams, weakest first (the smallest recall decides, the next breaks ties). ``--leave-one-out``
+repeats the choice without each stream in turn and prints what the rule chosen
+without it does on it: a rule that only holds where it was chosen shows there.
+
+Usage: python -m studies.loop_decisions [--cache DIR] [--data DIR] [--presets default,fast] [--leave-one-out]
+"""
+from __future__ import annotations
+
+import argparse
+import itertools
+import time
+from pathlib import Path
+
+import numpy as np
+
+from studies.loop_streams import FORWARD, REAL_REVISITS, RENDERED_REVISITS, load_stream
+from vpr.shosm import LoopConf, LoopEvidence, accept_loops, loop_evidence
+
+DRIFTS = (1.0, 1.25, 1.5, 1.75)
+SCORES = (16.0, 20.0, 24.0, 28.0, 32.0, 40.0)
+REVISITS = (*REAL_REVISITS, *RENDERED_REVISITS)
+EXCLUDE = 30
+
+
+def evidence(stream, cache: Path, preset: str = "default") -> LoopEvidence:
+    """The stream's loop evidence (cached: it takes minutes on the whole Nordland rides)."""
+    path = cache / f"evidence-{stream.name.replace('/', '-')}{'' if preset == 'default' else '-' + preset}.npz"
+    if path.is_file():
+        with np.load(path) as z:
+            return LoopEvidence(z["S"], None, z["fill"], int(z["exclude"]))
+    ev = loop_evidence(stream.x, exclude=EXCLUDE)
+    np.savez(path, S=ev.similarity, fill=ev.fill, exclude=ev.exclude)
+    return ev
+
+
+def aliases(name: str) -> np.ndarray | None:
+    """(T x T bool) pairs of a rendered stream that are an identical copy of each other, or None."""
+    if "/" not in name:
+        return None
+    from vpr.render import render_scene
+
+    scene, traverse = name.split("/")
+    sc = render_scene(scene, size=(32, 24), traverses=[traverse])
+    pos = sc.traverses[0].route_pos
+    out = np.zeros((len(pos), len(pos)), bool)
+    regions: dict = {}
+    for a in sc.spec["world"].get("aliasing", []):
+        regions.setdefault((a["source"], a["length"]), [a["source"]]).append(a["target"])
+    for (_, length), starts in regions.items():
+        for s1, s2 in itertools.permutations(starts, 2):
+            # the copy and the evidence's tail after it (decay 0.9: about 10 frames, 20 m here)
+            r1 = (pos >= s1 - 5) & (pos <= s1 + length + 20)
+            r2 = (pos >= s2 - 5) & (pos <= s2 + length + 20)
+            out |= r1[:, None] & r2[None] & (np.abs(pos[None] - pos[:, None] - (s2 - s1)) <= 10)
+    return out
+
+
+def count(stream, ev, alias, conf: LoopConf) -> dict:
+    """Accepted closures of one stream under one rule: correct, false, onto a copy; frames with a loop."""
+    d = accept_loops(ev, conf, sdr=stream.x)
+    j = np.flatnonzero(d.accepted)
+    b = d.best[j]
+    if stream.forward_only:
+        on_copy = alias[b, j] if alias is not None else np.zeros(j.size, bool)
+        return {"true": 0, "false": int((~on_copy).sum()), "copy": int(on_copy.sum()), "frames": 0}
+    true = stream.hard[b, j]
+    soft = stream.soft[b, j] & ~true
+    frames = int(np.triu(stream.hard, EXCLUDE).any(axis=0).sum())
+    return {"true": int(true.sum()), "false": int((~true & ~soft).sum()), "copy": 0, "frames": frames}
+
+
+def _stream_of(key: str) -> str:
+    """The stream name of a result key (``"fast: gardens_point"`` or ``"gardens_point"``)."""
+    return key.split(": ")[-1]
+
+
+def choose(results: dict, streams: list[str]):
+    """The rule with no false closure (but onto copies) on ``streams`` whose recalls are best, weakest first.
+
+    Rules are compared on their revisit recalls sorted from the smallest up
+    (leximin): the weakest stream decides, the next weakest breaks ties, and
+    so on; then the larger ``min_score`` (the safer rule).
+    """
+    best, best_key = None, None
+    for rule, per in results.items():
+        if any(per[s]["false"] for s in streams):
+            continue
+        recalls = sorted(round(per[s]["true"] / per[s]["frames"], 2) for s in streams if _stream_of(s) in REVISITS)
+        key = (recalls, rule[1])
+        if best_key is None or key > best_key:
+            best, best_key = rule, key
+    return best
+
+
+def row(rule, per: dict, names) -> str:
+    cells = []
+    for s in names:
+        c = per[s]
+        if _stream_of(s) in REVISITS:
+            cells.append(f"{c['true'] / c['frames']:.2f} ({c['false']})")
+        else:
+            cells.append(f"{c['false']}" + (f" (+{c['copy']})" if c["copy"] else ""))
+    return f"| {rule[0]} | {rule[1]:g} | " + " | ".join(cells) + " |"
+
+
+def report(stream, ev, alias, conf: LoopConf) -> dict:
+    """What ``vpr loops`` reports for one stream under ``conf``: R@1, accepted closures, their precision and
+    recall, and the recall at 100 % precision of the per-frame decisions (:func:`vpr.evaluate.decision_curve`)."""
+    from vpr.evaluate import decision_curve
+    from vpr.groundtruth import loop_closure_mask
+
+    d = accept_loops(ev, conf, sdr=stream.x)
+    c = count(stream, ev, alias, conf)
+    out = {"frames": len(stream), "accepted": int(d.accepted.sum()), "false": c["false"], "copy": c["copy"]}
+    if stream.forward_only:
+        return out
+    T = len(stream)
+    mask = loop_closure_mask(T, EXCLUDE)
+    j = np.flatnonzero((stream.hard & mask).any(axis=0))
+    b = d.best[j]
+    dm, _ = decision_curve(d.best, d.score, stream.hard, stream.soft, mask)
+    out.update(with_loop=int(j.size), r1=float(np.mean((b >= 0) & stream.hard[np.maximum(b, 0), j])),
+               precision=(c["true"] / (c["true"] + c["false"])) if c["true"] + c["false"] else None,
+               recall=c["true"] / j.size, r100p=dm["recall_at_100p"])
+    return out
+
+
+def _held_cell(stream: str, c: dict | None) -> str:
+    """What the rule chosen without ``stream`` does on it."""
+    if c is None:
+        return "-"
+    if stream in REVISITS:
+        return f"recall {c['true'] / c['frames']:.2f}, {c['false']} false"
+    return f"{c['false']} false" + (f" (+{c['copy']} onto a copy)" if c["copy"] else "")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--cache", default="results/loop_streams", help="encodings and evidence are cached here")
+    ap.add_argument("--data", default=None, help="datasets folder (default: $VPR_DATASETS or ../shared/datasets)")
+    ap.add_argument("--presets", default="default,fast", help="presets whose loop encoders are used")
+    ap.add_argument("--leave-one-out", action="store_true", help="choose without each stream, check it")
+    a = ap.parse_args(argv)
+    cache = Path(a.cache)
+    cache.mkdir(parents=True, exist_ok=True)
+    presets = [p.strip() for p in a.presets.split(",") if p.strip()]
+    names, data, copies = [], {}, {}
+    for preset in presets:
+        for n in [*REVISITS, *FORWARD]:
+            t = time.perf_counter()
+            s = load_stream(n, preset=preset, cache=cache, data=a.data)
+            if n not in copies:
+                copies[n] = aliases(n)
+            key = n if len(presets) == 1 else f"{preset}: {n}"
+            names.append(key)
+            data[key] = (s, evidence(s, cache, preset), copies[n])
+            print(f"{key}: {len(s)} frames ({time.perf_counter() - t:.0f} s)", flush=True)
+    results = {}
+    for rule in itertools.product(DRIFTS, SCORES):
+        conf = LoopConf(drift=rule[0], min_score=rule[1])
+        results[rule] = {n: count(*data[n], conf) for n in names}
+    print("\nRevisit streams: recall of the accepted closures (false accepted); forward-only drives: false "
+          "closures (+ onto an identical copy).\n")
+    print("| drift | min_score | " + " | ".join(names) + " |")
+    print("|---|---|" + "---|" * len(names))
+    for rule, per in results.items():
+        print(row(rule, per, names))
+    chosen = choose(results, names)
+    print(f"\nchosen on every stream: drift {chosen[0]}, min_score {chosen[1]:g}" if chosen else "\nno rule qualifies")
+    conf = LoopConf()
+    print(f"\nWith the defaults (LoopConf: drift {conf.drift}, min_score {conf.min_score:g}), what `vpr loops` reports "
+          "(R@100P: recall at 100 % precision of the per-frame decisions; accepted closures onto an identical copy "
+          "in brackets):\n")
+    print("| stream | frames | frames with a loop | R@1 | accepted | precision of accepted | recall of accepted | "
+          "R@100P | false closures |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for n in names:
+        r = report(*data[n], conf)
+        if "with_loop" in r:
+            prec = "-" if r["precision"] is None else f"{r['precision']:.2f}"
+            print(f"| {n} | {r['frames']:,} | {r['with_loop']:,} | {r['r1']:.2f} | {r['accepted']} | {prec} | "
+                  f"{r['recall']:.2f} | {r['r100p']:.2f} | {r['false']} |")
+        else:
+            print(f"| {n} | {r['frames']:,} | forward only | - | {r['accepted']} | - | - | - | {r['false']}"
+                  + (f" (+{r['copy']})" if r["copy"] else "") + " |")
+    if a.leave_one_out:
+        print("\n| held out (every preset's) | rule chosen without it | on the held-out stream |")
+        print("|---|---|---|")
+        for n in [*REVISITS, *FORWARD]:
+            held = [k for k in names if _stream_of(k) == n]
+            rule = choose(results, [m for m in names if m not in held])
+            cells = []
+            for k in held:
+                preset = k.split(": ")[0] if ": " in k else ""
+                cells.append(f"{preset} {_held_cell(n, results[rule][k] if rule else None)}".strip())
+            chosen_without = f"drift {rule[0]}, min_score {rule[1]:g}" if rule else "none"
+            print(f"| {n} | {chosen_without} | {'; '.join(cells) if rule else '-'} |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

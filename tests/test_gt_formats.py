@@ -1,0 +1,111 @@
+"""Ground truth in the formats the common benchmarks ship: GThard/GTsoft, VPR-Bench, loop matrices."""
+import cv2
+import numpy as np
+import pytest
+import scipy.io
+
+from vpr.groundtruth import GroundTruthSpec, build_gt, build_loop_gt
+from vpr.groundtruth.formats import db_query_matrix, loop_matrix, read_matrix, split_variable
+
+
+def test_split_variable_only_for_mat_files():
+    assert split_variable("truth.mat:GT") == (split_variable("truth.mat")[0], "GT")
+    assert split_variable("C:/data/truth.npy")[1] is None
+    assert split_variable("truth.mat")[1] is None
+
+
+def test_gthard_gtsoft_npy_select_the_frames_read(tmp_path):
+    hard = np.zeros((6, 5), bool)
+    hard[[0, 2, 4], [0, 2, 4]] = True
+    soft = hard.copy()
+    soft[1, 0] = True
+    np.save(tmp_path / "GThard.npy", hard)
+    np.save(tmp_path / "GTsoft.npy", soft.astype(np.uint8))
+    spec = GroundTruthSpec(files=(str(tmp_path / "GThard.npy"), str(tmp_path / "GTsoft.npy")))
+    h, s = build_gt(spec, ["a", "b", "c"], ["x", "y"], [0, 1, 2], [0, 2])
+    np.testing.assert_array_equal(h, hard[np.ix_([0, 1, 2], [0, 2])])
+    np.testing.assert_array_equal(s, soft[np.ix_([0, 1, 2], [0, 2])])
+    assert s[1, 0] and not h[1, 0]
+
+
+def test_transposed_matrix_is_refused_with_a_hint(tmp_path):
+    np.save(tmp_path / "gt.npy", np.eye(3, 8, dtype=bool))
+    with pytest.raises(ValueError, match="transposed"):
+        db_query_matrix(tmp_path / "gt.npy", 8, 3)
+
+
+def test_vpr_bench_ground_truth_rows(tmp_path):
+    rows = np.empty((3, 2), dtype=object)
+    rows[0] = [0, [0, 1]]
+    rows[1] = [1, [2]]
+    rows[2] = [2, []]
+    np.save(tmp_path / "ground_truth_new.npy", rows, allow_pickle=True)
+    gt = db_query_matrix(tmp_path / "ground_truth_new.npy", 4, 3)
+    expected = np.zeros((4, 3), bool)
+    expected[[0, 1], 0] = True
+    expected[2, 1] = True
+    np.testing.assert_array_equal(gt, expected)
+    rows[1] = [1, [9]]
+    np.save(tmp_path / "bad.npy", rows, allow_pickle=True)
+    with pytest.raises(ValueError, match=r"bad.npy: row 1: database frame 9 out of range"):
+        db_query_matrix(tmp_path / "bad.npy", 4, 3)
+
+
+def test_loop_matrix_png_is_symmetrised_and_subset(tmp_path):
+    img = np.zeros((6, 6), np.uint8)
+    img[5, 1] = 255  # frame 5 closes onto earlier frame 1 (row = frame)
+    cv2.imwrite(str(tmp_path / "gt.png"), img)
+    m = loop_matrix(tmp_path / "gt.png", [1, 3, 5])
+    assert m.shape == (3, 3)
+    assert m[0, 2] and m[2, 0] and m.sum() == 2
+    with pytest.raises(ValueError, match="does not cover frame 7"):
+        loop_matrix(tmp_path / "gt.png", [0, 7])
+
+
+def test_mat_variables(tmp_path):
+    gt = np.zeros((4, 4))
+    gt[3, 0] = 1
+    scipy.io.savemat(tmp_path / "one.mat", {"truth": gt})
+    np.testing.assert_array_equal(read_matrix(tmp_path / "one.mat"), gt)
+    scipy.io.savemat(tmp_path / "two.mat", {"GT": gt, "other": np.ones((2, 2))})
+    with pytest.raises(ValueError, match="2 matrices .*name one as"):
+        read_matrix(tmp_path / "two.mat")
+    assert read_matrix(f"{tmp_path / 'two.mat'}:GT")[3, 0] == 1
+    with pytest.raises(ValueError, match="no variable 'nope'; variables: GT, other"):
+        read_matrix(f"{tmp_path / 'two.mat'}:nope")
+    with pytest.raises(ValueError, match="only a .mat file has named variables"):
+        np.save(tmp_path / "x.npy", gt)
+        read_matrix(f"{tmp_path / 'x.npy'}:GT")
+
+
+def test_loop_ground_truth_from_matrix_and_pairs(tmp_path):
+    gt = np.zeros((5, 5), bool)
+    gt[4, 1] = True
+    np.save(tmp_path / "loops.npy", gt)
+    names = [f"f{i}.png" for i in range(5)]
+    hard, soft = build_loop_gt(GroundTruthSpec(files=(str(tmp_path / "loops.npy"),)), names, range(5))
+    assert hard[1, 4] and hard[4, 1] and hard.sum() == 2 and soft is None
+    (tmp_path / "pairs.csv").write_text("earlier,frame\nf1.png,f4.png\n")
+    hard2, _ = build_loop_gt(GroundTruthSpec(files=(str(tmp_path / "pairs.csv"),)), names, range(5))
+    np.testing.assert_array_equal(hard2, hard)
+    (tmp_path / "bad.csv").write_text("frame,earlier\nf4.png,nope\n")
+    with pytest.raises(ValueError, match="earlier 'nope' is not a known frame name"):
+        build_loop_gt(GroundTruthSpec(files=(str(tmp_path / "bad.csv"),)), names, range(5))
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"files": ("a.npy", "b.csv")}, "cannot be mixed"),
+    ({"files": ("a.npy",), "radius": 2.0}, "--radius applies to positions CSV files"),
+    ({"files": ("a.npy", "b.npy", "c.npy")}, "one or two files"),
+    ({"files": ("a.npy",), "soft": 3.0}, "second --gt file"),
+])
+def test_matrix_option_refusals(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        GroundTruthSpec(**kwargs).check()
+
+
+def test_loops_refuse_tolerance_and_two_csvs(tmp_path):
+    with pytest.raises(ValueError, match="not --tolerance"):
+        GroundTruthSpec(tolerance=2).check(loops=True)
+    with pytest.raises(ValueError, match="one CSV file"):
+        GroundTruthSpec(files=("a.csv", "b.csv"), radius=1.0).check(loops=True)

@@ -1,0 +1,176 @@
+"""Ground truth as the common benchmarks ship it: matrices in ``.npy``, images and Matlab files.
+
+- Database x query (``vpr match``): the VPR tutorial's ``GThard.npy`` /
+  ``GTsoft.npy`` (a bool or 0/1 matrix, n_db x n_query) and VPR-Bench's
+  ``ground_truth_new.npy`` (one row per query: ``[query, [db, db, ...]]``).
+- Loop closures in one stream (``vpr loops``): a T x T matrix in a ``.npy``,
+  an 8-bit image (``.png`` / ``.bmp``, nonzero = loop; RTAB-Map's sample
+  format) or a Matlab ``.mat`` variable (City Centre / New College style);
+  row = frame, column = earlier frame. Either triangle is read: a loop is a
+  pair of frames, whichever way round it is written.
+
+A ``.mat`` file with several matrices names the one to read after a colon:
+``truth.mat:GT``. Every refusal names the file and the reason.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+__all__ = ["MATRIX_SUFFIXES", "is_matrix_file", "split_variable", "read_matrix", "db_query_matrix", "loop_matrix"]
+
+#: File suffixes read as ground-truth matrices (everything else is a CSV).
+MATRIX_SUFFIXES = (".npy", ".png", ".bmp", ".mat")
+
+
+def split_variable(spec) -> tuple[Path, str | None]:
+    """``"truth.mat:GT"`` -> (Path("truth.mat"), "GT"); other paths -> (path, None).
+
+    Any matrix file is split so that ``gt.npy:GT`` is refused by name (only a
+    ``.mat`` file has variables) rather than reported missing.
+    """
+    text = str(spec)
+    head, sep, var = text.rpartition(":")
+    if sep and Path(head).suffix.lower() in MATRIX_SUFFIXES and var.isidentifier():
+        return Path(head), var
+    return Path(text), None
+
+
+def is_matrix_file(spec) -> bool:
+    """Whether ``spec`` (a path, ``.mat`` possibly with ``:VARIABLE``) names a matrix file."""
+    path, _ = split_variable(spec)
+    return path.suffix.lower() in MATRIX_SUFFIXES
+
+
+def _as_bool(a, path) -> np.ndarray:
+    a = np.asarray(a)
+    if a.dtype == object:
+        raise ValueError(f"{path}: not a matrix of 0/1 values (an object array; VPR-Bench's per-query lists are "
+                         "read for database x query ground truth only)")
+    if a.ndim != 2:
+        raise ValueError(f"{path}: expected a 2-D matrix, got shape {a.shape}")
+    if a.dtype.kind not in "biuf":
+        raise ValueError(f"{path}: expected numbers, got dtype {a.dtype}")
+    if a.dtype.kind == "f" and not np.isfinite(a).all():
+        raise ValueError(f"{path}: contains NaN or infinite values")
+    return a != 0
+
+
+def _read_mat(path: Path, variable: str | None):
+    import scipy.io
+
+    try:
+        data = scipy.io.loadmat(path)
+    except (ValueError, NotImplementedError, TypeError, OSError) as e:
+        raise ValueError(f"{path}: not a readable Matlab file ({e})") from None
+    mats = {k: v for k, v in data.items() if not k.startswith("__")}
+    if variable is not None:
+        if variable not in mats:
+            raise ValueError(f"{path}: no variable {variable!r}; variables: {', '.join(sorted(mats)) or 'none'}")
+        v = mats[variable]
+        return v.toarray() if sp.issparse(v) else v
+    two_d = {k: v for k, v in mats.items() if (sp.issparse(v) or np.asarray(v).ndim == 2) and np.size(v) > 1}
+    if len(two_d) != 1:
+        raise ValueError(f"{path}: {len(two_d)} matrices ({', '.join(sorted(two_d)) or 'none'}); name one as "
+                         f"{path}:NAME")
+    v = next(iter(two_d.values()))
+    return v.toarray() if sp.issparse(v) else v
+
+
+def read_matrix(spec):
+    """The raw content of a matrix file: a 2-D array (or, for a VPR-Bench ``.npy``, its object array)."""
+    path, variable = split_variable(spec)
+    if not path.is_file():
+        raise FileNotFoundError(f"no such ground-truth file: {path}")
+    suffix = path.suffix.lower()
+    if variable is not None and suffix != ".mat":
+        raise ValueError(f"{spec}: only a .mat file has named variables")
+    if suffix == ".npy":
+        try:
+            return np.load(path, allow_pickle=False)
+        except ValueError as e:
+            if "allow_pickle" not in str(e):
+                raise ValueError(f"{path}: not a readable .npy file ({e})") from None
+            # VPR-Bench's ground_truth_new.npy holds Python lists per query: read them, numbers only
+            a = np.load(path, allow_pickle=True)
+            return a
+        except (OSError, EOFError) as e:
+            raise ValueError(f"{path}: not a readable .npy file ({e})") from None
+    if suffix in (".png", ".bmp"):
+        import cv2
+
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise ValueError(f"{path}: not a readable image")
+        if img.ndim == 3:
+            img = img.max(axis=2)
+        return img
+    if suffix == ".mat":
+        return _read_mat(path, variable)
+    raise ValueError(f"{path}: not a ground-truth matrix file (expected {', '.join(MATRIX_SUFFIXES)})")
+
+
+def _vpr_bench(a, path, n_db: int, n_q: int) -> np.ndarray:
+    """VPR-Bench rows ``[query, [db, ...]]`` -> bool (n_db, n_q)."""
+    gt = np.zeros((n_db, n_q), bool)
+    for r, row in enumerate(a):
+        try:
+            q, dbs = int(row[0]), np.atleast_1d(np.asarray(row[1], dtype=np.int64))
+        except (TypeError, ValueError, IndexError):
+            raise ValueError(f"{path}: row {r} is not [query, [db, ...]] with integer frames") from None
+        if not 0 <= q < n_q:
+            raise ValueError(f"{path}: row {r}: query frame {q} out of range 0..{n_q - 1}")
+        bad = dbs[(dbs < 0) | (dbs >= n_db)]
+        if bad.size:
+            raise ValueError(f"{path}: row {r}: database frame {int(bad[0])} out of range 0..{n_db - 1}")
+        gt[dbs, q] = True
+    return gt
+
+
+def db_query_matrix(spec, n_db: int, n_q: int, db_indices=None, q_indices=None) -> np.ndarray:
+    """Database x query ground truth of the frames read, from a matrix file (``GThard.npy`` or VPR-Bench's).
+
+    The file is indexed by source frame number; ``db_indices`` / ``q_indices``
+    (the source numbers of the frames read; default 0, 1, ...) select its rows
+    and columns. A ``GThard``-style matrix must be n_db x n_query of the
+    source (its transpose is refused with a hint).
+    """
+    path, _ = split_variable(spec)
+    raw = read_matrix(spec)
+    db_i = np.arange(n_db) if db_indices is None else np.asarray(db_indices, np.int64)
+    q_i = np.arange(n_q) if q_indices is None else np.asarray(q_indices, np.int64)
+    need = (int(db_i.max()) + 1 if db_i.size else 0, int(q_i.max()) + 1 if q_i.size else 0)
+    if isinstance(raw, np.ndarray) and raw.dtype == object:
+        full = _vpr_bench(raw, path, max(need[0], 1), max(need[1], 1)) if raw.ndim == 1 or raw.shape[1:] == (2,) \
+            else _as_bool(raw, path)
+    else:
+        full = _as_bool(raw, path)
+    if full.shape[0] < need[0] or full.shape[1] < need[1]:
+        hint = " (transposed? rows are database frames, columns query frames)" if \
+            full.shape[1] >= need[0] and full.shape[0] >= need[1] else ""
+        raise ValueError(f"{path}: a {full.shape[0]} x {full.shape[1]} matrix does not cover database frames "
+                         f"0..{need[0] - 1} x query frames 0..{need[1] - 1}{hint}")
+    return full[np.ix_(db_i, q_i)]
+
+
+def loop_matrix(spec, indices) -> np.ndarray:
+    """Loop ground truth (T x T bool, rows earlier frame, columns frame) of the frames read, from a matrix file.
+
+    ``indices``: the source frame numbers of the frames read. The file is a
+    square matrix over the source's frames (row = frame, column = earlier
+    frame, or the transpose: both triangles are read).
+    """
+    path, _ = split_variable(spec)
+    raw = read_matrix(spec)
+    full = _as_bool(raw, path)
+    if full.shape[0] != full.shape[1]:
+        raise ValueError(f"{path}: a loop ground truth is a square frame x frame matrix, got {full.shape[0]} x "
+                         f"{full.shape[1]}")
+    idx = np.asarray(indices, np.int64)
+    if idx.size and idx.max() >= full.shape[0]:
+        raise ValueError(f"{path}: a {full.shape[0]} x {full.shape[0]} matrix does not cover frame {int(idx.max())} "
+                         "of the stream")
+    sub = full[np.ix_(idx, idx)]
+    return sub | sub.T

@@ -1,0 +1,155 @@
+"""Compiled kernel of the loop decision (numba): one frame at a time, with the state carried between frames.
+
+For frame ``j`` the candidates are the earlier frames ``0 .. n_j - 1``; the
+column holds the z-scored evidence of some of them (``rows``, ``vals``, sorted
+by row; a candidate not stored has the z ``fill``). A frame's decision:
+
+1. the best candidate and its *island*: the run of neighbouring stored
+   candidates whose z is at least ``island`` (one place seen over several
+   frames);
+2. the strongest *other* place: the best z outside the island, skipping the
+   islands of earlier visits of the same place (frames linked to it by
+   closures accepted before: a place seen on three laps is one place, not
+   three competitors);
+3. ``near``: the island reaches the newest candidate (the best place is the
+   one just left, not a revisit);
+4. the path score (a CUSUM): when the best candidate continues the path of the
+   previous frames, ``score = max(0, score + (z_best - z_other) - drift)``,
+   else the score restarts from 0;
+5. accepted when the score reaches ``min_score``, the best place is not the
+   one just left, and the camera left the place in between (SDR overlap of the
+   frames in between, as :func:`vpr.shosm.stationary_closures`); then the
+   frames of the path are linked to the places they matched.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+# state vector of decide_frame: path score (float), furthest best of the path, path start, frames seen
+S_SCORE, S_HEAD, S_START = range(3)
+_NONE = -(1 << 40)
+
+
+@njit(cache=True, inline="always")
+def _island(rows, vals, k, island):
+    lo = k
+    while lo > 0 and rows[lo - 1] == rows[lo] - 1 and vals[lo - 1] >= island:
+        lo -= 1
+    hi = k
+    while hi < rows.shape[0] - 1 and rows[hi + 1] == rows[hi] + 1 and vals[hi + 1] >= island:
+        hi += 1
+    return lo, hi
+
+
+@njit(cache=True, inline="always")
+def _linked(place, root, row, w, n, skip_lo=-1, skip_hi=-2):
+    """Whether a frame within ``w`` of ``row`` (outside ``skip_lo..skip_hi``) belongs to place ``root``."""
+    for r in range(max(row - w, 0), min(row + w + 1, n)):
+        if place[r] == root and not skip_lo <= r <= skip_hi:
+            return True
+    return False
+
+
+@njit(cache=True)
+def column_peaks(rows, vals, n, fill, island, place, link_w):  # pragma: no cover - compiled
+    """(best row, z_best, z_other, near) of one column (best -1 without candidates)."""
+    m = rows.shape[0]
+    if n <= 0 or m == 0:
+        return -1, -np.inf, 0.0, False
+    kb = 0
+    for k in range(1, m):
+        if vals[k] > vals[kb]:
+            kb = k
+    b = rows[kb]
+    lo, hi = _island(rows, vals, kb, island)
+    near = rows[hi] == n - 1 and vals[hi] >= island
+    out = np.ones(m, np.bool_)
+    out[lo:hi + 1] = False
+    root = place[b]
+    other = -np.inf
+    for _ in range(8):  # skip up to 8 islands of earlier visits of the best place
+        ko = -1
+        for k in range(m):
+            if out[k] and (ko < 0 or vals[k] > vals[ko]):
+                ko = k
+        if ko < 0:
+            break
+        if _linked(place, root, rows[ko], link_w, n, rows[lo], rows[hi]):
+            a, c = _island(rows, vals, ko, island)
+            out[a:c + 1] = False
+            continue
+        other = vals[ko]
+        break
+    if m < n and fill > other:  # candidates without stored evidence
+        other = fill
+    if other == -np.inf:
+        other = 0.0
+    return b, vals[kb], other, near
+
+
+@njit(cache=True)
+def _overlap(ptr, ind, a, b):
+    i, j, c = ptr[a], ptr[b], 0
+    while i < ptr[a + 1] and j < ptr[b + 1]:
+        if ind[i] == ind[j]:
+            c += 1
+            i += 1
+            j += 1
+        elif ind[i] < ind[j]:
+            i += 1
+        else:
+            j += 1
+    return c
+
+
+@njit(cache=True)
+def stationary(ptr, ind, b, j, ratio):  # pragma: no cover - compiled
+    """Whether every frame between ``b`` and ``j`` keeps at least ``ratio`` times the overlap of ``b`` with ``j``."""
+    o_b = _overlap(ptr, ind, b, j)
+    if o_b == 0:  # the two frames share nothing: not one place the camera stood at
+        return False
+    for k in range(b + 1, j):
+        if _overlap(ptr, ind, k, j) < ratio * o_b:
+            return False
+    return True
+
+
+@njit(cache=True)
+def decide_frame(j, rows, vals, n, fill, drift, min_score, back, ahead, island, stop_ratio, sdr_ptr, sdr_ind,
+                 place, path_b, st):  # pragma: no cover - compiled
+    """The decision of frame ``j`` (rows/vals: its column); updates ``place``, the path buffers and ``st``.
+
+    ``place[f]``: the place frame ``f`` belongs to (itself until a closure
+    links it); ``path_b[f]``: the best candidate of frame ``f`` (the current
+    path is ``st[S_START] .. j``); ``st``: float state (score, head, start).
+    ``sdr_ptr`` empty: stops are not checked.
+    Returns (best, score, accepted, margin, near).
+    """
+    b, zb, zo, near = column_peaks(rows, vals, n, fill, island, place, back + ahead)
+    path_b[j] = b
+    if b < 0:
+        st[S_SCORE] = 0.0
+        st[S_HEAD] = _NONE
+        st[S_START] = j + 1
+        return -1, 0.0, False, 0.0, False
+    head = int(st[S_HEAD])
+    cont = head - back <= b <= head + ahead
+    jump = False
+    if not cont and head >= 0:  # another visit of the place the path is at (linked earlier) continues it too
+        jump = _linked(place, place[b], head + (ahead - back) // 2, (back + ahead) // 2 + 1, place.shape[0])
+    prev = st[S_SCORE] if cont or jump else 0.0
+    score = max(0.0, prev + (zb - zo) - drift)
+    if not (cont or jump):
+        st[S_START] = j
+    st[S_HEAD] = max(head, b) if cont else b
+    if score == 0.0:
+        st[S_HEAD] = b
+        st[S_START] = j + 1
+    st[S_SCORE] = score
+    ok = score >= min_score and not near
+    if ok and stop_ratio > 0.0 and sdr_ptr.shape[0] > j:
+        ok = not stationary(sdr_ptr, sdr_ind, b, j, stop_ratio)
+    if score > 0.0 and not near and place[j] == j:  # a frame on a path is (provisionally) the place it matched
+        place[j] = place[b]
+    return b, score, ok, zb - zo, near
