@@ -27,9 +27,13 @@ Standardisation (``standardise``):
   loops``): a fit on the whole stream mixes the conditions, a sliding window
   follows them, and only the past counts.
 
-Encoding one frame at a time (:mod:`encoders.stream`, ``vpr localize``) uses
-:class:`RunningStandardiser`: the statistics of a sliding window of the frames
-so far, with the fitted statistics as a prior.
+Encoding one frame at a time (:mod:`encoders.stream`): ``vpr localize`` uses
+:class:`RunningStandardiser` (the statistics of a sliding window of the frames
+so far, with the fitted statistics as a prior); ``vpr loops -`` uses
+:class:`CausalStandardiser`, the incremental form of ``"causal"``, which gives
+the batch's SDRs exactly. For that, ``"causal"`` projections are computed row
+by row in float64 in a fixed order (:func:`project_rows`), not with BLAS,
+whose result for a row depends on how many rows are multiplied at once.
 
 The registered ``projection`` encoder wraps a descriptor by name:
 ``descriptor="pixel"`` (SeqSLAM patch-normalised thumbnail), ``"hog"``
@@ -40,8 +44,11 @@ so use ``standardise="fit"`` (or ``"per_batch"``) with them.
 """
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 import scipy.sparse as sp
+from numba import njit
 
 from vpr import sdr
 from vpr.config import merge_conf
@@ -49,7 +56,8 @@ from vpr.imageproc import resize, to_grey
 
 from .base import DescriptorEncoder, as_image_list, check_descriptors
 
-__all__ = ["TopKProjection", "ProjectedEncoder", "ProjectionEncoder", "HogDescriptor", "RunningStandardiser"]
+__all__ = ["TopKProjection", "ProjectedEncoder", "ProjectionEncoder", "HogDescriptor", "RunningStandardiser",
+           "CausalStandardiser", "project_rows", "CAUSAL_WINDOW", "CAUSAL_MIN"]
 
 _STANDARDISE = ("none", "fit", "per_batch", "causal")
 #: Frames in the sliding window of ``standardise="causal"`` (chosen in docs/localize.md).
@@ -133,7 +141,9 @@ class TopKProjection:
         """The descriptors after the configured standardisation (float32).
 
         ``stats``: a (mean, std) pair to use instead of the fitted one (for
-        ``standardise="fit"``; see :class:`RunningStandardiser`).
+        ``standardise="fit"``; see :class:`RunningStandardiser`), or, for
+        ``"causal"``, the float64 statistics of the rows' window
+        (:class:`CausalStandardiser`).
         """
         d = check_descriptors(desc)
         if self.standardise == "fit":
@@ -143,8 +153,11 @@ class TopKProjection:
             if d.shape[1] != mean.size:
                 raise ValueError(f"descriptors: fitted on {mean.size} dims, got {d.shape[1]}")
             return (d - mean) / std
+        if self.standardise == "causal" and stats is not None:  # one window's statistics (CausalStandardiser)
+            mean, std = stats
+            return _window_standardised(d.astype(np.float64), mean, std)
         if stats is not None:
-            raise ValueError(f"statistics are only used with standardise='fit', not {self.standardise!r}")
+            raise ValueError(f"statistics are only used with standardise='fit' or 'causal', not {self.standardise!r}")
         if self.standardise == "per_batch":
             if d.shape[0] < 2:
                 raise ValueError(f"descriptors: standardise='per_batch' needs at least 2 frames, "
@@ -156,8 +169,10 @@ class TopKProjection:
         return d
 
     def project(self, desc, stats: tuple | None = None) -> np.ndarray:
-        """Projections (frames, n_bits or n_bits/2), float32."""
+        """Projections (frames, n_bits or n_bits/2): float32, or float64 row by row for ``"causal"``."""
         d = self.standardised(desc, stats)
+        if self.standardise == "causal":  # the same SDR whether the frame comes alone or in a batch
+            return project_rows(d, self.matrix(d.shape[1]))
         return d @ self.matrix(d.shape[1])
 
     def __call__(self, desc, stats: tuple | None = None) -> sp.csr_matrix:
@@ -176,20 +191,120 @@ class TopKProjection:
         return _csr_rows(np.concatenate([top, bottom], axis=1), self.n_bits)
 
 
+def _window_stats(s_hi, s_lo, q_hi, q_lo, count):
+    """(mean, std) of windows from prefix sums of the rows (``s``) and their squares (``q``), float64."""
+    mean = (s_hi - s_lo) / count
+    std = np.sqrt(np.maximum((q_hi - q_lo) / count - mean * mean, 0.0))
+    std[std < 1e-6] = np.inf  # constant within the window: no information, as in fit
+    return mean, std
+
+
+def _window_standardised(x: np.ndarray, mean, std) -> np.ndarray:
+    """float64 rows standardised by their windows' statistics, float32."""
+    return ((x - mean) / std).astype(np.float32)
+
+
 def _causal_standardised(d: np.ndarray) -> np.ndarray:
     """Rows standardised by the statistics of their sliding window (see ``standardise="causal"``)."""
     n = d.shape[0]
     x = d.astype(np.float64)
-    cs = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])
+    cs = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])  # cumsum adds in order, as one frame at a time
     cs2 = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(x * x, axis=0)])
     t = np.arange(n)
     hi = np.maximum(t + 1, min(CAUSAL_MIN, n))  # window [lo, hi)
     lo = np.maximum(hi - CAUSAL_WINDOW, 0)
-    cnt = (hi - lo)[:, None].astype(np.float64)
-    mean = (cs[hi] - cs[lo]) / cnt
-    std = np.sqrt(np.maximum((cs2[hi] - cs2[lo]) / cnt - mean * mean, 0.0))
-    std[std < 1e-6] = np.inf  # constant within the window: no information, as in fit
-    return ((x - mean) / std).astype(np.float32)
+    mean, std = _window_stats(cs[hi], cs[lo], cs2[hi], cs2[lo], (hi - lo)[:, None].astype(np.float64))
+    return _window_standardised(x, mean, std)
+
+
+class CausalStandardiser:
+    """``standardise="causal"`` one frame at a time, with exactly the batch's statistics.
+
+    :meth:`push` takes the next frame's descriptor block and returns the
+    (mean, std) to standardise the frames that are now ready with
+    (:meth:`TopKProjection.standardised` with ``stats``): the first
+    :data:`CAUSAL_MIN` frames share the statistics of the first
+    ``CAUSAL_MIN`` frames, so they wait for them (``push`` returns None until
+    then, and then the statistics of all of them); every later frame is ready
+    at once. :meth:`flush` gives the waiting frames of a shorter stream the
+    statistics of what there is, as the batch does. The prefix sums are kept
+    as the batch computes them, so the SDRs are the same bit for bit.
+    """
+
+    def __init__(self):
+        self.frames = 0
+        self._s: deque = deque(maxlen=CAUSAL_WINDOW + 1)  # prefix sums at frames frames-W .. frames
+        self._q: deque = deque(maxlen=CAUSAL_WINDOW + 1)
+
+    @property
+    def waiting(self) -> int:
+        """Frames pushed whose statistics are not known yet."""
+        return self.frames if self.frames < CAUSAL_MIN else 0
+
+    def push(self, x) -> tuple[np.ndarray, np.ndarray] | None:
+        """Add one frame's block (dims,); the statistics of the frames now ready, or None."""
+        x = np.asarray(x, np.float64).ravel()
+        if not self._s:
+            self._s.append(np.zeros_like(x))
+            self._q.append(np.zeros_like(x))
+        elif x.size != self._s[-1].size:
+            raise ValueError(f"descriptor block: {x.size} dims, earlier frames had {self._s[-1].size}")
+        self._s.append(self._s[-1] + x)
+        self._q.append(self._q[-1] + x * x)
+        self.frames += 1
+        if self.frames < CAUSAL_MIN:
+            return None
+        return self._stats(self.frames)
+
+    def flush(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The statistics of the waiting frames of a stream shorter than ``CAUSAL_MIN`` (None: none wait)."""
+        return self._stats(self.frames) if 0 < self.frames < CAUSAL_MIN else None
+
+    def _stats(self, hi: int):
+        lo = max(hi - CAUSAL_WINDOW, 0)
+        first = hi - (len(self._s) - 1)  # frame of the oldest prefix sum kept
+        return _window_stats(self._s[-1], self._s[lo - first], self._q[-1], self._q[lo - first], float(hi - lo))
+
+    def state(self) -> dict:
+        """The prefix sums kept, as arrays (:meth:`load_state` continues from them)."""
+        return {"frames": np.array(self.frames, np.int64), "s": np.stack(self._s) if self._s else np.zeros((0, 0)),
+                "q": np.stack(self._q) if self._q else np.zeros((0, 0))}
+
+    def load_state(self, state: dict) -> CausalStandardiser:
+        self.frames = int(state["frames"])
+        self._s = deque(np.asarray(state["s"], np.float64), maxlen=CAUSAL_WINDOW + 1)
+        self._q = deque(np.asarray(state["q"], np.float64), maxlen=CAUSAL_WINDOW + 1)
+        return self
+
+
+@njit(cache=True, nogil=True)
+def _project_rows(d, W, out):  # pragma: no cover - compiled
+    n, dims = d.shape
+    m = W.shape[1]
+    for r0 in range(0, n, 16):  # 16 rows share each pass over W
+        r1 = min(r0 + 16, n)
+        for k in range(dims):
+            for r in range(r0, r1):
+                a = np.float64(d[r, k])
+                if a != 0.0:
+                    for c in range(m):
+                        out[r, c] += a * W[k, c]
+
+
+def project_rows(d, W) -> np.ndarray:
+    """``d @ W`` in float64, each row summed over the dims in order: a row's result does not depend on the others.
+
+    (BLAS splits and orders the sums by the shape of the whole product, so
+    a frame projected alone and in a batch can differ in the last bits, and a
+    top-k near a tie with them.)
+    """
+    d = np.ascontiguousarray(d, np.float32)
+    W = np.ascontiguousarray(W, np.float32)
+    if d.ndim != 2 or W.ndim != 2 or d.shape[1] != W.shape[0]:
+        raise ValueError(f"project_rows: shapes {d.shape} and {W.shape} do not multiply")
+    out = np.zeros((d.shape[0], W.shape[1]), np.float64)
+    _project_rows(d, W, out)
+    return out
 
 
 class RunningStandardiser:

@@ -1,12 +1,16 @@
-"""Encoding a stream one frame at a time with an encoder fitted on a database (``vpr localize``).
+"""Encoding a stream one frame at a time (``vpr localize``, ``vpr loops -``).
 
 The batch commands standardise a traverse on its own frames
 (``standardise="fit"``), which needs the whole traverse. Online that is
 impossible; :class:`StreamEncoder` standardises each frame with
 ``"running"`` statistics (:class:`encoders.projection.RunningStandardiser`:
 the last ``window`` frames plus the database's statistics as a prior) or the
-database's own (``"db"``). Encoders that do not standardise, or that have no
-dense descriptor, encode each frame as they would a batch.
+database's own (``"db"``). An encoder with ``standardise="causal"`` (the loop
+encoders of the presets) needs nothing from a database: its frames are
+standardised as the batch does it (:class:`encoders.projection.CausalStandardiser`),
+so the SDRs equal the batch's, but the first ``CAUSAL_MIN`` frames wait for
+each other (:meth:`StreamEncoder.push`). Encoders that do not standardise, or
+that have no dense descriptor, encode each frame as they would a batch.
 """
 from __future__ import annotations
 
@@ -14,7 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .base import BaseEncoder, DescriptorEncoder
-from .projection import RunningStandardiser
+from .projection import CAUSAL_MIN, CausalStandardiser, RunningStandardiser
 
 __all__ = ["StreamEncoder", "STANDARDISE"]
 
@@ -41,12 +45,15 @@ class StreamEncoder:
                  window: int | None = 50):
         if standardise not in STANDARDISE:
             raise ValueError(f"query standardise must be 'running' or 'db', got {standardise!r}")
-        if encoder.conf.get("standardise") in ("per_batch", "causal"):
-            raise ValueError(f"encoders with standardise={encoder.conf['standardise']} cannot encode one frame at "
-                             "a time; use standardise=fit or none")
+        if encoder.conf.get("standardise") == "per_batch":
+            raise ValueError("encoders with standardise=per_batch cannot encode one frame at a time; use "
+                             "standardise=fit, causal or none")
         self.encoder = encoder
         self.standardise = standardise
         self.described = isinstance(encoder, DescriptorEncoder)
+        self.causal = self.described and encoder.conf.get("standardise") == "causal"
+        self._causal: list[CausalStandardiser] = []
+        self._waiting: list[np.ndarray] = []
         fitted = self.described and encoder.conf.get("standardise") == "fit"
         if fitted and not encoder.statistics():
             raise ValueError(f"encoder {encoder.name} has standardise=fit but no fitted statistics (a map "
@@ -54,13 +61,57 @@ class StreamEncoder:
         self._running = [RunningStandardiser(m, s, prior_frames, window) for m, s in encoder.statistics()] \
             if fitted and standardise == "running" else []
 
+    @property
+    def delay(self) -> int:
+        """Frames a frame may wait for its SDR (:meth:`push`): ``CAUSAL_MIN - 1`` with causal standardisation."""
+        return CAUSAL_MIN - 1 if self.causal else 0
+
+    @property
+    def waiting(self) -> int:
+        """Frames pushed whose SDRs :meth:`push` has not given yet."""
+        return len(self._waiting)
+
     def warm_up(self) -> None:
         """Load models and build projection matrices now, so that the first frame's latency is its own."""
         if self.described:
-            self.encoder.encode_descriptors(self.encoder.describe([np.zeros((48, 64, 3), np.uint8)]))
+            d = self.encoder.describe([np.zeros((48, 64, 3), np.uint8)] * 2)
+            self.encoder.encode_descriptors(d)
+
+    def push(self, image) -> sp.csr_matrix:
+        """The SDRs of the frames now ready, in order (0 or more rows; 1 row except with causal standardisation).
+
+        With ``standardise="causal"`` the first ``CAUSAL_MIN - 1`` frames give
+        none and the ``CAUSAL_MIN``-th gives all of them; every later frame
+        gives its own at once. :meth:`flush` ends a shorter stream.
+        """
+        if not self.causal:
+            return self.encode(image)
+        desc = np.asarray(self.encoder.describe([image]), np.float32)
+        blocks = self.encoder.blocks(desc)
+        if not self._causal:
+            self._causal = [CausalStandardiser() for _ in blocks]
+        stats = [c.push(b[0]) for c, b in zip(self._causal, blocks, strict=True)]
+        self._waiting.append(desc[0])
+        if stats[0] is None:
+            return sp.csr_matrix((0, self.encoder.n_bits), dtype=bool)
+        return self._release(stats)
+
+    def flush(self) -> sp.csr_matrix:
+        """The SDRs of frames still waiting (a causal stream shorter than ``CAUSAL_MIN``), 0 or more rows."""
+        stats = [c.flush() for c in self._causal]
+        if not self._waiting or not stats or stats[0] is None:
+            return sp.csr_matrix((0, self.encoder.n_bits), dtype=bool)
+        return self._release(stats)
+
+    def _release(self, stats) -> sp.csr_matrix:
+        desc, self._waiting = np.stack(self._waiting), []
+        return sp.csr_matrix(self.encoder.encode_descriptors(desc, stats), dtype=bool)
 
     def encode(self, image) -> sp.csr_matrix:
         """The SDR (1 row) of one frame; with running statistics, the frame joins them first."""
+        if self.causal:
+            raise ValueError(f"encoder {self.encoder.name} standardises causally: its frames may wait for later "
+                             "ones; use push() and flush()")
         if not self.described:
             return sp.csr_matrix(self.encoder.encode([image]))
         desc = np.asarray(self.encoder.describe([image]), np.float32)
@@ -72,6 +123,10 @@ class StreamEncoder:
     def state(self) -> dict:
         """The running statistics as arrays (stored in ``--state-out`` files, so that a restart continues them)."""
         out = {}
+        for i, c in enumerate(self._causal):
+            out.update({f"c{i}_{k}": v for k, v in c.state().items()})
+        if self._waiting:
+            out["c_waiting"] = np.stack(self._waiting)
         for i, r in enumerate(self._running):
             st = r.state()
             out[f"q_sum_{i}"], out[f"q_sq_{i}"] = st["sum"], st["sq"]
@@ -82,6 +137,11 @@ class StreamEncoder:
 
     def load_state(self, arrays: dict) -> StreamEncoder:
         """Continue the running statistics of :meth:`state` (no-op when ``arrays`` holds none)."""
+        if self.causal and "c0_frames" in arrays:
+            n = len({k.split("_")[0] for k in arrays if k.startswith("c") and k[1:].split("_")[0].isdigit()})
+            self._causal = [CausalStandardiser().load_state({k: arrays[f"c{i}_{k}"] for k in ("frames", "s", "q")})
+                            for i in range(n)]
+            self._waiting = list(np.asarray(arrays["c_waiting"], np.float32)) if "c_waiting" in arrays else []
         if not self._running or "q_n" not in arrays:
             return self
         for i, r in enumerate(self._running):

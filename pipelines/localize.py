@@ -30,10 +30,8 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import sys
 import time
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -50,12 +48,13 @@ from pipelines.args import (
     gt_spec_from_args,
 )
 from pipelines.extract import extract
+from pipelines.frames import JsonLines, latency_summary, source_frames, stdin_frames
 from pipelines.outputs import method_metrics, versions
 from vpr import io, presets
 from vpr.config import parse_key_values
 from vpr.groundtruth import GroundTruthSpec, build_gt
 from vpr.shosm import Localizer, MemoryFileError
-from vpr.sources import decode_image, open_source
+from vpr.sources import open_source
 from vpr.types import MatchResult
 
 __all__ = ["COMMANDS", "add_arguments", "run_command", "learn", "load_map", "localize"]
@@ -107,37 +106,6 @@ def load_map(path) -> tuple[Localizer, object]:
 
 
 # ------------------------------------------------------------------ localize
-def _stdin_frames(stream):
-    """(index, name, image) of the image paths read from ``stream`` as they arrive; unreadable ones skipped."""
-    index = 0
-    for line in stream:
-        name = line.strip()
-        if not name or name.startswith("#"):
-            continue
-        img, reason = decode_image(Path(name))
-        if img is None:
-            yield index, name, None, reason
-        else:
-            yield index, name, img, ""
-        index += 1
-
-
-def _source_frames(src):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # skipped frames are reported in metrics.json
-        for f in src:
-            yield f.index, f.name, f.image, ""
-    for name, reason in src.skipped:
-        yield -1, name, None, reason
-
-
-def _latency(ms) -> dict:
-    ms = np.asarray(ms, np.float64)
-    if not ms.size:
-        return {"median": None, "p95": None, "max": None}
-    return {"median": float(np.median(ms)), "p95": float(np.percentile(ms, 95)), "max": float(ms.max())}
-
-
 def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: str = "running",
              prior_frames: float = 10.0, window: int | None = 50, gt: GroundTruthSpec | None = None,
              learn_options: dict | None = None,
@@ -169,11 +137,11 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
     qenc = StreamEncoder(enc, query_standardise, prior_frames, window or None)
     qenc.load_state(loc.arrays)  # a --state-out file continues its query's running statistics
     q_src = None if str(query) == "-" else open_source(query, fps=fps, step=step, max_frames=max_frames)
-    frames = _stdin_frames(stdin if stdin is not None else sys.stdin) if q_src is None else _source_frames(q_src)
+    frames = stdin_frames(stdin if stdin is not None else sys.stdin) if q_src is None else source_frames(q_src)
     loc.warm_up()
     qenc.warm_up()  # first calls (loading a CNN, the projection matrix) are not a frame's latency
     rows, skipped, cols = [], [], []
-    piped = True
+    lines = JsonLines(stdout)
     lat_all, lat_loc = [], []
     t_run = time.perf_counter()
     for index, name, image, reason in frames:
@@ -193,12 +161,7 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
         score = r.score if np.isfinite(r.score) else None
         line = {"query": q, "name": name, "best_db": r.best_db, "db_name": r.db_name, "score": score,
                 "accepted": r.accepted, "latency_ms": round(ms, 3)}
-        if piped:
-            try:
-                stdout.write(json.dumps(line) + "\n")
-                stdout.flush()
-            except BrokenPipeError:  # the reader stopped (e.g. `| head`): keep going for the files
-                piped = False
+        lines.write(line)
         rows.append([q, name, index, r.best_db, r.db_name or "", score, int(r.accepted), round(ms, 3),
                      round(ms_loc, 3)])
         cols.append((r.db_idx, r.scores))
@@ -212,7 +175,7 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
                     "latency_localize_ms"])
         w.writerows(rows)
     metrics = {"frames": len(rows), "seconds": seconds,
-               "latency_ms": {"with_encoding": _latency(lat_all), "without_encoding": _latency(lat_loc)},
+               "latency_ms": {"with_encoding": latency_summary(lat_all), "without_encoding": latency_summary(lat_loc)},
                "accepted": int(sum(r[6] for r in rows))}
     gt = gt or GroundTruthSpec()
     if gt.tolerance is not None or gt.files:

@@ -6,6 +6,7 @@ The runs themselves are :func:`pipelines.runs.run_compare` and
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import encoders
@@ -18,8 +19,9 @@ from pipelines.args import (
     gt_spec_from_args,
     method_confs,
 )
+from pipelines.detect import ONLINE_METHOD, detect_loops, make_detector
 from pipelines.outputs import metrics_table
-from pipelines.runs import RunOptions, run_compare, run_loops
+from pipelines.runs import RunOptions, exclude_frames, run_compare, run_loops
 from vpr import methods, presets
 from vpr.shosm import LOOP_EXCLUDE
 
@@ -34,7 +36,8 @@ COMMANDS = {
 
 def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     if command == "loops":
-        ap.add_argument("seq", metavar="SEQ", help="image folder, video or image list")
+        ap.add_argument("seq", metavar="SEQ", help="image folder, video or image list; or - for image paths on stdin, "
+                        "decided online one frame at a time (a JSON line per frame on stdout)")
     else:
         ap.add_argument("db", metavar="DB", help="database traverse: image folder, video or image list")
         ap.add_argument("query", metavar="QUERY", help="query traverse: image folder, video or image list")
@@ -55,6 +58,10 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
                         help="ignore matches fewer than W frames back, or W seconds for videos with 'Ws' "
                              f"(e.g. 5s; default {LOOP_EXCLUDE} frames)")
     add_gt_arguments(ap, loops=command == "loops")
+    if command == "loops":
+        online = ap.add_argument_group("online (SEQ is -)")
+        online.add_argument("--state-out", metavar="FILE.npz", help="save the loop detector after the last frame")
+        online.add_argument("--resume", metavar="FILE.npz", help="continue a loop detector saved with --state-out")
     if command != "loops":
         ap.add_argument("--verify", type=int, default=0, metavar="N",
                         help="geometric verification of each query's N best candidates (ORB + pycolmap)")
@@ -88,7 +95,38 @@ def options_from_args(args) -> RunOptions:
         progress=not args.no_progress, cache=Path(args.cache) if args.cache else None)
 
 
+def _run_online(args) -> int:
+    """``vpr loops -``: refuse what does not apply to a stream on stdin, then decide it frame by frame."""
+    given = [f for f, v in (("--fps", args.fps), ("--step", args.step), ("--max-frames", args.max_frames),
+                            ("--cache", args.cache)) if v is not None]
+    if given:
+        raise ValueError(f"vpr loops -: {', '.join(given)} apply to a folder or video, not to image paths on stdin")
+    if args.exclude is not None and str(args.exclude).strip().lower().endswith("s"):
+        raise ValueError(f"vpr loops -: --exclude {args.exclude} in seconds needs a video's frame rate; give frames")
+    exclude = exclude_frames(LOOP_EXCLUDE if args.exclude is None else args.exclude, None)
+    if args.resume is None:
+        method = settings_from_args(args)["methods"][0]
+        if method != ONLINE_METHOD:
+            raise ValueError(f"vpr loops -: online loop closure is {ONLINE_METHOD}'s, not {method}'s "
+                             f"(--method {ONLINE_METHOD}, or a folder or video for {method})")
+    elif args.exclude is not None:
+        raise ValueError("vpr loops -: --exclude is the saved detector's with --resume")
+    det = make_detector(args.preset, args.encoder, encoders.parse_conf(args.encoder_conf),
+                        method_confs(args.method_conf), exclude=exclude, resume=args.resume)
+    report = detect_loops(det, args.out, gt=gt_spec_from_args(args), state_out=args.state_out)
+    m = report["metrics"]
+    lat = m["latency_ms"]
+    print(f"vpr loops: {m['frames']} frames, {m['n_accepted']} loop closures accepted, latency median "
+          f"{lat['with_encoding']['median']:.2f} ms ({lat['without_encoding']['median']:.2f} ms without encoding); "
+          f"wrote {args.out}/metrics.json", file=sys.stderr)
+    return 0
+
+
 def run_command(args) -> int:
+    if args.command == "loops" and args.seq == "-":
+        return _run_online(args)
+    if args.command == "loops" and (args.state_out or args.resume):
+        raise ValueError("--state-out and --resume are for online loop closure: SEQ - (image paths on stdin)")
     opts = options_from_args(args)
     names = settings_from_args(args)["methods"]
     if args.command == "loops":

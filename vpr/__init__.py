@@ -19,7 +19,7 @@ from importlib import import_module
 
 __version__ = "0.1.0"
 
-_LAZY = {"SequenceMemory": "vpr.shosm", "Localizer": "vpr.shosm"}
+_LAZY = {"SequenceMemory": "vpr.shosm", "Localizer": "vpr.shosm", "LoopDetector": "vpr.shosm"}
 
 
 def __getattr__(name):
@@ -29,4 +29,4 @@ def __getattr__(name):
     raise AttributeError(f"module 'vpr' has no attribute {name!r}")
 
 
-__all__ = ["Localizer", "SequenceMemory", "__version__"]
+__all__ = ["Localizer", "LoopDetector", "SequenceMemory", "__version__"]

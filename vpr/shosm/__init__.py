@@ -11,7 +11,8 @@ One entry point per use:
   (:mod:`vpr.shosm.streaming`); :class:`Localizer` wraps it with a database
   and a decision for a robot (:mod:`vpr.shosm.localizer`).
 - :func:`loop_evidence` and :func:`accept_loops`: loop closure within one
-  stream learned online (:mod:`vpr.shosm.loops`).
+  stream learned online (:mod:`vpr.shosm.loops`); :class:`LoopDetector`: the
+  same, one frame at a time, for a robot (:mod:`vpr.shosm.detector`).
 
 :mod:`vpr.shosm.conf` holds rSHOSM-seq's parameters once (:class:`EvidenceConf`,
 :class:`BeamConf`, :class:`LoopConf`, :data:`LEARN_THRESHOLD`); :mod:`vpr.shosm.kernels` the
@@ -20,6 +21,7 @@ state: kernels read :meth:`SequenceMemory.view`, users :attr:`SequenceMemory.con
 """
 from .conf import LEARN_THRESHOLD, LOOP_EXCLUDE, BeamConf, EvidenceConf, LoopConf, memory_params
 from .decide import LoopDecider, LoopDecisions, accept_loops, stationary_closures
+from .detector import LOOP_DETECTOR_DEFAULTS, LoopDetector, LoopResult
 from .evidence import EvidenceResult, dense_evidence, query_evidence, sparse_evidence, zscore_columns
 from .localizer import LOCALIZER_DEFAULTS, Localizer, LocalizerResult
 from .loops import LOOP_DENSE_MAX, LOOP_UNCAPPED_MAX, FrameLoop, LoopEvidence, LoopStream, loop_evidence
@@ -31,4 +33,5 @@ __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pa
            "query_evidence", "dense_evidence", "sparse_evidence", "zscore_columns", "EvidenceResult",
            "ForwardEvidence", "FrameEvidence", "Localizer", "LocalizerResult", "LOCALIZER_DEFAULTS",
            "loop_evidence", "LoopEvidence", "LoopStream", "FrameLoop", "accept_loops", "LoopDecider", "LoopDecisions",
-           "stationary_closures", "LOOP_UNCAPPED_MAX", "LOOP_DENSE_MAX"]
+           "stationary_closures", "LOOP_UNCAPPED_MAX", "LOOP_DENSE_MAX", "LoopDetector", "LoopResult",
+           "LOOP_DETECTOR_DEFAULTS"]

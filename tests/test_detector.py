@@ -1,0 +1,163 @@
+"""vpr.LoopDetector: online loop closure equals the batch, resumes after a restart, encodes images itself."""
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import encoders
+from encoders.stream import StreamEncoder
+from vpr import sdr
+from vpr.shosm import LoopConf, LoopDetector, MemoryFileError, loop_evidence, memory_params
+
+
+def _loop_stream(T=160, n_bits=1024, k=40, seed=0):
+    """Frames 0..79 then a noisy revisit of 0..79: every revisit frame closes a loop."""
+    places = sdr.random_sdrs(80, n_bits, k, seed=seed)
+    noisy = sdr.add_noise(places, 0.2, seed=seed + 1)
+    return sp.vstack([places, noisy]).tocsr()[:T]
+
+
+def _loose():
+    return {"min_score": 6.0, "drift": 0.5, "n_inputs": 1024}
+
+
+def test_detector_answers_equal_the_batch_loop_evidence():
+    x = _loop_stream()
+    conf = _loose()
+    batch = loop_evidence(x, exclude=30, memory=memory_params(conf), loop=LoopConf(drift=0.5, min_score=6.0))
+    det = LoopDetector(exclude=30, **conf)
+    out = [det.update(x[j]) for j in range(x.shape[0])]
+    d = batch.decisions
+    np.testing.assert_array_equal([r.best for r in out], d.best)
+    np.testing.assert_array_equal([r.accepted for r in out], d.accepted)
+    np.testing.assert_allclose([r.score for r in out], d.score)
+    assert d.accepted[100:].mean() > 0.5  # the revisit is found, or the test would compare nothing
+    assert out[120].earlier_name == f"frame {out[120].best}"
+
+
+def test_detector_resumes_after_save_and_load(tmp_path):
+    x = _loop_stream()
+    whole = LoopDetector(exclude=30, **_loose())
+    ref = [whole.update(x[j], name=f"f{j}.png") for j in range(x.shape[0])]
+    first = LoopDetector(exclude=30, **_loose())
+    for j in range(95):
+        first.update(x[j], name=f"f{j}.png")
+    first.meta["note"] = "robot A"
+    first.save(tmp_path / "state.npz")
+    again = LoopDetector.load(tmp_path / "state.npz")
+    assert again.frames == 95 and again.meta == {"note": "robot A"}
+    rest = [again.update(x[j], name=f"f{j}.png") for j in range(95, x.shape[0])]
+    assert [r.as_dict() for r in rest] == [r.as_dict() for r in ref[95:]]
+    assert rest[-1].earlier_name == f"f{rest[-1].best}.png"
+
+
+def test_detector_refuses_foreign_files_and_images_without_encoder(tmp_path):
+    (tmp_path / "x.npz").write_bytes(b"nope")
+    with pytest.raises(MemoryFileError, match="x.npz: not a readable loop detector file"):
+        LoopDetector.load(tmp_path / "x.npz")
+    det = LoopDetector()
+    with pytest.raises(ValueError, match="got an image .* no encoder"):
+        det.update(np.zeros((48, 64, 3), np.uint8))
+    with pytest.raises(ValueError, match="unknown LoopDetector option"):
+        LoopDetector(z_min=3)
+
+
+def test_detector_with_a_causal_encoder_equals_the_batch_encoding(rendered):
+    scene = rendered("loop_revisits", size=(64, 48), n_frames=60)
+    images = list(scene.traverses[0].images)
+    conf = {"standardise": "causal", "n_bits": 1024, "k": 40}
+    x = encoders.get("pixel", **conf).encode(images)
+    batch = loop_evidence(x, exclude=12, memory=memory_params({"n_inputs": 1024}))
+    det = LoopDetector(StreamEncoder(encoders.get("pixel", **conf)), exclude=12, n_inputs=1024)
+    out = [det.update(im) for im in images]
+    np.testing.assert_array_equal([r.best for r in out], batch.decisions.best)
+    np.testing.assert_allclose([r.score for r in out], batch.decisions.score)
+    assert det.stream.frames == len(images)
+    with pytest.raises(ValueError, match="must exceed the encoder's delay"):
+        LoopDetector(StreamEncoder(encoders.get("pixel", **conf)), exclude=5)
+
+
+def test_detector_resumes_a_causal_encoder_mid_warm_up(rendered, tmp_path):
+    images = list(rendered("loop_revisits", size=(64, 48), n_frames=40).traverses[0].images)
+    conf = {"standardise": "causal", "n_bits": 1024, "k": 40}
+    whole = LoopDetector(StreamEncoder(encoders.get("pixel", **conf)), exclude=12, n_inputs=1024)
+    ref = [whole.update(im).as_dict() for im in images]
+    det = LoopDetector(StreamEncoder(encoders.get("pixel", **conf)), exclude=12, n_inputs=1024)
+    for im in images[:4]:  # still waiting for the first CAUSAL_MIN frames
+        det.update(im)
+    det.save(tmp_path / "s.npz")
+    det = LoopDetector.load(tmp_path / "s.npz", encoder=StreamEncoder(encoders.get("pixel", **conf)))
+    assert [det.update(im).as_dict() for im in images[4:]] == ref[4:]
+
+
+# ---------------------------------------------------------------- vpr loops -
+def _cli(argv, capsys, monkeypatch, stdin=""):
+    import io as _io
+
+    from pipelines.cli import main
+
+    monkeypatch.setattr("sys.stdin", _io.StringIO(stdin))
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def laps(scene_on_disk):
+    return scene_on_disk("loop_revisits", (48, 36), 240)
+
+
+LOOSE = ["--preset", "fast", "--exclude", "12", "--method-conf", "rshosm-seq.min_score=10"]
+
+
+def test_vpr_loops_stdin_equals_the_batch_and_resumes(laps, tmp_path, capsys, monkeypatch):
+    import csv
+    import json
+
+    paths = sorted(str(p) for p in laps["laps"].glob("*.png"))
+    gt = ["--gt", laps["dir"] / "loop_pairs.csv"]
+    code, _, err = _cli(["loops", laps["laps"], "--out", tmp_path / "a", "--no-progress", *LOOSE, *gt], capsys,
+                        monkeypatch)
+    assert code == 0, err
+    with open(tmp_path / "a" / "rshosm-seq" / "matches.csv") as fh:
+        batch = [(int(r["best_db"]), r["accepted"] == "1") for r in csv.DictReader(fh)]
+    assert sum(a for _, a in batch) >= 50  # closures are found, so the comparison means something
+    code, out, err = _cli(["loops", "-", "--out", tmp_path / "b", *LOOSE, *gt, "--state-out", tmp_path / "all.npz"],
+                          capsys, monkeypatch, "\n".join(paths) + "\n")
+    assert code == 0, err
+    lines = [json.loads(s) for s in out.splitlines()]
+    assert set(lines[0]) == {"frame", "name", "best_earlier", "earlier_name", "score", "accepted", "latency_ms"}
+    assert [(r["best_earlier"] if r["best_earlier"] is not None else -1, r["accepted"]) for r in lines] == batch
+    m = json.loads((tmp_path / "b" / "metrics.json").read_text())["metrics"]
+    a = json.loads((tmp_path / "a" / "metrics.json").read_text())["methods"]["rshosm-seq"]
+    for k in ("n_accepted", "precision_accepted", "recall_accepted", "frame_recall_at_100p", "recall_at_1"):
+        assert m[k] == pytest.approx(a[k]), k
+    assert "loop closures accepted" in err
+    # stop after 100 frames, resume from the file: the same answers
+    code, first, _ = _cli(["loops", "-", "--out", tmp_path / "c", *LOOSE, "--state-out", tmp_path / "s.npz"], capsys,
+                          monkeypatch, "\n".join(paths[:100]) + "\n")
+    code, rest, err = _cli(["loops", "-", "--out", tmp_path / "d", "--resume", tmp_path / "s.npz"], capsys,
+                           monkeypatch, "\n".join(paths[100:]) + "\n")
+    assert code == 0, err
+    both = [json.loads(s) for s in (first + rest).splitlines()]
+    assert [{k: r[k] for k in r if k != "latency_ms"} for r in both] == \
+        [{k: r[k] for k in r if k != "latency_ms"} for r in lines]
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--fps", "2"], "--fps apply to a folder or video"),
+    (["--exclude", "3s"], "seconds needs a video's frame rate"),
+    (["--preset", "paper"], "online loop closure is rshosm-seq's, not rshosm's"),
+    (["--method-conf", "seqslam.ds=4"], "--method-conf for seqslam does not apply"),
+    (["--exclude", "5"], "must exceed the encoder's delay"),
+    (["--gt", "nope.csv"], "no such ground-truth file"),
+])
+def test_vpr_loops_stdin_refuses_before_reading(tmp_path, capsys, monkeypatch, extra, message):
+    code, out, err = _cli(["loops", "-", "--out", tmp_path / "o", *extra], capsys, monkeypatch, "/no/such.png\n")
+    assert code == 2 and message in err and out == ""
+    assert not (tmp_path / "o").exists()
+
+
+def test_state_flags_need_stdin(laps, tmp_path, capsys, monkeypatch):
+    code, _, err = _cli(["loops", laps["laps"], "--out", tmp_path / "o", "--state-out", tmp_path / "s.npz"], capsys,
+                        monkeypatch)
+    assert code == 2 and "SEQ - (image paths on stdin)" in err

@@ -1,0 +1,242 @@
+"""Online loop closure for a robot: one frame in, "I have been here before, at frame i" (or not) out.
+
+**Our extension, not the paper's** decision (the memory is the paper's
+Algorithm 1, learned as frames arrive). :class:`LoopDetector` runs the same
+engine as the batch :func:`vpr.shosm.loop_evidence` (``vpr loops``),
+:class:`vpr.shosm.LoopStream`, so its answers are the batch's on the same
+frames; it adds frame names, an optional encoder for images, and
+:meth:`LoopDetector.save` / :meth:`LoopDetector.load` so that a robot can stop
+and continue with the answers it would have given without stopping.
+
+The cost of a frame grows only with what the memory must search: the beam of
+the frames that still carry evidence, capped from frame
+:data:`vpr.shosm.LOOP_UNCAPPED_MAX` on (``docs/loops.md`` has the latency).
+
+Encoding images is the caller's: ``vpr`` never imports ``encoders``. An
+``encoder`` passed in is any object with ``push(image)`` returning the SDR
+rows of the frames now ready (and optionally ``delay``, ``waiting``,
+``flush()``, ``state()``, ``load_state(arrays)``), as
+:class:`encoders.stream.StreamEncoder`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+from vpr import io as _io
+from vpr.config import merge_conf
+
+from .conf import LOOP_EXCLUDE, EvidenceConf, LoopConf, memory_params
+from .loops import LoopStream
+from .memory import MemoryFileError
+
+__all__ = ["LoopDetector", "LoopResult", "LOOP_DETECTOR_DEFAULTS"]
+
+_FORMAT = "vpr.LoopDetector"
+_FORMAT_VERSION = 1
+
+#: Conf of :class:`LoopDetector`: the memory's parameters (rSHOSM-seq's), the evidence
+#: (:class:`vpr.shosm.EvidenceConf`), the decision (:class:`vpr.shosm.LoopConf`) and ``exclude`` (frames closer
+#: than this are not candidates), as the ``rshosm-seq`` method's conf of ``vpr loops``; ``top_k``: earlier frames
+#: reported per frame (:attr:`LoopResult.earlier`).
+LOOP_DETECTOR_DEFAULTS = {**memory_params(), **EvidenceConf().as_dict(), **LoopConf().as_dict(),
+                          "exclude": LOOP_EXCLUDE, "top_k": 50}
+_NULLABLE = frozenset({"seed", "stay", "skip"})
+
+
+@dataclass
+class LoopResult:
+    """The answer for one frame.
+
+    ``best``: the earlier frame it most likely revisits (-1, ``earlier_name``
+    None: no candidate yet); ``score``: the path score of
+    :class:`vpr.shosm.LoopConf` (0: a new place); ``accepted``: a loop
+    closure; ``margin``: how far the best place stood out this frame;
+    ``earlier`` / ``scores``: the ``top_k`` earlier frames with the most
+    evidence and their z-scores, best first.
+    """
+
+    frame: int
+    name: str | None
+    best: int
+    earlier_name: str | None
+    score: float
+    accepted: bool
+    margin: float
+    earlier: np.ndarray
+    scores: np.ndarray
+
+    def as_dict(self) -> dict:
+        """JSON-ready fields (``best`` as ``best_earlier``, None without a candidate)."""
+        return {"frame": self.frame, "name": self.name, "best_earlier": self.best if self.best >= 0 else None,
+                "earlier_name": self.earlier_name, "score": round(self.score, 4), "accepted": self.accepted}
+
+
+def _is_sdr(x) -> bool:
+    if sp.issparse(x):
+        return True
+    a = np.asarray(x)
+    return a.dtype == bool or (a.ndim == 1 and a.dtype.kind in "iu")
+
+
+class LoopDetector:
+    """Loop closure within one stream, learned online, one frame at a time.
+
+    Parameters
+    ----------
+    encoder : object, optional
+        Encodes images passed to :meth:`update` (see the module docstring).
+        Without it, :meth:`update` takes SDR rows.
+    **conf
+        Overrides of :data:`LOOP_DETECTOR_DEFAULTS`; unknown keys raise ValueError.
+
+    Attributes
+    ----------
+    frames : int
+        Frames seen (given to :meth:`update`).
+    names : list of str
+        Their names (``frame <i>`` when none was given).
+    meta : dict
+        Caller metadata stored by :meth:`save` (``vpr loops -`` keeps the encoder there).
+    """
+
+    def __init__(self, encoder=None, **conf):
+        self.conf = merge_conf(LOOP_DETECTOR_DEFAULTS, conf, "LoopDetector", nullable=_NULLABLE)
+        exclude = self.conf["exclude"]
+        delay = int(getattr(encoder, "delay", 0) or 0)
+        if exclude < 1:
+            raise ValueError(f"LoopDetector: exclude must be >= 1, got {exclude}")
+        if self.conf["top_k"] < 1:
+            raise ValueError(f"LoopDetector: top_k must be >= 1, got {self.conf['top_k']}")
+        if exclude <= delay:
+            raise ValueError(f"LoopDetector: exclude {exclude} must exceed the encoder's delay of {delay} frames "
+                             "(its first frames wait for each other; they must not be candidates of each other)")
+        self.encoder = encoder
+        self._stream = LoopStream(exclude, EvidenceConf.from_conf(self.conf), LoopConf.from_conf(self.conf),
+                                  memory_params(self.conf))
+        self.names: list[str] = []
+        self.meta: dict = {}
+
+    @property
+    def frames(self) -> int:
+        return len(self.names)
+
+    @property
+    def stream(self) -> LoopStream:
+        """The engine (read it, do not step it: the detector's frame count would be off)."""
+        return self._stream
+
+    def warm_up(self) -> None:
+        """Compile (or load from numba's cache) the kernels now, so that the first frame's latency is its own."""
+        tiny = LoopStream(1, self._stream.conf, self._stream.loop, {**memory_params(self.conf), "n_inputs": 64})
+        for bits in ([0, 1, 2, 3], [4, 5, 6, 7], [0, 1, 2, 3]):
+            tiny.step(np.array(bits, np.int64))
+
+    def update(self, frame_or_sdr, name: str | None = None) -> LoopResult:
+        """Learn the next frame and decide it: a loop closure onto an earlier frame, or a new place.
+
+        ``frame_or_sdr``: an SDR row (1-row sparse matrix, bool vector or bit
+        indices) or, with an encoder, an image (H x W or H x W x 3 array).
+        """
+        j = self.frames
+        label = str(name) if name is not None else f"frame {j}"
+        if _is_sdr(frame_or_sdr):
+            if getattr(self.encoder, "waiting", 0):
+                raise ValueError(f"{label}: an SDR while the encoder holds frames waiting for their SDRs; give "
+                                 "images or SDRs, not both")
+            f = self._stream.step(frame_or_sdr)
+            self.names.append(label)
+            return self._result(j, f)
+        if self.encoder is None:
+            raise ValueError(f"{label}: got an image ({np.asarray(frame_or_sdr).shape}) but the LoopDetector has no "
+                             "encoder: pass SDR rows, or LoopDetector(encoder=...)")
+        return self.update_encoded(self.encoder.push(frame_or_sdr), name)
+
+    def update_encoded(self, rows, name: str | None = None) -> LoopResult:
+        """The next frame, given what the encoder's ``push`` returned for it (the SDR rows of the frames now ready).
+
+        :meth:`update` with an image is ``update_encoded(encoder.push(image))``;
+        separate, so that a caller can time encoding and deciding apart.
+        """
+        j = self.frames
+        self.names.append(str(name) if name is not None else f"frame {j}")
+        return self._learn(sp.csr_matrix(rows), j)
+
+    def flush(self) -> None:
+        """Learn the frames still waiting for their SDRs (a stream that ends before the encoder's delay)."""
+        if self.encoder is not None and hasattr(self.encoder, "flush"):
+            self._learn(sp.csr_matrix(self.encoder.flush()), self.frames - 1)
+
+    def _learn(self, rows: sp.csr_matrix, j: int) -> LoopResult:
+        first = self._stream.frames
+        last = None
+        for r in range(rows.shape[0]):
+            last = self._stream.step(rows.indices[rows.indptr[r]:rows.indptr[r + 1]])
+            if first + r < j and last.n_candidates:  # pragma: no cover - guarded by exclude > delay
+                raise RuntimeError("a frame decided late had candidates")
+        if self._stream.frames == j + 1 and last is not None:
+            return self._result(j, last)
+        # the frame waits for its SDR; it has no candidate yet (exclude > delay), so its answer is known
+        none = np.zeros(0, np.int64)
+        return LoopResult(j, self.names[j], -1, None, 0.0, False, 0.0, none, none.astype(np.float32)) \
+            if j >= 0 else None
+
+    def _result(self, j: int, f) -> LoopResult:
+        b = int(f.best)
+        keep = np.lexsort((f.rows, -f.z))[: self.conf["top_k"]]
+        return LoopResult(j, self.names[j], b, self.names[b] if b >= 0 else None, float(f.score), bool(f.accepted),
+                          float(f.margin), f.rows[keep].astype(np.int64), f.z[keep])
+
+    # ------------------------------------------------------------ files
+    def save(self, path) -> Path:
+        """Write the memory, the evidence and decision state, the names and the encoder's state (atomic ``.npz``)."""
+        header, arrays = self._stream.state_dict()
+        head = {"format": _FORMAT, "version": _FORMAT_VERSION, "conf": self.conf, "stream": header, "meta": self.meta}
+        arrays = {f"s_{k}": v for k, v in arrays.items()}
+        arrays["names"] = np.array(self.names, dtype=str)
+        if self.encoder is not None and hasattr(self.encoder, "state"):
+            arrays.update({f"enc_{k}": np.asarray(v) for k, v in self.encoder.state().items()})
+        return _io.save_versioned_npz(Path(path), head, arrays, default=_json_default)
+
+    @classmethod
+    def load(cls, path, encoder=None) -> LoopDetector:
+        """Read a file written by :meth:`save`; the detector continues where it was saved.
+
+        ``encoder``: a fresh encoder of the kind used before the restart (its
+        state is restored from the file); ``meta`` says which one it was.
+
+        Raises
+        ------
+        MemoryFileError
+            Missing, corrupt or foreign file, or an unsupported format version.
+        """
+        header, data = _io.load_versioned_npz(path, _FORMAT, _FORMAT_VERSION, "loop detector", MemoryFileError,
+                                              hint=" (written by LoopDetector.save / `vpr loops - --state-out`)")
+        try:
+            det = cls(encoder, **header["conf"])
+            det._stream = LoopStream.from_state(header["stream"], {k[2:]: v for k, v in data.items()
+                                                                    if k.startswith("s_")})
+            det.names = [str(n) for n in data["names"].tolist()]
+            if len(det.names) < det._stream.frames:
+                raise ValueError(f"{len(det.names)} names for {det._stream.frames} frames")
+            enc = {k[4:]: v for k, v in data.items() if k.startswith("enc_")}
+            if encoder is not None and enc and hasattr(encoder, "load_state"):
+                encoder.load_state(enc)
+        except MemoryFileError:
+            raise
+        except Exception as e:
+            raise MemoryFileError(f"{path}: corrupt loop detector file ({type(e).__name__}: {e})") from e
+        det.meta = header.get("meta", {})
+        return det
+
+    def __repr__(self) -> str:
+        return f"LoopDetector(frames={self.frames}, exclude={self.conf['exclude']}, memory={self._stream.mem!r})"
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    raise TypeError(f"not JSON-serialisable: {type(o).__name__}")
