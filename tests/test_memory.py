@@ -274,3 +274,18 @@ def test_step_reads_a_row_as_run_does():
         m.step(np.array([1.5, 2.0]))
     with pytest.raises(ValueError, match="one row"):
         m.step(np.zeros((2, 64), bool))
+
+
+def test_column_sizes_kept_up_to_date_while_learning_equal_a_full_count():
+    from vpr import sdr as _sdr
+    from vpr.shosm import SequenceMemory as _Mem
+
+    m = _Mem(n_inputs=512, seed=0, threshold=0.75)
+    x = _sdr.random_sdrs(120, 512, 60, seed=1)
+    for j in range(x.shape[0]):
+        m.step(x[j])
+        if j % 7 == 0:
+            kept = m.column_sizes()
+            m._col_sizes = None  # forget what was kept: count the whole inverted index
+            np.testing.assert_array_equal(kept, m.column_sizes())
+    assert m.column_sizes().sum() == m.n_feedforward

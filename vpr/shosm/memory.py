@@ -444,9 +444,29 @@ class SequenceMemory:
         return sp.csr_matrix((np.ones(idx.size, bool), idx, ptr), shape=(batch.shape[0], max(self.n_cells, 1)))
 
     def column_sizes(self) -> np.ndarray:
-        """Number of feed-forward connections (input bits) of every minicolumn, int64."""
-        rows = np.arange(self._bit_cols.shape[1])[None, :] < self._bit_len[:, None]
-        return np.bincount(self._bit_cols[rows], minlength=self.n_columns)[: self.n_columns].astype(np.int64)
+        """Number of feed-forward connections (input bits) of every minicolumn, int64 (a copy).
+
+        Kept up to date from the entries added since the last call (learning
+        only appends to the inverted index), so that reading it after every
+        frame of an online stream does not cost a pass over the whole index.
+        """
+        nc = self.n_columns
+        cache = getattr(self, "_col_sizes", None)
+        if cache is None or cache[1].shape != self._bit_len.shape or np.any(self._bit_len < cache[1]):
+            rows = np.arange(self._bit_cols.shape[1])[None, :] < self._bit_len[:, None]
+            sizes = np.bincount(self._bit_cols[rows], minlength=nc)[:nc].astype(np.int64)
+        else:
+            sizes, old = cache
+            grew = np.flatnonzero(self._bit_len > old)
+            if sizes.size < nc:
+                sizes = np.concatenate([sizes, np.zeros(nc - sizes.size, np.int64)])
+            if grew.size:
+                lo, hi = old[grew].astype(np.int64), self._bit_len[grew].astype(np.int64)
+                rep = np.repeat(grew, hi - lo)
+                pos = np.arange(rep.size) - np.repeat(np.cumsum(hi - lo) - (hi - lo), hi - lo) + np.repeat(lo, hi - lo)
+                np.add.at(sizes, self._bit_cols[rep, pos], 1)
+        self._col_sizes = (sizes, self._bit_len.copy())
+        return sizes.copy()
 
     @property
     def nbytes(self) -> int:
@@ -556,6 +576,7 @@ class SequenceMemory:
         self._alloc_cols(max(64, nc))
         self._alloc_edges(max(4096, nd))
         self._bit_len[:] = d["bit_len"]
+        self._col_sizes = None
         self._alloc_bit_cols(max(16, int(self._bit_len.max())))
         self._bit_cols[np.arange(self._bit_cols.shape[1])[None, :] < self._bit_len[:, None]] = d["bit_cols"]
         self._col_thr[:nc] = d["col_thr"]
