@@ -21,7 +21,8 @@ def traverses():
 def test_localizer_equals_batch_forward_and_restarts(traverses, tmp_path):
     db, q, dp, qp = traverses
     names = [f"db{i:04d}.png" for i in range(db.shape[0])]
-    loc = vpr.Localizer.from_database(db, names, z_min=3.0)
+    loc = vpr.Localizer.from_database(db, names, drift=0.5, min_score=4.0)
+    whole = vpr.Localizer.from_database(db, names, drift=0.5, min_score=4.0)
     n_conn = loc.memory.n_connections
     batch = ev.sparse_evidence(loc.memory, q, loc.db_codes, direction="forward", top_k=50)
     answers = []
@@ -30,16 +31,18 @@ def test_localizer_equals_batch_forward_and_restarts(traverses, tmp_path):
             loc.save(tmp_path / "loc.npz")
             loc = vpr.Localizer.load(tmp_path / "loc.npz")
             assert loc.frames == 100
-        r = loc.update(q[j])
-        assert r.best_db == batch.best_db[j] and abs(r.score - batch.score[j]) <= 1e-6
+        r, w = loc.update(q[j]), whole.update(q[j])
+        assert r.best_db == batch.best_db[j] and abs(r.z - batch.score[j]) <= 1e-6
         assert r.db_name == names[r.best_db]
-        assert r.accepted == (r.score >= 3.0)
+        assert r.accepted == (r.score >= 4.0)
+        assert (r.best_db, r.score, r.accepted) == (w.best_db, w.score, w.accepted)  # the restart changes nothing
         answers.append(r)
     assert loc.memory.n_connections == n_conn  # queries do not change the memory
     best = np.array([a.best_db for a in answers])
     assert np.mean(np.abs(dp[best] - qp) <= 1) >= 0.85
     acc = np.array([a.accepted for a in answers])
-    assert acc.sum() > 0.5 * acc.size and np.mean(np.abs(dp[best[acc]] - qp[acc]) <= 1) >= 0.95
+    # a world where every appearance recurs at ten places: only a path of answers stands out
+    assert acc.sum() > 0.45 * acc.size and np.mean(np.abs(dp[best[acc]] - qp[acc]) <= 1) >= 0.95
     # same memory, same query, same answers after reset
     loc.reset()
     again = [loc.update(q[j]).best_db for j in range(q.shape[0])]

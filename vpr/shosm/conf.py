@@ -21,7 +21,7 @@ import numpy as np
 
 from .memory import SequenceMemory
 
-__all__ = ["LEARN_THRESHOLD", "LOOP_EXCLUDE", "EvidenceConf", "BeamConf", "LoopConf", "memory_params"]
+__all__ = ["LEARN_THRESHOLD", "LOOP_EXCLUDE", "EvidenceConf", "BeamConf", "LoopConf", "PathConf", "memory_params"]
 
 #: Minicolumn threshold of the memory that rSHOSM-seq learns (the paper's is 0.25).
 LEARN_THRESHOLD = 0.75
@@ -147,6 +147,49 @@ class BeamConf(_Conf):
                                                                        int(self.max_enter))
 
 
+def _check_path(c) -> None:
+    for name in ("drift", "min_score"):
+        if not float(getattr(c, name)) > 0.0:
+            raise ValueError(f"{name} must be > 0, got {getattr(c, name)}")
+    for name in ("back", "ahead"):
+        v = getattr(c, name)
+        if isinstance(v, bool) or int(v) != v or int(v) < 0:
+            raise ValueError(f"{name} must be an integer >= 0, got {v}")
+    if not np.isfinite(float(c.island)):
+        raise ValueError(f"island must be a finite z-score, got {c.island}")
+
+
+@dataclass(frozen=True)
+class PathConf(_Conf):
+    """When a localisation is accepted, query frame by query frame (:class:`vpr.shosm.Localizer`).
+
+    The rule of :class:`LoopConf` against a map: the best map frame's margin
+    over the strongest other place (``z_best - z_other``, outside the best's
+    *island*), minus ``drift``, accumulated while the best map frame moves on
+    consistently; accepted when the score reaches ``min_score``. A margin, not
+    a z-score against every map frame, because a z-score grows and shrinks with
+    the size and frame rate of the map. The defaults and how they were chosen:
+    ``docs/localize.md``.
+
+    Attributes
+    ----------
+    drift, min_score, back, ahead, island
+        As :class:`LoopConf`. Against a map the margins are smaller than within
+        one stream (a query frame competes with every map frame, not only with
+        the frames far enough back), so the defaults differ: a small drift, and
+        a path is accepted on the sum of its margins.
+    """
+
+    drift: float = 0.25
+    min_score: float = 12.0
+    back: int = 4
+    ahead: int = 6
+    island: float = 1.0
+
+    def __post_init__(self):
+        _check_path(self)
+
+
 @dataclass(frozen=True)
 class LoopConf(_Conf):
     """When a loop closure is accepted, frame by frame (:func:`vpr.shosm.accept_loops`).
@@ -185,14 +228,6 @@ class LoopConf(_Conf):
     stop_ratio: float = 0.35
 
     def __post_init__(self):
-        for name in ("drift", "min_score"):
-            if not float(getattr(self, name)) > 0.0:
-                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
-        for name in ("back", "ahead"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or int(v) != v or int(v) < 0:
-                raise ValueError(f"{name} must be an integer >= 0, got {v}")
-        if not np.isfinite(float(self.island)):
-            raise ValueError(f"island must be a finite z-score, got {self.island}")
+        _check_path(self)
         if not 0.0 <= float(self.stop_ratio) < 1.0:
             raise ValueError(f"stop_ratio must be in [0, 1) (0: stops are not checked), got {self.stop_ratio}")

@@ -15,10 +15,10 @@ import scipy.sparse as sp
 
 from vpr import sdr as _sdr
 
-from .conf import LoopConf
+from .conf import LoopConf, PathConf
 from .kernels import decide as KD
 
-__all__ = ["LoopDecisions", "LoopDecider", "accept_loops", "stationary_closures"]
+__all__ = ["LoopDecisions", "LoopDecider", "PathDecider", "accept_loops", "stationary_closures"]
 
 
 @dataclass
@@ -111,6 +111,41 @@ class LoopDecider:
         self.st[:] = state["st"]
         self._set_sdr(state["sdr_ptr"], state["sdr_ind"])
         self.frames = n
+        return self
+
+
+class PathDecider:
+    """The localisation decision, one query frame at a time: the map frame's path score (:class:`PathConf`).
+
+    ``decide(rows, vals, n_map, fill)`` takes the query frame's column over
+    the map (the z-scores ``vals`` of map frames ``rows``, sorted; a map frame
+    not stored has the z ``fill``) and returns (best, score, accepted, margin).
+    The state is the path score and its head (:meth:`state_dict`).
+    """
+
+    def __init__(self, conf: PathConf | None = None):
+        self.conf = conf or PathConf()
+        self.st = np.array([0.0, float(KD._NONE), 0.0])
+        self._place = np.zeros(0, np.int64)
+
+    def decide(self, rows, vals, n: int, fill: float):
+        if self._place.size < n:
+            self._place = np.arange(n, dtype=np.int64)
+        c = self.conf
+        return KD.locate_frame(np.asarray(rows, np.int64), np.asarray(vals, np.float64), int(n), float(fill),
+                               float(c.drift), float(c.min_score), int(c.back), int(c.ahead), float(c.island),
+                               self._place, self.st)
+
+    def reset(self) -> None:
+        """A new query traverse: no path yet."""
+        self.st[:] = (0.0, float(KD._NONE), 0.0)
+
+    def state_dict(self) -> dict:
+        return {"path": self.st.copy()}
+
+    def load_state(self, state: dict) -> PathDecider:
+        if "path" in state:
+            self.st[:] = np.asarray(state["path"], np.float64)
         return self
 
 

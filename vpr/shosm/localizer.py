@@ -9,10 +9,15 @@ name, its score and whether it is accepted. Only the past counts (causal), and
 the cost per frame does not depend on how many frames were seen before: the
 state is the evidence carried from the last frame. The memory is only read.
 
-Acceptance rule: the score is the z-score of the best database frame's
-evidence against all database frames' evidence for this query frame (what
-``normalise="query"`` computes); the answer is accepted when it is at least
-``z_min`` (chosen in ``docs/localize.md``).
+Acceptance rule (:class:`vpr.shosm.PathConf`, :class:`vpr.shosm.PathDecider`):
+the best database frame's margin over the strongest other place (z-scores of
+this query frame's evidence, outside the best frame's island), minus
+``drift``, is accumulated while the best database frame moves on
+consistently; the answer is accepted when this path score reaches
+``min_score``. A margin rather than the z-score itself, because the z-score
+of a true match grows and shrinks with the size and frame rate of the map
+(chosen in ``docs/localize.md``). Maps saved with the old ``z_min`` rule load
+with the new one.
 
 :meth:`Localizer.save` writes one versioned ``.npz`` (atomically): the memory,
 the database names and winner codes, the streaming state, the conf and
@@ -35,7 +40,8 @@ from vpr import io as _io
 from vpr import sdr as _sdr
 from vpr.config import merge_conf
 
-from .conf import BeamConf, EvidenceConf, memory_params
+from .conf import BeamConf, EvidenceConf, PathConf, memory_params
+from .decide import PathDecider
 from .memory import MemoryFileError, SequenceMemory
 from .streaming import ForwardEvidence
 
@@ -46,9 +52,9 @@ _FORMAT_VERSION = 1
 
 #: Conf of :class:`Localizer`: the memory's parameters (rSHOSM-seq's), the forward evidence's
 #: (:class:`vpr.shosm.ForwardEvidence`: :class:`vpr.shosm.EvidenceConf`, ``top_k``, ``exact``,
-#: :class:`vpr.shosm.BeamConf`) and the acceptance threshold ``z_min``.
-LOCALIZER_DEFAULTS = {**memory_params(), **EvidenceConf().as_dict(), "top_k": 50, "exact": False, "z_min": 4.0,
-                      **BeamConf().as_dict()}
+#: :class:`vpr.shosm.BeamConf`) and the acceptance rule (:class:`vpr.shosm.PathConf`).
+LOCALIZER_DEFAULTS = {**memory_params(), **EvidenceConf().as_dict(), "top_k": 50, "exact": False,
+                      **PathConf().as_dict(), **BeamConf().as_dict()}
 _NULLABLE = frozenset({"seed", "stay", "skip", "top_k", "max_beam", "max_enter"})
 
 
@@ -56,10 +62,12 @@ _NULLABLE = frozenset({"seed", "stay", "skip", "top_k", "max_beam", "max_enter"}
 class LocalizerResult:
     """The answer for one query frame.
 
-    ``best_db`` is the database frame index (-1 with ``db_name`` None and score
-    ``-inf`` when no database frame has any evidence), ``score`` its z-score,
-    ``accepted`` whether ``score >= z_min``; ``db_idx`` / ``scores``: the
-    ``top_k`` best database frames and their z-scores.
+    ``best_db`` is the database frame index (-1 with ``db_name`` None when no
+    database frame has any evidence); ``score`` the path score of
+    :class:`vpr.shosm.PathConf` (the decision's statistic, 0 when the answer
+    does not stand out), ``accepted`` whether it reached ``min_score``;
+    ``z``: the best frame's z-score (-inf without evidence); ``db_idx`` /
+    ``scores``: the ``top_k`` best database frames and their z-scores.
     """
 
     best_db: int
@@ -68,6 +76,7 @@ class LocalizerResult:
     accepted: bool
     db_idx: np.ndarray
     scores: np.ndarray
+    z: float = float("-inf")
 
 
 class Localizer:
@@ -109,6 +118,7 @@ class Localizer:
         self._fwd = ForwardEvidence(memory, self.db_codes, EvidenceConf.from_conf(self.conf), top_k=self.conf["top_k"],
                                     exact=self.conf["exact"], beam=BeamConf.from_conf(self.conf))
         self._initial = self._fwd.state_dict()
+        self._decider = PathDecider(PathConf.from_conf(self.conf))
         self.meta: dict = {}
         self.arrays: dict = {}
 
@@ -137,9 +147,32 @@ class Localizer:
     def frames(self) -> int:
         return self._fwd.frames
 
+    def reconfigure(self, **conf) -> Localizer:
+        """This map with other query-time settings (evidence, beam, ``top_k``, the decision), continuing its state.
+
+        What the map's memory learned cannot change: its parameters are refused
+        (ValueError naming them), as are unknown keys and bad values.
+        """
+        fixed = sorted(set(conf) & set(memory_params()))
+        if fixed:
+            raise ValueError(f"{', '.join(fixed)}: fixed by the map (the memory was learned with "
+                             f"{', '.join(f'{k}={self.conf[k]}' for k in fixed)}); learn a new map to change them")
+        new = Localizer(self.memory, self.db_codes, self.names, **{**self.conf, **conf})
+        if new.conf["exact"] == self.conf["exact"]:
+            new._fwd.load_state(self._fwd.state_dict())
+        new._decider.load_state(self._decider.state_dict())
+        new.meta, new.arrays = self.meta, self.arrays
+        return new
+
+    @property
+    def forward(self) -> ForwardEvidence:
+        """The causal evidence (read its columns; stepping it apart from :meth:`update` skips the decisions)."""
+        return self._fwd
+
     def reset(self) -> None:
-        """Start a new query traverse: forget the evidence carried from earlier frames."""
+        """Start a new query traverse: forget the evidence carried from earlier frames and the decision's path."""
         self._fwd.load_state(self._initial)
+        self._decider.reset()
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the kernels, leaving the state as it was.
@@ -153,9 +186,11 @@ class Localizer:
     def update(self, sdr_row) -> LocalizerResult:
         """Localise one query frame (SDR row: 1-row batch, bool vector or bit indices)."""
         o = self._fwd.update(sdr_row)
-        ok = o.best_db >= 0 and np.isfinite(o.score) and o.score >= self.conf["z_min"]
-        return LocalizerResult(o.best_db, self.names[o.best_db] if o.best_db >= 0 else None, float(o.score),
-                               bool(ok), o.db_idx, o.scores)
+        best, score, ok, _ = self._decider.decide(o.rows, o.vals, self.n_db, o.fill)
+        if o.best_db < 0:  # no evidence anywhere (the dense column's argmax is not an answer)
+            best, score, ok = -1, 0.0, False
+        return LocalizerResult(int(best), self.names[best] if best >= 0 else None, float(score), bool(ok), o.db_idx,
+                               o.scores, float(o.score))
 
     # ------------------------------------------------------------ files
     def save(self, path) -> Path:
@@ -167,6 +202,7 @@ class Localizer:
                   "meta": self.meta, "db_shape": list(self.db_codes.shape)}
         arrays = {f"mem_{k}": v for k, v in mem_arrays.items()}
         arrays.update({f"state_{k}": np.asarray(v) for k, v in self._fwd.state_dict().items()})
+        arrays.update({f"decide_{k}": np.asarray(v) for k, v in self._decider.state_dict().items()})
         arrays.update({f"user_{k}": np.asarray(v) for k, v in self.arrays.items()})
         arrays["names"] = np.array(self.names, dtype=str)
         arrays["db_indptr"] = self.db_codes.indptr.astype(np.int64)
@@ -190,8 +226,11 @@ class Localizer:
             n_db, width = header["db_shape"]
             idx = data["db_indices"]
             codes = sp.csr_matrix((np.ones(idx.size, bool), idx, data["db_indptr"]), shape=(n_db, width))
-            loc = cls(mem, codes, data["names"].tolist(), **header["conf"])
+            # maps written before the path rule hold its predecessor's z_min: they load with the path rule
+            conf = {k: v for k, v in header["conf"].items() if k != "z_min"}
+            loc = cls(mem, codes, data["names"].tolist(), **conf)
             loc._fwd.load_state({k[6:]: v for k, v in data.items() if k.startswith("state_")})
+            loc._decider.load_state({k[7:]: v for k, v in data.items() if k.startswith("decide_")})
         except MemoryFileError:
             raise
         except Exception as e:
@@ -201,7 +240,8 @@ class Localizer:
         return loc
 
     def __repr__(self) -> str:
-        return f"Localizer(n_db={self.n_db}, frames={self.frames}, z_min={self.conf['z_min']}, memory={self.memory!r})"
+        return (f"Localizer(n_db={self.n_db}, frames={self.frames}, drift={self.conf['drift']}, "
+                f"min_score={self.conf['min_score']}, memory={self.memory!r})")
 
 
 def _json_default(o):

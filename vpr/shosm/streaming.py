@@ -28,13 +28,19 @@ class FrameEvidence:
 
     ``db_idx`` are the top-K database frames by score (all frames, in index
     order, when ``top_k`` is None) and ``scores`` their z-scores. ``best_db`` is
-    -1 (score -inf) when no database frame has any evidence.
+    -1 (score -inf) when no database frame has any evidence. ``rows`` /
+    ``vals``: every database frame with evidence (sorted) and its z-score;
+    ``fill``: the z-score of a database frame without evidence (what a
+    decision over the whole column reads, :class:`vpr.shosm.PathDecider`).
     """
 
     best_db: int
     score: float
     db_idx: np.ndarray
     scores: np.ndarray
+    rows: np.ndarray
+    vals: np.ndarray
+    fill: float
 
 
 class ForwardEvidence:
@@ -104,19 +110,25 @@ class ForwardEvidence:
         return self._frame(a)
 
     def _frame(self, a) -> FrameEvidence:
-        S, best, score, mean, sd = finish(a, NO_PASS, np.full(1, self.n_db, np.int64), self.n_db, self.top_k,
+        S, best, score, mean, sd = finish(a, NO_PASS, np.full(1, self.n_db, np.int64), self.n_db, None,
                                           self.conf.normalise == "query")
         C = S.tocoo()
         idx, val = C.row.astype(np.int64), C.data.astype(np.float64)
+        fill = float(np.float32(-mean[0] / sd[0])) if self.conf.normalise == "query" else 0.0
+        rows = np.argsort(idx, kind="stable")
+        column = (idx[rows], val[rows], fill)
         if self.top_k is None:
             scores = np.full(self.n_db, -mean[0] / sd[0], np.float64)
             scores[idx] = val
             if best[0] < 0 and self.n_db:  # no evidence anywhere: all equal, argmax's answer
                 best[0], score[0] = 0, scores[0]
-            return FrameEvidence(int(best[0]), float(score[0]), np.arange(self.n_db), scores)
-        # top-K in order of score (as the kernel keeps them), not of database index
-        order = np.lexsort((idx, -val))
-        return FrameEvidence(int(best[0]), float(score[0]), idx[order], val[order])
+            return FrameEvidence(int(best[0]), float(score[0]), np.arange(self.n_db), scores, *column)
+        # the top-K as the kernel keeps them (it ranks the float64 z-scores), in order of score
+        K = finish(a, NO_PASS, np.full(1, self.n_db, np.int64), self.n_db, self.top_k,
+                   self.conf.normalise == "query")[0].tocoo()
+        k_idx, k_val = K.row.astype(np.int64), K.data.astype(np.float64)
+        order = np.lexsort((k_idx, -k_val))
+        return FrameEvidence(int(best[0]), float(score[0]), k_idx[order], k_val[order], *column)
 
     # ------------------------------------------------------------- state
     def state_dict(self) -> dict:

@@ -153,3 +153,28 @@ def decide_frame(j, rows, vals, n, fill, drift, min_score, back, ahead, island, 
     if score > 0.0 and not near and place[j] == j:  # a frame on a path is (provisionally) the place it matched
         place[j] = place[b]
     return b, score, ok, zb - zo, near
+
+
+@njit(cache=True)
+def locate_frame(rows, vals, n, fill, drift, min_score, back, ahead, island, place, st):  # pragma: no cover
+    """The localisation decision of one query frame against a map of ``n`` frames; updates ``st``.
+
+    The path score of :func:`decide_frame` without what only one stream has
+    (no "just left" place, no links between visits, no stops): the best map
+    frame's margin over the strongest other place, accumulated while the best
+    map frame moves on consistently (``head - back .. head + ahead``).
+    ``place``: ``arange(n)`` (every map frame its own place).
+    Returns (best, score, accepted, margin).
+    """
+    b, zb, zo, _ = column_peaks(rows, vals, n, fill, island, place, 0)
+    if b < 0:
+        st[S_SCORE] = 0.0
+        st[S_HEAD] = _NONE
+        return -1, 0.0, False, 0.0
+    head = int(st[S_HEAD])
+    cont = head - back <= b <= head + ahead
+    prev = st[S_SCORE] if cont else 0.0
+    score = max(0.0, prev + (zb - zo) - drift)
+    st[S_HEAD] = max(head, b) if cont and score > 0.0 else b
+    st[S_SCORE] = score
+    return b, score, score >= min_score, zb - zo
