@@ -24,7 +24,7 @@ import scipy.sparse as sp
 
 import encoders
 from vpr import evaluate, groundtruth, methods, simulate
-from vpr.shosm import EvidenceConf, accept_loops, loop_evidence
+from vpr.shosm import EvidenceConf, loop_evidence
 from vpr.types import EncodedTraverse
 
 
@@ -33,15 +33,17 @@ def loop_ap(S, gt, exclude, soft=None):
     return evaluate.average_precision(S, gt, soft, mask=groundtruth.loop_closure_mask(S.shape[0], exclude=exclude))
 
 
-def run(name, sdr, pixels, gt, exclude, soft=None, forward_only=False, z_min=6.0, confirm=2, **kw):
+def run(name, sdr, pixels, gt, exclude, soft=None, forward_only=False, **kw):
     t = time.perf_counter()
-    S, _ = loop_evidence(sdr, exclude=exclude, conf=EvidenceConf(**kw))
+    ev = loop_evidence(sdr, exclude=exclude, conf=EvidenceConf(**kw))
+    S = ev.similarity
     t_ev = time.perf_counter() - t
     f = EncodedTraverse(names=list(range(sdr.shape[0])), sdr=sdr, pixels=pixels,
                          desc=None if pixels is not None else sdr.toarray().astype(np.float32))
     conf = {} if pixels is not None else {"descriptor": "desc"}
     r = methods.loops("seqslam", f, exclude=exclude, conf=conf)
-    best, score, ok = accept_loops(S, z_min=z_min, confirm=confirm)
+    d = ev.decisions  # the default LoopConf, decided as the stream went (vpr loops)
+    best, score, ok = d.best, d.score, d.accepted
     T = sdr.shape[0]
     far = ok & (np.arange(T) - best >= 30)
     line = f"{name:34s} T={T:4d} exclude={exclude:3d}"
@@ -51,7 +53,7 @@ def run(name, sdr, pixels, gt, exclude, soft=None, forward_only=False, z_min=6.0
     tp = ok & (gt[np.maximum(best, 0), np.arange(T)] if gt is not None else False)
     line += f"  accepted {int(ok.sum())} (>=30 back {int(far.sum())}, true {int(np.sum(tp))})"
     line += f"  seqslam accepted >=30 back {int((r.accepted & (np.arange(T) - r.best_db >= 30)).sum())}"
-    line += f"  max z {np.nanmax(np.where(np.isfinite(score), score, np.nan)):.2f}  {t_ev:.1f}s"
+    line += f"  max path score {score.max():.1f}  {t_ev:.1f}s"
     print(line, flush=True)
 
 
@@ -157,9 +159,6 @@ def main(argv=None):
     ap.add_argument("--frames", type=int, default=150)
     ap.add_argument("--size", default="96x72")
     ap.add_argument("--exclude", type=int, default=30)
-    seq_conf = methods.get_class("rshosm-seq").default_conf
-    ap.add_argument("--z-min", type=float, default=seq_conf["z_min"])
-    ap.add_argument("--confirm", type=int, default=seq_conf["confirm"])
     ap.add_argument("--nordland", default=None)
     ap.add_argument("--skip-paper", action="store_true")
     ap.add_argument("--cross-condition", default=None, metavar="WxH",
@@ -171,7 +170,7 @@ def main(argv=None):
         cross_condition(tuple(int(v) for v in a.cross_condition.split("x")))
         return
     size = tuple(int(v) for v in a.size.split("x"))
-    rule = {"z_min": a.z_min, "confirm": a.confirm}
+    rule: dict = {}
     for alias, noise in ((0, 0.0), (5, 0.3), (10, 0.5)) if not a.skip_paper else ():
         obs, traj = simulate.simulate_loops(aliasing=alias, noise=noise, seed=0)
         gt = traj[:, None] == traj[None]
