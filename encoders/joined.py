@@ -149,10 +149,12 @@ class JoinedEncoder(BaseEncoder):
         if self.conf["describe"] not in _DESCRIBE:
             raise ValueError(f"{self.name}: describe must be one of {_DESCRIBE}, got {self.conf['describe']!r}")
         self.prefixes = prefixes
-        try:
-            self.encoders = [cls(**pc) for cls, pc in zip(classes, part_confs, strict=True)]
-        except ValueError as e:
-            raise ValueError(f"{self.name}: {e}") from e
+        self.encoders = []
+        for cls, pc, prefix in zip(classes, part_confs, prefixes, strict=True):
+            try:
+                self.encoders.append(cls(**pc))
+            except ValueError as e:  # name the part: "pixel+cnn: part pixel (pixel.KEY): k must be ..."
+                raise ValueError(f"{self.name}: part {prefix} ({prefix}.KEY): {e}") from e
         # the full configuration, flat as given on the command line, for config.json and caches
         for prefix, enc in zip(prefixes, self.encoders, strict=True):
             for k, v in enc.conf.items():

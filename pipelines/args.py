@@ -29,7 +29,7 @@ def add_source_arguments(ap) -> None:
 
 def add_preset_argument(ap) -> None:
     """``--preset NAME`` (default ``default``): the settings that flags not given take."""
-    ap.add_argument("--preset", default=presets.DEFAULT, choices=presets.available(),
+    ap.add_argument("--preset", default=None, choices=presets.available(),
                     help=f"named settings (encoder, its conf, methods, their confs) that explicit flags override: "
                          f"{presets.describe()} (default: {presets.DEFAULT})")
 

@@ -24,6 +24,7 @@ import ast
 import importlib
 import importlib.util
 import os
+import signal
 import sys
 import warnings
 from pathlib import Path
@@ -77,6 +78,22 @@ def build_parser(only: str | None = None, table: dict | None = None) -> argparse
     return ap
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, handled as Ctrl-C: what is being written is dropped (atomic writes), one line, status 143."""
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated()
+
+
+def _on_sigterm():
+    """Handle SIGTERM as an interrupt (main thread only); returns the handler it replaced, or None."""
+    try:
+        return signal.signal(signal.SIGTERM, _raise_terminated)
+    except ValueError:  # not the main thread (e.g. main() called from a worker thread)
+        return None
+
+
 def _format_warning(message, category, filename, lineno, line=None) -> str:
     # one line in the project's words: no source path, no line of code
     return f"vpr: warning: {' '.join(str(message).split())}\n"
@@ -106,6 +123,7 @@ def main(argv=None) -> int:
     os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
     saved_format = warnings.formatwarning
     warnings.formatwarning = _format_warning
+    saved_term = _on_sigterm()
     command = "vpr"
     try:
         table = commands()
@@ -141,11 +159,16 @@ def main(argv=None) -> int:
             # read-only or full file system, permissions, missing files: the path and the reason
             print(f"{command}: error: {_os_error_line(e)}", file=sys.stderr)
             return 2
+    except Terminated:
+        print("vpr: terminated", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
         print("vpr: interrupted", file=sys.stderr)
         return 130
     finally:
         warnings.formatwarning = saved_format
+        if saved_term is not None:
+            signal.signal(signal.SIGTERM, saved_term)
 
 
 if __name__ == "__main__":

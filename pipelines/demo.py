@@ -29,6 +29,9 @@ __all__ = ["COMMANDS", "add_arguments", "run_command", "run_demo", "render_once"
 
 COMMANDS = {"demo": "render the two_seasons scene and compare the default preset's methods on it (no download)"}
 
+#: Fewest frames per traverse ``--frames`` may ask for.
+MIN_FRAMES = 20
+
 # every setting of the demo, in one place (a preset can replace it). Verification is the expensive part
 # (ORB matching per candidate pair): only rshosm-seq's 3 best candidates per query are verified, with 500
 # keypoints, so that the demo stays near a minute on 2 cores (docs/benchmarks.md has the cost).
@@ -87,7 +90,11 @@ def run_demo(out, scene=DEFAULTS["scene"], preset=DEFAULTS["preset"], encoder=No
     out = Path(out)
     if isinstance(methods, str):
         methods = [m.strip() for m in methods.split(",") if m.strip()]
-    # resolved before rendering: an unknown preset fails at once
+    # checked before rendering: a refused demo writes nothing
+    if n_frames is not None and (isinstance(n_frames, bool) or int(n_frames) < MIN_FRAMES):
+        raise ValueError(f"--frames {n_frames}: the demo needs at least {MIN_FRAMES} frames per traverse (sequence "
+                         "methods compare stretches of frames)")
+    GroundTruthSpec(radius=radius, soft=soft_radius, files=("ground_truth.csv",)).check(files=False)
     s = presets.resolve(preset, encoder=encoder, encoder_conf=encoder_conf, methods=methods, method_conf=method_conf)
     encoder, methods = s["encoder"], s["methods"]
     t0 = time.perf_counter()

@@ -84,20 +84,72 @@ def _chunk_task(source: Source, encoder_name: str, conf_json: str, start: int, s
     return encode_chunk(copy.copy(source), _WORKER_ENCODERS[key], start, stop, parts, batch_size=batch_size)
 
 
+#: Seconds to wait for a Dask scheduler to answer (``--scheduler``).
+CONNECT_TIMEOUT = 30.0
+
+
+def max_local_workers() -> int:
+    """The most worker processes a local cluster may start: 4 per core (each is a whole Python process)."""
+    return 4 * default_workers()
+
+
+def _connect(scheduler: str, timeout: float | None = None):
+    """A Client of the scheduler at ``scheduler``, or one ValueError line within ``timeout`` seconds.
+
+    Distributed's own timeout does not cover a port that accepts the
+    connection and then says nothing (an HTTP server), and a port that answers
+    something else ends in a long traceback; both are refused here.
+    """
+    import threading
+
+    from distributed import Client
+
+    timeout = CONNECT_TIMEOUT if timeout is None else float(timeout)
+    out: dict = {}
+
+    def connect():
+        try:
+            out["client"] = Client(scheduler, timeout=f"{timeout}s")
+        except BaseException as e:  # noqa: BLE001 - reported in one line below
+            out["error"] = e
+
+    t = threading.Thread(target=connect, daemon=True)
+    t.start()
+    t.join(timeout + 5.0)
+    if t.is_alive():
+        raise ValueError(f"--scheduler {scheduler}: no Dask scheduler answered within {timeout:g} s")
+    if "error" in out:
+        e = out["error"]
+        raise ValueError(f"--scheduler {scheduler}: not a Dask scheduler, or not reachable "
+                         f"({type(e).__name__}: {' '.join(str(e).split())[:120]})") from None
+    return out["client"]
+
+
 @contextlib.contextmanager
-def _client(workers: int | None, scheduler: str | None):
+def _client(workers: int | None, scheduler: str | None, scratch: Path | None = None):
     # dask is imported only when a cluster is used: serial runs and the rest of vpr do not need it
     import logging
+    import shutil
 
     from distributed import Client, LocalCluster
 
     if scheduler:
-        with Client(scheduler, timeout="30s") as client:
+        with _connect(scheduler) as client:
             yield client
         return
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None, silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
-        yield client
+    # the workers' spill folder goes beside the cache, not into the current folder, and is removed after
+    local = None
+    if scratch is not None:
+        scratch.mkdir(parents=True, exist_ok=True)
+        local = str(scratch)
+    try:
+        with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                          dashboard_address=None, silence_logs=logging.ERROR, local_directory=local) as cluster, \
+                Client(cluster) as client:
+            yield client
+    finally:
+        if scratch is not None:
+            shutil.rmtree(scratch, ignore_errors=True)
 
 
 def _check_workers(workers, scheduler) -> int | None:
@@ -111,6 +163,9 @@ def _check_workers(workers, scheduler) -> int | None:
         return default_workers()
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
         raise ValueError(f"workers must be an integer >= 0, got {workers!r}")
+    if workers > max_local_workers():
+        raise ValueError(f"--workers {workers}: a local cluster of at most {max_local_workers()} worker processes "
+                         f"on this machine ({default_workers()} cores); use --scheduler for a larger cluster")
     return workers
 
 
@@ -196,17 +251,21 @@ def encode_sources(sources, cache_dir, encoder_name: str = "pixel", encoder_conf
             for i, a, b in jobs:
                 finished(i, _chunk_task(srcs[i], encoder_name, conf_json, a, b, parts, batch_size))
         else:
-            _run_on_dask(n_workers, scheduler, srcs, jobs, encoder_name, conf_json, parts, batch_size, finished)
+            # no more local workers than tasks; their scratch space under the cache folder
+            n_local = None if n_workers is None else min(n_workers, len(jobs))
+            _run_on_dask(n_local, scheduler, srcs, jobs, encoder_name, conf_json, parts, batch_size, finished,
+                         cache_dir / f".dask-scratch-{os.getpid()}")
     finally:
         report.close()
     return results
 
 
-def _run_on_dask(n_workers, scheduler, srcs, jobs, encoder_name, conf_json, parts, batch_size, finished) -> None:
+def _run_on_dask(n_workers, scheduler, srcs, jobs, encoder_name, conf_json, parts, batch_size, finished,
+                 scratch: Path | None = None) -> None:
     from distributed import as_completed
 
     run = uuid.uuid4().hex[:8]
-    with _client(n_workers, scheduler) as client:
+    with _client(n_workers, scheduler, scratch) as client:
         # each source goes to every worker once, not with every task (a folder lists all its files);
         # replicas on every worker survive the death of one of them
         client.wait_for_workers(1, timeout=60)

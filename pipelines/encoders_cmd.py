@@ -95,9 +95,20 @@ def list_encoders() -> dict:
 
 
 def format_list(confs: dict) -> str:
+    """The encoders with their default confs, how to join them, and the presets that name them."""
+    from vpr import presets
+
     width = max(len(n) for n in confs) + 2
-    return "\n".join(f"{name:{width}s}" + ", ".join(f"{k}={v!r}" for k, v in conf.items())
-                     for name, conf in confs.items())
+    lines = [f"{name:{width}s}" + ", ".join(f"{k}={v!r}" for k, v in conf.items()) for name, conf in confs.items()]
+    lines += ["", "joined encoders: any parts with '+', e.g. --encoder pixel+cnn (one SDR: the parts' bits side by "
+              "side); --encoder-conf pixel.k=150 sets one part, k=100 every part", "",
+              "presets (--preset NAME; the encoder and conf a run takes when no --encoder is given):"]
+    for name in presets.available():
+        p = presets.get(name)
+        conf = ", ".join(f"{k}={v!r}" for k, v in p["encoder_conf"].items())
+        lines.append(f"  {name:10s}{p['encoder']} ({conf}); methods {', '.join(p['methods'])}; loops "
+                     f"{p['loop_method']}: {p['use']}")
+    return "\n".join(lines)
 
 
 # ------------------------------------------------------------------------------------- test

@@ -22,6 +22,7 @@ from __future__ import annotations
 import hashlib
 import json
 import time
+import warnings
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -238,13 +239,25 @@ def save_cache(path, ex: Extracted, source: Source, encoder) -> Path:
     return Path(path)
 
 
-def load_cache(path) -> Extracted | None:
-    """Read a cache file; None when it is missing, damaged or of another version."""
+def _same(a, b) -> bool:
+    """Equal as they are stored in a cache file's JSON metadata."""
+    return json.dumps(a, sort_keys=True, default=str) == json.dumps(b, sort_keys=True, default=str)
+
+
+def load_cache(path, source: Source | None = None, encoder=None) -> Extracted | None:
+    """Read a cache file; None when it is missing, damaged, of another version, or (given ``source`` and
+    ``encoder``) written for another source or encoder conf: a file is trusted by its content, not its name."""
     try:
         with np.load(path, allow_pickle=False) as z:
             d = {k: z[k] for k in z.files}
         meta = json.loads(str(d["meta"]))
         if meta.get("version") != CACHE_VERSION:
+            return None
+        if source is not None and not _same(meta.get("source_key"), source.key()):
+            warnings.warn(f"cache {path} was written for another source ({meta.get('source')}); encoding "
+                          f"{source.path} again", stacklevel=2)
+            return None
+        if encoder is not None and not (meta.get("encoder") == encoder.name and _same(meta.get("conf"), encoder.conf)):
             return None
         held = {}
         for p in meta["parts"]:
@@ -291,7 +304,7 @@ def extract(source: Source, encoder, inputs=("sdr",), thumbs=False, cache_dir=No
     inputs = check_inputs(inputs)
     t = time.perf_counter()
     path = cache_path(cache_dir, source, encoder) if cache_dir is not None else None
-    hit = load_cache(path) if path is not None and path.is_file() else None
+    hit = load_cache(path, source, encoder) if path is not None and path.is_file() else None
     if hit is not None and set(inputs) <= set(held_inputs(hit)):
         if thumbs:
             chunks = [encode_chunk(source, encoder, a, b, (), thumbs=True, batch_size=batch_size)
@@ -311,7 +324,11 @@ def extract(source: Source, encoder, inputs=("sdr",), thumbs=False, cache_dir=No
     ex = assemble(source, encoder, chunks, todo)
     source.skipped = list(ex.skipped)
     if path is not None:
-        save_cache(path, ex, source, encoder)
+        try:
+            save_cache(path, ex, source, encoder)
+        except OSError as e:  # the run goes on; the next one encodes again
+            warnings.warn(f"cache {path.parent}: not written ({e.strerror or e}); the encodings are not cached",
+                          stacklevel=2)
     ex.seconds = time.perf_counter() - t
     ex.features = ex.features.only(inputs)
     return ex

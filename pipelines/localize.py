@@ -50,6 +50,7 @@ from pipelines.args import (
 from pipelines.extract import extract
 from pipelines.frames import JsonLines, latency_summary, source_frames, stdin_frames
 from pipelines.outputs import method_metrics, versions
+from pipelines.runs import check_fit_frames
 from vpr import io, presets
 from vpr.config import parse_key_values
 from vpr.groundtruth import GroundTruthSpec, build_gt
@@ -68,11 +69,25 @@ _MAP_FORMAT = "vpr-map"
 
 
 # ------------------------------------------------------------------ learn
+def map_path(out) -> Path:
+    """Where ``vpr learn --out OUT`` writes: ``OUT``, with ``.npz`` added when it has another suffix or none."""
+    out = Path(out)
+    io.check_writable(out, "--out")
+    return out if out.suffix.lower() == ".npz" else out.with_name(out.name + ".npz")
+
+
+def is_map(path) -> bool:
+    """Whether ``path`` is a map or localizer file (read by content, whatever its name)."""
+    return io.is_versioned_npz(path, "vpr.Localizer")
+
+
 def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, localizer_conf: dict | None = None,
           fps=None, step=None, max_frames=None, progress: bool = True) -> Localizer:
-    """Encode and learn the database traverse ``db``; write the map to ``out`` (atomic) and return it."""
+    """Encode and learn the database traverse ``db``; write the map to :func:`map_path` ``(out)`` (atomic)."""
+    out = map_path(out)
     src = open_source(db, fps=fps, step=step, max_frames=max_frames)
     enc = encoders.get(encoder, **(encoder_conf or {}))
+    check_fit_frames(src, enc, "database", step, max_frames)
     if enc.conf.get("standardise") in ("per_batch", "causal"):
         raise ValueError(f"encoders with standardise={enc.conf['standardise']} cannot encode one query frame at a "
                          "time; use standardise=fit (vpr localize then standardises the query causally, --window)")
@@ -126,9 +141,14 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
     """
     stdout = sys.stdout if stdout is None else stdout
     out = Path(out)
+    io.check_writable(out / "metrics.json", "--out")
+    if state_out:
+        io.check_writable(state_out, "--state-out")
     p = Path(map_or_db)
-    if p.is_file() and p.suffix == ".npz":
+    if is_map(p) or (p.is_file() and p.suffix.lower() == ".npz"):  # a foreign .npz is refused by load_map
         loc, enc = load_map(p)
+        if (learn_options or {}).get("localizer_conf"):  # query-time settings apply to a learned map
+            loc = loc.reconfigure(**learn_options["localizer_conf"])
     else:
         lo = dict(learn_options or {})
         learn_to = out / "map.npz"
@@ -214,7 +234,7 @@ def _add_learn_args(ap):
     add_preset_argument(ap)
     encoders.add_arguments(ap, default=None)
     ap.add_argument("--localizer-conf", action="append", default=[], metavar="KEY=VALUE",
-                    help="vpr.Localizer option, repeatable (e.g. z_min=4, decay=0.9, threshold=0.75)")
+                    help="vpr.Localizer option, repeatable (e.g. min_score=24, decay=0.9, threshold=0.75)")
 
 
 def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
@@ -251,8 +271,14 @@ def run_command(args) -> int:
     if args.command == "learn":
         loc = learn(args.db, args.out, fps=args.fps, step=args.step, max_frames=args.max_frames,
                     progress=not args.no_progress, **learn_opts)
-        print(f"learned {loc.n_db} frames ({loc.memory!r}); wrote {args.out}")
+        print(f"learned {loc.n_db} frames ({loc.memory!r}); wrote {map_path(args.out)}")
         return 0
+    if is_map(args.map) or Path(args.map).suffix.lower() == ".npz":
+        given = [f for f, v in (("--encoder", args.encoder), ("--encoder-conf", args.encoder_conf),
+                                ("--preset", args.preset)) if v]
+        if given:
+            raise ValueError(f"{args.map} is a learned map: it fixes the encoder and its conf ({', '.join(given)} "
+                             "cannot change them); --localizer-conf sets the query-time options")
     src_opts = {"fps": args.fps, "step": args.step, "max_frames": args.max_frames}
     report = localize(args.map, args.query, args.out, query_standardise=args.query_standardise,
                       prior_frames=args.prior_frames, window=args.window, state_out=args.state_out,

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
-from vpr import evaluate, io, plots
+from vpr import evaluate, io, methods, plots
 from vpr.types import MatchResult
 
 __all__ = ["versions", "write_similarity", "write_matches", "method_metrics", "metrics_table", "write_method",
@@ -113,7 +113,7 @@ def _score_at(S, rows) -> np.ndarray:
 
 
 def write_method(folder: Path, m: str, res: MatchResult, evaluated: tuple, db_names, q_names, gt_hard, gt_soft,
-                 verifier=None, verify: int = 0, progress: bool = False, title: str = "") -> dict:
+                 verifier=None, verify: int = 0, progress: bool = False, title: str = "", loops: bool = False) -> dict:
     """Write one method's files in its folder; return its metrics entries (``m`` and ``m+verify``).
 
     ``evaluated``: the (metrics, curve) of :func:`method_metrics` for ``res``.
@@ -146,7 +146,9 @@ def write_method(folder: Path, m: str, res: MatchResult, evaluated: tuple, db_na
         entries[m + "+verify"] = (vm, vcurve)
     write_matches(folder, res, db_names, q_names, extra)
     plots.plot_similarity(res.similarity, folder / "similarity.png", best_db=res.best_db, accepted=res.accepted,
-                          gt_hard=gt_hard, title=title or f"{m}: database x query")
+                          gt_hard=gt_hard, gt_soft=gt_soft, title=title or f"{m}: database x query",
+                          value_label=methods.get_class(m).score_label if m in methods.available() else "similarity",
+                          axis_labels=("earlier frame", "frame") if loops else ("database", "query"))
     out = {}
     for name, (mm, c) in entries.items():
         if c is not None:

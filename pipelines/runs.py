@@ -12,7 +12,6 @@ the uninterrupted result.
 """
 from __future__ import annotations
 
-import errno
 import os
 import resource
 import sys
@@ -34,7 +33,7 @@ from vpr.shosm import LOOP_EXCLUDE
 from vpr.sources import FrameSkippedWarning, open_source
 from vpr.types import EncodedTraverse, MatchResult
 
-__all__ = ["RunOptions", "run_compare", "run_loops", "run_methods", "exclude_frames", "peak_rss_mb"]
+__all__ = ["RunOptions", "run_compare", "run_loops", "run_methods", "exclude_frames", "peak_rss_mb", "check_fit_frames"]
 
 
 @dataclass
@@ -194,13 +193,7 @@ def _check_out(out: Path, srcs, folders) -> None:
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out}: exists and is not a folder")
     # a read-only or forbidden --out would otherwise fail only when the first encoding is cached
-    anc = out.absolute()
-    while not anc.exists() and anc != anc.parent:
-        anc = anc.parent
-    if not os.access(anc, os.W_OK | os.X_OK):
-        readonly = hasattr(os, "statvfs") and os.statvfs(anc).f_flag & getattr(os, "ST_RDONLY", 1)
-        code = errno.EROFS if readonly else errno.EACCES
-        raise OSError(code, f"cannot write ({os.strerror(code)})", str(out))
+    io.check_writable(out / "metrics.json", "--out")
     written = {(out / f).resolve(): f for f in folders}
     for src in srcs:
         if src.kind == "folder" and src.path.resolve() in written:
@@ -215,6 +208,20 @@ def _gt_rows(attempted, read) -> list[int]:
     return [row[k] for k in read]
 
 
+def check_fit_frames(src, encoder, role: str, step=None, max_frames=None) -> None:
+    """Refuse, before reading a frame, a source too short for an encoder fitted on it (``standardise=fit``)."""
+    how = encoder.conf.get("standardise")
+    if how not in ("fit", "per_batch"):
+        return
+    n = len(src.indices())
+    if n < 2:
+        by = [f"{f} {v}" for f, v in (("--step", step), ("--max-frames", max_frames)) if v is not None]
+        why = f" with {' and '.join(by)}" if by else ""
+        raise ValueError(f"{role} {src.path}: {n} frame(s) to read{why}; encoder {encoder.name} with "
+                         f"standardise={how} is fitted on the traverse and needs at least 2 (more frames, or "
+                         "--encoder-conf standardise=none)")
+
+
 def _prepare(out: Path, paths, roles, method_names, opts: RunOptions, loops: bool = False):
     """Every check that can be made before reading a frame; returns (runners, encoder, sources)."""
     _check_run_options(opts)
@@ -222,7 +229,15 @@ def _prepare(out: Path, paths, roles, method_names, opts: RunOptions, loops: boo
     runners = _runners(method_names, opts)
     encoder = encoders.get(opts.encoder, **opts.encoder_conf)
     srcs = [open_source(p, fps=opts.fps, step=opts.step, max_frames=opts.max_frames) for p in paths]
+    for src, role in zip(srcs, roles, strict=True):
+        check_fit_frames(src, encoder, role, opts.step, opts.max_frames)
     _check_out(out, srcs, [".", "cache", *runners])
+    if opts.cache is not None:
+        cache = Path(opts.cache)
+        if cache.exists() and not cache.is_dir():
+            raise ValueError(f"--cache {cache}: is a file, expected a folder (of encodings, e.g. from `vpr encode`)")
+        if cache.is_dir() and not os.access(cache, os.W_OK | os.X_OK):
+            warn(f"--cache {cache}: not writable; encodings found there are read, new ones are not cached")
     return runners, encoder, srcs
 
 
@@ -242,8 +257,32 @@ def _extract_all(srcs, roles, encoder, runners: dict, opts: RunOptions):
         if lost > 0 or ex.skipped:
             first = f" (first: {ex.skipped[0][0]}: {ex.skipped[0][1]})" if ex.skipped else ""
             warn(f"{role} {src.path}: {lost} of {attempted} frames could not be read and were skipped{first}")
+        degenerate = degenerate_sdrs(ex.features.sdr) if ex.features.sdr is not None else None
+        if degenerate:
+            warn(f"{role} {src.path}: {degenerate}; matching those frames is guesswork (encoder {encoder.name})")
         exs.append(ex)
     return exs
+
+
+def degenerate_sdrs(x, duplicate_share: float = 0.1) -> str | None:
+    """What is wrong with an SDR batch whose frames cannot be told apart: empty rows, or many identical rows.
+
+    None when nothing is: no empty row, and fewer than ``duplicate_share`` of
+    the frames repeat an earlier frame's SDR exactly (a stop repeats a few).
+    """
+    x = sp.csr_matrix(x)
+    n = x.shape[0]
+    if n == 0:
+        return None
+    empty = int((np.diff(x.indptr) == 0).sum())
+    rows = {x.indices[x.indptr[i]:x.indptr[i + 1]].tobytes() for i in range(n)}
+    dup = n - len(rows)
+    parts = []
+    if empty:
+        parts.append(f"{empty} of {n} frames have an empty SDR")
+    if dup >= max(1, duplicate_share * n):
+        parts.append(f"{dup} of {n} frames repeat another frame's SDR exactly")
+    return "; ".join(parts) or None
 
 
 # ----------------------------------------------------------------- the runs
@@ -398,7 +437,8 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
 
     def write(m: str, res: MatchResult, evaluated) -> dict:
         confs[m] = res.conf
-        write_method(out / m, m, res, evaluated, names, names, gt_hard, gt_soft, title=f"{m}: loop closures")
+        write_method(out / m, m, res, evaluated, names, names, gt_hard, gt_soft, title=f"{m}: loop closures",
+                     loops=True)
         io.save_json(out / m / "config.json", _config(opts, command="loops", seq=str(seq), method=m,
                                                       exclude=exclude))
 

@@ -20,7 +20,10 @@ def test_list_names_every_encoder_with_its_defaults(capsys):
     assert confs["pixel"]["k"] == 40 and confs["pixel"]["standardise"] == "none"
     assert E.run_command(_parse(["list"])) == 0
     out = capsys.readouterr().out
-    assert all(line.split()[0] in confs for line in out.strip().splitlines())
+    encoders_part, _, rest = out.partition("\n\n")
+    assert [line.split()[0] for line in encoders_part.splitlines()] == list(confs)
+    # how to join them and the presets (issue 20): the names a newcomer passes to --encoder / --preset
+    assert "pixel+cnn" in rest and all(f"  {p} " in rest for p in ("default", "paper", "fast"))
 
 
 def test_average_precision_leaves_out_soft_and_masked_pairs():

@@ -173,7 +173,7 @@ def _capture(monkeypatch):
     """Replace the file writer by one that keeps the figure, so tests can read what was drawn."""
     figs = []
 
-    def keep(fig, path, dpi=150):
+    def keep(fig, path, dpi=150, **kwargs):
         figs.append(fig)
         return path
 

@@ -103,7 +103,8 @@ def _args(command, argv):
 def test_commands_without_flags_take_the_default_preset():
     d = presets.PRESETS["default"]
     args = _args("compare", ["db", "q", "--out", "o"])
-    assert args.encoder is None and args.methods is None and args.preset == "default"
+    # not given stays None (so that a command can tell a flag given from one not given); resolved to default
+    assert args.encoder is None and args.methods is None and args.preset is None
     opts = match.options_from_args(args)
     assert (opts.preset, opts.encoder, opts.encoder_conf) == ("default", d["encoder"], d["encoder_conf"])
     assert match.settings_from_args(args)["methods"] == d["methods"]
@@ -136,7 +137,7 @@ def test_encode_and_demo_take_the_preset():
     ap = argparse.ArgumentParser()
     demo.add_arguments(ap)
     args = ap.parse_args(["--out", "o"])
-    assert (args.preset, args.encoder, args.methods, args.encoder_conf) == ("default", None, None, None)
+    assert (args.preset, args.encoder, args.methods, args.encoder_conf) == (None, None, None, None)
 
 
 def test_config_json_records_the_resolved_settings(tmp_path):

@@ -7,14 +7,17 @@ being written, not its temporary file.
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import tempfile
+import zipfile
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["atomic_path", "atomic_open", "save_npy", "save_json", "save_figure", "save_image", "locked"]
+__all__ = ["atomic_path", "atomic_open", "save_npy", "save_json", "save_figure", "save_image", "locked",
+           "check_writable", "is_versioned_npz"]
 
 
 @contextlib.contextmanager
@@ -46,6 +49,27 @@ def atomic_path(path, suffix: str | None = None):
             # the temporary name means nothing to the user: name the file being written
             raise _write_error(exc, path) from exc
         raise
+
+
+def check_writable(path, what: str = "output") -> Path:
+    """Refuse, before any work, a file that cannot be written: a folder there, or no write access to its folder.
+
+    Raises ValueError (a folder in the way) or OSError (EACCES / EROFS) naming
+    ``path`` and ``what`` it is for; returns ``path``.
+    """
+    path = Path(path)
+    if path.is_dir() or str(path).endswith(("/", os.sep)):
+        raise ValueError(f"{what} {path}: is a folder, expected a file name (e.g. {path / 'out.npz'})")
+    anc = path.parent.absolute()
+    while not anc.exists() and anc != anc.parent:
+        anc = anc.parent
+    if not anc.is_dir():
+        raise ValueError(f"{what} {path}: {anc} is a file, not a folder")
+    if not os.access(anc, os.W_OK | os.X_OK):
+        readonly = hasattr(os, "statvfs") and os.statvfs(anc).f_flag & getattr(os, "ST_RDONLY", 1)
+        code = errno.EROFS if readonly else errno.EACCES
+        raise OSError(code, f"{what}: cannot write ({os.strerror(code)})", str(path))
+    return path
 
 
 class _TargetWriteError(OSError):
@@ -159,9 +183,29 @@ def load_versioned_npz(path, fmt: str, version: int, what: str, error: type[Exce
             data = {k: z[k] for k in z.files}
         header = json.loads(str(data.pop("header")))
     except Exception as e:  # zip, format and JSON errors all mean "not our file"
-        raise error(f"{path}: not a readable {what} file ({type(e).__name__}: {e})") from e
+        # numpy's own words would suggest loading it "unsafely" with allow_pickle: not what to do here
+        reason = "not an .npz archive" if not zipfile.is_zipfile(path) else f"unreadable content ({type(e).__name__})"
+        raise error(f"{path}: not a readable {what} file{hint}: {reason}") from e
     if not isinstance(header, dict) or header.get("format") != fmt:
         raise error(f"{path}: not a {what} file{hint}")
     if header.get("version") != version:
         raise error(f"{path}: unsupported {what} format version {header.get('version')}")
     return header, data
+
+
+def is_versioned_npz(path, fmt: str | None = None) -> bool:
+    """Whether ``path`` is a file of :func:`save_versioned_npz` (of format ``fmt``), whatever its name."""
+    path = Path(path)
+    if not path.is_file() or not zipfile.is_zipfile(path):
+        return False
+    try:
+        with zipfile.ZipFile(path) as z:
+            if "header.npy" not in z.namelist():
+                return False
+            if fmt is None:
+                return True
+            with z.open("header.npy") as fh:
+                header = json.loads(str(np.lib.format.read_array(fh, allow_pickle=False)))
+    except (OSError, ValueError, zipfile.BadZipFile):
+        return False
+    return isinstance(header, dict) and header.get("format") == fmt

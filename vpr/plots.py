@@ -100,19 +100,26 @@ def plot_pr(curves, path, title=None, dpi=150, ap=None) -> Path:
             score = float(np.sum(np.diff(recall) * precision[1:]))
         checked.append((str(name), precision, recall, score))
 
-    fig = _new_figure((6, 5))
+    # a method and its twins ("m+verify") share a colour; a twin is dashed and drawn over it, so that equal
+    # curves stay visible as one dashed-over-solid line
+    bases = list(dict.fromkeys(name.split("+")[0] for name, *_ in checked))
+    colour = {b: f"C{i % 10}" for i, b in enumerate(bases)}
+    fig = _new_figure((8.5, 5))
     ax = fig.subplots()
-    for name, precision, recall, score in checked:
-        ax.plot(recall, precision, label=f"{name} (AP = {score:.3f})", linewidth=1.5)
+    for name, precision, recall, score in sorted(checked, key=lambda c: "+" in c[0]):
+        twin = "+" in name
+        ax.plot(recall, precision, label=f"{name} (AP = {score:.3f})", color=colour[name.split("+")[0]],
+                linestyle="--" if twin else "-", linewidth=1.2 if twin else 2.0, zorder=3 if twin else 2)
     ax.set_xlabel("recall")
     ax.set_ylabel("precision")
     ax.set_xlim(0, 1)
     ax.set_ylim(0, 1.02)
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="lower left", fontsize="small")
+    # beside the axes, not over the low curves
+    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize="small", borderaxespad=0.0)
     if title:
         ax.set_title(title)
-    return save_figure(fig, path, dpi=dpi)
+    return save_figure(fig, path, dpi=dpi, bbox_inches="tight")
 
 
 # --------------------------------------------------------------------------- #
@@ -193,7 +200,8 @@ def _has_candidate(S, best_db):
 
 
 def plot_similarity(S, path, best_db=None, accepted=None, gt_hard=None, title=None,
-                    max_pixels=1000, dpi=150) -> Path:
+                    max_pixels=1000, dpi=150, value_label="similarity", axis_labels=("database", "query"),
+                    gt_soft=None) -> Path:
     """Heatmap of a similarity matrix with best matches and ground truth.
 
     Database entries run down the y axis, queries along the x axis. Larger
@@ -214,9 +222,18 @@ def plot_similarity(S, path, best_db=None, accepted=None, gt_hard=None, title=No
         (its "best" row is arbitrary, not a match).
     accepted : array_like of bool, shape (n_q,), optional
         Whether each best match was accepted (circle) or rejected (cross).
-        Requires ``best_db``.
+        Requires ``best_db``. With ``gt_hard`` an accepted match is drawn
+        green when it is right, red when it is wrong (orange: neither, on
+        ``gt_soft`` only).
     gt_hard : bool array or sparse bool matrix, shape (n_db, n_q), optional
         Drawn as a faint red overlay.
+    value_label : str
+        What the matrix holds, for the colour bar (a method's scores:
+        ``"z-score"``, ``"-difference"``, ...).
+    axis_labels : (rows, columns)
+        ``("earlier frame", "frame")`` for one stream's loop closures.
+    gt_soft : like ``gt_hard``, optional
+        Pairs neither right nor wrong (see ``accepted``).
     title : str, optional
     max_pixels : int
         Display resolution limit per axis.
@@ -278,9 +295,11 @@ def plot_similarity(S, path, best_db=None, accepted=None, gt_hard=None, title=No
     vmin, vmax = (finite.min(), finite.max()) if finite.size else (0.0, 1.0)
     im = ax.imshow(np.ma.masked_invalid(shown), cmap=cmap, aspect="auto", interpolation="nearest",
                    extent=extent, vmin=vmin, vmax=vmax if vmax > vmin else vmin + 1)
-    fig.colorbar(im, ax=ax, label="similarity", shrink=0.9)
+    fig.colorbar(im, ax=ax, label=value_label, shrink=0.9)
 
     handles = []
+    if not np.isfinite(shown).all():  # never scored: excluded pairs, SeqSLAM's edge queries, unstored entries
+        handles.append(Patch(facecolor="0.92", edgecolor="0.7", label="no score"))
     if gt_hard is not None:
         gt_shown = _block_any(gt_hard, fr, fc)
         ax.imshow(np.ma.masked_where(~gt_shown, np.ones(gt_shown.shape)), cmap=ListedColormap(["red"]),
@@ -298,24 +317,46 @@ def plot_similarity(S, path, best_db=None, accepted=None, gt_hard=None, title=No
                                   linestyle="", label="best match"))
         else:
             acc = accepted[q]
-            ax.scatter(q[acc], best_db[q[acc]], s=size, marker="o", facecolors="none",
-                       edgecolors="orange", linewidths=0.8)
-            ax.scatter(q[~acc], best_db[q[~acc]], s=size, marker="x", c="magenta", linewidths=0.8)
-            handles.append(Line2D([], [], marker="o", markerfacecolor="none", markeredgecolor="orange",
-                                  linestyle="", label="accepted"))
-            handles.append(Line2D([], [], marker="x", color="magenta", linestyle="", label="rejected"))
+            groups = [("accepted", acc, "orange")]
+            if gt_hard is not None:  # right and wrong accepted matches look different
+                right = _pairs_in(gt_hard, best_db[q], q)
+                soft = _pairs_in(gt_soft, best_db[q], q) & ~right if gt_soft is not None else np.zeros_like(right)
+                groups = [("accepted, right", acc & right, "lime"), ("accepted, wrong", acc & ~right & ~soft, "red"),
+                          ("accepted, ignored (soft)", acc & soft, "orange")]
+            for label, sel, col in groups:
+                if sel.any():
+                    ax.scatter(q[sel], best_db[q[sel]], s=size, marker="o", facecolors="none", edgecolors=col,
+                               linewidths=0.9)
+                    handles.append(Line2D([], [], marker="o", markerfacecolor="none", markeredgecolor=col,
+                                          linestyle="", label=label))
+            if (~acc).any():
+                ax.scatter(q[~acc], best_db[q[~acc]], s=size, marker="x", c="magenta", linewidths=0.8)
+                handles.append(Line2D([], [], marker="x", color="magenta", linestyle="", label="rejected"))
     ax.set_xlim(extent[0], extent[1])
     ax.set_ylim(extent[2], extent[3])
-    ax.set_xlabel("query")
-    ax.set_ylabel("database")
-    if handles:
-        ax.legend(handles=handles, loc="upper right", fontsize="small", framealpha=0.8)
+    ax.set_xlabel(axis_labels[1])
+    ax.set_ylabel(axis_labels[0])
+    if handles:  # below the matrix, not over its corner
+        ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.12), ncols=min(len(handles), 3),
+                  fontsize="small", framealpha=0.8)
     if title:
         ax.set_title(title)
     if fr > 1 or fc > 1:
-        ax.text(0.0, -0.08, f"display max-pooled {fr}x{fc}", transform=ax.transAxes,
-                fontsize="x-small", va="top")
-    return save_figure(fig, path, dpi=dpi)
+        ax.text(1.0, 1.01, f"display max-pooled {fr}x{fc}", transform=ax.transAxes, ha="right",
+                fontsize="x-small", va="bottom")
+    return save_figure(fig, path, dpi=dpi, bbox_inches="tight")
+
+
+def _pairs_in(G, rows, cols) -> np.ndarray:
+    """``G[rows[i], cols[i]]`` as bools (dense or sparse ``G``; rows < 0 are False)."""
+    rows, cols = np.asarray(rows), np.asarray(cols)
+    ok = rows >= 0
+    out = np.zeros(rows.shape, bool)
+    if sp.issparse(G):
+        out[ok] = np.asarray(sp.csr_matrix(G)[rows[ok], cols[ok]]).ravel().astype(bool)
+    else:
+        out[ok] = np.asarray(G)[rows[ok], cols[ok]].astype(bool)
+    return out
 
 
 # --------------------------------------------------------------------------- #

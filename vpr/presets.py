@@ -135,7 +135,12 @@ def resolve(name: str | None = DEFAULT, encoder: str | None = None, encoder_conf
             raise ValueError(f"{arg} must be a dict, got {type(value).__name__}")
     if encoder is None or encoder == preset["encoder"]:
         loop_conf = preset["loop_encoder_conf"] if loops else {}
-        enc, enc_conf = preset["encoder"], {**preset["encoder_conf"], **loop_conf, **(encoder_conf or {})}
+        base = {**preset["encoder_conf"], **loop_conf}
+        # a key given without a part prefix (k=100 on pixel+cnn) is meant for every part: it replaces the
+        # preset's per-part values of that key, which would otherwise win over it inside the joined encoder
+        given = {k for k in (encoder_conf or {}) if "." not in k}
+        base = {k: v for k, v in base.items() if k.partition(".")[2] not in given or "." not in k}
+        enc, enc_conf = preset["encoder"], {**base, **(encoder_conf or {})}
     else:
         enc, enc_conf = encoder, dict(encoder_conf or {})
     if methods is not None:

@@ -57,10 +57,11 @@ class GroundTruthSpec:
         return {"tolerance": self.tolerance, "gt": list(self.files) or None, "radius": self.radius,
                 "gt_soft": self.soft}
 
-    def check(self, loops: bool = False) -> None:
+    def check(self, loops: bool = False, files: bool = True) -> None:
         """Refuse contradictory, ignored or out-of-range options and missing files, before any work.
 
         ``loops``: the ground truth of ``vpr loops`` (one positions file with ``--radius``).
+        ``files=False``: the options only (files written later, e.g. by a render).
 
         Raises
         ------
@@ -69,6 +70,7 @@ class GroundTruthSpec:
         FileNotFoundError
             A ``--gt`` file does not exist.
         """
+        check_files = files
         tol, files, radius, soft = self.tolerance, list(self.files), self.radius, self.soft
         if tol is not None and (isinstance(tol, bool) or not isinstance(tol, (int, np.integer)) or tol < 0):
             raise ValueError(f"--tolerance must be an integer >= 0 (frames), got {tol!r}")
@@ -108,7 +110,7 @@ class GroundTruthSpec:
                              f"got {len(files)}")
         if not matrices and len(files) == 2 and radius is None:
             raise ValueError("two --gt CSV files are positions files and need --radius")
-        for f in files:
+        for f in files if check_files else ():
             fp, _ = split_variable(f)
             if not fp.exists():
                 raise FileNotFoundError(f"no such ground-truth file: {fp}")

@@ -44,6 +44,8 @@ class Method:
     nullable_conf: frozenset = frozenset()
     #: why :meth:`loops` is refused, for methods that do not override :meth:`_loops`
     no_loops_reason: str = ""
+    #: what the similarity matrix holds (the colour bar of its heatmap)
+    score_label: str = "similarity"
     #: the :class:`~vpr.types.EncodedTraverse` inputs read: ``"sdr"``, ``"desc"`` (from the encoder) or the
     #: name of one of :attr:`image_inputs`
     required_inputs: tuple = ()

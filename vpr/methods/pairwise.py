@@ -23,6 +23,7 @@ class Pairwise(Method):
     """
 
     name = "pairwise"
+    score_label = "similarity of the two frames (SDR overlap or descriptor)"
     default_conf = {"on": "sdr", "metric": "auto", "top_k": 50}
 
     def __init__(self, **conf):

@@ -28,6 +28,7 @@ class Rshosm(Method):
     """
 
     name = "rshosm"
+    score_label = "winner-cell overlap"
     default_conf = {**SequenceMemory.default_params(), "top_k": 50}
     nullable_conf = frozenset({"seed"})
     required_inputs = ("sdr",)

@@ -47,6 +47,7 @@ class RshosmSeq(Method):
     """
 
     name = "rshosm-seq"
+    score_label = "z-score of the sequence evidence"
     default_conf = {**memory_params(), **EvidenceConf().as_dict(), "direction": "both", "top_k": 50,
                     **LoopConf().as_dict()}  # loops only (vpr.shosm.accept_loops; docs/loops.md)
     nullable_conf = frozenset({"seed", "stay", "skip"})

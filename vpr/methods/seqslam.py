@@ -51,6 +51,7 @@ class SeqSlam(Method):
     """
 
     name = "seqslam"
+    score_label = "-difference along the best trajectory (darkest rows: no full trajectory fits, ranked last)"
     default_conf = {"ds": 10, "v_min": 0.8, "v_max": 1.2, "v_step": 0.1, "R": 10, "rwindow": 10,
                     "ratio_threshold": 0.9, "causal": False, "metric": "sad", "descriptor": "pixel",
                     "large": "pairwise", "top_k": 50, "n_candidates": 50}

@@ -1,12 +1,36 @@
 """Two-view geometry: how many keypoint matches one fundamental matrix or homography explains (pycolmap)."""
 from __future__ import annotations
 
+import signal
+import threading
+
 import numpy as np
-import pycolmap
 
 from vpr.checks import check_choice, check_float, check_int
 
 from .features import Keypoints, check_keypoints
+
+
+def _import_pycolmap():
+    """pycolmap, without the SIGTERM / SIGINT handlers its logging library installs on import.
+
+    Those print a native stack trace on a plain ``kill`` and bypass Python's
+    own handlers (a command line's clean stop); the handlers Python had are put back.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        import pycolmap
+
+        return pycolmap
+    saved = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
+    import pycolmap
+
+    for s, h in saved.items():
+        if h is not None:
+            signal.signal(s, h)
+    return pycolmap
+
+
+pycolmap = _import_pycolmap()
 
 __all__ = ["MODELS", "two_view_inliers", "check_seed"]
 
