@@ -163,7 +163,7 @@ def _check_path(c) -> None:
 class PathConf(_Conf):
     """When a localisation is accepted, query frame by query frame (:class:`vpr.shosm.Localizer`).
 
-    The rule of :class:`LoopConf` against a map: the best map frame's margin
+    The rule of :class:`LoopConf` (which extends it) against a map: the best map frame's margin
     over the strongest other place (``z_best - z_other``, outside the best's
     *island*), minus ``drift``, accumulated while the best map frame moves on
     consistently; accepted when the score reaches ``min_score``. A margin, not
@@ -191,7 +191,7 @@ class PathConf(_Conf):
 
 
 @dataclass(frozen=True)
-class LoopConf(_Conf):
+class LoopConf(PathConf):
     """When a loop closure is accepted, frame by frame (:func:`vpr.shosm.accept_loops`).
 
     A frame's best earlier frame stands out from every other place by
@@ -222,12 +222,9 @@ class LoopConf(_Conf):
 
     drift: float = 1.5
     min_score: float = 24.0
-    back: int = 4
-    ahead: int = 6
-    island: float = 1.0
     stop_ratio: float = 0.35
 
     def __post_init__(self):
-        _check_path(self)
+        super().__post_init__()
         if not 0.0 <= float(self.stop_ratio) < 1.0:
             raise ValueError(f"stop_ratio must be in [0, 1) (0: stops are not checked), got {self.stop_ratio}")
