@@ -118,8 +118,8 @@ def _any_true(G) -> bool:
     return bool(G.count_nonzero()) if sp.issparse(G) else bool(np.any(G))
 
 
-def _config(opts: RunOptions, **inputs) -> dict:
-    return {"argv": sys.argv[1:], **inputs, **asdict(opts)}
+def _config(opts: RunOptions, argv=None, **inputs) -> dict:
+    return {"argv": list(sys.argv[1:] if argv is None else argv), **inputs, **asdict(opts)}
 
 
 def _check_run_options(opts: RunOptions) -> None:
@@ -308,6 +308,16 @@ def run_compare(db, query, method_names: list[str], opts: RunOptions, command: s
     """
     out = Path(opts.out)
     runners, encoder, (db_src, q_src) = _prepare(out, [db, query], ["database", "query"], method_names, opts)
+    check_match(runners, opts, db_src, q_src)
+    # ---- the work starts here: nothing above wrote a file
+    db_ex, q_ex = _extract_all([db_src, q_src], ["database", "query"], encoder, runners, opts)
+    the_map = MatchMap(str(db), db_src, db_ex, encoder.name, dict(encoder.conf),
+                       {m: r.fit(db_ex.features, progress=opts.progress) for m, r in runners.items()})
+    return compare_query(the_map, query, q_src, opts, command, q_ex=q_ex, argv=sys.argv[1:])
+
+
+def check_match(runners: dict, opts: RunOptions, db_src, q_src):
+    """The checks of a database x query run that need both sources (before any work); returns the ground truth."""
     unknown = set(opts.verify_methods or ()) - set(runners)
     if unknown:
         raise ValueError(f"verify_methods: {', '.join(sorted(unknown))} not among the methods run")
@@ -317,8 +327,40 @@ def run_compare(db, query, method_names: list[str], opts: RunOptions, command: s
     gt_hard, gt_soft = build_gt(opts.gt, db_src.names(), q_src.names(), db_att, q_att, db_src.name, q_src.name)
     if gt_hard is not None and not _any_true(gt_hard):
         raise opts.gt.no_match_error(db_att, q_att)
-    # ---- the work starts here: nothing above wrote a file
-    db_ex, q_ex = _extract_all([db_src, q_src], ["database", "query"], encoder, runners, opts)
+    return gt_hard, gt_soft
+
+
+@dataclass
+class MatchMap:
+    """The database side of a run, built once: its source, its encoding and every method fitted on it.
+
+    A fleet of query traverses (:mod:`pipelines.fleet`) ships it to each
+    worker once; :func:`compare_query` matches one query traverse with it.
+    """
+
+    db: str
+    src: object
+    ex: object
+    encoder: str
+    encoder_conf: dict
+    fitted: dict
+
+
+def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, command: str = "compare", q_ex=None,
+                  argv=None) -> dict:
+    """One query traverse against a built map: encode it (unless ``q_ex``), run, evaluate, write ``opts.out``.
+
+    What :func:`run_compare` does after the database is encoded and learned;
+    the same files and ``metrics.json``, wherever it runs.
+    """
+    out = Path(opts.out)
+    db_src, db_ex = the_map.src, the_map.ex
+    runners = {m: f.method for m, f in the_map.fitted.items()}
+    gt_hard, gt_soft = check_match(runners, opts, db_src, q_src)
+    db_att, q_att = db_src.indices(), q_src.indices()
+    encoder = encoders.get(the_map.encoder, **the_map.encoder_conf)
+    if q_ex is None:
+        (q_ex,) = _extract_all([q_src], ["query"], encoder, runners, opts)
     if gt_hard is not None:
         rows, cols = _gt_rows(db_att, db_ex.indices), _gt_rows(q_att, q_ex.indices)
         gt_hard = gt_hard[np.ix_(rows, cols)]
@@ -333,6 +375,7 @@ def run_compare(db, query, method_names: list[str], opts: RunOptions, command: s
         verifier = Verifier(db_ex.thumbs, q_ex.thumbs, **{"min_inliers": opts.min_inliers, **opts.verify_conf})
     confs = {}
     db_names, q_names = db_ex.features.names, q_ex.features.names
+    db, argv = the_map.db, list(sys.argv[1:] if argv is None else argv)
 
     def write(m: str, res: MatchResult, evaluated) -> dict:
         confs[m] = res.conf
@@ -340,11 +383,11 @@ def run_compare(db, query, method_names: list[str], opts: RunOptions, command: s
         v = verifier if opts.verify_methods is None or m in opts.verify_methods else None
         entries = write_method(folder, m, res, evaluated, db_names, q_names, gt_hard, gt_soft, v, opts.verify,
                                opts.progress)
-        io.save_json(folder / "config.json", _config(opts, command=command, db=str(db), query=str(query),
+        io.save_json(folder / "config.json", _config(opts, argv, command=command, db=str(db), query=str(query),
                                                      methods=list(runners)))
         return {k: (e, None) for k, e in entries.items() if k != m}
 
-    done = run_methods(runners, lambda r: r.match(db_ex.features, q_ex.features, progress=opts.progress),
+    done = run_methods(the_map.fitted, lambda f: f.match(q_ex.features, progress=opts.progress),
                        gt_hard, gt_soft, on_result=write)
     metrics = {k: e for k, (e, _) in done.items()}
     # what makes two runs' metrics comparable: same frames (content keys), encoding and ground truth

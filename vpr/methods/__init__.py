@@ -41,9 +41,9 @@ from importlib import import_module
 
 from vpr.types import EncodedTraverse, ImageInput, MatchResult
 
-from .base import Method
+from .base import Fitted, Method
 
-__all__ = ["get", "available", "get_class", "match", "loops", "image_inputs", "Method"]
+__all__ = ["get", "available", "get_class", "match", "loops", "image_inputs", "Method", "Fitted"]
 
 # name -> (module, class); imported on first use, so that e.g. the SeqSLAM kernels load only for seqslam
 _REGISTRY = {

@@ -20,7 +20,7 @@ from vpr.config import merge_conf
 from vpr.similarity import best_matches, mask_recent
 from vpr.types import ENCODER_INPUTS, EncodedTraverse, ImageInput, MatchResult
 
-__all__ = ["Method"]
+__all__ = ["Method", "Fitted"]
 
 
 class Method:
@@ -89,6 +89,14 @@ class Method:
         """(similarity, best_db, score, accepted or None to use :meth:`accept`)."""
         raise NotImplementedError
 
+    def _fit(self, db: EncodedTraverse, progress: bool):
+        """What the method learns from the database alone (None: nothing; methods that learn override it)."""
+        return None
+
+    def _match_fitted(self, state, db: EncodedTraverse, query: EncodedTraverse, progress: bool):
+        """:meth:`_match` given ``state = _fit(db)`` (must not change ``state``: it serves many queries)."""
+        return self._match(db, query, progress)
+
     def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool):
         """(similarity before masking, decisions): decisions None to use :meth:`accept` on the best matches, an
         accepted array, or (best, score, accepted) of the method's own per-frame decision. Not overridden:
@@ -97,15 +105,21 @@ class Method:
 
     # ---------------------------------------------------------------- public
     def match(self, db: EncodedTraverse, query: EncodedTraverse, progress: bool = False) -> MatchResult:
-        """Match every query frame against the database traverse."""
+        """Match every query frame against the database traverse (:meth:`fit`, then :meth:`Fitted.match`)."""
         self.check_size(len(db), len(query))
+        return self.fit(db, progress).match(query, progress)
+
+    def fit(self, db: EncodedTraverse, progress: bool = False) -> Fitted:
+        """Learn the database once; the :class:`Fitted` result matches any number of query traverses.
+
+        A fleet of query traverses against one map learns the map once (and
+        ships it to workers once); each query's answers are those of
+        :meth:`match` on that query alone.
+        """
         self.warm_up()
         t = time.perf_counter()
-        S, best, score, accepted = self._match(db, query, progress)
-        if accepted is None:
-            accepted = self.accept(best, score)
-        return MatchResult(self.name, S, best, score, np.asarray(accepted, bool), time.perf_counter() - t,
-                           dict(self.conf))
+        state = self._fit(db, progress)
+        return Fitted(self, db, state, time.perf_counter() - t)
 
     def loops(self, seq: EncodedTraverse, exclude: int = 1, progress: bool = False) -> MatchResult:
         """Loop closures within one traverse: for each frame, the best earlier frame and the decision.
@@ -138,3 +152,34 @@ class Method:
                 accepted = np.asarray(decisions, bool) & np.isfinite(score)
             best[~np.isfinite(score)] = -1
         return MatchResult(self.name, S, best, score, accepted, time.perf_counter() - t, dict(self.conf))
+
+
+class Fitted:
+    """A method with its database learned (:meth:`Method.fit`): ``match(query)`` for any number of queries.
+
+    Picklable, so that a cluster receives it once and matches many query
+    traverses with it. ``seconds``: the learning time, counted in every
+    query's :attr:`MatchResult.seconds` (as :meth:`Method.match` counts it).
+    """
+
+    def __init__(self, method: Method, db: EncodedTraverse, state, seconds: float):
+        self.method, self.db, self.state, self.seconds = method, db, state, float(seconds)
+
+    @property
+    def name(self) -> str:
+        return self.method.name
+
+    def match(self, query: EncodedTraverse, progress: bool = False) -> MatchResult:
+        """Match every frame of ``query`` against the learned database."""
+        m = self.method
+        m.check_size(len(self.db), len(query))
+        m.warm_up()
+        t = time.perf_counter()
+        S, best, score, accepted = m._match_fitted(self.state, self.db, query, progress)
+        if accepted is None:
+            accepted = m.accept(best, score)
+        return MatchResult(m.name, S, best, score, np.asarray(accepted, bool),
+                           self.seconds + time.perf_counter() - t, dict(m.conf))
+
+    def __repr__(self) -> str:
+        return f"Fitted({self.method!r}, db={len(self.db)} frames)"

@@ -44,10 +44,18 @@ class Rshosm(Method):
         # an overlap of zero is no evidence
         return super().accept(best, score) & (score > 0)
 
-    def _match(self, db: EncodedTraverse, query: EncodedTraverse, progress: bool):
+    def _fit(self, db: EncodedTraverse, progress: bool):
         mem = self.memory()
         db_codes = mem.run(self.need(db, "sdr", "database"), progress=progress)
         mem.reset()
+        return mem, db_codes
+
+    def _match(self, db: EncodedTraverse, query: EncodedTraverse, progress: bool):
+        return self._match_fitted(self._fit(db, progress), db, query, progress)
+
+    def _match_fitted(self, state, db: EncodedTraverse, query: EncodedTraverse, progress: bool):
+        mem, db_codes = state
+        mem.reset()  # every query starts from the learned memory's fresh context (learning off changes nothing else)
         q_codes = mem.run(self.need(query, "sdr", "query"), learn=False, progress=progress)
         db_codes, q_codes = pad_codes(db_codes, q_codes)
         top_k = top_k_or_dense(len(db), len(query), self.conf["top_k"])

@@ -66,12 +66,19 @@ class RshosmSeq(Method):
         query_evidence(mem, tiny, codes)
         query_evidence(mem, tiny, codes, top_k=1)
 
-    def _match(self, db: EncodedTraverse, query: EncodedTraverse, progress: bool):
-        c = self.conf
-        db_sdr, q_sdr = self.need(db, "sdr", "database"), self.need(query, "sdr", "query")
-        mem = SequenceMemory(**memory_params(c))
-        db_codes = mem.run(db_sdr, progress=progress)
+    def _fit(self, db: EncodedTraverse, progress: bool):
+        mem = SequenceMemory(**memory_params(self.conf))
+        db_codes = mem.run(self.need(db, "sdr", "database"), progress=progress)
         mem.reset()
+        return mem, db_codes
+
+    def _match(self, db: EncodedTraverse, query: EncodedTraverse, progress: bool):
+        return self._match_fitted(self._fit(db, progress), db, query, progress)
+
+    def _match_fitted(self, state, db: EncodedTraverse, query: EncodedTraverse, progress: bool):
+        c = self.conf
+        mem, db_codes = state  # read, never changed, by the evidence
+        q_sdr = self.need(query, "sdr", "query")
         r = query_evidence(mem, q_sdr, db_codes, self.evidence_conf, direction=c["direction"],
                            top_k=top_k_or_dense(len(db), len(query), c["top_k"]), beam=BeamConf(), progress=progress)
         return r.similarity, r.best_db, r.score, None
