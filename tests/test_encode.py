@@ -1,14 +1,7 @@
 """``vpr encode`` on Dask: frame ranges, a cache that extract() reads, byte-identical parallel runs,
 and a worker killed mid-run (a real ``dask scheduler`` and ``dask worker`` processes on 127.0.0.1)."""
 import argparse
-import json
-import os
-import shutil
-import signal
-import subprocess
-import sys
 import threading
-import time
 from pathlib import Path
 
 import cv2
@@ -204,57 +197,16 @@ if not hasattr(PixelEncoder, "unslowed_describe"):
 """
 
 
-def _dask_cli():
-    exe = Path(sys.executable).parent / "dask"
-    return [str(exe)] if exe.exists() else [shutil.which("dask") or "dask"]
-
-
-def _stop(procs):
-    for p in procs:
-        if p.poll() is None:
-            p.send_signal(signal.SIGTERM)
-    for p in procs:
-        try:
-            p.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait(timeout=10)
-
-
 @pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::UserWarning")
 def test_killed_worker_chunks_are_retried_and_output_is_identical(data, tmp_path):
-    from distributed import Client
+    from tests.dask_cluster import cluster
 
     busy_dir = tmp_path / "busy"
     busy_dir.mkdir()
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
-           "VPR_TEST_BUSY_DIR": str(busy_dir)}
-    sched_file = tmp_path / "scheduler.json"
     slow = tmp_path / "slow_describe.py"
     slow.write_text(SLOW)
-    logs = open(tmp_path / "cluster.log", "w")
-    procs = [subprocess.Popen(_dask_cli() + ["scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
-                                             "--dashboard-address", "127.0.0.1:0", "--scheduler-file", str(sched_file),
-                                             "--idle-timeout", "120"],
-                              env=env, stdout=logs, stderr=subprocess.STDOUT)]
-    try:
-        deadline = time.monotonic() + 60
-        while not (sched_file.is_file() and sched_file.stat().st_size > 0):
-            assert time.monotonic() < deadline, "dask scheduler did not start"
-            assert procs[0].poll() is None, (tmp_path / "cluster.log").read_text()
-            time.sleep(0.2)
-        address = json.loads(sched_file.read_text())["address"]
-        workers = {}
-        for name in ("w1", "w2"):
-            workers[name] = subprocess.Popen(
-                _dask_cli() + ["worker", address, "--nthreads", "1", "--no-nanny", "--no-dashboard", "--host",
-                               "127.0.0.1", "--dashboard-address", "127.0.0.1:0", "--name", name, "--preload",
-                               str(slow), "--death-timeout", "60", "--local-directory", str(tmp_path / name)],
-                env=env, stdout=logs, stderr=subprocess.STDOUT)
-            procs.append(workers[name])
-        with Client(address, timeout="30s") as watcher:
-            watcher.wait_for_workers(2, timeout=60)
+    with cluster(tmp_path, slow, {"VPR_TEST_BUSY_DIR": str(busy_dir)}) as (address, workers, log):
         killed = []
 
         def kill_busy_worker(i, start, stop, done, total):
@@ -281,12 +233,9 @@ def test_killed_worker_chunks_are_retried_and_output_is_identical(data, tmp_path
         run.join(timeout=120)
         if "error" in result:
             raise result["error"]
-        assert "out" in result, "the run did not finish: " + (tmp_path / "cluster.log").read_text()[-3000:]
+        assert "out" in result, "the run did not finish: " + log.read_text()[-3000:]
         out = result["out"]
         assert killed and killed[0][1] < killed[0][2], "no worker was killed while it held chunks"
         assert workers[killed[0][0]].poll() is not None
         got = {r.path.name: r.path.read_bytes() for r in out}
         assert got == _serial_bytes([data["night"]], tmp_path)
-    finally:
-        _stop(procs)
-        logs.close()

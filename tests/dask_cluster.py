@@ -1,0 +1,70 @@
+"""A real Dask cluster on 127.0.0.1 for the tests that kill a worker mid-run (`dask scheduler` + `dask worker`)."""
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def dask_cli() -> list[str]:
+    exe = Path(sys.executable).parent / "dask"
+    return [str(exe)] if exe.exists() else [shutil.which("dask") or "dask"]
+
+
+def stop(procs) -> None:
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGTERM)
+    for p in procs:
+        try:
+            p.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait(timeout=10)
+
+
+@contextlib.contextmanager
+def cluster(tmp_path: Path, preload: Path, env: dict, names=("w1", "w2")):
+    """Yield (scheduler address, {name: worker process}, log path); every process is stopped after.
+
+    Workers: one thread, no nanny (a killed worker stays dead), ``preload`` imported in each.
+    """
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]), **env}
+    sched_file = tmp_path / "scheduler.json"
+    log_path = tmp_path / "cluster.log"
+    logs = open(log_path, "w")
+    procs = [subprocess.Popen(dask_cli() + ["scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                                            "--dashboard-address", "127.0.0.1:0", "--scheduler-file", str(sched_file),
+                                            "--idle-timeout", "120"],
+                              env=env, stdout=logs, stderr=subprocess.STDOUT)]
+    try:
+        deadline = time.monotonic() + 60
+        while not (sched_file.is_file() and sched_file.stat().st_size > 0):
+            assert time.monotonic() < deadline, "dask scheduler did not start"
+            assert procs[0].poll() is None, log_path.read_text()
+            time.sleep(0.2)
+        address = json.loads(sched_file.read_text())["address"]
+        workers = {}
+        for name in names:
+            workers[name] = subprocess.Popen(
+                dask_cli() + ["worker", address, "--nthreads", "1", "--no-nanny", "--no-dashboard", "--host",
+                              "127.0.0.1", "--dashboard-address", "127.0.0.1:0", "--name", name, "--preload",
+                              str(preload), "--death-timeout", "60", "--local-directory", str(tmp_path / name)],
+                env=env, stdout=logs, stderr=subprocess.STDOUT)
+            procs.append(workers[name])
+        from distributed import Client
+
+        with Client(address, timeout="30s") as watcher:
+            watcher.wait_for_workers(len(names), timeout=60)
+        yield address, workers, log_path
+    finally:
+        stop(procs)
+        logs.close()
