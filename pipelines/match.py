@@ -40,7 +40,9 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
                         "decided online one frame at a time (a JSON line per frame on stdout)")
     else:
         ap.add_argument("db", metavar="DB", help="database traverse: image folder, video or image list")
-        ap.add_argument("query", metavar="QUERY", help="query traverse: image folder, video or image list")
+        ap.add_argument("query", metavar="QUERY", nargs="+",
+                        help="query traverse(s): image folder, video or image list; several: a fleet, one folder "
+                             "OUT/<query name> each, on Dask (--workers, --scheduler)")
     ap.add_argument("--out", required=True, help="output folder")
     # defaults None: a flag not given takes the preset's value (vpr.presets.resolve)
     add_preset_argument(ap)
@@ -58,6 +60,13 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
                         help="ignore matches fewer than W frames back, or W seconds for videos with 'Ws' "
                              f"(e.g. 5s; default {LOOP_EXCLUDE} frames)")
     add_gt_arguments(ap, loops=command == "loops")
+    if command != "loops":
+        fleet = ap.add_argument_group("several query traverses (a fleet)")
+        fleet.add_argument("--workers", type=int, metavar="N",
+                           help="run the query traverses on a local Dask cluster of N processes (default: the "
+                                "cores); 0 runs them one after the other in this process")
+        fleet.add_argument("--scheduler", metavar="ADDRESS",
+                           help="run the query traverses on a running Dask cluster, e.g. tcp://host:8786")
     if command == "loops":
         online = ap.add_argument_group("online (SEQ is -)")
         online.add_argument("--state-out", metavar="FILE.npz", help="save the loop detector after the last frame")
@@ -129,10 +138,24 @@ def run_command(args) -> int:
         raise ValueError("--state-out and --resume are for online loop closure: SEQ - (image paths on stdin)")
     opts = options_from_args(args)
     names = settings_from_args(args)["methods"]
+    if args.command != "loops" and len(args.query) > 1:
+        from pipelines.fleet import run_fleet, summary_table
+
+        def said(name, done, total):
+            print(f"vpr {args.command}: query {name} done ({done} of {total})", file=sys.stderr, flush=True)
+
+        summary = run_fleet(args.db, args.query, names, opts, command=args.command, workers=args.workers,
+                            scheduler=args.scheduler, progress=said)
+        print(summary_table(summary))
+        print(f"wrote {args.out}/metrics.json and a folder per query")
+        return 0
+    if args.command != "loops" and (args.workers is not None or args.scheduler is not None):
+        raise ValueError("--workers and --scheduler run several query traverses in parallel; give more than one "
+                         "QUERY (one query runs in this process)")
     if args.command == "loops":
         report = run_loops(args.seq, names[0], opts, exclude=LOOP_EXCLUDE if args.exclude is None else args.exclude)
     else:
-        report = run_compare(args.db, args.query, names, opts, command=args.command)
+        report = run_compare(args.db, args.query[0], names, opts, command=args.command)
     print(metrics_table(report["methods"], "loops" if args.command == "loops" else "match"))
     print(f"wrote {args.out}/metrics.json")
     return 0

@@ -1,0 +1,154 @@
+"""A fleet of query traverses against one map (issue 19, part 2): the same answers serially, on a local
+cluster and on a real scheduler whose worker is killed mid-run."""
+import json
+import shutil
+import signal
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipelines.fleet import run_fleet
+from pipelines.runs import RunOptions, run_compare
+from vpr.groundtruth import GroundTruthSpec
+
+ROOT = Path(__file__).resolve().parents[1]
+METHODS = ["rshosm-seq", "pairwise"]
+
+
+@pytest.fixture(scope="module")
+def fleet_data(scene_on_disk, tmp_path_factory):
+    s = scene_on_disk("two_seasons", (48, 32), 30)
+    day, night = s[s["names"][0]], s[s["names"][1]]
+    extra = tmp_path_factory.mktemp("fleet") / "night_again"
+    shutil.copytree(night, extra)  # a third query traverse with a name of its own
+    return {"db": day, "queries": [night, day, extra], "gt": s["gt"]}
+
+
+def _opts(out, gt=None, **kw):
+    return RunOptions(out=Path(out), encoder="pixel", encoder_conf={"k": 60, "standardise": "fit"},
+                      gt=gt or GroundTruthSpec(), progress=False, **kw)
+
+
+def _results(folder: Path) -> dict:
+    """What a run answered (similarity, matches, metrics without timings), per method."""
+    m = json.loads((folder / "metrics.json").read_text())["methods"]
+    return {name: (np.load(folder / name / "similarity.npy") if (folder / name / "similarity.npy").is_file()
+                   else None, (folder / name / "matches.csv").read_text(),
+                   {k: v for k, v in m[name].items() if k not in ("seconds",)}) for name in METHODS}
+
+
+def _same(a: dict, b: dict) -> None:
+    assert a.keys() == b.keys()
+    for k in a:
+        assert (a[k][0] is None and b[k][0] is None) or np.array_equal(a[k][0], b[k][0]), k
+        assert a[k][1:] == b[k][1:], k
+
+
+def test_serial_fleet_equals_one_run_per_query(fleet_data, tmp_path):
+    gt = GroundTruthSpec(files=(str(fleet_data["gt"]),), radius=3.0, soft=10.0)
+    queries = fleet_data["queries"][:2]  # both traverses of the scene's ground truth
+    summary = run_fleet(fleet_data["db"], queries, METHODS, _opts(tmp_path / "fleet", gt), workers=0)
+    assert list(summary["queries"]) == [Path(q).name for q in queries]
+    for q in queries:
+        name = Path(q).name
+        run_compare(fleet_data["db"], q, METHODS, _opts(tmp_path / "single" / name, gt))
+        _same(_results(tmp_path / "fleet" / name), _results(tmp_path / "single" / name))
+        assert summary["queries"][name]["rshosm-seq"]["ap"] == pytest.approx(
+            json.loads((tmp_path / "single" / name / "metrics.json").read_text())["methods"]["rshosm-seq"]["ap"])
+    assert summary["params"]["shipped"]["map_bytes"] > 0
+
+
+def test_fleet_refusals(fleet_data, tmp_path, capsys):
+    from pipelines.cli import main
+
+    night = fleet_data["queries"][0]
+    with pytest.raises(ValueError, match="both named"):
+        run_fleet(fleet_data["db"], [night, night], METHODS, _opts(tmp_path / "o"), workers=0)
+    code = main(["match", str(fleet_data["db"]), str(night), "--out", str(tmp_path / "o"), "--workers", "2",
+                 "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and "give more than one QUERY" in err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.slow
+def test_local_cluster_fleet_equals_serial(fleet_data, tmp_path):
+    run_fleet(fleet_data["db"], fleet_data["queries"], METHODS, _opts(tmp_path / "serial"), workers=0)
+    summary = run_fleet(fleet_data["db"], fleet_data["queries"], METHODS, _opts(tmp_path / "dask"), workers=2)
+    assert summary["params"]["shipped"]["task_bytes"] < summary["params"]["shipped"]["map_bytes"]
+    for q in fleet_data["queries"]:
+        _same(_results(tmp_path / "dask" / Path(q).name), _results(tmp_path / "serial" / Path(q).name))
+    assert not list((tmp_path / "dask").glob(".dask-scratch-*"))
+
+
+SLOW = """
+import os, time
+from pathlib import Path
+import pipelines.fleet as fleet
+if not hasattr(fleet, "unslowed_query_task"):
+    fleet.unslowed_query_task = fleet._query_task
+
+    def _slow(*args, **kwargs):
+        busy = Path(os.environ["VPR_TEST_BUSY_DIR"]) / f"{os.getpid()}.busy"
+        busy.write_text("")
+        time.sleep(1.5)
+        try:
+            return fleet.unslowed_query_task(*args, **kwargs)
+        finally:
+            busy.unlink()
+
+    fleet._query_task = _slow
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.filterwarnings("ignore::UserWarning")
+def test_killed_worker_query_is_rerun_and_results_are_identical(fleet_data, tmp_path):
+    from tests.dask_cluster import cluster
+
+    run_fleet(fleet_data["db"], fleet_data["queries"], METHODS, _opts(tmp_path / "serial"), workers=0)
+    busy_dir = tmp_path / "busy"
+    busy_dir.mkdir()
+    slow = tmp_path / "slow_query.py"
+    slow.write_text(SLOW)
+    with cluster(tmp_path, slow, {"VPR_TEST_BUSY_DIR": str(busy_dir)}) as (address, workers, log):
+        killed = []
+
+        def kill_a_worker_holding_a_query():
+            deadline = time.monotonic() + 60
+            while not killed and time.monotonic() < deadline:
+                busy = sorted(busy_dir.glob("*.busy"))
+                if busy:
+                    pid = int(busy[0].stem)
+                    name = next((n for n, p in workers.items() if p.pid == pid), None)
+                    if name is not None:
+                        workers[name].send_signal(signal.SIGKILL)  # no goodbye to the scheduler
+                        workers[name].wait(timeout=10)
+                        killed.append(name)
+                time.sleep(0.05)
+
+        killer = threading.Thread(target=kill_a_worker_holding_a_query, daemon=True)
+        killer.start()
+        result = {}
+
+        def fleet():
+            try:
+                result["summary"] = run_fleet(fleet_data["db"], fleet_data["queries"], METHODS,
+                                              _opts(tmp_path / "dask"), scheduler=address)
+            except BaseException as exc:  # reported by the test thread below
+                result["error"] = exc
+
+        run = threading.Thread(target=fleet, daemon=True)
+        run.start()
+        run.join(timeout=240)
+        if "error" in result:
+            raise result["error"]
+        assert "summary" in result, "the fleet did not finish: " + log.read_text()[-3000:]
+        assert killed, "no worker was killed while it held a query"
+        for q in fleet_data["queries"]:
+            _same(_results(tmp_path / "dask" / Path(q).name), _results(tmp_path / "serial" / Path(q).name))
+            leftovers = [p for p in (tmp_path / "dask" / Path(q).name).rglob(".*") if p.name != ".metrics.lock"]
+            assert leftovers == []
