@@ -90,6 +90,24 @@ def test_default_beam_gives_the_dense_best_matches(aliased):
     assert np.median(np.abs(C.data[best] - Z[C.row[best], C.col[best]])) < 0.1
 
 
+@pytest.mark.parametrize("direction", ["forward", "both"])
+def test_columns_finished_block_by_block_are_those_of_one_block(aliased, direction, monkeypatch):
+    # the forward pass's columns wait for the backward pass, which runs the blocks in reverse; a block
+    # boundary anywhere (here every 7 queries, the last block shorter) changes nothing
+    from vpr.shosm import evidence as mod
+
+    mem, codes, q, _, _ = aliased
+    for beam in (BeamConf(), BeamConf(floor=0.0, rel_floor=0.0, z_floor=0.0, max_beam=None, max_enter=None)):
+        for top_k in (None, 5):
+            one = ev.sparse_evidence(mem, q[:60], codes, direction=direction, top_k=top_k, beam=beam)
+            monkeypatch.setattr(mod, "QUERY_CHUNK", 7)
+            blocks = ev.sparse_evidence(mem, q[:60], codes, direction=direction, top_k=top_k, beam=beam)
+            monkeypatch.undo()
+            assert blocks.similarity.shape == one.similarity.shape
+            assert (blocks.similarity != one.similarity).nnz == 0
+            assert np.array_equal(blocks.best_db, one.best_db) and np.array_equal(blocks.score, one.score)
+
+
 @pytest.fixture(scope="module")
 def rendered_pixel():
     """Pixel SDRs of a rendered scene: neighbouring (and other) places share many bits, so without caps

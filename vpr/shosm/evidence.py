@@ -47,6 +47,9 @@ from .memory import SequenceMemory
 
 __all__ = ["query_evidence", "dense_evidence", "sparse_evidence", "zscore_columns", "EvidenceResult"]
 
+#: Query frames per call of the beam kernel and per block of finished columns (:func:`sparse_evidence`).
+QUERY_CHUNK = 2048
+
 _DIRECTIONS = ("both", "forward")
 
 
@@ -219,30 +222,46 @@ def sparse_evidence(mem: SequenceMemory, query_batch, db_codes, conf: EvidenceCo
     passes = [("fwd", np.arange(n_q, dtype=np.int64))]
     if direction == "both":
         passes.append(("bwd", np.arange(n_q, dtype=np.int64)[::-1].copy()))
-    cols = []
-    chunk = 2048
+    # Columns are finished (summed over the passes, standardised, cut to top_k) a chunk of queries at a
+    # time, as soon as every pass has given them: the forward pass's columns wait for the backward pass
+    # (which runs the chunks in reverse), the backward pass's never wait. Only the forward columns are
+    # ever held whole: on SDRs that share many bits between places a column holds thousands of frames.
+    chunk = QUERY_CHUNK
+    starts = list(range(0, n_q, chunk))
+    held: dict[int, tuple] = {}
+    done: dict[int, tuple] = {}
+    n_per_q = np.full(n_q, n_db, np.int64)
+
+    def finish_chunk(c, a, b):
+        q0, q1 = starts[c], min(starts[c] + chunk, n_q)
+        done[c] = finish(a, b, n_per_q[q0:q1], n_db, top_k, conf.normalise == "query")[:3]
+
     with tqdm(total=n_q * len(passes), desc="rSHOSM evidence", unit="frame", leave=False, disable=not progress) as bar:
         for adj_name, order in passes:
             b = Beam(g["n_cells"], g["n_cols"], n_db)
-            ptrs, idxs, vals = [np.zeros(1, np.int64)], [], []
-            base = 0
-            for f0 in range(0, n_q, chunk):
-                p, i, v = b.run(g, g[adj_name], q_ptr, q_ind, order[f0:f0 + chunk], limits[f0:f0 + chunk], params)
-                ptrs.append(p[1:] + base)
-                idxs.append(i)
-                vals.append(v)
-                base += i.size
-                bar.update(p.size - 1)
-            ptr, idx, val = np.concatenate(ptrs), np.concatenate(idxs), np.concatenate(vals)
-            if adj_name == "bwd":  # columns came in reverse query order
-                ptr, idx, val = reverse_columns(ptr, idx, val)
-            cols.append((ptr, idx, val))
+            chunks = range(len(starts)) if adj_name == "fwd" else range(len(starts) - 1, -1, -1)
+            for c in chunks:
+                q0, q1 = starts[c], min(starts[c] + chunk, n_q)
+                frames = order[q0:q1] if adj_name == "fwd" else order[n_q - q1:n_q - q0]
+                cols = b.run(g, g[adj_name], q_ptr, q_ind, frames, limits[q0:q1], params)
+                bar.update(q1 - q0)
+                if adj_name == "bwd":  # columns came in reverse query order
+                    finish_chunk(c, held.pop(c), reverse_columns(*cols))
+                elif len(passes) == 1:
+                    finish_chunk(c, cols, NO_PASS)
+                else:
+                    held[c] = cols
             largest_beam, largest_cand = b.largest
             seen["max_beam"] = max(seen["max_beam"], largest_beam)
             seen["max_candidates"] = max(seen["max_candidates"], largest_cand)
             del b
     if stats is not None:
         stats.update(seen)
-    S, best, score, _, _ = finish(cols[0], cols[1] if len(cols) == 2 else NO_PASS, np.full(n_q, n_db, np.int64),
-                                  n_db, top_k, conf.normalise == "query")
+    parts = [done[c] for c in range(len(starts))]
+    if parts:
+        S = sp.hstack([p[0] for p in parts], format="csr")
+        S.sort_indices()
+        best, score = np.concatenate([p[1] for p in parts]), np.concatenate([p[2] for p in parts])
+    else:
+        S, best, score = sp.csr_matrix((n_db, 0), dtype=np.float32), np.zeros(0, np.int64), np.zeros(0)
     return EvidenceResult(S, best, score)
