@@ -33,6 +33,24 @@ def test_rshosm_seq_goes_sparse_above_the_limit_with_the_dense_best_matches(monk
     assert np.allclose(res.score[cols], dense.score[cols], atol=0.05 * np.abs(dense.score[cols]).max())
 
 
+def test_rshosm_seq_switches_to_the_sparse_evidence_at_its_own_lower_size(monkeypatch):
+    # the sparse evidence becomes the faster one well below the memory limit (docs/benchmarks.md):
+    # rshosm-seq switches there, the single-frame methods keep their dense matrix up to the limit
+    from vpr.methods import rshosm_seq
+
+    db, q, _, _ = _aliased(200, seed=2)
+    pairs = len(db) * len(q)
+    monkeypatch.setattr(rshosm_seq, "DENSE_EVIDENCE_PAIRS", pairs)
+    assert isinstance(methods.match("rshosm-seq", db, q, {"top_k": 5}).similarity, np.ndarray)
+    monkeypatch.setattr(rshosm_seq, "DENSE_EVIDENCE_PAIRS", pairs - 1)
+    S = methods.match("rshosm-seq", db, q, {"top_k": 5}).similarity
+    assert sp.issparse(S) and np.diff(sp.csc_matrix(S).indptr).max() <= 5
+    assert isinstance(methods.match("pairwise", db, q, {"top_k": 5}).similarity, np.ndarray)
+    assert similarity.top_k_or_dense(10, 10, 5, 99) == 5 and similarity.top_k_or_dense(10, 10, 5, 100) is None
+    monkeypatch.setattr(similarity, "DENSE_PAIRS_LIMIT", 50)  # the memory limit still holds below a method's own
+    assert similarity.top_k_or_dense(10, 10, 5, 100) == 5
+
+
 def test_every_sdr_method_keeps_top_k_above_the_limit(monkeypatch):
     db, q, _, _ = _aliased(300, seed=1)
     monkeypatch.setattr(similarity, "DENSE_PAIRS_LIMIT", 100)

@@ -194,14 +194,17 @@ def neg_sad(X, Y=None) -> np.ndarray:
 
 
 # ------------------------------------------------------------------ what methods do with S
-def fits_dense(n_db: int, n_q: int) -> bool:
-    """Whether a dense ``n_db x n_q`` matrix is within :data:`DENSE_PAIRS_LIMIT` (read at call time)."""
-    return n_db * n_q <= DENSE_PAIRS_LIMIT
+def fits_dense(n_db: int, n_q: int, limit: int | None = None) -> bool:
+    """Whether a dense ``n_db x n_q`` matrix is within :data:`DENSE_PAIRS_LIMIT` (read at call time) and ``limit``."""
+    return n_db * n_q <= (DENSE_PAIRS_LIMIT if limit is None else min(DENSE_PAIRS_LIMIT, limit))
 
 
-def top_k_or_dense(n_db: int, n_q: int, top_k: int) -> int | None:
-    """``top_k`` when a dense ``n_db x n_q`` matrix would exceed :data:`DENSE_PAIRS_LIMIT`, else None."""
-    return None if fits_dense(n_db, n_q) else top_k
+def top_k_or_dense(n_db: int, n_q: int, top_k: int, dense_pairs: int | None = None) -> int | None:
+    """``top_k`` when a dense ``n_db x n_q`` matrix would exceed :data:`DENSE_PAIRS_LIMIT`, else None.
+
+    ``dense_pairs``: a method's own, lower switch (where its top-K path becomes the faster one).
+    """
+    return None if fits_dense(n_db, n_q, dense_pairs) else top_k
 
 
 def check_dense(what: str, n_db: int, n_q: int, hint: str = "subsample the traverses (--step)") -> None:

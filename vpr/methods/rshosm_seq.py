@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from vpr import sdr
 from vpr.shosm import (
+    DENSE_EVIDENCE_PAIRS,
     BeamConf,
     EvidenceConf,
     LoopConf,
@@ -35,11 +36,12 @@ class RshosmSeq(Method):
     >= 0, or ``None``, ``"none"`` on the command line, to disable that
     transition -- and ``normalise``), ``direction`` (``"both"`` or the causal
     ``"forward"``), ``top_k`` (database frames kept per query when database x
-    query exceeds :data:`~vpr.similarity.DENSE_PAIRS_LIMIT`); for
+    query exceeds :data:`~vpr.shosm.DENSE_EVIDENCE_PAIRS`); for
     :meth:`loops`: the :class:`~vpr.shosm.LoopConf` (``drift``, ``min_score``,
     ``back``, ``ahead``, ``island``, ``stop_ratio``; :func:`vpr.shosm.accept_loops`).
 
-    Below the size limit the evidence is dense (every cell, every frame); above
+    Up to :data:`~vpr.shosm.DENSE_EVIDENCE_PAIRS` pairs (where the sparse path
+    becomes the faster one) the evidence is dense (every cell, every frame); above
     it, the sparse beam (:func:`vpr.shosm.sparse_evidence`, its floors and caps
     :class:`~vpr.shosm.BeamConf`) keeps the top-``top_k`` database frames per
     query, with the z-scores of the full column. How often the two agree on the
@@ -79,8 +81,9 @@ class RshosmSeq(Method):
         c = self.conf
         mem, db_codes = state  # read, never changed, by the evidence
         q_sdr = self.need(query, "sdr", "query")
-        r = query_evidence(mem, q_sdr, db_codes, self.evidence_conf, direction=c["direction"],
-                           top_k=top_k_or_dense(len(db), len(query), c["top_k"]), beam=BeamConf(), progress=progress)
+        top_k = top_k_or_dense(len(db), len(query), c["top_k"], DENSE_EVIDENCE_PAIRS)
+        r = query_evidence(mem, q_sdr, db_codes, self.evidence_conf, direction=c["direction"], top_k=top_k,
+                           beam=BeamConf(), progress=progress)
         return r.similarity, r.best_db, r.score, None
 
     def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool):

@@ -19,7 +19,16 @@ One entry point per use:
 compiled loops. Nothing outside this package reads the memory's private
 state: kernels read :meth:`SequenceMemory.view`, users :attr:`SequenceMemory.connections`.
 """
-from .conf import LEARN_THRESHOLD, LOOP_EXCLUDE, BeamConf, EvidenceConf, LoopConf, PathConf, memory_params
+from .conf import (
+    DENSE_EVIDENCE_PAIRS,
+    LEARN_THRESHOLD,
+    LOOP_EXCLUDE,
+    BeamConf,
+    EvidenceConf,
+    LoopConf,
+    PathConf,
+    memory_params,
+)
 from .decide import LoopDecider, LoopDecisions, PathDecider, accept_loops, stationary_closures
 from .detector import LOOP_DETECTOR_DEFAULTS, LoopDetector, LoopResult
 from .evidence import EvidenceResult, dense_evidence, query_evidence, sparse_evidence, zscore_columns
@@ -29,7 +38,8 @@ from .memory import Connections, MemoryFileError, MemoryView, SequenceMemory, pa
 from .streaming import ForwardEvidence, FrameEvidence
 
 __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pad_codes",
-           "LEARN_THRESHOLD", "LOOP_EXCLUDE", "EvidenceConf", "BeamConf", "LoopConf", "PathConf", "memory_params",
+           "LEARN_THRESHOLD", "LOOP_EXCLUDE", "DENSE_EVIDENCE_PAIRS", "EvidenceConf",
+           "BeamConf", "LoopConf", "PathConf", "memory_params",
            "query_evidence", "dense_evidence", "sparse_evidence", "zscore_columns", "EvidenceResult",
            "ForwardEvidence", "FrameEvidence", "Localizer", "LocalizerResult", "LOCALIZER_DEFAULTS",
            "loop_evidence", "LoopEvidence", "LoopStream", "FrameLoop", "accept_loops", "LoopDecider", "LoopDecisions",

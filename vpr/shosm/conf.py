@@ -9,7 +9,8 @@ evidence, loop closure, the localizer) reads its defaults from here:
 * :class:`EvidenceConf`: how evidence is carried from one frame to the next
   (``decay``, ``stay``, ``skip``) and how a frame's scores are standardised
   (``normalise``).
-* :class:`BeamConf`: the floors and caps of the sparse evidence (the beam).
+* :class:`BeamConf`: the floors and caps of the sparse evidence (the beam), and
+  :data:`DENSE_EVIDENCE_PAIRS`, the size above which the sparse evidence is used.
 * :class:`LoopConf`: when a loop closure is accepted (:func:`vpr.shosm.accept_loops`).
 """
 from __future__ import annotations
@@ -21,7 +22,8 @@ import numpy as np
 
 from .memory import SequenceMemory
 
-__all__ = ["LEARN_THRESHOLD", "LOOP_EXCLUDE", "EvidenceConf", "BeamConf", "LoopConf", "PathConf", "memory_params"]
+__all__ = ["LEARN_THRESHOLD", "LOOP_EXCLUDE", "DENSE_EVIDENCE_PAIRS", "EvidenceConf", "BeamConf", "LoopConf",
+           "PathConf", "memory_params"]
 
 #: Minicolumn threshold of the memory that rSHOSM-seq learns (the paper's is 0.25).
 LEARN_THRESHOLD = 0.75
@@ -29,6 +31,11 @@ LEARN_THRESHOLD = 0.75
 #: Frames closer than this are not loop-closure candidates, unless told otherwise (``vpr loops --exclude``):
 #: the frames just before are the same place seen again a moment later, not a revisit.
 LOOP_EXCLUDE = 30
+
+#: Above this many database x query pairs ``rshosm-seq`` runs the sparse evidence (top-K), below it the
+#: dense one (every pair ranked): where the sparse path becomes the faster one, measured on image and
+#: random SDRs (``benchmarks/bench_scale_images.py``, ``bench_scale.py --agree``; ``docs/benchmarks.md``).
+DENSE_EVIDENCE_PAIRS = 10_000 * 10_000
 
 _NORMALISE = ("query", "none")
 
