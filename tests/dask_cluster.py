@@ -8,6 +8,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -68,3 +69,25 @@ def cluster(tmp_path: Path, preload: Path, env: dict, names=("w1", "w2")):
     finally:
         stop(procs)
         logs.close()
+
+
+def run_in_thread(fn, timeout: float, log_path: Path):
+    """``fn()`` in a thread, its result; its exception raised here; a failure naming the log after ``timeout``.
+
+    In a thread because, should the cluster lose every worker, Dask would wait for new ones for ever.
+    """
+    result = {}
+
+    def target():
+        try:
+            result["value"] = fn()
+        except BaseException as exc:  # reported by the calling thread below
+            result["error"] = exc
+
+    run = threading.Thread(target=target, daemon=True)
+    run.start()
+    run.join(timeout=timeout)
+    if "error" in result:
+        raise result["error"]
+    assert "value" in result, f"the run did not finish in {timeout} s: " + log_path.read_text()[-3000:]
+    return result["value"]

@@ -1,7 +1,6 @@
 """``vpr encode`` on Dask: frame ranges, a cache that extract() reads, byte-identical parallel runs,
 and a worker killed mid-run (a real ``dask scheduler`` and ``dask worker`` processes on 127.0.0.1)."""
 import argparse
-import threading
 from pathlib import Path
 
 import cv2
@@ -200,7 +199,7 @@ if not hasattr(PixelEncoder, "unslowed_describe"):
 @pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::UserWarning")
 def test_killed_worker_chunks_are_retried_and_output_is_identical(data, tmp_path):
-    from tests.dask_cluster import cluster
+    from tests.dask_cluster import cluster, run_in_thread
 
     busy_dir = tmp_path / "busy"
     busy_dir.mkdir()
@@ -218,23 +217,9 @@ def test_killed_worker_chunks_are_retried_and_output_is_identical(data, tmp_path
                 workers[name].wait(timeout=10)
                 killed.append((name, done, total))
 
-        # in a thread: should the cluster lose every worker, Dask would wait for new ones for ever
-        result = {}
-
-        def encode():
-            try:
-                result["out"] = encode_sources([data["night"]], tmp_path / "dask", "pixel", CONF,
-                                               scheduler=address, chunk_frames=3, progress=kill_busy_worker)
-            except BaseException as exc:  # reported by the test thread below
-                result["error"] = exc
-
-        run = threading.Thread(target=encode, daemon=True)
-        run.start()
-        run.join(timeout=120)
-        if "error" in result:
-            raise result["error"]
-        assert "out" in result, "the run did not finish: " + log.read_text()[-3000:]
-        out = result["out"]
+        out = run_in_thread(lambda: encode_sources([data["night"]], tmp_path / "dask", "pixel", CONF,
+                                                   scheduler=address, chunk_frames=3, progress=kill_busy_worker),
+                            120, log)
         assert killed and killed[0][1] < killed[0][2], "no worker was killed while it held chunks"
         assert workers[killed[0][0]].poll() is not None
         got = {r.path.name: r.path.read_bytes() for r in out}

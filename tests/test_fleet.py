@@ -107,7 +107,7 @@ if not hasattr(fleet, "unslowed_query_task"):
 @pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::UserWarning")
 def test_killed_worker_query_is_rerun_and_results_are_identical(fleet_data, tmp_path):
-    from tests.dask_cluster import cluster
+    from tests.dask_cluster import cluster, run_in_thread
 
     run_fleet(fleet_data["db"], fleet_data["queries"], METHODS, _opts(tmp_path / "serial"), workers=0)
     busy_dir = tmp_path / "busy"
@@ -132,21 +132,8 @@ def test_killed_worker_query_is_rerun_and_results_are_identical(fleet_data, tmp_
 
         killer = threading.Thread(target=kill_a_worker_holding_a_query, daemon=True)
         killer.start()
-        result = {}
-
-        def fleet():
-            try:
-                result["summary"] = run_fleet(fleet_data["db"], fleet_data["queries"], METHODS,
-                                              _opts(tmp_path / "dask"), scheduler=address)
-            except BaseException as exc:  # reported by the test thread below
-                result["error"] = exc
-
-        run = threading.Thread(target=fleet, daemon=True)
-        run.start()
-        run.join(timeout=240)
-        if "error" in result:
-            raise result["error"]
-        assert "summary" in result, "the fleet did not finish: " + log.read_text()[-3000:]
+        run_in_thread(lambda: run_fleet(fleet_data["db"], fleet_data["queries"], METHODS, _opts(tmp_path / "dask"),
+                                        scheduler=address), 240, log)
         assert killed, "no worker was killed while it held a query"
         for q in fleet_data["queries"]:
             _same(_results(tmp_path / "dask" / Path(q).name), _results(tmp_path / "serial" / Path(q).name))
