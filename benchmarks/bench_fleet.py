@@ -32,12 +32,10 @@ def write_folders(out: Path, n_map: int, n_queries: int, n_frames: int, seed: in
     want = {"map": n_map, "queries": n_queries, "frames": n_frames, "seed": seed}
     if done.is_file() and json.loads(done.read_text()) == want:
         return out / "map", [out / f"q{k}" for k in range(n_queries)]
+    from make_large_folders import route_appearances
+
     rng = np.random.default_rng(seed)
-    n_app = max(n_map // 10, 1)
-    low = rng.random((n_app, 6, 12)).astype(np.float32)
-    looks = np.stack([cv2.resize(x, (68, 36), interpolation=cv2.INTER_CUBIC) for x in low])
-    looks = (looks - looks.min()) / (np.ptp(looks) + 1e-9) * 200 + 20
-    place_look = rng.permutation(np.resize(np.arange(n_app), n_map))
+    looks, place_look = route_appearances(n_map, rng)
     (out / "map").mkdir(parents=True, exist_ok=True)
     for i in range(n_map):
         cv2.imwrite(str(out / "map" / f"{i:06d}.png"), looks[place_look[i], 2:34, 2:66].astype(np.uint8))

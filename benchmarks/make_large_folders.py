@@ -14,11 +14,47 @@ then: vpr compare OUT/db OUT/query --methods rshosm-seq,seqslam,pairwise --toler
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from pathlib import Path
 
 import cv2
 import numpy as np
+
+
+def route_appearances(n: int, rng) -> tuple[np.ndarray, np.ndarray]:
+    """``n // 10`` smooth random 68 x 36 grey appearances, and the appearance of each of ``n`` places
+    (each appearance at about ten random places, so that single frames are ambiguous)."""
+    n_app = max(n // 10, 1)
+    low = rng.random((n_app, 6, 12)).astype(np.float32)
+    looks = np.stack([cv2.resize(x, (68, 36), interpolation=cv2.INTER_CUBIC) for x in low])
+    looks = (looks - looks.min()) / (np.ptp(looks) + 1e-9) * 200 + 20
+    return looks, rng.permutation(np.resize(np.arange(n_app), n))
+
+
+def write_folders(out, n: int = 50_000, seed: int = 0) -> bool:
+    """Write ``out/db`` and ``out/query`` (``n`` frames each) unless a complete set is there; True if written."""
+    out = Path(out)
+    done = out / "done.json"
+    want = {"n": n, "seed": seed}
+    if done.is_file() and json.loads(done.read_text()) == want:
+        return False
+    rng = np.random.default_rng(seed)
+    looks, place_look = route_appearances(n, rng)
+    done.unlink(missing_ok=True)
+    for name in ("db", "query"):
+        folder = out / name
+        folder.mkdir(parents=True, exist_ok=True)
+        for i in range(n):
+            img = looks[place_look[i]]
+            if name == "db":
+                img = img[2:34, 2:66]
+            else:
+                dy, dx = rng.integers(0, 5, 2)
+                img = 0.8 * img[dy:dy + 32, dx:dx + 64] + rng.normal(0, 8, (32, 64))
+            cv2.imwrite(str(folder / f"{i:06d}.png"), np.clip(img, 0, 255).astype(np.uint8))
+    done.write_text(json.dumps(want))
+    return True
 
 
 def main(argv=None):
@@ -27,25 +63,10 @@ def main(argv=None):
     ap.add_argument("--n", type=int, default=50_000)
     ap.add_argument("--seed", type=int, default=0)
     a = ap.parse_args(argv)
-    rng = np.random.default_rng(a.seed)
-    n_app = max(a.n // 10, 1)
-    low = rng.random((n_app, 6, 12)).astype(np.float32)
-    looks = np.stack([cv2.resize(x, (68, 36), interpolation=cv2.INTER_CUBIC) for x in low])
-    looks = (looks - looks.min()) / (np.ptp(looks) + 1e-9) * 200 + 20
-    place_look = rng.permutation(np.resize(np.arange(n_app), a.n))
     t = time.perf_counter()
-    for name in ("db", "query"):
-        folder = Path(a.out) / name
-        folder.mkdir(parents=True, exist_ok=True)
-        for i in range(a.n):
-            img = looks[place_look[i]]
-            if name == "db":
-                img = img[2:34, 2:66]
-            else:
-                dy, dx = rng.integers(0, 5, 2)
-                img = 0.8 * img[dy:dy + 32, dx:dx + 64] + rng.normal(0, 8, (32, 64))
-            cv2.imwrite(str(folder / f"{i:06d}.png"), np.clip(img, 0, 255).astype(np.uint8))
-    print(f"wrote 2 x {a.n} frames (64 x 32 grey PNG) to {a.out} in {time.perf_counter() - t:.1f} s")
+    written = write_folders(a.out, a.n, a.seed)
+    print(f"{'wrote' if written else 'found'} 2 x {a.n} frames (64 x 32 grey PNG) in {a.out} "
+          f"({time.perf_counter() - t:.1f} s)")
 
 
 if __name__ == "__main__":
