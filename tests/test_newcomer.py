@@ -317,7 +317,7 @@ def test_read_only_cache_folder_is_read_and_said_so(scene, tmp_path, capsys, mon
 def test_sigterm_of_a_local_dask_encode_leaves_no_scratch_and_no_semaphores(scene, tmp_path):
     cache = tmp_path / "cache"
     p = subprocess.Popen([sys.executable, "-m", "pipelines.cli", "encode", str(scene["db"]), str(scene["q"]),
-                          "--cache", str(cache), "--workers", "2", "--chunk-frames", "5", "--preset", "fast"],
+                          "--cache", str(cache), "--workers", "2", "--chunk-frames", "1", "--preset", "fast"],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
                          env={**os.environ, "PYTHONPATH": str(ROOT)})
     deadline = time.time() + 60
@@ -326,6 +326,8 @@ def test_sigterm_of_a_local_dask_encode_leaves_no_scratch_and_no_semaphores(scen
     time.sleep(1.0)
     p.send_signal(signal.SIGTERM)
     _, err = p.communicate(timeout=120)
-    assert p.returncode in (0, 143), err
+    # 143: the run was stopped (one line); 0 or killed by the signal itself: it had finished, and the
+    # signal came before or after main() put the previous handler back (a shell shows 143 for both)
+    assert p.returncode in (0, 143, -signal.SIGTERM), err
     assert "leaked semaphore" not in err and "Traceback" not in err, err
     assert not list(tmp_path.glob("dask-scratch-space*")) and not list(cache.glob(".dask-scratch-*"))
