@@ -62,6 +62,26 @@ def test_compare_uses_the_cache_and_prints_a_table(scene, tmp_path, capsys):
     assert json.loads((out / "metrics.json").read_text())["params"]["cached"] == {"db": True, "query": True}
 
 
+def test_compare_with_rshosm_seq_sparse_and_the_others_dense(scene, tmp_path, capsys, monkeypatch):
+    # between DENSE_EVIDENCE_PAIRS and the memory limit rshosm-seq's matrix is top-K sparse while the
+    # ground truth and the other methods' matrices stay dense: one run evaluates, plots and writes both
+    import scipy.sparse as sp
+
+    from vpr.methods import rshosm_seq
+
+    monkeypatch.setattr(rshosm_seq, "DENSE_EVIDENCE_PAIRS", 1)
+    out = tmp_path / "mixed"
+    code, stdout, err = _run(["compare", scene["db"], scene["q"], "--out", out, "--tolerance", 2,
+                              "--methods", "rshosm-seq,pairwise", "--method-conf", "rshosm-seq.top_k=5"], capsys)
+    assert code == 0, err
+    S = sp.load_npz(out / "rshosm-seq" / "similarity_topk.npz")
+    assert S.shape == (N_FRAMES, N_FRAMES) and np.diff(S.tocsc().indptr).max() <= 5
+    assert not (out / "rshosm-seq" / "similarity.npy").exists() and (out / "pairwise" / "similarity.npy").is_file()
+    m = json.loads((out / "metrics.json").read_text())["methods"]
+    assert m["rshosm-seq"]["recall_at_1"] >= m["pairwise"]["recall_at_1"] and 0 < m["rshosm-seq"]["ap"] <= 1
+    assert (out / "rshosm-seq" / "similarity.png").is_file() and (out / "pr.png").is_file()
+
+
 def test_video_source_and_verification(scene, tmp_path, capsys):
     video = tmp_path / "query.mp4"
     frames = sorted(scene["q"].glob("*.png"))
