@@ -20,7 +20,9 @@ share of queries with the same best match, the dense R@1 and the dense
 evidence's CPU seconds (so the sizes where the sparse path becomes the faster
 one are measured where both run). At the ``--profile`` sizes it times one
 forward pass with the default caps and with tiny caps (what is left is counting
-the query's overlap with every minicolumn through the inverted index).
+the query's overlap with every minicolumn through the inverted index), and counts
+the distinct successor lists of the cells that relay evidence (cells sharing one
+could relax it once).
 
 Goals (issue 19, 50,000 x 50,000 image frames, one core): <= 3 min including
 learning, <= 3 GB peak, R@1 >= 0.95, the same best match as the dense evidence
@@ -90,7 +92,12 @@ def profile(mem, codes, q) -> dict:
     8 minicolumns) that what is left is counting the overlaps through the inverted index."""
     from vpr.shosm import BeamConf, sparse_evidence
 
-    out = {"bit_len": float(mem.view().bit_len.mean()), "columns": int(mem.view().n_columns)}
+    lateral = mem.connections.lateral
+    lists = {lateral.indices[a:b].tobytes() for a, b in zip(lateral.indptr[:-1], lateral.indptr[1:], strict=True)
+             if b > a}
+    out = {"bit_len": float(mem.view().bit_len.mean()), "columns": int(mem.view().n_columns),
+           "sources": int(np.count_nonzero(np.diff(lateral.indptr))), "edges": int(lateral.nnz),
+           "lists": len(lists)}
     for key, beam in (("pass_ms", BeamConf()), ("count_ms", BeamConf(max_beam=64, max_enter=8))):
         c = time.process_time()
         sparse_evidence(mem, q, codes, direction="forward", beam=beam)
@@ -195,7 +202,8 @@ def main(argv=None):
             if "pass_ms" in r:
                 print(f"{p:>8} {n:6d} profile, one forward pass: {r['pass_ms']:.2f} ms per frame, of which counting "
                       f"the overlaps {r['count_ms']:.2f} ms ({r['columns']} minicolumns, {r['bit_len']:.0f} per input "
-                      f"bit)", flush=True)
+                      f"bit); {r['sources']} cells relay evidence along {r['edges']} connections, with "
+                      f"{r['lists']} distinct successor lists", flush=True)
         if len(totals) >= 2:
             x, y = np.log(list(totals)), np.log(list(totals.values()))
             print(f"{p:>8} growth exponent of learn + match CPU s {min(totals)} -> {max(totals)} frames: "
