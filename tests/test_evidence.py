@@ -108,6 +108,25 @@ def test_columns_finished_block_by_block_are_those_of_one_block(aliased, directi
             assert np.array_equal(blocks.best_db, one.best_db) and np.array_equal(blocks.score, one.score)
 
 
+def test_cells_with_the_same_targets_share_one_list():
+    from vpr.shosm.beam import grouped_lists
+
+    # cells 0 and 2 predict {5, 7} (2 twice over the same connection), cell 1 predicts {7}, cell 3 nothing
+    head, nxt, dst, group = grouped_lists([0, 2, 1, 0, 2, 2], [7, 5, 7, 5, 7, 5], 4)
+    assert group[0] == group[2] != group[1] and group[3] == -1 and head.size == 2
+
+    def targets(g):
+        out, e = [], head[g]
+        while e >= 0:
+            out.append(int(dst[e]))
+            e = nxt[e]
+        return sorted(out)
+
+    assert targets(group[0]) == [5, 7] and targets(group[1]) == [7]
+    head, nxt, dst, group = grouped_lists([], [], 3)
+    assert head.size == 0 and np.all(group == -1)
+
+
 @pytest.fixture(scope="module")
 def rendered_pixel():
     """Pixel SDRs of a rendered scene: neighbouring (and other) places share many bits, so without caps

@@ -16,7 +16,8 @@ from .kernels import beam as KB
 from .kernels import evidence as KE
 from .memory import SequenceMemory
 
-__all__ = ["BIG", "Beam", "db_graph", "beam_params", "check_codes", "finish", "reverse_columns", "linked_lists"]
+__all__ = ["BIG", "Beam", "db_graph", "beam_params", "check_codes", "finish", "reverse_columns", "linked_lists",
+           "grouped_lists"]
 
 #: "Never": a birth frame or a limit beyond any frame.
 BIG = np.iinfo(np.int64).max // 4
@@ -47,6 +48,34 @@ def linked_lists(keys, vals, n_heads):
     return head, nxt, np.asarray(vals, np.int64)[order]
 
 
+def grouped_lists(keys, vals, n_heads):
+    """Linked lists key -> values, one per group of keys with the same set of values: (head, next, value, group).
+
+    ``group[k]`` is key ``k``'s group (-1: no values); ``head``, ``next``, ``value`` are
+    :func:`linked_lists` per group. The beam relaxes a group's largest evidence once
+    (:func:`vpr.shosm.kernels.beam.beam_frames`): the same maxima as key by key.
+    """
+    keys, vals = np.asarray(keys, np.int64), np.asarray(vals, np.int64)
+    order = np.lexsort((vals, keys))
+    k, v = keys[order], vals[order]
+    if k.size:
+        keep = np.r_[True, (k[1:] != k[:-1]) | (v[1:] != v[:-1])]  # a repeated connection relaxes nothing new
+        k, v = k[keep], v[keep]
+    starts = np.flatnonzero(np.r_[True, k[1:] != k[:-1]]) if k.size else np.zeros(0, np.int64)
+    ends = np.r_[starts[1:], k.size].astype(np.int64)[: starts.size]
+    ids: dict[bytes, int] = {}
+    row_group = np.array([ids.setdefault(v[a:b].tobytes(), len(ids)) for a, b in zip(starts, ends, strict=True)],
+                         np.int64)
+    group = np.full(n_heads, -1, np.int64)
+    group[k[starts]] = row_group
+    first = np.full(len(ids), -1, np.int64)
+    first[row_group[::-1]] = np.arange(row_group.size - 1, -1, -1)  # each group's first row
+    lens = ends[first] - starts[first]
+    take = np.concatenate([np.arange(starts[r], ends[r]) for r in first]) if first.size else np.zeros(0, np.int64)
+    head, nxt, value = linked_lists(np.repeat(np.arange(len(ids)), lens), v[take], len(ids))
+    return head, nxt, value, group
+
+
 def beam_params(evidence: EvidenceConf, beam: BeamConf, z_weight: float) -> tuple:
     """The scalar arguments of ``beam_frames`` (``z_weight``: 0.5 when two directions are added, else 0)."""
     stay, skip = evidence.costs
@@ -66,7 +95,7 @@ def db_graph(mem: SequenceMemory, db: sp.csr_matrix) -> dict:
     c_head, c_next, c_frame = linked_lists(coo.col, coo.row, n_cells)
     return {"bit_cols": v.bit_cols, "bit_len": v.bit_len, "col_size": v.column_sizes.astype(np.float64),
             "cpc": v.cells_per_column, "n_cells": n_cells, "n_cols": max(v.n_columns, 1),
-            "fwd": linked_lists(v.e_src, v.e_dst, n_cells), "bwd": linked_lists(v.e_dst, v.e_src, n_cells),
+            "fwd": grouped_lists(v.e_src, v.e_dst, n_cells), "bwd": grouped_lists(v.e_dst, v.e_src, n_cells),
             "c_head": c_head, "c_next": c_next, "c_frame": c_frame, "relevant": relevant,
             "birth": np.zeros(n_cells, np.int64), "db_norm": np.maximum(np.diff(db.indptr), 1).astype(np.float64),
             "n_db": db.shape[0]}
@@ -93,6 +122,7 @@ class Beam:
         self.db_touch = np.zeros(n_db, np.int64)
         self.out_idx = np.zeros(4096, np.int64)
         self.out_val = np.zeros(4096, np.float64)
+        self.gmax, self.gmark, self.gtouch = np.zeros(0), np.zeros(0, bool), np.zeros(0, np.int64)
 
     @property
     def size(self) -> int:
@@ -132,7 +162,15 @@ class Beam:
         self.st[KB.B_SIZE] = n
 
     def run(self, g, adj, q_ptr, q_ind, order, limits, params):
-        """Run frames ``order``; return their sparse columns (ptr, idx, val)."""
+        """Run frames ``order``; return their sparse columns (ptr, idx, val).
+
+        ``adj``: (head, next, dst) per cell, or (head, next, dst, group) per group of cells
+        (:func:`grouped_lists`).
+        """
+        grp = adj[3] if len(adj) == 4 else np.zeros(0, np.int64)
+        if grp.size and self.gmax.size < adj[0].size:
+            self.gmax, self.gmark = np.zeros(adj[0].size), np.zeros(adj[0].size, bool)
+            self.gtouch = np.zeros(adj[0].size, np.int64)
         n = order.size
         out_ptr = np.zeros(n + 1, np.int64)
         st = self.st
@@ -140,11 +178,11 @@ class Beam:
         st[KB.B_FRAMES] = 0
         while True:
             done = KB.beam_frames(q_ptr, q_ind, order, limits, g["bit_cols"], g["bit_len"], g["col_size"], g["cpc"],
-                                  adj[0], adj[1], adj[2], g["c_head"], g["c_next"], g["c_frame"], g["relevant"],
+                                  adj[0], adj[1], adj[2], grp, g["c_head"], g["c_next"], g["c_frame"], g["relevant"],
                                   g["birth"], g["db_norm"], *params, st, self.beam, self.beam_e, self.e_cur,
                                   self.counts, self.touched_cols, self.p1, self.p2, self.z, self.mark, self.cand,
-                                  self.e_new, self.acc, self.db_mark, self.db_touch, out_ptr, self.out_idx,
-                                  self.out_val)
+                                  self.e_new, self.gmax, self.gmark, self.gtouch, self.acc, self.db_mark,
+                                  self.db_touch, out_ptr, self.out_idx, self.out_val)
             if done >= n:
                 break
             size = max(int(st[KB.B_NEED]), 2 * self.out_idx.size)

@@ -39,12 +39,38 @@ def _relax(s, v, a_head, a_dst, a_next, birth, limit, p, mark, cand, n_c):  # pr
     return n_c
 
 
+@njit(cache=True, inline="always")
+def _offer(s, v, grp, gmax, gmark, gtouch, n_g):  # pragma: no cover - compiled
+    """Offer evidence ``v`` of cell ``s`` to its group (the largest offer wins). Returns the touched count."""
+    gi = grp[s]
+    if gi >= 0:
+        if not gmark[gi]:
+            gmark[gi] = True
+            gmax[gi] = v
+            gtouch[n_g] = gi
+            n_g += 1
+        elif v > gmax[gi]:
+            gmax[gi] = v
+    return n_g
+
+
+@njit(cache=True, inline="always")
+def _relax_groups(n_g, gtouch, gmax, gmark, a_head, a_dst, a_next, birth, limit, p, mark, cand,
+                  n_c):  # pragma: no cover - compiled
+    """Relax each touched group's largest offer along the group's one successor list."""
+    for k in range(n_g):
+        gi = gtouch[k]
+        gmark[gi] = False
+        n_c = _relax(gi, gmax[gi], a_head, a_dst, a_next, birth, limit, p, mark, cand, n_c)
+    return n_c
+
+
 @njit(cache=True)
 def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
-                a_head, a_next, a_dst, c_head, c_next, c_frame, relevant, birth, db_norm,
+                a_head, a_next, a_dst, grp, c_head, c_next, c_frame, relevant, birth, db_norm,
                 decay, stay, skip, z_weight, floor, rel_floor, z_floor, max_beam, max_enter,
                 st, beam, beam_e, e_cur, counts, touched_cols, p1, p2, z, mark, cand, e_new,
-                acc, db_mark, db_touch, out_ptr, out_idx, out_val):
+                gmax, gmark, gtouch, acc, db_mark, db_touch, out_ptr, out_idx, out_val):
     """Sparse graded evidence for the query frames ``order`` (one direction).
 
     Parameters (all arrays owned by the caller; cells are the memory's cell indices)
@@ -56,7 +82,12 @@ def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
     bit_cols, bit_len : the memory's inverted index input bit -> minicolumns.
     col_size : feed-forward connections per minicolumn (float64).
     a_head, a_next, a_dst : the lateral connections used for prediction, as
-        linked lists per source cell (reversed connections for a backward pass).
+        linked lists per source cell (reversed connections for a backward pass),
+        or per group of source cells with the same targets (``grp``).
+    grp : int64 per cell, its group (-1: no connection), or empty: the lists are per
+        cell. A frame's winner cells all predict the next frame's, so the cells that
+        relay evidence come in groups with one successor list; a group relaxes the
+        largest evidence of its beam cells once (the same maxima as cell by cell).
     c_head, c_next, c_frame : cell -> database frames whose code holds the cell.
     relevant : bool per cell, may carry evidence; birth : first database frame of a cell.
     db_norm : code size per database frame (the mean over its cells).
@@ -74,6 +105,7 @@ def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
         the SDRs share.
     st : int64 state: beam size, output position, need-flag, frames done, largest beam
         and largest candidate set so far.
+    gmax, gmark, gtouch : scratch per group (unused without groups).
     beam, beam_e : the beam (cells, evidence), carried from call to call.
     out_ptr, out_idx, out_val : per processed frame the sparse column
         (database frame, evidence); ``out_ptr[t + 1]`` ends frame ``order[t]``.
@@ -130,7 +162,9 @@ def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
                             cand[n_c] = c
                             n_c += 1
         # ---- prediction: one connection from a beam cell (and the beam cell itself: stay)
+        grouped = grp.shape[0] > 0
         nb = st[B_SIZE]
+        n_g = 0
         for i in range(nb):
             s = beam[i]
             v = beam_e[i]
@@ -140,15 +174,27 @@ def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
                 mark[s] = True
                 cand[n_c] = s
                 n_c += 1
-            n_c = _relax(s, v, a_head, a_dst, a_next, birth, limit, p1, mark, cand, n_c)
+            if grouped:
+                n_g = _offer(s, v, grp, gmax, gmark, gtouch, n_g)
+            else:
+                n_c = _relax(s, v, a_head, a_dst, a_next, birth, limit, p1, mark, cand, n_c)
+        if grouped:
+            n_c = _relax_groups(n_g, gtouch, gmax, gmark, a_head, a_dst, a_next, birth, limit, p1, mark, cand, n_c)
         # ---- two connections (a skipped database frame); only p1 > skip can win
         if skip >= 0.0:
             n1 = n_c
+            n_g = 0
             for i in range(n1):
                 s = cand[i]
                 v = p1[s]
                 if v > skip:
-                    n_c = _relax(s, v, a_head, a_dst, a_next, birth, limit, p2, mark, cand, n_c)
+                    if grouped:
+                        n_g = _offer(s, v, grp, gmax, gmark, gtouch, n_g)
+                    else:
+                        n_c = _relax(s, v, a_head, a_dst, a_next, birth, limit, p2, mark, cand, n_c)
+            if grouped:
+                n_c = _relax_groups(n_g, gtouch, gmax, gmark, a_head, a_dst, a_next, birth, limit, p2, mark, cand,
+                                    n_c)
         # ---- new evidence of the candidates
         emax = 0.0
         for i in range(n_c):
