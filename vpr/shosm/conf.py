@@ -35,7 +35,7 @@ LOOP_EXCLUDE = 30
 #: Above this many database x query pairs ``rshosm-seq`` runs the sparse evidence (top-K), below it the
 #: dense one (every pair ranked): where the sparse path becomes the faster one, measured on image and
 #: random SDRs (``benchmarks/bench_scale_images.py``, ``bench_scale.py --agree``; ``docs/benchmarks.md``).
-DENSE_EVIDENCE_PAIRS = 10_000 * 10_000
+DENSE_EVIDENCE_PAIRS = 7_000 * 7_000
 
 _NORMALISE = ("query", "none")
 
