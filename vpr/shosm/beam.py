@@ -83,8 +83,11 @@ def beam_params(evidence: EvidenceConf, beam: BeamConf, z_weight: float) -> tupl
             float(beam.z_floor), *beam.caps)
 
 
-def db_graph(mem: SequenceMemory, db: sp.csr_matrix) -> dict:
-    """What the beam kernel reads, for a learned memory and its database codes."""
+def db_graph(mem: SequenceMemory, db: sp.csr_matrix, backward: bool = True) -> dict:
+    """What the beam kernel reads, for a learned memory and its database codes.
+
+    ``backward``: also the reversed connections (``"bwd"``) that a backward pass relaxes.
+    """
     v = mem.view()
     n_cells = max(v.n_cells, db.shape[1], 1)
     relevant = np.zeros(n_cells, bool)
@@ -95,7 +98,8 @@ def db_graph(mem: SequenceMemory, db: sp.csr_matrix) -> dict:
     c_head, c_next, c_frame = linked_lists(coo.col, coo.row, n_cells)
     return {"bit_cols": v.bit_cols, "bit_len": v.bit_len, "col_size": v.column_sizes.astype(np.float64),
             "cpc": v.cells_per_column, "n_cells": n_cells, "n_cols": max(v.n_columns, 1),
-            "fwd": grouped_lists(v.e_src, v.e_dst, n_cells), "bwd": grouped_lists(v.e_dst, v.e_src, n_cells),
+            "fwd": grouped_lists(v.e_src, v.e_dst, n_cells),
+            "bwd": grouped_lists(v.e_dst, v.e_src, n_cells) if backward else None,
             "c_head": c_head, "c_next": c_next, "c_frame": c_frame, "relevant": relevant,
             "birth": np.zeros(n_cells, np.int64), "db_norm": np.maximum(np.diff(db.indptr), 1).astype(np.float64),
             "n_db": db.shape[0]}

@@ -213,7 +213,7 @@ def sparse_evidence(mem: SequenceMemory, query_batch, db_codes, conf: EvidenceCo
     top_k = _check_top_k(top_k)
     q = _sdr.check_batch(query_batch, n_bits=mem.n_inputs, name="query SDR batch")
     db = check_codes(mem, db_codes)
-    g = db_graph(mem, db)
+    g = db_graph(mem, db, backward=direction == "both")
     n_q, n_db = q.shape[0], db.shape[0]
     q_ptr, q_ind = q.indptr.astype(np.int64), q.indices.astype(np.int64)
     params = beam_params(conf, beam, 0.5 if direction == "both" else 0.0)

@@ -87,7 +87,7 @@ class ForwardEvidence:
             self._e = np.zeros(self._rel.size, np.float64)
             self._out = np.zeros((self.n_db, 1), np.float32)
         else:
-            self._g = db_graph(mem, self.db)
+            self._g = db_graph(mem, self.db, backward=False)  # causal: forward only
             self._beam = Beam(self._g["n_cells"], self._g["n_cols"], self.n_db)
             self._params = beam_params(self.conf, self.beam_conf, 0.0)
 
