@@ -71,6 +71,21 @@ def cluster(tmp_path: Path, preload: Path, env: dict, names=("w1", "w2")):
         logs.close()
 
 
+@contextlib.contextmanager
+def busy_cluster(tmp_path: Path, preload_source: str):
+    """:func:`cluster` whose workers import ``preload_source`` and see ``VPR_TEST_BUSY_DIR``.
+
+    The preload marks the work a worker holds as files in that folder (so a test knows whom to
+    kill); yields (scheduler address, {name: worker process}, log path, busy folder).
+    """
+    busy_dir = tmp_path / "busy"
+    busy_dir.mkdir()
+    preload = tmp_path / "slow_preload.py"
+    preload.write_text(preload_source)
+    with cluster(tmp_path, preload, {"VPR_TEST_BUSY_DIR": str(busy_dir)}) as (address, workers, log):
+        yield address, workers, log, busy_dir
+
+
 def run_in_thread(fn, timeout: float, log_path: Path):
     """``fn()`` in a thread, its result; its exception raised here; a failure naming the log after ``timeout``.
 

@@ -199,13 +199,9 @@ if not hasattr(PixelEncoder, "unslowed_describe"):
 @pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::UserWarning")
 def test_killed_worker_chunks_are_retried_and_output_is_identical(data, tmp_path):
-    from tests.dask_cluster import cluster, run_in_thread
+    from tests.dask_cluster import busy_cluster, run_in_thread
 
-    busy_dir = tmp_path / "busy"
-    busy_dir.mkdir()
-    slow = tmp_path / "slow_describe.py"
-    slow.write_text(SLOW)
-    with cluster(tmp_path, slow, {"VPR_TEST_BUSY_DIR": str(busy_dir)}) as (address, workers, log):
+    with busy_cluster(tmp_path, SLOW) as (address, workers, log, busy_dir):
         killed = []
 
         def kill_busy_worker(i, start, stop, done, total):

@@ -107,14 +107,10 @@ if not hasattr(fleet, "unslowed_query_task"):
 @pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::UserWarning")
 def test_killed_worker_query_is_rerun_and_results_are_identical(fleet_data, tmp_path):
-    from tests.dask_cluster import cluster, run_in_thread
+    from tests.dask_cluster import busy_cluster, run_in_thread
 
     run_fleet(fleet_data["db"], fleet_data["queries"], METHODS, _opts(tmp_path / "serial"), workers=0)
-    busy_dir = tmp_path / "busy"
-    busy_dir.mkdir()
-    slow = tmp_path / "slow_query.py"
-    slow.write_text(SLOW)
-    with cluster(tmp_path, slow, {"VPR_TEST_BUSY_DIR": str(busy_dir)}) as (address, workers, log):
+    with busy_cluster(tmp_path, SLOW) as (address, workers, log, busy_dir):
         killed = []
 
         def kill_a_worker_holding_a_query():
