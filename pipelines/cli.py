@@ -29,6 +29,8 @@ import sys
 import warnings
 from pathlib import Path
 
+from pipelines.interrupts import Terminated, on_sigterm
+
 __all__ = ["MODULES", "commands", "build_parser", "main"]
 
 #: The pipeline modules providing sub-commands, in the order ``vpr --help`` lists them.
@@ -78,22 +80,6 @@ def build_parser(only: str | None = None, table: dict | None = None) -> argparse
     return ap
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, handled as Ctrl-C: what is being written is dropped (atomic writes), one line, status 143."""
-
-
-def _raise_terminated(signum, frame):
-    raise Terminated()
-
-
-def _on_sigterm():
-    """Handle SIGTERM as an interrupt (main thread only); returns the handler it replaced, or None."""
-    try:
-        return signal.signal(signal.SIGTERM, _raise_terminated)
-    except ValueError:  # not the main thread (e.g. main() called from a worker thread)
-        return None
-
-
 def _format_warning(message, category, filename, lineno, line=None) -> str:
     # one line in the project's words: no source path, no line of code
     return f"vpr: warning: {' '.join(str(message).split())}\n"
@@ -123,7 +109,7 @@ def main(argv=None) -> int:
     os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
     saved_format = warnings.formatwarning
     warnings.formatwarning = _format_warning
-    saved_term = _on_sigterm()
+    saved_term = on_sigterm()
     command = "vpr"
     try:
         table = commands()

@@ -42,6 +42,7 @@ from pipelines.extract import (
     load_cache,
     save_cache,
 )
+from pipelines.interrupts import deferred
 from vpr import presets
 from vpr.sources import Source, open_source
 
@@ -142,12 +143,21 @@ def _client(workers: int | None, scheduler: str | None, scratch: Path | None = N
     if scratch is not None:
         scratch.mkdir(parents=True, exist_ok=True)
         local = str(scratch)
+    stack = contextlib.ExitStack()
     try:
-        with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                          dashboard_address=None, silence_logs=logging.ERROR, local_directory=local) as cluster, \
-                Client(cluster) as client:
-            yield client
+        # a Ctrl-C or SIGTERM while the worker processes start or close would leave them (and their
+        # semaphores) behind: held until the cluster is up, or down, then raised. The cluster's own log
+        # is quiet below CRITICAL: a failed task reaches the client as its exception, and a run stopped
+        # mid-task would otherwise print the workers' lost heartbeats as they close
+        with deferred():
+            cluster = stack.enter_context(LocalCluster(
+                n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None,
+                silence_logs=logging.CRITICAL, local_directory=local))
+            client = stack.enter_context(Client(cluster))
+        yield client
     finally:
+        with deferred():
+            stack.close()
         if scratch is not None:
             shutil.rmtree(scratch, ignore_errors=True)
 
@@ -267,9 +277,12 @@ def _run_on_dask(n_workers, scheduler, srcs, jobs, encoder_name, conf_json, part
     run = uuid.uuid4().hex[:8]
     with _client(n_workers, scheduler, scratch) as client:
         # each source goes to every worker once, not with every task (a folder lists all its files);
-        # replicas on every worker survive the death of one of them
-        client.wait_for_workers(1, timeout=60)
-        shared = {i: client.scatter([srcs[i]], broadcast=True, hash=False)[0] for i in sorted({i for i, _, _ in jobs})}
+        # replicas on every worker survive the death of one of them; a stop during the (short) scatter
+        # would close the cluster under the scheduler's replication, which then logs errors
+        with deferred():
+            client.wait_for_workers(1, timeout=60)
+            shared = {i: client.scatter([srcs[i]], broadcast=True, hash=False)[0]
+                      for i in sorted({i for i, _, _ in jobs})}
         futures = {}
         for i, a, b in jobs:
             fut = client.submit(_chunk_task, shared[i], encoder_name, conf_json, a, b, parts, batch_size,

@@ -314,7 +314,8 @@ def test_read_only_cache_folder_is_read_and_said_so(scene, tmp_path, capsys, mon
 
 
 @pytest.mark.slow
-def test_sigterm_of_a_local_dask_encode_leaves_no_scratch_and_no_semaphores(scene, tmp_path):
+@pytest.mark.parametrize("after", [0.3, 1.0], ids=["cluster-starting", "encoding"])
+def test_sigterm_of_a_local_dask_encode_leaves_no_scratch_and_no_semaphores(scene, tmp_path, after):
     cache = tmp_path / "cache"
     p = subprocess.Popen([sys.executable, "-m", "pipelines.cli", "encode", str(scene["db"]), str(scene["q"]),
                           "--cache", str(cache), "--workers", "2", "--chunk-frames", "1", "--preset", "fast"],
@@ -322,8 +323,8 @@ def test_sigterm_of_a_local_dask_encode_leaves_no_scratch_and_no_semaphores(scen
                          env={**os.environ, "PYTHONPATH": str(ROOT)})
     deadline = time.time() + 60
     while time.time() < deadline and not any(cache.glob(".dask-scratch-*")):
-        time.sleep(0.2)  # the local cluster is up
-    time.sleep(1.0)
+        time.sleep(0.02)  # the first worker's folder: the local cluster is starting
+    time.sleep(after)
     p.send_signal(signal.SIGTERM)
     _, err = p.communicate(timeout=120)
     # 143: the run was stopped (one line); 0 or killed by the signal itself: it had finished, and the

@@ -1,0 +1,70 @@
+"""Ctrl-C and SIGTERM: how a run stops, and the few sections it must not stop inside.
+
+A run is stopped by raising an exception where it stands (``KeyboardInterrupt``
+for Ctrl-C, :class:`Terminated` for SIGTERM); the atomic writes drop what was
+being written and the ``with`` blocks put things back. A few sections cannot be
+left half done that way: a local Dask cluster stopped while its worker processes
+start or close leaves those processes and their semaphores behind.
+:func:`deferred` holds the signal until such a section ends and raises it then.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import threading
+
+__all__ = ["Terminated", "on_sigterm", "deferred"]
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, handled as Ctrl-C: what is being written is dropped (atomic writes), one line, status 143."""
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated()
+
+
+def on_sigterm():
+    """Handle SIGTERM as an interrupt (main thread only); returns the handler it replaced, or None."""
+    try:
+        return signal.signal(signal.SIGTERM, _raise_terminated)
+    except ValueError:  # not the main thread (e.g. main() called from a worker thread)
+        return None
+
+
+def _deliver(signum: int, handler) -> None:
+    if callable(handler):
+        handler(signum, None)
+    elif handler == signal.SIG_DFL:
+        os.kill(os.getpid(), signum)  # the default action (end the process), now that it is safe
+
+
+@contextlib.contextmanager
+def deferred(signums=(signal.SIGINT, signal.SIGTERM)):
+    """Hold ``signums`` while the block runs; the first one that came is raised when it ends.
+
+    A second signal of the same kind during the block is handled at once (the usual
+    "press Ctrl-C twice" for a section that hangs). Outside the main thread, where
+    Python delivers no signals, the block runs unchanged.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    got: list[int] = []
+    saved = {}
+
+    def hold(signum, frame):
+        if signum in got:
+            _deliver(signum, saved[signum])
+        got.append(signum)
+
+    try:
+        for s in signums:
+            saved[s] = signal.signal(s, hold)
+        yield
+    finally:
+        for s, h in saved.items():
+            signal.signal(s, h)
+    if got:
+        _deliver(got[0], saved[got[0]])
