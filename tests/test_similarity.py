@@ -93,3 +93,44 @@ def test_pairwise_dispatch():
     assert np.allclose(pairwise(X, metric="sad"), similarity.neg_sad(X))
     with pytest.raises(ValueError, match="metric"):
         pairwise(X, metric="l7")
+
+
+@pytest.mark.parametrize("n_bits, n_active", [(2048, 200), (100, 7), (64, 3), (130, 30)])
+@pytest.mark.parametrize("normalise", [True, False])
+def test_top_k_by_bit_sets_equals_the_sparse_product(monkeypatch, n_bits, n_active, normalise):
+    rng = np.random.default_rng(n_bits)
+    db = sp.csr_matrix(rng.random((90, n_bits)) < n_active / n_bits)
+    q = sp.vstack([sp.csr_matrix(rng.random((40, n_bits)) < n_active / n_bits), db[:5], sp.csr_matrix((1, n_bits),
+                                                                                                     dtype=bool)]).tocsr()
+    for a, b, k in [(db, q, 6), (db, None, 4), (db[:3], q, 10)]:
+        assert similarity._bitsets_pay(a, a if b is None else b)
+        got = similarity.overlap_similarity(a, b, top_k=k, normalise=normalise)
+        with monkeypatch.context() as m:
+            m.setattr(similarity, "_bitsets_pay", lambda A, B: False)
+            ref = similarity.overlap_similarity(a, b, top_k=k, normalise=normalise)
+        assert got.shape == ref.shape and got.nnz == ref.nnz == got.shape[1] * min(k, a.shape[0])
+        G, R = got.tocsc(), ref.tocsc()
+        for j in range(got.shape[1]):
+            np.testing.assert_array_equal(np.sort(G[:, j].data), np.sort(R[:, j].data))
+
+
+def test_bit_sets_spread_the_kept_frames_of_a_tie_and_long_codes_stay_sparse():
+    def key(d):  # the documented tie order: Fibonacci hashing of the frame number
+        return (d * 0x9E3779B97F4A7C15) % 2**64
+
+    db = sdr.from_indices([[0, 1]] * 8 + [[0, 1, 2, 3]], 70)
+    q = sdr.from_indices([[0, 1, 2, 3], [5]], 70)
+    S = similarity.overlap_similarity(db, q, top_k=3, normalise=False).tocsc()
+    # query 0: frame 8 (4 bits shared), then the two of the eight frames tied at 2 with the largest keys
+    tied = sorted(range(8), key=key)[-2:]
+    np.testing.assert_array_equal(np.sort(S[:, 0].indices), sorted([*tied, 8]))
+    # query 1 shares nothing: three frames kept with score 0, the same way
+    np.testing.assert_array_equal(np.sort(S[:, 1].indices), sorted(sorted(range(9), key=key)[-3:]))
+    assert S[:, 1].nnz == 3 and not S[:, 1].data.any()
+    # one appearance at 1,000 places: the 10 kept spread over the database, not its first frames
+    same = sdr.from_indices([[1, 2, 3]] * 1000, 64)
+    kept = similarity.overlap_similarity(same, same[:1], top_k=10).tocsc().indices
+    assert kept.min() < 200 and kept.max() > 800
+    # winner codes: millions of cells, ten active; the sparse product is the cheaper one
+    codes = sdr.from_indices([[i * 10 + j for j in range(10)] for i in range(20)], 3_000_000)
+    assert not similarity._bitsets_pay(codes, codes)
