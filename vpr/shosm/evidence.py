@@ -250,7 +250,9 @@ def sparse_evidence(mem: SequenceMemory, query_batch, db_codes, conf: EvidenceCo
                 elif len(passes) == 1:
                     finish_chunk(c, cols, NO_PASS)
                 else:
-                    held[c] = cols
+                    # held until the backward pass comes back to this chunk: stored as the dense
+                    # evidence is (float32), with 32-bit frame numbers, half the bytes of the pass's own
+                    held[c] = (cols[0], cols[1].astype(np.int32), cols[2].astype(np.float32))
             largest_beam, largest_cand = b.largest
             seen["max_beam"] = max(seen["max_beam"], largest_beam)
             seen["max_candidates"] = max(seen["max_candidates"], largest_cand)
