@@ -29,12 +29,13 @@ from .conf import (
     PathConf,
     memory_params,
 )
+from .connections import Connections, MemoryView
 from .decide import LoopDecider, LoopDecisions, PathDecider, accept_loops, stationary_closures
 from .detector import LOOP_DETECTOR_DEFAULTS, LoopDetector, LoopResult
 from .evidence import EvidenceResult, dense_evidence, query_evidence, sparse_evidence, zscore_columns
 from .localizer import LOCALIZER_DEFAULTS, Localizer, LocalizerResult
 from .loops import LOOP_DENSE_MAX, LOOP_UNCAPPED_MAX, FrameLoop, LoopEvidence, LoopStream, loop_evidence
-from .memory import Connections, MemoryFileError, MemoryView, SequenceMemory, pad_codes
+from .memory import MemoryFileError, SequenceMemory, pad_codes
 from .streaming import ForwardEvidence, FrameEvidence
 
 __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pad_codes",

@@ -1,0 +1,112 @@
+"""What a :class:`vpr.shosm.SequenceMemory` has learned, read-only.
+
+:class:`MemoryView` (``mem.view()``): views of the memory's own arrays, no copy,
+what compiled kernels read. :class:`Connections` (``mem.connections``): the
+learned synapses copied out as SciPy matrices, in the spirit of htm.core's
+``connections``. Neither can change the memory.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = ["MemoryView", "Connections", "readonly"]
+
+
+class MemoryView(NamedTuple):
+    """Read-only views of what a :class:`SequenceMemory` has learned (``mem.view()``), for compiled kernels.
+
+    No copy is made: the views are valid until the memory learns again (growing
+    replaces the arrays), so take a new view after every learning step.
+
+    Attributes
+    ----------
+    bit_cols : int32 array, n_inputs x width
+        The inverted index: row ``b`` holds the minicolumns connected to input
+        bit ``b`` in its first ``bit_len[b]`` entries (Alg. 1 line 3).
+    bit_len : int32 array, n_inputs
+    e_src, e_dst : int64 arrays, n_connections
+        The lateral connections ``e_src[k] -> e_dst[k]`` in the order they were
+        learned (append-only: a view taken later starts with the same entries).
+    column_sizes : int64 array, n_columns
+        Feed-forward connections (input bits) of every minicolumn.
+    thresholds : int32 array, n_columns
+        Overlap a minicolumn needs to be active.
+    n_columns, cells_per_column : int
+    """
+
+    bit_cols: np.ndarray
+    bit_len: np.ndarray
+    e_src: np.ndarray
+    e_dst: np.ndarray
+    column_sizes: np.ndarray
+    thresholds: np.ndarray
+    n_columns: int
+    cells_per_column: int
+
+    @property
+    def n_cells(self) -> int:
+        return self.n_columns * self.cells_per_column
+
+
+def readonly(a: np.ndarray) -> np.ndarray:
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
+class Connections:
+    """Read-only snapshot of what a :class:`SequenceMemory` has learned (``mem.connections``).
+
+    In the spirit of htm.core's ``connections``: the learned synapses as plain
+    SciPy matrices, copied out of the memory (changing them changes nothing).
+
+    Attributes
+    ----------
+    feedforward : scipy.sparse.csr_matrix, bool, n_columns x n_inputs
+        Row ``m``: the input bits minicolumn ``m`` connects to (Alg. 1 line 3).
+    lateral : scipy.sparse.csr_matrix, bool, n_cells x n_cells
+        ``lateral[s, d]``: cell ``s`` predicts cell ``d`` (learned at lines 12-13).
+    thresholds : ndarray, int64, n_columns
+        Overlap a minicolumn needs to be active (``ceil(threshold * size)``).
+    cells_per_column, n_columns, n_cells, n_connections : int
+    """
+
+    def __init__(self, feedforward, lateral, thresholds, cells_per_column):
+        self.feedforward = feedforward
+        self.lateral = lateral
+        self.thresholds = thresholds
+        self.cells_per_column = int(cells_per_column)
+        for a in (feedforward.data, feedforward.indices, feedforward.indptr, lateral.data, lateral.indices,
+                  lateral.indptr, thresholds):
+            a.flags.writeable = False
+
+    @property
+    def n_columns(self) -> int:
+        return self.feedforward.shape[0]
+
+    @property
+    def n_cells(self) -> int:
+        return self.lateral.shape[0]
+
+    @property
+    def n_connections(self) -> int:
+        """Number of lateral connections."""
+        return int(self.lateral.nnz)
+
+    def column_sizes(self) -> np.ndarray:
+        """Feed-forward connections (input bits) of every minicolumn, int64."""
+        return np.diff(self.feedforward.indptr).astype(np.int64)
+
+    def column_of(self, cells) -> np.ndarray:
+        """Minicolumn of each cell index."""
+        return np.asarray(cells, dtype=np.int64) // self.cells_per_column
+
+    def columns_of_bit(self, bit: int) -> np.ndarray:
+        """Minicolumns connected to input ``bit`` (sorted)."""
+        return np.flatnonzero(self.feedforward[:, int(bit)].toarray().ravel())
+
+    def __repr__(self) -> str:
+        return (f"Connections(columns={self.n_columns}, cells={self.n_cells}, "
+                f"lateral={self.n_connections}, feedforward={self.feedforward.nnz})")
