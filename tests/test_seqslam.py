@@ -594,14 +594,36 @@ def test_topk_candidates_covering_everything_is_exact():
     np.testing.assert_array_equal(dense_pattern.best_db, res.best_db)
 
 
-def _aliased(n, seed):
+def _aliased(n, seed, active=40):
     """Aliased SDR traverses: n places, n // 10 appearances, query at a varying speed, 35 % bits moved."""
     rng = np.random.default_rng(seed)
-    app = _sdr.random_sdrs(max(1, n // 10), 2048, 40, seed=rng)
+    app = _sdr.random_sdrs(max(1, n // 10), 2048, active, seed=rng)
     db = app[rng.integers(0, app.shape[0], n)]
     pos = np.cumsum(1.0 + 0.2 * np.sin(np.arange(n) / 60.0))
     gt = np.round(pos[pos <= n - 1]).astype(int)
     return _sdr.check_batch(db), _sdr.add_noise(db[gt], 0.35, seed=rng), gt
+
+
+@pytest.mark.parametrize("stride", [1, 3])
+def test_sdr_candidates_by_bit_sets_or_inverted_index_have_the_same_overlaps(monkeypatch, stride):
+    from vpr.seqslam import topk
+
+    db, q, _ = _aliased(400, 5, active=200)
+    q = sp.vstack([q, sp.csr_matrix((1, q.shape[1]), dtype=bool)]).tocsr()  # one query sharing no bit
+    d = topk._Descriptors(db, q, "sad")
+    assert topk.bitsets_pay(db, q, against="index")
+    assert not topk.bitsets_pay(*_aliased(400, 5)[:2], against="index")  # 40 of 2,048 bits: the index
+    got = d.candidates(30, stride)
+    monkeypatch.setattr(topk, "bitsets_pay", lambda a, b, against: False)
+    ref = d.candidates(30, stride)
+    np.testing.assert_array_equal(got[0], ref[0])  # as many candidates per query, none for skipped ones
+    ov = (db.astype(np.int32) @ q.T.astype(np.int32)).toarray()
+    for j in range(q.shape[0]):
+        g, r = got[1][got[0][j]:got[0][j + 1]], ref[1][ref[0][j]:ref[0][j + 1]]
+        np.testing.assert_array_equal(np.sort(ov[g, j]), np.sort(ov[r, j]))  # ties may pick other rows
+        assert (ov[g, j] > 0).all()
+    if (q.shape[0] - 1) % stride == 0:  # the query sharing no bit was sampled: it has no candidate
+        assert got[0][-1] == got[0][-2]
 
 
 def test_topk_candidate_windows_match_exact_on_aliased_traverses():

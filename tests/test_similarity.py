@@ -103,10 +103,10 @@ def test_top_k_by_bit_sets_equals_the_sparse_product(monkeypatch, n_bits, n_acti
     q = sp.vstack([sp.csr_matrix(rng.random((40, n_bits)) < n_active / n_bits), db[:5], sp.csr_matrix((1, n_bits),
                                                                                                      dtype=bool)]).tocsr()
     for a, b, k in [(db, q, 6), (db, None, 4), (db[:3], q, 10)]:
-        assert similarity._bitsets_pay(a, a if b is None else b)
+        assert similarity.bitsets_pay(a, a if b is None else b)
         got = similarity.overlap_similarity(a, b, top_k=k, normalise=normalise)
         with monkeypatch.context() as m:
-            m.setattr(similarity, "_bitsets_pay", lambda A, B: False)
+            m.setattr(similarity, "bitsets_pay", lambda A, B: False)
             ref = similarity.overlap_similarity(a, b, top_k=k, normalise=normalise)
         assert got.shape == ref.shape and got.nnz == ref.nnz == got.shape[1] * min(k, a.shape[0])
         G, R = got.tocsc(), ref.tocsc()
@@ -133,4 +133,7 @@ def test_bit_sets_spread_the_kept_frames_of_a_tie_and_long_codes_stay_sparse():
     assert kept.min() < 200 and kept.max() > 800
     # winner codes: millions of cells, ten active; the sparse product is the cheaper one
     codes = sdr.from_indices([[i * 10 + j for j in range(10)] for i in range(20)], 3_000_000)
-    assert not similarity._bitsets_pay(codes, codes)
+    assert not similarity.bitsets_pay(codes, codes)
+    assert not similarity.bitsets_pay(codes, codes, against="index")
+    with pytest.raises(ValueError, match="against"):
+        similarity.bitsets_pay(codes, codes, against="dense")

@@ -19,7 +19,7 @@ from numba.extending import intrinsic
 from vpr import sdr as _sdr
 
 __all__ = ["overlap_similarity", "cosine", "neg_sad", "mean_abs_diff", "topk_sparse", "DENSE_PAIRS_LIMIT",
-           "best_matches", "mask_recent", "fits_dense", "top_k_or_dense", "check_dense", "pack_bits"]
+           "best_matches", "mask_recent", "fits_dense", "top_k_or_dense", "check_dense", "pack_bits", "bitsets_pay"]
 
 #: Above this many database x query pairs a dense similarity matrix is refused: use ``top_k``.
 #: The one size limit of the project (also used to choose dense or top-K output).
@@ -87,7 +87,7 @@ def overlap_similarity(A, B=None, top_k: int | None = None, normalise: bool = Tr
             return (Ai @ Bi.T).toarray().astype(np.float32)
         return _norm_overlap_block(Ai, Bi, na, nb)
 
-    if _bitsets_pay(A, B):
+    if bitsets_pay(A, B):
         return _overlap_topk_bitsets(A, B, na, nb, top_k)
 
     def block(q0, q1):
@@ -98,18 +98,26 @@ def overlap_similarity(A, B=None, top_k: int | None = None, normalise: bool = Tr
     return topk_sparse(block, A.shape[0], B.shape[0], top_k, chunk)
 
 
-def _bitsets_pay(A, B) -> bool:
-    """Whether packed bit sets beat the sparse product for the top-K overlap of these batches.
+def bitsets_pay(A, B, against: str = "product") -> bool:
+    """Whether packed bit sets beat the other way to the top-K overlap of these batches.
 
-    A pair costs about one word of bits for the bit sets, and the bits the two rows are
-    expected to share for the sparse product (plus a dense block per query chunk): bit
-    sets win for SDRs of a few thousand bits, and for longer ones that share many bits;
-    winner codes (millions of cells, a few active) stay sparse. ``benchmarks/bench_scale.py``
-    and ``docs/benchmarks.md`` hold the measured times of both.
+    A pair costs about one 64-bit word for the bit sets, whatever the rows share; the
+    other ways cost with the bits two rows are expected to share. ``against="product"``:
+    the sparse product of :func:`overlap_similarity` (which also densifies a block per
+    query chunk): bit sets win up to 64 words a row, and beyond when rows share many bits.
+    ``against="index"``: a lean count through an inverted index (SeqSLAM's single-frame
+    candidates), which wins until rows share about a quarter as many bits as a row has
+    words (40 of 2,048 bits: the index; 200 of 2,048: bit sets). Winner codes (millions
+    of cells, a few active) never take bit sets. Measured times: ``docs/benchmarks.md``
+    (``benchmarks/bench_overlap_topk.py``).
     """
     n_bits = A.shape[1]
     words = -(-n_bits // 64)
     shared = (A.nnz / max(A.shape[0], 1)) * (B.nnz / max(B.shape[0], 1)) / max(n_bits, 1)
+    if against == "index":
+        return words <= 4 * shared
+    if against != "product":
+        raise ValueError(f"against must be 'product' or 'index', got {against!r}")
     return words <= 64 + 16 * shared
 
 

@@ -8,7 +8,7 @@ import scipy.sparse as sp
 
 from vpr import sdr as _sdr
 from vpr.checks import check_int
-from vpr.similarity import mean_abs_diff
+from vpr.similarity import bitsets_pay, mean_abs_diff, overlap_similarity
 
 from . import kernels as K
 from .dense import check_sequence_params
@@ -115,6 +115,15 @@ class _Descriptors:
         """
         k = min(k, self.n_db)
         sampled = np.arange(0, self.n_q, stride)
+        if self.sdr and bitsets_pay(self.a, self.b, against="index"):
+            # the k largest overlaps by popcounts of packed rows, the cheaper way for SDRs that share many
+            # bits (ties: a fixed order spread over the database); a row sharing no bit is no candidate
+            T = overlap_similarity(self.a, self.b[sampled], top_k=k, normalise=False).tocsc()
+            T.eliminate_zeros()
+            T.sort_indices()
+            n_per = np.zeros(self.n_q, dtype=np.int64)
+            n_per[sampled] = np.diff(T.indptr)
+            return np.concatenate([[0], np.cumsum(n_per)]).astype(np.int64), T.indices.astype(np.int64)
         if self.sdr:
             post = self.a.tocsc()
             qs = self.b[sampled]
