@@ -124,6 +124,7 @@ def test_absurd_worker_counts_are_refused(scene, tmp_path, capsys):
     _one_line(code, err, "--workers 1000", "--scheduler")
 
 
+@pytest.mark.slow  # a Dask client's connection timeout: seconds of waiting
 def test_scheduler_that_is_not_dask_fails_in_one_line(scene, tmp_path, capsys, monkeypatch):
     import socket
     import threading
