@@ -102,7 +102,7 @@ def test_top_k_by_bit_sets_equals_the_sparse_product(monkeypatch, n_bits, n_acti
     db = sp.csr_matrix(rng.random((90, n_bits)) < n_active / n_bits)
     q = sp.vstack([sp.csr_matrix(rng.random((40, n_bits)) < n_active / n_bits), db[:5], sp.csr_matrix((1, n_bits),
                                                                                                      dtype=bool)]).tocsr()
-    for a, b, k in [(db, q, 6), (db, None, 4), (db[:3], q, 10)]:
+    for a, b, k in [(db, q, 6), (db, None, 4), (db[:3], q, 10), (db[:0], q, 3)]:
         assert similarity.bitsets_pay(a, a if b is None else b)
         got = similarity.overlap_similarity(a, b, top_k=k, normalise=normalise)
         with monkeypatch.context() as m:

@@ -153,7 +153,7 @@ def _overlap_topk_bitsets(A, B, na, nb, top_k: int) -> sp.csr_matrix:
     if k:
         _topk_overlap_kernel(pa, pb, na, nb, norm, idx, val)
     # per query the kept rows (kept zeros stored, as topk_sparse does)
-    S = sp.csc_matrix((val.ravel(), idx.ravel(), np.arange(0, n_q * k + 1, k)), shape=(n_db, n_q)).tocsr()
+    S = sp.csc_matrix((val.ravel(), idx.ravel(), np.arange(n_q + 1) * k), shape=(n_db, n_q)).tocsr()
     S.sort_indices()
     return S
 
