@@ -71,3 +71,16 @@ def test_overlap_count_density_union():
     assert sdr.overlap_count(b).tolist() == [[3, 1], [1, 2]]
     assert np.allclose(sdr.density(b), [0.3, 0.2])
     assert sdr.union(b).tolist() == [0, 1, 2, 3]
+
+
+def test_from_topk_by_blocks_of_rows_equals_one_block(monkeypatch):
+    rng = np.random.default_rng(3)
+    x = rng.standard_normal((500, 64)).astype(np.float32)
+    x[7, :10] = 0.0  # ties go to the lower index in every block
+    x[8] = 0.0
+    whole = sdr.from_topk(x, 12)
+    monkeypatch.setattr(sdr, "_SORT_BLOCK", 64 * 7)  # 7 rows a block
+    assert (sdr.from_topk(x, 12) != whole).nnz == 0
+    x[433, 5] = np.nan
+    with pytest.raises(ValueError, match="row 433"):
+        sdr.from_topk(x, 12)

@@ -96,28 +96,39 @@ def from_dense(array) -> sp.csr_matrix:
     return sp.csr_matrix(a)
 
 
+#: Entries per block of rows in :func:`from_topk` (about 32 MB per float64 temporary).
+_SORT_BLOCK = 2**22
+
+
 def from_topk(values, k: int) -> sp.csr_matrix:
     """SDR with exactly ``k`` bits per row: the ``k`` largest entries of each row.
 
-    Ties are broken by the lower index so the result is deterministic.
+    Ties are broken by the lower index so the result is deterministic. Rows are
+    sorted a block at a time: the float64 copy and the sort's indices of a whole
+    50,000-frame traverse would take several GB.
     """
-    v = np.asarray(values, dtype=np.float64)
-    if v.ndim == 1:
-        v = v[None, :]
-    if v.ndim != 2:
-        raise ValueError(f"expected a 2-D (frames x dims) array, got shape {v.shape}")
-    n, d = v.shape
+    values = np.asarray(values)
+    if values.ndim == 1:
+        values = values[None, :]
+    if values.ndim != 2:
+        raise ValueError(f"expected a 2-D (frames x dims) array, got shape {values.shape}")
+    n, d = values.shape
     k = int(k)
     if not 0 < k <= d:
         raise ValueError(f"k must be in [1, {d}], got {k}")
-    nan_rows = np.flatnonzero(np.isnan(v).any(axis=1))
-    if nan_rows.size:
-        raise ValueError(f"row {nan_rows[0]}: NaN in descriptor")
-    # stable sort on -v keeps the lower index first among ties
-    idx = np.argsort(-v, axis=1, kind="stable")[:, :k]
+    idx = np.empty((n, k), np.int64)
+    step = max(1, _SORT_BLOCK // max(d, 1))
+    for r0 in range(0, n, step):
+        v = values[r0:r0 + step].astype(np.float64)
+        nan_rows = np.flatnonzero(np.isnan(v).any(axis=1))
+        if nan_rows.size:
+            raise ValueError(f"row {r0 + nan_rows[0]}: NaN in descriptor")
+        # stable sort on -v keeps the lower index first among ties
+        idx[r0:r0 + step] = np.argsort(-v, axis=1, kind="stable")[:, :k]
     idx.sort(axis=1)
     indptr = np.arange(0, n * k + 1, k, dtype=np.int64)
     return _csr(indptr, idx.ravel(), n, d)
+
 
 
 def to_indices(batch: sp.csr_matrix) -> list[np.ndarray]:
