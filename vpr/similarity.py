@@ -138,9 +138,7 @@ def _overlap_topk_bitsets(A, B, na, nb, top_k: int) -> sp.csr_matrix:
     order of the frame numbers): on aliased SDRs, where one appearance ties many places, the kept
     ones spread over the database instead of crowding its start (candidate windows need that).
     """
-    top_k = int(top_k)
-    if top_k < 1:
-        raise ValueError(f"top_k must be >= 1, got {top_k}")
+    top_k = _check_top_k(top_k)
     n_db, n_q = A.shape[0], B.shape[0]
     k = min(top_k, n_db)
     pa = pack_bits(A)
@@ -237,6 +235,13 @@ def _topk_overlap_kernel(pa, pb, na, nb, norm, out_idx, out_val):  # pragma: no 
                 out_val[q0 + j, i] = hv[j, i]
 
 
+def _check_top_k(top_k) -> int:
+    top_k = int(top_k)
+    if top_k < 1:
+        raise ValueError(f"top_k must be >= 1, got {top_k}")
+    return top_k
+
+
 def topk_sparse(block_fn, n_db: int, n_q: int, top_k: int, chunk: int = 2048) -> sp.csr_matrix:
     """Assemble a sparse db x query matrix keeping the ``top_k`` db entries per query.
 
@@ -247,9 +252,7 @@ def topk_sparse(block_fn, n_db: int, n_q: int, top_k: int, chunk: int = 2048) ->
     entries of each block are retained, so memory grows with
     ``n_q * top_k``, not with ``n_db * n_q``.
     """
-    top_k = int(top_k)
-    if top_k < 1:
-        raise ValueError(f"top_k must be >= 1, got {top_k}")
+    top_k = _check_top_k(top_k)
     k = min(top_k, n_db)
     chunk = max(1, min(int(chunk), _BLOCK_PAIRS // max(n_db, 1)))
     rows, cols, vals = [], [], []
