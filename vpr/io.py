@@ -10,6 +10,7 @@ import contextlib
 import errno
 import json
 import os
+import pickle
 import tempfile
 import zipfile
 from pathlib import Path
@@ -17,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["atomic_path", "atomic_open", "save_npy", "save_json", "save_figure", "save_image", "locked",
-           "check_writable", "is_versioned_npz"]
+           "check_writable", "is_versioned_npz", "load_npy"]
 
 
 @contextlib.contextmanager
@@ -209,3 +210,68 @@ def is_versioned_npz(path, fmt: str | None = None) -> bool:
     except (OSError, ValueError, zipfile.BadZipFile):
         return False
     return isinstance(header, dict) and header.get("format") == fmt
+
+
+#: The only globals a ``.npy`` of Python objects may name: how NumPy pickles its arrays, dtypes and
+#: scalars (``numpy.core`` before NumPy 2, ``numpy._core`` since). Lists, tuples, numbers and strings
+#: need no global. Nothing here runs code of the file's choosing.
+_NUMPY_PICKLE_GLOBALS = frozenset({
+    ("numpy", "ndarray"), ("numpy", "dtype"),
+    ("numpy.core.multiarray", "_reconstruct"), ("numpy._core.multiarray", "_reconstruct"),
+    ("numpy.core.multiarray", "scalar"), ("numpy._core.multiarray", "scalar"),
+})
+
+
+class _NumpyOnlyUnpickler(pickle.Unpickler):
+    """Unpickles NumPy arrays, dtypes, scalars and plain containers; refuses every other global."""
+
+    def find_class(self, module, name):
+        if (module, name) in _NUMPY_PICKLE_GLOBALS:
+            return super().find_class(module, name)
+        raise pickle.UnpicklingError(f"it names {module}.{name}, which is not a NumPy array, list or number")
+
+    def persistent_load(self, pid):
+        raise pickle.UnpicklingError("it refers to an external object")
+
+
+def load_npy(path, what: str = "file") -> np.ndarray:
+    """Read a ``.npy`` file without ever executing code from it.
+
+    Numeric arrays are read as :func:`numpy.load` with ``allow_pickle=False``
+    does. An array of Python objects (VPR-Bench's ``ground_truth_new.npy``
+    holds lists per query) is unpickled by an unpickler that admits only
+    NumPy arrays, dtypes and scalars besides lists, tuples, numbers and
+    strings: ``numpy.load`` with pickles allowed would run whatever a crafted
+    file names. A file without the NumPy header (e.g. a bare pickle or text
+    under a ``.npy`` name) is refused. Every refusal is a ``ValueError``
+    naming ``path`` (``what`` says what the file is for).
+    """
+    path = Path(path)
+    fmt = np.lib.format
+    try:
+        with open(path, "rb") as fh:
+            if fh.read(len(fmt.MAGIC_PREFIX)) != fmt.MAGIC_PREFIX:
+                raise ValueError("no NumPy .npy header")
+            fh.seek(0)
+            version = fmt.read_magic(fh)
+            if version == (1, 0):
+                shape, fortran, dtype = fmt.read_array_header_1_0(fh)
+            elif version == (2, 0):
+                shape, fortran, dtype = fmt.read_array_header_2_0(fh)
+            else:
+                raise ValueError(f".npy format version {version[0]}.{version[1]} is not read here")
+            if not dtype.hasobject:
+                fh.seek(0)
+                return np.load(fh, allow_pickle=False)
+            try:
+                arr = _NumpyOnlyUnpickler(fh).load()
+            except (pickle.UnpicklingError, EOFError, AttributeError, TypeError, ValueError, IndexError,
+                    KeyError, MemoryError, UnicodeDecodeError, OverflowError) as e:
+                raise ValueError(f"refused to read its Python objects ({e})") from None
+    except OSError as e:
+        raise ValueError(f"{path}: not a readable {what} ({e.strerror or e})") from None
+    except ValueError as e:
+        raise ValueError(f"{path}: not a readable {what}: {e}") from None
+    if not isinstance(arr, np.ndarray) or arr.shape != tuple(shape):
+        raise ValueError(f"{path}: not a readable {what}: its objects are not the array its header declares")
+    return arr

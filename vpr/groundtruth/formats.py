@@ -19,6 +19,8 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
+from vpr.io import load_npy
+
 __all__ = ["MATRIX_SUFFIXES", "is_matrix_file", "split_variable", "read_matrix", "db_query_matrix", "loop_matrix"]
 
 #: File suffixes read as ground-truth matrices (everything else is a CSV).
@@ -88,16 +90,8 @@ def read_matrix(spec):
     if variable is not None and suffix != ".mat":
         raise ValueError(f"{spec}: only a .mat file has named variables")
     if suffix == ".npy":
-        try:
-            return np.load(path, allow_pickle=False)
-        except ValueError as e:
-            if "allow_pickle" not in str(e):
-                raise ValueError(f"{path}: not a readable .npy file ({e})") from None
-            # VPR-Bench's ground_truth_new.npy holds Python lists per query: read them, numbers only
-            a = np.load(path, allow_pickle=True)
-            return a
-        except (OSError, EOFError) as e:
-            raise ValueError(f"{path}: not a readable .npy file ({e})") from None
+        # VPR-Bench's ground_truth_new.npy holds Python lists per query: read without running any code
+        return load_npy(path, "ground-truth .npy file")
     if suffix in (".png", ".bmp"):
         import cv2
 
