@@ -112,7 +112,7 @@ def detect_loops(det: LoopDetector, out, stdin=None, stdout=None, gt: GroundTrut
         raise ValueError("vpr loops -: no readable frames on stdin")
     out.mkdir(parents=True, exist_ok=True)
     with io.atomic_open(out / "matches.csv", "w", newline="") as fh:
-        w = csv.writer(fh)
+        w = csv.writer(fh, lineterminator="\n")
         w.writerow(["frame", "name", "best_earlier", "earlier_name", "score", "accepted", "latency_ms",
                     "latency_detector_ms"])
         w.writerows(rows)
@@ -137,7 +137,7 @@ def _metrics(det: LoopDetector, rows, cols, gt: GroundTruthSpec, seconds: float)
     T = len(rows)
     first = rows[0][0]
     names = [r[1] for r in rows]
-    hard, soft = build_loop_gt(gt, names, list(range(T)))
+    hard, soft = build_loop_gt(gt, names, list(range(T)), total=T)
     exclude = det.conf["exclude"]
     mask = groundtruth.loop_closure_mask(T, exclude=exclude)
     if not (hard & mask).any():

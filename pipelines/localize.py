@@ -190,7 +190,7 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
         raise ValueError(f"no readable query frames in {query}")
     out.mkdir(parents=True, exist_ok=True)
     with io.atomic_open(out / "matches.csv", "w", newline="") as fh:
-        w = csv.writer(fh)
+        w = csv.writer(fh, lineterminator="\n")
         w.writerow(["query", "name", "frame", "best_db", "db_name", "score", "accepted", "latency_ms",
                     "latency_localize_ms"])
         w.writerows(rows)

@@ -53,7 +53,7 @@ def write_matches(folder: Path, res: MatchResult, db_names, q_names, extra: dict
     """``matches.csv``: one row per query with its best database frame, score, decision and ``extra`` columns."""
     extra = extra or {}
     with io.atomic_open(folder / "matches.csv", "w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
+        w = csv.writer(fh, lineterminator="\n")  # LF: awk, cut and diff read it as it is
         w.writerow(["query", "query_name", "best_db", "db_name", "score", "accepted", *extra])
         for j in range(len(q_names)):
             b = int(res.best_db[j])
@@ -77,6 +77,8 @@ def method_metrics(res: MatchResult, gt_hard, gt_soft, mask=None, loops: bool = 
     ev, (prec, rec, _) = evaluate.evaluate(res.similarity, gt_hard, gt_soft, mask=mask, return_curve=True)
     m.update({k: float(v) for k, v in ev.items()})
     m.update(evaluate.accepted_precision(res.best_db, res.accepted, gt_hard, gt_soft, mask=mask))
+    if gt_soft is not None:
+        m["best_in_soft"] = evaluate.best_in_soft_band(res.best_db, gt_hard, gt_soft, mask=mask)
     if loops:
         dm, (prec, rec, _) = evaluate.decision_curve(res.best_db, res.score, gt_hard, gt_soft, mask=mask)
         m.update(frame_ap=dm["ap"], frame_recall_at_100p=dm["recall_at_100p"], frames_with_loop=dm["n_with_match"])
@@ -94,7 +96,8 @@ def metrics_table(table: dict, kind: str = "match") -> str:
     """The printed table: one row per method of ``{method: metrics}`` (``kind``: ``"match"`` or ``"loops"``).
 
     A metric that is not there (no ground truth) or undefined (the precision
-    of no accepted match) prints as ``-``.
+    of no accepted match) prints as ``-``. With a soft band (``--gt-soft``) a
+    legend says that R@1 and P(acc) ignore best matches there, and how many.
     """
     keys = TABLE[kind]
     lines = [f"{'method':<22}" + "".join(f"{h:>10}" for _, h in keys)]
@@ -102,6 +105,10 @@ def metrics_table(table: dict, kind: str = "match") -> str:
         cells = "".join((f"{m[k]:10d}" if isinstance(m[k], int) else f"{m[k]:10.3f}")
                         if isinstance(m.get(k), (int, float)) else f"{'-':>10}" for k, _ in keys)
         lines.append(f"{name:<22}{cells}")
+    soft = {name: m["best_in_soft"] for name, m in table.items() if "best_in_soft" in m}
+    if soft:
+        lines.append("R@1, AP, R@100P and P(acc) ignore best matches in the soft band (--gt-soft): neither right nor "
+                     "wrong. Best matches there: " + ", ".join(f"{n} {c}" for n, c in soft.items()))
     return "\n".join(lines)
 
 

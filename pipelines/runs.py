@@ -324,7 +324,8 @@ def check_match(runners: dict, opts: RunOptions, db_src, q_src):
     db_att, q_att = db_src.indices(), q_src.indices()
     for runner in runners.values():
         runner.check_size(len(db_att), len(q_att))  # too large for a method: refused now, not after encoding
-    gt_hard, gt_soft = build_gt(opts.gt, db_src.names(), q_src.names(), db_att, q_att, db_src.name, q_src.name)
+    gt_hard, gt_soft = build_gt(opts.gt, db_src.names(), q_src.names(), db_att, q_att, db_src.name, q_src.name,
+                                totals=(db_src.exact_total(), q_src.exact_total()))
     if gt_hard is not None and not _any_true(gt_hard):
         raise opts.gt.no_match_error(db_att, q_att)
     return gt_hard, gt_soft
@@ -460,7 +461,7 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
     if exclude >= len(attempted):
         raise ValueError(f"--exclude {exclude} leaves no pair to compare: {src.path} has {len(attempted)} frames "
                          "to read, and a loop closure needs frames at least --exclude apart")
-    gt_hard, gt_soft = build_loop_gt(opts.gt, src.names(), attempted, src.name)
+    gt_hard, gt_soft = build_loop_gt(opts.gt, src.names(), attempted, src.name, total=src.exact_total())
     mask = None
     if gt_hard is not None:
         mask = groundtruth.loop_closure_mask(len(attempted), exclude=exclude)

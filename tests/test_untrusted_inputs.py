@@ -26,9 +26,17 @@ class _Payload:
 
 
 @pytest.fixture(scope="module")
-def folders(scene_on_disk):
-    s = scene_on_disk("two_seasons", (48, 32), N_FRAMES)
-    return s[s["names"][0]], s[s["names"][1]]
+def scene(scene_on_disk):
+    return scene_on_disk("two_seasons", (48, 32), N_FRAMES)
+
+
+@pytest.fixture(scope="module")
+def folders(scene):
+    return scene[scene["names"][0]], scene[scene["names"][1]]
+
+
+#: The quickest run that still reads, encodes, matches and evaluates
+FAST = ["--preset", "fast", "--methods", "pairwise"]
 
 
 def _run(argv, capsys):
@@ -106,3 +114,130 @@ def test_no_product_module_unpickles_with_numpy():
                     if "allow_pickle=True" in text or "pickle.load(" in text:
                         hits.append(os.path.join(dirpath, f))
     assert not hits, hits
+
+
+# ------------------------------------------------------------ 2. wrong metrics with no word
+def test_positions_header_in_another_order_is_read_by_name(tmp_path):
+    from vpr.groundtruth import gt_from_position_files
+
+    xy = [(0, 0), (10, 0), (20, 0), (30, 0)]
+    (tmp_path / "a.csv").write_text("frame,x,y\n" + "".join(f"{i},{x},{y}\n" for i, (x, y) in enumerate(xy)))
+    (tmp_path / "b.csv").write_text("x,y,frame\n" + "".join(f"{x},{y},{i}\n" for i, (x, y) in enumerate(xy)))
+    (tmp_path / "c.csv").write_text("Easting,Northing,Name\n"
+                                    + "".join(f"{x},{y},{i}\n" for i, (x, y) in enumerate(xy)))
+    want = gt_from_position_files(tmp_path / "a.csv", tmp_path / "a.csv", 1.0)
+    np.testing.assert_array_equal(gt_from_position_files(tmp_path / "a.csv", tmp_path / "b.csv", 1.0), want)
+    np.testing.assert_array_equal(gt_from_position_files(tmp_path / "c.csv", tmp_path / "b.csv", 1.0), want)
+    (tmp_path / "d.csv").write_text("lat,lon,frame\n0,0,0\n")
+    with pytest.raises(ValueError, match=r"d.csv:1: unknown header 'lat,lon,frame'"):
+        gt_from_position_files(tmp_path / "a.csv", tmp_path / "d.csv", 1.0)
+
+
+def _png(path, value):
+    import cv2
+
+    rng = np.random.default_rng(value)
+    cv2.imwrite(str(path), rng.integers(0, 255, (24, 32, 3), dtype=np.uint8))
+
+
+def test_other_formats_and_dangling_links_keep_frame_numbers(tmp_path):
+    import cv2
+
+    from vpr.sources import FrameSkippedWarning, IgnoredFilesWarning, open_source
+
+    for i in range(6):
+        _png(tmp_path / f"{i:03d}.png", i)
+    (tmp_path / "002.png").unlink()
+    img = np.random.default_rng(2).integers(0, 255, (24, 32, 3), dtype=np.uint8)
+    cv2.imwrite(str(tmp_path / "002.webp"), img)          # read: OpenCV decodes WebP
+    (tmp_path / "004.png").unlink()
+    (tmp_path / "004.png").symlink_to(tmp_path / "gone.png")  # dangling: skipped, keeps its number
+    (tmp_path / "003.png").unlink()
+    (tmp_path / "003.heic").write_bytes(b"ftypheic" * 8)  # a format not read: skipped, keeps its number
+    (tmp_path / "notes.txt").write_text("not a frame")
+    with pytest.warns(IgnoredFilesWarning, match="1 files that are not images ignored .*notes.txt"):
+        src = open_source(tmp_path)
+    assert src.indices() == [0, 1, 2, 3, 4, 5]
+    with pytest.warns(FrameSkippedWarning) as rec:
+        frames = list(src)
+    assert [f.index for f in frames] == [0, 1, 2, 5]
+    assert [f.name for f in frames] == ["000.png", "001.png", "002.webp", "005.png"]
+    reasons = dict(src.skipped)
+    assert reasons["004.png"] == "dangling symbolic link" and "003.heic" in reasons
+    assert len(rec) == 2
+
+
+def _vfr_video(path, stamps_ms):
+    import fractions
+
+    import av
+
+    with av.open(str(path), "w") as c:
+        s = c.add_stream("mpeg4", rate=10)
+        s.width, s.height, s.pix_fmt = 64, 48, "yuv420p"
+        s.codec_context.time_base = s.time_base = fractions.Fraction(1, 1000)
+        for i, ms in enumerate(stamps_ms):
+            f = av.VideoFrame.from_ndarray(np.full((48, 64, 3), (i * 7) % 255, np.uint8), format="bgr24")
+            f.pts, f.time_base = ms, fractions.Fraction(1, 1000)
+            for pkt in s.encode(f):
+                c.mux(pkt)
+        for pkt in s.encode():
+            c.mux(pkt)
+    return path
+
+
+def test_variable_frame_rate_video_is_sampled_by_timestamps(tmp_path):
+    from vpr.sources import open_source
+
+    # 4 s at 10 fps, then 48 s at 1 fps: --fps 1 keeps one frame per second throughout
+    stamps = [i * 100 for i in range(40)] + [4000 + i * 1000 for i in range(48)]
+    src = open_source(_vfr_video(tmp_path / "vfr.mkv", stamps), fps=1)
+    idx = src.indices()
+    assert idx[:5] == [0, 10, 20, 30, 40]
+    assert len(idx) == 52
+    times = np.asarray(stamps)[idx] / 1000
+    assert np.all(np.diff(times) == 1.0)
+    assert [f.index for f in src] == idx
+
+
+def test_ground_truth_that_makes_most_pairs_true_is_warned_about(folders, scene, tmp_path, capsys):
+    with pytest.warns(UserWarning, match="--tolerance 1000: 100 % of all database x query pairs are true matches"):
+        code, out, err = _run(["compare", *folders, "--out", tmp_path / "out", "--tolerance", "1000", *FAST], capsys)
+    assert code == 0, err
+    with pytest.warns(UserWarning, match=r"--radius 1e\+308: 100 % of all frame pairs"):
+        code, out, err = _run(["loops", folders[0], "--out", tmp_path / "loops", "--gt", scene["gt"], "--radius",
+                               "1e308", "--exclude", "5", "--preset", "fast", "--method", "pairwise"], capsys)
+    assert code == 0, err
+
+
+def test_a_matrix_of_fractions_is_refused(folders, tmp_path, capsys):
+    np.save(tmp_path / "gt.npy", np.full((N_FRAMES, N_FRAMES), 0.3))
+    code, _, err = _run(["compare", *folders, "--out", tmp_path / "out", "--gt", tmp_path / "gt.npy", *FAST], capsys)
+    _one_error_line(code, err, "gt.npy", "0/1", "0.3")
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_loop_matrix_of_another_stream_is_refused(folders, tmp_path, capsys):
+    gt = np.zeros((84, 84), bool)
+    gt[50, 10] = gt[60, 15] = True
+    np.save(tmp_path / "loops.npy", gt)
+    code, _, err = _run(["loops", folders[0], "--out", tmp_path / "out", "--gt", tmp_path / "loops.npy",
+                         "--exclude", "5", "--preset", "fast"], capsys)
+    _one_error_line(code, err, "loops.npy", "84 x 84", f"stream of {N_FRAMES} frames")
+    np.save(tmp_path / "big.npy", np.eye(N_FRAMES + 4, N_FRAMES, dtype=bool))
+    code, _, err = _run(["compare", *folders, "--out", tmp_path / "out", "--gt", tmp_path / "big.npy", *FAST],
+                        capsys)
+    _one_error_line(code, err, "big.npy", f"the database has {N_FRAMES} frames")
+
+
+def test_the_table_says_the_soft_band_is_ignored_and_matches_csv_is_lf(folders, scene, tmp_path, capsys):
+    code, out, err = _run(["compare", *folders, "--out", tmp_path / "out", "--gt", scene["gt"], "--radius", "2",
+                           "--gt-soft", "30", *FAST], capsys)
+    assert code == 0, err
+    legend = [line for line in out.splitlines() if line.startswith("R@1, AP, R@100P and P(acc) ignore")]
+    assert len(legend) == 1 and "pairwise " in legend[0]
+    metrics = __import__("json").loads((tmp_path / "out" / "metrics.json").read_text())
+    n_soft = metrics["methods"]["pairwise"]["best_in_soft"]
+    assert legend[0].endswith(f"pairwise {n_soft}")
+    raw = (tmp_path / "out" / "pairwise" / "matches.csv").read_bytes()
+    assert b"\r" not in raw and raw.count(b"\n") == N_FRAMES + 1

@@ -58,6 +58,7 @@ import scipy.sparse as sp
 from vpr.checks import at, check_int, check_similarity
 
 __all__ = [
+    "best_in_soft_band",
     "average_precision",
     "pr_curve",
     "auc_pr",
@@ -544,6 +545,23 @@ def accepted_precision(best_db, accepted, gt_hard, gt_soft=None, mask=None) -> d
     n_with_match = int((np.asarray((gt_hard != 0).sum(axis=0)).ravel() > 0).sum())
     return {"n_accepted": n_accepted, "precision_accepted": float(correct.mean()) if q.size else None,
             "recall_accepted": float(correct.sum() / max(1, n_with_match))}
+
+
+def best_in_soft_band(best_db, gt_hard, gt_soft, mask=None) -> int:
+    """How many queries' best match is a soft-only pair (``gt_soft & ~gt_hard``), which every metric ignores.
+
+    Such a best match is neither right nor wrong for R@1, AP or the accepted
+    precision; this count says how many there are, so that an R@1 of 1.000 is
+    not read as "every best match is within the true radius".
+    """
+    if gt_soft is None:
+        return 0
+    best_db = np.asarray(best_db)
+    q = np.flatnonzero(best_db >= 0)
+    soft_only = at(gt_soft, best_db[q], q).astype(bool) & ~at(gt_hard, best_db[q], q).astype(bool)
+    if mask is not None:
+        soft_only &= at(mask, best_db[q], q).astype(bool)
+    return int(np.count_nonzero(soft_only))
 
 
 def decision_curve(best, score, gt_hard, gt_soft=None, mask=None) -> tuple[dict, tuple]:

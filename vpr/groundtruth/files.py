@@ -262,15 +262,42 @@ def load_pairs_csv(path, n_db: int, n_q: int, db_names: Sequence[str] | None = N
     return gt
 
 
+#: The names a positions file's header may give its three columns (any case, any order).
+POSITION_COLUMNS = {
+    "frame": ("frame", "name", "image", "file", "filename", "path", "index"),
+    "x": ("x", "east", "easting", "utm_east"),
+    "y": ("y", "north", "northing", "utm_north"),
+}
+
+
+def _position_order(path, first_line: int, header: list[str]) -> tuple[int, int, int]:
+    """Where the frame, x and y columns are, read from a header by name; any other header is refused."""
+    keys = [h.casefold() for h in header]
+    order = []
+    for names in POSITION_COLUMNS.values():
+        at = [i for i, k in enumerate(keys) if k in names]
+        if len(at) != 1:
+            break
+        order.append(at[0])
+    if len(order) != 3 or len(set(order)) != 3:
+        raise ValueError(f"{path}:{first_line}: unknown header {','.join(header)!r}; expected the columns frame, x "
+                         "and y (any order; also name / easting / northing), or no header and frame,x,y rows")
+    return order[0], order[1], order[2]
+
+
 def _load_positions(path):
     rows = _read_rows(path, 3, "frame,x,y")
-    first_line, (_, fx, fy) = rows[0]
-    if _parse_float(fx) is None and _parse_float(fy) is None:
-        rows = rows[1:]  # header
+    first_line, first = rows[0]
+    order = (0, 1, 2)  # headerless files are frame,x,y
+    if sum(_parse_float(t) is None for t in first) >= 2:
+        # two fields that are not numbers: a header, read by name (an "x,y,frame" header must not be read as frame,x,y)
+        order = _position_order(path, first_line, first)
+        rows = rows[1:]
         if not rows:
             raise ValueError(f"{path}: no positions after the header on line {first_line}")
     tokens, xy, lines = [], [], []
-    for lineno, (frame, xs, ys) in rows:
+    for lineno, fields in rows:
+        frame, xs, ys = (fields[i] for i in order)
         where = f"{path}:{lineno}"
         if not frame:
             raise ValueError(f"{where}: empty frame field")

@@ -46,7 +46,13 @@ def is_matrix_file(spec) -> bool:
     return path.suffix.lower() in MATRIX_SUFFIXES
 
 
-def _as_bool(a, path) -> np.ndarray:
+def _as_bool(a, path, binary: bool = True) -> np.ndarray:
+    """A matrix file's content as bool; ``binary``: only 0/1 (or bool) values are taken, anything else refused.
+
+    A matrix of 0.3 floats (a similarity, a distance, a probability) is not a
+    ground truth: binarising it silently would give metrics of nothing. Images
+    (``binary=False``) are read as nonzero = loop (RTAB-Map writes 0/255).
+    """
     a = np.asarray(a)
     if a.dtype == object:
         raise ValueError(f"{path}: not a matrix of 0/1 values (an object array; VPR-Bench's per-query lists are "
@@ -57,6 +63,12 @@ def _as_bool(a, path) -> np.ndarray:
         raise ValueError(f"{path}: expected numbers, got dtype {a.dtype}")
     if a.dtype.kind == "f" and not np.isfinite(a).all():
         raise ValueError(f"{path}: contains NaN or infinite values")
+    if binary and a.dtype.kind != "b":
+        other = a[(a != 0) & (a != 1)]
+        if other.size:
+            raise ValueError(f"{path}: a ground-truth matrix holds 0/1 (or true/false) values, this one also "
+                             f"{other.size} others (e.g. {other.flat[0]:g}); threshold it yourself if it is a "
+                             "distance or a similarity")
     return a != 0
 
 
@@ -123,22 +135,25 @@ def _vpr_bench(a, path, n_db: int, n_q: int) -> np.ndarray:
     return gt
 
 
-def db_query_matrix(spec, n_db: int, n_q: int, db_indices=None, q_indices=None) -> np.ndarray:
+def db_query_matrix(spec, n_db: int, n_q: int, db_indices=None, q_indices=None, totals=None) -> np.ndarray:
     """Database x query ground truth of the frames read, from a matrix file (``GThard.npy`` or VPR-Bench's).
 
     The file is indexed by source frame number; ``db_indices`` / ``q_indices``
     (the source numbers of the frames read; default 0, 1, ...) select its rows
     and columns. A ``GThard``-style matrix must be n_db x n_query of the
-    source (its transpose is refused with a hint).
+    source (its transpose is refused with a hint); ``totals`` (the number of
+    frames in each source, where it is known exactly) refuses one of another
+    size, which belongs to other traverses.
     """
     path, _ = split_variable(spec)
     raw = read_matrix(spec)
     db_i = np.arange(n_db) if db_indices is None else np.asarray(db_indices, np.int64)
     q_i = np.arange(n_q) if q_indices is None else np.asarray(q_indices, np.int64)
     need = (int(db_i.max()) + 1 if db_i.size else 0, int(q_i.max()) + 1 if q_i.size else 0)
-    if isinstance(raw, np.ndarray) and raw.dtype == object:
-        full = _vpr_bench(raw, path, max(need[0], 1), max(need[1], 1)) if raw.ndim == 1 or raw.shape[1:] == (2,) \
-            else _as_bool(raw, path)
+    rows = isinstance(raw, np.ndarray) and raw.dtype == object and (raw.ndim == 1 or raw.shape[1:] == (2,))
+    if rows:  # VPR-Bench: per-query lists, sized by the frames read
+        full = _vpr_bench(raw, path, max(need[0], 1), max(need[1], 1))
+        totals = None
     else:
         full = _as_bool(raw, path)
     if full.shape[0] < need[0] or full.shape[1] < need[1]:
@@ -146,22 +161,31 @@ def db_query_matrix(spec, n_db: int, n_q: int, db_indices=None, q_indices=None) 
             full.shape[1] >= need[0] and full.shape[0] >= need[1] else ""
         raise ValueError(f"{path}: a {full.shape[0]} x {full.shape[1]} matrix does not cover database frames "
                          f"0..{need[0] - 1} x query frames 0..{need[1] - 1}{hint}")
+    for axis, (total, role) in enumerate(zip(totals or (None, None), ("database", "query"), strict=True)):
+        if total is not None and full.shape[axis] != total:
+            raise ValueError(f"{path}: a {full.shape[0]} x {full.shape[1]} matrix, but the {role} has {total} frames: "
+                             "rows are the database's frames, columns the query's (ground truth of other traverses?)")
     return full[np.ix_(db_i, q_i)]
 
 
-def loop_matrix(spec, indices) -> np.ndarray:
+def loop_matrix(spec, indices, total: int | None = None) -> np.ndarray:
     """Loop ground truth (T x T bool, rows earlier frame, columns frame) of the frames read, from a matrix file.
 
     ``indices``: the source frame numbers of the frames read. The file is a
     square matrix over the source's frames (row = frame, column = earlier
-    frame, or the transpose: both triangles are read).
+    frame, or the transpose: both triangles are read). ``total``: the number
+    of frames in the stream, where it is known exactly; a matrix of another
+    size is refused (it belongs to another stream).
     """
     path, _ = split_variable(spec)
     raw = read_matrix(spec)
-    full = _as_bool(raw, path)
+    full = _as_bool(raw, path, binary=path.suffix.lower() not in (".png", ".bmp"))
     if full.shape[0] != full.shape[1]:
         raise ValueError(f"{path}: a loop ground truth is a square frame x frame matrix, got {full.shape[0]} x "
                          f"{full.shape[1]}")
+    if total is not None and full.shape[0] != total:
+        raise ValueError(f"{path}: a {full.shape[0]} x {full.shape[0]} loop matrix for a stream of {total} frames "
+                         "(ground truth of another stream?)")
     idx = np.asarray(indices, np.int64)
     if idx.size and idx.max() >= full.shape[0]:
         raise ValueError(f"{path}: a {full.shape[0]} x {full.shape[0]} matrix does not cover frame {int(idx.max())} "

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -23,7 +24,7 @@ from .files import (
 from .formats import db_query_matrix, is_matrix_file, loop_matrix, split_variable
 from .matrices import gt_from_frames, gt_from_positions
 
-__all__ = ["GroundTruthSpec", "build_gt", "build_loop_gt", "check_loop_gt_files"]
+__all__ = ["GroundTruthSpec", "build_gt", "build_loop_gt", "check_loop_gt_files", "warn_if_mostly_true"]
 
 
 @dataclass(frozen=True)
@@ -145,17 +146,26 @@ class GroundTruthSpec:
 
 
 def build_gt(spec: GroundTruthSpec, db_names: Sequence[str], q_names: Sequence[str], db_indices: Sequence[int],
-             q_indices: Sequence[int], db_traverse: str = "database", q_traverse: str = "query"):
+             q_indices: Sequence[int], db_traverse: str = "database", q_traverse: str = "query", totals=None):
     """(gt_hard, gt_soft) of the frames read, or (None, None) without ground truth.
 
     ``db_traverse`` / ``q_traverse`` name the traverses in a combined
-    ``traverse,frame,x,y`` file; ``*_indices`` are the source frame numbers.
+    ``traverse,frame,x,y`` file; ``*_indices`` are the source frame numbers;
+    ``totals`` the number of frames in each source where it is known exactly
+    (a matrix file must then have that shape). Warns when most pairs are true.
 
     Raises
     ------
     ValueError
         Contradictory or incomplete options (the message names them), or a bad file.
     """
+    hard, soft = _db_query_gt(spec, db_names, q_names, db_indices, q_indices, db_traverse, q_traverse, totals)
+    if hard is not None:
+        warn_if_mostly_true(spec, hard)
+    return hard, soft
+
+
+def _db_query_gt(spec, db_names, q_names, db_indices, q_indices, db_traverse, q_traverse, totals):
     spec.check()
     files = list(spec.files)
     if spec.tolerance is not None:
@@ -166,8 +176,8 @@ def build_gt(spec: GroundTruthSpec, db_names: Sequence[str], q_names: Sequence[s
     if not files:
         return None, None
     if is_matrix_file(files[0]):  # hard (and soft) matrices over the source frames
-        hard = db_query_matrix(files[0], len(db_names), len(q_names), db_indices, q_indices)
-        soft = db_query_matrix(files[1], len(db_names), len(q_names), db_indices, q_indices) \
+        hard = db_query_matrix(files[0], len(db_names), len(q_names), db_indices, q_indices, totals)
+        soft = db_query_matrix(files[1], len(db_names), len(q_names), db_indices, q_indices, totals) \
             if len(files) == 2 else None
         return hard, (soft | hard if soft is not None else None)
     if spec.radius is None:  # one pairs file (check() refused the rest)
@@ -187,7 +197,8 @@ def build_gt(spec: GroundTruthSpec, db_names: Sequence[str], q_names: Sequence[s
     return hard, soft
 
 
-def build_loop_gt(spec: GroundTruthSpec, names: Sequence[str], indices: Sequence[int], traverse: str | None = None):
+def build_loop_gt(spec: GroundTruthSpec, names: Sequence[str], indices: Sequence[int], traverse: str | None = None,
+                  total: int | None = None):
     """(gt_hard, gt_soft) of one stream's loop closures (T x T, rows earlier frame), or (None, None).
 
     From a positions CSV (``frame,x,y`` or ``traverse,frame,x,y`` rows, with
@@ -195,16 +206,25 @@ def build_loop_gt(spec: GroundTruthSpec, names: Sequence[str], indices: Sequence
     ``vpr render``'s ``loop_pairs.csv``, or matrix files (hard, then soft). Both triangles are filled: a loop is a
     pair of frames; which pairs are evaluated is the metrics' mask.
     ``traverse``: the stream's name in a file of several traverses (None: the
-    file's only one).
+    file's only one). ``total``: the number of frames in the stream where it is
+    known exactly (a matrix file must be ``total`` x ``total``). Warns when
+    most pairs are true.
     """
+    hard, soft = _loop_gt(spec, names, indices, traverse, total)
+    if hard is not None:
+        warn_if_mostly_true(spec, hard, loops=True)
+    return hard, soft
+
+
+def _loop_gt(spec, names, indices, traverse, total):
     spec.check(loops=True)
     files = list(spec.files)
     if not files:
         return None, None
     n = len(names)
     if is_matrix_file(files[0]):
-        hard = loop_matrix(files[0], indices)
-        soft = loop_matrix(files[1], indices) | hard if len(files) == 2 else None
+        hard = loop_matrix(files[0], indices, total)
+        soft = loop_matrix(files[1], indices, total) | hard if len(files) == 2 else None
         return hard, soft
     if spec.radius is None and is_loop_pairs_file(files[0]):  # vpr render's loop_pairs.csv
         return load_loop_pairs(files[0], traverse, indices), None
@@ -216,6 +236,30 @@ def build_loop_gt(spec: GroundTruthSpec, names: Sequence[str], indices: Sequence
     xy = positions_of_frames(files[0], traverse, indices)
     hard = gt_from_positions(xy, xy, spec.radius)
     return hard, (gt_from_positions(xy, xy, spec.soft) if spec.soft is not None else None)
+
+
+def warn_if_mostly_true(spec: GroundTruthSpec, hard, loops: bool = False, share: float = 0.5) -> float:
+    """Warn when more than ``share`` of all pairs are true matches; returns the share.
+
+    Ground truth that makes (nearly) every pair true (``--radius 1e308``, a
+    tolerance as long as the traverse, metres taken for kilometres) gives AP
+    1.000 whatever the method does. For loops the pairs are those of distinct
+    frames (a frame always matches itself).
+    """
+    n = hard.shape[0] * hard.shape[1]
+    true = int(hard.nnz if hasattr(hard, "nnz") else np.count_nonzero(hard))
+    if loops:
+        diag = hard.diagonal() if hasattr(hard, "diagonal") else np.diagonal(hard)
+        true -= int(np.count_nonzero(diag))
+        n -= min(hard.shape)
+    got = true / n if n else 0.0
+    if got > share:
+        what = ", ".join(f"{k} {v}" for k, v in (("--tolerance", spec.tolerance), ("--radius", spec.radius))
+                         if v is not None) or f"--gt {', '.join(map(str, spec.files))}"
+        warnings.warn(f"ground truth {what}: {100 * got:.0f} % of all {'frame' if loops else 'database x query'} "
+                      "pairs are true matches, so every metric is near its best whatever the method does (a unit "
+                      "or tolerance mistake?)", UserWarning, stacklevel=3)
+    return got
 
 
 def check_loop_gt_files(spec: GroundTruthSpec, traverse: str | None = None) -> None:

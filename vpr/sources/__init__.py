@@ -29,6 +29,7 @@ from .base import (
     VIDEO_EXTENSIONS,
     Frame,
     FrameSkippedWarning,
+    IgnoredFilesWarning,
     Source,
     check_positive_int,
     decode_image,
@@ -37,7 +38,7 @@ from .base import (
 from .files import FolderSource, ListSource
 from .video import VideoSource
 
-__all__ = ["Frame", "FrameSkippedWarning", "Source", "FolderSource", "ListSource", "VideoSource",
+__all__ = ["Frame", "FrameSkippedWarning", "IgnoredFilesWarning", "Source", "FolderSource", "ListSource", "VideoSource",
            "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS", "LIST_EXTENSIONS", "natural_key", "decode_image", "open_source",
            "load_all", "iter_batches"]
 

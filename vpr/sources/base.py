@@ -14,12 +14,18 @@ import numpy as np
 from vpr.checks import check_int
 from vpr.imageproc import to_bgr
 
-__all__ = ["Frame", "FrameSkippedWarning", "Source", "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS", "LIST_EXTENSIONS",
-           "natural_key", "decode_image", "check_range", "check_positive_int", "stat_token"]
+__all__ = ["Frame", "FrameSkippedWarning", "IgnoredFilesWarning", "Source", "IMAGE_EXTENSIONS",
+           "OTHER_IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS", "LIST_EXTENSIONS", "natural_key", "decode_image",
+           "check_range", "check_positive_int", "stat_token"]
 
 log = logging.getLogger(__name__)
 
-IMAGE_EXTENSIONS = frozenset({".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff"})
+IMAGE_EXTENSIONS = frozenset({".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp", ".pgm", ".ppm", ".pbm",
+                              ".pnm", ".jp2"})
+#: Files of a folder that are frames OpenCV may not decode: they keep their place in the frame numbering and are
+#: skipped with a warning if unreadable, so that the frames after them keep their numbers (``--tolerance``).
+OTHER_IMAGE_EXTENSIONS = frozenset({".gif", ".heic", ".heif", ".avif", ".jxl", ".exr", ".hdr", ".ico", ".svg",
+                                    ".dng", ".raw", ".cr2", ".nef", ".arw", ".psd"})
 VIDEO_EXTENSIONS = frozenset({".mp4", ".avi", ".mov", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv"})
 LIST_EXTENSIONS = frozenset({".txt", ".lst"})
 
@@ -30,6 +36,10 @@ _IMREAD_FLAGS = cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR
 
 class FrameSkippedWarning(UserWarning):
     """A frame could not be read and was left out of the stream."""
+
+
+class IgnoredFilesWarning(UserWarning):
+    """Files of a folder that are not images were not read as frames."""
 
 
 class Frame(NamedTuple):
@@ -91,7 +101,7 @@ def decode_image(path: Path) -> tuple[np.ndarray | None, str]:
         # every platform and separates "cannot read" from "cannot decode"
         buf = np.fromfile(str(path), dtype=np.uint8)
     except FileNotFoundError:
-        return None, "file not found"
+        return None, "dangling symbolic link" if path.is_symlink() else "file not found"
     except OSError as exc:
         return None, f"cannot read file ({exc.strerror or exc})"
     if buf.size == 0:
@@ -143,6 +153,15 @@ class Source:
     def key(self) -> str:
         """A string that changes when the source's content or selection changes."""
         raise NotImplementedError
+
+    def exact_total(self) -> int | None:
+        """The number of frames in the source before any selection, where it is known exactly (else None).
+
+        A ground-truth matrix over the source's frames must have this size.
+        A video's container count is not exact (it may count frames that do
+        not decode, or a nominal rate times the duration): None.
+        """
+        return None
 
     def __iter__(self) -> Iterator[Frame]:
         raise NotImplementedError

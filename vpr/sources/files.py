@@ -3,17 +3,19 @@ from __future__ import annotations
 
 import hashlib
 import os
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
 from .base import (
     IMAGE_EXTENSIONS,
+    OTHER_IMAGE_EXTENSIONS,
     Frame,
+    IgnoredFilesWarning,
     Source,
     check_positive_int,
     check_range,
     decode_image,
-    log,
     natural_key,
     stat_token,
 )
@@ -51,6 +53,9 @@ class _FileListSource(Source):
     def _key_header(self) -> str:
         return str(self.path.resolve())
 
+    def exact_total(self) -> int:
+        return len(self._entries)
+
     def __iter__(self) -> Iterator[Frame]:
         self.skipped = []
         n_yielded = 0
@@ -81,9 +86,12 @@ class FolderSource(_FileListSource):
     Parameters
     ----------
     path : str or Path
-        Folder holding .jpg/.jpeg/.png/.bmp/.tif/.tiff files (extension case
-        ignored). Hidden files are ignored; other files are ignored and counted
-        in ``ignored``.
+        Folder of images (:data:`IMAGE_EXTENSIONS`, extension case ignored).
+        Files of other image formats (:data:`OTHER_IMAGE_EXTENSIONS`) and
+        dangling symbolic links keep their place in the frame numbering and
+        are skipped with a warning if they cannot be decoded. Hidden files are
+        ignored; other files are ignored with one warning and counted in
+        ``ignored``.
     step : int, optional
         Keep every ``step``-th image.
     max_frames : int, optional
@@ -107,27 +115,33 @@ class FolderSource(_FileListSource):
             raise FileNotFoundError(f"no such folder: {self.path}")
         if not self.path.is_dir():
             raise NotADirectoryError(f"not a folder: {self.path}")
-        images = []
+        images, others = [], []
+        frame_like = IMAGE_EXTENSIONS | OTHER_IMAGE_EXTENSIONS
         with os.scandir(self.path) as it:
             for entry in it:
                 if entry.name.startswith("."):
                     continue
                 try:
-                    is_file = entry.is_file()
+                    # a symbolic link is a frame whether or not its target exists: a dangling one is skipped
+                    # with a warning at reading time and keeps its frame number, like a corrupt image
+                    is_file = entry.is_file() or entry.is_symlink() and not entry.is_dir()
                 except OSError:
                     is_file = False
                 if not is_file:
                     continue
-                if Path(entry.name).suffix.lower() in IMAGE_EXTENSIONS:
+                if Path(entry.name).suffix.lower() in frame_like:
                     images.append(entry.name)
                 else:
-                    self.ignored += 1
+                    others.append(entry.name)
+        self.ignored = len(others)
         if not images:
             raise ValueError(f"no images in {self.path} ({self.ignored} other files ignored)")
         images.sort(key=natural_key)
         self._entries = [(n, self.path / n) for n in images]
-        if self.ignored:
-            log.info("%s: %d non-image files ignored", self.path, self.ignored)
+        if others:
+            others.sort(key=natural_key)
+            warnings.warn(f"{self.path}: {len(others)} files that are not images ignored (e.g. "
+                          f"{', '.join(others[:3])})", IgnoredFilesWarning, stacklevel=2)
 
 
 class ListSource(_FileListSource):

@@ -33,6 +33,51 @@ def _resample_frames(native_fps: float, target_fps: float) -> Iterator[int]:
             yield i
 
 
+def _sample_by_time(times: np.ndarray, target_fps: float) -> list[int]:
+    """Frame numbers to keep from frames at ``times`` (seconds, increasing): the same rule by real timestamps.
+
+    Sample k is at ``times[0] + k / target_fps``; the kept frame is the first
+    whose timestamp is not earlier than that. A variable frame rate is
+    therefore sampled evenly in time, not in frame numbers.
+    """
+    if times.size == 0:
+        return []
+    span = float(times[-1] - times[0])
+    samples = times[0] + np.arange(int(math.floor(span * target_fps + 1e-9)) + 1) / target_fps
+    idx = np.searchsorted(times, samples - 1e-6, side="left")
+    return np.unique(idx[idx < times.size]).tolist()
+
+
+def frame_times(path) -> np.ndarray | None:
+    """Presentation time (s) of every frame of a video's first video stream, in presentation order.
+
+    Read from the container's packets with PyAV, without decoding (fast even
+    for long videos); None when the container gives no timestamps. Frame
+    ``i`` as OpenCV decodes it is at ``frame_times(path)[i]``.
+    """
+    import av  # PyAV: the container's real timestamps (OpenCV's frame rate is nominal)
+
+    try:
+        with av.open(str(path)) as c:
+            if not c.streams.video:
+                return None
+            st = c.streams.video[0]
+            stamps = []
+            for pkt in c.demux(st):
+                if pkt.size == 0:  # the demuxer's flush packet
+                    continue
+                t = pkt.pts if pkt.pts is not None else pkt.dts
+                if t is None:
+                    return None
+                stamps.append(t)
+            base = st.time_base
+    except (av.FFmpegError, OSError, ValueError):
+        return None
+    if not stamps or base is None:
+        return None
+    return np.sort(np.asarray(stamps, np.float64)) * float(base)
+
+
 class VideoSource(Source):
     """Frames of a video file decoded with OpenCV.
 
@@ -41,9 +86,12 @@ class VideoSource(Source):
     path : str or Path
         Video file.
     fps : float, optional
-        Resample to this frame rate using the video's nominal frame rate
-        (frame ``i`` is at ``i / video_fps`` seconds). Rates at or above the
-        video's own keep every frame.
+        Resample to this frame rate by the frames' timestamps (the
+        container's presentation times, :func:`frame_times`): sample k is at
+        ``k / fps`` seconds after the first frame, and the first frame not
+        earlier than that is kept, so a variable frame rate is sampled evenly
+        in time. Without timestamps the nominal rate is used (frame ``i`` at
+        ``i / video_fps``). Rates at or above the video's own keep every frame.
     step : int, optional
         Keep every ``step``-th frame. Not together with ``fps``.
     max_frames : int, optional
@@ -97,6 +145,7 @@ class VideoSource(Source):
                 raise ValueError(f"{self.path}: the video reports no frame rate; use step instead of fps")
         self._reported_count = int(reported) if math.isfinite(reported) and reported > 0 else None
         self._count: int | None = self._reported_count
+        self._times: np.ndarray | None = None  # frame timestamps, read for fps on first use
 
     def _open(self) -> cv2.VideoCapture:
         cap = cv2.VideoCapture(str(self.path))
@@ -119,9 +168,16 @@ class VideoSource(Source):
         return self._count
 
     def _selection(self) -> Iterator[int]:
-        """Endless increasing sequence of frame numbers to keep."""
-        if self.fps is not None and self.fps < self.video_fps:
-            return _resample_frames(self.video_fps, self.fps)
+        """Increasing sequence of frame numbers to keep (endless, but for a selection by timestamps)."""
+        if self.fps is not None:
+            if self._times is None:
+                self._times = frame_times(self.path)
+                if self._times is None:
+                    self._times = np.empty(0)
+            if self._times.size:
+                return iter(_sample_by_time(self._times, self.fps))
+            if self.fps < self.video_fps:
+                return _resample_frames(self.video_fps, self.fps)
         step = self.step or 1
         return iter(range(0, 1 << 62, step))
 
