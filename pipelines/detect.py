@@ -6,39 +6,34 @@ with the ``rshosm-seq`` conf of the preset (``--method-conf rshosm-seq.KEY=V``):
 the answers are those of ``vpr loops SEQ`` on the same frames. Each frame's
 line is written and flushed as soon as it is decided::
 
-    {"frame": 41, "name": "img/0041.png", "best_earlier": 3, "earlier_name": "img/0003.png",
+    {"query": 41, "query_name": "img/0041.png", "best_db": 3, "db_name": "img/0003.png",
      "score": 35.2, "accepted": true, "latency_ms": 14.1}
 
-(``latency_ms``: encoding and deciding the frame, reading the file excluded;
-``best_earlier`` null while no frame is far enough back). The first frames
+(the fields of every command's ``matches.csv``: ``best_db`` is the best
+earlier frame, null while no frame is far enough back; ``latency_ms``:
+encoding and deciding the frame, reading the file excluded). The first frames
 of a causally standardised stream wait for the first ``CAUSAL_MIN`` before
 they are encoded; they are never candidates of each other (``--exclude``
 must exceed that wait), so their answers are known at once.
 
-``--out DIR`` gets ``matches.csv`` and ``metrics.json`` (latency median / p95 /
-max with and without encoding; with ``--gt`` the loop metrics of ``vpr loops``
-over the frames read, numbered in the order they came). ``--state-out FILE``
-saves the detector after the last frame; ``--resume FILE`` continues one (its
-encoder and conf are in the file).
+``--out DIR`` gets ``rshosm-seq/matches.csv`` and ``metrics.json`` (latency
+median / p95 / max with and without encoding; with ``--gt`` the loop metrics of
+``vpr loops`` over the frames read, numbered in the order they came), also when
+the run is stopped (:mod:`pipelines.online`). ``--state-out FILE`` saves the
+detector after the last frame; ``--resume FILE`` continues one (its encoder and
+conf are in the file).
 """
 from __future__ import annotations
 
-import csv
 import sys
-import time
-from pathlib import Path
-
-import numpy as np
-import scipy.sparse as sp
 
 import encoders
 from encoders.stream import StreamEncoder
-from pipelines.frames import JsonLines, latency_summary, stdin_frames
-from pipelines.outputs import method_metrics, versions
+from pipelines.online import Answer, Online, run_online, stdin_frames
+from pipelines.outputs import method_metrics
 from vpr import groundtruth, io, methods, presets
 from vpr.groundtruth import GroundTruthSpec, build_loop_gt, check_loop_gt_files
 from vpr.shosm import LOOP_DETECTOR_DEFAULTS, LOOP_EXCLUDE, LoopDetector
-from vpr.types import MatchResult
 
 __all__ = ["detect_loops", "make_detector"]
 
@@ -74,84 +69,65 @@ def make_detector(preset: str | None = None, encoder: str | None = None, encoder
     return det
 
 
+class LoopsOnline(Online):
+    """``vpr loops -``: each frame learned and decided by a :class:`vpr.LoopDetector`."""
+
+    command = "loops"
+    method = ONLINE_METHOD
+
+    def __init__(self, det: LoopDetector, gt: GroundTruthSpec):
+        self.det, self.gt = det, gt
+        self.row_offset = det.frames  # a resumed detector names frames from before this run too
+
+    def warm_up(self) -> None:
+        self.det.warm_up()
+        self.det.encoder.warm_up()
+
+    def encode(self, image):
+        return self.det.encoder.push(image)
+
+    def decide(self, encoded, name: str) -> Answer:
+        r = self.det.update_encoded(encoded, name)
+        return Answer(r.frame, r.best, r.earlier_name, round(r.score, 4), r.accepted, r.earlier, r.scores)
+
+    def finish(self) -> None:
+        self.det.flush()
+
+    def evaluate(self, result, names, indices) -> dict:
+        if not self.gt.files:
+            return {}
+        T = len(names)
+        hard, soft = build_loop_gt(self.gt, names, list(range(T)), total=T)
+        exclude = self.det.conf["exclude"]
+        mask = groundtruth.loop_closure_mask(T, exclude=exclude)
+        if not (hard & mask).any():
+            raise self.gt.no_match_error(exclude=exclude)
+        m, _ = method_metrics(result, hard, soft, mask=mask, loops=True)
+        m.pop("seconds", None)
+        m.pop("n_accepted", None)
+        return m
+
+    def save(self, path) -> None:
+        self.det.save(path)
+
+    def params(self) -> dict:
+        det = self.det
+        return {"seq": "-", "method": ONLINE_METHOD, "exclude": det.conf["exclude"],
+                "encoder": det.meta.get("encoder"), "encoder_conf": det.meta.get("encoder_conf"),
+                "method_conf": {ONLINE_METHOD: det.conf}, "ground_truth": self.gt.describe()}
+
+
 def detect_loops(det: LoopDetector, out, stdin=None, stdout=None, gt: GroundTruthSpec | None = None,
                  state_out=None) -> dict:
-    """Decide every frame named on ``stdin`` with ``det``; write ``out``'s files; return metrics.json's content."""
-    stdout = sys.stdout if stdout is None else stdout
-    out = Path(out)
+    """Decide every frame named on ``stdin`` with ``det``; write ``out``'s files; return metrics.json's content.
+
+    On a stop (Ctrl-C, SIGTERM) the frames decided so far are written and the
+    detector saved, then the stop goes on (:func:`pipelines.online.run_online`).
+    """
     gt = gt or GroundTruthSpec()
     check_loop_gt_files(gt)  # bad files are refused before any frame is read
-    if state_out is not None and Path(state_out).is_dir():
-        raise ValueError(f"--state-out {state_out}: is a folder, expected a file")
-    det.warm_up()
-    det.encoder.warm_up()
-    lines = JsonLines(stdout)
-    first = det.frames
-    rows, skipped, lat_all, lat_det, cols = [], [], [], [], []
-    t_run = time.perf_counter()
-    for _, name, image, reason in stdin_frames(stdin if stdin is not None else sys.stdin):
-        if image is None:
-            skipped.append([name, reason])
-            print(f"vpr loops: skipped {name}: {reason}", file=sys.stderr, flush=True)
-            continue
-        t0 = time.perf_counter()
-        x = det.encoder.push(image)
-        t1 = time.perf_counter()
-        r = det.update_encoded(x, name)
-        t2 = time.perf_counter()
-        ms, ms_det = (t2 - t0) * 1e3, (t2 - t1) * 1e3
-        lat_all.append(ms)
-        lat_det.append(ms_det)
-        lines.write({**r.as_dict(), "latency_ms": round(ms, 3)})
-        rows.append([r.frame, name, r.best, r.earlier_name or "", round(r.score, 4), int(r.accepted), round(ms, 3),
-                     round(ms_det, 3)])
-        cols.append((r.earlier, r.scores))
-    seconds = time.perf_counter() - t_run
-    det.flush()
-    if not rows:
-        raise ValueError("vpr loops -: no readable frames on stdin")
-    out.mkdir(parents=True, exist_ok=True)
-    with io.atomic_open(out / "matches.csv", "w", newline="") as fh:
-        w = csv.writer(fh, lineterminator="\n")
-        w.writerow(["frame", "name", "best_earlier", "earlier_name", "score", "accepted", "latency_ms",
-                    "latency_detector_ms"])
-        w.writerows(rows)
-    metrics = {"frames": len(rows), "first_frame": first, "seconds": seconds,
-               "latency_ms": {"with_encoding": latency_summary(lat_all), "without_encoding": latency_summary(lat_det)},
-               "n_accepted": int(sum(r[5] for r in rows))}
-    if gt.files:
-        metrics.update(_metrics(det, rows, cols, gt, seconds))
-    if state_out:
-        det.save(state_out)
-    report = {"metrics": metrics,
-              "params": {"command": "loops", "seq": "-", "method": ONLINE_METHOD, "exclude": det.conf["exclude"],
-                         "encoder": det.meta.get("encoder"), "encoder_conf": det.meta.get("encoder_conf"),
-                         "detector_conf": det.conf, "skipped": skipped, "ground_truth": gt.describe()},
-              "versions": versions()}
-    io.save_json(out / "metrics.json", report)
-    return report
-
-
-def _metrics(det: LoopDetector, rows, cols, gt: GroundTruthSpec, seconds: float) -> dict:
-    """The loop metrics of ``vpr loops`` over the frames of this run (numbered from 0 in the order they came)."""
-    T = len(rows)
-    first = rows[0][0]
-    names = [r[1] for r in rows]
-    hard, soft = build_loop_gt(gt, names, list(range(T)), total=T)
-    exclude = det.conf["exclude"]
-    mask = groundtruth.loop_closure_mask(T, exclude=exclude)
-    if not (hard & mask).any():
-        raise gt.no_match_error(exclude=exclude)
-    idx, val, ptr = [], [], [0]
-    for earlier, scores in cols:
-        keep = (earlier >= first)  # candidates read in this run (a resumed detector knows older ones too)
-        idx.append(earlier[keep] - first)
-        val.append(scores[keep])
-        ptr.append(ptr[-1] + int(keep.sum()))
-    S = sp.csc_matrix((np.concatenate(val).astype(np.float32), np.concatenate(idx), ptr), shape=(T, T)).tocsr()
-    best = np.array([r[2] - first if r[2] >= first else -1 for r in rows], np.int64)
-    res = MatchResult(ONLINE_METHOD + "-online", S, best, np.array([r[4] for r in rows], np.float64),
-                      np.array([bool(r[5]) for r in rows]), seconds, dict(det.conf))
-    m, _ = method_metrics(res, hard, soft, mask=mask, loops=True)
-    m.pop("seconds", None)
-    return m
+    if state_out is not None:
+        io.check_writable(state_out, "--state-out")
+    job = LoopsOnline(det, gt)
+    job.warm_up()
+    return run_online(job, stdin_frames(stdin if stdin is not None else sys.stdin), out, stdout, state_out)

@@ -10,12 +10,15 @@ first), then encodes and localises each query frame as it arrives: QUERY is a
 folder, a video, an image list or ``-`` (image paths on stdin, one per line).
 Stdout gets one JSON line per frame, flushed as soon as it is done::
 
-    {"query": 0, "name": ..., "best_db": 12, "db_name": ..., "score": 5.1, "accepted": true, "latency_ms": 3.2}
+    {"query": 0, "query_name": ..., "best_db": 12, "db_name": ..., "score": 5.1, "accepted": true,
+     "latency_ms": 3.2}
 
-(``latency_ms``: encoding and localisation of the frame, reading the file
-excluded; ``score`` null when no database frame has evidence). ``DIR`` gets
-``matches.csv`` and ``metrics.json`` (latency median / p95 / max with and
-without encoding; with ground truth options AP and R@1 as ``vpr match``).
+(the fields of every command's ``matches.csv``; ``latency_ms``: encoding and
+localisation of the frame, reading the file excluded; ``score`` null when no
+database frame has evidence). ``DIR`` gets ``rshosm-seq/matches.csv`` and
+``metrics.json`` (latency median / p95 / max with and without encoding; with
+ground truth options AP and R@1 as ``vpr match``), also when the run is
+stopped (:mod:`pipelines.online`).
 
 Query standardisation (encoders with ``standardise=fit``): the batch commands
 standardise the query traverse on its own frames, which needs the whole
@@ -29,13 +32,11 @@ kept in ``--state-out`` files. Measured on Nordland, see ``docs/localize.md``.
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
-import scipy.sparse as sp
 
 import encoders
 from encoders.base import DescriptorEncoder
@@ -48,15 +49,14 @@ from pipelines.args import (
     gt_spec_from_args,
 )
 from pipelines.extract import extract
-from pipelines.frames import JsonLines, latency_summary, source_frames, stdin_frames
-from pipelines.outputs import method_metrics, versions
+from pipelines.online import Answer, Online, run_online, source_frames, stdin_frames
+from pipelines.outputs import method_metrics
 from pipelines.runs import check_fit_frames
 from vpr import io, presets
 from vpr.config import parse_key_values
 from vpr.groundtruth import GroundTruthSpec, build_gt
 from vpr.shosm import Localizer, MemoryFileError
 from vpr.sources import open_source
-from vpr.types import MatchResult
 
 __all__ = ["COMMANDS", "add_arguments", "run_command", "learn", "load_map", "localize"]
 
@@ -121,6 +121,52 @@ def load_map(path) -> tuple[Localizer, object]:
 
 
 # ------------------------------------------------------------------ localize
+class LocalizeOnline(Online):
+    """``vpr localize``: each query frame encoded with the map's encoder and localised by a :class:`vpr.Localizer`."""
+
+    command = "localize"
+    method = "rshosm-seq"
+
+    def __init__(self, loc: Localizer, qenc: StreamEncoder, gt: GroundTruthSpec, q_src, params: dict):
+        self.loc, self.qenc, self.gt, self.q_src, self._params = loc, qenc, gt, q_src, params
+
+    def warm_up(self) -> None:
+        self.loc.warm_up()
+        self.qenc.warm_up()  # first calls (loading a CNN, the projection matrix) are not a frame's latency
+
+    def encode(self, image):
+        return self.qenc.encode(image)
+
+    def decide(self, encoded, name: str) -> Answer:
+        q = self.loc.frames
+        r = self.loc.update(encoded)
+        score = float(r.score) if np.isfinite(r.score) else None
+        return Answer(q, r.best_db, r.db_name, score, r.accepted, r.db_idx, r.scores)
+
+    def evaluate(self, result, names, indices) -> dict:
+        gt, loc = self.gt, self.loc
+        if gt.tolerance is None and not gt.files:
+            return {}
+        q_idx = [i if i >= 0 else k for k, i in enumerate(indices)]
+        gt_hard, gt_soft = build_gt(gt, loc.names, names, loc.meta.get("db_indices") or list(range(loc.n_db)),
+                                    q_idx, loc.meta.get("db_source", "database"),
+                                    self.q_src.name if self.q_src is not None else "query")
+        m, _ = method_metrics(result, gt_hard, gt_soft)
+        m.pop("seconds", None)
+        m.pop("n_accepted", None)
+        return m
+
+    def save(self, path) -> None:
+        loc = self.loc
+        loc.arrays = {**{k: v for k, v in loc.arrays.items() if not k.startswith("q_")}, **self.qenc.state()}
+        loc.save(path)
+
+    def params(self) -> dict:
+        loc = self.loc
+        return {**self._params, "encoder": loc.meta.get("encoder"), "encoder_conf": loc.meta.get("encoder_conf"),
+                "method_conf": {self.method: loc.conf}, "n_db": loc.n_db, "ground_truth": self.gt.describe()}
+
+
 def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: str = "running",
              prior_frames: float = 10.0, window: int | None = 50, gt: GroundTruthSpec | None = None,
              learn_options: dict | None = None,
@@ -131,15 +177,15 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
     ----------
     map_or_db : path of a map written by :func:`learn`, or a database source (learned with ``learn_options``).
     query : folder, video, image list, or ``"-"`` (paths read from ``stdin``).
-    out : output folder (matches.csv, metrics.json).
+    out : output folder (``rshosm-seq/matches.csv``, ``metrics.json``; :mod:`pipelines.online`).
     stdout : where the JSON lines go (default ``sys.stdout``).
     query_standardise, prior_frames, window : see :class:`encoders.stream.StreamEncoder` (window None or 0: all
         frames so far).
     gt : ground truth (as ``vpr match``), optional.
-    state_out : optional path: the localizer with its streaming state after the last frame (a robot's restart file).
+    state_out : optional path: the localizer with its streaming state after the last frame (a robot's restart
+        file), also when the run is stopped.
     progress : progress bar while learning a database (``map_or_db`` a traverse).
     """
-    stdout = sys.stdout if stdout is None else stdout
     out = Path(out)
     io.check_writable(out / "metrics.json", "--out")
     if state_out:
@@ -158,75 +204,11 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
     qenc.load_state(loc.arrays)  # a --state-out file continues its query's running statistics
     q_src = None if str(query) == "-" else open_source(query, fps=fps, step=step, max_frames=max_frames)
     frames = stdin_frames(stdin if stdin is not None else sys.stdin) if q_src is None else source_frames(q_src)
-    loc.warm_up()
-    qenc.warm_up()  # first calls (loading a CNN, the projection matrix) are not a frame's latency
-    rows, skipped, cols = [], [], []
-    lines = JsonLines(stdout)
-    lat_all, lat_loc = [], []
-    t_run = time.perf_counter()
-    for index, name, image, reason in frames:
-        if image is None:
-            skipped.append([name, reason])
-            print(f"vpr localize: skipped {name}: {reason}", file=sys.stderr, flush=True)
-            continue
-        t0 = time.perf_counter()
-        x = qenc.encode(image)
-        t1 = time.perf_counter()
-        r = loc.update(x)
-        t2 = time.perf_counter()
-        ms, ms_loc = (t2 - t0) * 1e3, (t2 - t1) * 1e3
-        lat_all.append(ms)
-        lat_loc.append(ms_loc)
-        q = len(rows)
-        score = r.score if np.isfinite(r.score) else None
-        line = {"query": q, "name": name, "best_db": r.best_db, "db_name": r.db_name, "score": score,
-                "accepted": r.accepted, "latency_ms": round(ms, 3)}
-        lines.write(line)
-        rows.append([q, name, index, r.best_db, r.db_name or "", score, int(r.accepted), round(ms, 3),
-                     round(ms_loc, 3)])
-        cols.append((r.db_idx, r.scores))
-    seconds = time.perf_counter() - t_run
-    if not rows:
-        raise ValueError(f"no readable query frames in {query}")
-    out.mkdir(parents=True, exist_ok=True)
-    with io.atomic_open(out / "matches.csv", "w", newline="") as fh:
-        w = csv.writer(fh, lineterminator="\n")
-        w.writerow(["query", "name", "frame", "best_db", "db_name", "score", "accepted", "latency_ms",
-                    "latency_localize_ms"])
-        w.writerows(rows)
-    metrics = {"frames": len(rows), "seconds": seconds,
-               "latency_ms": {"with_encoding": latency_summary(lat_all), "without_encoding": latency_summary(lat_loc)},
-               "accepted": int(sum(r[6] for r in rows))}
-    gt = gt or GroundTruthSpec()
-    if gt.tolerance is not None or gt.files:
-        n_db = loc.n_db
-        data = np.concatenate([c[1] for c in cols]).astype(np.float32)
-        ind = np.concatenate([c[0] for c in cols]).astype(np.int64)
-        ptr = np.r_[0, np.cumsum([c[0].size for c in cols])]
-        S = sp.csc_matrix((data, ind, ptr), shape=(n_db, len(rows))).tocsr()
-        best = np.array([r[3] for r in rows], np.int64)
-        score = np.array([-np.inf if r[5] is None else r[5] for r in rows])
-        res = MatchResult("rshosm-seq-online", S, best, score, np.array([bool(r[6]) for r in rows]), seconds,
-                          dict(loc.conf))
-        q_idx = [r[2] if r[2] >= 0 else r[0] for r in rows]
-        gt_hard, gt_soft = build_gt(gt, loc.names, [r[1] for r in rows], loc.meta.get("db_indices") or
-                                    list(range(n_db)), q_idx, loc.meta.get("db_source", "database"),
-                                    q_src.name if q_src is not None else "query")
-        m, _ = method_metrics(res, gt_hard, gt_soft)
-        m.pop("seconds", None)
-        metrics.update(m)
-    if state_out:
-        loc.arrays = {**{k: v for k, v in loc.arrays.items() if not k.startswith("q_")}, **qenc.state()}
-        loc.save(state_out)
-    report = {"metrics": metrics,
-              "params": {"command": "localize", "map_or_db": str(map_or_db), "query": str(query),
-                         "encoder": loc.meta.get("encoder"), "encoder_conf": loc.meta.get("encoder_conf"),
-                         "localizer_conf": loc.conf, "n_db": loc.n_db, "query_standardise": query_standardise,
-                         "prior_frames": prior_frames, "window": window, "skipped": skipped,
-                         "ground_truth": gt.describe()},
-              "versions": versions()}
-    io.save_json(out / "metrics.json", report)
-    return report
+    job = LocalizeOnline(loc, qenc, gt or GroundTruthSpec(), q_src,
+                         {"map_or_db": str(map_or_db), "query": str(query), "query_standardise": query_standardise,
+                          "prior_frames": prior_frames, "window": window})
+    job.warm_up()
+    return run_online(job, frames, out, stdout, state_out, n_rows=loc.n_db)
 
 
 # ------------------------------------------------------------------ command line
@@ -284,8 +266,9 @@ def run_command(args) -> int:
                       prior_frames=args.prior_frames, window=args.window, state_out=args.state_out,
                       gt=gt_spec_from_args(args), learn_options=learn_opts, progress=not args.no_progress,
                       **src_opts)
-    lat = report["metrics"]["latency_ms"]
-    print(f"vpr localize: {report['metrics']['frames']} frames, latency median "
+    m = report["methods"]["rshosm-seq"]
+    lat = m["latency_ms"]
+    print(f"vpr localize: {m['frames']} frames, latency median "
           f"{lat['with_encoding']['median']:.2f} ms ({lat['without_encoding']['median']:.2f} ms without encoding); "
           f"wrote {args.out}/metrics.json", file=sys.stderr)
     return 0

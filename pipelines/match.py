@@ -123,7 +123,7 @@ def _run_online(args) -> int:
     det = make_detector(args.preset, args.encoder, encoders.parse_conf(args.encoder_conf),
                         method_confs(args.method_conf), exclude=exclude, resume=args.resume)
     report = detect_loops(det, args.out, gt=gt_spec_from_args(args), state_out=args.state_out)
-    m = report["metrics"]
+    m = report["methods"][ONLINE_METHOD]
     lat = m["latency_ms"]
     print(f"vpr loops: {m['frames']} frames, {m['n_accepted']} loop closures accepted, latency median "
           f"{lat['with_encoding']['median']:.2f} ms ({lat['without_encoding']['median']:.2f} ms without encoding); "

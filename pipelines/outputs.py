@@ -19,7 +19,8 @@ import scipy.sparse as sp
 from vpr import evaluate, io, methods, plots
 from vpr.types import MatchResult
 
-__all__ = ["versions", "write_similarity", "write_matches", "method_metrics", "metrics_table", "write_method",
+__all__ = ["MATCH_COLUMNS", "versions", "write_similarity", "write_matches", "method_metrics", "metrics_table",
+           "write_method",
            "merge_metrics", "warn"]
 
 
@@ -49,16 +50,29 @@ def write_similarity(folder: Path, S) -> str:
     return "similarity.npy"
 
 
-def write_matches(folder: Path, res: MatchResult, db_names, q_names, extra: dict | None = None) -> None:
-    """``matches.csv``: one row per query with its best database frame, score, decision and ``extra`` columns."""
+#: The columns of every command's ``matches.csv``, in order (extra columns follow them).
+MATCH_COLUMNS = ("query", "query_name", "best_db", "db_name", "score", "accepted")
+
+
+def write_matches(folder: Path, res: MatchResult, db_names, q_names, extra: dict | None = None,
+                  best_names=None, query_ids=None) -> None:
+    """``matches.csv``: one row per query with its best database frame, score, decision and ``extra`` columns.
+
+    The schema of every command (:data:`MATCH_COLUMNS`, then ``extra``'s
+    columns); ``best_names``: the name of each query's best frame, where the
+    database's names are not all at hand (``db_names`` None); ``query_ids``:
+    the queries' numbers where they do not start at 0 (a resumed online run).
+    """
     extra = extra or {}
-    with io.atomic_open(folder / "matches.csv", "w", newline="", encoding="utf-8") as fh:
+    with io.atomic_open(folder / "matches.csv", "w", newline="", encoding="utf-8", errors="surrogateescape") as fh:
         w = csv.writer(fh, lineterminator="\n")  # LF: awk, cut and diff read it as it is
-        w.writerow(["query", "query_name", "best_db", "db_name", "score", "accepted", *extra])
+        w.writerow([*MATCH_COLUMNS, *extra])
         for j in range(len(q_names)):
             b = int(res.best_db[j])
-            w.writerow([j, q_names[j], b, db_names[b] if b >= 0 else "", f"{res.score[j]:.6g}",
-                        int(bool(res.accepted[j])), *(v[j] for v in extra.values())])
+            name = "" if b < 0 else best_names[j] if best_names is not None else db_names[b]
+            q = j if query_ids is None else query_ids[j]
+            w.writerow([q, q_names[j], b, name, f"{res.score[j]:.6g}", int(bool(res.accepted[j])),
+                        *(v[j] for v in extra.values())])
 
 
 def method_metrics(res: MatchResult, gt_hard, gt_soft, mask=None, loops: bool = False):

@@ -5,10 +5,28 @@ integration tests (marked ``slow``): the inner loop of a developer.
 """
 from __future__ import annotations
 
+import signal
 from pathlib import Path
 
 import numpy as np
 import pytest
+
+
+@pytest.fixture(scope="session", autouse=True)
+def interrupt_handlers():
+    """Ctrl-C raises KeyboardInterrupt here and in the commands the tests start, however the suite was started.
+
+    A shell starts a background job (``nohup ... &``, some CI runners) with
+    SIGINT ignored, and Python then installs no handler: an ignored signal is
+    inherited by every child process, and the tests that stop a run with
+    Ctrl-C would see nothing happen. A handled signal is reset to the default
+    in a child, where Python installs its own.
+    """
+    saved = signal.getsignal(signal.SIGINT)
+    if saved is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, saved)
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -125,9 +125,9 @@ def test_vpr_loops_stdin_equals_the_batch_and_resumes(laps, tmp_path, capsys, mo
                           capsys, monkeypatch, "\n".join(paths) + "\n")
     assert code == 0, err
     lines = [json.loads(s) for s in out.splitlines()]
-    assert set(lines[0]) == {"frame", "name", "best_earlier", "earlier_name", "score", "accepted", "latency_ms"}
-    assert [(r["best_earlier"] if r["best_earlier"] is not None else -1, r["accepted"]) for r in lines] == batch
-    m = json.loads((tmp_path / "b" / "metrics.json").read_text())["metrics"]
+    assert set(lines[0]) == {"query", "query_name", "best_db", "db_name", "score", "accepted", "latency_ms"}
+    assert [(r["best_db"] if r["best_db"] is not None else -1, r["accepted"]) for r in lines] == batch
+    m = json.loads((tmp_path / "b" / "metrics.json").read_text())["methods"]["rshosm-seq"]
     a = json.loads((tmp_path / "a" / "metrics.json").read_text())["methods"]["rshosm-seq"]
     for k in ("n_accepted", "precision_accepted", "recall_accepted", "frame_recall_at_100p", "recall_at_1"):
         assert m[k] == pytest.approx(a[k]), k

@@ -115,15 +115,15 @@ def test_learn_and_localize_folder_stdin_and_restart(scene, tmp_path, capsys, mo
     code, out, err = _cli(["localize", tmp_path / "map.npz", day, "--out", tmp_path / "a", "--tolerance", 1], capsys)
     assert code == 0, err
     lines = [json.loads(s) for s in out.splitlines()]
-    assert len(lines) == 40 and set(lines[0]) == {"query", "name", "best_db", "db_name", "score", "accepted",
+    assert len(lines) == 40 and set(lines[0]) == {"query", "query_name", "best_db", "db_name", "score", "accepted",
                                                   "latency_ms"}
     # the database's own frames localise on themselves once the sequence is under way
     assert np.mean([abs(r["best_db"] - r["query"]) <= 1 for r in lines[5:]]) >= 0.9
-    m = json.loads((tmp_path / "a" / "metrics.json").read_text())["metrics"]
+    m = json.loads((tmp_path / "a" / "metrics.json").read_text())["methods"]["rshosm-seq"]
     assert m["frames"] == 40 and m["recall_at_1"] >= 0.8
     for k in ("with_encoding", "without_encoding"):
         assert m["latency_ms"][k]["median"] <= m["latency_ms"][k]["p95"] <= m["latency_ms"][k]["max"]
-    assert (tmp_path / "a" / "matches.csv").read_text().count("\n") == 41
+    assert (tmp_path / "a" / "rshosm-seq" / "matches.csv").read_text().count("\n") == 41
     # stdin: paths as they arrive, the same answers; a restart from --state-out continues identically
     paths = sorted(str(p) for p in Path(night).glob("*.png"))
     code, full, err = _cli(["localize", tmp_path / "map.npz", "-", "--out", tmp_path / "b", "--window", 5], capsys,
@@ -204,7 +204,7 @@ def test_localize_stdin_answers_each_path_before_the_next_arrives(scene, tmp_pat
             p.stdin.write(f"{path}\n")
             p.stdin.flush()
             line = json.loads(p.stdout.readline())  # blocks until this frame's answer: stdin is still open
-            assert line["query"] == i and line["name"] == str(path)
+            assert line["query"] == i and line["query_name"] == str(path)
         p.stdin.close()
         assert p.wait(timeout=60) == 0, p.stderr.read()
     finally:

@@ -76,7 +76,8 @@ def test_localize_applies_query_time_settings_to_a_map(scene, map_file, tmp_path
                            "min_score=1e9"], capsys)
     assert code == 0, err
     m = json.loads((tmp_path / "o" / "metrics.json").read_text())
-    assert m["params"]["localizer_conf"]["min_score"] == 1e9 and m["metrics"]["accepted"] == 0
+    assert m["params"]["method_conf"]["rshosm-seq"]["min_score"] == 1e9
+    assert m["methods"]["rshosm-seq"]["n_accepted"] == 0
 
 
 def test_learn_adds_the_suffix_and_maps_are_read_by_content(scene, map_file, tmp_path, capsys):

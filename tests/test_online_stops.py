@@ -1,0 +1,120 @@
+"""Online runs keep what they decided: a stopped ``vpr loops -`` / ``vpr localize`` writes its outputs and state.
+
+A robot that is stopped (SIGTERM from its supervisor, Ctrl-C) must not lose the
+session: the frames answered so far are written (``METHOD/matches.csv``,
+``metrics.json``) with the state of ``--state-out``, and ``--resume`` from that
+state gives the answers of a run that was never stopped (issue 24, part 3).
+"""
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from pipelines.cli import main
+
+pytestmark = pytest.mark.slow  # command-line runs in a subprocess, stopped by a signal
+
+ROOT = Path(__file__).resolve().parents[1]
+LOOSE = ["--preset", "fast", "--exclude", "12", "--method-conf", "rshosm-seq.min_score=10"]
+
+
+@pytest.fixture(scope="module")
+def laps(scene_on_disk):
+    s = scene_on_disk("loop_revisits", (48, 36), 240)
+    return {**s, "paths": sorted(str(p) for p in s["laps"].glob("*.png"))}
+
+
+def _start(argv) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "pipelines.cli", *map(str, argv)], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+
+
+def _feed_then_stop(p: subprocess.Popen, paths, sig) -> tuple[list[dict], str]:
+    """Send ``paths`` one by one, each answered before the next; then ``sig`` while the run waits for more."""
+    answers = []
+    for path in paths:
+        p.stdin.write(path + "\n")
+        p.stdin.flush()
+        answers.append(json.loads(p.stdout.readline()))
+    p.send_signal(sig)
+    out, err = p.communicate(timeout=120)
+    return answers + [json.loads(s) for s in out.splitlines()], err
+
+
+def _main(argv) -> int:
+    return main([str(a) for a in argv] + ["--no-progress"])
+
+
+def _rows(folder: Path) -> list[dict]:
+    with open(folder / "rshosm-seq" / "matches.csv", newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _key(r: dict):
+    return r["query"], r["best_db"], r["score"], r["accepted"]
+
+
+@pytest.mark.parametrize("sig, code, said", [(signal.SIGTERM, 143, "vpr: terminated"),
+                                              (signal.SIGINT, 130, "vpr: interrupted")])
+def test_stopped_loops_writes_its_outputs_and_state_then_resumes_exactly(laps, tmp_path, capsys, monkeypatch, sig,
+                                                                          code, said):
+    import io
+
+    paths = laps["paths"]
+    monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(paths) + "\n"))
+    assert _main(["loops", "-", "--out", tmp_path / "full", *LOOSE]) == 0
+    full = [json.loads(s) for s in capsys.readouterr().out.splitlines()]
+    p = _start(["loops", "-", "--out", tmp_path / "a", *LOOSE, "--state-out", tmp_path / "state.npz"])
+    first, err = _feed_then_stop(p, paths[:40], sig)
+    assert p.returncode == code, err
+    assert err.strip().splitlines()[-1] == said
+    assert len(first) == 40
+    rows = _rows(tmp_path / "a")
+    assert [int(r["query"]) for r in rows] == list(range(40))
+    m = json.loads((tmp_path / "a" / "metrics.json").read_text())["methods"]["rshosm-seq"]
+    assert m["frames"] == 40 and m["stopped"] is True
+    assert not [f for f in tmp_path.rglob(".*") if f.name != ".metrics.lock"]  # no temporary file left
+    monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(paths[40:]) + "\n"))
+    assert _main(["loops", "-", "--out", tmp_path / "b", "--resume", tmp_path / "state.npz"]) == 0
+    rest = [json.loads(s) for s in capsys.readouterr().out.splitlines()]
+    strip = [{k: v for k, v in r.items() if k != "latency_ms"} for r in first + rest]
+    assert strip == [{k: v for k, v in r.items() if k != "latency_ms"} for r in full]
+
+
+def test_stopped_localize_writes_its_outputs_and_state(laps, tmp_path):
+    day = laps["laps"]
+    assert _main(["learn", day, "--out", tmp_path / "map.npz", "--preset", "fast"]) == 0
+    p = _start(["localize", tmp_path / "map.npz", "-", "--out", tmp_path / "a", "--state-out", tmp_path / "s.npz"])
+    answers, err = _feed_then_stop(p, laps["paths"][:25], signal.SIGTERM)
+    assert p.returncode == 143, err
+    assert len(answers) == 25 and len(_rows(tmp_path / "a")) == 25
+    assert (tmp_path / "s.npz").is_file()
+    assert json.loads((tmp_path / "a" / "metrics.json").read_text())["methods"]["rshosm-seq"]["stopped"] is True
+
+
+def test_a_nul_byte_line_is_skipped_with_its_line_number(laps, tmp_path, capsys, monkeypatch):
+    import io
+
+    paths = laps["paths"][:30]
+    text = "\n".join(paths[:10]) + "\nbad\x00line\n" + "\n".join(paths[10:]) + "\n"
+    monkeypatch.setattr("sys.stdin", io.StringIO(text))
+    assert _main(["loops", "-", "--out", tmp_path / "o", *LOOSE]) == 0
+    err = capsys.readouterr().err
+    assert "skipped stdin line 11: not a path (a NUL byte)" in err
+    assert len(_rows(tmp_path / "o")) == 30
+
+
+def test_binary_data_on_stdin_is_refused_naming_stdin(laps, tmp_path):
+    png = Path(laps["paths"][0]).read_bytes()
+    r = subprocess.run([sys.executable, "-m", "pipelines.cli", "loops", "-", "--out", str(tmp_path / "o"),
+                        *LOOSE], input=png, capture_output=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    err = r.stderr.decode()
+    assert r.returncode == 2 and len(err.strip().splitlines()) == 1, err
+    assert "stdin: binary data" in err
+    assert not (tmp_path / "o").exists()
