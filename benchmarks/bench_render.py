@@ -24,14 +24,14 @@ import time  # noqa: E402
 import cv2  # noqa: E402
 
 from vpr.render import SceneRenderer, load_spec  # noqa: E402
-from vpr.render.scene import _apply_overrides  # noqa: E402
+from vpr.render.scene import apply_overrides  # noqa: E402
 
 TARGETS = {(160, 120): 200.0, (640, 480): 30.0}
 
 
 def bench(scene: str, size, n_frames: int, repeats: int) -> dict:
     """Frames/s per repeat (all traverses of ``scene``, ``n_frames`` each) and the set-up time."""
-    spec = _apply_overrides(load_spec(scene), size=size)
+    spec = apply_overrides(load_spec(scene), size=size)
     t0 = time.perf_counter()
     r = SceneRenderer(spec)
     plans = [(t, r.plan(t)) for t in spec["traverses"]]

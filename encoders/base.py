@@ -112,6 +112,12 @@ class BaseEncoder:
         """Width of the SDRs produced by :meth:`encode`."""
         raise NotImplementedError
 
+    def check_memory(self, n_frames: int) -> None:
+        """Refuse, before any work, a conf whose arrays for ``n_frames`` frames cannot fit in this machine's memory.
+
+        ValueError naming the option and the size; the default has nothing to check.
+        """
+
     def fit(self, images) -> BaseEncoder:
         """Learn statistics from ``images`` (default: nothing to learn). Returns self."""
         as_image_list(images)

@@ -37,13 +37,13 @@ from vpr.imageproc import to_bgr
 from .base import as_image_list
 from .projection import ProjectedEncoder
 
-__all__ = ["CnnEncoder", "DEFAULT_MODEL"]
+__all__ = ["CnnEncoder", "DEFAULT_MODEL", "shrink_image"]
 
 DEFAULT_MODEL = Path(__file__).resolve().parent / "models" / "efficientnet_lite0_block10.onnx"
 _POOLING = ("gem", "avg", "max")
 
 
-def _shrink(img: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+def shrink_image(img: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """Resize to ``size`` (w, h): area halvings while >= 2x the target, then bilinear.
 
     OpenCV's area resampling is fast for exact factors of 2 but several times
@@ -155,7 +155,7 @@ class CnnEncoder(ProjectedEncoder):
     def preprocess(self, frames: list[np.ndarray]) -> np.ndarray:
         """uint8 frames -> normalised float32 RGB batch (N, 3, H, W)."""
         size = tuple(self.conf["input_size"])
-        bgr = np.stack([_shrink(to_bgr(f, f"images[{i}]"), size) for i, f in enumerate(frames)])
+        bgr = np.stack([shrink_image(to_bgr(f, f"images[{i}]"), size) for i, f in enumerate(frames)])
         x = np.empty((len(frames), 3, size[1], size[0]), np.float32)
         # plane by plane: BGR -> RGB, channel-first and (v / 255 - mean) / std in one pass each
         for c in range(3):

@@ -167,6 +167,14 @@ class JoinedEncoder(BaseEncoder):
             self.conf["standardise"] = "fit" if "fit" in std else std[0]
         self._dims: list[int] | None = None
 
+    def check_memory(self, n_frames: int) -> None:
+        """Each part's arrays must fit (the message names the part's option, ``pixel.n_bits``)."""
+        for prefix, enc in zip(self.prefixes, self.encoders, strict=True):
+            try:
+                enc.check_memory(n_frames)
+            except ValueError as e:
+                raise ValueError(str(e).replace("--encoder-conf ", f"--encoder-conf {prefix}.", 1)) from None
+
     # ----------------------------------------------------------------- SDRs
     @property
     def n_bits(self) -> int:

@@ -51,6 +51,7 @@ import scipy.sparse as sp
 from numba import njit
 
 from vpr import sdr
+from vpr.checks import physical_memory
 from vpr.config import merge_conf
 from vpr.imageproc import resize, to_grey
 
@@ -393,6 +394,19 @@ class ProjectedEncoder(DescriptorEncoder):
     def n_bits(self) -> int:
         return self.projection.n_bits
 
+    def check_memory(self, n_frames: int) -> None:
+        """The projection matrix (dims x n_bits) and the frames' projections (frames x n_bits), float32, must fit."""
+        phys = physical_memory()
+        p = self.projection
+        n_out = p.n_bits // 2 if p.two_sided else p.n_bits
+        dim = int(getattr(self, "dim", 0) or 0)
+        need = 4 * n_out * (dim + max(int(n_frames), 1))
+        if phys is not None and need > phys:
+            raise ValueError(f"--encoder-conf n_bits={p.n_bits}: the {self.name} encoder would need "
+                             f"{need / 2**30:,.1f} GiB for {n_frames} frames (a projection of {dim} dims to {n_out} "
+                             f"bits, and each frame's projection), more than this machine's {phys / 2**30:,.1f} GiB; "
+                             "use fewer bits")
+
     def describe(self, images) -> np.ndarray:
         raise NotImplementedError
 
@@ -476,6 +490,14 @@ class ProjectionEncoder(ProjectedEncoder):
             self.descriptor = get(name, **dconf)
         else:
             raise ValueError(f"projection: descriptor must be 'pixel', 'hog' or 'cnn', got {name!r}")
+
+    @property
+    def dim(self) -> int:
+        """Length of the wrapped descriptor (the descriptor's own ``dim``, else one tiny describe)."""
+        d = getattr(self.descriptor, "dim", None)
+        if isinstance(d, (int, np.integer)):
+            return int(d)
+        return int(self.descriptor.describe([np.zeros((64, 64, 3), np.uint8)]).shape[1])
 
     def describe(self, images) -> np.ndarray:
         """The wrapped dense descriptor, float32 (frames, dims)."""

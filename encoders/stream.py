@@ -20,10 +20,16 @@ import scipy.sparse as sp
 from .base import BaseEncoder, DescriptorEncoder
 from .projection import CAUSAL_MIN, CausalStandardiser, RunningStandardiser
 
-__all__ = ["StreamEncoder", "STANDARDISE"]
+__all__ = ["StreamEncoder", "STANDARDISE", "PRIOR_FRAMES", "WINDOW"]
 
 #: How a stream is standardised (``--query-standardise``).
 STANDARDISE = ("running", "db")
+
+
+#: Running standardisation of a query stream (``vpr localize``): the database's statistics weigh as this many
+#: frames, and the statistics are those of the last :data:`WINDOW` frames (chosen in ``docs/localize.md``).
+PRIOR_FRAMES = 10.0
+WINDOW = 50
 
 
 class StreamEncoder:
@@ -41,8 +47,8 @@ class StreamEncoder:
         Running statistics over the last ``window`` frames (None: all so far).
     """
 
-    def __init__(self, encoder: BaseEncoder, standardise: str = "running", prior_frames: float = 10.0,
-                 window: int | None = 50):
+    def __init__(self, encoder: BaseEncoder, standardise: str = "running", prior_frames: float = PRIOR_FRAMES,
+                 window: int | None = WINDOW):
         if standardise not in STANDARDISE:
             raise ValueError(f"query standardise must be 'running' or 'db', got {standardise!r}")
         if encoder.conf.get("standardise") == "per_batch":

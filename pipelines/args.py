@@ -6,13 +6,26 @@ same common flags work everywhere; the others are added where they apply.
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
+import encoders
 from vpr import methods, presets
 from vpr.config import parse_key_values
 from vpr.groundtruth import GroundTruthSpec
 
 __all__ = ["add_common_arguments", "add_source_arguments", "add_preset_argument", "add_gt_arguments",
-           "gt_spec_from_args", "method_confs"]
+           "gt_spec_from_args", "method_confs", "add_method_conf_argument", "refuse_gone", "ONLINE_METHOD",
+           "add_run_arguments", "settings_from_args", "options_from_args"]
+
+#: The method of the online commands (``vpr learn`` / ``localize``, ``vpr loops -``).
+ONLINE_METHOD = "rshosm-seq"
+
+
+def refuse_gone(args, gone: dict) -> None:
+    """Refuse a flag that went away, saying what replaces it: ``gone`` maps an ``args`` name to (flag, replacement)."""
+    for name, (flag, instead) in gone.items():
+        if getattr(args, name, None):
+            raise ValueError(f"{flag} is gone: use {instead}")
 
 
 def add_common_arguments(ap) -> None:
@@ -77,3 +90,52 @@ def add_method_conf_argument(ap: argparse.ArgumentParser) -> None:
     """``--method-conf METHOD.KEY=VALUE`` (repeatable)."""
     ap.add_argument("--method-conf", action="append", default=[], metavar="METHOD.KEY=VALUE",
                     help="method option, repeatable, e.g. seqslam.ds=20 or rshosm.p_extra=0.01")
+
+
+def add_run_arguments(ap: argparse.ArgumentParser, method_help: str) -> None:
+    """The settings every run over traverses takes: ``--out``, the preset, methods and their confs, the encoder,
+    the sources' frames, the cache (``vpr match``, ``compare``, ``loops``)."""
+    ap.add_argument("--out", required=True, help="output folder")
+    # defaults None: a flag not given takes the preset's value (vpr.presets.resolve)
+    add_preset_argument(ap)
+    if method_help == "methods":
+        ap.add_argument("--methods", metavar="M1,M2,...",
+                        help=f"comma-separated methods, of {{{','.join(methods.available())}}} (default: the preset's)")
+    else:
+        ap.add_argument("--method", choices=methods.available(), help=f"method (default: the preset's {method_help})")
+    add_method_conf_argument(ap)
+    encoders.add_arguments(ap, default=None)
+    add_source_arguments(ap)
+    ap.add_argument("--cache", metavar="DIR", help="encoding cache folder, e.g. one filled by `vpr encode` "
+                    "(default: OUT/cache)")
+
+
+def settings_from_args(args) -> dict:
+    """The run's settings, resolved once: :func:`vpr.presets.resolve` of ``--preset`` with the flags given.
+
+    ``methods``: ``--methods`` / ``--method``, else the preset's (``compare``:
+    all of them; ``loops``: its loop method; others: its headline).
+    """
+    if getattr(args, "methods", None) is not None:
+        names = [m.strip() for m in args.methods.split(",") if m.strip()]
+    else:
+        names = [args.method] if getattr(args, "method", None) else None
+    confs = method_confs(args.method_conf)
+    s = presets.resolve(args.preset, encoder=args.encoder, encoder_conf=encoders.parse_conf(args.encoder_conf),
+                        methods=names, method_conf=confs, loops=args.command == "loops")
+    if names is None and args.command != "compare":  # one method: the preset's headline or loop method
+        s["methods"] = [s["loop_method"] if args.command == "loops" else s["methods"][0]]
+    return s
+
+
+def options_from_args(args, settings: dict):
+    """The :class:`pipelines.runs.RunOptions` of parsed run arguments and their ``settings``."""
+    from pipelines.runs import RunOptions  # the runs' module loads the methods: only once a run is under way
+
+    s = settings
+    return RunOptions(
+        out=Path(args.out), preset=s["preset"], encoder=s["encoder"], encoder_conf=s["encoder_conf"],
+        method_conf=s["method_conf"], fps=args.fps, step=args.step, max_frames=args.max_frames,
+        gt=gt_spec_from_args(args),
+        verify=getattr(args, "verify", 0), min_inliers=getattr(args, "min_inliers", 15),
+        progress=not args.no_progress, cache=Path(args.cache) if args.cache else None)

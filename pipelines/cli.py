@@ -34,9 +34,8 @@ from pipelines.interrupts import Terminated, on_sigterm
 __all__ = ["MODULES", "commands", "build_parser", "main"]
 
 #: The pipeline modules providing sub-commands, in the order ``vpr --help`` lists them.
-MODULES = ("pipelines.demo", "pipelines.match", "pipelines.render", "pipelines.encoders_cmd", "pipelines.encode",
-           "pipelines.paper_fig3",
-           "pipelines.nordland", "pipelines.localize")
+MODULES = ("pipelines.demo", "pipelines.match", "pipelines.loops", "pipelines.render", "pipelines.encoders_cmd",
+           "pipelines.encode", "pipelines.paper_fig3", "pipelines.nordland", "pipelines.localize")
 
 
 def _declared_commands(module: str) -> dict:
@@ -94,6 +93,18 @@ def _os_error_line(e: OSError) -> str:
     return reason
 
 
+#: Options that name a file or folder to write or read: an empty value would mean the current folder.
+_PATH_OPTIONS = ("out", "state_out", "resume", "cache")
+
+
+def _check_paths(args) -> None:
+    """Refuse an empty path (``--out ""``), which would write into the current folder without saying so."""
+    for name in _PATH_OPTIONS:
+        value = getattr(args, name, None)
+        if value is not None and not str(value).strip():
+            raise ValueError(f"--{name.replace('_', '-')}: an empty path; name a folder or a file")
+
+
 def main(argv=None) -> int:
     """Run ``vpr`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit status.
 
@@ -129,6 +140,7 @@ def main(argv=None) -> int:
         if hasattr(args, "no_progress") and not sys.stderr.isatty():
             args.no_progress = True  # bars redrawn into a log file are noise
         try:
+            _check_paths(args)
             return int(importlib.import_module(table[args.command][0]).run_command(args) or 0)
         except ValueError as e:  # bad input, including vpr.shosm.MemoryFileError
             print(f"{command}: error: {' '.join(str(e).split())}", file=sys.stderr)

@@ -7,8 +7,8 @@ client joins the ranges of a source in frame order, fits the encoder on the
 whole traverse where its conf asks (``standardise="fit"``), sparsifies and
 writes one cache file per source atomically: the file ``vpr match``,
 ``compare``, ``loops`` and ``localize`` read with ``--cache DIR`` (see
-:func:`pipelines.extract.cache_path`), byte for byte what the serial run and
-:func:`pipelines.extract.extract` write.
+:func:`pipelines.features.cache_path`), byte for byte what the serial run and
+:func:`pipelines.features.extract` write.
 
 Execution: ``workers=0`` runs in this process; ``workers=N`` starts a local
 cluster of N single-threaded worker processes on 127.0.0.1 for the run;
@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from pipelines.args import add_common_arguments, add_preset_argument, add_source_arguments
-from pipelines.extract import (
+from pipelines.features import (
     DEFAULT_CHUNK_FRAMES,
     assemble,
     available_inputs,
@@ -46,7 +46,8 @@ from pipelines.interrupts import deferred
 from vpr import presets
 from vpr.sources import Source, open_source
 
-__all__ = ["COMMANDS", "add_arguments", "run_command", "encode_sources", "Encoded", "default_workers"]
+__all__ = ["COMMANDS", "add_arguments", "run_command", "encode_sources", "Encoded", "default_workers", "check_workers",
+           "dask_client"]
 
 COMMANDS = {"encode": "encode traverses (folders, videos, lists) into a cache for match/compare/loops, on Dask"}
 
@@ -127,7 +128,7 @@ def _connect(scheduler: str, timeout: float | None = None):
 
 
 @contextlib.contextmanager
-def _client(workers: int | None, scheduler: str | None, scratch: Path | None = None):
+def dask_client(workers: int | None, scheduler: str | None, scratch: Path | None = None):
     # dask is imported only when a cluster is used: serial runs and the rest of vpr do not need it
     import logging
     import shutil
@@ -162,7 +163,7 @@ def _client(workers: int | None, scheduler: str | None, scratch: Path | None = N
             shutil.rmtree(scratch, ignore_errors=True)
 
 
-def _check_workers(workers, scheduler) -> int | None:
+def check_workers(workers, scheduler) -> int | None:
     if scheduler is not None and workers is not None:
         raise ValueError("give either workers (a local cluster, 0 = serial) or scheduler (an existing cluster)")
     if scheduler is not None:
@@ -196,7 +197,7 @@ def encode_sources(sources, cache_dir, encoder_name: str = "pixel", encoder_conf
         process; None (default) is the number of cores. Not with ``scheduler``.
     scheduler : address of a running Dask scheduler (``tcp://host:port``).
     chunk_frames : frames per task.
-    parts : the inputs to store, a subset of :func:`pipelines.extract.available_inputs`
+    parts : the inputs to store, a subset of :func:`pipelines.features.available_inputs`
         (default all: ``sdr``, ``desc`` and every method's image inputs, so any
         later method finds what it needs).
     overwrite : encode again even when a cache file with these parts exists.
@@ -215,7 +216,7 @@ def encode_sources(sources, cache_dir, encoder_name: str = "pixel", encoder_conf
     """
     import encoders
 
-    n_workers = _check_workers(workers, scheduler)
+    n_workers = check_workers(workers, scheduler)
     parts = available_inputs() if parts is None else check_inputs(parts, "part")
     if not parts:
         raise ValueError(f"parts is empty; choose from {', '.join(available_inputs())}")
@@ -223,6 +224,7 @@ def encode_sources(sources, cache_dir, encoder_name: str = "pixel", encoder_conf
     if not srcs:
         raise ValueError("no sources given")
     encoder = encoders.get(encoder_name, **dict(encoder_conf or {}))
+    encoder.check_memory(max(len(s.indices()) for s in srcs))
     # the merged conf goes to the workers, so that they build exactly the encoder keyed in the cache
     conf_json = json.dumps(encoder.conf, sort_keys=True)
     cache_dir = Path(cache_dir)
@@ -275,7 +277,7 @@ def _run_on_dask(n_workers, scheduler, srcs, jobs, encoder_name, conf_json, part
     from distributed import as_completed
 
     run = uuid.uuid4().hex[:8]
-    with _client(n_workers, scheduler, scratch) as client:
+    with dask_client(n_workers, scheduler, scratch) as client:
         # each source goes to every worker once, not with every task (a folder lists all its files);
         # replicas on every worker survive the death of one of them; a stop during the (short) scatter
         # would close the cluster under the scheduler's replication, which then logs errors

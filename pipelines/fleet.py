@@ -29,7 +29,7 @@ import warnings
 from pathlib import Path
 
 from pipelines.outputs import metrics_table, versions
-from pipelines.runs import MatchMap, RunOptions, _extract_all, _prepare, check_match, compare_query
+from pipelines.runs import MatchMap, RunOptions, check_match, compare_query, extract_all, prepare_run
 from vpr import io
 
 __all__ = ["run_fleet", "query_folders"]
@@ -56,14 +56,14 @@ def _clean_partial(folder: Path) -> None:
                     p.unlink()
 
 
-def _query_task(the_map: MatchMap, query: str, q_src, opts: RunOptions, command: str, argv) -> dict:
-    """One query traverse on a worker: its folder's report (``metrics.json`` content)."""
+def _query_task(the_map: MatchMap, query: str, q_src, opts: RunOptions, command: str, argv, gt) -> dict:
+    """One query traverse on a worker: its folder's report (``metrics.json`` content); ``gt``: its ground truth."""
     import warnings
 
     _clean_partial(Path(opts.out))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # a worker has no terminal; what matters is in metrics.json
-        return compare_query(the_map, query, q_src, opts, command, argv=argv)
+        return compare_query(the_map, query, q_src, opts, command, argv=argv, gt=gt)
 
 
 def _unpack(payload: bytes) -> MatchMap:
@@ -83,33 +83,33 @@ def run_fleet(db, queries, method_names: list[str], opts: RunOptions, command: s
     workers, scheduler : where the queries run (module docstring); not both.
     progress : optional callable ``(query name, done, total)`` after each query.
     """
-    from pipelines.encode import _check_workers
+    from pipelines.encode import check_workers
 
-    n_workers = _check_workers(workers, scheduler)
+    n_workers = check_workers(workers, scheduler)
     out = Path(opts.out)
     queries = [str(q) for q in queries]
     if len(queries) < 2:
         raise ValueError("a fleet needs two or more query traverses (one query: vpr match DB QUERY)")
-    runners, encoder, srcs = _prepare(out, [db, *queries], ["database", *["query"] * len(queries)], method_names,
+    runners, encoder, srcs = prepare_run(out, [db, *queries], ["database", *["query"] * len(queries)], method_names,
                                       opts)
     db_src, q_srcs = srcs[0], srcs[1:]
     names = query_folders(q_srcs)
-    for q_src in q_srcs:  # every query's ground truth and sizes, before any work
-        check_match(runners, opts, db_src, q_src)
+    # every query's ground truth and sizes, before any work (built once, here, and sent with its task)
+    gts = [check_match(runners, opts, db_src, q_src) for q_src in q_srcs]
     # ---- the work starts here
     t0 = time.perf_counter()
-    (db_ex,) = _extract_all([db_src], ["database"], encoder, runners, opts)
+    (db_ex,) = extract_all([db_src], ["database"], encoder, runners, opts)
     the_map = MatchMap(str(db), db_src, db_ex, encoder.name, dict(encoder.conf),
                        {m: r.fit(db_ex.features) for m, r in runners.items()})
     t_map = time.perf_counter() - t0
     argv = sys.argv[1:]
-    jobs = [(n, q, s, RunOptions(**{**opts.__dict__, "out": out / n, "progress": False}))
-            for n, q, s in zip(names, queries, q_srcs, strict=True)]
+    jobs = [(n, q, s, RunOptions(**{**opts.__dict__, "out": out / n, "progress": False}), g)
+            for n, q, s, g in zip(names, queries, q_srcs, gts, strict=True)]
     reports: dict = {}
     shipped = {"map_bytes": len(pickle.dumps(the_map, protocol=pickle.HIGHEST_PROTOCOL))}
     if n_workers == 0:
-        for k, (n, q, s, o) in enumerate(jobs):
-            reports[n] = _query_task(the_map, q, s, o, command, argv)
+        for k, (n, q, s, o, g) in enumerate(jobs):
+            reports[n] = _query_task(the_map, q, s, o, command, argv, g)
             if progress:
                 progress(n, k + 1, len(jobs))
     else:
@@ -133,11 +133,11 @@ def run_fleet(db, queries, method_names: list[str], opts: RunOptions, command: s
 def _run_on_dask(the_map, jobs, command, argv, n_workers, scheduler, out: Path, progress, shipped) -> dict:
     from distributed import as_completed
 
-    from pipelines.encode import _client
+    from pipelines.encode import dask_client
 
     run = uuid.uuid4().hex[:8]
     reports = {}
-    with _client(n_workers, scheduler, out / f".dask-scratch-{run}" if scheduler is None else None) as client:
+    with dask_client(n_workers, scheduler, out / f".dask-scratch-{run}" if scheduler is None else None) as client:
         client.wait_for_workers(1, timeout=60)
         # the map goes to the cluster once, as the one task that unpacks it: every query task on a worker reads
         # that worker's copy, not one shipped with each task. Not scattered: the cluster may drop replicas of
@@ -147,10 +147,10 @@ def _run_on_dask(the_map, jobs, command, argv, n_workers, scheduler, out: Path, 
             warnings.filterwarnings("ignore", message="Large object")  # on purpose: the map, once
             warnings.filterwarnings("ignore", message="Sending large graph")
             shared = client.submit(_unpack, payload, key=f"vpr-map-{run}", pure=False)
-        shipped["task_bytes"] = max(len(pickle.dumps((q, s, o, command, argv), protocol=pickle.HIGHEST_PROTOCOL))
-                                    for _, q, s, o in jobs)
-        futures = {client.submit(_query_task, shared, q, s, o, command, argv, key=f"vpr-query-{run}-{n}",
-                                 pure=False, retries=2): n for n, q, s, o in jobs}
+        shipped["task_bytes"] = max(len(pickle.dumps((q, s, o, command, argv, g), protocol=pickle.HIGHEST_PROTOCOL))
+                                    for _, q, s, o, g in jobs)
+        futures = {client.submit(_query_task, shared, q, s, o, command, argv, g, key=f"vpr-query-{run}-{n}",
+                                 pure=False, retries=2): n for n, q, s, o, g in jobs}
         try:
             for k, fut in enumerate(as_completed(list(futures))):
                 reports[futures[fut]] = fut.result()

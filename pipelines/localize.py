@@ -40,20 +40,23 @@ import numpy as np
 
 import encoders
 from encoders.base import DescriptorEncoder
-from encoders.stream import StreamEncoder
+from encoders.stream import PRIOR_FRAMES, WINDOW, StreamEncoder
 from pipelines.args import (
+    ONLINE_METHOD,
     add_common_arguments,
     add_gt_arguments,
+    add_method_conf_argument,
     add_preset_argument,
     add_source_arguments,
     gt_spec_from_args,
+    method_confs,
+    refuse_gone,
 )
-from pipelines.extract import extract
+from pipelines.features import extract
 from pipelines.online import Answer, Online, run_online, source_frames, stdin_frames
 from pipelines.outputs import method_metrics
 from pipelines.runs import check_fit_frames
-from vpr import io, presets
-from vpr.config import parse_key_values
+from vpr import io, methods, presets
 from vpr.groundtruth import GroundTruthSpec, build_gt
 from vpr.shosm import Localizer, MemoryFileError
 from vpr.sources import open_source
@@ -81,13 +84,19 @@ def is_map(path) -> bool:
     return io.is_versioned_npz(path, "vpr.Localizer")
 
 
-def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, localizer_conf: dict | None = None,
+def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, method_conf: dict | None = None,
           fps=None, step=None, max_frames=None, progress: bool = True) -> Localizer:
-    """Encode and learn the database traverse ``db``; write the map to :func:`map_path` ``(out)`` (atomic)."""
+    """Encode and learn the database traverse ``db``; write the map to :func:`map_path` ``(out)`` (atomic).
+
+    ``method_conf``: the ``rshosm-seq`` conf (``--method-conf rshosm-seq.KEY=VALUE``), checked before any work;
+    the map keeps it.
+    """
     out = map_path(out)
+    method = methods.get(ONLINE_METHOD, **(method_conf or {}))
     src = open_source(db, fps=fps, step=step, max_frames=max_frames)
     enc = encoders.get(encoder, **(encoder_conf or {}))
     check_fit_frames(src, enc, "database", step, max_frames)
+    enc.check_memory(len(src.indices()))
     if enc.conf.get("standardise") in ("per_batch", "causal"):
         raise ValueError(f"encoders with standardise={enc.conf['standardise']} cannot encode one query frame at a "
                          "time; use standardise=fit (vpr localize then standardises the query causally, --window)")
@@ -95,7 +104,7 @@ def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, loc
     ex = extract(src, enc, ("sdr",), progress=progress)  # fits standardise=fit on the database
     t_enc = time.perf_counter() - t
     t = time.perf_counter()
-    loc = Localizer.from_database(ex.features.sdr, ex.features.names, progress=progress, **(localizer_conf or {}))
+    loc = method.localizer(ex.features.sdr, ex.features.names, progress=progress)
     fitted = isinstance(enc, DescriptorEncoder) and enc.conf.get("standardise") == "fit"
     stats = enc.statistics() if fitted else []
     loc.meta = {"format": _MAP_FORMAT, "encoder": enc.name, "encoder_conf": enc.conf, "db": str(db),
@@ -125,7 +134,7 @@ class LocalizeOnline(Online):
     """``vpr localize``: each query frame encoded with the map's encoder and localised by a :class:`vpr.Localizer`."""
 
     command = "localize"
-    method = "rshosm-seq"
+    method = ONLINE_METHOD
 
     def __init__(self, loc: Localizer, qenc: StreamEncoder, gt: GroundTruthSpec, q_src, params: dict):
         self.loc, self.qenc, self.gt, self.q_src, self._params = loc, qenc, gt, q_src, params
@@ -168,7 +177,7 @@ class LocalizeOnline(Online):
 
 
 def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: str = "running",
-             prior_frames: float = 10.0, window: int | None = 50, gt: GroundTruthSpec | None = None,
+             prior_frames: float | None = None, window: int | None = None, gt: GroundTruthSpec | None = None,
              learn_options: dict | None = None,
              fps=None, step=None, max_frames=None, state_out=None, progress: bool = False) -> dict:
     """Localise every frame of ``query`` against a map (or a database learned first); return metrics.json's content.
@@ -179,8 +188,8 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
     query : folder, video, image list, or ``"-"`` (paths read from ``stdin``).
     out : output folder (``rshosm-seq/matches.csv``, ``metrics.json``; :mod:`pipelines.online`).
     stdout : where the JSON lines go (default ``sys.stdout``).
-    query_standardise, prior_frames, window : see :class:`encoders.stream.StreamEncoder` (window None or 0: all
-        frames so far).
+    query_standardise, prior_frames, window : see :class:`encoders.stream.StreamEncoder` (None: its default;
+        window 0: all frames so far); ``prior_frames`` and ``window`` apply to ``"running"`` only.
     gt : ground truth (as ``vpr match``), optional.
     state_out : optional path: the localizer with its streaming state after the last frame (a robot's restart
         file), also when the run is stopped.
@@ -190,17 +199,24 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
     io.check_writable(out / "metrics.json", "--out")
     if state_out:
         io.check_writable(state_out, "--state-out")
+    running = {k: v for k, v in (("prior_frames", prior_frames), ("window", window)) if v is not None}
+    if query_standardise != "running" and running:
+        raise ValueError(f"--{' and --'.join(k.replace('_', '-') for k in running)} appl"
+                         f"{'ies' if len(running) == 1 else 'y'} to --query-standardise running, not "
+                         f"{query_standardise} (the database's statistics, fixed)")
+    if running.get("window") == 0:
+        running["window"] = None  # every frame so far
     p = Path(map_or_db)
     if is_map(p) or (p.is_file() and p.suffix.lower() == ".npz"):  # a foreign .npz is refused by load_map
         loc, enc = load_map(p)
-        if (learn_options or {}).get("localizer_conf"):  # query-time settings apply to a learned map
-            loc = loc.reconfigure(**learn_options["localizer_conf"])
+        if (learn_options or {}).get("method_conf"):  # query-time settings apply to a learned map
+            loc = loc.reconfigure(**learn_options["method_conf"])
     else:
         lo = dict(learn_options or {})
         learn_to = out / "map.npz"
         learn(map_or_db, learn_to, fps=fps, step=step, max_frames=max_frames, progress=progress, **lo)
         loc, enc = load_map(learn_to)
-    qenc = StreamEncoder(enc, query_standardise, prior_frames, window or None)
+    qenc = StreamEncoder(enc, query_standardise, **running)
     qenc.load_state(loc.arrays)  # a --state-out file continues its query's running statistics
     q_src = None if str(query) == "-" else open_source(query, fps=fps, step=step, max_frames=max_frames)
     frames = stdin_frames(stdin if stdin is not None else sys.stdin) if q_src is None else source_frames(q_src)
@@ -215,8 +231,9 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
 def _add_learn_args(ap):
     add_preset_argument(ap)
     encoders.add_arguments(ap, default=None)
-    ap.add_argument("--localizer-conf", action="append", default=[], metavar="KEY=VALUE",
-                    help="vpr.Localizer option, repeatable (e.g. min_score=24, decay=0.9, threshold=0.75)")
+    add_method_conf_argument(ap)
+    # gone: refused with what replaces it (pipelines.args.refuse_gone)
+    ap.add_argument("--localizer-conf", action="append", default=[], help=argparse.SUPPRESS)
 
 
 def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
@@ -233,10 +250,11 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     ap.add_argument("--query-standardise", choices=("running", "db"), default="running",
                     help="standardise=fit encoders: running statistics of the query so far (default) or the "
                          "database's")
-    ap.add_argument("--prior-frames", type=float, default=10.0,
-                    help="weight of the database's statistics in the running ones, in frames (default 10)")
-    ap.add_argument("--window", type=int, default=50,
-                    help="running statistics over the last N query frames (default 50; 0: all frames so far)")
+    ap.add_argument("--prior-frames", type=float,
+                    help="running: weight of the database's statistics in the running ones, in frames (default "
+                         f"{PRIOR_FRAMES:g})")
+    ap.add_argument("--window", type=int,
+                    help=f"running: statistics over the last N query frames (default {WINDOW}; 0: all frames so far)")
     ap.add_argument("--state-out", metavar="FILE.npz", help="also write the localizer with its state at the end")
     learn_group = ap.add_argument_group("learning MAP_OR_DB when it is a database")
     _add_learn_args(learn_group)
@@ -245,28 +263,46 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     add_common_arguments(ap)
 
 
+def _method_conf(args) -> dict:
+    """The ``rshosm-seq`` conf given with ``--method-conf`` (the preset's under it); other methods' refused."""
+    refuse_gone(args, {"localizer_conf": ("--localizer-conf", "--method-conf rshosm-seq.KEY=VALUE (e.g. "
+                                                              "rshosm-seq.min_score=20)")})
+    confs = method_confs(args.method_conf)
+    other = sorted(set(confs) - {ONLINE_METHOD})
+    if other:
+        raise ValueError(f"vpr {args.command}: the map is {ONLINE_METHOD}'s; --method-conf for {', '.join(other)} "
+                         "does not apply")
+    return confs.get(ONLINE_METHOD, {})
+
+
 def run_command(args) -> int:
-    # the preset's encoder unless --encoder names another (vpr.presets.resolve)
-    settings = presets.resolve(args.preset, encoder=args.encoder, encoder_conf=encoders.parse_conf(args.encoder_conf))
-    learn_opts = {"encoder": settings["encoder"], "encoder_conf": settings["encoder_conf"],
-                  "localizer_conf": parse_key_values(args.localizer_conf, "--localizer-conf")}
+    given = _method_conf(args)
+    # the preset's encoder and rshosm-seq conf unless flags name others (vpr.presets.resolve)
+    settings = presets.resolve(args.preset, encoder=args.encoder, encoder_conf=encoders.parse_conf(args.encoder_conf),
+                               methods=[ONLINE_METHOD], method_conf={ONLINE_METHOD: given})
     if args.command == "learn":
         loc = learn(args.db, args.out, fps=args.fps, step=args.step, max_frames=args.max_frames,
-                    progress=not args.no_progress, **learn_opts)
+                    progress=not args.no_progress, encoder=settings["encoder"], encoder_conf=settings["encoder_conf"],
+                    method_conf=settings["method_conf"][ONLINE_METHOD])
         print(f"learned {loc.n_db} frames ({loc.memory!r}); wrote {map_path(args.out)}")
         return 0
     if is_map(args.map) or Path(args.map).suffix.lower() == ".npz":
-        given = [f for f, v in (("--encoder", args.encoder), ("--encoder-conf", args.encoder_conf),
+        fixed = [f for f, v in (("--encoder", args.encoder), ("--encoder-conf", args.encoder_conf),
                                 ("--preset", args.preset)) if v]
-        if given:
-            raise ValueError(f"{args.map} is a learned map: it fixes the encoder and its conf ({', '.join(given)} "
-                             "cannot change them); --localizer-conf sets the query-time options")
+        if fixed:
+            raise ValueError(f"{args.map} is a learned map: it fixes the encoder and its conf ({', '.join(fixed)} "
+                             f"cannot change them); --method-conf {ONLINE_METHOD}.KEY=VALUE sets the query-time "
+                             "options")
+        learn_opts = {"method_conf": given}  # over the map's own conf: only what was given
+    else:
+        learn_opts = {"encoder": settings["encoder"], "encoder_conf": settings["encoder_conf"],
+                      "method_conf": settings["method_conf"][ONLINE_METHOD]}
     src_opts = {"fps": args.fps, "step": args.step, "max_frames": args.max_frames}
     report = localize(args.map, args.query, args.out, query_standardise=args.query_standardise,
                       prior_frames=args.prior_frames, window=args.window, state_out=args.state_out,
                       gt=gt_spec_from_args(args), learn_options=learn_opts, progress=not args.no_progress,
                       **src_opts)
-    m = report["methods"]["rshosm-seq"]
+    m = report["methods"][ONLINE_METHOD]
     lat = m["latency_ms"]
     print(f"vpr localize: {m['frames']} frames, latency median "
           f"{lat['with_encoding']['median']:.2f} ms ({lat['without_encoding']['median']:.2f} ms without encoding); "

@@ -17,6 +17,7 @@ exactly where it stopped.
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -29,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from pipelines.interrupts import deferred
-from pipelines.outputs import merge_metrics, versions, write_matches
+from pipelines.outputs import claim_methods, merge_metrics, versions, write_matches
 from vpr.sources import decode_image
 from vpr.types import MatchResult
 
@@ -198,10 +199,16 @@ def run_online(job: Online, frames, out, stdout=None, state_out=None, n_rows: in
     :func:`source_frames`). ``n_rows``: the number of rows of the similarity
     the candidates index (the map's frames; None: the frames of this run, as
     in loop closure). On a stop the outputs of the frames answered so far are
-    written and the stop raised again (see the module docstring).
+    written and the stop raised again (see the module docstring). The
+    method's folder is claimed with the first frame (a second run of the same
+    method into ``out`` meanwhile is refused; a run refused before it writes
+    nothing).
     """
-    stdout = sys.stdout if stdout is None else stdout
-    out = Path(out)
+    with contextlib.ExitStack() as claim:
+        return _run(job, frames, Path(out), sys.stdout if stdout is None else stdout, state_out, n_rows, claim)
+
+
+def _run(job: Online, frames, out: Path, stdout, state_out, n_rows, claim: contextlib.ExitStack) -> dict:
     lines = JsonLines(stdout)
     names, indices, answers, lat_all, lat_dec, skipped = [], [], [], [], [], []
     stop = None
@@ -212,6 +219,8 @@ def run_online(job: Online, frames, out, stdout=None, state_out=None, n_rows: in
                 skipped.append([name, reason])
                 print(f"vpr {job.command}: skipped {name}: {reason}", file=sys.stderr, flush=True)
                 continue
+            if not answers:
+                claim.enter_context(claim_methods(out, [job.method]))
             with deferred():  # a stop waits for this frame: the state is always that of whole frames
                 t0 = time.perf_counter()
                 x = job.encode(image)

@@ -6,6 +6,7 @@ run into ``DIR`` on the same inputs, merged under a lock (:func:`merge_metrics`)
 """
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import platform
@@ -20,8 +21,7 @@ from vpr import evaluate, io, methods, plots
 from vpr.types import MatchResult
 
 __all__ = ["MATCH_COLUMNS", "versions", "write_similarity", "write_matches", "method_metrics", "metrics_table",
-           "write_method",
-           "merge_metrics", "warn"]
+           "write_method", "merge_metrics", "warn", "claim_methods"]
 
 
 def warn(msg: str) -> None:
@@ -134,7 +134,8 @@ def _score_at(S, rows) -> np.ndarray:
 
 
 def write_method(folder: Path, m: str, res: MatchResult, evaluated: tuple, db_names, q_names, gt_hard, gt_soft,
-                 verifier=None, verify: int = 0, progress: bool = False, title: str = "", loops: bool = False) -> dict:
+                 verifier=None, verify: int = 0, progress: bool = False, title: str = "", loops: bool = False,
+                 mask=None) -> dict:
     """Write one method's files in its folder; return its metrics entries (``m`` and ``m+verify``).
 
     ``evaluated``: the (metrics, curve) of :func:`method_metrics` for ``res``.
@@ -169,7 +170,7 @@ def write_method(folder: Path, m: str, res: MatchResult, evaluated: tuple, db_na
     plots.plot_similarity(res.similarity, folder / "similarity.png", best_db=res.best_db, accepted=res.accepted,
                           gt_hard=gt_hard, gt_soft=gt_soft, title=title or f"{m}: database x query",
                           value_label=methods.get_class(m).score_label if m in methods.available() else "similarity",
-                          axis_labels=("earlier frame", "frame") if loops else ("database", "query"))
+                          axis_labels=("earlier frame", "frame") if loops else ("database", "query"), mask=mask)
     out = {}
     for name, (mm, c) in entries.items():
         if c is not None:
@@ -184,6 +185,23 @@ def write_method(folder: Path, m: str, res: MatchResult, evaluated: tuple, db_na
 
 def _jsonable(o):
     return o.item() if isinstance(o, np.generic) else o.tolist() if isinstance(o, np.ndarray) else str(o)
+
+
+def claim_methods(out: Path, names) -> contextlib.ExitStack:
+    """Hold ``out``'s lock of each method in ``names`` for a run (:func:`vpr.io.claimed`); close it when done.
+
+    Runs of other methods into one ``out`` go on side by side (their
+    metrics are merged); a second run of the same method into it while the
+    first runs is refused, rather than silently replacing its files.
+    """
+    stack = contextlib.ExitStack()
+    try:
+        for m in names:
+            stack.enter_context(io.claimed(Path(out) / f".{m}.lock", f"--out {out}: {m}"))
+    except BaseException:
+        stack.close()
+        raise
+    return stack
 
 
 def merge_metrics(out: Path, report: dict, pr_title: str) -> dict:

@@ -21,7 +21,7 @@ import numpy as np
 
 from pipelines.args import add_common_arguments
 from vpr import evaluate, groundtruth, io, plots, simulate
-from vpr.pairwise import pairwise
+from vpr.frame_pairs import pairwise
 from vpr.shosm import SequenceMemory
 from vpr.similarity import overlap_similarity
 

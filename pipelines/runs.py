@@ -25,15 +25,16 @@ import numpy as np
 import scipy.sparse as sp
 
 import encoders
-from pipelines.extract import extract
-from pipelines.outputs import merge_metrics, method_metrics, versions, warn, write_method
+from pipelines.features import extract
+from pipelines.outputs import claim_methods, merge_metrics, method_metrics, versions, warn, write_method
 from vpr import groundtruth, io, methods
 from vpr.groundtruth import GroundTruthSpec, build_gt, build_loop_gt
 from vpr.shosm import LOOP_EXCLUDE
 from vpr.sources import FrameSkippedWarning, open_source
-from vpr.types import EncodedTraverse, MatchResult
+from vpr.types import MatchResult
 
-__all__ = ["RunOptions", "run_compare", "run_loops", "run_methods", "exclude_frames", "peak_rss_mb", "check_fit_frames"]
+__all__ = ["RunOptions", "run_compare", "run_loops", "run_methods", "exclude_frames", "peak_rss_mb", "check_fit_frames",
+           "prepare_run", "extract_all", "check_match", "compare_query", "MatchMap"]
 
 
 @dataclass
@@ -132,38 +133,8 @@ def _check_run_options(opts: RunOptions) -> None:
         warn(f"--min-inliers {opts.min_inliers} has no effect without --verify N; ignored")
 
 
-def _tiny_traverse(runner, n: int = 12) -> EncodedTraverse:
-    """A tiny synthetic traverse holding every input ``runner`` reads."""
-    rng = np.random.default_rng(0)
-    width = int(runner.conf.get("n_inputs", 2048))
-    inputs = {"sdr": sp.csr_matrix(rng.random((n, width)) < min(1.0, 40 / width)),
-              "desc": rng.random((n, 32)).astype(np.float32)}
-    images = [rng.integers(0, 256, (48, 64, 3), dtype=np.uint8) for _ in range(n)]
-    for key, spec in runner.image_inputs.items():
-        inputs[key] = np.asarray(spec.compute(images, "probe images"), np.float32)
-    return EncodedTraverse(list(range(n)), **{k: v for k, v in inputs.items() if k in runner.required_inputs})
-
-
-def _probe(name: str, runner) -> None:
-    """Run a configured method once on a tiny synthetic traverse, so that a bad conf value fails now.
-
-    Some values are only checked where they are used (SeqSLAM's ``ds``, the
-    memory's ``p_extra``, the loop acceptance of ``rshosm-seq``): without this
-    they would fail after encoding. Methods with loop closure run it too.
-    """
-    tiny = _tiny_traverse(runner)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            runner.match(tiny, tiny)
-            if type(runner)._loops is not methods.Method._loops:
-                runner.loops(tiny, exclude=2)
-    except ValueError as exc:
-        raise ValueError(f"--method-conf {name}: {exc}") from None
-
-
 def _runners(names: list[str], opts: RunOptions) -> dict:
-    """Configured methods by name, built (and their confs tried) before any work so that a bad conf fails at once."""
+    """Configured methods by name, built before any work: each method checks its conf where it is built."""
     if not names:
         raise ValueError("--methods is empty")
     unique = list(dict.fromkeys(names))
@@ -182,9 +153,6 @@ def _runners(names: list[str], opts: RunOptions) -> dict:
     unused = [m for m in built if m not in unique]
     if unused:
         warn(f"--method-conf for {', '.join(unused)}, which this run does not use ({', '.join(unique)}); ignored")
-    for m in unique:
-        if m in built:
-            _probe(m, built[m])
     return {m: built.get(m) or methods.get(m) for m in unique}
 
 
@@ -222,15 +190,19 @@ def check_fit_frames(src, encoder, role: str, step=None, max_frames=None) -> Non
                          "--encoder-conf standardise=none)")
 
 
-def _prepare(out: Path, paths, roles, method_names, opts: RunOptions, loops: bool = False):
-    """Every check that can be made before reading a frame; returns (runners, encoder, sources)."""
+def prepare_run(out: Path, paths, roles, method_names, opts: RunOptions):
+    """The checks of the options, methods, encoder, sources and output before reading a frame.
+
+    Returns (runners, encoder, sources); the ground truth is checked where it
+    is built (:func:`check_match`, :func:`vpr.groundtruth.build_loop_gt`), also before any work.
+    """
     _check_run_options(opts)
-    opts.gt.check(loops=loops)
     runners = _runners(method_names, opts)
     encoder = encoders.get(opts.encoder, **opts.encoder_conf)
     srcs = [open_source(p, fps=opts.fps, step=opts.step, max_frames=opts.max_frames) for p in paths]
     for src, role in zip(srcs, roles, strict=True):
         check_fit_frames(src, encoder, role, opts.step, opts.max_frames)
+    encoder.check_memory(max(len(s.indices()) for s in srcs))
     _check_out(out, srcs, [".", "cache", *runners])
     if opts.cache is not None:
         cache = Path(opts.cache)
@@ -242,7 +214,7 @@ def _prepare(out: Path, paths, roles, method_names, opts: RunOptions, loops: boo
 
 
 # ----------------------------------------------------------------- encoding
-def _extract_all(srcs, roles, encoder, runners: dict, opts: RunOptions):
+def extract_all(srcs, roles, encoder, runners: dict, opts: RunOptions):
     """Encode the sources once with what every method needs; one warning per source with skipped frames."""
     needed = set().union(*(r.required_inputs for r in runners.values()))
     exs = []
@@ -307,13 +279,15 @@ def run_compare(db, query, method_names: list[str], opts: RunOptions, command: s
         Recorded in ``metrics.json``.
     """
     out = Path(opts.out)
-    runners, encoder, (db_src, q_src) = _prepare(out, [db, query], ["database", "query"], method_names, opts)
-    check_match(runners, opts, db_src, q_src)
+    runners, encoder, (db_src, q_src) = prepare_run(out, [db, query], ["database", "query"], method_names, opts)
+    gt = check_match(runners, opts, db_src, q_src)
     # ---- the work starts here: nothing above wrote a file
-    db_ex, q_ex = _extract_all([db_src, q_src], ["database", "query"], encoder, runners, opts)
-    the_map = MatchMap(str(db), db_src, db_ex, encoder.name, dict(encoder.conf),
-                       {m: r.fit(db_ex.features, progress=opts.progress) for m, r in runners.items()})
-    return compare_query(the_map, query, q_src, opts, command, q_ex=q_ex, argv=sys.argv[1:])
+    with claim_methods(out, runners):  # a second run of these methods into out meanwhile is refused
+        db_ex, q_ex = extract_all([db_src, q_src], ["database", "query"], encoder, runners, opts)
+        the_map = MatchMap(str(db), db_src, db_ex, encoder.name, dict(encoder.conf),
+                           {m: r.fit(db_ex.features, progress=opts.progress) for m, r in runners.items()})
+        return compare_query(the_map, query, q_src, opts, command, q_ex=q_ex, argv=sys.argv[1:], gt=gt,
+                             encoder=encoder)
 
 
 def check_match(runners: dict, opts: RunOptions, db_src, q_src):
@@ -348,20 +322,23 @@ class MatchMap:
 
 
 def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, command: str = "compare", q_ex=None,
-                  argv=None) -> dict:
+                  argv=None, gt=None, encoder=None) -> dict:
     """One query traverse against a built map: encode it (unless ``q_ex``), run, evaluate, write ``opts.out``.
 
     What :func:`run_compare` does after the database is encoded and learned;
-    the same files and ``metrics.json``, wherever it runs.
+    the same files and ``metrics.json``, wherever it runs. ``gt`` (the
+    ground truth of :func:`check_match`) and ``encoder`` (the map's) are
+    built here when not given (a fleet's worker gets the map alone).
     """
     out = Path(opts.out)
     db_src, db_ex = the_map.src, the_map.ex
     runners = {m: f.method for m, f in the_map.fitted.items()}
-    gt_hard, gt_soft = check_match(runners, opts, db_src, q_src)
+    gt_hard, gt_soft = gt if gt is not None else check_match(runners, opts, db_src, q_src)
     db_att, q_att = db_src.indices(), q_src.indices()
-    encoder = encoders.get(the_map.encoder, **the_map.encoder_conf)
+    if encoder is None:
+        encoder = encoders.get(the_map.encoder, **the_map.encoder_conf)
     if q_ex is None:
-        (q_ex,) = _extract_all([q_src], ["query"], encoder, runners, opts)
+        (q_ex,) = extract_all([q_src], ["query"], encoder, runners, opts)
     if gt_hard is not None:
         rows, cols = _gt_rows(db_att, db_ex.indices), _gt_rows(q_att, q_ex.indices)
         gt_hard = gt_hard[np.ix_(rows, cols)]
@@ -451,10 +428,10 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
     Checks as in :func:`run_compare`.
     """
     out = Path(opts.out)
-    runners, encoder, (src,) = _prepare(out, [seq], ["sequence"], [method], opts, loops=True)
+    runners, encoder, (src,) = prepare_run(out, [seq], ["sequence"], [method], opts)
     exclude = exclude_frames(exclude, src)  # frames, or seconds with the video's rate
     runner = runners[method]
-    if type(runner)._loops is methods.Method._loops:
+    if not runner.supports_loops:
         raise ValueError(runner.no_loops_reason or f"{method} does not support loop closure within one traverse")
     attempted = src.indices()
     runner.check_size(len(attempted), len(attempted))
@@ -468,32 +445,33 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
         if not _any_true(gt_hard & mask):
             raise opts.gt.no_match_error(exclude=exclude)
     # ---- the work starts here: nothing above wrote a file
-    (ex,) = _extract_all([src], ["sequence"], encoder, runners, opts)
-    if gt_hard is not None:
-        rows = _gt_rows(attempted, ex.indices)
-        gt_hard = gt_hard[np.ix_(rows, rows)]
-        gt_soft = gt_soft[np.ix_(rows, rows)] if gt_soft is not None else None
-        mask = groundtruth.loop_closure_mask(len(ex.features), exclude=exclude)
-        if not _any_true(gt_hard & mask):  # skipped frames took the last true pairs
-            raise opts.gt.no_match_error(exclude=exclude)
-    names = ex.features.names
-    confs = {}
+    with claim_methods(out, runners):  # a second run of this method into out meanwhile is refused
+        (ex,) = extract_all([src], ["sequence"], encoder, runners, opts)
+        if gt_hard is not None:
+            rows = _gt_rows(attempted, ex.indices)
+            gt_hard = gt_hard[np.ix_(rows, rows)]
+            gt_soft = gt_soft[np.ix_(rows, rows)] if gt_soft is not None else None
+            mask = groundtruth.loop_closure_mask(len(ex.features), exclude=exclude)
+            if not _any_true(gt_hard & mask):  # skipped frames took the last true pairs
+                raise opts.gt.no_match_error(exclude=exclude)
+        names = ex.features.names
+        confs = {}
 
-    def write(m: str, res: MatchResult, evaluated) -> dict:
-        confs[m] = res.conf
-        write_method(out / m, m, res, evaluated, names, names, gt_hard, gt_soft, title=f"{m}: loop closures",
-                     loops=True)
-        io.save_json(out / m / "config.json", _config(opts, command="loops", seq=str(seq), method=m,
-                                                      exclude=exclude))
+        def write(m: str, res: MatchResult, evaluated) -> dict:
+            confs[m] = res.conf
+            write_method(out / m, m, res, evaluated, names, names, gt_hard, gt_soft, title=f"{m}: loop closures",
+                         loops=True, mask=mask)
+            io.save_json(out / m / "config.json", _config(opts, command="loops", seq=str(seq), method=m,
+                                                          exclude=exclude))
 
-    done = run_methods(runners, lambda r: r.loops(ex.features, exclude=exclude, progress=opts.progress),
-                       gt_hard, gt_soft, mask, on_result=write, loops=True)
-    inputs = {"kind": "loops", "seq": src.key(), "exclude": exclude,
-              "encoder": encoder.name, "encoder_conf": encoder.conf, "ground_truth": opts.gt.describe()}
-    report = {"methods": {k: e for k, (e, _) in done.items()},
-              "params": {"command": "loops", "seq": str(seq), "exclude": exclude,
-                         "encoder": encoder.name, "encoder_conf": encoder.conf, "method_conf": confs,
-                         "n_frames": len(ex.features), "encode_seconds": ex.seconds, "skipped": ex.skipped,
-                         "ground_truth": opts.gt.describe(), "inputs": inputs},
-              "versions": versions()}
-    return merge_metrics(out, report, f"loop closures in {src.name}")
+        done = run_methods(runners, lambda r: r.loops(ex.features, exclude=exclude, progress=opts.progress),
+                           gt_hard, gt_soft, mask, on_result=write, loops=True)
+        inputs = {"kind": "loops", "seq": src.key(), "exclude": exclude,
+                  "encoder": encoder.name, "encoder_conf": encoder.conf, "ground_truth": opts.gt.describe()}
+        report = {"methods": {k: e for k, (e, _) in done.items()},
+                  "params": {"command": "loops", "seq": str(seq), "exclude": exclude,
+                             "encoder": encoder.name, "encoder_conf": encoder.conf, "method_conf": confs,
+                             "n_frames": len(ex.features), "encode_seconds": ex.seconds, "skipped": ex.skipped,
+                             "ground_truth": opts.gt.describe(), "inputs": inputs},
+                  "versions": versions()}
+        return merge_metrics(out, report, f"loop closures in {src.name}")

@@ -52,7 +52,7 @@ import scipy.sparse as sp
 
 import encoders
 from encoders.stream import StreamEncoder
-from pipelines.extract import extract
+from pipelines.features import extract
 from vpr import presets
 from vpr.shosm import Localizer, PathConf, PathDecider
 from vpr.sources import open_source

@@ -44,7 +44,7 @@ def compiled_kernels():
     for name in methods.available():
         methods.get(name).warm_up()
     x = sdr.random_sdrs(40, 256, 10, seed=0)
-    loop_evidence(x, exclude=5, memory={"n_inputs": 256})
+    loop_evidence(x, exclude=5, n_inputs=256)
     a = np.zeros((4, 2), np.float32)
     for candidates in (None, "pairwise"):
         seqslam_topk(a, a, top_k=1, ds=2, R=2, candidates=candidates)

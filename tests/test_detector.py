@@ -6,7 +6,7 @@ import scipy.sparse as sp
 import encoders
 from encoders.stream import StreamEncoder
 from vpr import sdr
-from vpr.shosm import LoopConf, LoopDetector, MemoryFileError, loop_evidence, memory_params
+from vpr.shosm import LoopDetector, MemoryFileError, loop_evidence
 
 
 def _loop_stream(T=160, n_bits=1024, k=40, seed=0):
@@ -23,7 +23,7 @@ def _loose():
 def test_detector_answers_equal_the_batch_loop_evidence():
     x = _loop_stream()
     conf = _loose()
-    batch = loop_evidence(x, exclude=30, memory=memory_params(conf), loop=LoopConf(drift=0.5, min_score=6.0))
+    batch = loop_evidence(x, exclude=30, **conf)
     det = LoopDetector(exclude=30, **conf)
     out = [det.update(x[j]) for j in range(x.shape[0])]
     d = batch.decisions
@@ -57,7 +57,7 @@ def test_detector_refuses_foreign_files_and_images_without_encoder(tmp_path):
     det = LoopDetector()
     with pytest.raises(ValueError, match="got an image .* no encoder"):
         det.update(np.zeros((48, 64, 3), np.uint8))
-    with pytest.raises(ValueError, match="unknown LoopDetector option"):
+    with pytest.raises(ValueError, match="unknown rshosm-seq option"):
         LoopDetector(z_min=3)
 
 
@@ -66,7 +66,7 @@ def test_detector_with_a_causal_encoder_equals_the_batch_encoding(rendered):
     images = list(scene.traverses[0].images)
     conf = {"standardise": "causal", "n_bits": 1024, "k": 40}
     x = encoders.get("pixel", **conf).encode(images)
-    batch = loop_evidence(x, exclude=12, memory=memory_params({"n_inputs": 1024}))
+    batch = loop_evidence(x, exclude=12, n_inputs=1024)
     det = LoopDetector(StreamEncoder(encoders.get("pixel", **conf)), exclude=12, n_inputs=1024)
     out = [det.update(im) for im in images]
     np.testing.assert_array_equal([r.best for r in out], batch.decisions.best)

@@ -9,7 +9,7 @@ import pytest
 
 import encoders
 from pipelines.encode import add_arguments, encode_sources, run_command
-from pipelines.extract import cache_path, extract, load_cache
+from pipelines.features import cache_path, extract, load_cache
 from vpr.sources import ListSource, open_source
 
 N_FRAMES = 36

@@ -335,9 +335,9 @@ def test_cnn_generic_model_pooling_and_preprocessing(tmp_path, images):
     e = encoders.get("cnn", model=str(path), input_size=(16, 8))
     np.testing.assert_allclose(np.linalg.norm(e.describe(images), axis=1), 1.0, rtol=1e-5)
     # the halving shortcut for big shrinks stays close to a one-step area resize
-    from encoders.cnn import _shrink
+    from encoders.cnn import shrink_image
     big = textured(9, (640, 480))
-    diff = _shrink(big, (224, 224)).astype(float) - cv2.resize(big, (224, 224), interpolation=cv2.INTER_AREA)
+    diff = shrink_image(big, (224, 224)).astype(float) - cv2.resize(big, (224, 224), interpolation=cv2.INTER_AREA)
     assert np.abs(diff).mean() < 1.0
 
 

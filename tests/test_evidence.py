@@ -446,11 +446,11 @@ def test_loop_evidence_caps_the_beam_only_beyond_the_dense_output():
     rows = [np.flatnonzero(base[i // 3] ^ (rng.random(256) < 0.05))[:60] for i in range(90)]
     x = sdr.from_indices(rows, 256)
     mem = {"n_inputs": 256}
-    auto, _ = ev.loop_evidence(x, exclude=5, memory=mem)
-    free, _ = ev.loop_evidence(x, exclude=5, memory=mem, caps=False)
-    tight, _ = ev.loop_evidence(x, exclude=5, memory=mem, beam=BeamConf(max_beam=16, max_enter=2), caps=True)
+    auto, _ = ev.loop_evidence(x, exclude=5, **mem)
+    free, _ = ev.loop_evidence(x, exclude=5, caps=False, **mem)
+    tight, _ = ev.loop_evidence(x, exclude=5, conf=BeamConf(max_beam=16, max_enter=2), caps=True, **mem)
     np.testing.assert_array_equal(auto, free)
     assert not np.array_equal(tight, free)
-    beyond, _ = ev.loop_evidence(x, exclude=5, memory=mem, dense_max=50)  # top-50 sparse and capped
+    beyond, _ = ev.loop_evidence(x, exclude=5, dense_max=50, **mem)  # top-50 sparse and capped
     assert sp.issparse(beyond)
     assert ev.LOOP_UNCAPPED_MAX <= 20_000

@@ -133,5 +133,5 @@ def test_killed_worker_query_is_rerun_and_results_are_identical(fleet_data, tmp_
         assert killed, "no worker was killed while it held a query"
         for q in fleet_data["queries"]:
             _same(_results(tmp_path / "dask" / Path(q).name), _results(tmp_path / "serial" / Path(q).name))
-            leftovers = [p for p in (tmp_path / "dask" / Path(q).name).rglob(".*") if p.name != ".metrics.lock"]
+            leftovers = [p for p in (tmp_path / "dask" / Path(q).name).rglob(".*") if not p.name.endswith(".lock")]
             assert leftovers == []

@@ -70,7 +70,7 @@ def test_localizer_bad_input(traverses, tmp_path):
     db, q, _, _ = traverses
     with pytest.raises(ValueError, match="names"):
         vpr.Localizer.from_database(db[:10], ["a"])
-    with pytest.raises(ValueError, match="unknown Localizer option"):
+    with pytest.raises(ValueError, match="unknown rshosm-seq option"):
         vpr.Localizer.from_database(db[:10], list("abcdefghij"), zmin=3)
     loc = vpr.Localizer.from_database(db[:10], list("abcdefghij"))
     with pytest.raises(ValueError, match="shape"):

@@ -61,9 +61,11 @@ def map_file(scene, tmp_path_factory):
     (["--encoder", "cnn"], "--encoder"),
     (["--encoder-conf", "k=10"], "--encoder-conf"),
     (["--preset", "paper"], "--preset"),
-    (["--localizer-conf", "nosuch=1"], "unknown Localizer option"),
-    (["--localizer-conf", "min_score=abc"], "min_score"),
-    (["--localizer-conf", "threshold=0.5"], "fixed by the map"),
+    (["--method-conf", "rshosm-seq.nosuch=1"], "unknown rshosm-seq option"),
+    (["--method-conf", "rshosm-seq.min_score=abc"], "min_score"),
+    (["--method-conf", "rshosm-seq.threshold=0.5"], "fixed by the map"),
+    (["--method-conf", "seqslam.ds=4"], "--method-conf for seqslam does not apply"),
+    (["--localizer-conf", "min_score=20"], "--localizer-conf is gone: use --method-conf rshosm-seq.KEY=VALUE"),
 ])
 def test_localize_with_a_map_refuses_what_the_map_fixes(scene, map_file, tmp_path, capsys, extra, message):
     code, out, err = _run(["localize", map_file, scene["q"], "--out", tmp_path / "o", *extra], capsys)
@@ -72,8 +74,8 @@ def test_localize_with_a_map_refuses_what_the_map_fixes(scene, map_file, tmp_pat
 
 
 def test_localize_applies_query_time_settings_to_a_map(scene, map_file, tmp_path, capsys):
-    code, out, err = _run(["localize", map_file, scene["q"], "--out", tmp_path / "o", "--localizer-conf",
-                           "min_score=1e9"], capsys)
+    code, out, err = _run(["localize", map_file, scene["q"], "--out", tmp_path / "o", "--method-conf",
+                           "rshosm-seq.min_score=1e9"], capsys)
     assert code == 0, err
     m = json.loads((tmp_path / "o" / "metrics.json").read_text())
     assert m["params"]["method_conf"]["rshosm-seq"]["min_score"] == 1e9
@@ -173,7 +175,7 @@ def test_sigterm_is_handled_as_an_interrupt_and_leaves_only_complete_files(scene
             terminated += 1
             assert err.strip().splitlines()[-1] == "vpr: terminated"
         if out.exists():
-            assert [q for q in out.rglob(".*") if q.name != ".metrics.lock"] == []
+            assert [q for q in out.rglob(".*") if not q.name.endswith(".lock")] == []
     assert terminated >= 1
 
 
@@ -219,7 +221,7 @@ def test_degenerate_sdrs_warn_with_their_count(tmp_path, capsys):
 
 def test_a_cache_file_of_another_source_is_not_trusted(scene, tmp_path, capsys):
     import encoders
-    from pipelines.extract import cache_path
+    from pipelines.features import cache_path
     from vpr.sources import open_source
 
     args = ["--method", "pairwise", "--preset", "fast", "--tolerance", 2, "--cache", tmp_path / "c"]

@@ -79,7 +79,7 @@ def test_stopped_loops_writes_its_outputs_and_state_then_resumes_exactly(laps, t
     assert [int(r["query"]) for r in rows] == list(range(40))
     m = json.loads((tmp_path / "a" / "metrics.json").read_text())["methods"]["rshosm-seq"]
     assert m["frames"] == 40 and m["stopped"] is True
-    assert not [f for f in tmp_path.rglob(".*") if f.name != ".metrics.lock"]  # no temporary file left
+    assert not [f for f in tmp_path.rglob(".*") if not f.name.endswith(".lock")]  # no temporary file left
     monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(paths[40:]) + "\n"))
     assert _main(["loops", "-", "--out", tmp_path / "b", "--resume", tmp_path / "state.npz"]) == 0
     rest = [json.loads(s) for s in capsys.readouterr().out.splitlines()]
@@ -118,3 +118,20 @@ def test_binary_data_on_stdin_is_refused_naming_stdin(laps, tmp_path):
     assert r.returncode == 2 and len(err.strip().splitlines()) == 1, err
     assert "stdin: binary data" in err
     assert not (tmp_path / "o").exists()
+
+
+def test_a_second_run_into_the_same_out_is_refused_while_the_first_runs(laps, tmp_path):
+    assert _main(["learn", laps["laps"], "--out", tmp_path / "map.npz", "--preset", "fast"]) == 0
+    first = _start(["localize", tmp_path / "map.npz", "-", "--out", tmp_path / "o"])
+    first.stdin.write(laps["paths"][0] + "\n")
+    first.stdin.flush()
+    json.loads(first.stdout.readline())  # the first run has claimed --out
+    second = subprocess.run([sys.executable, "-m", "pipelines.cli", "localize", str(tmp_path / "map.npz"),
+                             laps["paths"][1].rsplit("/", 1)[0], "--out", str(tmp_path / "o"), "--max-frames", "3"],
+                            capture_output=True, text=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    first.stdin.close()
+    assert first.wait(timeout=60) == 0
+    lines = second.stderr.strip().splitlines()
+    assert second.returncode == 2 and len(lines) == 1, second.stderr
+    assert "rshosm-seq: another run is writing it now" in lines[0]
+    assert json.loads((tmp_path / "o" / "metrics.json").read_text())["methods"]["rshosm-seq"]["frames"] == 1

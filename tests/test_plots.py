@@ -9,7 +9,7 @@ import scipy.sparse as sp
 import vpr.plots
 from vpr.evaluate import evaluate, pr_curve
 from vpr.groundtruth import gt_from_tolerance
-from vpr.plots import _block_any, _block_max, plot_bars, plot_pr, plot_similarity
+from vpr.plots import block_any, block_max, plot_bars, plot_pr, plot_similarity
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -96,9 +96,9 @@ def test_block_pooling_matches_brute_force():
     S[S == -3] = -np.inf
     G = rng.random((7, 11)) < 0.2
     fr, fc = 3, 4
-    pooled = _block_max(S, fr, fc)
-    pooled_sp = _block_max(sp.csr_matrix(np.where(np.isinf(S), 0, S) + 0.0), fr, fc)
-    anyg = _block_any(G, fr, fc)
+    pooled = block_max(S, fr, fc)
+    pooled_sp = block_max(sp.csr_matrix(np.where(np.isinf(S), 0, S) + 0.0), fr, fc)
+    anyg = block_any(G, fr, fc)
     assert pooled.shape == (3, 3) and anyg.shape == (3, 3)
     for a in range(3):
         for b in range(3):
@@ -109,7 +109,7 @@ def test_block_pooling_matches_brute_force():
             else:
                 assert np.isnan(pooled[a, b])
             assert anyg[a, b] == G[a * fr:(a + 1) * fr, b * fc:(b + 1) * fc].any()
-    np.testing.assert_array_equal(_block_any(sp.csr_matrix(G), fr, fc), anyg)
+    np.testing.assert_array_equal(block_any(sp.csr_matrix(G), fr, fc), anyg)
     # sparse: only stored entries count, unstored blocks are NaN
     stored = sp.csr_matrix(np.where(np.isinf(S), 0, S))
     for a in range(3):

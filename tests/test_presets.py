@@ -5,7 +5,8 @@ import json
 import pytest
 
 import encoders
-from pipelines import demo, encode, match
+from pipelines import demo, encode, loops, match
+from pipelines.args import options_from_args, settings_from_args
 from vpr import methods, presets
 
 
@@ -92,9 +93,13 @@ def test_resolve_rejects_bad_arguments(kwargs):
         presets.resolve("default", **kwargs)
 
 
+def run_options(args):
+    return options_from_args(args, settings_from_args(args))
+
+
 def _args(command, argv):
     ap = argparse.ArgumentParser()
-    match.add_arguments(ap, command)
+    (loops if command == "loops" else match).add_arguments(ap, command)
     args = ap.parse_args(argv)
     args.command = command
     return args
@@ -105,26 +110,26 @@ def test_commands_without_flags_take_the_default_preset():
     args = _args("compare", ["db", "q", "--out", "o"])
     # not given stays None (so that a command can tell a flag given from one not given); resolved to default
     assert args.encoder is None and args.methods is None and args.preset is None
-    opts = match.options_from_args(args)
+    opts = run_options(args)
     assert (opts.preset, opts.encoder, opts.encoder_conf) == ("default", d["encoder"], d["encoder_conf"])
-    assert match.settings_from_args(args)["methods"] == d["methods"]
-    assert match.settings_from_args(_args("match", ["db", "q", "--out", "o"]))["methods"] == [d["methods"][0]]
-    assert match.settings_from_args(_args("loops", ["s", "--out", "o"]))["methods"] == [d["loop_method"]]
+    assert settings_from_args(args)["methods"] == d["methods"]
+    assert settings_from_args(_args("match", ["db", "q", "--out", "o"]))["methods"] == [d["methods"][0]]
+    assert settings_from_args(_args("loops", ["s", "--out", "o"]))["methods"] == [d["loop_method"]]
     paper = _args("loops", ["s", "--out", "o", "--preset", "paper"])
-    assert match.settings_from_args(paper)["methods"] == ["rshosm"]
-    assert match.options_from_args(paper).method_conf == {"rshosm": {"p_extra": 0.05}}
+    assert settings_from_args(paper)["methods"] == ["rshosm"]
+    assert run_options(paper).method_conf == {"rshosm": {"p_extra": 0.05}}
 
 
 def test_flags_override_the_preset_on_the_command_line():
     args = _args("compare", ["db", "q", "--out", "o", "--preset", "fast", "--methods", "pairwise,rshosm",
                              "--encoder-conf", "k=50", "--method-conf", "rshosm.p_extra=0"])
-    s = match.settings_from_args(args)
+    s = settings_from_args(args)
     assert s["methods"] == ["pairwise", "rshosm"] and s["encoder"] == "pixel"
     assert s["encoder_conf"] == {"k": "50", "standardise": "fit"} and s["method_conf"] == {"rshosm": {"p_extra": "0"}}
-    s = match.settings_from_args(_args("match", ["db", "q", "--out", "o", "--encoder", "cnn", "--method", "seqslam"]))
+    s = settings_from_args(_args("match", ["db", "q", "--out", "o", "--encoder", "cnn", "--method", "seqslam"]))
     assert (s["encoder"], s["encoder_conf"], s["methods"]) == ("cnn", {}, ["seqslam"])
     with pytest.raises(ValueError, match="empty"):
-        match.settings_from_args(_args("compare", ["db", "q", "--out", "o", "--methods", ","]))
+        settings_from_args(_args("compare", ["db", "q", "--out", "o", "--methods", ","]))
     with pytest.raises(SystemExit):
         _args("compare", ["db", "q", "--out", "o", "--preset", "nope"])
 
@@ -165,9 +170,9 @@ def test_loops_standardise_causally_unless_told_otherwise():
     assert presets.resolve("default", loops=True)["encoder_conf"]["standardise"] == "causal"
     assert presets.resolve("paper", loops=True)["encoder_conf"]["standardise"] == "none"
     assert presets.resolve("default")["encoder_conf"]["standardise"] == "fit"
-    s = match.settings_from_args(_args("loops", ["s", "--out", "o", "--encoder-conf", "standardise=fit"]))
+    s = settings_from_args(_args("loops", ["s", "--out", "o", "--encoder-conf", "standardise=fit"]))
     assert s["encoder_conf"]["standardise"] == "fit"
-    assert match.options_from_args(_args("loops", ["s", "--out", "o"])).encoder_conf["standardise"] == "causal"
+    assert run_options(_args("loops", ["s", "--out", "o"])).encoder_conf["standardise"] == "causal"
     # another encoder than the preset's takes only the conf given
-    s = match.settings_from_args(_args("loops", ["s", "--out", "o", "--encoder", "orb"]))
+    s = settings_from_args(_args("loops", ["s", "--out", "o", "--encoder", "orb"]))
     assert s["encoder_conf"] == {}

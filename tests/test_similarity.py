@@ -3,7 +3,7 @@ import pytest
 import scipy.sparse as sp
 
 from vpr import sdr, similarity
-from vpr.pairwise import pairwise
+from vpr.frame_pairs import pairwise
 
 
 def test_overlap_is_normalised_db_by_query():

@@ -241,3 +241,86 @@ def test_the_table_says_the_soft_band_is_ignored_and_matches_csv_is_lf(folders, 
     assert legend[0].endswith(f"pairwise {n_soft}")
     raw = (tmp_path / "out" / "pairwise" / "matches.csv").read_bytes()
     assert b"\r" not in raw and raw.count(b"\n") == N_FRAMES + 1
+
+
+# ------------------------------------------------------------ 4. refusals before any work
+@pytest.mark.parametrize("command", ["compare", "loops"])
+def test_an_encoder_that_cannot_fit_is_refused_before_reading(folders, tmp_path, capsys, command):
+    srcs = [*folders] if command == "compare" else [folders[0], "--exclude", "5"]
+    code, _, err = _run([command, *srcs, "--out", tmp_path / "out", "--encoder-conf", "n_bits=100000000"], capsys)
+    line = _one_error_line(code, err, "pixel.n_bits=100000000", "GiB")
+    assert "more than this machine's" in line
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_file_name_that_is_not_utf8_is_read_and_written(folders, tmp_path, capsys):
+    import shutil
+
+    q = tmp_path / "q"
+    shutil.copytree(folders[1], q)
+    os.rename(os.fsencode(sorted(q.glob("*.png"))[-1]), os.path.join(os.fsencode(q), b"z_caf\xe9.png"))
+    code, _, err = _run(["compare", folders[0], q, "--out", tmp_path / "out", "--tolerance", "2", *FAST], capsys)
+    assert code == 0, err
+    raw = (tmp_path / "out" / "pairwise" / "matches.csv").read_bytes()
+    assert b"caf\xe9.png" in raw
+
+
+# ------------------------------------------------------------ 5. small things
+def test_loop_heatmap_draws_ground_truth_only_where_pairs_are_scored(tmp_path):
+    import cv2
+
+    from vpr.groundtruth import loop_closure_mask
+    from vpr.plots import plot_similarity
+
+    n = 60
+    mask = loop_closure_mask(n, exclude=5)
+    S = np.where(mask, np.random.default_rng(0).random((n, n)), -np.inf)
+    gt = np.eye(n, dtype=bool) | np.eye(n, k=1, dtype=bool) | np.eye(n, k=-1, dtype=bool)  # a frame and its neighbours
+    gt[10, 50] = gt[50, 10] = True  # one real loop
+
+    def reddish(path) -> int:
+        img = cv2.imread(str(path)).astype(int)
+        b, g, r = img[..., 0], img[..., 1], img[..., 2]
+        return int(((r - g > 60) & (r - b > 60)).sum())
+
+    plain = reddish(plot_similarity(S, tmp_path / "a.png", gt_hard=gt, axis_labels=("earlier frame", "frame")))
+    masked = reddish(plot_similarity(S, tmp_path / "b.png", gt_hard=gt, mask=mask,
+                                     axis_labels=("earlier frame", "frame")))
+    assert 0 < masked < plain / 10
+
+
+def test_compare_help_lists_the_methods(capsys):
+    from vpr import methods
+
+    with pytest.raises(SystemExit):
+        main(["compare", "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    for name in methods.available():
+        assert name in out.replace("- ", "-")
+
+
+def test_an_empty_out_is_refused(folders, capsys):
+    code, _, err = _run(["compare", *folders, "--out", "", *FAST], capsys)
+    _one_error_line(code, err, "--out: an empty path")
+    code, _, err = _run(["localize", folders[0], "-", "--out", "", "--state-out", "x.npz"], capsys)
+    _one_error_line(code, err, "--out: an empty path")
+
+
+def test_window_with_fixed_query_statistics_is_refused(folders, tmp_path, capsys):
+    code, _, err = _run(["localize", folders[0], folders[1], "--out", tmp_path / "o", "--window", "5",
+                         "--query-standardise", "db"], capsys)
+    _one_error_line(code, err, "--window applies to --query-standardise running")
+
+
+@pytest.mark.parametrize("conf, message", [("seqslam.ds=0", "ds: must be an integer >= 1"),
+                                           ("seqslam.ds=40", "ds=40 is a sequence of 41 frames"),
+                                           ("rshosm-seq.top_k=0", "top_k")])
+def test_method_values_are_refused_in_every_command(folders, tmp_path, capsys, conf, message):
+    method = conf.split(".")[0]
+    for argv in (["compare", *folders, "--methods", method], ["loops", folders[0], "--method", method,
+                                                              "--exclude", "5"]):
+        if argv[0] == "loops" and "ds=40" not in conf and method == "seqslam":
+            pass
+        code, _, err = _run([*argv, "--out", tmp_path / "o", "--preset", "fast", "--method-conf", conf], capsys)
+        _one_error_line(code, err, message)
+        assert not (tmp_path / "o").exists()

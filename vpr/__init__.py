@@ -8,7 +8,7 @@ rSHOSM-seq, our graded evidence over it. The house, from the bottom floor up:
   :mod:`vpr.sdr`, :mod:`vpr.similarity`, :mod:`vpr.config`, :mod:`vpr.checks`,
   :mod:`vpr.io`, :mod:`vpr.imageproc`;
 - algorithms, one package each: :mod:`vpr.shosm`, :mod:`vpr.seqslam`,
-  :mod:`vpr.pairwise`; geometry: :mod:`vpr.verify`;
+  :mod:`vpr.frame_pairs`; geometry: :mod:`vpr.verify`;
 - data in: :mod:`vpr.sources`, :mod:`vpr.render`, :mod:`vpr.simulate`;
 - evaluation: :mod:`vpr.evaluate` (metrics), :mod:`vpr.groundtruth`;
 - output: :mod:`vpr.plots`;

@@ -8,11 +8,13 @@ matched"; NaN and ``+inf`` are errors.
 from __future__ import annotations
 
 import numbers
+import os
 
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["check_similarity", "check_int", "check_count", "check_float", "check_choice", "at"]
+__all__ = ["check_similarity", "check_int", "check_count", "check_float", "check_choice", "at",
+           "physical_memory", "check_top_k", "check_exclude"]
 
 _SPARSE_FORMATS = ("coo", "csr", "csc")
 
@@ -149,3 +151,28 @@ def at(G, rows, cols) -> np.ndarray:
             G = G.tocsr()
         return np.asarray(G[rows, cols]).ravel() != 0
     return np.asarray(G)[rows, cols].astype(bool, copy=False)
+
+
+def physical_memory() -> int | None:
+    """This machine's physical memory in bytes (None where the system does not say).
+
+    Sizes whose arrays could never fit are refused against it before any work,
+    rather than failing with a ``MemoryError`` after reading every image.
+    """
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
+    except (AttributeError, ValueError, OSError):  # pragma: no cover - not POSIX
+        return None
+
+
+def check_top_k(value, name: str = "top_k", nullable: bool = True) -> int | None:
+    """Frames kept per query: an integer >= 1, or None (every frame) where ``nullable``. The one rule of every
+    method, evidence and detector."""
+    if value is None and nullable:
+        return None
+    return check_int(value, name, 1)
+
+
+def check_exclude(value, name: str = "exclude") -> int:
+    """Loop closure's ``exclude``: frames closer than this are not candidates, an integer >= 1 (one rule)."""
+    return check_int(value, name, 1)

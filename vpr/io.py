@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["atomic_path", "atomic_open", "save_npy", "save_json", "save_figure", "save_image", "locked",
-           "check_writable", "is_versioned_npz", "load_npy"]
+           "check_writable", "is_versioned_npz", "load_npy", "claimed"]
 
 
 @contextlib.contextmanager
@@ -101,6 +101,39 @@ def locked(path):
     with fh:
         if fcntl is not None:
             fcntl.flock(fh.fileno(), fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            if fcntl is not None:
+                fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+
+
+@contextlib.contextmanager
+def claimed(path, what: str):
+    """Hold an exclusive lock on ``path`` (created if missing) for a whole run, or refuse at once.
+
+    A second run that would write the same results while the first still
+    runs gets a ValueError naming ``what``, instead of silently replacing the
+    first run's files. The lock goes with the process (``fcntl.flock``);
+    where ``fcntl`` does not exist (Windows) the block runs unlocked.
+    """
+    try:
+        import fcntl  # POSIX only
+    except ImportError:  # pragma: no cover - Windows
+        fcntl = None
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fh = open(path, "a")
+    except OSError as exc:
+        raise _write_error(exc, path) from exc
+    with fh:
+        if fcntl is not None:
+            try:
+                fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                raise ValueError(f"{what}: another run is writing it now; wait for it, or choose another "
+                                 "--out") from None
         try:
             yield
         finally:

@@ -23,7 +23,7 @@ from matplotlib.patches import Patch
 from vpr.checks import check_int, check_similarity
 from vpr.io import save_figure
 
-__all__ = ["plot_pr", "plot_similarity", "plot_bars"]
+__all__ = ["plot_pr", "plot_similarity", "plot_bars", "block_max", "block_any"]
 
 
 def _new_figure(figsize):
@@ -125,7 +125,7 @@ def plot_pr(curves, path, title=None, dpi=150, ap=None) -> Path:
 # --------------------------------------------------------------------------- #
 # similarity matrix
 # --------------------------------------------------------------------------- #
-def _block_max(S, fr, fc):
+def block_max(S, fr, fc):
     """Max-pool ``S`` in ``fr x fc`` blocks; never-matched entries become NaN.
 
     Max pooling keeps a strong match visible however far the matrix is shrunk,
@@ -148,7 +148,7 @@ def _block_max(S, fr, fc):
     return np.fmax.reduce(padded.reshape(out_shape[0], fr, out_shape[1], fc), axis=(1, 3))
 
 
-def _block_any(G, fr, fc):
+def block_any(G, fr, fc):
     n_db, n_q = G.shape
     out_shape = (-(-n_db // fr), -(-n_q // fc))
     if sp.issparse(G):
@@ -201,7 +201,7 @@ def _has_candidate(S, best_db):
 
 def plot_similarity(S, path, best_db=None, accepted=None, gt_hard=None, title=None,
                     max_pixels=1000, dpi=150, value_label="similarity", axis_labels=("database", "query"),
-                    gt_soft=None) -> Path:
+                    gt_soft=None, mask=None) -> Path:
     """Heatmap of a similarity matrix with best matches and ground truth.
 
     Database entries run down the y axis, queries along the x axis. Larger
@@ -234,6 +234,10 @@ def plot_similarity(S, path, best_db=None, accepted=None, gt_hard=None, title=No
         ``("earlier frame", "frame")`` for one stream's loop closures.
     gt_soft : like ``gt_hard``, optional
         Pairs neither right nor wrong (see ``accepted``).
+    mask : bool array or sparse bool matrix, shape (n_db, n_q), optional
+        The pairs evaluated (a loop closure's earlier frames far enough back):
+        the ground truth is drawn only there, not in the "no score" region
+        (a frame always matches itself and the frames just before it).
     title : str, optional
     max_pixels : int
         Display resolution limit per axis.
@@ -283,7 +287,7 @@ def plot_similarity(S, path, best_db=None, accepted=None, gt_hard=None, title=No
 
     fr = -(-n_db // max_pixels)
     fc = -(-n_q // max_pixels)
-    shown = _block_max(S, fr, fc)
+    shown = block_max(S, fr, fc)
     # pixel edges in original index units, so markers need no rescaling
     extent = (-0.5, n_q - 0.5, n_db - 0.5, -0.5)
 
@@ -301,7 +305,9 @@ def plot_similarity(S, path, best_db=None, accepted=None, gt_hard=None, title=No
     if not np.isfinite(shown).all():  # never scored: excluded pairs, SeqSLAM's edge queries, unstored entries
         handles.append(Patch(facecolor="0.92", edgecolor="0.7", label="no score"))
     if gt_hard is not None:
-        gt_shown = _block_any(gt_hard, fr, fc)
+        if mask is not None:
+            gt_hard = gt_hard.multiply(mask).tocsr() if sp.issparse(gt_hard) else gt_hard & np.asarray(mask, bool)
+        gt_shown = block_any(gt_hard, fr, fc)
         ax.imshow(np.ma.masked_where(~gt_shown, np.ones(gt_shown.shape)), cmap=ListedColormap(["red"]),
                   vmin=0, vmax=1, alpha=0.35, aspect="auto", interpolation="nearest", extent=extent)
         handles.append(Patch(facecolor="red", alpha=0.35, label="ground truth"))

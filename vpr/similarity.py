@@ -17,9 +17,11 @@ from numba import njit, types
 from numba.extending import intrinsic
 
 from vpr import sdr as _sdr
+from vpr.checks import check_top_k
 
 __all__ = ["overlap_similarity", "cosine", "neg_sad", "mean_abs_diff", "topk_sparse", "DENSE_PAIRS_LIMIT",
-           "best_matches", "mask_recent", "fits_dense", "top_k_or_dense", "check_dense", "pack_bits", "bitsets_pay"]
+           "best_matches", "mask_recent", "fits_dense", "top_k_or_dense", "check_dense", "pack_bits", "bitsets_pay",
+           "TOP_K"]
 
 #: Above this many database x query pairs a dense similarity matrix is refused: use ``top_k``.
 #: The one size limit of the project (also used to choose dense or top-K output).
@@ -237,8 +239,7 @@ def _topk_overlap_kernel(pa, pb, na, nb, norm, out_idx, out_val):  # pragma: no 
 
 def _check_top_k(top_k) -> int:
     top_k = int(top_k)
-    if top_k < 1:
-        raise ValueError(f"top_k must be >= 1, got {top_k}")
+    top_k = check_top_k(top_k, nullable=False)
     return top_k
 
 
@@ -343,6 +344,11 @@ def neg_sad(X, Y=None) -> np.ndarray:
 def fits_dense(n_db: int, n_q: int, limit: int | None = None) -> bool:
     """Whether a dense ``n_db x n_q`` matrix is within :data:`DENSE_PAIRS_LIMIT` (read at call time) and ``limit``."""
     return n_db * n_q <= (DENSE_PAIRS_LIMIT if limit is None else min(DENSE_PAIRS_LIMIT, limit))
+
+
+#: Frames kept per query where a dense matrix would be too large (every method's ``top_k``, SeqSLAM's
+#: single-frame candidates): the one default of the project.
+TOP_K = 50
 
 
 def top_k_or_dense(n_db: int, n_q: int, top_k: int, dense_pairs: int | None = None) -> int | None:

@@ -36,7 +36,7 @@ from vpr.similarity import fits_dense
 from .matrices import gt_from_positions
 
 __all__ = ["load_pairs_csv", "load_positions_csv", "gt_from_position_files", "load_traverse_positions",
-           "positions_of_frames", "positions_for"]
+           "positions_of_frames", "positions_for", "read_rows", "parse_float", "POSITION_COLUMNS"]
 
 
 _INT = re.compile(r"[+-]?\d+(?:\.0*)?")
@@ -49,14 +49,14 @@ def _parse_int(token: str) -> int | None:
     return None
 
 
-def _parse_float(token: str) -> float | None:
+def parse_float(token: str) -> float | None:
     try:
         return float(token)
     except ValueError:
         return None
 
 
-def _read_rows(path, n_cols: int, what: str) -> list[tuple[int, list[str]]]:
+def read_rows(path, n_cols: int, what: str) -> list[tuple[int, list[str]]]:
     """Content lines of a CSV file as (line number, stripped fields)."""
     path = Path(path)
     try:
@@ -189,7 +189,7 @@ def load_pairs_csv(path, n_db: int, n_q: int, db_names: Sequence[str] | None = N
                db_indices is not None, n_db),
     }
     label = {"query": columns[0], "db": columns[1]}
-    rows = _read_rows(path, 2, ",".join(columns))
+    rows = read_rows(path, 2, ",".join(columns))
 
     def resolve(token: str, role: str, where: str) -> tuple[int | None, str | None]:
         """(output row or None if the frame was not read, error message or None)."""
@@ -286,10 +286,10 @@ def _position_order(path, first_line: int, header: list[str]) -> tuple[int, int,
 
 
 def _load_positions(path):
-    rows = _read_rows(path, 3, "frame,x,y")
+    rows = read_rows(path, 3, "frame,x,y")
     first_line, first = rows[0]
     order = (0, 1, 2)  # headerless files are frame,x,y
-    if sum(_parse_float(t) is None for t in first) >= 2:
+    if sum(parse_float(t) is None for t in first) >= 2:
         # two fields that are not numbers: a header, read by name (an "x,y,frame" header must not be read as frame,x,y)
         order = _position_order(path, first_line, first)
         rows = rows[1:]
@@ -302,7 +302,7 @@ def _load_positions(path):
         if not frame:
             raise ValueError(f"{where}: empty frame field")
         for label, tok in (("x", xs), ("y", ys)):
-            v = _parse_float(tok)
+            v = parse_float(tok)
             if v is None:
                 raise ValueError(f"{where}: {label} {tok!r} is not a number")
             if not math.isfinite(v):
@@ -406,7 +406,7 @@ def gt_from_position_files(db_csv, q_csv, radius: float, db_names: Sequence[str]
     numpy.ndarray or scipy.sparse.csr_matrix
         bool (n_db, n_q); sparse above :data:`~vpr.similarity.DENSE_PAIRS_LIMIT` pairs.
     """
-    r = _parse_float(str(radius)) if not isinstance(radius, bool) else None
+    r = parse_float(str(radius)) if not isinstance(radius, bool) else None
     if r is None or not math.isfinite(r) or r < 0:
         raise ValueError(f"radius must be a finite number >= 0, got {radius!r}")
     db_xy = _positions_for_frames(db_csv, db_names, db_indices, "database")
@@ -515,7 +515,7 @@ def load_loop_pairs(path, traverse: str | None, indices: Sequence[int]) -> np.nd
     only (a stream read from stdin has no traverse name). Pairs with a frame
     that was not read are left out.
     """
-    rows = _read_rows(path, 4, ",".join(LOOP_PAIRS_HEADER))[1:]
+    rows = read_rows(path, 4, ",".join(LOOP_PAIRS_HEADER))[1:]
     names = {r[0] for _, r in rows}
     if traverse not in names and len(names) > 1:  # None (stdin): the file's only traverse
         raise ValueError(f"{path}: no loop pairs of traverse {traverse!r}; traverses: {', '.join(sorted(names))}")

@@ -11,15 +11,15 @@ import numpy as np
 from vpr.similarity import fits_dense
 
 from .files import (
-    _parse_float,
-    _read_rows,
     gt_from_position_files,
     is_loop_pairs_file,
     load_loop_pairs,
     load_pairs_csv,
     load_traverse_positions,
+    parse_float,
     positions_for,
     positions_of_frames,
+    read_rows,
 )
 from .formats import db_query_matrix, is_matrix_file, loop_matrix, split_variable
 from .matrices import gt_from_frames, gt_from_positions
@@ -76,7 +76,7 @@ class GroundTruthSpec:
         if tol is not None and (isinstance(tol, bool) or not isinstance(tol, (int, np.integer)) or tol < 0):
             raise ValueError(f"--tolerance must be an integer >= 0 (frames), got {tol!r}")
         for name, v in (("--radius", radius), ("--gt-soft", soft)):
-            if v is not None and (isinstance(v, bool) or _parse_float(str(v)) is None or not math.isfinite(v)
+            if v is not None and (isinstance(v, bool) or parse_float(str(v)) is None or not math.isfinite(v)
                                   or v < 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {v!r}")
         if tol is not None and files:
@@ -282,4 +282,4 @@ def check_loop_gt_files(spec: GroundTruthSpec, traverse: str | None = None) -> N
     elif is_loop_pairs_file(files[0]):
         load_loop_pairs(files[0], traverse, [])
     else:
-        _read_rows(files[0], 2, "frame,earlier")
+        read_rows(files[0], 2, "frame,earlier")

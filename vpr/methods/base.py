@@ -16,6 +16,7 @@ import time
 
 import numpy as np
 
+from vpr.checks import check_exclude, check_top_k
 from vpr.config import merge_conf
 from vpr.similarity import best_matches, mask_recent
 from vpr.types import ENCODER_INPUTS, EncodedTraverse, ImageInput, MatchResult
@@ -54,6 +55,8 @@ class Method:
 
     def __init__(self, **conf):
         self.conf = merge_conf(self.default_conf, conf, self.name, nullable=self.nullable_conf)
+        if "top_k" in self.conf:
+            check_top_k(self.conf["top_k"], f"{self.name}: top_k", nullable="top_k" in self.nullable_conf)
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({', '.join(f'{k}={v!r}' for k, v in self.conf.items())})"
@@ -81,12 +84,21 @@ class Method:
         which would be reported as the method's matching time.
         """
 
+    @property
+    def supports_loops(self) -> bool:
+        """Whether :meth:`loops` (loop closure within one traverse) is implemented."""
+        return type(self)._loops is not Method._loops
+
     def accept(self, best: np.ndarray, score: np.ndarray) -> np.ndarray:
         """Accept a best match when there is one with a finite score (subclasses add their evidence test)."""
         return (best >= 0) & np.isfinite(score)
 
     def _match(self, db: EncodedTraverse, query: EncodedTraverse, progress: bool):
-        """(similarity, best_db, score, accepted or None to use :meth:`accept`)."""
+        """(similarity, best_db, score, accepted or None to use :meth:`accept`).
+
+        Methods that learn the database implement :meth:`_fit` and
+        :meth:`_match_fitted` instead (:meth:`match` is ``fit``, then the fitted match).
+        """
         raise NotImplementedError
 
     def _fit(self, db: EncodedTraverse, progress: bool):
@@ -130,9 +142,8 @@ class Method:
         similarity of the best match, or a method's own per-frame score).
         Methods that cannot do this raise ValueError.
         """
-        if int(exclude) < 1:
-            raise ValueError(f"exclude must be >= 1, got {exclude}")
-        if type(self)._loops is Method._loops:
+        exclude = check_exclude(exclude)
+        if not self.supports_loops:
             raise ValueError(self.no_loops_reason or f"{self.name} does not support loop closure within one traverse")
         self.check_size(len(seq), len(seq))
         self.warm_up()

@@ -5,8 +5,8 @@ import numpy as np
 
 from vpr import similarity
 from vpr.checks import check_choice
-from vpr.pairwise import pairwise
-from vpr.similarity import best_matches, check_dense, top_k_or_dense
+from vpr.frame_pairs import METRICS, pairwise
+from vpr.similarity import TOP_K, best_matches, check_dense, top_k_or_dense
 from vpr.types import EncodedTraverse
 
 from .base import Method
@@ -17,18 +17,19 @@ __all__ = ["Pairwise"]
 class Pairwise(Method):
     """Pairwise comparison of SDRs (``on="sdr"``, overlap) or dense descriptors (``on="descriptor"``).
 
-    Conf: ``on``, ``metric`` (see :func:`vpr.pairwise.pairwise`) and
+    Conf: ``on``, ``metric`` (see :func:`vpr.frame_pairs.pairwise`) and
     ``top_k`` (entries kept per query when the SDR similarity is too large to
     be dense; dense descriptors have no sparse form and are refused then).
     """
 
     name = "pairwise"
     score_label = "similarity of the two frames (SDR overlap or descriptor)"
-    default_conf = {"on": "sdr", "metric": "auto", "top_k": 50}
+    default_conf = {"on": "sdr", "metric": "auto", "top_k": TOP_K}
 
     def __init__(self, **conf):
         super().__init__(**conf)
         check_choice(self.conf["on"], f"{self.name}: on", ("sdr", "descriptor"))
+        check_choice(self.conf["metric"], f"{self.name}: metric", METRICS)
 
     @property
     def _attr(self) -> str:

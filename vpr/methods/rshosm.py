@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from vpr import sdr, similarity
 from vpr.shosm import SequenceMemory, pad_codes
-from vpr.similarity import best_matches, top_k_or_dense
+from vpr.similarity import TOP_K, best_matches, top_k_or_dense
 from vpr.types import EncodedTraverse
 
 from .base import Method
@@ -29,9 +29,16 @@ class Rshosm(Method):
 
     name = "rshosm"
     score_label = "winner-cell overlap"
-    default_conf = {**SequenceMemory.default_params(), "top_k": 50}
+    default_conf = {**SequenceMemory.default_params(), "top_k": TOP_K}
     nullable_conf = frozenset({"seed"})
     required_inputs = ("sdr",)
+
+    def __init__(self, **conf):
+        super().__init__(**conf)
+        try:  # checked here, where the conf is built, not when the first memory is
+            SequenceMemory.check_params(**{k: self.conf[k] for k in SequenceMemory.default_params()})
+        except ValueError as e:
+            raise ValueError(f"{self.name}: {e}") from None
 
     def memory(self) -> SequenceMemory:
         """A new, empty memory with this method's parameters."""
@@ -49,9 +56,6 @@ class Rshosm(Method):
         db_codes = mem.run(self.need(db, "sdr", "database"), progress=progress)
         mem.reset()
         return mem, db_codes
-
-    def _match(self, db: EncodedTraverse, query: EncodedTraverse, progress: bool):
-        return self._match_fitted(self._fit(db, progress), db, query, progress)
 
     def _match_fitted(self, state, db: EncodedTraverse, query: EncodedTraverse, progress: bool):
         mem, db_codes = state

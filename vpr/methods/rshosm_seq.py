@@ -10,12 +10,12 @@ from __future__ import annotations
 from vpr import sdr
 from vpr.shosm import (
     DENSE_EVIDENCE_PAIRS,
-    BeamConf,
-    EvidenceConf,
-    LoopConf,
+    LOOP_EXCLUDE,
+    Localizer,
+    LoopDetector,
+    RshosmSeqConf,
     SequenceMemory,
     loop_evidence,
-    memory_params,
     query_evidence,
 )
 from vpr.similarity import top_k_or_dense
@@ -30,15 +30,22 @@ __all__ = ["RshosmSeq"]
 class RshosmSeq(Method):
     """Learn the database with rSHOSM, then score the query by graded sequence evidence.
 
-    Conf: the :class:`~vpr.shosm.SequenceMemory` parameters (rSHOSM-seq's
-    learning threshold, :data:`vpr.shosm.LEARN_THRESHOLD`), the
-    :class:`~vpr.shosm.EvidenceConf` (``decay``, ``stay``, ``skip`` -- a float
-    >= 0, or ``None``, ``"none"`` on the command line, to disable that
-    transition -- and ``normalise``), ``direction`` (``"both"`` or the causal
-    ``"forward"``), ``top_k`` (database frames kept per query when database x
-    query exceeds :data:`~vpr.shosm.DENSE_EVIDENCE_PAIRS`); for
-    :meth:`loops`: the :class:`~vpr.shosm.LoopConf` (``drift``, ``min_score``,
-    ``back``, ``ahead``, ``island``, ``stop_ratio``; :func:`vpr.shosm.accept_loops`).
+    Conf: the flat keys of :class:`vpr.shosm.RshosmSeqConf`, built and
+    checked once here (``self.seq``): the :class:`~vpr.shosm.SequenceMemory`
+    parameters (rSHOSM-seq's learning threshold,
+    :data:`vpr.shosm.LEARN_THRESHOLD`), the :class:`~vpr.shosm.EvidenceConf`
+    (``decay``, ``stay``, ``skip`` -- a float >= 0, or ``None``, ``"none"`` on
+    the command line, to disable that transition -- and ``normalise``), the
+    beam (:class:`~vpr.shosm.BeamConf`), ``direction`` (``"both"`` or the causal
+    ``"forward"``), ``top_k`` (frames kept per query when database x query
+    exceeds :data:`~vpr.shosm.DENSE_EVIDENCE_PAIRS`), ``exact`` and the
+    decision (``drift``, ``min_score``, ``back``, ``ahead``, ``island``,
+    ``stop_ratio``: :class:`~vpr.shosm.LoopConf` in one stream,
+    :class:`~vpr.shosm.PathConf` against a map, each with its own defaults).
+
+    The method hands out its online forms with the same conf:
+    :meth:`loop_detector` (loop closure frame by frame, the answers of
+    :meth:`loops`) and :meth:`localizer` (a learned map).
 
     Up to :data:`~vpr.shosm.DENSE_EVIDENCE_PAIRS` pairs (where the sparse path
     becomes the faster one) the evidence is dense (every cell, every frame); above
@@ -50,15 +57,22 @@ class RshosmSeq(Method):
 
     name = "rshosm-seq"
     score_label = "z-score of the sequence evidence"
-    default_conf = {**memory_params(), **EvidenceConf().as_dict(), "direction": "both", "top_k": 50,
-                    **LoopConf().as_dict()}  # loops only (vpr.shosm.accept_loops; docs/loops.md)
-    nullable_conf = frozenset({"seed", "stay", "skip"})
+    default_conf = RshosmSeqConf.defaults()
+    nullable_conf = RshosmSeqConf.NULLABLE
     required_inputs = ("sdr",)
 
     def __init__(self, **conf):
         super().__init__(**conf)
-        self.evidence_conf = EvidenceConf.from_conf(self.conf)  # refuses bad values now
-        self.loop_conf = LoopConf.from_conf(self.conf)
+        #: the conf, built and checked once: every value is refused here, before any work
+        self.seq = RshosmSeqConf.build(self.conf, self.name)
+
+    def loop_detector(self, encoder=None, exclude: int = LOOP_EXCLUDE) -> LoopDetector:
+        """Loop closure one frame at a time with this conf (``vpr loops -``): the answers of :meth:`loops`."""
+        return LoopDetector(encoder, self.seq, exclude=exclude)
+
+    def localizer(self, db_sdr, names, progress: bool = False) -> Localizer:
+        """Learn the database ``db_sdr`` (named ``names``) into a :class:`vpr.shosm.Localizer` with this conf."""
+        return Localizer.from_database(db_sdr, names, progress=progress, conf=self.seq)
 
     def warm_up(self) -> None:
         mem = warm_up_memory()
@@ -69,21 +83,18 @@ class RshosmSeq(Method):
         query_evidence(mem, tiny, codes, top_k=1)
 
     def _fit(self, db: EncodedTraverse, progress: bool):
-        mem = SequenceMemory(**memory_params(self.conf))
+        mem = SequenceMemory(**self.seq.memory_params)
         db_codes = mem.run(self.need(db, "sdr", "database"), progress=progress)
         mem.reset()
         return mem, db_codes
 
-    def _match(self, db: EncodedTraverse, query: EncodedTraverse, progress: bool):
-        return self._match_fitted(self._fit(db, progress), db, query, progress)
-
     def _match_fitted(self, state, db: EncodedTraverse, query: EncodedTraverse, progress: bool):
-        c = self.conf
+        seq = self.seq
         mem, db_codes = state  # read, never changed, by the evidence
         q_sdr = self.need(query, "sdr", "query")
-        top_k = top_k_or_dense(len(db), len(query), c["top_k"], DENSE_EVIDENCE_PAIRS)
-        r = query_evidence(mem, q_sdr, db_codes, self.evidence_conf, direction=c["direction"], top_k=top_k,
-                           beam=BeamConf(), progress=progress)
+        top_k = top_k_or_dense(len(db), len(query), seq.top_k, DENSE_EVIDENCE_PAIRS) if seq.top_k else None
+        r = query_evidence(mem, q_sdr, db_codes, seq.evidence, direction=seq.direction, top_k=top_k,
+                           beam=seq.beam, progress=progress)
         return r.similarity, r.best_db, r.score, None
 
     def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool):
@@ -98,7 +109,6 @@ class RshosmSeq(Method):
         :func:`vpr.shosm.accept_loops`.
         """
         x = self.need(seq, "sdr", "loop")
-        ev = loop_evidence(x, exclude=int(exclude), conf=self.evidence_conf, memory=memory_params(self.conf),
-                           loop=self.loop_conf, progress=progress)
+        ev = loop_evidence(x, exclude=int(exclude), conf=self.seq, progress=progress)
         d = ev.decisions
         return ev.similarity, (d.best, d.score, d.accepted)

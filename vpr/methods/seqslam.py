@@ -13,9 +13,9 @@ from __future__ import annotations
 import numpy as np
 
 from vpr import similarity
-from vpr.checks import check_choice
-from vpr.seqslam import difference_matrix, pixel_descriptors, seqslam, seqslam_topk
-from vpr.similarity import check_dense, top_k_or_dense
+from vpr.checks import check_choice, check_int
+from vpr.seqslam import check_sequence_params, difference_matrix, pixel_descriptors, seqslam, seqslam_topk
+from vpr.similarity import TOP_K, check_dense, top_k_or_dense
 from vpr.types import EncodedTraverse, ImageInput
 
 from .base import Method
@@ -54,7 +54,7 @@ class SeqSlam(Method):
     score_label = "-difference along the best trajectory (darkest rows: no full trajectory fits, ranked last)"
     default_conf = {"ds": 10, "v_min": 0.8, "v_max": 1.2, "v_step": 0.1, "R": 10, "rwindow": 10,
                     "ratio_threshold": 0.9, "causal": False, "metric": "sad", "descriptor": "pixel",
-                    "large": "pairwise", "top_k": 50, "n_candidates": 50}
+                    "large": "pairwise", "top_k": TOP_K, "n_candidates": TOP_K}
 
     image_inputs = {"pixels": PIXELS}
 
@@ -63,6 +63,15 @@ class SeqSlam(Method):
         check_choice(self.conf.get("descriptor", "encoder"), f"{self.name}: descriptor", _DESCRIPTORS)
         check_choice(self.conf["metric"], f"{self.name}: metric", ("sad", "cosine"))
         check_choice(self.conf["large"], f"{self.name}: large", _LARGE)
+        try:  # every value checked here, where the conf is built, not where it is first used
+            if self.conf["ds"] == 0:
+                raise ValueError("ds: must be an integer >= 1, got 0 (sequences of one frame: that is the pairwise "
+                                 "method)")
+            check_sequence_params(**{k: self.conf[k] for k in _SEQSLAM_ARGS})
+            for key in ("top_k", "n_candidates"):
+                check_int(self.conf[key], key, 1)
+        except ValueError as e:
+            raise ValueError(f"{self.name}: {e}") from None
         self._large = False
 
     @property
@@ -74,6 +83,11 @@ class SeqSlam(Method):
         return (self._attr,)
 
     def check_size(self, n_db: int, n_q: int) -> None:
+        ds = self.conf["ds"]
+        for n, role in ((n_q, "query"), (n_db, "database")):
+            if ds >= n:
+                raise ValueError(f"{self.name}: ds={ds} is a sequence of {ds + 1} frames, but the {role} has {n}: "
+                                 "no frame has a whole sequence (a smaller ds, or more frames)")
         # remembered for warm_up: the blocked kernels are compiled only when they will run
         self._large = top_k_or_dense(n_db, n_q, 1) is not None
 

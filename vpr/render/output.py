@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 
 from ..io import atomic_open, atomic_path, save_image, save_json
-from .scene import SceneRenderer, _apply_overrides, loop_pairs
+from .scene import SceneRenderer, apply_overrides, loop_pairs
 from .spec import load_spec
 
 __all__ = ["write_scene", "contact_sheet"]
@@ -108,7 +108,7 @@ def write_scene(spec, out_dir, preview: bool = False, video: bool = False, trave
     """
     from tqdm import tqdm
 
-    resolved = _apply_overrides(load_spec(spec), size, n_frames, traverses, seed)
+    resolved = apply_overrides(load_spec(spec), size, n_frames, traverses, seed)
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise ValueError(f"out_dir: {out} exists and is not a folder")

@@ -9,10 +9,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .engine import Camera, ConditionAtlas, FrameRenderer, plan_traverse, texture_resolution
-from .spec import _check_size, _Ctx, load_spec
+from .spec import SpecContext, check_spec_size, load_spec
 from .world import LANE_CENTRE, build_world, route_polyline
 
-__all__ = ["Traverse", "Scene", "SceneRenderer", "render_scene", "gt_matrix", "loop_pairs"]
+__all__ = ["Traverse", "Scene", "SceneRenderer", "render_scene", "gt_matrix", "loop_pairs", "apply_overrides"]
 
 
 @dataclass
@@ -79,14 +79,14 @@ class Scene:
         return [t.name for t in self.traverses]
 
 
-def _apply_overrides(spec, size=None, n_frames=None, traverses=None, seed=None) -> dict:
+def apply_overrides(spec, size=None, n_frames=None, traverses=None, seed=None) -> dict:
     spec = copy.deepcopy(spec)
-    ctx = _Ctx("render_scene")
+    ctx = SpecContext("render_scene")
     if size is not None:
         if not isinstance(size, (tuple, list)) or len(size) != 2 or not all(
                 isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in size):
             raise ValueError(f"size: expected (width, height) integers, got {size!r}")
-        _check_size(ctx, "size", (int(size[0]), int(size[1])))
+        check_spec_size(ctx, "size", (int(size[0]), int(size[1])))
         spec["camera"]["size"] = [int(size[0]), int(size[1])]
     if n_frames is not None:
         if isinstance(n_frames, bool) or not isinstance(n_frames, (int, np.integer)) or n_frames < 1:
@@ -201,7 +201,7 @@ def render_scene(spec, size=None, n_frames=None, traverses=None, seed=None, prog
     -------
     Scene
     """
-    resolved = _apply_overrides(load_spec(spec), size, n_frames, traverses, seed)
+    resolved = apply_overrides(load_spec(spec), size, n_frames, traverses, seed)
     r = SceneRenderer(resolved, n_frames)
     return Scene(spec=resolved, traverses=[r.traverse(t, progress) for t in resolved["traverses"]])
 

@@ -23,7 +23,7 @@ import zlib
 from importlib import resources
 from pathlib import Path
 
-__all__ = ["load_spec", "builtin_spec_path", "builtin_specs", "CONDITION_PRESETS"]
+__all__ = ["load_spec", "builtin_spec_path", "builtin_specs", "CONDITION_PRESETS", "SpecContext", "check_spec_size"]
 
 TIMES = ("day", "dusk", "night")
 SEASONS = ("spring", "summer", "autumn", "winter")
@@ -58,7 +58,7 @@ _KIND_DEFAULTS = {
 }
 
 
-class _Ctx:
+class SpecContext:
     """Where a value came from, for error messages: the file (or source) and the key path."""
 
     def __init__(self, source: str):
@@ -166,7 +166,7 @@ def _resolve_camera(ctx, c, kind):
         ctx.fail("camera.size", f"expected [width, height], got {size!r}")
     w = _num(ctx, "camera.size[0]", size[0], integer=True)
     h = _num(ctx, "camera.size[1]", size[1], integer=True)
-    _check_size(ctx, "camera.size", (w, h))
+    check_spec_size(ctx, "camera.size", (w, h))
     d = _KIND_DEFAULTS[kind]
     return {
         "size": [w, h],
@@ -177,7 +177,7 @@ def _resolve_camera(ctx, c, kind):
     }
 
 
-def _check_size(ctx, key, size):
+def check_spec_size(ctx, key, size):
     w, h = size
     if w < 16 or h < 16:
         ctx.fail(key, f"image size must be at least 16 x 16 pixels, got {w} x {h}")
@@ -252,7 +252,7 @@ def _resolve_traverse(ctx, i, t, world):
 
 def resolve(spec: dict, source: str = "<spec>") -> dict:
     """Validate a spec dictionary and return a resolved deep copy (defaults filled)."""
-    ctx = _Ctx(source)
+    ctx = SpecContext(source)
     _obj(ctx, "", spec, {"name", "description", "world", "camera", "traverses"})
     world = _resolve_world(ctx, spec.get("world", {}))
     out = {

@@ -31,9 +31,16 @@ Where OpenSeqSLAM leaves a value undefined (the first and last ``ds / 2``
 queries, databases shorter than a trajectory) this module defines one; every
 such choice is listed in the docstring of :func:`seqslam`.
 """
-from .dense import SeqSLAMResult, match_images, pixel_descriptors, seqslam, trajectory_offsets
+from .dense import (
+    SeqSLAMResult,
+    check_sequence_params,
+    match_images,
+    pixel_descriptors,
+    seqslam,
+    trajectory_offsets,
+)
 from .difference import difference_matrix, enhance_contrast
 from .topk import SeqSLAMTopK, seqslam_topk
 
 __all__ = ["SeqSLAMResult", "difference_matrix", "enhance_contrast", "trajectory_offsets", "seqslam",
-           "match_images", "pixel_descriptors", "SeqSLAMTopK", "seqslam_topk"]
+           "match_images", "pixel_descriptors", "SeqSLAMTopK", "seqslam_topk", "check_sequence_params"]

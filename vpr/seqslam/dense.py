@@ -148,7 +148,10 @@ def _trajectory_scores(DD: np.ndarray, offsets: np.ndarray, ds: int, causal: boo
 
 
 def check_sequence_params(ds, causal, v_min, v_max, v_step, R, rwindow, ratio_threshold):
-    """The trajectory and enhancement parameters shared by :func:`seqslam` and :func:`seqslam_topk`."""
+    """The trajectory and enhancement parameters shared by :func:`seqslam` and :func:`seqslam_topk`.
+
+    ``ds`` 0 is sequences of one frame (the enhanced single-frame differences; the ``seqslam`` method refuses it).
+    """
     ds = check_int(ds, "ds", 0)
     if not causal and ds % 2:
         raise ValueError(f"ds: must be even for the centred window (OpenSeqSLAM rounds it up), got {ds}")

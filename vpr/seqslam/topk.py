@@ -7,8 +7,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from vpr import sdr as _sdr
-from vpr.checks import check_int
-from vpr.similarity import bitsets_pay, mean_abs_diff, overlap_similarity
+from vpr.checks import check_int, check_top_k
+from vpr.similarity import TOP_K, bitsets_pay, mean_abs_diff, overlap_similarity
 
 from . import kernels as K
 from .dense import check_sequence_params
@@ -198,8 +198,8 @@ def _windows(ptr, rows, q0: int, q1: int, n_db: int, n_windows: int, v_min: floa
     return out
 
 
-def seqslam_topk(db_desc, q_desc, top_k: int = 50, metric: str = "sad", block: int | None = None,
-                 candidates=None, n_candidates: int = 50, candidate_stride: int = 4, n_windows: int = 4,
+def seqslam_topk(db_desc, q_desc, top_k: int = TOP_K, metric: str = "sad", block: int | None = None,
+                 candidates=None, n_candidates: int = TOP_K, candidate_stride: int = 4, n_windows: int = 4,
                  ds: int = 10,
                  v_min: float = 0.8, v_max: float = 1.2, v_step: float = 0.1, R: int = 10,
                  rwindow: int = 10, ratio_threshold: float = 0.9, causal: bool = False,
@@ -279,7 +279,7 @@ def seqslam_topk(db_desc, q_desc, top_k: int = 50, metric: str = "sad", block: i
     """
     desc = _Descriptors(db_desc, q_desc, metric)
     n_db, n_q = desc.n_db, desc.n_q
-    top_k = check_int(top_k, "top_k", 1)
+    top_k = check_top_k(top_k, nullable=False)
     ds, velocities, offsets, R, rwindow, ratio_threshold = check_sequence_params(
         ds, causal, v_min, v_max, v_step, R, rwindow, ratio_threshold)
     n_windows = check_int(n_windows, "n_windows", 1)

@@ -11,19 +11,30 @@ evidence, loop closure, the localizer) reads its defaults from here:
   (``normalise``).
 * :class:`BeamConf`: the floors and caps of the sparse evidence (the beam), and
   :data:`DENSE_EVIDENCE_PAIRS`, the size above which the sparse evidence is used.
-* :class:`LoopConf`: when a loop closure is accepted (:func:`vpr.shosm.accept_loops`).
+* :class:`LoopConf`: when a loop closure is accepted (:func:`vpr.shosm.accept_loops`);
+  :class:`PathConf`: when a localisation against a map is.
+* :class:`RshosmSeqConf`: all of them as one frozen conf, built and checked
+  once (by ``methods.get("rshosm-seq", ...)`` or :meth:`RshosmSeqConf.build`),
+  which the method, loop closure, the :class:`vpr.shosm.LoopDetector` and the
+  :class:`vpr.shosm.Localizer` take whole. Its flat keys are the
+  ``--method-conf rshosm-seq.KEY=VALUE`` of every command.
 """
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields
+from types import MappingProxyType
 
 import numpy as np
+
+from vpr.checks import check_top_k
+from vpr.config import coerce_value, merge_conf
+from vpr.similarity import TOP_K
 
 from .memory import SequenceMemory
 
 __all__ = ["LEARN_THRESHOLD", "LOOP_EXCLUDE", "DENSE_EVIDENCE_PAIRS", "EvidenceConf", "BeamConf", "LoopConf",
-           "PathConf", "memory_params"]
+           "PathConf", "memory_params", "RshosmSeqConf", "DECISION_KEYS"]
 
 #: Minicolumn threshold of the memory that rSHOSM-seq learns (the paper's is 0.25).
 LEARN_THRESHOLD = 0.75
@@ -235,3 +246,147 @@ class LoopConf(PathConf):
         super().__post_init__()
         if not 0.0 <= float(self.stop_ratio) < 1.0:
             raise ValueError(f"stop_ratio must be in [0, 1) (0: stops are not checked), got {self.stop_ratio}")
+
+
+#: The decision's keys (:class:`LoopConf`'s, which extends :class:`PathConf` by ``stop_ratio``). In
+#: :class:`RshosmSeqConf` a decision key left None takes the default of the setting that decides:
+#: :class:`LoopConf` in one stream, :class:`PathConf` against a map (each written once, there).
+DECISION_KEYS = LoopConf.keys()
+
+#: rSHOSM-seq's own keys besides the memory, the evidence, the beam and the decision: ``direction`` of the
+#: batch evidence (``"both"``, or the causal ``"forward"``), ``top_k`` (frames kept per query: database frames
+#: above :data:`DENSE_EVIDENCE_PAIRS`, earlier frames reported per frame in loop closure, the localizer's
+#: candidates; None: all), ``exact`` (the localizer's dense column instead of the beam).
+_OWN = MappingProxyType({"direction": "both", "top_k": TOP_K, "exact": False})
+_DIRECTIONS = ("both", "forward")
+
+
+@dataclass(frozen=True)
+class RshosmSeqConf:
+    """rSHOSM-seq's whole conf, one frozen object: the memory, the evidence, the beam, the decision.
+
+    Built and checked once, by :meth:`build` (``methods.get("rshosm-seq",
+    **conf)`` does it); the batch method, loop closure (:func:`loop_evidence`,
+    :class:`LoopDetector`) and the :class:`Localizer` take it whole, so a
+    setting means the same everywhere and its default is written once (in
+    :class:`SequenceMemory`, :class:`EvidenceConf`, :class:`BeamConf`,
+    :class:`LoopConf` / :class:`PathConf`, and :data:`_OWN` for
+    ``direction``, ``top_k``, ``exact``). :meth:`flat` gives the flat keys of
+    ``--method-conf rshosm-seq.KEY=VALUE``.
+
+    Attributes
+    ----------
+    memory : mapping
+        :class:`SequenceMemory` parameters (threshold :data:`LEARN_THRESHOLD`).
+    evidence : EvidenceConf
+    beam : BeamConf
+    decision : mapping
+        The decision keys (:data:`DECISION_KEYS`) given; None: the setting's default.
+    direction, top_k, exact
+        See :data:`_OWN`.
+    """
+
+    memory: Mapping
+    evidence: EvidenceConf
+    beam: BeamConf
+    decision: Mapping
+    direction: str
+    top_k: int | None
+    exact: bool
+
+    #: Keys that also take None ("none" on the command line).
+    NULLABLE = frozenset({"seed", "stay", "skip", "top_k", "max_beam", "max_enter", *DECISION_KEYS})
+
+    def __reduce__(self):  # pickled as its flat keys (a map shipped to a Dask cluster holds one)
+        return RshosmSeqConf.build, (self.flat(),)
+
+    @staticmethod
+    def defaults() -> dict:
+        """Every flat key with its default (decision keys None: the setting's own)."""
+        return {**memory_params(), **EvidenceConf().as_dict(), **BeamConf().as_dict(), **_OWN,
+                **dict.fromkeys(DECISION_KEYS)}
+
+    @classmethod
+    def build(cls, conf: Mapping | None = None, what: str = "rshosm-seq") -> RshosmSeqConf:
+        """The conf of the flat keys ``conf`` over the defaults, every value checked.
+
+        Strings (the command line's) are read as the default's type; unknown
+        keys and bad values raise ValueError naming ``what`` and the key.
+        """
+        flat = merge_conf(cls.defaults(), conf, what, nullable=cls.NULLABLE)
+        try:
+            memory = SequenceMemory.check_params(**{k: flat[k] for k in memory_params()})
+            evidence = EvidenceConf.from_conf(flat)
+            beam = BeamConf.from_conf(flat)
+            loop = LoopConf()
+            decision = {k: None if flat[k] is None else coerce_value(k, flat[k], getattr(loop, k))
+                        for k in DECISION_KEYS}
+            LoopConf(**{k: v for k, v in decision.items() if v is not None})  # refuses bad values now
+            PathConf(**{k: v for k, v in decision.items() if v is not None and k in PathConf.keys()})
+            if flat["direction"] not in _DIRECTIONS:
+                raise ValueError(f"direction must be one of {_DIRECTIONS}, got {flat['direction']!r}")
+            top_k = check_top_k(flat["top_k"])
+        except ValueError as e:
+            raise ValueError(f"{what}: {e}") from None
+        return cls(MappingProxyType(memory), evidence, beam, MappingProxyType(decision), flat["direction"],
+                   None if top_k is None else int(top_k), bool(flat["exact"]))
+
+    @classmethod
+    def of(cls, *confs, **flat) -> RshosmSeqConf:
+        """One conf of ``confs`` (each an :class:`RshosmSeqConf`, one of its parts such as an
+        :class:`EvidenceConf`, a mapping of flat keys, or None), later ones and the flat keys ``flat`` over earlier.
+
+        The library's entry points take their conf this way, so that
+        ``loop_evidence(x, conf=EvidenceConf(stay=None))``,
+        ``LoopDetector(decay=0.8)`` and ``Localizer.from_database(db, names,
+        conf=method.seq)`` all end in one checked :class:`RshosmSeqConf`.
+        """
+        if len(confs) == 1 and isinstance(confs[0], RshosmSeqConf) and not flat:
+            return confs[0]
+        merged: dict = {}
+        for c in confs:
+            if c is None:
+                continue
+            if isinstance(c, RshosmSeqConf):
+                merged.update(c.flat())
+            elif isinstance(c, _Conf):
+                merged.update(c.as_dict())
+            elif isinstance(c, Mapping):
+                merged.update(c)
+            else:
+                raise TypeError(f"an rshosm-seq conf is a RshosmSeqConf, one of its parts or a mapping, got "
+                                f"{type(c).__name__}")
+        return cls.build({**merged, **flat})
+
+    def flat(self) -> dict:
+        """The flat keys and values (``--method-conf rshosm-seq.KEY=VALUE``; saved in map and detector files)."""
+        return {**self.memory, **self.evidence.as_dict(), **self.beam.as_dict(), "direction": self.direction,
+                "top_k": self.top_k, "exact": self.exact, **self.decision}
+
+    def replace(self, **flat) -> RshosmSeqConf:
+        """This conf with some flat keys changed (checked as :meth:`build`)."""
+        return RshosmSeqConf.build({**self.flat(), **flat})
+
+    @property
+    def memory_params(self) -> dict:
+        """The :class:`SequenceMemory` parameters, as a dict."""
+        return dict(self.memory)
+
+    def loop(self) -> LoopConf:
+        """The decision within one stream: the keys given over :class:`LoopConf`'s defaults."""
+        return LoopConf(**{k: v for k, v in self.decision.items() if v is not None})
+
+    def path(self) -> PathConf:
+        """The decision against a map: the keys given over :class:`PathConf`'s defaults.
+
+        ``stop_ratio`` is loop closure's (a stop is not a revisit); against a map it is refused.
+        """
+        if self.decision.get("stop_ratio") is not None:
+            raise ValueError("rshosm-seq: stop_ratio applies to loop closure within one stream, not to localisation "
+                             "against a map")
+        return PathConf(**{k: v for k, v in self.decision.items() if v is not None and k in PathConf.keys()})
+
+    def resolved(self, setting: str) -> dict:
+        """The flat keys with the decision of ``setting`` (``"loops"`` or ``"map"``) filled in (for metrics.json)."""
+        rule = self.loop() if setting == "loops" else self.path()
+        return {**self.flat(), **rule.as_dict()}

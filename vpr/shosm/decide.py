@@ -14,6 +14,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from vpr import sdr as _sdr
+from vpr.checks import check_exclude
 
 from .conf import LoopConf, PathConf
 from .kernels import decide as KD
@@ -200,8 +201,7 @@ def accept_loops(evidence, conf: LoopConf | None = None, sdr=None, exclude: int 
         if sp.issparse(S):
             raise ValueError("a top-K loop matrix needs the z of its missing candidates: pass the LoopEvidence")
     exclude = int(exclude)
-    if exclude < 1:
-        raise ValueError(f"exclude must be >= 1, got {exclude}")
+    exclude = check_exclude(exclude)
     T = S.shape[1]
     decider = LoopDecider(conf if sdr is not None else LoopConf(**{**conf.as_dict(), "stop_ratio": 0.0}), T)
     x = None if sdr is None else _sdr.check_batch(sdr, name="sdr")

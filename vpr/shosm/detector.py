@@ -26,25 +26,16 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
-from vpr import io as _io
-from vpr.config import merge_conf
+from vpr.checks import check_int
 
-from .conf import LOOP_EXCLUDE, EvidenceConf, LoopConf, memory_params
+from .conf import LOOP_EXCLUDE, RshosmSeqConf
 from .loops import LoopStream
-from .memory import MemoryFileError
+from .state import load_state, save_state
 
-__all__ = ["LoopDetector", "LoopResult", "LOOP_DETECTOR_DEFAULTS"]
+__all__ = ["LoopDetector", "LoopResult"]
 
 _FORMAT = "vpr.LoopDetector"
 _FORMAT_VERSION = 1
-
-#: Conf of :class:`LoopDetector`: the memory's parameters (rSHOSM-seq's), the evidence
-#: (:class:`vpr.shosm.EvidenceConf`), the decision (:class:`vpr.shosm.LoopConf`) and ``exclude`` (frames closer
-#: than this are not candidates), as the ``rshosm-seq`` method's conf of ``vpr loops``; ``top_k``: earlier frames
-#: reported per frame (:attr:`LoopResult.earlier`).
-LOOP_DETECTOR_DEFAULTS = {**memory_params(), **EvidenceConf().as_dict(), **LoopConf().as_dict(),
-                          "exclude": LOOP_EXCLUDE, "top_k": 50}
-_NULLABLE = frozenset({"seed", "stay", "skip"})
 
 
 @dataclass
@@ -90,8 +81,13 @@ class LoopDetector:
     encoder : object, optional
         Encodes images passed to :meth:`update` (see the module docstring).
         Without it, :meth:`update` takes SDR rows.
-    **conf
-        Overrides of :data:`LOOP_DETECTOR_DEFAULTS`; unknown keys raise ValueError.
+    conf : RshosmSeqConf, optional
+        rSHOSM-seq's conf (the ``rshosm-seq`` method's, ``method.seq``; its
+        ``top_k``: the earlier frames reported per frame,
+        :attr:`LoopResult.earlier`); ``**flat`` keys over it
+        (:meth:`RshosmSeqConf.of`). The same conf gives ``vpr loops``'s answers.
+    exclude : int >= 1
+        Frames closer than this are not candidates.
 
     Attributes
     ----------
@@ -103,20 +99,18 @@ class LoopDetector:
         Caller metadata stored by :meth:`save` (``vpr loops -`` keeps the encoder there).
     """
 
-    def __init__(self, encoder=None, **conf):
-        self.conf = merge_conf(LOOP_DETECTOR_DEFAULTS, conf, "LoopDetector", nullable=_NULLABLE)
-        exclude = self.conf["exclude"]
+    def __init__(self, encoder=None, conf: RshosmSeqConf | None = None, exclude: int = LOOP_EXCLUDE, **flat):
+        self.seq = RshosmSeqConf.of(conf, **flat)
+        exclude = check_int(exclude, "LoopDetector: exclude", 1)
         delay = int(getattr(encoder, "delay", 0) or 0)
-        if exclude < 1:
-            raise ValueError(f"LoopDetector: exclude must be >= 1, got {exclude}")
-        if self.conf["top_k"] < 1:
-            raise ValueError(f"LoopDetector: top_k must be >= 1, got {self.conf['top_k']}")
         if exclude <= delay:
             raise ValueError(f"LoopDetector: exclude {exclude} must exceed the encoder's delay of {delay} frames "
                              "(its first frames wait for each other; they must not be candidates of each other)")
+        self.exclude = exclude
+        #: the whole conf, the decision's defaults filled in, and ``exclude`` (recorded in metrics.json)
+        self.conf = {**self.seq.resolved("loops"), "exclude": exclude}
         self.encoder = encoder
-        self._stream = LoopStream(exclude, EvidenceConf.from_conf(self.conf), LoopConf.from_conf(self.conf),
-                                  memory_params(self.conf))
+        self._stream = LoopStream(exclude, self.seq)
         self.names: list[str] = []
         self.meta: dict = {}
 
@@ -131,7 +125,7 @@ class LoopDetector:
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the kernels now, so that the first frame's latency is its own."""
-        tiny = LoopStream(1, self._stream.conf, self._stream.loop, {**memory_params(self.conf), "n_inputs": 64})
+        tiny = LoopStream(1, self.seq.replace(n_inputs=64))
         for bits in ([0, 1, 2, 3], [4, 5, 6, 7], [0, 1, 2, 3]):
             tiny.step(np.array(bits, np.int64))
 
@@ -186,7 +180,7 @@ class LoopDetector:
 
     def _result(self, j: int, f) -> LoopResult:
         b = int(f.best)
-        keep = np.lexsort((f.rows, -f.z))[: self.conf["top_k"]]
+        keep = np.lexsort((f.rows, -f.z))[: self.seq.top_k]
         return LoopResult(j, self.names[j], b, self.names[b] if b >= 0 else None, float(f.score), bool(f.accepted),
                           float(f.margin), f.rows[keep].astype(np.int64), f.z[keep])
 
@@ -194,12 +188,10 @@ class LoopDetector:
     def save(self, path) -> Path:
         """Write the memory, the evidence and decision state, the names and the encoder's state (atomic ``.npz``)."""
         header, arrays = self._stream.state_dict()
-        head = {"format": _FORMAT, "version": _FORMAT_VERSION, "conf": self.conf, "stream": header, "meta": self.meta}
-        arrays = {f"s_{k}": v for k, v in arrays.items()}
-        arrays["names"] = np.array(self.names, dtype=str)
-        if self.encoder is not None and hasattr(self.encoder, "state"):
-            arrays.update({f"enc_{k}": np.asarray(v) for k, v in self.encoder.state().items()})
-        return _io.save_versioned_npz(Path(path), head, arrays, default=_json_default)
+        parts = {"s": arrays, "enc": self.encoder.state() if hasattr(self.encoder, "state") else {}}
+        return save_state(path, _FORMAT, _FORMAT_VERSION,
+                          {"conf": {**self.seq.flat(), "exclude": self.exclude}, "stream": header, "meta": self.meta},
+                          parts, names=self.names)
 
     @classmethod
     def load(cls, path, encoder=None) -> LoopDetector:
@@ -213,30 +205,20 @@ class LoopDetector:
         MemoryFileError
             Missing, corrupt or foreign file, or an unsupported format version.
         """
-        header, data = _io.load_versioned_npz(path, _FORMAT, _FORMAT_VERSION, "loop detector", MemoryFileError,
-                                              hint=" (written by LoopDetector.save / `vpr loops - --state-out`)")
-        try:
-            det = cls(encoder, **header["conf"])
-            det._stream = LoopStream.from_state(header["stream"], {k[2:]: v for k, v in data.items()
-                                                                    if k.startswith("s_")})
-            det.names = [str(n) for n in data["names"].tolist()]
+        with load_state(path, _FORMAT, _FORMAT_VERSION, "loop detector",
+                        " (written by LoopDetector.save / `vpr loops - --state-out`)", ("s", "enc")) as \
+                (header, parts, names):
+            conf = dict(header["conf"])
+            exclude = conf.pop("exclude")
+            det = cls(encoder, exclude=exclude, **conf)
+            det._stream = LoopStream.from_state(header["stream"], parts["s"])
+            det.names = names
             if len(det.names) < det._stream.frames:
                 raise ValueError(f"{len(det.names)} names for {det._stream.frames} frames")
-            enc = {k[4:]: v for k, v in data.items() if k.startswith("enc_")}
-            if encoder is not None and enc and hasattr(encoder, "load_state"):
-                encoder.load_state(enc)
-        except MemoryFileError:
-            raise
-        except Exception as e:
-            raise MemoryFileError(f"{path}: corrupt loop detector file ({type(e).__name__}: {e})") from e
-        det.meta = header.get("meta", {})
+            if encoder is not None and parts["enc"] and hasattr(encoder, "load_state"):
+                encoder.load_state(parts["enc"])
+            det.meta = header.get("meta", {})
         return det
 
     def __repr__(self) -> str:
-        return f"LoopDetector(frames={self.frames}, exclude={self.conf['exclude']}, memory={self._stream.mem!r})"
-
-
-def _json_default(o):
-    if isinstance(o, np.generic):
-        return o.item()
-    raise TypeError(f"not JSON-serialisable: {type(o).__name__}")
+        return f"LoopDetector(frames={self.frames}, exclude={self.exclude}, memory={self._stream.mem!r})"

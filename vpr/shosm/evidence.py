@@ -37,8 +37,8 @@ import scipy.sparse as sp
 from tqdm import tqdm
 
 from vpr import sdr as _sdr
-from vpr.checks import check_choice, check_int
-from vpr.similarity import best_matches
+from vpr.checks import check_choice, check_top_k
+from vpr.similarity import TOP_K, best_matches
 
 from .beam import BIG, NO_PASS, Beam, beam_params, check_codes, db_graph, finish, reverse_columns
 from .conf import BeamConf, EvidenceConf
@@ -67,7 +67,7 @@ class EvidenceResult:
 
 
 def _check_top_k(top_k) -> int | None:
-    return None if top_k is None else check_int(top_k, "top_k", 1)
+    return check_top_k(top_k)
 
 
 def query_evidence(mem: SequenceMemory, query_batch, db_codes, conf: EvidenceConf | None = None,
@@ -173,7 +173,7 @@ def dense_evidence(mem: SequenceMemory, query_batch, db_codes, conf: EvidenceCon
 
 
 def sparse_evidence(mem: SequenceMemory, query_batch, db_codes, conf: EvidenceConf | None = None,
-                    direction: str = "both", top_k: int | None = 50, beam: BeamConf | None = None,
+                    direction: str = "both", top_k: int | None = TOP_K, beam: BeamConf | None = None,
                     progress: bool = False, stats: dict | None = None) -> EvidenceResult:
     """Graded sequence evidence carried only where it is; the top-K database frames per query.
 

@@ -36,26 +36,18 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
-from vpr import io as _io
 from vpr import sdr as _sdr
-from vpr.config import merge_conf
 
-from .conf import BeamConf, EvidenceConf, PathConf, memory_params
+from .conf import RshosmSeqConf, memory_params
 from .decide import PathDecider
-from .memory import MemoryFileError, SequenceMemory
+from .memory import SequenceMemory
+from .state import load_state, save_state
 from .streaming import ForwardEvidence
 
-__all__ = ["Localizer", "LocalizerResult", "LOCALIZER_DEFAULTS"]
+__all__ = ["Localizer", "LocalizerResult"]
 
 _FORMAT = "vpr.Localizer"
 _FORMAT_VERSION = 1
-
-#: Conf of :class:`Localizer`: the memory's parameters (rSHOSM-seq's), the forward evidence's
-#: (:class:`vpr.shosm.ForwardEvidence`: :class:`vpr.shosm.EvidenceConf`, ``top_k``, ``exact``,
-#: :class:`vpr.shosm.BeamConf`) and the acceptance rule (:class:`vpr.shosm.PathConf`).
-LOCALIZER_DEFAULTS = {**memory_params(), **EvidenceConf().as_dict(), "top_k": 50, "exact": False,
-                      **PathConf().as_dict(), **BeamConf().as_dict()}
-_NULLABLE = frozenset({"seed", "stay", "skip", "top_k", "max_beam", "max_enter"})
 
 
 @dataclass
@@ -90,9 +82,12 @@ class Localizer:
         The database's winner codes from ``memory.run``.
     names : sequence of str
         Database frame names (one per row of ``db_codes``).
-    **conf
-        Overrides of :data:`LOCALIZER_DEFAULTS` (memory keys are ignored here:
-        they describe ``memory``); unknown keys raise ValueError.
+    conf : RshosmSeqConf, optional
+        rSHOSM-seq's conf (the ``rshosm-seq`` method's, ``method.seq``): the
+        forward evidence (:class:`vpr.shosm.ForwardEvidence`: the evidence,
+        ``top_k``, ``exact``, the beam) and the decision
+        (:meth:`RshosmSeqConf.path`); ``**flat`` keys over it. Its memory
+        parameters are ``memory``'s.
 
     Attributes
     ----------
@@ -104,32 +99,36 @@ class Localizer:
         Caller arrays stored with :meth:`save` (e.g. an encoder's fitted statistics).
     """
 
-    def __init__(self, memory: SequenceMemory, db_codes, names, **conf):
-        self.conf = merge_conf(LOCALIZER_DEFAULTS, {**memory.get_params(), **conf}, "Localizer", nullable=_NULLABLE)
+    def __init__(self, memory: SequenceMemory, db_codes, names, conf: RshosmSeqConf | None = None, **flat):
+        self.seq = RshosmSeqConf.of(conf, flat, memory.get_params())
         names = [str(n) for n in names]
         if not sp.issparse(db_codes) or db_codes.shape[0] != len(names):
             raise ValueError(f"db_codes must be a sparse matrix with one row per database name "
                              f"({len(names)} names, got {getattr(db_codes, 'shape', None)})")
         if not names:
             raise ValueError("the database is empty: a Localizer needs at least one database frame")
+        #: the whole conf with the decision's defaults filled in (recorded in metrics.json)
+        self.conf = self.seq.resolved("map")
         self.memory = memory
         self.names = names
         self.db_codes = sp.csr_matrix(db_codes, dtype=bool)
-        self._fwd = ForwardEvidence(memory, self.db_codes, EvidenceConf.from_conf(self.conf), top_k=self.conf["top_k"],
-                                    exact=self.conf["exact"], beam=BeamConf.from_conf(self.conf))
+        seq = self.seq
+        self._fwd = ForwardEvidence(memory, self.db_codes, seq.evidence, top_k=seq.top_k, exact=seq.exact,
+                                    beam=seq.beam)
         self._initial = self._fwd.state_dict()
-        self._decider = PathDecider(PathConf.from_conf(self.conf))
+        self._decider = PathDecider(seq.path())
         self.meta: dict = {}
         self.arrays: dict = {}
 
     @classmethod
-    def from_database(cls, db_sdr, names, progress: bool = False, **conf) -> Localizer:
+    def from_database(cls, db_sdr, names, progress: bool = False, conf: RshosmSeqConf | None = None,
+                      **flat) -> Localizer:
         """Learn the database traverse ``db_sdr`` (SDR batch, frames x bits) named ``names``.
 
-        ``conf``: :data:`LOCALIZER_DEFAULTS` overrides (memory parameters included).
+        ``conf`` (and ``**flat`` keys over it): rSHOSM-seq's conf, memory parameters included.
         """
-        c = merge_conf(LOCALIZER_DEFAULTS, conf, "Localizer", nullable=_NULLABLE)
-        params = memory_params(c)
+        seq = RshosmSeqConf.of(conf, **flat)
+        params = seq.memory_params
         x = _sdr.check_batch(db_sdr, n_bits=params["n_inputs"], name="database SDR batch")
         names = list(names)
         if x.shape[0] != len(names):
@@ -137,7 +136,7 @@ class Localizer:
         mem = SequenceMemory(**params)
         codes = mem.run(x, progress=progress)
         mem.reset()
-        return cls(mem, codes, names, **c)
+        return cls(mem, codes, names, seq)
 
     @property
     def n_db(self) -> int:
@@ -147,18 +146,21 @@ class Localizer:
     def frames(self) -> int:
         return self._fwd.frames
 
-    def reconfigure(self, **conf) -> Localizer:
+    def reconfigure(self, **flat) -> Localizer:
         """This map with other query-time settings (evidence, beam, ``top_k``, the decision), continuing its state.
 
         What the map's memory learned cannot change: its parameters are refused
-        (ValueError naming them), as are unknown keys and bad values.
+        (ValueError naming them) unless they are the map's own, as are unknown
+        keys and bad values.
         """
-        fixed = sorted(set(conf) & set(memory_params()))
+        mine = self.memory.get_params()
+        fixed = sorted(k for k in set(flat) & set(memory_params()) if RshosmSeqConf.build({k: flat[k]}).memory[k]
+                       != mine[k])
         if fixed:
             raise ValueError(f"{', '.join(fixed)}: fixed by the map (the memory was learned with "
-                             f"{', '.join(f'{k}={self.conf[k]}' for k in fixed)}); learn a new map to change them")
-        new = Localizer(self.memory, self.db_codes, self.names, **{**self.conf, **conf})
-        if new.conf["exact"] == self.conf["exact"]:
+                             f"{', '.join(f'{k}={mine[k]}' for k in fixed)}); learn a new map to change them")
+        new = Localizer(self.memory, self.db_codes, self.names, self.seq.replace(**flat))
+        if new.seq.exact == self.seq.exact:
             new._fwd.load_state(self._fwd.state_dict())
         new._decider.load_state(self._decider.state_dict())
         new.meta, new.arrays = self.meta, self.arrays
@@ -195,19 +197,14 @@ class Localizer:
     # ------------------------------------------------------------ files
     def save(self, path) -> Path:
         """Write memory, database names and codes, streaming state, conf, ``meta`` and ``arrays`` (atomic ``.npz``)."""
-        path = Path(path)
         mem_header, mem_arrays = self.memory.to_arrays()
-        header = {"format": _FORMAT, "version": _FORMAT_VERSION, "conf": self.conf,
-                  "memory_params": mem_header["params"], "memory_rng": mem_header["rng"],
+        header = {"conf": self.seq.flat(), "memory_params": mem_header["params"], "memory_rng": mem_header["rng"],
                   "meta": self.meta, "db_shape": list(self.db_codes.shape)}
-        arrays = {f"mem_{k}": v for k, v in mem_arrays.items()}
-        arrays.update({f"state_{k}": np.asarray(v) for k, v in self._fwd.state_dict().items()})
-        arrays.update({f"decide_{k}": np.asarray(v) for k, v in self._decider.state_dict().items()})
-        arrays.update({f"user_{k}": np.asarray(v) for k, v in self.arrays.items()})
-        arrays["names"] = np.array(self.names, dtype=str)
-        arrays["db_indptr"] = self.db_codes.indptr.astype(np.int64)
-        arrays["db_indices"] = self.db_codes.indices.astype(np.int64)
-        return _io.save_versioned_npz(path, header, arrays, default=_json_default)
+        parts = {"mem": mem_arrays, "state": self._fwd.state_dict(), "decide": self._decider.state_dict(),
+                 "user": self.arrays,
+                 "db": {"indptr": self.db_codes.indptr.astype(np.int64),
+                        "indices": self.db_codes.indices.astype(np.int64)}}
+        return save_state(path, _FORMAT, _FORMAT_VERSION, header, parts, names=self.names)
 
     @classmethod
     def load(cls, path) -> Localizer:
@@ -218,35 +215,22 @@ class Localizer:
         MemoryFileError
             Missing, corrupt or foreign file, or an unsupported format version.
         """
-        header, data = _io.load_versioned_npz(path, _FORMAT, _FORMAT_VERSION, "localizer", MemoryFileError,
-                                              hint=" (written by `vpr learn` / Localizer.save)")
-        try:
+        with load_state(path, _FORMAT, _FORMAT_VERSION, "localizer", " (written by `vpr learn` / Localizer.save)",
+                        ("mem", "state", "decide", "user", "db")) as (header, parts, names):
             mem = SequenceMemory.from_arrays({"params": header["memory_params"], "rng": header["memory_rng"]},
-                                             {k[4:]: v for k, v in data.items() if k.startswith("mem_")})
+                                             parts["mem"])
             n_db, width = header["db_shape"]
-            idx = data["db_indices"]
-            codes = sp.csr_matrix((np.ones(idx.size, bool), idx, data["db_indptr"]), shape=(n_db, width))
+            idx = parts["db"]["indices"]
+            codes = sp.csr_matrix((np.ones(idx.size, bool), idx, parts["db"]["indptr"]), shape=(n_db, width))
             # maps written before the path rule hold its predecessor's z_min: they load with the path rule
             conf = {k: v for k, v in header["conf"].items() if k != "z_min"}
-            loc = cls(mem, codes, data["names"].tolist(), **conf)
-            loc._fwd.load_state({k[6:]: v for k, v in data.items() if k.startswith("state_")})
-            loc._decider.load_state({k[7:]: v for k, v in data.items() if k.startswith("decide_")})
-        except MemoryFileError:
-            raise
-        except Exception as e:
-            raise MemoryFileError(f"{path}: corrupt localizer file ({type(e).__name__}: {e})") from e
-        loc.meta = header.get("meta", {})
-        loc.arrays = {k[5:]: v for k, v in data.items() if k.startswith("user_")}
+            loc = cls(mem, codes, names, **conf)
+            loc._fwd.load_state(parts["state"])
+            loc._decider.load_state(parts["decide"])
+            loc.meta = header.get("meta", {})
+            loc.arrays = parts["user"]
         return loc
 
     def __repr__(self) -> str:
         return (f"Localizer(n_db={self.n_db}, frames={self.frames}, drift={self.conf['drift']}, "
                 f"min_score={self.conf['min_score']}, memory={self.memory!r})")
-
-
-def _json_default(o):
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")

@@ -18,9 +18,10 @@ import scipy.sparse as sp
 from tqdm import tqdm
 
 from vpr import sdr as _sdr
+from vpr.checks import check_exclude, check_top_k
 
 from .beam import BIG, Beam, beam_params
-from .conf import LOOP_EXCLUDE, BeamConf, EvidenceConf, LoopConf, memory_params
+from .conf import LOOP_EXCLUDE, RshosmSeqConf
 from .decide import LoopDecider, LoopDecisions
 from .kernels import beam as KB
 from .memory import SequenceMemory
@@ -33,7 +34,7 @@ __all__ = ["LoopStream", "FrameLoop", "loop_evidence", "LoopEvidence", "LOOP_UNC
 #: other condition's frames of the same place never enter it (``docs/loops.md``).
 LOOP_UNCAPPED_MAX = 10_000
 
-#: Streams up to this many frames get a dense T x T loop matrix; beyond, top-50 sparse.
+#: Streams up to this many frames get a dense T x T loop matrix; beyond, top-K sparse (the conf's ``top_k``).
 LOOP_DENSE_MAX = 20_000
 
 
@@ -74,28 +75,22 @@ class LoopStream:
     ----------
     exclude : int >= 1
         Frames closer than this are not candidates.
-    conf : EvidenceConf
-    loop : LoopConf
-        The decision rule.
-    memory : dict, optional
-        :class:`SequenceMemory` parameters over rSHOSM-seq's.
-    beam : BeamConf
-        Floors and caps of the beam.
+    conf : RshosmSeqConf
+        The memory, the evidence, the beam's floors and caps and the decision
+        (:meth:`RshosmSeqConf.loop`); default: the defaults.
     caps : "auto" or bool
         Whether the caps apply: ``"auto"`` from frame :data:`LOOP_UNCAPPED_MAX` on.
     """
 
-    def __init__(self, exclude: int = LOOP_EXCLUDE, conf: EvidenceConf | None = None, loop: LoopConf | None = None,
-                 memory: dict | None = None, beam: BeamConf | None = None, caps: str | bool = "auto"):
-        if int(exclude) < 1:
-            raise ValueError(f"exclude must be >= 1, got {exclude}")
+    def __init__(self, exclude: int = LOOP_EXCLUDE, conf: RshosmSeqConf | None = None, caps: str | bool = "auto"):
+        exclude = check_exclude(exclude)
         if not (caps == "auto" or isinstance(caps, bool)):
             raise ValueError(f"caps must be 'auto', True or False, got {caps!r}")
         self.exclude = int(exclude)
-        self.conf, self.beam_conf = conf or EvidenceConf(), beam or BeamConf()
-        self.loop = loop or LoopConf()
+        self.seq = conf if conf is not None else RshosmSeqConf.build()
+        self.conf, self.beam_conf, self.loop = self.seq.evidence, self.seq.beam, self.seq.loop()
         self.caps = caps
-        self.mem = SequenceMemory(**memory_params(memory))
+        self.mem = SequenceMemory(**self.seq.memory_params)
         self.decider = LoopDecider(self.loop)
         self.frames = 0
         self._params = {c: beam_params(self.conf, self.beam_conf if c else self.beam_conf.uncapped(), 0.0)
@@ -158,8 +153,7 @@ class LoopStream:
         as this stream would have.
         """
         mem_header, mem_arrays = self.mem.to_arrays()
-        header = {"exclude": self.exclude, "conf": self.conf.as_dict(), "loop": self.loop.as_dict(),
-                  "beam": self.beam_conf.as_dict(), "caps": self.caps, "frames": self.frames,
+        header = {"exclude": self.exclude, "seq": self.seq.flat(), "caps": self.caps, "frames": self.frames,
                   "n_nodes": self._n_nodes, "n_cells": self._g["n_cells"], "memory": mem_header}
         arrays = {f"mem_{k}": v for k, v in mem_arrays.items()}
         arrays.update({f"g_{k}": self._g[k] for k in self._G_ARRAYS})
@@ -173,8 +167,10 @@ class LoopStream:
     def from_state(cls, header: dict, arrays: dict) -> LoopStream:
         """The stream of a :meth:`state_dict` pair (raises ValueError on inconsistent arrays)."""
         mem_h = header["memory"]
-        s = cls(header["exclude"], EvidenceConf(**header["conf"]), LoopConf(**header["loop"]), mem_h["params"],
-                BeamConf(**header["beam"]), header["caps"])
+        # written before the one conf: its parts apart
+        seq = header["seq"] if "seq" in header else \
+            {**header["conf"], **header["loop"], **header["beam"], **mem_h["params"]}
+        s = cls(header["exclude"], RshosmSeqConf.build({**seq, **mem_h["params"]}), header["caps"])
         s.mem = SequenceMemory.from_arrays(mem_h, {k[4:]: v for k, v in arrays.items() if k.startswith("mem_")})
         s.frames, s._n_nodes = int(header["frames"]), int(header["n_nodes"])
         g = s._g
@@ -247,10 +243,9 @@ class LoopEvidence:
         return iter((self.similarity, self.codes))
 
 
-def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf: EvidenceConf | None = None, top_k: int | None = None,
-                  memory: dict | None = None, beam: BeamConf | None = None, caps: str | bool = "auto",
-                  dense_max: int = LOOP_DENSE_MAX, loop: LoopConf | None = None, stops: bool = True,
-                  progress: bool = False) -> LoopEvidence:
+def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf=None, top_k: int | None = None,
+                  caps: str | bool = "auto", dense_max: int = LOOP_DENSE_MAX, stops: bool = True,
+                  progress: bool = False, **flat) -> LoopEvidence:
     """Loop closure within one stream with graded forward sequence evidence, learned online.
 
     Frame ``j`` is learned with Algorithm 1 (as the paper, one memory over the
@@ -267,17 +262,16 @@ def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf: EvidenceConf | N
     sdr_batch : SDR batch (T x n_inputs), the stream.
     exclude : int >= 1
         Frames closer than this are not candidates.
-    conf : EvidenceConf
-        Decay, transition costs, standardisation (z-scores per frame over its candidate frames).
+    conf : RshosmSeqConf, one of its parts, or a mapping of its flat keys
+        The memory, the evidence (decay, transition costs, standardisation:
+        z-scores per frame over its candidate frames), the beam's floors and
+        caps (``caps`` says when they apply, :class:`LoopStream`) and the
+        decision; ``**flat`` keys over it (:meth:`RshosmSeqConf.of`).
     top_k : int or None
         Earlier frames kept per frame in the matrix (None: dense T x T up to
-        ``dense_max`` frames, top-50 beyond). The decisions do not depend on it.
-    memory : dict, optional
-        :class:`SequenceMemory` parameters over rSHOSM-seq's (:func:`vpr.shosm.conf.memory_params`).
-    beam : BeamConf
-        The beam's floors and caps; ``caps`` says when they apply (:class:`LoopStream`).
-    loop : LoopConf
-        The decision rule; ``stops=False`` leaves out its stop check.
+        ``dense_max`` frames, the conf's ``top_k`` beyond). The decisions do not depend on it.
+    stops : bool
+        False leaves out the decision's stop check.
     progress : bool
         tqdm progress bar.
 
@@ -285,16 +279,18 @@ def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf: EvidenceConf | N
     -------
     LoopEvidence (unpacks as ``S, codes``).
     """
-    if top_k is not None and int(top_k) < 1:
-        raise ValueError(f"top_k must be >= 1 or None, got {top_k}")
-    loop = loop or LoopConf()
+    top_k = check_top_k(top_k)
+    seq = RshosmSeqConf.of(conf, **flat)
     if not stops:
-        loop = LoopConf(**{**loop.as_dict(), "stop_ratio": 0.0})
-    stream = LoopStream(exclude, conf, loop, memory, beam, caps)
+        seq = seq.replace(stop_ratio=0.0)
+    stream = LoopStream(exclude, seq, caps)
     x = _sdr.check_batch(sdr_batch, n_bits=stream.n_inputs, name="stream SDR batch")
     T = x.shape[0]
-    if top_k is None and T > int(dense_max):
-        top_k = 50  # a dense T x T would not fit (the project's limit on dense matrices)
+    if top_k is None and T > int(dense_max):  # a dense T x T would not fit (the project's limit on dense matrices)
+        if seq.top_k is None:
+            raise ValueError(f"top_k none keeps every earlier frame, a dense {T} x {T} matrix: above the "
+                             f"{int(dense_max)} frames a loop matrix may have; give top_k")
+        top_k = seq.top_k
     dense = np.full((T, T), -np.inf, np.float32) if top_k is None else None
     cols_i, cols_v, counts = [], [], np.zeros(T, np.int64)
     codes_ptr, codes_idx = np.zeros(T + 1, np.int64), []

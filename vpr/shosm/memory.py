@@ -26,20 +26,16 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
-from vpr import io as _io
 from vpr import sdr as _sdr
 
 from .connections import Connections, MemoryView, readonly
 from .kernels import memory as K
+from .state import MemoryFileError, load_state, save_state
 
 __all__ = ["SequenceMemory", "MemoryFileError", "pad_codes"]
 
 _FORMAT = "vpr.SequenceMemory"
 _FORMAT_VERSION = 1
-
-
-class MemoryFileError(ValueError):
-    """A saved memory file is missing, corrupt, or not a SequenceMemory file."""
 
 
 class SequenceMemory:
@@ -81,28 +77,11 @@ class SequenceMemory:
     def __init__(self, n_inputs: int = 2048, cells_per_column: int = 32, new_columns: int = 10,
                  connectivity: float = 0.5, threshold: float = 0.25, p_extra: float = 0.05,
                  k_active: int = 10, seed=0):
-        if int(n_inputs) <= 0:
-            raise ValueError(f"n_inputs must be positive, got {n_inputs}")
-        if int(cells_per_column) <= 0:
-            raise ValueError(f"cells_per_column must be positive, got {cells_per_column}")
-        if int(new_columns) <= 0:
-            raise ValueError(f"new_columns must be positive, got {new_columns}")
-        if not 0.0 < connectivity <= 1.0:
-            raise ValueError(f"connectivity must be in (0, 1], got {connectivity}")
-        if not 0.0 < threshold <= 1.0:
-            raise ValueError(f"threshold must be in (0, 1], got {threshold}")
-        if not 0.0 <= p_extra <= 1.0:
-            raise ValueError(f"p_extra must be in [0, 1], got {p_extra}")
-        if int(k_active) < 0:
-            raise ValueError(f"k_active must be >= 0, got {k_active}")
-        self.n_inputs = int(n_inputs)
-        self.cells_per_column = int(cells_per_column)
-        self.new_columns = int(new_columns)
-        self.connectivity = float(connectivity)
-        self.threshold = float(threshold)
-        self.p_extra = float(p_extra)
-        self.k_active = int(k_active)
-        self.seed = seed
+        p = self.check_params(n_inputs, cells_per_column, new_columns, connectivity, threshold, p_extra, k_active,
+                              seed)
+        self.n_inputs, self.cells_per_column, self.new_columns = p["n_inputs"], p["cells_per_column"], p["new_columns"]
+        self.connectivity, self.threshold, self.p_extra = p["connectivity"], p["threshold"], p["p_extra"]
+        self.k_active, self.seed = p["k_active"], seed
         self._rng = np.random.default_rng(seed)
         self._st = np.zeros(K.STATE_SIZE, dtype=np.int64)
         self._bit_cols = np.zeros((self.n_inputs, 16), dtype=np.int32)  # input bit -> minicolumns
@@ -381,6 +360,31 @@ class SequenceMemory:
         return int(self._st[K.N_ENTRIES])
 
     # ------------------------------------------------------------ persistence
+    @staticmethod
+    def check_params(n_inputs, cells_per_column, new_columns, connectivity, threshold, p_extra, k_active,
+                     seed) -> dict:
+        """Every parameter checked and normalised, without building a memory (ValueError naming a bad one).
+
+        The defaults are the constructor's (:meth:`default_params` reads them there).
+        """
+        if int(n_inputs) <= 0:
+            raise ValueError(f"n_inputs must be positive, got {n_inputs}")
+        if int(cells_per_column) <= 0:
+            raise ValueError(f"cells_per_column must be positive, got {cells_per_column}")
+        if int(new_columns) <= 0:
+            raise ValueError(f"new_columns must be positive, got {new_columns}")
+        if not 0.0 < connectivity <= 1.0:
+            raise ValueError(f"connectivity must be in (0, 1], got {connectivity}")
+        if not 0.0 < threshold <= 1.0:
+            raise ValueError(f"threshold must be in (0, 1], got {threshold}")
+        if not 0.0 <= p_extra <= 1.0:
+            raise ValueError(f"p_extra must be in [0, 1], got {p_extra}")
+        if int(k_active) < 0:
+            raise ValueError(f"k_active must be >= 0, got {k_active}")
+        return {"n_inputs": int(n_inputs), "cells_per_column": int(cells_per_column), "new_columns": int(new_columns),
+                "connectivity": float(connectivity), "threshold": float(threshold), "p_extra": float(p_extra),
+                "k_active": int(k_active), "seed": seed}
+
     @classmethod
     def default_params(cls) -> dict:
         """The constructor's parameters and their defaults (read from its signature: one source)."""
@@ -434,7 +438,7 @@ class SequenceMemory:
         A loaded memory continues exactly as this one would (same random stream).
         """
         header, arrays = self.to_arrays()
-        return _io.save_versioned_npz(Path(path), {"format": _FORMAT, "version": _FORMAT_VERSION, **header}, arrays)
+        return save_state(path, _FORMAT, _FORMAT_VERSION, header, {"": arrays})
 
     @classmethod
     def load(cls, path) -> SequenceMemory:
@@ -445,13 +449,8 @@ class SequenceMemory:
         MemoryFileError
             Missing, corrupt or foreign file, or an unsupported format version.
         """
-        header, data = _io.load_versioned_npz(path, _FORMAT, _FORMAT_VERSION, "SequenceMemory", MemoryFileError)
-        try:
-            return cls.from_arrays(header, data)
-        except MemoryFileError:
-            raise
-        except Exception as e:
-            raise MemoryFileError(f"{path}: corrupt SequenceMemory file ({type(e).__name__}: {e})") from e
+        with load_state(path, _FORMAT, _FORMAT_VERSION, "SequenceMemory", prefixes=()) as (header, parts, _):
+            return cls.from_arrays(header, parts.get("", {}))
 
     def _restore(self, d: dict) -> None:
         nc, nd = d["col_thr"].size, d["e_src"].size

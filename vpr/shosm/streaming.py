@@ -12,6 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from vpr import sdr as _sdr
+from vpr.checks import check_top_k
+from vpr.similarity import TOP_K
 
 from .beam import BIG, NO_PASS, Beam, beam_params, check_codes, db_graph, finish
 from .conf import BeamConf, EvidenceConf
@@ -70,10 +72,9 @@ class ForwardEvidence:
         The beam's floors and caps (not with ``exact``).
     """
 
-    def __init__(self, mem: SequenceMemory, db_codes, conf: EvidenceConf | None = None, top_k: int | None = 50,
+    def __init__(self, mem: SequenceMemory, db_codes, conf: EvidenceConf | None = None, top_k: int | None = TOP_K,
                  exact: bool = False, beam: BeamConf | None = None):
-        if top_k is not None and int(top_k) < 1:
-            raise ValueError(f"top_k must be >= 1 or None, got {top_k}")
+        top_k = check_top_k(top_k)
         self.mem = mem
         self.conf = conf or EvidenceConf()
         self.beam_conf = beam or BeamConf()

@@ -45,9 +45,10 @@ class _FileListSource(Source):
 
     def key(self) -> str:
         h = hashlib.sha256()
-        h.update(f"{self.kind}|{self._key_header()}|step={self.step}|max={self.max_frames}\n".encode())
+        head = f"{self.kind}|{self._key_header()}|step={self.step}|max={self.max_frames}\n"
+        h.update(head.encode("utf-8", "surrogateescape"))
         for _, name, p in self._selected():
-            h.update(f"{name}|{stat_token(p.resolve())}\n".encode())
+            h.update(f"{name}|{stat_token(p.resolve())}\n".encode("utf-8", "surrogateescape"))
         return f"{self.kind}:{h.hexdigest()}"
 
     def _key_header(self) -> str:

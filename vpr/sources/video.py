@@ -201,7 +201,7 @@ class VideoSource(Source):
     def key(self) -> str:
         token = stat_token(self.path.resolve())
         raw = f"video|{token}|fps={self.fps}|step={self.step}|max={self.max_frames}"
-        return f"video:{hashlib.sha256(raw.encode()).hexdigest()}"
+        return f"video:{hashlib.sha256(raw.encode('utf-8', 'surrogateescape')).hexdigest()}"
 
     def _decode(self, cap, targets, pos: int, ended: str) -> Iterator[Frame]:
         """Frames ``targets`` (increasing numbers) from ``cap``, whose next grab() returns frame ``pos``.

@@ -95,7 +95,7 @@ def cache_key(source: Source, encoder) -> str:
     """16 hex digits naming the source's content and selection and the encoder's full conf."""
     payload = json.dumps({"v": CACHE_VERSION, "source": source.key(), "encoder": encoder.name,
                           "conf": encoder.conf}, sort_keys=True, default=str)
-    return hashlib.sha1(payload.encode()).hexdigest()[:16]
+    return hashlib.sha1(payload.encode("utf-8", "surrogateescape")).hexdigest()[:16]
 
 
 def cache_path(cache_dir, source: Source, encoder) -> Path:

@@ -33,7 +33,7 @@ Descriptors of every traverse (pixel and CNN) and the renders' positions are
 cached in ``--cache`` (default ``/tmp/vpr_presets_cache``), so a rerun only
 re-runs the methods. Usage::
 
-    nice python -m studies.presets --out results/presets
+    nice python -m studies.preset_choice --out results/presets
 
 Writes ``table.md`` and ``presets.json`` to ``--out`` and prints the table.
 """
@@ -232,7 +232,7 @@ def features(data: Traverses, row: dict, which: int) -> EncodedTraverse:
     parts = split_name(name)[0] if "+" in name else [name]
     for p in parts:
         if p not in PARTS:
-            raise ValueError(f"studies.presets: cached descriptors exist for {PARTS}, not {p!r}")
+            raise ValueError(f"studies.preset_choice: cached descriptors exist for {PARTS}, not {p!r}")
     descs = [data.descriptors(p, which) for p in parts]
     desc = enc.join_descriptors(descs) if len(parts) > 1 else descs[0]
     if enc.conf.get("standardise") == "fit" or any(enc.conf.get(f"{p}.standardise") == "fit" for p in parts):

@@ -1,0 +1,206 @@
+"""``vpr loops``: loop closures within one stream, of a folder, video or list, or online from stdin.
+
+``vpr loops SEQ`` runs the batch (:func:`pipelines.runs.run_loops`, any
+method that supports loop closure). ``vpr loops -``: loop closure online, one
+image path per line on stdin, one JSON line per frame on stdout.
+
+The frames are encoded with the preset's loop encoder (causal standardisation,
+:class:`encoders.stream.StreamEncoder`) and decided by :class:`vpr.LoopDetector`
+with the ``rshosm-seq`` conf of the preset (``--method-conf rshosm-seq.KEY=V``):
+the answers are those of ``vpr loops SEQ`` on the same frames. Each frame's
+line is written and flushed as soon as it is decided::
+
+    {"query": 41, "query_name": "img/0041.png", "best_db": 3, "db_name": "img/0003.png",
+     "score": 35.2, "accepted": true, "latency_ms": 14.1}
+
+(the fields of every command's ``matches.csv``: ``best_db`` is the best
+earlier frame, null while no frame is far enough back; ``latency_ms``:
+encoding and deciding the frame, reading the file excluded). The first frames
+of a causally standardised stream wait for the first ``CAUSAL_MIN`` before
+they are encoded; they are never candidates of each other (``--exclude``
+must exceed that wait), so their answers are known at once.
+
+``--out DIR`` gets ``rshosm-seq/matches.csv`` and ``metrics.json`` (latency
+median / p95 / max with and without encoding; with ``--gt`` the loop metrics of
+``vpr loops`` over the frames read, numbered in the order they came), also when
+the run is stopped (:mod:`pipelines.online`). ``--state-out FILE`` saves the
+detector after the last frame; ``--resume FILE`` continues one (its encoder and
+conf are in the file).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+import encoders
+from encoders.stream import StreamEncoder
+from pipelines.args import (
+    ONLINE_METHOD,
+    add_common_arguments,
+    add_gt_arguments,
+    add_run_arguments,
+    gt_spec_from_args,
+    options_from_args,
+    settings_from_args,
+)
+from pipelines.online import Answer, Online, run_online, stdin_frames
+from pipelines.outputs import method_metrics
+from pipelines.runs import exclude_frames
+from vpr import groundtruth, io, methods
+from vpr.groundtruth import GroundTruthSpec, build_loop_gt, check_loop_gt_files
+from vpr.shosm import LOOP_EXCLUDE, LoopDetector
+
+__all__ = ["COMMANDS", "add_arguments", "run_command", "detect_loops", "make_detector", "resume_detector",
+           "LoopsOnline"]
+
+COMMANDS = {"loops": "loop closures within one traverse (the paper's setting)"}
+
+
+def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
+    ap.add_argument("seq", metavar="SEQ", help="image folder, video or image list; or - for image paths on stdin, "
+                    "decided online one frame at a time (a JSON line per frame on stdout)")
+    add_run_arguments(ap, "loop method")
+    ap.add_argument("--exclude", default=None, metavar="W",
+                    help="ignore matches fewer than W frames back, or W seconds for videos with 'Ws' "
+                         f"(e.g. 5s; default {LOOP_EXCLUDE} frames)")
+    add_gt_arguments(ap, loops=True)
+    online = ap.add_argument_group("online (SEQ is -)")
+    online.add_argument("--state-out", metavar="FILE.npz", help="save the loop detector after the last frame")
+    online.add_argument("--resume", metavar="FILE.npz", help="continue a loop detector saved with --state-out")
+    add_common_arguments(ap)
+
+
+def run_command(args) -> int:
+    settings = settings_from_args(args)
+    if args.seq == "-":
+        return _run_online(args, settings)
+    if args.state_out or args.resume:
+        raise ValueError("--state-out and --resume are for online loop closure: SEQ - (image paths on stdin)")
+    from pipelines.outputs import metrics_table
+    from pipelines.runs import run_loops
+
+    report = run_loops(args.seq, settings["methods"][0], options_from_args(args, settings),
+                       exclude=LOOP_EXCLUDE if args.exclude is None else args.exclude)
+    print(metrics_table(report["methods"], "loops"))
+    print(f"wrote {args.out}/metrics.json")
+    return 0
+
+
+def _run_online(args, settings: dict) -> int:
+    """``vpr loops -``: refuse what does not apply to a stream on stdin, then decide it frame by frame."""
+    given = [f for f, v in (("--fps", args.fps), ("--step", args.step), ("--max-frames", args.max_frames),
+                            ("--cache", args.cache)) if v is not None]
+    if given:
+        raise ValueError(f"vpr loops -: {', '.join(given)} apply to a folder or video, not to image paths on stdin")
+    if args.exclude is not None and str(args.exclude).strip().lower().endswith("s"):
+        raise ValueError(f"vpr loops -: --exclude {args.exclude} in seconds needs a video's frame rate; give frames")
+    exclude = exclude_frames(LOOP_EXCLUDE if args.exclude is None else args.exclude, None)
+    if args.resume is not None:
+        given = [f for f, v in (("--preset", args.preset), ("--method", args.method), ("--encoder", args.encoder),
+                                ("--encoder-conf", args.encoder_conf), ("--method-conf", args.method_conf),
+                                ("--exclude", args.exclude)) if v]
+        if given:
+            raise ValueError(f"--resume {args.resume}: the encoder, the conf and --exclude are the saved detector's; "
+                             f"{', '.join(given)} cannot change them")
+        det = resume_detector(args.resume)
+    else:
+        det = make_detector(settings, exclude)
+    report = detect_loops(det, args.out, gt=gt_spec_from_args(args), state_out=args.state_out)
+    m = report["methods"][ONLINE_METHOD]
+    lat = m["latency_ms"]
+    print(f"vpr loops: {m['frames']} frames, {m['n_accepted']} loop closures accepted, latency median "
+          f"{lat['with_encoding']['median']:.2f} ms ({lat['without_encoding']['median']:.2f} ms without encoding); "
+          f"wrote {args.out}/metrics.json", file=sys.stderr)
+    return 0
+
+
+def make_detector(settings: dict, exclude: int = LOOP_EXCLUDE) -> LoopDetector:
+    """The detector of ``vpr loops -`` for the run's ``settings`` (:func:`pipelines.args.settings_from_args`):
+    the preset's loop encoder and the ``rshosm-seq`` method's conf, which hands out the detector."""
+    method = settings["methods"][0]
+    if method != ONLINE_METHOD:
+        raise ValueError(f"vpr loops -: online loop closure is {ONLINE_METHOD}'s, not {method}'s "
+                         f"(--method {ONLINE_METHOD}, or a folder or video for {method})")
+    unused = sorted(set(settings["method_conf"]) - {ONLINE_METHOD})
+    if unused:
+        raise ValueError(f"vpr loops -: online loop closure is {ONLINE_METHOD}'s; --method-conf for "
+                         f"{', '.join(unused)} does not apply")
+    runner = methods.get(ONLINE_METHOD, **settings["method_conf"].get(ONLINE_METHOD, {}))
+    enc = encoders.get(settings["encoder"], **settings["encoder_conf"])
+    enc.check_memory(1)  # frames come one at a time
+    det = runner.loop_detector(StreamEncoder(enc), exclude=exclude)
+    det.meta = {"encoder": enc.name, "encoder_conf": enc.conf, "preset": settings["preset"]}
+    return det
+
+
+def resume_detector(path) -> LoopDetector:
+    """A detector saved by ``vpr loops - --state-out``, with the encoder it was saved with."""
+    det = LoopDetector.load(path)
+    enc = det.meta.get("encoder")
+    if not enc:
+        raise ValueError(f"{path}: a loop detector saved without its encoder (not by `vpr loops -`)")
+    return LoopDetector.load(path, encoder=StreamEncoder(encoders.get(enc, **det.meta["encoder_conf"])))
+
+
+class LoopsOnline(Online):
+    """``vpr loops -``: each frame learned and decided by a :class:`vpr.LoopDetector`."""
+
+    command = "loops"
+    method = ONLINE_METHOD
+
+    def __init__(self, det: LoopDetector, gt: GroundTruthSpec):
+        self.det, self.gt = det, gt
+        self.row_offset = det.frames  # a resumed detector names frames from before this run too
+
+    def warm_up(self) -> None:
+        self.det.warm_up()
+        self.det.encoder.warm_up()
+
+    def encode(self, image):
+        return self.det.encoder.push(image)
+
+    def decide(self, encoded, name: str) -> Answer:
+        r = self.det.update_encoded(encoded, name)
+        return Answer(r.frame, r.best, r.earlier_name, round(r.score, 4), r.accepted, r.earlier, r.scores)
+
+    def finish(self) -> None:
+        self.det.flush()
+
+    def evaluate(self, result, names, indices) -> dict:
+        if not self.gt.files:
+            return {}
+        T = len(names)
+        hard, soft = build_loop_gt(self.gt, names, list(range(T)), total=T)
+        exclude = self.det.conf["exclude"]
+        mask = groundtruth.loop_closure_mask(T, exclude=exclude)
+        if not (hard & mask).any():
+            raise self.gt.no_match_error(exclude=exclude)
+        m, _ = method_metrics(result, hard, soft, mask=mask, loops=True)
+        m.pop("seconds", None)
+        m.pop("n_accepted", None)
+        return m
+
+    def save(self, path) -> None:
+        self.det.save(path)
+
+    def params(self) -> dict:
+        det = self.det
+        return {"seq": "-", "method": ONLINE_METHOD, "exclude": det.conf["exclude"],
+                "encoder": det.meta.get("encoder"), "encoder_conf": det.meta.get("encoder_conf"),
+                "method_conf": {ONLINE_METHOD: det.conf}, "ground_truth": self.gt.describe()}
+
+
+def detect_loops(det: LoopDetector, out, stdin=None, stdout=None, gt: GroundTruthSpec | None = None,
+                 state_out=None) -> dict:
+    """Decide every frame named on ``stdin`` with ``det``; write ``out``'s files; return metrics.json's content.
+
+    On a stop (Ctrl-C, SIGTERM) the frames decided so far are written and the
+    detector saved, then the stop goes on (:func:`pipelines.online.run_online`).
+    """
+    gt = gt or GroundTruthSpec()
+    check_loop_gt_files(gt)  # bad files are refused before any frame is read
+    if state_out is not None:
+        io.check_writable(state_out, "--state-out")
+    job = LoopsOnline(det, gt)
+    job.warm_up()
+    return run_online(job, stdin_frames(stdin if stdin is not None else sys.stdin), out, stdout, state_out)
