@@ -12,6 +12,7 @@ import encoders
 from vpr import methods, presets
 from vpr.config import parse_key_values
 from vpr.groundtruth import GroundTruthSpec
+from vpr.groundtruth.trajectories import parse_every
 
 __all__ = ["add_common_arguments", "add_source_arguments", "add_preset_argument", "add_gt_arguments",
            "gt_spec_from_args", "method_confs", "add_method_conf_argument", "refuse_gone", "ONLINE_METHOD",
@@ -34,10 +35,14 @@ def add_common_arguments(ap) -> None:
 
 
 def add_source_arguments(ap) -> None:
-    """``--fps``, ``--step`` and ``--max-frames``: which frames of the sources are read."""
-    ap.add_argument("--fps", type=float, help="videos: resample to this frame rate")
+    """``--fps``, ``--step``, ``--max-frames``, ``--every`` and ``--topic``: which frames of the sources are read."""
+    ap.add_argument("--fps", type=float, help="videos and bags: resample to this frame rate, by the frames' times")
     ap.add_argument("--step", type=int, help="keep every STEP-th frame")
     ap.add_argument("--max-frames", type=int, help="read at most this many frames per source")
+    ap.add_argument("--every", metavar="DISTANCE", help="keep one frame per DISTANCE of travel, e.g. 2m (needs the "
+                    "frames' positions: --gt-topic, or --gt with --radius)")
+    ap.add_argument("--topic", metavar="NAME", help="ROS bags: the camera topic (sensor_msgs/Image or "
+                    "CompressedImage; default: the bag's only image topic)")
 
 
 def add_preset_argument(ap) -> None:
@@ -60,7 +65,10 @@ def add_gt_arguments(ap, loops: bool = False, title: str = "ground truth (option
         gt.add_argument("--gt", nargs="+", metavar="FILE",
                         help="CSV of query,db pairs; a db x query matrix (GThard.npy [GTsoft.npy]) or VPR-Bench's "
                              "ground_truth_new.npy; or with --radius: one positions CSV per traverse "
-                             "(frame,x,y), or one CSV with traverse,frame,x,y rows for both")
+                             "(frame,x,y), or one CSV with traverse,frame,x,y rows for both; one TUM trajectory or "
+                             "KITTI poses file per traverse; or the word names (UTM in the file names) or exif")
+    gt.add_argument("--gt-topic", metavar="TOPIC", help="ROS bags: positions from this topic (NavSatFix in metres "
+                    "from the first fix, Odometry, PoseStamped), interpolated at each frame's time; with --radius")
     gt.add_argument("--radius", type=float, help="match radius for position ground truth (same unit as x, y)")
     gt.add_argument("--gt-soft", type=float, metavar="R2",
                     help="also ignore pairs within this larger radius/tolerance (soft ground truth)")
@@ -70,7 +78,7 @@ def add_gt_arguments(ap, loops: bool = False, title: str = "ground truth (option
 def gt_spec_from_args(args) -> GroundTruthSpec:
     """The :class:`GroundTruthSpec` of the options added by :func:`add_gt_arguments`."""
     return GroundTruthSpec(tolerance=getattr(args, "tolerance", None), files=tuple(args.gt or ()),
-                           radius=args.radius, soft=args.gt_soft)
+                           radius=args.radius, soft=args.gt_soft, topic=getattr(args, "gt_topic", None))
 
 
 def method_confs(items) -> dict:
@@ -136,6 +144,6 @@ def options_from_args(args, settings: dict):
     return RunOptions(
         out=Path(args.out), preset=s["preset"], encoder=s["encoder"], encoder_conf=s["encoder_conf"],
         method_conf=s["method_conf"], fps=args.fps, step=args.step, max_frames=args.max_frames,
-        gt=gt_spec_from_args(args),
+        gt=gt_spec_from_args(args), topic=args.topic, every=parse_every(args.every) if args.every else None,
         verify=getattr(args, "verify", 0), min_inliers=getattr(args, "min_inliers", 15),
         progress=not args.no_progress, cache=Path(args.cache) if args.cache else None)

@@ -351,7 +351,11 @@ def add_arguments(ap: argparse.ArgumentParser, command: str = "encode") -> None:
 def run_command(args) -> int:
     import encoders
 
-    srcs = [open_source(p, fps=args.fps, step=args.step, max_frames=args.max_frames) for p in args.sources]
+    if args.every:
+        raise ValueError("vpr encode: --every needs the frames' positions, which vpr encode does not read; encode "
+                         "without it (vpr match / compare / loops --every then encode what they keep)")
+    srcs = [open_source(p, fps=args.fps, step=args.step, max_frames=args.max_frames, topic=args.topic)
+            for p in args.sources]
     parts = [p.strip() for p in args.parts.split(",") if p.strip()]
     s = presets.resolve(args.preset, encoder=args.encoder, encoder_conf=encoders.parse_conf(args.encoder_conf))
     out = encode_sources(srcs, args.cache, s["encoder"], s["encoder_conf"],

@@ -90,12 +90,14 @@ def run_fleet(db, queries, method_names: list[str], opts: RunOptions, command: s
     queries = [str(q) for q in queries]
     if len(queries) < 2:
         raise ValueError("a fleet needs two or more query traverses (one query: vpr match DB QUERY)")
-    runners, encoder, srcs = prepare_run(out, [db, *queries], ["database", *["query"] * len(queries)], method_names,
-                                      opts)
+    runners, encoder, srcs, positions = prepare_run(out, [db, *queries], ["database", *["query"] * len(queries)],
+                                                     method_names, opts)
     db_src, q_srcs = srcs[0], srcs[1:]
     names = query_folders(q_srcs)
     # every query's ground truth and sizes, before any work (built once, here, and sent with its task)
-    gts = [check_match(runners, opts, db_src, q_src) for q_src in q_srcs]
+    q_xy = positions[1:] if positions is not None else [None] * len(q_srcs)
+    gts = [check_match(runners, opts, db_src, q_src, None if xy is None else (positions[0], xy))
+           for q_src, xy in zip(q_srcs, q_xy, strict=True)]
     # ---- the work starts here
     t0 = time.perf_counter()
     (db_ex,) = extract_all([db_src], ["database"], encoder, runners, opts)

@@ -53,11 +53,13 @@ from pipelines.args import (
     refuse_gone,
 )
 from pipelines.features import extract
-from pipelines.online import Answer, Online, run_online, source_frames, stdin_frames
+from pipelines.online import Answer, Online, run_online, source_frames, stdin_frames, summary_line
 from pipelines.outputs import method_metrics
+from pipelines.positions import prepare_positions
 from pipelines.runs import check_fit_frames
 from vpr import io, methods, presets
 from vpr.groundtruth import GroundTruthSpec, build_gt
+from vpr.groundtruth.trajectories import parse_every
 from vpr.shosm import Localizer, MemoryFileError
 from vpr.sources import open_source
 
@@ -85,15 +87,21 @@ def is_map(path) -> bool:
 
 
 def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, method_conf: dict | None = None,
-          fps=None, step=None, max_frames=None, progress: bool = True) -> Localizer:
+          fps=None, step=None, max_frames=None, progress: bool = True, topic: str | None = None,
+          positions: GroundTruthSpec | None = None, every: float | None = None) -> Localizer:
     """Encode and learn the database traverse ``db``; write the map to :func:`map_path` ``(out)`` (atomic).
 
     ``method_conf``: the ``rshosm-seq`` conf (``--method-conf rshosm-seq.KEY=VALUE``), checked before any work;
-    the map keeps it.
+    the map keeps it. ``topic``: a bag's camera topic. ``positions``: where the frames' positions are
+    (``--gt-topic``, ``--gt FILE``, ``names``, ``exif``): the map keeps them (``vpr localize`` evaluates against
+    them) and ``every`` (metres) keeps one frame per so much travel.
     """
     out = map_path(out)
     method = methods.get(ONLINE_METHOD, **(method_conf or {}))
-    src = open_source(db, fps=fps, step=step, max_frames=max_frames)
+    src = open_source(db, fps=fps, step=step, max_frames=max_frames, topic=topic)
+    spec = positions or GroundTruthSpec()
+    pos = prepare_positions([src], ["database"], spec, every, loops=False, need=bool(spec.topic or spec.files))
+    xy = None if pos is None else pos[0]
     enc = encoders.get(encoder, **(encoder_conf or {}))
     check_fit_frames(src, enc, "database", step, max_frames)
     enc.check_memory(len(src.indices()))
@@ -113,6 +121,10 @@ def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, met
     loc.arrays = {}
     for i, (m, s) in enumerate(stats):
         loc.arrays[f"enc_mean_{i}"], loc.arrays[f"enc_std_{i}"] = m, s
+    if xy is not None:  # the positions of the frames learned (skipped ones are not in the map)
+        row = {k: r for r, k in enumerate(src.indices())}
+        loc.arrays["db_xy"] = xy[[row[k] for k in ex.indices]]
+        loc.meta["db_positions"] = {**spec.describe(), "gps_origin": pos.origin}
     loc.save(out)
     return loc
 
@@ -136,8 +148,10 @@ class LocalizeOnline(Online):
     command = "localize"
     method = ONLINE_METHOD
 
-    def __init__(self, loc: Localizer, qenc: StreamEncoder, gt: GroundTruthSpec, q_src, params: dict):
+    def __init__(self, loc: Localizer, qenc: StreamEncoder, gt: GroundTruthSpec, q_src, params: dict,
+                 q_xy=None):
         self.loc, self.qenc, self.gt, self.q_src, self._params = loc, qenc, gt, q_src, params
+        self.q_xy = q_xy  # the query frames' positions (position ground truth), by q_src.indices()
 
     def warm_up(self) -> None:
         self.loc.warm_up()
@@ -154,12 +168,16 @@ class LocalizeOnline(Online):
 
     def evaluate(self, result, names, indices) -> dict:
         gt, loc = self.gt, self.loc
-        if gt.tolerance is None and not gt.files:
+        if gt.tolerance is None and not gt.files and gt.topic is None:
             return {}
         q_idx = [i if i >= 0 else k for k, i in enumerate(indices)]
+        positions = None
+        if self.q_xy is not None:
+            row = {k: r for r, k in enumerate(self.q_src.indices())}
+            positions = (loc.arrays["db_xy"], self.q_xy[[row[k] for k in q_idx]])
         gt_hard, gt_soft = build_gt(gt, loc.names, names, loc.meta.get("db_indices") or list(range(loc.n_db)),
                                     q_idx, loc.meta.get("db_source", "database"),
-                                    self.q_src.name if self.q_src is not None else "query")
+                                    self.q_src.name if self.q_src is not None else "query", positions=positions)
         m, _ = method_metrics(result, gt_hard, gt_soft)
         m.pop("seconds", None)
         m.pop("n_accepted", None)
@@ -178,8 +196,8 @@ class LocalizeOnline(Online):
 
 def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: str = "running",
              prior_frames: float | None = None, window: int | None = None, gt: GroundTruthSpec | None = None,
-             learn_options: dict | None = None,
-             fps=None, step=None, max_frames=None, state_out=None, progress: bool = False) -> dict:
+             learn_options: dict | None = None, fps=None, step=None, max_frames=None, state_out=None,
+             progress: bool = False, topic: str | None = None, every: float | None = None) -> dict:
     """Localise every frame of ``query`` against a map (or a database learned first); return metrics.json's content.
 
     Parameters
@@ -190,7 +208,9 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
     stdout : where the JSON lines go (default ``sys.stdout``).
     query_standardise, prior_frames, window : see :class:`encoders.stream.StreamEncoder` (None: its default;
         window 0: all frames so far); ``prior_frames`` and ``window`` apply to ``"running"`` only.
-    gt : ground truth (as ``vpr match``), optional.
+    gt : ground truth (as ``vpr match``), optional; position ground truth (``--radius``) needs the map's
+        positions (learned with them, or ``map_or_db`` a database learned here) and a query source.
+    topic : bags' camera topic; every : one query frame per so many metres (with the query's positions).
     state_out : optional path: the localizer with its streaming state after the last frame (a robot's restart
         file), also when the run is stopped.
     progress : progress bar while learning a database (``map_or_db`` a traverse).
@@ -214,15 +234,31 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
     else:
         lo = dict(learn_options or {})
         learn_to = out / "map.npz"
-        learn(map_or_db, learn_to, fps=fps, step=step, max_frames=max_frames, progress=progress, **lo)
+        positional = gt is not None and gt.positional
+        learn(map_or_db, learn_to, fps=fps, step=step, max_frames=max_frames, progress=progress, topic=topic,
+              positions=gt if positional else None, every=every if positional else None, **lo)
         loc, enc = load_map(learn_to)
     qenc = StreamEncoder(enc, query_standardise, **running)
     qenc.load_state(loc.arrays)  # a --state-out file continues its query's running statistics
-    q_src = None if str(query) == "-" else open_source(query, fps=fps, step=step, max_frames=max_frames)
+    q_src = None if str(query) == "-" else open_source(query, fps=fps, step=step, max_frames=max_frames, topic=topic)
+    gt = gt or GroundTruthSpec()
+    q_xy = None
+    if gt.positional:
+        if "db_xy" not in loc.arrays:
+            raise ValueError(f"{map_or_db}: the map holds no positions of its frames, so --radius has nothing to "
+                             "match; learn it with --gt-topic or --gt (or give the database itself)")
+        if q_src is None:
+            raise ValueError("position ground truth (--radius) reads the query's positions from its source; with "
+                             "paths on stdin give --gt PAIRS.csv or --tolerance")
+        origin = (loc.meta.get("db_positions") or {}).get("gps_origin")  # GPS in the map's metres
+        q_xy = prepare_positions([q_src], ["query"], gt, every, loops=False,
+                                 origin=tuple(origin) if origin else None)[0]
+    elif every is not None:
+        prepare_positions([q_src] if q_src is not None else [], ["query"], gt, every)
     frames = stdin_frames(stdin if stdin is not None else sys.stdin) if q_src is None else source_frames(q_src)
-    job = LocalizeOnline(loc, qenc, gt or GroundTruthSpec(), q_src,
+    job = LocalizeOnline(loc, qenc, gt, q_src,
                          {"map_or_db": str(map_or_db), "query": str(query), "query_standardise": query_standardise,
-                          "prior_frames": prior_frames, "window": window})
+                          "prior_frames": prior_frames, "window": window}, q_xy)
     job.warm_up()
     return run_online(job, frames, out, stdout, state_out, n_rows=loc.n_db)
 
@@ -238,10 +274,15 @@ def _add_learn_args(ap):
 
 def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     if command == "learn":
-        ap.add_argument("db", metavar="DB", help="database traverse: image folder, video or image list")
+        ap.add_argument("db", metavar="DB", help="database traverse: image folder, video, image list or ROS bag")
         ap.add_argument("--out", required=True, metavar="MAP.npz", help="map file to write")
         _add_learn_args(ap)
         add_source_arguments(ap)
+        pos = ap.add_argument_group("the frames' positions, kept in the map (vpr localize --radius evaluates "
+                                    "against them; --every needs them)")
+        pos.add_argument("--gt", nargs=1, metavar="FILE", help="positions CSV (frame,x,y), TUM trajectory, KITTI "
+                         "poses, or the word names (UTM in the file names) or exif")
+        pos.add_argument("--gt-topic", metavar="TOPIC", help="ROS bags: a NavSatFix, Odometry or PoseStamped topic")
         add_common_arguments(ap)
         return
     ap.add_argument("map", metavar="MAP_OR_DB", help="map from `vpr learn` (.npz), or a database traverse to learn")
@@ -280,10 +321,15 @@ def run_command(args) -> int:
     # the preset's encoder and rshosm-seq conf unless flags name others (vpr.presets.resolve)
     settings = presets.resolve(args.preset, encoder=args.encoder, encoder_conf=encoders.parse_conf(args.encoder_conf),
                                methods=[ONLINE_METHOD], method_conf={ONLINE_METHOD: given})
+    every = parse_every(args.every) if args.every else None
     if args.command == "learn":
+        # where the positions are (no radius: nothing is evaluated here; the map keeps them)
+        spec = GroundTruthSpec(files=tuple(args.gt or ()), topic=args.gt_topic, radius=0.0) \
+            if args.gt or args.gt_topic else None
         loc = learn(args.db, args.out, fps=args.fps, step=args.step, max_frames=args.max_frames,
                     progress=not args.no_progress, encoder=settings["encoder"], encoder_conf=settings["encoder_conf"],
-                    method_conf=settings["method_conf"][ONLINE_METHOD])
+                    method_conf=settings["method_conf"][ONLINE_METHOD], topic=args.topic, positions=spec,
+                    every=every)
         print(f"learned {loc.n_db} frames ({loc.memory!r}); wrote {map_path(args.out)}")
         return 0
     if is_map(args.map) or Path(args.map).suffix.lower() == ".npz":
@@ -297,14 +343,11 @@ def run_command(args) -> int:
     else:
         learn_opts = {"encoder": settings["encoder"], "encoder_conf": settings["encoder_conf"],
                       "method_conf": settings["method_conf"][ONLINE_METHOD]}
-    src_opts = {"fps": args.fps, "step": args.step, "max_frames": args.max_frames}
+    src_opts = {"fps": args.fps, "step": args.step, "max_frames": args.max_frames, "topic": args.topic,
+                "every": every}
     report = localize(args.map, args.query, args.out, query_standardise=args.query_standardise,
                       prior_frames=args.prior_frames, window=args.window, state_out=args.state_out,
                       gt=gt_spec_from_args(args), learn_options=learn_opts, progress=not args.no_progress,
                       **src_opts)
-    m = report["methods"][ONLINE_METHOD]
-    lat = m["latency_ms"]
-    print(f"vpr localize: {m['frames']} frames, latency median "
-          f"{lat['with_encoding']['median']:.2f} ms ({lat['without_encoding']['median']:.2f} ms without encoding); "
-          f"wrote {args.out}/metrics.json", file=sys.stderr)
+    print(summary_line(report, ONLINE_METHOD, args.out), file=sys.stderr)
     return 0

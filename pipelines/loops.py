@@ -43,7 +43,7 @@ from pipelines.args import (
     options_from_args,
     settings_from_args,
 )
-from pipelines.online import Answer, Online, run_online, stdin_frames
+from pipelines.online import Answer, Online, run_online, stdin_frames, summary_line
 from pipelines.outputs import method_metrics
 from pipelines.runs import exclude_frames
 from vpr import groundtruth, io, methods
@@ -89,7 +89,8 @@ def run_command(args) -> int:
 def _run_online(args, settings: dict) -> int:
     """``vpr loops -``: refuse what does not apply to a stream on stdin, then decide it frame by frame."""
     given = [f for f, v in (("--fps", args.fps), ("--step", args.step), ("--max-frames", args.max_frames),
-                            ("--cache", args.cache)) if v is not None]
+                            ("--cache", args.cache), ("--topic", args.topic), ("--every", args.every),
+                            ("--gt-topic", args.gt_topic)) if v is not None]
     if given:
         raise ValueError(f"vpr loops -: {', '.join(given)} apply to a folder or video, not to image paths on stdin")
     if args.exclude is not None and str(args.exclude).strip().lower().endswith("s"):
@@ -106,11 +107,7 @@ def _run_online(args, settings: dict) -> int:
     else:
         det = make_detector(settings, exclude)
     report = detect_loops(det, args.out, gt=gt_spec_from_args(args), state_out=args.state_out)
-    m = report["methods"][ONLINE_METHOD]
-    lat = m["latency_ms"]
-    print(f"vpr loops: {m['frames']} frames, {m['n_accepted']} loop closures accepted, latency median "
-          f"{lat['with_encoding']['median']:.2f} ms ({lat['without_encoding']['median']:.2f} ms without encoding); "
-          f"wrote {args.out}/metrics.json", file=sys.stderr)
+    print(summary_line(report, ONLINE_METHOD, args.out, "loop closures accepted"), file=sys.stderr)
     return 0
 
 

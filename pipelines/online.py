@@ -34,7 +34,8 @@ from pipelines.outputs import claim_methods, merge_metrics, versions, write_matc
 from vpr.sources import decode_image
 from vpr.types import MatchResult
 
-__all__ = ["Online", "Answer", "run_online", "stdin_frames", "source_frames", "latency_summary", "JsonLines"]
+__all__ = ["Online", "Answer", "run_online", "stdin_frames", "source_frames", "latency_summary", "JsonLines",
+           "summary_line"]
 
 
 @dataclass
@@ -172,6 +173,16 @@ def latency_summary(ms) -> dict:
     if not ms.size:
         return {"median": None, "p95": None, "max": None}
     return {"median": float(np.median(ms)), "p95": float(np.percentile(ms, 95)), "max": float(ms.max())}
+
+
+def summary_line(report: dict, method: str, out, accepted: str | None = None) -> str:
+    """The line an online command prints on stderr at the end: frames, what was accepted, the latency."""
+    m = report["methods"][method]
+    lat = m["latency_ms"]
+    what = f", {m['n_accepted']} {accepted}" if accepted else ""
+    return (f"vpr {report['params']['command']}: {m['frames']} frames{what}, latency median "
+            f"{lat['with_encoding']['median']:.2f} ms ({lat['without_encoding']['median']:.2f} ms without encoding); "
+            f"wrote {out}/metrics.json")
 
 
 class JsonLines:

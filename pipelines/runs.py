@@ -26,7 +26,9 @@ import scipy.sparse as sp
 
 import encoders
 from pipelines.features import extract
+from pipelines.interrupts import deferred
 from pipelines.outputs import claim_methods, merge_metrics, method_metrics, versions, warn, write_method
+from pipelines.positions import prepare_positions
 from vpr import groundtruth, io, methods
 from vpr.groundtruth import GroundTruthSpec, build_gt, build_loop_gt
 from vpr.shosm import LOOP_EXCLUDE
@@ -58,6 +60,10 @@ class RunOptions:
     gt: GroundTruthSpec = field(default_factory=GroundTruthSpec)
     verify: int = 0
     min_inliers: int = 15
+    #: ROS bags: the camera topic (:func:`vpr.sources.open_source`)
+    topic: str | None = None
+    #: keep one frame per this many metres of travel (:mod:`pipelines.positions`)
+    every: float | None = None
     #: methods whose candidates are verified (None: all); verification is the expensive part of a run
     verify_methods: tuple | None = None
     #: further :class:`vpr.verify.Verifier` conf (e.g. ``{"n_features": 500}``)
@@ -193,13 +199,18 @@ def check_fit_frames(src, encoder, role: str, step=None, max_frames=None) -> Non
 def prepare_run(out: Path, paths, roles, method_names, opts: RunOptions):
     """The checks of the options, methods, encoder, sources and output before reading a frame.
 
-    Returns (runners, encoder, sources); the ground truth is checked where it
+    Returns (runners, encoder, sources, positions): ``positions`` the frames'
+    positions of each source for position ground truth (None without;
+    :func:`pipelines.positions.prepare_positions`, which also leaves out frames
+    without one and applies ``--every``); the ground truth is checked where it
     is built (:func:`check_match`, :func:`vpr.groundtruth.build_loop_gt`), also before any work.
     """
     _check_run_options(opts)
     runners = _runners(method_names, opts)
     encoder = encoders.get(opts.encoder, **opts.encoder_conf)
-    srcs = [open_source(p, fps=opts.fps, step=opts.step, max_frames=opts.max_frames) for p in paths]
+    srcs = [open_source(p, fps=opts.fps, step=opts.step, max_frames=opts.max_frames, topic=opts.topic)
+            for p in paths]
+    positions = prepare_positions(srcs, roles, opts.gt, opts.every)
     for src, role in zip(srcs, roles, strict=True):
         check_fit_frames(src, encoder, role, opts.step, opts.max_frames)
     encoder.check_memory(max(len(s.indices()) for s in srcs))
@@ -210,7 +221,10 @@ def prepare_run(out: Path, paths, roles, method_names, opts: RunOptions):
             raise ValueError(f"--cache {cache}: is a file, expected a folder (of encodings, e.g. from `vpr encode`)")
         if cache.is_dir() and not os.access(cache, os.W_OK | os.X_OK):
             warn(f"--cache {cache}: not writable; encodings found there are read, new ones are not cached")
-    return runners, encoder, srcs
+    with deferred():  # numba loads or compiles the kernels here: a Ctrl-C inside its callbacks prints tracebacks
+        for r in runners.values():
+            r.warm_up()
+    return runners, encoder, srcs, positions
 
 
 # ----------------------------------------------------------------- encoding
@@ -279,8 +293,9 @@ def run_compare(db, query, method_names: list[str], opts: RunOptions, command: s
         Recorded in ``metrics.json``.
     """
     out = Path(opts.out)
-    runners, encoder, (db_src, q_src) = prepare_run(out, [db, query], ["database", "query"], method_names, opts)
-    gt = check_match(runners, opts, db_src, q_src)
+    runners, encoder, (db_src, q_src), positions = prepare_run(out, [db, query], ["database", "query"], method_names,
+                                                               opts)
+    gt = check_match(runners, opts, db_src, q_src, positions)
     # ---- the work starts here: nothing above wrote a file
     with claim_methods(out, runners):  # a second run of these methods into out meanwhile is refused
         db_ex, q_ex = extract_all([db_src, q_src], ["database", "query"], encoder, runners, opts)
@@ -290,8 +305,11 @@ def run_compare(db, query, method_names: list[str], opts: RunOptions, command: s
                              encoder=encoder)
 
 
-def check_match(runners: dict, opts: RunOptions, db_src, q_src):
-    """The checks of a database x query run that need both sources (before any work); returns the ground truth."""
+def check_match(runners: dict, opts: RunOptions, db_src, q_src, positions=None):
+    """The checks of a database x query run that need both sources (before any work); returns the ground truth.
+
+    ``positions``: the two sources' frame positions (:func:`prepare_run`), for position ground truth.
+    """
     unknown = set(opts.verify_methods or ()) - set(runners)
     if unknown:
         raise ValueError(f"verify_methods: {', '.join(sorted(unknown))} not among the methods run")
@@ -299,7 +317,7 @@ def check_match(runners: dict, opts: RunOptions, db_src, q_src):
     for runner in runners.values():
         runner.check_size(len(db_att), len(q_att))  # too large for a method: refused now, not after encoding
     gt_hard, gt_soft = build_gt(opts.gt, db_src.names(), q_src.names(), db_att, q_att, db_src.name, q_src.name,
-                                totals=(db_src.exact_total(), q_src.exact_total()))
+                                totals=(db_src.exact_total(), q_src.exact_total()), positions=positions)
     if gt_hard is not None and not _any_true(gt_hard):
         raise opts.gt.no_match_error(db_att, q_att)
     return gt_hard, gt_soft
@@ -428,7 +446,7 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
     Checks as in :func:`run_compare`.
     """
     out = Path(opts.out)
-    runners, encoder, (src,) = prepare_run(out, [seq], ["sequence"], [method], opts)
+    runners, encoder, (src,), positions = prepare_run(out, [seq], ["sequence"], [method], opts)
     exclude = exclude_frames(exclude, src)  # frames, or seconds with the video's rate
     runner = runners[method]
     if not runner.supports_loops:
@@ -438,7 +456,8 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
     if exclude >= len(attempted):
         raise ValueError(f"--exclude {exclude} leaves no pair to compare: {src.path} has {len(attempted)} frames "
                          "to read, and a loop closure needs frames at least --exclude apart")
-    gt_hard, gt_soft = build_loop_gt(opts.gt, src.names(), attempted, src.name, total=src.exact_total())
+    gt_hard, gt_soft = build_loop_gt(opts.gt, src.names(), attempted, src.name, total=src.exact_total(),
+                                     positions=None if positions is None else positions[0])
     mask = None
     if gt_hard is not None:
         mask = groundtruth.loop_closure_mask(len(attempted), exclude=exclude)

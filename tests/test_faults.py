@@ -22,6 +22,8 @@ import numpy as np
 import pytest
 
 from pipelines.cli import main
+from tests.cli import one_error_line as _one_error_line
+from tests.cli import run as _run
 from vpr.groundtruth import load_pairs_csv
 
 pytestmark = pytest.mark.slow  # faults, signals and concurrent runs through the command line
@@ -37,10 +39,6 @@ def scene(scene_on_disk):
     return {**s, "db": db, "q": q, "n_db": len(list(db.glob("*.png"))), "n_q": len(list(q.glob("*.png")))}
 
 
-def _run(argv, capsys):
-    code = main([str(a) for a in argv] + ["--no-progress"])
-    cap = capsys.readouterr()
-    return code, cap.out, cap.err
 
 
 def _env():
@@ -51,13 +49,6 @@ def _cli(argv) -> list[str]:
     return [sys.executable, "-m", "pipelines.cli", *map(str, argv)]
 
 
-def _one_error_line(code, err, *expect):
-    lines = err.strip().splitlines()
-    assert code == 2, err
-    assert len(lines) == 1, err
-    for e in expect:
-        assert e in lines[0], lines[0]
-    return lines[0]
 
 
 def _listing(folder: Path) -> dict:
@@ -77,7 +68,7 @@ def tmpfs(tmp_path):
     subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
 
 
-def test_read_only_file_system_gives_one_line(scene, tmpfs, capsys):
+def test_read_only_file_system_gives_one_error_line(scene, tmpfs, capsys):
     r = subprocess.run(["mount", "-o", "remount,ro", str(tmpfs)], capture_output=True)
     if r.returncode != 0:
         pytest.skip("cannot remount read-only")
@@ -106,7 +97,7 @@ def test_full_file_system_gives_one_line_and_no_partial_file(scene, tmpfs, capsy
     assert not (out / "metrics.json").exists()
 
 
-def test_os_error_while_writing_gives_one_line(scene, tmp_path, capsys, monkeypatch):
+def test_os_error_while_writing_gives_one_error_line(scene, tmp_path, capsys, monkeypatch):
     """The same without a mount: a write fails with ENOSPC."""
     import errno
 

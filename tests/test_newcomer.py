@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipelines.cli import main
+from tests.cli import one_error_line as _one_error_line
+from tests.cli import run as _run
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -23,17 +24,8 @@ def scene(scene_on_disk):
     return {**s, "db": s[s["names"][0]], "q": s[s["names"][1]]}
 
 
-def _run(argv, capsys):
-    code = main([str(a) for a in argv] + ["--no-progress"])
-    cap = capsys.readouterr()
-    return code, cap.out, cap.err
 
 
-def _one_line(code, err, *expect):
-    lines = err.strip().splitlines()
-    assert code == 2 and len(lines) == 1, err
-    for e in expect:
-        assert e in lines[0], lines[0]
 
 
 # ------------------------------------------------------------ 1. headlines
@@ -69,7 +61,7 @@ def map_file(scene, tmp_path_factory):
 ])
 def test_localize_with_a_map_refuses_what_the_map_fixes(scene, map_file, tmp_path, capsys, extra, message):
     code, out, err = _run(["localize", map_file, scene["q"], "--out", tmp_path / "o", *extra], capsys)
-    _one_line(code, err, message)
+    _one_error_line(code, err, message)
     assert not (tmp_path / "o").exists()
 
 
@@ -90,7 +82,7 @@ def test_learn_adds_the_suffix_and_maps_are_read_by_content(scene, map_file, tmp
     assert code == 0, err
     (tmp_path / "dir").mkdir()
     code, _, err = _run(["learn", scene["db"], "--out", str(tmp_path / "dir") + "/"], capsys)
-    _one_line(code, err, "is a folder")
+    _one_error_line(code, err, "is a folder")
 
 
 def test_joined_encoder_conf_without_a_part_applies_to_every_part_or_is_refused():
@@ -124,11 +116,11 @@ def test_every_sub_command_takes_no_progress():
 # ------------------------------------------------------------ 3. distributed encoding
 def test_absurd_worker_counts_are_refused(scene, tmp_path, capsys):
     code, _, err = _run(["encode", scene["db"], "--cache", tmp_path / "c", "--workers", 1000], capsys)
-    _one_line(code, err, "--workers 1000", "--scheduler")
+    _one_error_line(code, err, "--workers 1000", "--scheduler")
 
 
 @pytest.mark.slow  # a Dask client's connection timeout: seconds of waiting
-def test_scheduler_that_is_not_dask_fails_in_one_line(scene, tmp_path, capsys, monkeypatch):
+def test_scheduler_that_is_not_dask_fails_in_one_error_line(scene, tmp_path, capsys, monkeypatch):
     import socket
     import threading
 
@@ -145,7 +137,7 @@ def test_scheduler_that_is_not_dask_fails_in_one_line(scene, tmp_path, capsys, m
     code, _, err = _run(["encode", scene["db"], "--cache", tmp_path / "c", "--scheduler", f"tcp://127.0.0.1:{port}"],
                         capsys)
     assert time.perf_counter() - t < 30
-    _one_line(code, err, "--scheduler", "Dask scheduler")
+    _one_error_line(code, err, "--scheduler", "Dask scheduler")
     assert "Traceback" not in err
     srv.close()
 
@@ -181,7 +173,7 @@ def test_sigterm_is_handled_as_an_interrupt_and_leaves_only_complete_files(scene
 
 def test_demo_refuses_too_few_frames_before_rendering(tmp_path, capsys):
     code, _, err = _run(["demo", "--out", tmp_path / "d", "--frames", 1], capsys)
-    _one_line(code, err, "--frames 1")
+    _one_error_line(code, err, "--frames 1")
     assert not (tmp_path / "d").exists()
 
 
@@ -194,7 +186,7 @@ def test_localize_state_out_in_a_read_only_folder_is_refused_before_work(scene, 
     monkeypatch.setattr(os, "access", lambda p, mode, **k: False if Path(p) == ro else real(p, mode, **k))
     code, _, err = _run(["localize", map_file, scene["q"], "--out", tmp_path / "o", "--state-out",
                          ro / "state.npz"], capsys)
-    _one_line(code, err, "state.npz", "cannot write")
+    _one_error_line(code, err, "state.npz", "cannot write")
     assert not (tmp_path / "o").exists()
 
 
@@ -202,7 +194,7 @@ def test_localize_state_out_in_a_read_only_folder_is_refused_before_work(scene, 
 def test_one_frame_for_a_fitted_encoder_names_source_and_option(scene, tmp_path, capsys):
     code, _, err = _run(["match", scene["db"], scene["q"], "--out", tmp_path / "o", "--max-frames", 1,
                          "--preset", "fast"], capsys)
-    _one_line(code, err, str(scene["db"]), "--max-frames 1", "standardise=fit")
+    _one_error_line(code, err, str(scene["db"]), "--max-frames 1", "standardise=fit")
 
 
 def test_degenerate_sdrs_warn_with_their_count(tmp_path, capsys):
@@ -243,13 +235,13 @@ def test_cache_that_is_a_file_is_refused(scene, tmp_path, capsys):
     (tmp_path / "c").write_text("x")
     code, _, err = _run(["match", scene["db"], scene["q"], "--out", tmp_path / "o", "--cache", tmp_path / "c"],
                         capsys)
-    _one_line(code, err, "--cache", "is a file")
+    _one_error_line(code, err, "--cache", "is a file")
 
 
 def test_random_bytes_are_not_a_map(tmp_path, capsys, scene):
     (tmp_path / "m.npz").write_bytes(os.urandom(2000))
     code, _, err = _run(["localize", tmp_path / "m.npz", scene["q"], "--out", tmp_path / "o"], capsys)
-    _one_line(code, err, "m.npz", "not a readable localizer file")
+    _one_error_line(code, err, "m.npz", "not a readable localizer file")
     assert "allow_pickle" not in err
 
 

@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 
 from pipelines.cli import main
+from tests.cli import one_error_line as _one_error_line
+from tests.cli import run as _run
 from vpr.groundtruth.formats import db_query_matrix
 from vpr.io import load_npy
 
@@ -39,19 +41,8 @@ def folders(scene):
 FAST = ["--preset", "fast", "--methods", "pairwise"]
 
 
-def _run(argv, capsys):
-    code = main([str(a) for a in argv] + ["--no-progress"])
-    cap = capsys.readouterr()
-    return code, cap.out, cap.err
 
 
-def _one_error_line(code, err, *expect):
-    lines = err.strip().splitlines()
-    assert code == 2, err
-    assert len(lines) == 1, err
-    for e in expect:
-        assert e in lines[0], lines[0]
-    return lines[0]
 
 
 # ------------------------------------------------------------ 1. no file runs code
@@ -77,7 +68,7 @@ def test_a_payload_inside_a_real_npy_does_not_run(folders, tmp_path, capsys):
     assert not marker.exists()
 
 
-def test_text_named_npy_is_one_line(folders, tmp_path, capsys):
+def test_text_named_npy_is_one_error_line(folders, tmp_path, capsys):
     (tmp_path / "gt.npy").write_text("query,db\n0,0\n")
     code, _, err = _run(["compare", *folders, "--out", tmp_path / "out", "--gt", tmp_path / "gt.npy"], capsys)
     _one_error_line(code, err, "gt.npy", "no NumPy .npy header")

@@ -82,12 +82,9 @@ def _write_error(exc: OSError, path: Path) -> OSError:
 
 
 @contextlib.contextmanager
-def locked(path):
-    """Hold an exclusive lock on the file ``path`` (created if missing) for a read-modify-write.
-
-    Uses ``fcntl.flock`` (advisory, released if the process dies); where
-    ``fcntl`` does not exist (Windows) the block runs unlocked.
-    """
+def _flocked(path, wait: bool):
+    """Hold ``fcntl.flock`` on ``path`` (created if missing); yields False where the lock is held elsewhere and
+    ``wait`` is off. Advisory, released if the process dies; where ``fcntl`` does not exist (Windows), unlocked."""
     try:
         import fcntl  # POSIX only
     except ImportError:  # pragma: no cover - Windows
@@ -99,13 +96,25 @@ def locked(path):
     except OSError as exc:
         raise _write_error(exc, path) from exc
     with fh:
-        if fcntl is not None:
-            fcntl.flock(fh.fileno(), fcntl.LOCK_EX)
+        if fcntl is None:
+            yield True
+            return
         try:
-            yield
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+        except BlockingIOError:
+            yield False
+            return
+        try:
+            yield True
         finally:
-            if fcntl is not None:
-                fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+
+
+@contextlib.contextmanager
+def locked(path):
+    """Hold an exclusive lock on the file ``path`` (created if missing) for a read-modify-write (waits for it)."""
+    with _flocked(path, wait=True):
+        yield
 
 
 @contextlib.contextmanager
@@ -114,31 +123,12 @@ def claimed(path, what: str):
 
     A second run that would write the same results while the first still
     runs gets a ValueError naming ``what``, instead of silently replacing the
-    first run's files. The lock goes with the process (``fcntl.flock``);
-    where ``fcntl`` does not exist (Windows) the block runs unlocked.
+    first run's files. The lock goes with the process.
     """
-    try:
-        import fcntl  # POSIX only
-    except ImportError:  # pragma: no cover - Windows
-        fcntl = None
-    path = Path(path)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fh = open(path, "a")
-    except OSError as exc:
-        raise _write_error(exc, path) from exc
-    with fh:
-        if fcntl is not None:
-            try:
-                fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                raise ValueError(f"{what}: another run is writing it now; wait for it, or choose another "
-                                 "--out") from None
-        try:
-            yield
-        finally:
-            if fcntl is not None:
-                fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+    with _flocked(path, wait=False) as got:
+        if not got:
+            raise ValueError(f"{what}: another run is writing it now; wait for it, or choose another --out")
+        yield
 
 
 @contextlib.contextmanager

@@ -36,7 +36,8 @@ from vpr.similarity import fits_dense
 from .matrices import gt_from_positions
 
 __all__ = ["load_pairs_csv", "load_positions_csv", "gt_from_position_files", "load_traverse_positions",
-           "positions_of_frames", "positions_for", "read_rows", "parse_float", "POSITION_COLUMNS"]
+           "positions_of_frames", "positions_for", "read_rows", "parse_float", "POSITION_COLUMNS",
+           "positions_for_frames"]
 
 
 _INT = re.compile(r"[+-]?\d+(?:\.0*)?")
@@ -350,7 +351,7 @@ def load_positions_csv(path) -> tuple[list[str] | np.ndarray, np.ndarray]:
     return list(frames), xy
 
 
-def _positions_for_frames(path, names, indices, role: str) -> np.ndarray:
+def positions_for_frames(path, names, indices, role: str) -> np.ndarray:
     """Positions of the frames read, one row per frame in reading order."""
     frames, tokens, xy, _ = _load_positions(path)
     if names is None and indices is None and not isinstance(frames[0], int):
@@ -409,8 +410,8 @@ def gt_from_position_files(db_csv, q_csv, radius: float, db_names: Sequence[str]
     r = parse_float(str(radius)) if not isinstance(radius, bool) else None
     if r is None or not math.isfinite(r) or r < 0:
         raise ValueError(f"radius must be a finite number >= 0, got {radius!r}")
-    db_xy = _positions_for_frames(db_csv, db_names, db_indices, "database")
-    q_xy = _positions_for_frames(q_csv, q_names, q_indices, "query")
+    db_xy = positions_for_frames(db_csv, db_names, db_indices, "database")
+    q_xy = positions_for_frames(q_csv, q_names, q_indices, "query")
     return gt_from_positions(db_xy, q_xy, r, sparse=not fits_dense(len(db_xy), len(q_xy)))
 
 

@@ -42,21 +42,42 @@ class GroundTruthSpec:
         ``.bmp`` or ``.mat[:VARIABLE]``, :mod:`vpr.groundtruth.formats`); or,
         with ``radius``, one positions CSV per traverse (``frame,x,y``) or one
         with ``traverse,frame,x,y`` rows for both.
+        With ``radius`` also a trajectory per traverse (TUM, KITTI:
+        :mod:`vpr.groundtruth.trajectories`), or a keyword: ``names`` (UTM
+        coordinates in the file names), ``exif`` (GPS in the photos' EXIF).
     radius : float, optional
         Match radius for position ground truth.
     soft : float, optional
         Larger radius (or tolerance) within which pairs are ignored.
+    topic : str, optional
+        Positions from this topic of each bag (``--gt-topic``: NavSatFix,
+        Odometry, PoseStamped), with ``radius``.
     """
 
     tolerance: int | None = None
     files: tuple[str, ...] = ()
     radius: float | None = None
     soft: float | None = None
+    topic: str | None = None
+
+    #: ``--gt`` words that name where positions are, not a file.
+    KEYWORDS = ("names", "exif")
 
     def describe(self) -> dict:
         """The spec under the command line's names (for ``metrics.json``)."""
-        return {"tolerance": self.tolerance, "gt": list(self.files) or None, "radius": self.radius,
-                "gt_soft": self.soft}
+        out = {"tolerance": self.tolerance, "gt": list(self.files) or None, "radius": self.radius,
+               "gt_soft": self.soft}
+        return {**out, "gt_topic": self.topic} if self.topic is not None else out
+
+    @property
+    def keyword(self) -> str | None:
+        """The ``--gt`` keyword given (``names``, ``exif``), if any."""
+        return self.files[0] if len(self.files) == 1 and self.files[0] in self.KEYWORDS else None
+
+    @property
+    def positional(self) -> bool:
+        """Ground truth from positions of the frames (``--radius``): every source's frames get a position."""
+        return self.radius is not None
 
     def check(self, loops: bool = False, files: bool = True) -> None:
         """Refuse contradictory, ignored or out-of-range options and missing files, before any work.
@@ -73,6 +94,19 @@ class GroundTruthSpec:
         """
         check_files = files
         tol, files, radius, soft = self.tolerance, list(self.files), self.radius, self.soft
+        if self.topic is not None:
+            if files or tol is not None:
+                raise ValueError(f"--gt-topic {self.topic}: positions come from the bags' topic; give it instead of "
+                                 "--gt or --tolerance, not with them")
+            if radius is None:
+                raise ValueError(f"--gt-topic {self.topic} needs --radius (metres)")
+        if self.keyword is not None:
+            if radius is None:
+                raise ValueError(f"--gt {self.keyword} needs --radius (metres)")
+            check_files = False
+        elif any(f in self.KEYWORDS for f in files):
+            raise ValueError(f"--gt {' '.join(files)}: {', '.join(self.KEYWORDS)} name where positions are and "
+                             "stand alone")
         if tol is not None and (isinstance(tol, bool) or not isinstance(tol, (int, np.integer)) or tol < 0):
             raise ValueError(f"--tolerance must be an integer >= 0 (frames), got {tol!r}")
         for name, v in (("--radius", radius), ("--gt-soft", soft)):
@@ -91,15 +125,15 @@ class GroundTruthSpec:
             raise ValueError("--gt: matrix files (.npy, .png, .bmp, .mat) cannot be mixed with CSV files")
         if len(files) > 2:
             raise ValueError(f"--gt takes one or two files, got {len(files)}")
-        if radius is not None and not files:
-            raise ValueError("--radius needs --gt FILE (positions)")
+        if radius is not None and not files and self.topic is None:
+            raise ValueError("--radius needs --gt FILE (positions), --gt names / exif, or --gt-topic")
         if matrices and radius is not None:
             raise ValueError("--radius applies to positions CSV files, not to matrix ground truth "
                              f"({', '.join(matrices)})")
         if soft is not None:
-            if tol is None and not files:
+            if tol is None and not files and self.topic is None:
                 raise ValueError("--gt-soft needs ground truth: --tolerance K, or --gt FILE with --radius R")
-            if files and radius is None:
+            if (files or self.topic) and radius is None:
                 raise ValueError("--gt-soft needs position ground truth (--radius) or --tolerance; with matrix "
                                  "files give the soft matrix as the second --gt file")
             hard, name = (tol, "--tolerance") if tol is not None else (radius, "--radius")
@@ -130,39 +164,52 @@ class GroundTruthSpec:
             return ValueError(f"ground truth --tolerance {self.tolerance}: no query frame has a database frame "
                               f"within {self.tolerance} frame numbers (database frames {span(db_indices)}, "
                               f"query frames {span(q_indices)}); recall is undefined")
-        files = ", ".join(str(f) for f in self.files)
+        files = f"--gt {', '.join(str(f) for f in self.files)}" if self.files else f"--gt-topic {self.topic}"
         if exclude is not None and self.radius is not None:
-            return ValueError(f"ground truth --gt {files} --radius {self.radius:g}: no frame is within "
+            return ValueError(f"ground truth {files} --radius {self.radius:g}: no frame is within "
                               f"{self.radius:g} of a frame at least --exclude {exclude} frames earlier; "
                               "there is no loop closure to find")
         if exclude is not None:
-            return ValueError(f"ground truth --gt {files}: no frame has a loop closure onto a frame at least "
+            return ValueError(f"ground truth {files}: no frame has a loop closure onto a frame at least "
                               f"--exclude {exclude} frames earlier; there is no loop closure to find")
         if self.radius is not None:
-            return ValueError(f"ground truth --gt {files} --radius {self.radius:g}: no query frame is within "
+            return ValueError(f"ground truth {files} --radius {self.radius:g}: no query frame is within "
                               f"{self.radius:g} of a database frame; recall is undefined")
-        return ValueError(f"ground truth {files}: none of its pairs names a query and a database frame that "
+        return ValueError(f"ground truth {files[5:]}: none of its pairs names a query and a database frame that "
                           "are read; recall is undefined")
 
 
 def build_gt(spec: GroundTruthSpec, db_names: Sequence[str], q_names: Sequence[str], db_indices: Sequence[int],
-             q_indices: Sequence[int], db_traverse: str = "database", q_traverse: str = "query", totals=None):
+             q_indices: Sequence[int], db_traverse: str = "database", q_traverse: str = "query", totals=None,
+             positions=None):
     """(gt_hard, gt_soft) of the frames read, or (None, None) without ground truth.
 
     ``db_traverse`` / ``q_traverse`` name the traverses in a combined
     ``traverse,frame,x,y`` file; ``*_indices`` are the source frame numbers;
     ``totals`` the number of frames in each source where it is known exactly
-    (a matrix file must then have that shape). Warns when most pairs are true.
+    (a matrix file must then have that shape). ``positions``: (database,
+    query) positions of the frames, where the caller read them (bags,
+    trajectories, names, EXIF): matched within ``spec.radius``. Warns when
+    most pairs are true.
 
     Raises
     ------
     ValueError
         Contradictory or incomplete options (the message names them), or a bad file.
     """
-    hard, soft = _db_query_gt(spec, db_names, q_names, db_indices, q_indices, db_traverse, q_traverse, totals)
+    if positions is not None:  # read by the caller from a checked spec
+        hard, soft = _from_positions(spec, positions[0], positions[1])
+    else:
+        hard, soft = _db_query_gt(spec, db_names, q_names, db_indices, q_indices, db_traverse, q_traverse, totals)
     if hard is not None:
         warn_if_mostly_true(spec, hard)
     return hard, soft
+
+
+def _from_positions(spec: GroundTruthSpec, a, b):
+    big = not fits_dense(len(a), len(b))
+    hard = gt_from_positions(a, b, spec.radius, sparse=big)
+    return hard, (gt_from_positions(a, b, spec.soft, sparse=big) if spec.soft is not None else None)
 
 
 def _db_query_gt(spec, db_names, q_names, db_indices, q_indices, db_traverse, q_traverse, totals):
@@ -198,7 +245,7 @@ def _db_query_gt(spec, db_names, q_names, db_indices, q_indices, db_traverse, q_
 
 
 def build_loop_gt(spec: GroundTruthSpec, names: Sequence[str], indices: Sequence[int], traverse: str | None = None,
-                  total: int | None = None):
+                  total: int | None = None, positions=None):
     """(gt_hard, gt_soft) of one stream's loop closures (T x T, rows earlier frame), or (None, None).
 
     From a positions CSV (``frame,x,y`` or ``traverse,frame,x,y`` rows, with
@@ -207,10 +254,14 @@ def build_loop_gt(spec: GroundTruthSpec, names: Sequence[str], indices: Sequence
     pair of frames; which pairs are evaluated is the metrics' mask.
     ``traverse``: the stream's name in a file of several traverses (None: the
     file's only one). ``total``: the number of frames in the stream where it is
-    known exactly (a matrix file must be ``total`` x ``total``). Warns when
-    most pairs are true.
+    known exactly (a matrix file must be ``total`` x ``total``). ``positions``:
+    the frames' positions where the caller read them. Warns when most pairs
+    are true.
     """
-    hard, soft = _loop_gt(spec, names, indices, traverse, total)
+    if positions is not None:  # read by the caller from a checked spec
+        hard, soft = _from_positions(spec, positions, positions)
+    else:
+        hard, soft = _loop_gt(spec, names, indices, traverse, total)
     if hard is not None:
         warn_if_mostly_true(spec, hard, loops=True)
     return hard, soft

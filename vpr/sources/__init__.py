@@ -1,4 +1,4 @@
-"""Frame sources: image folders, video files and text files listing images.
+"""Frame sources: image folders, video files, text files listing images, and ROS bags.
 
 Every source streams its frames: iterating over it decodes one image at a
 time, so a long traverse never has to fit in memory. A frame that cannot be
@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .bag import BagSource, is_bag
 from .base import (
     IMAGE_EXTENSIONS,
     LIST_EXTENSIONS,
@@ -39,50 +40,60 @@ from .files import FolderSource, ListSource
 from .video import VideoSource
 
 __all__ = ["Frame", "FrameSkippedWarning", "IgnoredFilesWarning", "Source", "FolderSource", "ListSource", "VideoSource",
+           "BagSource", "is_bag",
            "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS", "LIST_EXTENSIONS", "natural_key", "decode_image", "open_source",
            "load_all", "iter_batches"]
 
 
-def open_source(path, fps=None, step=None, max_frames=None) -> Source:
-    """Open a folder, video file or image-list file as a :class:`Source`.
+def open_source(path, fps=None, step=None, max_frames=None, topic: str | None = None) -> Source:
+    """Open a folder, video file, image-list file or ROS bag as a :class:`Source`.
 
     Parameters
     ----------
     path : str or Path
         A folder of images, a video (.mp4 .avi .mov .mkv .m4v .webm .mpg .mpeg
-        .wmv) or a list file (.txt .lst).
+        .wmv), a list file (.txt .lst), or a ROS bag (a ``.bag``, ``.mcap`` or
+        ``.db3`` file, or a ROS 2 bag folder with ``metadata.yaml``).
     fps : float, optional
-        Video only: resample to this frame rate.
+        Videos and bags: resample to this frame rate, by the frames' timestamps.
     step : int, optional
         Keep every ``step``-th frame.
     max_frames : int, optional
         Cap on the number of frames attempted.
+    topic : str, optional
+        Bags: the camera topic (default: the bag's only image topic).
 
     Raises
     ------
     FileNotFoundError
         ``path`` does not exist.
     ValueError
-        Unknown kind of path, ``fps`` for a non-video, or an error from the
-        source's constructor (empty folder, unreadable video, ...).
+        Unknown kind of path, ``fps`` for a folder or list, ``topic`` for
+        anything but a bag, or an error from the source's constructor (empty
+        folder, unreadable video or bag, ...).
     """
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(f"no such file or folder: {p}")
+    if is_bag(p):
+        return BagSource(p, topic=topic, fps=fps, step=step, max_frames=max_frames)
+    if topic is not None:
+        raise ValueError(f"{p}: --topic applies to ROS bags (.bag, .mcap, .db3, a ROS 2 bag folder), not to this")
     if p.is_dir():
         if fps is not None:
-            raise ValueError(f"{p}: fps only applies to videos; use step for image folders")
+            raise ValueError(f"{p}: fps only applies to videos and bags; use step for image folders")
         return FolderSource(p, step=step, max_frames=max_frames)
     ext = p.suffix.lower()
     if ext in VIDEO_EXTENSIONS:
         return VideoSource(p, fps=fps, step=step, max_frames=max_frames)
     if ext in LIST_EXTENSIONS:
         if fps is not None:
-            raise ValueError(f"{p}: fps only applies to videos; use step for image lists")
+            raise ValueError(f"{p}: fps only applies to videos and bags; use step for image lists")
         return ListSource(p, step=step, max_frames=max_frames)
     raise ValueError(
         f"{p}: unknown source kind {ext or '(no extension)'!r}; expected a folder of images, a video "
-        f"({' '.join(sorted(VIDEO_EXTENSIONS))}) or an image list ({' '.join(sorted(LIST_EXTENSIONS))})")
+        f"({' '.join(sorted(VIDEO_EXTENSIONS))}), an image list ({' '.join(sorted(LIST_EXTENSIONS))}) or a ROS bag "
+        "(.bag .mcap .db3, or a folder with metadata.yaml)")
 
 
 def load_all(source: Source, progress: bool = True) -> tuple[list[np.ndarray], list[str]]:

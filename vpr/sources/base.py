@@ -154,6 +154,23 @@ class Source:
         """A string that changes when the source's content or selection changes."""
         raise NotImplementedError
 
+    def stamps(self):
+        """The times (seconds) of the frames :meth:`indices` names, where the source has them (else None).
+
+        Bags: the bag's record times; videos: the container's presentation
+        times (from the first frame); folders and lists: file names that are
+        times (``1305031102.175304.png``, as the TUM RGB-D datasets name them).
+        """
+        return None
+
+    def restrict(self, indices) -> None:
+        """Attempt only the frames numbered ``indices`` among those selected (e.g. one per 2 m of travel)."""
+        self._only = frozenset(int(i) for i in indices)
+
+    def _allowed(self, index: int) -> bool:
+        only = getattr(self, "_only", None)
+        return only is None or index in only
+
     def exact_total(self) -> int | None:
         """The number of frames in the source before any selection, where it is known exactly (else None).
 

@@ -7,6 +7,8 @@ import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
+
 from .base import (
     IMAGE_EXTENSIONS,
     OTHER_IMAGE_EXTENSIONS,
@@ -35,7 +37,22 @@ class _FileListSource(Source):
 
     def _selected(self) -> list[tuple[int, str, Path]]:
         sel = [(i, n, p) for i, (n, p) in enumerate(self._entries)][::self.step]
-        return sel[:self.max_frames] if self.max_frames else sel
+        sel = sel[:self.max_frames] if self.max_frames else sel
+        return [e for e in sel if self._allowed(e[0])]
+
+    def frame_paths(self) -> list[Path]:
+        """The files of the frames :meth:`indices` names."""
+        return [p for _, _, p in self._selected()]
+
+    def stamps(self):
+        """Times from file names that are numbers (``1305031102.175304.png``), else None."""
+        out = []
+        for _, name, _ in self._selected():
+            try:
+                out.append(float(Path(name).stem))
+            except ValueError:
+                return None
+        return np.asarray(out, np.float64)
 
     def names(self) -> list[str]:
         return [n for _, n, _ in self._selected()]

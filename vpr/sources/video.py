@@ -12,7 +12,7 @@ from vpr.imageproc import to_bgr
 
 from .base import Frame, Source, check_positive_int, check_range, stat_token
 
-__all__ = ["VideoSource"]
+__all__ = ["VideoSource", "sample_by_time", "frame_times"]
 
 
 def _resample_frames(native_fps: float, target_fps: float) -> Iterator[int]:
@@ -33,7 +33,7 @@ def _resample_frames(native_fps: float, target_fps: float) -> Iterator[int]:
             yield i
 
 
-def _sample_by_time(times: np.ndarray, target_fps: float) -> list[int]:
+def sample_by_time(times: np.ndarray, target_fps: float) -> list[int]:
     """Frame numbers to keep from frames at ``times`` (seconds, increasing): the same rule by real timestamps.
 
     Sample k is at ``times[0] + k / target_fps``; the kept frame is the first
@@ -175,7 +175,7 @@ class VideoSource(Source):
                 if self._times is None:
                     self._times = np.empty(0)
             if self._times.size:
-                return iter(_sample_by_time(self._times, self.fps))
+                return iter(sample_by_time(self._times, self.fps))
             if self.fps < self.video_fps:
                 return _resample_frames(self.video_fps, self.fps)
         step = self.step or 1
@@ -188,7 +188,17 @@ class VideoSource(Source):
             if i >= n or (self.max_frames and len(out) >= self.max_frames):
                 break
             out.append(i)
-        return out
+        return [i for i in out if self._allowed(i)]
+
+    def stamps(self):
+        """The frames' presentation times (s from the first frame), from the container; None without them."""
+        times = frame_times(self.path) if self._times is None or not self._times.size else self._times
+        if times is None or not times.size:
+            return None
+        idx = np.asarray(self.indices(), np.int64)
+        if idx.size and idx.max() >= times.size:
+            return None
+        return times[idx] - times[0]
 
     def names(self) -> list[str]:
         return [self.frame_name(i) for i in self.indices()]
@@ -200,7 +210,8 @@ class VideoSource(Source):
 
     def key(self) -> str:
         token = stat_token(self.path.resolve())
-        raw = f"video|{token}|fps={self.fps}|step={self.step}|max={self.max_frames}"
+        only = "" if getattr(self, "_only", None) is None else ",".join(map(str, sorted(self._only)))
+        raw = f"video|{token}|fps={self.fps}|step={self.step}|max={self.max_frames}|{only}"
         return f"video:{hashlib.sha256(raw.encode('utf-8', 'surrogateescape')).hexdigest()}"
 
     def _decode(self, cap, targets, pos: int, ended: str) -> Iterator[Frame]:
@@ -234,7 +245,8 @@ class VideoSource(Source):
         cap = self._open()
         n_yielded = 0
         try:
-            for frame in self._decode(cap, self._selection(), 0, "stream ended"):
+            targets = (i for i in self._selection() if self._allowed(i))
+            for frame in self._decode(cap, targets, 0, "stream ended"):
                 n_yielded += 1
                 yield frame
                 if self.max_frames and n_yielded >= self.max_frames:

@@ -1,0 +1,150 @@
+"""Where every frame was: positions for ground truth within a radius and for ``--every``, before any frame is read.
+
+A run with position ground truth (``--radius``) or ``--every`` gives every
+source's frames a position, from whichever of these the options name:
+
+- ``--gt-topic TOPIC``: a bag's NavSatFix, Odometry or PoseStamped topic,
+  interpolated at each frame's time (:meth:`vpr.sources.BagSource.trajectory`);
+- ``--gt FILE``: a TUM trajectory (by the frames' times), KITTI poses (by frame
+  number), or a ``frame,x,y`` / ``traverse,frame,x,y`` positions CSV;
+- ``--gt names`` (UTM in the file names) or ``--gt exif`` (GPS in the photos).
+
+Frames outside a trajectory's time span get no position: they are left out
+of the run with a warning, never extrapolated. ``--every 2m`` then keeps one
+frame per 2 m of travel. Both act on the sources' selection
+(:meth:`vpr.sources.Source.restrict`), so the frames left out are not even
+read.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from pipelines.outputs import warn
+from vpr.groundtruth import GroundTruthSpec
+from vpr.groundtruth import trajectories as tr
+from vpr.groundtruth.files import load_traverse_positions, positions_for, positions_for_frames, positions_of_frames
+
+__all__ = ["prepare_positions", "frame_positions", "Positions"]
+
+
+class Positions(list):
+    """Each source's frame positions, and the GPS ``origin`` (latitude, longitude) they are metres from (or None)."""
+
+    origin: tuple | None = None
+
+
+def _csv_positions(src, path, role: str, single: bool) -> np.ndarray:
+    idx = src.indices()
+    if single:  # one file for one stream (loops), or the combined traverse,frame,x,y of vpr render
+        return positions_of_frames(path, src.name if src.name else None, idx)
+    with open(path, encoding="utf-8-sig") as fh:
+        combined = "traverse" in fh.readline().lower()
+    if combined:
+        return positions_for(load_traverse_positions(path, src.name), idx, path, src.name)
+    return positions_for_frames(path, src.names(), idx, role)
+
+
+def frame_positions(src, spec: GroundTruthSpec, file: str | None, role: str,
+                    single: bool = False) -> tuple[np.ndarray, str]:
+    """(positions (n, d), kind) of ``src``'s frames to attempt; NaN rows: outside a trajectory's time span.
+
+    ``kind`` ``"latlon"`` (degrees: GPS, to be put in metres about one origin
+    for every source of a run) or ``"metres"``. ``file``: this source's
+    ``--gt`` file or keyword (None with ``--gt-topic``); ``single``: the file
+    holds this stream alone (loop closure).
+    """
+    what = f"{role} {src.path}"
+    if spec.topic is not None:
+        if not hasattr(src, "trajectory"):
+            raise ValueError(f"--gt-topic {spec.topic}: {what} is not a ROS bag; give its positions with --gt FILE")
+        t, values, kind = src.trajectory(spec.topic)
+        return tr.positions_at(src.stamps(), t, values)[0], kind
+    if file == "names":
+        return tr.utm_from_names(src.names()), "metres"
+    if file == "exif":
+        paths = getattr(src, "frame_paths", None)
+        if paths is None:
+            raise ValueError(f"--gt exif: {what} is not a folder or list of photos")
+        latlon, _ = tr.exif_positions(paths())
+        if np.isnan(latlon[:, 0]).all():
+            raise ValueError(f"--gt exif: no photo of {what} has a GPS position in its EXIF")
+        return latlon, "latlon"
+    kind = tr.trajectory_format(file)
+    if kind == "tum":
+        stamps = src.stamps()
+        if stamps is None:
+            raise ValueError(f"--gt {file}: a TUM trajectory is matched to the frames by time, and {what} has no "
+                             "times (a bag, a video, or images named by their timestamps)")
+        t, xyz = tr.load_tum(file)
+        return tr.positions_at(stamps, t, xyz)[0], "metres"
+    if kind == "kitti":
+        xyz = tr.load_kitti(file)
+        idx = np.asarray(src.indices(), np.int64)
+        if idx.size and idx.max() >= xyz.shape[0]:
+            raise ValueError(f"--gt {file}: {xyz.shape[0]} KITTI poses, but {what} has frame {int(idx.max())}")
+        return xyz[idx], "metres"
+    return _csv_positions(src, file, role, single), "metres"
+
+
+def prepare_positions(srcs, roles, spec: GroundTruthSpec, every: float | None = None, loops: bool | None = None,
+                      need: bool | None = None, origin: tuple | None = None) -> list | None:
+    """Every source's frame positions (aligned with its ``indices()`` after this), or None when none are needed.
+
+    Leaves out, with a warning, frames without a position; with ``every``
+    (metres), keeps one frame per ``every`` metres of travel. Refuses a
+    source left with no frame. ``need``: positions are wanted (default: for
+    position ground truth, ``--radius``); ``loops``: the options of one
+    stream's loop closure (default: one source). GPS positions of every
+    source are put in metres about one ``origin`` (latitude, longitude;
+    default: the first fix of the first source), which the result keeps
+    (:class:`Positions`), so that a map and its queries share it.
+    """
+    need = spec.positional if need is None else need
+    if not need:
+        if every is not None:
+            raise ValueError("--every needs the frames' positions: --gt-topic TOPIC, or --gt FILE / names / exif, "
+                             "with --radius")
+        return None
+    # the options, before they are used (build_gt takes the positions as given)
+    spec.check(loops=len(srcs) == 1 if loops is None else loops)
+    files = list(spec.files)
+    if len(srcs) > 1 and len(files) == 1 and spec.keyword is None:
+        kind = tr.trajectory_format(files[0])
+        with open(files[0], encoding="utf-8-sig") as fh:
+            combined = "traverse" in fh.readline().lower()
+        if kind is not None or not combined:
+            raise ValueError(f"--gt {files[0]}: one {'trajectory' if kind else 'positions file'} for "
+                             f"{len(srcs)} traverses; give one per traverse (--gt DB_FILE QUERY_FILE), or one CSV "
+                             "with traverse,frame,x,y rows")
+    read = []
+    for k, (src, role) in enumerate(zip(srcs, roles, strict=True)):
+        file = None if spec.topic is not None else files[k] if len(files) == len(srcs) > 1 else files[0]
+        read.append(frame_positions(src, spec, file, role, single=len(srcs) == 1))
+    # GPS in metres about one origin for every source (each bag's own first fix would shift one traverse)
+    if origin is None:
+        origin = next((tuple(float(a) for a in v[~np.isnan(v).any(axis=1)][0]) for v, kind in read
+                       if kind == "latlon"), None)
+    out = Positions()
+    out.origin = origin
+    for src, role, (values, kind) in zip(srcs, roles, read, strict=True):
+        xy = np.asarray(values, np.float64)
+        if kind == "latlon":
+            xy = np.where(np.isnan(xy), np.nan, tr.latlon_to_metres(xy[:, 0], xy[:, 1], origin))
+        idx = np.asarray(src.indices(), np.int64)
+        known = ~np.isnan(xy).any(axis=1)
+        if not known.all():
+            where = f"outside the time span of {spec.topic or file}" if spec.topic or file not in ("exif",) \
+                else "without a GPS position"
+            if not known.any():
+                raise ValueError(f"{role} {src.path}: none of its {idx.size} frames has a position ({where})")
+            warn(f"{role} {src.path}: {int((~known).sum())} of {idx.size} frames have no position ({where}); "
+                 "left out, not extrapolated")
+            src.restrict(idx[known])
+            idx, xy = idx[known], xy[known]
+        if every is not None:
+            keep = tr.every(xy, every)
+            src.restrict(idx[keep])
+            idx, xy = idx[keep], xy[keep]
+        out.append(xy)
+    return out
+

@@ -1,0 +1,195 @@
+"""Positions of frames from where robots and datasets keep them: trajectories, file names, EXIF.
+
+Every reader returns positions in metres (``(n, 2)`` or ``(n, 3)``; the
+distances :func:`vpr.groundtruth.gt_from_positions` thresholds with
+``--radius`` are in the same unit):
+
+- :func:`load_tum`: a TUM trajectory (``timestamp tx ty tz qx qy qz qw`` per
+  line), associated with the frames by time (:func:`positions_at`).
+- :func:`load_kitti`: KITTI poses, one 3 x 4 matrix per line and frame
+  (row-major, the translation is the last column).
+- :func:`utm_from_names`: UTM east and north in the file names, as the common
+  VPR datasets name their images (``@0543256.96@4178906.85@10@S@...``).
+- :func:`exif_positions`: latitude and longitude in the EXIF of phone photos,
+  turned into local metres.
+
+:func:`positions_at` interpolates a trajectory at the frames' times and
+never extrapolates: frames outside the trajectory's time span are reported,
+for the caller to leave out with a warning. :func:`every` keeps one frame
+per so many metres of travel, as a robot's loop-closure front end does.
+"""
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["trajectory_format", "load_tum", "load_kitti", "utm_from_names", "exif_positions", "positions_at",
+           "every", "latlon_to_metres", "parse_every", "EARTH_RADIUS"]
+
+#: Mean Earth radius, m: latitude and longitude to local metres (an equirectangular plane about the first
+#: point, within a few centimetres per kilometre at the scale of a route).
+EARTH_RADIUS = 6_371_008.8
+
+_NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?")
+
+
+def latlon_to_metres(lat, lon, origin=None) -> np.ndarray:
+    """(n, 2) east and north in metres from ``origin`` (latitude, longitude; default: the first point)."""
+    lat, lon = np.asarray(lat, np.float64), np.asarray(lon, np.float64)
+    lat0, lon0 = (lat[0], lon[0]) if origin is None else origin
+    east = np.radians(lon - lon0) * EARTH_RADIUS * np.cos(np.radians(lat0))
+    north = np.radians(lat - lat0) * EARTH_RADIUS
+    return np.stack([east, north], axis=1)
+
+
+def _rows(path) -> list[tuple[int, list[str]]]:
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise FileNotFoundError(f"no such ground-truth file: {path}") from None
+    except (UnicodeDecodeError, IsADirectoryError) as e:
+        raise ValueError(f"{path}: not a text file ({type(e).__name__})") from None
+    out = []
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        s = line.strip()
+        if s and not s.startswith(("#", "%")):
+            out.append((lineno, s.replace(",", " ").split()))
+    return out
+
+
+def trajectory_format(path) -> str | None:
+    """``"tum"`` (8 numbers a line) or ``"kitti"`` (12), read from the file's first line; None for anything else."""
+    try:
+        rows = _rows(path)
+    except (OSError, ValueError):
+        return None
+    if not rows or not all(_NUMBER.fullmatch(t) for t in rows[0][1]):
+        return None
+    return {8: "tum", 12: "kitti"}.get(len(rows[0][1]))
+
+
+def _numbers(path, width: int, what: str) -> tuple[np.ndarray, list[int]]:
+    rows = _rows(path)
+    if not rows:
+        raise ValueError(f"{path}: empty {what} file")
+    out, lines = [], []
+    for lineno, tokens in rows:
+        if len(tokens) != width:
+            raise ValueError(f"{path}:{lineno}: a {what} line has {width} numbers, this one {len(tokens)}")
+        try:
+            vals = [float(t) for t in tokens]
+        except ValueError:
+            raise ValueError(f"{path}:{lineno}: {what} values must be numbers") from None
+        if not all(math.isfinite(v) for v in vals):
+            raise ValueError(f"{path}:{lineno}: {what} values must be finite")
+        out.append(vals)
+        lines.append(lineno)
+    return np.asarray(out, np.float64), lines
+
+
+def load_tum(path) -> tuple[np.ndarray, np.ndarray]:
+    """(times s, positions (n, 3)) of a TUM trajectory, in time order (``timestamp tx ty tz qx qy qz qw``)."""
+    a, lines = _numbers(path, 8, "TUM trajectory")
+    order = np.argsort(a[:, 0], kind="stable")
+    t = a[order, 0]
+    dup = np.flatnonzero(np.diff(t) == 0)
+    if dup.size:
+        raise ValueError(f"{path}:{lines[order[dup[0] + 1]]}: timestamp {t[dup[0]]} twice")
+    return t, a[order, 1:4]
+
+
+def load_kitti(path) -> np.ndarray:
+    """Positions (n, 3) of KITTI poses, one 3 x 4 matrix per line and frame: the translation column."""
+    a, _ = _numbers(path, 12, "KITTI pose")
+    return a[:, [3, 7, 11]]
+
+
+def utm_from_names(names) -> np.ndarray:
+    """(n, 2) UTM east and north from file names ``...@EAST@NORTH@...`` (Pittsburgh, SF-XL, MSLS style)."""
+    out = []
+    for name in names:
+        parts = Path(str(name)).stem.split("@")
+        try:
+            out.append((float(parts[1]), float(parts[2])))
+        except (IndexError, ValueError):
+            raise ValueError(f"{name}: no UTM coordinates in the name (expected ...@EAST@NORTH@..., as "
+                             "the VPR datasets name their images)") from None
+    return np.asarray(out, np.float64).reshape(-1, 2)
+
+
+def _degrees(value, ref) -> float:
+    d, m, s = (float(x) for x in value)
+    deg = d + m / 60.0 + s / 3600.0
+    return -deg if str(ref).upper() in ("S", "W") else deg
+
+
+def exif_positions(paths) -> tuple[np.ndarray, list[int]]:
+    """(latitude, longitude) rows of the photos whose EXIF holds a GPS position, and the rows without one."""
+    from PIL import Image, UnidentifiedImageError  # Pillow: matplotlib's own dependency
+
+    out, missing = [], []
+    for k, p in enumerate(paths):
+        try:
+            with Image.open(p) as img:
+                gps = img.getexif().get_ifd(0x8825)
+            lat = _degrees(gps[2], gps[1])
+            lon = _degrees(gps[4], gps[3])
+        except (KeyError, TypeError, ValueError, ZeroDivisionError, OSError, UnidentifiedImageError):
+            missing.append(k)
+            out.append((np.nan, np.nan))
+            continue
+        out.append((lat, lon))
+    return np.asarray(out, np.float64).reshape(-1, 2), missing
+
+
+def positions_at(times, traj_t, traj_xy) -> tuple[np.ndarray, np.ndarray]:
+    """The trajectory's position at each of ``times``, linearly interpolated; and which lie inside its span.
+
+    Frames before the first or after the last sample have no position (NaN):
+    they are never extrapolated.
+    """
+    times = np.asarray(times, np.float64)
+    traj_t = np.asarray(traj_t, np.float64)
+    traj_xy = np.asarray(traj_xy, np.float64)
+    inside = (times >= traj_t[0]) & (times <= traj_t[-1])
+    xy = np.full((times.size, traj_xy.shape[1]), np.nan)
+    if inside.any():
+        xy[inside] = np.stack([np.interp(times[inside], traj_t, traj_xy[:, d]) for d in range(traj_xy.shape[1])],
+                              axis=1)
+    return xy, inside
+
+
+def parse_every(text) -> float:
+    """``--every 2m`` (or ``2``, metres) -> 2.0; ValueError naming the option otherwise."""
+    s = str(text).strip().lower()
+    s = s[:-1] if s.endswith("m") else s
+    try:
+        v = float(s)
+    except ValueError:
+        v = float("nan")
+    if not (math.isfinite(v) and v > 0):
+        raise ValueError(f"--every must be a distance in metres like 2m, got {text!r}")
+    return v
+
+
+def every(xy, metres: float) -> np.ndarray:
+    """Positions of the frames to keep: the first, then each frame at least ``metres`` of travel after the last kept.
+
+    Travel is summed along the path (a stop adds nothing; a loop adds its
+    length), so a robot standing at a traffic light keeps one frame.
+    """
+    xy = np.asarray(xy, np.float64)
+    if xy.shape[0] == 0:
+        return np.zeros(0, np.int64)
+    step = np.r_[0.0, np.linalg.norm(np.diff(xy, axis=0), axis=1)]
+    keep, since = [0], 0.0
+    for k in range(1, xy.shape[0]):
+        since += step[k]
+        if since >= metres:
+            keep.append(k)
+            since = 0.0
+    return np.asarray(keep, np.int64)

@@ -1,0 +1,436 @@
+"""A ROS bag as a frame source: the images of one camera topic, and the positions of a GPS or odometry topic.
+
+Read with `rosbags <https://gitlab.com/ternaris/rosbags>`_ (pure Python, no ROS
+install): a ROS 1 ``.bag`` file, a ROS 2 bag folder (``metadata.yaml`` with
+``.db3`` or ``.mcap`` files) or a lone ``.db3`` / ``.mcap`` file.
+
+- Frames are the messages of one image topic (``sensor_msgs/Image`` in the
+  usual encodings, :data:`ENCODINGS`, or ``sensor_msgs/CompressedImage``):
+  ``topic`` names it, or the bag's only image topic is taken; several are
+  refused with the list and their message counts.
+- A frame's time is the bag's record time of its message (the clock every
+  topic of the bag shares, so that positions are interpolated on the same
+  clock); ``fps`` samples by it (as for videos), ``step`` and ``max_frames``
+  as for every source. Frame names are ``TOPIC@SECONDS.NANOSECONDS``.
+- :meth:`BagSource.trajectory` reads positions: ``sensor_msgs/NavSatFix``
+  (latitude and longitude; fixes without a fix status left out; turned into
+  metres by :func:`vpr.groundtruth.trajectories.latlon_to_metres`),
+  ``nav_msgs/Odometry``, ``geometry_msgs/PoseStamped`` and
+  ``PoseWithCovarianceStamped`` (x, y).
+- A ROS 1 bag that was cut short (a recording stopped, a copy interrupted)
+  has no index: its complete records are read in order and a warning gives
+  the count. Any other unreadable bag is refused in one line naming it.
+"""
+from __future__ import annotations
+
+import bz2
+import hashlib
+import struct
+import warnings
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from vpr.imageproc import to_bgr
+
+from .base import Frame, Source, check_positive_int, check_range, stat_token
+
+__all__ = ["BagSource", "is_bag", "ENCODINGS", "IMAGE_TYPES", "POSITION_TYPES", "decode_image_msg"]
+
+#: Message types read as frames.
+IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+#: Message types read as positions (:meth:`BagSource.trajectory`).
+POSITION_TYPES = ("sensor_msgs/msg/NavSatFix", "nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseStamped",
+                  "geometry_msgs/msg/PoseWithCovarianceStamped")
+
+#: ``sensor_msgs/Image`` encodings read, and how they become BGR (cv_bridge's conventions).
+ENCODINGS = {
+    "bgr8": None, "8uc3": None, "rgb8": cv2.COLOR_RGB2BGR, "bgra8": cv2.COLOR_BGRA2BGR, "8uc4": cv2.COLOR_BGRA2BGR,
+    "rgba8": cv2.COLOR_RGBA2BGR, "mono8": None, "8uc1": None, "mono16": None, "16uc1": None,
+    "bayer_rggb8": cv2.COLOR_BayerBG2BGR, "bayer_bggr8": cv2.COLOR_BayerRG2BGR,
+    "bayer_gbrg8": cv2.COLOR_BayerGR2BGR, "bayer_grbg8": cv2.COLOR_BayerGB2BGR,
+    "yuv422": cv2.COLOR_YUV2BGR_UYVY, "uyvy": cv2.COLOR_YUV2BGR_UYVY, "yuv422_yuy2": cv2.COLOR_YUV2BGR_YUY2,
+    "yuyv": cv2.COLOR_YUV2BGR_YUY2,
+}
+_CHANNELS = {"bgr8": 3, "8uc3": 3, "rgb8": 3, "bgra8": 4, "8uc4": 4, "rgba8": 4, "yuv422": 2, "uyvy": 2,
+             "yuv422_yuy2": 2, "yuyv": 2}
+
+def is_bag(path) -> bool:
+    """Whether ``path`` is a ROS bag: a ``.bag``, ``.mcap`` or ``.db3`` file, or a folder with ``metadata.yaml``."""
+    p = Path(path)
+    if p.is_dir():
+        return (p / "metadata.yaml").is_file()
+    return p.suffix.lower() in (".bag", ".mcap", ".db3")
+
+
+def _typestore():
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_HUMBLE)  # for bags without their own message definitions (ROS 2)
+
+
+def _stamp_name(topic: str, t_ns: int) -> str:
+    return f"{topic}@{t_ns // 1_000_000_000}.{t_ns % 1_000_000_000:09d}"
+
+
+def decode_image_msg(msg, msgtype: str) -> tuple[np.ndarray | None, str]:
+    """A BGR (or grey / 16-bit, which :func:`vpr.imageproc.to_bgr` converts) image of one message, or the reason."""
+    data = np.frombuffer(bytes(msg.data), np.uint8) if not isinstance(msg.data, np.ndarray) else msg.data
+    if msgtype.endswith("CompressedImage"):
+        img = cv2.imdecode(np.ascontiguousarray(data, np.uint8), cv2.IMREAD_COLOR)
+        return (img, "") if img is not None else (None, f"compressed image ({msg.format}) could not be decoded")
+    enc = str(msg.encoding).lower()
+    if enc not in ENCODINGS:
+        return None, f"image encoding {msg.encoding!r} is not read (read: {', '.join(sorted(ENCODINGS))})"
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    if h < 1 or w < 1 or data.size < h * step:
+        return None, f"a {w} x {h} image of {data.size} bytes (step {step}): truncated"
+    rows = np.asarray(data[: h * step], np.uint8).reshape(h, step)
+    if enc in ("mono16", "16uc1"):
+        img = rows[:, : 2 * w].copy().view(">u2" if msg.is_bigendian else "<u2").astype(np.uint16)
+    else:
+        img = rows[:, : w * _CHANNELS.get(enc, 1)].reshape(h, w, -1) if enc in _CHANNELS else rows[:, :w]
+        code = ENCODINGS[enc]
+        img = cv2.cvtColor(np.ascontiguousarray(img), code) if code is not None else np.ascontiguousarray(img)
+    return img, ""
+
+
+# --------------------------------------------------------------------- a ROS 1 bag without its index
+_OP_MSG, _OP_CHUNK, _OP_CONN = 0x02, 0x05, 0x07
+
+
+def _fields(header: bytes) -> dict[str, bytes]:
+    out, i = {}, 0
+    while i + 4 <= len(header):
+        (n,) = struct.unpack_from("<I", header, i)
+        name, _, value = header[i + 4:i + 4 + n].partition(b"=")
+        out[name.decode("ascii", "replace")] = value
+        i += 4 + n
+    return out
+
+
+def _records(buf: bytes, start: int = 0):
+    """(fields, data, complete) of the records of ``buf`` from ``start``.
+
+    The last record may be cut short: it comes with the data there is and
+    ``complete`` False (an uncompressed chunk is still read up to its last
+    complete record), and nothing follows it.
+    """
+    i = start
+    while i + 4 <= len(buf):
+        (hl,) = struct.unpack_from("<I", buf, i)
+        if i + 8 + hl > len(buf):
+            return
+        header = buf[i + 4:i + 4 + hl]
+        (dl,) = struct.unpack_from("<I", buf, i + 4 + hl)
+        end = i + 8 + hl + dl
+        yield _fields(header), buf[i + 8 + hl:end], end <= len(buf)
+        if end > len(buf):
+            return
+        i = end
+
+
+def _scan_ros1(path: Path):
+    """Connections and messages of a ROS 1 bag read record by record (no index): (connections, messages).
+
+    ``connections``: id -> (topic, msgtype); ``messages``: (connection id, time ns, raw bytes), in file order.
+    Chunks compressed with bz2 or lz4 are read whole or not at all; an uncompressed chunk up to its last
+    complete record.
+    """
+    raw = path.read_bytes()
+    magic = b"#ROSBAG V2.0\n"
+    if not raw.startswith(magic):
+        raise ValueError("not a ROS 1 bag (no '#ROSBAG V2.0' header)")
+    conns: dict[int, tuple[str, str]] = {}
+    msgs: list[tuple[int, int, bytes]] = []
+
+    def take(records):
+        for f, data, complete in records:
+            op = f.get("op", b"\0")[0]
+            if not complete and op != _OP_CHUNK:
+                return
+            if op == _OP_CONN:
+                c = _fields(data)
+                typ = c.get("type", b"").decode()
+                pkg, _, name = typ.partition("/")
+                conns[struct.unpack("<I", f["conn"])[0]] = (f.get("topic", b"").decode(), f"{pkg}/msg/{name}")
+            elif op == _OP_MSG:
+                sec, nsec = struct.unpack("<II", f["time"])
+                msgs.append((struct.unpack("<I", f["conn"])[0], sec * 1_000_000_000 + nsec, data))
+            elif op == _OP_CHUNK:
+                comp = f.get("compression", b"none").decode()
+                if comp == "none":
+                    take(_records(data))
+                else:
+                    if not complete:  # a cut compressed chunk: nothing of it is readable
+                        return
+                    try:
+                        if comp == "bz2":
+                            inner = bz2.decompress(data)
+                        else:
+                            from lz4.frame import decompress  # rosbags' own dependency
+
+                            inner = decompress(data)
+                    except Exception:  # a cut compressed chunk: nothing of it is readable
+                        continue
+                    take(_records(inner))
+
+    take(_records(raw, len(magic)))
+    msgs.sort(key=lambda m: m[1])  # time order, as an indexed bag is read
+    return conns, msgs
+
+
+class BagSource(Source):
+    """The images of one topic of a ROS bag (see the module docstring).
+
+    Parameters
+    ----------
+    path : str or Path
+        A ``.bag`` file, a ROS 2 bag folder, or a ``.db3`` / ``.mcap`` file.
+    topic : str, optional
+        The camera topic; default: the bag's only image topic.
+    fps, step, max_frames
+        As for a video: ``fps`` samples by the messages' times.
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file or folder.
+    ValueError
+        Not a readable bag, no such topic (the message lists the image
+        topics with their message counts), a topic that is not an image
+        topic, or an image encoding that is not read (named).
+    """
+
+    kind = "bag"
+
+    def __init__(self, path, topic: str | None = None, fps=None, step=None, max_frames=None):
+        super().__init__(path)
+        if fps is not None and step is not None:
+            raise ValueError("give either fps or step, not both")
+        if fps is not None and not (isinstance(fps, (int, float)) and not isinstance(fps, bool) and fps > 0
+                                    and np.isfinite(fps)):
+            raise ValueError(f"fps must be a positive number, got {fps!r}")
+        self.fps = None if fps is None else float(fps)
+        self.step = check_positive_int(step, "step")
+        self.max_frames = check_positive_int(max_frames, "max_frames")
+        if not self.path.exists():
+            raise FileNotFoundError(f"no such bag: {self.path}")
+        self.truncated = False
+        self._scan: tuple | None = None
+        topics = self._topics()
+        images = {t: (typ, n) for t, (typ, n) in topics.items() if typ in IMAGE_TYPES}
+        if topic is None:
+            if len(images) != 1:
+                listing = ", ".join(f"{t} ({n} messages)" for t, (_, n) in sorted(images.items())) or "none"
+                raise ValueError(f"{self.path}: {len(images)} image topics ({listing}); name one with --topic")
+            topic = next(iter(images))
+        elif topic not in topics:
+            listing = ", ".join(f"{t} ({typ.replace('/msg/', '/')}, {n})" for t, (typ, n) in sorted(topics.items()))
+            raise ValueError(f"{self.path}: no topic {topic!r}; topics: {listing or 'none'}")
+        elif topic not in images:
+            raise ValueError(f"{self.path}: topic {topic} holds {topics[topic][0]}, not images (image topics: "
+                             f"{', '.join(sorted(images)) or 'none'})")
+        self.topic = topic
+        self.msgtype = topics[topic][0]
+        self._times = np.asarray([t for t, _ in self._raw(topic, data=False)], np.int64)
+        if self._times.size == 0:
+            raise ValueError(f"{self.path}: topic {topic} has no messages")
+        first = next(self._messages(topic))[1]
+        img, reason = decode_image_msg(first, self.msgtype)
+        if img is None and "encoding" in reason:
+            raise ValueError(f"{self.path}: topic {topic}: {reason}")
+        self._sel = self._select()
+        self._only: np.ndarray | None = None
+
+    # ------------------------------------------------------------- reading
+    def _reader(self):
+        from rosbags.highlevel import AnyReader
+
+        return AnyReader([self.path], default_typestore=_typestore())
+
+    def _topics(self) -> dict[str, tuple[str, int]]:
+        from rosbags.highlevel import AnyReaderError
+
+        try:
+            with self._reader() as r:
+                out: dict[str, tuple[str, int]] = {}
+                for c in r.connections:
+                    typ, n = out.get(c.topic, (c.msgtype, 0))
+                    out[c.topic] = (typ, n + c.msgcount)
+                return out
+        except (AnyReaderError, OSError, ValueError, KeyError) as e:
+            if self.path.suffix.lower() != ".bag" or not self.path.is_file():
+                raise ValueError(f"{self.path}: not a readable ROS bag ({e})") from None
+            try:
+                conns, msgs = _scan_ros1(self.path)
+            except ValueError as e2:
+                raise ValueError(f"{self.path}: not a readable ROS bag ({e2})") from None
+            self._scan = (conns, msgs)
+            self.truncated = True
+            warnings.warn(f"{self.path}: damaged or cut short ({e}); read its {len(msgs)} complete messages",
+                          UserWarning, stacklevel=3)
+            counts: dict[str, tuple[str, int]] = {}
+            for cid, _, _ in msgs:
+                t, typ = conns.get(cid, ("?", "?"))
+                counts[t] = (typ, counts.get(t, (typ, 0))[1] + 1)
+            return counts
+
+    def _raw(self, topic: str, data: bool = True, start: int | None = None, stop: int | None = None):
+        """(time ns, raw bytes or None) of ``topic``'s messages in time order, within [start, stop)."""
+        if self._scan is not None:
+            conns, msgs = self._scan
+            ids = {cid for cid, (t, _) in conns.items() if t == topic}
+            for cid, t, raw in msgs:
+                if cid in ids and (start is None or t >= start) and (stop is None or t < stop):
+                    yield t, raw if data else None
+            return
+        with self._reader() as r:
+            cons = [c for c in r.connections if c.topic == topic]
+            for _, t, raw in r.messages(connections=cons, start=start, stop=stop):
+                yield t, raw if data else None
+
+    def _messages(self, topic: str, start: int | None = None, stop: int | None = None):
+        """(time ns, message) of ``topic``, deserialised."""
+        if self._scan is not None:
+            ts = _ros1_typestore()
+            typ = next(typ for t, (typ, _) in self._topics_cache().items() if t == topic)
+            for t, raw in self._raw(topic, True, start, stop):
+                yield t, ts.deserialize_ros1(raw, typ)
+            return
+        with self._reader() as r:
+            cons = [c for c in r.connections if c.topic == topic]
+            for c, t, raw in r.messages(connections=cons, start=start, stop=stop):
+                yield t, r.deserialize(raw, c.msgtype)
+
+    def _topics_cache(self) -> dict[str, tuple[str, int]]:
+        conns, _ = self._scan
+        return {t: (typ, 0) for t, typ in conns.values()}
+
+    # ----------------------------------------------------------- selection
+    def _select(self) -> np.ndarray:
+        """Message numbers to attempt (before :meth:`restrict`)."""
+        n = self._times.size
+        if self.fps is not None:
+            from .video import sample_by_time
+
+            sel = np.asarray(sample_by_time(self._times / 1e9, self.fps), np.int64)
+        else:
+            sel = np.arange(0, n, self.step or 1)
+        return sel[: self.max_frames] if self.max_frames else sel
+
+    def _selected(self) -> np.ndarray:
+        return self._sel if self._only is None else self._sel[np.isin(self._sel, self._only)]
+
+    def restrict(self, indices) -> None:
+        """Attempt only the frames numbered ``indices`` among those selected (positions every N metres, ...)."""
+        self._only = np.asarray(sorted(set(int(i) for i in indices)), np.int64)
+
+    def indices(self) -> list[int]:
+        return self._selected().tolist()
+
+    def names(self) -> list[str]:
+        return [_stamp_name(self.topic, int(self._times[i])) for i in self._selected()]
+
+    def stamps(self) -> np.ndarray:
+        """The selected frames' times, seconds (the bag's clock)."""
+        return self._times[self._selected()] / 1e9
+
+    def all_stamps(self) -> np.ndarray:
+        """Every message's time on the topic, seconds (indexed by frame number)."""
+        return self._times / 1e9
+
+    def exact_total(self) -> int:
+        return int(self._times.size)
+
+    def key(self) -> str:
+        h = hashlib.sha256()
+        files = [self.path] if self.path.is_file() else sorted(p for p in self.path.iterdir() if p.is_file())
+        for f in files:
+            h.update(stat_token(f.resolve()).encode("utf-8", "surrogateescape"))
+        h.update(f"|{self.topic}|fps={self.fps}|step={self.step}|max={self.max_frames}|"
+                 f"{self._selected().tobytes().hex() if self._only is not None else ''}".encode())
+        return f"bag:{h.hexdigest()}"
+
+    def _frames(self, wanted: np.ndarray) -> Iterator[Frame]:
+        if wanted.size == 0:
+            return
+        want = set(wanted.tolist())
+        t0, t1 = int(self._times[wanted[0]]), int(self._times[wanted[-1]]) + 1
+        k0 = int(np.searchsorted(self._times, t0, side="left"))  # message number of the first in the window
+        for k, (t, msg) in enumerate(self._messages(self.topic, t0, t1), start=k0):
+            if k not in want:
+                continue
+            img, reason = decode_image_msg(msg, self.msgtype)
+            name = _stamp_name(self.topic, t)
+            if img is None:
+                self._skip(name, reason)
+                continue
+            try:
+                img = to_bgr(img, f"{self.path} {name}")
+            except ValueError as e:
+                self._skip(name, str(e))
+                continue
+            yield Frame(k, name, img)
+
+    def __iter__(self) -> Iterator[Frame]:
+        self.skipped = []
+        n = 0
+        for f in self._frames(self._selected()):
+            n += 1
+            yield f
+        if n == 0:
+            raise self._no_frames_error()
+
+    def iter_range(self, start: int, stop: int) -> Iterator[Frame]:
+        start, stop = check_range(start, stop)
+        self.skipped = []
+        yield from self._frames(self._selected()[start:stop])
+
+    # ----------------------------------------------------------- positions
+    def trajectory(self, topic: str) -> tuple[np.ndarray, np.ndarray, str]:
+        """(times s, positions (n, 2), kind) of a position topic (see :data:`POSITION_TYPES`).
+
+        ``kind`` ``"latlon"``: NavSatFix latitude and longitude (messages
+        without a fix, status < 0, or with NaN coordinates left out);
+        ``"metres"``: x and y of an odometry or pose topic.
+
+        Raises
+        ------
+        ValueError
+            No such topic (the position topics are listed), a topic of another
+            type, or no usable position on it.
+        """
+        topics = self._topics_cache() if self._scan is not None else self._topics()
+        if topic not in topics or topics[topic][0] not in POSITION_TYPES:
+            have = sorted(t for t, (typ, _) in topics.items() if typ in POSITION_TYPES)
+            what = "no topic" if topic not in topics else f"topic {topic} holds {topics[topic][0]}, not positions;"
+            raise ValueError(f"{self.path}: {what} {topic!r} with positions (NavSatFix, Odometry, PoseStamped); "
+                             f"position topics: {', '.join(have) or 'none'}")
+        typ = topics[topic][0]
+        t, a, b = [], [], []
+        for stamp, msg in self._messages(topic):
+            if typ.endswith("NavSatFix"):
+                if int(msg.status.status) < 0 or not (np.isfinite(msg.latitude) and np.isfinite(msg.longitude)):
+                    continue
+                a.append(float(msg.latitude))
+                b.append(float(msg.longitude))
+            else:
+                pose = msg.pose.pose if typ.endswith(("Odometry", "PoseWithCovarianceStamped")) else msg.pose
+                a.append(float(pose.position.x))
+                b.append(float(pose.position.y))
+            t.append(stamp)
+        if not t:
+            raise ValueError(f"{self.path}: topic {topic} has no usable position (no fix?)")
+        order = np.argsort(np.asarray(t), kind="stable")
+        t = np.asarray(t, np.int64)[order] / 1e9
+        a, b = np.asarray(a)[order], np.asarray(b)[order]
+        return t, np.stack([a, b], axis=1), "latlon" if typ.endswith("NavSatFix") else "metres"
+
+
+def _ros1_typestore():
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS1_NOETIC)
