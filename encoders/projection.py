@@ -332,8 +332,13 @@ class RunningStandardiser:
             raise ValueError(f"window must be at least 2 frames, got {window}")
         self.window = None if window is None else int(window)
         self._prior_std = np.asarray(std, np.float64)
-        m = np.asarray(mean, np.float64)
-        self.n = float(prior_frames)
+        self._prior = (np.asarray(mean, np.float64), float(prior_frames))
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the frames seen: the statistics are the prior's again (a new run of the robot)."""
+        m, prior_frames = self._prior
+        self.n = prior_frames
         self.sum = prior_frames * m
         self.sq = prior_frames * (np.where(np.isfinite(self._prior_std), self._prior_std, 0.0) ** 2 + m ** 2)
         self.recent: list[np.ndarray] = []

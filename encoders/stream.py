@@ -109,6 +109,15 @@ class StreamEncoder:
             return sp.csr_matrix((0, self.encoder.n_bits), dtype=bool)
         return self._release(stats)
 
+    def new_session(self) -> sp.csr_matrix:
+        """A new run starts: the causal window forgets the last one (the SDRs of frames still waiting are returned,
+        as :meth:`flush`); running query statistics start again from the database's."""
+        out = self.flush() if self.causal else sp.csr_matrix((0, self.encoder.n_bits), dtype=bool)
+        self._causal, self._waiting = [], []
+        for r in self._running:
+            r.reset()
+        return out
+
     def _release(self, stats) -> sp.csr_matrix:
         desc, self._waiting = np.stack(self._waiting), []
         return sp.csr_matrix(self.encoder.encode_descriptors(desc, stats), dtype=bool)

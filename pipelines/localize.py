@@ -37,6 +37,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import scipy.sparse as sp
 
 import encoders
 from encoders.base import DescriptorEncoder
@@ -91,6 +92,9 @@ def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, met
           positions: GroundTruthSpec | None = None, every: float | None = None) -> Localizer:
     """Encode and learn the database traverse ``db``; write the map to :func:`map_path` ``(out)`` (atomic).
 
+    ``db``: one source, or a list of sources: the sessions of a multi-session
+    map (each encoded and standardised on its own frames, learned one after
+    the other from a fresh context; :meth:`vpr.shosm.Localizer.from_database`).
     ``method_conf``: the ``rshosm-seq`` conf (``--method-conf rshosm-seq.KEY=VALUE``), checked before any work;
     the map keeps it. ``topic``: a bag's camera topic. ``positions``: where the frames' positions are
     (``--gt-topic``, ``--gt FILE``, ``names``, ``exif``): the map keeps them (``vpr localize`` evaluates against
@@ -98,32 +102,43 @@ def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, met
     """
     out = map_path(out)
     method = methods.get(ONLINE_METHOD, **(method_conf or {}))
-    src = open_source(db, fps=fps, step=step, max_frames=max_frames, topic=topic)
+    dbs = [db] if isinstance(db, (str, Path)) else list(db)
+    srcs = [open_source(d, fps=fps, step=step, max_frames=max_frames, topic=topic) for d in dbs]
+    roles = ["database"] if len(srcs) == 1 else [f"database session {k + 1}" for k in range(len(srcs))]
     spec = positions or GroundTruthSpec()
-    pos = prepare_positions([src], ["database"], spec, every, loops=False, need=bool(spec.topic or spec.files))
-    xy = None if pos is None else pos[0]
+    pos = prepare_positions(srcs, roles, spec, every, loops=False, need=bool(spec.topic or spec.files))
     enc = encoders.get(encoder, **(encoder_conf or {}))
-    check_fit_frames(src, enc, "database", step, max_frames)
-    enc.check_memory(len(src.indices()))
+    for src, role in zip(srcs, roles, strict=True):
+        check_fit_frames(src, enc, role, step, max_frames)
+    enc.check_memory(max(len(s.indices()) for s in srcs))
     if enc.conf.get("standardise") in ("per_batch", "causal"):
         raise ValueError(f"encoders with standardise={enc.conf['standardise']} cannot encode one query frame at a "
                          "time; use standardise=fit (vpr localize then standardises the query causally, --window)")
     t = time.perf_counter()
-    ex = extract(src, enc, ("sdr",), progress=progress)  # fits standardise=fit on the database
+    exs = [extract(src, enc, ("sdr",), progress=progress) for src in srcs]  # each session fitted on itself
     t_enc = time.perf_counter() - t
     t = time.perf_counter()
-    loc = method.localizer(ex.features.sdr, ex.features.names, progress=progress)
+    prefix = len(srcs) > 1
+    names = [f"{s.name}/{n}" if prefix else n for s, ex in zip(srcs, exs, strict=True) for n in ex.features.names]
+    starts = np.cumsum([0, *[len(ex.features) for ex in exs[:-1]]]).tolist()
+    sdr = sp.vstack([ex.features.sdr for ex in exs]).tocsr()
+    loc = method.localizer(sdr, names, progress=progress, sessions=starts)
     fitted = isinstance(enc, DescriptorEncoder) and enc.conf.get("standardise") == "fit"
-    stats = enc.statistics() if fitted else []
-    loc.meta = {"format": _MAP_FORMAT, "encoder": enc.name, "encoder_conf": enc.conf, "db": str(db),
-                "db_source": src.name, "db_indices": list(ex.indices or []), "n_stats": len(stats),
-                "skipped": ex.skipped, "encode_seconds": t_enc, "learn_seconds": time.perf_counter() - t}
+    stats = enc.statistics() if fitted else []  # the last session's: the query's prior
+    loc.meta = {"format": _MAP_FORMAT, "encoder": enc.name, "encoder_conf": enc.conf,
+                "db": str(db) if not prefix else [str(d) for d in dbs], "db_source": srcs[0].name,
+                "db_indices": [] if prefix else list(exs[0].indices or []), "n_stats": len(stats),
+                "sessions": starts, "skipped": [sk for ex in exs for sk in ex.skipped], "encode_seconds": t_enc,
+                "learn_seconds": time.perf_counter() - t}
     loc.arrays = {}
     for i, (m, s) in enumerate(stats):
         loc.arrays[f"enc_mean_{i}"], loc.arrays[f"enc_std_{i}"] = m, s
-    if xy is not None:  # the positions of the frames learned (skipped ones are not in the map)
-        row = {k: r for r, k in enumerate(src.indices())}
-        loc.arrays["db_xy"] = xy[[row[k] for k in ex.indices]]
+    if pos is not None:  # the positions of the frames learned (skipped ones are not in the map)
+        rows = []
+        for src, ex, xy in zip(srcs, exs, pos, strict=True):
+            row = {k: r for r, k in enumerate(src.indices())}
+            rows.append(xy[[row[k] for k in ex.indices]])
+        loc.arrays["db_xy"] = np.concatenate(rows)
         loc.meta["db_positions"] = {**spec.describe(), "gps_origin": pos.origin}
     loc.save(out)
     return loc
@@ -182,6 +197,11 @@ class LocalizeOnline(Online):
         m.pop("seconds", None)
         m.pop("n_accepted", None)
         return m
+
+    def new_session(self) -> None:
+        """A new query traverse: no evidence or path carries over, the query statistics start again."""
+        self.loc.reset()
+        self.qenc.new_session()
 
     def save(self, path) -> None:
         loc = self.loc
@@ -274,7 +294,8 @@ def _add_learn_args(ap):
 
 def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     if command == "learn":
-        ap.add_argument("db", metavar="DB", help="database traverse: image folder, video, image list or ROS bag")
+        ap.add_argument("db", metavar="DB", nargs="+", help="database traverse: image folder, video, image list or "
+                        "ROS bag; several: the sessions of one map (a robot's runs)")
         ap.add_argument("--out", required=True, metavar="MAP.npz", help="map file to write")
         _add_learn_args(ap)
         add_source_arguments(ap)
@@ -326,7 +347,8 @@ def run_command(args) -> int:
         # where the positions are (no radius: nothing is evaluated here; the map keeps them)
         spec = GroundTruthSpec(files=tuple(args.gt or ()), topic=args.gt_topic, radius=0.0) \
             if args.gt or args.gt_topic else None
-        loc = learn(args.db, args.out, fps=args.fps, step=args.step, max_frames=args.max_frames,
+        loc = learn(args.db[0] if len(args.db) == 1 else args.db, args.out, fps=args.fps, step=args.step,
+                    max_frames=args.max_frames,
                     progress=not args.no_progress, encoder=settings["encoder"], encoder_conf=settings["encoder_conf"],
                     method_conf=settings["method_conf"][ONLINE_METHOD], topic=args.topic, positions=spec,
                     every=every)

@@ -57,8 +57,10 @@ COMMANDS = {"loops": "loop closures within one traverse (the paper's setting)"}
 
 
 def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
-    ap.add_argument("seq", metavar="SEQ", help="image folder, video or image list; or - for image paths on stdin, "
-                    "decided online one frame at a time (a JSON line per frame on stdout)")
+    ap.add_argument("seq", metavar="SEQ", nargs="+",
+                    help="image folder, video, image list or ROS bag; several: the sessions of one stream (a "
+                         "robot's runs, in order); or - for image paths on stdin, decided online one frame at a time "
+                         "(a JSON line per frame on stdout; a line #session starts a new session)")
     add_run_arguments(ap, "loop method")
     ap.add_argument("--exclude", default=None, metavar="W",
                     help="ignore matches fewer than W frames back, or W seconds for videos with 'Ws' "
@@ -72,14 +74,17 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
 
 def run_command(args) -> int:
     settings = settings_from_args(args)
-    if args.seq == "-":
+    if "-" in args.seq:
+        if len(args.seq) > 1:
+            raise ValueError("vpr loops: - (paths on stdin) stands alone; mark its sessions with a line #session")
         return _run_online(args, settings)
     if args.state_out or args.resume:
         raise ValueError("--state-out and --resume are for online loop closure: SEQ - (image paths on stdin)")
     from pipelines.outputs import metrics_table
     from pipelines.runs import run_loops
 
-    report = run_loops(args.seq, settings["methods"][0], options_from_args(args, settings),
+    report = run_loops(args.seq[0] if len(args.seq) == 1 else args.seq, settings["methods"][0],
+                       options_from_args(args, settings),
                        exclude=LOOP_EXCLUDE if args.exclude is None else args.exclude)
     print(metrics_table(report["methods"], "loops"))
     print(f"wrote {args.out}/metrics.json")
@@ -156,12 +161,22 @@ class LoopsOnline(Online):
     def encode(self, image):
         return self.det.encoder.push(image)
 
-    def decide(self, encoded, name: str) -> Answer:
+    def decide(self, encoded, name: str) -> list[Answer]:
         r = self.det.update_encoded(encoded, name)
-        return Answer(r.frame, r.best, r.earlier_name, round(r.score, 4), r.accepted, r.earlier, r.scores)
+        return self._answers([*self.det.take_late(), *([r] if r is not None else [])])
 
-    def finish(self) -> None:
+    @staticmethod
+    def _answers(results) -> list[Answer]:
+        return [Answer(r.frame, r.best, r.earlier_name, round(r.score, 4), r.accepted, r.earlier, r.scores, r.name)
+                for r in sorted(results, key=lambda r: r.frame)]
+
+    def finish(self) -> list[Answer]:
         self.det.flush()
+        return self._answers(self.det.take_late())
+
+    def new_session(self) -> list[Answer]:
+        self.det.new_session()
+        return self._answers(self.det.take_late())
 
     def evaluate(self, result, names, indices) -> dict:
         if not self.gt.files:

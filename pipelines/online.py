@@ -56,6 +56,8 @@ class Answer:
     accepted: bool
     candidates: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     scores: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    #: the frame's name, where the answer may come in a later run (a frame that waited when the run stopped)
+    query_name: str | None = None
 
 
 class Online:
@@ -78,11 +80,17 @@ class Online:
     def encode(self, image):
         raise NotImplementedError
 
-    def decide(self, encoded, name: str) -> Answer:
+    def decide(self, encoded, name: str) -> Answer | list[Answer] | None:
+        """The frame's answer; or None while it waits (answered later, with another frame's, as a list)."""
         raise NotImplementedError
 
-    def finish(self) -> None:
-        """The stream ended (not stopped): decide what still waits (e.g. frames in a causal encoder)."""
+    def new_session(self):
+        """A line ``#session`` on stdin: the next frame starts a new run of the robot (returns answers of frames
+        that waited, as :meth:`decide`)."""
+
+    def finish(self):
+        """The stream ended (not stopped): decide what still waits (e.g. frames in a causal encoder); returns
+        their answers as :meth:`decide`."""
 
     def evaluate(self, result: MatchResult, names: list[str], indices: list[int]) -> dict:
         """Metrics of the answers against the ground truth ({} without one)."""
@@ -98,6 +106,9 @@ class Online:
 
 
 # ----------------------------------------------------------------- frames
+#: What :func:`stdin_frames` yields for a line ``#session``: the next frame starts a new session.
+SESSION = (-2, "#session", None, "session")
+
 #: A line longer than this is not a path (Linux's PATH_MAX).
 _MAX_PATH = 4096
 
@@ -132,7 +143,8 @@ def stdin_frames(stream, what: str = "stdin"):
     """(index, name, image, reason) of the image paths read from ``stream`` as they arrive.
 
     Unreadable images come with ``image`` None and the reason; blank lines
-    and ``#`` comments are skipped; a line that cannot be a path (a NUL byte,
+    and ``#`` comments are skipped, but for ``#session``, which comes as
+    :data:`SESSION` (a new run of the robot starts); a line that cannot be a path (a NUL byte,
     control characters, binary garbage) comes as ``stdin line N`` with the
     reason. Binary data where the first path should be (an image piped in
     instead of its path) is refused: ValueError naming ``what``.
@@ -142,6 +154,9 @@ def stdin_frames(stream, what: str = "stdin"):
     for lineno, raw in enumerate(_lines(stream), start=1):
         raw = raw.rstrip(b"\r\n")
         text = raw.strip()
+        if text == b"#session":
+            yield SESSION
+            continue
         if not text or text.startswith(b"#"):
             continue
         why = _garbage(text)
@@ -222,23 +237,12 @@ def run_online(job: Online, frames, out, stdout=None, state_out=None, n_rows: in
 def _run(job: Online, frames, out: Path, stdout, state_out, n_rows, claim: contextlib.ExitStack) -> dict:
     lines = JsonLines(stdout)
     names, indices, answers, lat_all, lat_dec, skipped = [], [], [], [], [], []
-    stop = None
-    t_run = time.perf_counter()
-    try:
-        for index, name, image, reason in frames:
-            if image is None:
-                skipped.append([name, reason])
-                print(f"vpr {job.command}: skipped {name}: {reason}", file=sys.stderr, flush=True)
-                continue
-            if not answers:
-                claim.enter_context(claim_methods(out, [job.method]))
-            with deferred():  # a stop waits for this frame: the state is always that of whole frames
-                t0 = time.perf_counter()
-                x = job.encode(image)
-                t1 = time.perf_counter()
-                a = job.decide(x, name)
-                t2 = time.perf_counter()
-            ms, ms_dec = (t2 - t0) * 1e3, (t2 - t1) * 1e3
+    waiting: list[tuple] = []  # (name, index, ms, ms_dec) of frames whose answers come later, in order
+
+    def answered(got) -> None:
+        for a in ([] if got is None else [got] if isinstance(got, Answer) else got):
+            # a frame pushed before a restart (it waited in the saved state) has no entry here
+            name, index, ms, ms_dec = waiting.pop(0) if waiting else (a.query_name or f"frame {a.query}", -1, 0.0, 0.0)
             names.append(name)
             indices.append(index)
             answers.append(a)
@@ -247,8 +251,31 @@ def _run(job: Online, frames, out: Path, stdout, state_out, n_rows, claim: conte
             lines.write({"query": a.query, "query_name": name, "best_db": a.best if a.best >= 0 else None,
                          "db_name": a.best_name, "score": a.score, "accepted": a.accepted,
                          "latency_ms": round(ms, 3)})
+
+    stop = None
+    t_run = time.perf_counter()
+    try:
+        for index, name, image, reason in frames:
+            if (index, name) == SESSION[:2]:
+                with deferred():
+                    answered(job.new_session())
+                continue
+            if image is None:
+                skipped.append([name, reason])
+                print(f"vpr {job.command}: skipped {name}: {reason}", file=sys.stderr, flush=True)
+                continue
+            if not answers and not waiting:
+                claim.enter_context(claim_methods(out, [job.method]))
+            with deferred():  # a stop waits for this frame: the state is always that of whole frames
+                t0 = time.perf_counter()
+                x = job.encode(image)
+                t1 = time.perf_counter()
+                got = job.decide(x, name)
+                t2 = time.perf_counter()
+                waiting.append((name, index, (t2 - t0) * 1e3, (t2 - t1) * 1e3))
+                answered(got)
         with deferred():
-            job.finish()
+            answered(job.finish())
     except KeyboardInterrupt as e:  # Ctrl-C, and SIGTERM (pipelines.interrupts.Terminated)
         stop = e
     seconds = time.perf_counter() - t_run

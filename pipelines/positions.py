@@ -106,7 +106,7 @@ def prepare_positions(srcs, roles, spec: GroundTruthSpec, every: float | None = 
                              "with --radius")
         return None
     # the options, before they are used (build_gt takes the positions as given)
-    spec.check(loops=len(srcs) == 1 if loops is None else loops)
+    spec.check(loops=len(srcs) == 1 if loops is None else loops, sessions=len(srcs))
     files = list(spec.files)
     if len(srcs) > 1 and len(files) == 1 and spec.keyword is None:
         kind = tr.trajectory_format(files[0])

@@ -29,11 +29,12 @@ from pipelines.features import extract
 from pipelines.interrupts import deferred
 from pipelines.outputs import claim_methods, merge_metrics, method_metrics, versions, warn, write_method
 from pipelines.positions import prepare_positions
-from vpr import groundtruth, io, methods
+from vpr import evaluate, groundtruth, io, methods
 from vpr.groundtruth import GroundTruthSpec, build_gt, build_loop_gt
+from vpr.groundtruth.files import is_loop_pairs_file
 from vpr.shosm import LOOP_EXCLUDE
 from vpr.sources import FrameSkippedWarning, open_source
-from vpr.types import MatchResult
+from vpr.types import EncodedTraverse, MatchResult
 
 __all__ = ["RunOptions", "run_compare", "run_loops", "run_methods", "exclude_frames", "peak_rss_mb", "check_fit_frames",
            "prepare_run", "extract_all", "check_match", "compare_query", "MatchMap"]
@@ -438,59 +439,114 @@ def exclude_frames(exclude, source) -> int:
 def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCLUDE) -> dict:
     """Loop closures within the traverse ``seq`` with ``method``; writes the same outputs as ``match``.
 
+    ``seq``: one source, or a list of sources that are the sessions of one
+    stream (a robot's runs, in order): learned one after the other, closures
+    onto every earlier session count, and nothing of a session's last moment
+    carries into the next (:meth:`vpr.shosm.LoopStream.new_session`);
+    ``metrics.json`` then reports each session pair (``sessions``).
     ``exclude``: frames, or ``"Ns"`` seconds for a video (:func:`exclude_frames`).
     Ground truth (:func:`vpr.groundtruth.build_loop_gt`): a positions file
-    (``frame,x,y`` or ``traverse,frame,x,y``) with ``opts.gt.radius`` (pairs
-    within ``opts.gt.soft`` but not ``radius`` are ignored), a ``frame,earlier``
-    pairs CSV, or loop matrices (``.npy``, ``.png``, ``.bmp``, ``.mat``).
-    Checks as in :func:`run_compare`.
+    (``frame,x,y`` or ``traverse,frame,x,y``; with sessions one each, or one
+    with ``traverse`` rows) with ``opts.gt.radius`` (pairs within ``opts.gt.soft``
+    but not ``radius`` are ignored), positions from a bag's topic, a
+    ``frame,earlier`` pairs CSV, or loop matrices (``.npy``, ``.png``,
+    ``.bmp``, ``.mat``) over the sessions' frames in order. Checks as in
+    :func:`run_compare`.
     """
     out = Path(opts.out)
-    runners, encoder, (src,), positions = prepare_run(out, [seq], ["sequence"], [method], opts)
-    exclude = exclude_frames(exclude, src)  # frames, or seconds with the video's rate
+    seqs = [seq] if isinstance(seq, (str, Path)) else list(seq)
+    roles = ["sequence"] if len(seqs) == 1 else [f"session {k + 1}" for k in range(len(seqs))]
+    runners, encoder, srcs, positions = prepare_run(out, seqs, roles, [method], opts)
+    exclude = exclude_frames(exclude, srcs[0])  # frames, or seconds with the (first) video's rate
     runner = runners[method]
     if not runner.supports_loops:
         raise ValueError(runner.no_loops_reason or f"{method} does not support loop closure within one traverse")
-    attempted = src.indices()
-    runner.check_size(len(attempted), len(attempted))
-    if exclude >= len(attempted):
-        raise ValueError(f"--exclude {exclude} leaves no pair to compare: {src.path} has {len(attempted)} frames "
-                         "to read, and a loop closure needs frames at least --exclude apart")
-    gt_hard, gt_soft = build_loop_gt(opts.gt, src.names(), attempted, src.name, total=src.exact_total(),
-                                     positions=None if positions is None else positions[0])
+    attempted = [s.indices() for s in srcs]
+    T = sum(len(a) for a in attempted)
+    runner.check_size(T, T)
+    if exclude >= max(len(a) for a in attempted):
+        raise ValueError(f"--exclude {exclude} leaves no pair to compare within a session: {srcs[0].path} has "
+                         f"{len(attempted[0])} frames to read, and a loop closure needs frames at least --exclude "
+                         "apart")
+    sessions = [0, *np.cumsum([len(a) for a in attempted])[:-1].tolist()]
+    gt_hard, gt_soft = _stream_gt(opts.gt, srcs, attempted, sessions, positions)
     mask = None
     if gt_hard is not None:
-        mask = groundtruth.loop_closure_mask(len(attempted), exclude=exclude)
+        mask = groundtruth.loop_closure_mask(T, exclude=exclude, starts=sessions)
         if not _any_true(gt_hard & mask):
             raise opts.gt.no_match_error(exclude=exclude)
     # ---- the work starts here: nothing above wrote a file
     with claim_methods(out, runners):  # a second run of this method into out meanwhile is refused
-        (ex,) = extract_all([src], ["sequence"], encoder, runners, opts)
+        exs = extract_all(srcs, roles, encoder, runners, opts)
+        read = [ex.indices for ex in exs]
+        starts = [0, *np.cumsum([len(ex.features) for ex in exs])[:-1].tolist()]
+        features = _joined(exs, srcs) if len(exs) > 1 else exs[0].features
         if gt_hard is not None:
-            rows = _gt_rows(attempted, ex.indices)
+            rows = np.concatenate([np.asarray(_gt_rows(a, r), np.int64) + o
+                                   for a, r, o in zip(attempted, read, sessions, strict=True)])
             gt_hard = gt_hard[np.ix_(rows, rows)]
             gt_soft = gt_soft[np.ix_(rows, rows)] if gt_soft is not None else None
-            mask = groundtruth.loop_closure_mask(len(ex.features), exclude=exclude)
+            mask = groundtruth.loop_closure_mask(len(features), exclude=exclude, starts=starts)
             if not _any_true(gt_hard & mask):  # skipped frames took the last true pairs
                 raise opts.gt.no_match_error(exclude=exclude)
-        names = ex.features.names
+        names = features.names
         confs = {}
 
         def write(m: str, res: MatchResult, evaluated) -> dict:
             confs[m] = res.conf
+            if gt_hard is not None and len(srcs) > 1:
+                evaluated[0]["sessions"] = evaluate.session_pairs(res.best_db, res.accepted, gt_hard, starts,
+                                                                  gt_soft, mask, [s.name for s in srcs])
             write_method(out / m, m, res, evaluated, names, names, gt_hard, gt_soft, title=f"{m}: loop closures",
                          loops=True, mask=mask)
-            io.save_json(out / m / "config.json", _config(opts, command="loops", seq=str(seq), method=m,
-                                                          exclude=exclude))
+            io.save_json(out / m / "config.json", _config(opts, command="loops", seq=[str(q) for q in seqs],
+                                                          method=m, exclude=exclude))
 
-        done = run_methods(runners, lambda r: r.loops(ex.features, exclude=exclude, progress=opts.progress),
+        done = run_methods(runners, lambda r: r.loops(features, exclude=exclude, progress=opts.progress,
+                                                      sessions=starts),
                            gt_hard, gt_soft, mask, on_result=write, loops=True)
-        inputs = {"kind": "loops", "seq": src.key(), "exclude": exclude,
-                  "encoder": encoder.name, "encoder_conf": encoder.conf, "ground_truth": opts.gt.describe()}
+        inputs = {"kind": "loops", "seq": [s.key() for s in srcs] if len(srcs) > 1 else srcs[0].key(),
+                  "exclude": exclude, "encoder": encoder.name, "encoder_conf": encoder.conf,
+                  "ground_truth": opts.gt.describe()}
         report = {"methods": {k: e for k, (e, _) in done.items()},
-                  "params": {"command": "loops", "seq": str(seq), "exclude": exclude,
-                             "encoder": encoder.name, "encoder_conf": encoder.conf, "method_conf": confs,
-                             "n_frames": len(ex.features), "encode_seconds": ex.seconds, "skipped": ex.skipped,
+                  "params": {"command": "loops", "seq": str(seq) if len(seqs) == 1 else [str(q) for q in seqs],
+                             "exclude": exclude, "encoder": encoder.name, "encoder_conf": encoder.conf,
+                             "method_conf": confs, "n_frames": len(features),
+                             "sessions": [{"source": str(q), "first_frame": a, "frames": len(ex.features)}
+                                          for q, a, ex in zip(seqs, starts, exs, strict=True)],
+                             "encode_seconds": sum(ex.seconds for ex in exs),
+                             "skipped": [sk for ex in exs for sk in ex.skipped],
                              "ground_truth": opts.gt.describe(), "inputs": inputs},
                   "versions": versions()}
-        return merge_metrics(out, report, f"loop closures in {src.name}")
+        return merge_metrics(out, report, f"loop closures in {', '.join(s.name for s in srcs)}")
+
+
+def _joined(exs, srcs) -> EncodedTraverse:
+    """The sessions' encodings as one stream, frame names prefixed with their source (``day/0001.png``)."""
+    names = [f"{s.name}/{n}" for s, ex in zip(srcs, exs, strict=True) for n in ex.features.names]
+    keys = set.intersection(*(set(k for k, v in ex.features.inputs.items() if v is not None) for ex in exs))
+    inputs = {}
+    for k in keys:
+        parts = [ex.features.inputs[k] for ex in exs]
+        inputs[k] = sp.vstack(parts).tocsr() if sp.issparse(parts[0]) else np.concatenate(parts)
+    return EncodedTraverse(names, **inputs)
+
+
+def _stream_gt(spec: GroundTruthSpec, srcs, attempted, sessions, positions):
+    """The loop ground truth of one stream, or of the sessions of one, over the frames to attempt in order."""
+    if len(srcs) == 1:
+        src = srcs[0]
+        return build_loop_gt(spec, src.names(), attempted[0], src.name, total=src.exact_total(),
+                             positions=None if positions is None else positions[0])
+    if positions is not None:
+        return build_loop_gt(spec, [], [], positions=np.concatenate(positions))
+    if spec.files and is_loop_pairs_file(spec.files[0]):
+        raise ValueError(f"--gt {spec.files[0]}: vpr render's loop_pairs.csv pairs frames of one traverse; for "
+                         "sessions give positions (its ground_truth.csv with --radius)")
+    totals = [s.exact_total() for s in srcs]
+    offsets = np.cumsum([0, *[t if t is not None else len(a) for t, a in zip(totals, attempted, strict=True)]])
+    names = [f"{s.name}/{n}" for s in srcs for n in s.names()]
+    indices = [int(i) + int(o) for a, o in zip(attempted, offsets, strict=False) for i in a]
+    total = int(offsets[-1]) if all(t is not None for t in totals) else None
+    return build_loop_gt(spec, names, indices, None, total=total)
+

@@ -66,7 +66,7 @@ SCORES = (2.0, 4.0, 8.0, 12.0, 16.0, 24.0, 32.0)
 Z_MINS = (3.0, 4.0, 5.0, 6.0)
 
 
-def _sources(case: str, data: Path, tmp: Path):
+def case_sources(case: str, data: Path, tmp: Path):
     """(map source, query source, hard (n_map x n_q), soft)."""
     if case.startswith("nordland"):
         root = data / "nordland_trimmed"
@@ -103,7 +103,7 @@ def columns(case: str, preset: str, data: Path, cache: Path):
         with np.load(path) as z:
             C = sp.csr_matrix((z["val"], z["idx"], z["ptr"]), shape=tuple(z["shape"]))
             return C, z["fill"], z["zbest"], z["hard"], z["soft"]
-    m, q, hard, soft = _sources(case, data, cache)
+    m, q, hard, soft = case_sources(case, data, cache)
     s = presets.resolve(preset)
     enc = encoders.get(s["encoder"], **s["encoder_conf"])
     ex = extract(m, enc, ("sdr",), progress=False)  # fits standardise=fit on the map, as `vpr learn`
@@ -159,7 +159,7 @@ def measure(best, ok, hard, soft) -> dict:
             "precision": tp / (tp + fp) if tp + fp else None, "recall": tp / max(int(has.sum()), 1)}
 
 
-def _cell(r: dict) -> str:
+def cell(r: dict) -> str:
     p = "-" if r["precision"] is None else f"{r['precision']:.3f}"
     return f"{r['recall']:.2f} ({p}, {r['accepted']})"
 
@@ -208,7 +208,7 @@ def main(argv=None) -> int:
     for rule, per in results.items():
         name = f"z >= {rule[1]:g}" + (" (old default)" if rule[1] == 4.0 else "") if rule[0] == "z" else \
             f"drift {rule[1]:g}, min_score {rule[2]:g}"
-        print(f"| {name} | " + " | ".join(_cell(per[k]) for k in keys) + " |")
+        print(f"| {name} | " + " | ".join(cell(per[k]) for k in keys) + " |")
     chosen = choose(results, keys, a.min_precision)
     print("\nR@1 per case: " + ", ".join(f"{k} {results[('z', 4.0, 0.0)][k]['r1']:.2f}" for k in keys))
     if chosen is None:
@@ -220,7 +220,7 @@ def main(argv=None) -> int:
         for case in CASES:
             held = [k for k in keys if k.endswith(": " + case)]
             rule = choose(results, [k for k in keys if k not in held], a.min_precision)
-            cells = "; ".join(f"{k.split(':')[0]} {_cell(results[rule][k])}" for k in held) if rule else "-"
+            cells = "; ".join(f"{k.split(':')[0]} {cell(results[rule][k])}" for k in held) if rule else "-"
             print(f"| {case} | " + (f"drift {rule[1]:g}, min_score {rule[2]:g}" if rule else "none") + f" | {cells} |")
     conf = PathConf()
     print(f"\nWith the defaults (PathConf: drift {conf.drift:g}, min_score {conf.min_score:g}):\n")

@@ -21,7 +21,7 @@ from vpr.checks import check_top_k
 
 __all__ = ["overlap_similarity", "cosine", "neg_sad", "mean_abs_diff", "topk_sparse", "DENSE_PAIRS_LIMIT",
            "best_matches", "mask_recent", "fits_dense", "top_k_or_dense", "check_dense", "pack_bits", "bitsets_pay",
-           "TOP_K"]
+           "TOP_K", "candidate_limit", "n_candidates"]
 
 #: Above this many database x query pairs a dense similarity matrix is refused: use ``top_k``.
 #: The one size limit of the project (also used to choose dense or top-K output).
@@ -390,17 +390,38 @@ def best_matches(S) -> tuple[np.ndarray, np.ndarray]:
     return best, S[best, np.arange(S.shape[1])].astype(np.float64)
 
 
-def mask_recent(S, exclude: int):
-    """Keep only pairs (i, j) with i <= j - exclude of a T x T loop matrix: earlier frames, far enough back.
+def n_candidates(j: int, exclude: int, start: int = 0) -> int:
+    """Frames ``0 .. n - 1`` are frame ``j``'s loop-closure candidates: those at least ``exclude`` back, and every
+    frame of the earlier sessions (this one began at ``start``); the rule of :func:`candidate_limit`, one frame."""
+    return max(j - max(int(exclude), 1) + 1, start, 0)
+
+
+def candidate_limit(T: int, exclude: int, starts=None) -> np.ndarray:
+    """``n[j]``: earlier frames ``0 .. n[j] - 1`` are frame ``j``'s loop-closure candidates.
+
+    Those at least ``exclude`` back, and every frame of an earlier session
+    (``starts``: the first frame of each session; ``exclude`` holds within one).
+    """
+    idx = np.arange(T)
+    n = idx - max(int(exclude), 1) + 1
+    if starts is not None and len(starts) > 1:
+        starts = np.asarray(sorted(starts), np.int64)
+        n = np.maximum(n, starts[np.searchsorted(starts, idx, side="right") - 1])
+    return np.maximum(n, 0)
+
+
+def mask_recent(S, exclude: int, starts=None):
+    """Keep only the loop-closure candidates of a T x T loop matrix (:func:`candidate_limit`): earlier frames,
+    far enough back within a session.
 
     Dense: other entries become ``-inf`` (a float32 copy); sparse: they are dropped.
     """
-    exclude = max(int(exclude), 1)
+    n = candidate_limit(S.shape[1], exclude, starts)
     if sp.issparse(S):
         C = sp.coo_matrix(S)
-        keep = C.row <= C.col - exclude
+        keep = C.row < n[C.col]
         return sp.csr_matrix((C.data[keep], (C.row[keep], C.col[keep])), shape=S.shape)
     S = np.array(S, dtype=np.float32, copy=True)
     i, j = np.indices(S.shape)
-    S[i > j - exclude] = -np.inf
+    S[i >= n[j]] = -np.inf
     return S

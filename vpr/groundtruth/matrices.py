@@ -11,6 +11,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from vpr.checks import check_count, check_float
+from vpr.similarity import candidate_limit
 
 __all__ = ["gt_from_labels", "gt_from_frames", "gt_from_tolerance", "gt_from_positions", "loop_closure_mask",
            "loop_closure_gt"]
@@ -175,7 +176,7 @@ def gt_from_positions(db_xy, q_xy, radius, sparse=False):
     return gt
 
 
-def loop_closure_mask(T, exclude=0):
+def loop_closure_mask(T, exclude=0, starts=None):
     """Pairs evaluated for single-stream loop closure on a ``T x T`` matrix.
 
     ``mask[i, j]`` is True exactly when ``i < j`` and ``j - i >= exclude``:
@@ -184,6 +185,10 @@ def loop_closure_mask(T, exclude=0):
     they are trivially similar. ``exclude`` of 0 or 1 keeps all ``i < j``.
     This is ``np.triu(np.ones((T, T), bool), k=max(exclude, 1))``.
 
+    ``starts``: the first frame of each session of a stream that joins several
+    runs; ``exclude`` holds within a session, every frame of an earlier
+    session is a candidate (:func:`vpr.similarity.candidate_limit`).
+
     Raises
     ------
     ValueError
@@ -191,8 +196,7 @@ def loop_closure_mask(T, exclude=0):
     """
     T = check_count(T, "T")
     exclude = check_count(exclude, "exclude")
-    idx = np.arange(T)
-    return (idx[None, :] - idx[:, None]) >= max(exclude, 1)
+    return np.arange(T)[:, None] < candidate_limit(T, exclude, starts)[None, :]
 
 
 def loop_closure_gt(labels_or_xy, radius=None, exclude=0, sparse=False):

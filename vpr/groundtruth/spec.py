@@ -79,11 +79,12 @@ class GroundTruthSpec:
         """Ground truth from positions of the frames (``--radius``): every source's frames get a position."""
         return self.radius is not None
 
-    def check(self, loops: bool = False, files: bool = True) -> None:
+    def check(self, loops: bool = False, files: bool = True, sessions: int = 1) -> None:
         """Refuse contradictory, ignored or out-of-range options and missing files, before any work.
 
         ``loops``: the ground truth of ``vpr loops`` (one positions file with ``--radius``).
         ``files=False``: the options only (files written later, e.g. by a render).
+        ``sessions``: the sources of a multi-session stream (one positions file each, or one for all).
 
         Raises
         ------
@@ -140,11 +141,11 @@ class GroundTruthSpec:
             if soft < hard:
                 raise ValueError(f"--gt-soft {soft:g} is smaller than {name} {hard:g}: the soft ground truth "
                                  f"(pairs ignored) must reach at least as far as the true matches")
-        if loops and not matrices and len(files) > 1:
-            raise ValueError(f"loops: --gt takes one CSV file (positions with --radius, or frame,earlier pairs), "
-                             f"got {len(files)}")
-        if not matrices and len(files) == 2 and radius is None:
-            raise ValueError("two --gt CSV files are positions files and need --radius")
+        if loops and not matrices and len(files) > 1 and not (radius is not None and len(files) == sessions):
+            raise ValueError(f"loops: --gt takes one CSV file (positions with --radius, or frame,earlier pairs; "
+                             f"with several sessions one positions file each), got {len(files)}")
+        if not matrices and len(files) >= 2 and radius is None:
+            raise ValueError(f"{len(files)} --gt CSV files are positions files and need --radius")
         for f in files if check_files else ():
             fp, _ = split_variable(f)
             if not fp.exists():

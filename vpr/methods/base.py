@@ -109,10 +109,10 @@ class Method:
         """:meth:`_match` given ``state = _fit(db)`` (must not change ``state``: it serves many queries)."""
         return self._match(db, query, progress)
 
-    def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool):
+    def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool, sessions=(0,)):
         """(similarity before masking, decisions): decisions None to use :meth:`accept` on the best matches, an
-        accepted array, or (best, score, accepted) of the method's own per-frame decision. Not overridden:
-        unsupported."""
+        accepted array, or (best, score, accepted) of the method's own per-frame decision. ``sessions``: the first
+        frame of each session of the stream. Not overridden: unsupported."""
         raise NotImplementedError
 
     # ---------------------------------------------------------------- public
@@ -133,23 +133,30 @@ class Method:
         state = self._fit(db, progress)
         return Fitted(self, db, state, time.perf_counter() - t)
 
-    def loops(self, seq: EncodedTraverse, exclude: int = 1, progress: bool = False) -> MatchResult:
+    def loops(self, seq: EncodedTraverse, exclude: int = 1, progress: bool = False, sessions=None) -> MatchResult:
         """Loop closures within one traverse: for each frame, the best earlier frame and the decision.
 
         Only pairs ``i <= j - exclude`` are candidates (``exclude >= 1``); other
         entries of the returned similarity are ``-inf`` (dense) or absent
         (sparse). The result's ``score`` is what the decision thresholds (the
         similarity of the best match, or a method's own per-frame score).
+        ``sessions``: the first frame of each session (a stream joining a
+        robot's runs): ``exclude`` holds within a session, every frame of an
+        earlier session is a candidate, and a method with a memory forgets its
+        context at each start (:meth:`vpr.shosm.LoopStream.new_session`).
         Methods that cannot do this raise ValueError.
         """
         exclude = check_exclude(exclude)
+        sessions = tuple(sorted({0, *(int(s) for s in (sessions or ()))}))
+        if sessions[-1] >= max(len(seq), 1) or sessions[0] < 0:
+            raise ValueError(f"sessions must start at frames 0 .. {len(seq) - 1}, got {list(sessions)}")
         if not self.supports_loops:
             raise ValueError(self.no_loops_reason or f"{self.name} does not support loop closure within one traverse")
         self.check_size(len(seq), len(seq))
         self.warm_up()
         t = time.perf_counter()
-        S, decisions = self._loops(seq, int(exclude), progress)
-        S = mask_recent(S, exclude)
+        S, decisions = self._loops(seq, int(exclude), progress, sessions)
+        S = mask_recent(S, exclude, sessions)
         if isinstance(decisions, tuple):  # the method's own decision: best frame, its score, accepted
             best, score, accepted = (np.asarray(a) for a in decisions)
             best = best.astype(np.int64)

@@ -63,5 +63,5 @@ class Pairwise(Method):
         best, score = best_matches(S)
         return S, best, score, None
 
-    def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool):
+    def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool, sessions=(0,)):
         return self._similarity(seq, None), None

@@ -1,6 +1,8 @@
 """``rshosm``: the paper's sequence memory; winner codes compared by overlap."""
 from __future__ import annotations
 
+import scipy.sparse as sp
+
 from vpr import sdr, similarity
 from vpr.shosm import SequenceMemory, pad_codes
 from vpr.similarity import TOP_K, best_matches, top_k_or_dense
@@ -67,7 +69,13 @@ class Rshosm(Method):
         best, score = best_matches(S)
         return S, best, score, None
 
-    def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool):
+    def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool, sessions=(0,)):
         n = len(seq)
-        codes = self.memory().run(self.need(seq, "sdr", "sequence"), progress=progress)
+        x, mem = self.need(seq, "sdr", "sequence"), self.memory()
+        bounds = [*sessions, n]
+        parts = []
+        for a, b in zip(bounds[:-1], bounds[1:], strict=True):  # each session from a fresh context, learning kept
+            mem.reset()
+            parts.append(mem.run(x[a:b], progress=progress))
+        codes = sp.vstack(pad_codes(*parts)).tocsr()
         return similarity.overlap_similarity(codes, top_k=top_k_or_dense(n, n, self.conf["top_k"])), None

@@ -7,6 +7,8 @@ the :class:`~vpr.methods.base.Method` interface.
 """
 from __future__ import annotations
 
+import numpy as np
+
 from vpr import sdr
 from vpr.shosm import (
     DENSE_EVIDENCE_PAIRS,
@@ -15,6 +17,7 @@ from vpr.shosm import (
     LoopDetector,
     RshosmSeqConf,
     SequenceMemory,
+    accept_path,
     loop_evidence,
     query_evidence,
 )
@@ -70,9 +73,10 @@ class RshosmSeq(Method):
         """Loop closure one frame at a time with this conf (``vpr loops -``): the answers of :meth:`loops`."""
         return LoopDetector(encoder, self.seq, exclude=exclude)
 
-    def localizer(self, db_sdr, names, progress: bool = False) -> Localizer:
-        """Learn the database ``db_sdr`` (named ``names``) into a :class:`vpr.shosm.Localizer` with this conf."""
-        return Localizer.from_database(db_sdr, names, progress=progress, conf=self.seq)
+    def localizer(self, db_sdr, names, progress: bool = False, sessions=None) -> Localizer:
+        """Learn the database ``db_sdr`` (named ``names``; ``sessions``: the first frame of each run of a
+        multi-session map) into a :class:`vpr.shosm.Localizer` with this conf."""
+        return Localizer.from_database(db_sdr, names, progress=progress, conf=self.seq, sessions=sessions)
 
     def warm_up(self) -> None:
         mem = warm_up_memory()
@@ -95,9 +99,11 @@ class RshosmSeq(Method):
         top_k = top_k_or_dense(len(db), len(query), seq.top_k, DENSE_EVIDENCE_PAIRS) if seq.top_k else None
         r = query_evidence(mem, q_sdr, db_codes, seq.evidence, direction=seq.direction, top_k=top_k,
                            beam=seq.beam, progress=progress)
-        return r.similarity, r.best_db, r.score, None
+        # the decision of a robot localising against the map (vpr localize): a path score, query by query
+        _, score, accepted = accept_path(r.similarity, seq.path())
+        return r.similarity, r.best_db, np.where(r.best_db >= 0, score, -np.inf), accepted & (r.best_db >= 0)
 
-    def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool):
+    def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool, sessions=(0,)):
         """Loop closures within one stream, learned online, scored by forward sequence evidence.
 
         :func:`vpr.shosm.loop_evidence`: the stream is learned frame by frame
@@ -109,6 +115,6 @@ class RshosmSeq(Method):
         :func:`vpr.shosm.accept_loops`.
         """
         x = self.need(seq, "sdr", "loop")
-        ev = loop_evidence(x, exclude=int(exclude), conf=self.seq, progress=progress)
+        ev = loop_evidence(x, exclude=int(exclude), conf=self.seq, progress=progress, sessions=sessions)
         d = ev.decisions
         return ev.similarity, (d.best, d.score, d.accepted)

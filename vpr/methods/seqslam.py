@@ -117,7 +117,7 @@ class SeqSlam(Method):
             return res.similarity, res.best_db.astype(np.int64), -res.best_score.astype(np.float64), res.accepted
         return self._run(difference_matrix(a, b, metric=self.conf["metric"]))
 
-    def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool):
+    def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool, sessions=(0,)):
         check_dense(f"{self.name} loop closure", len(seq), len(seq))
         x = self.descriptors(seq, "sequence")
         D = difference_matrix(x, x, metric=self.conf["metric"])

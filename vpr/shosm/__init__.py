@@ -34,7 +34,7 @@ from .conf import (
     memory_params,
 )
 from .connections import Connections, MemoryView
-from .decide import LoopDecider, LoopDecisions, PathDecider, accept_loops, stationary_closures
+from .decide import LoopDecider, LoopDecisions, PathDecider, accept_loops, accept_path, stationary_closures
 from .detector import LoopDetector, LoopResult
 from .evidence import EvidenceResult, dense_evidence, query_evidence, sparse_evidence, zscore_columns
 from .localizer import Localizer, LocalizerResult
@@ -48,5 +48,6 @@ __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pa
            "BeamConf", "LoopConf", "PathConf", "RshosmSeqConf", "DECISION_KEYS", "memory_params",
            "query_evidence", "dense_evidence", "sparse_evidence", "zscore_columns", "EvidenceResult",
            "ForwardEvidence", "FrameEvidence", "Localizer", "LocalizerResult",
-           "loop_evidence", "LoopEvidence", "LoopStream", "FrameLoop", "accept_loops", "LoopDecider", "LoopDecisions",
+           "loop_evidence", "LoopEvidence", "LoopStream", "FrameLoop", "accept_loops", "accept_path", "LoopDecider",
+           "LoopDecisions",
            "PathDecider", "stationary_closures", "LOOP_UNCAPPED_MAX", "LOOP_DENSE_MAX", "LoopDetector", "LoopResult"]

@@ -15,11 +15,12 @@ import scipy.sparse as sp
 
 from vpr import sdr as _sdr
 from vpr.checks import check_exclude
+from vpr.similarity import n_candidates
 
 from .conf import LoopConf, PathConf
 from .kernels import decide as KD
 
-__all__ = ["LoopDecisions", "LoopDecider", "PathDecider", "accept_loops", "stationary_closures"]
+__all__ = ["LoopDecisions", "LoopDecider", "PathDecider", "accept_loops", "accept_path", "stationary_closures"]
 
 
 @dataclass
@@ -46,7 +47,8 @@ class LoopDecider:
     (the z-scores ``vals`` of the candidates ``rows``, sorted; a candidate not
     stored has the z ``fill``); frames must come in order ``0, 1, 2, ...``.
     ``sdr`` (the stream's SDR rows so far, grown with :meth:`add_sdr`) enables
-    the stop check.
+    the stop check. :meth:`new_session` starts a new run of the robot: the
+    path restarts, and never moves on across the boundary.
     """
 
     def __init__(self, conf: LoopConf | None = None, capacity: int = 1024):
@@ -57,6 +59,13 @@ class LoopDecider:
         self.st = np.array([0.0, float(KD._NONE), 0.0])
         self._set_sdr(np.zeros(1, np.int64), np.zeros(0, np.int64))
         self._check_stops = float(self.conf.stop_ratio) > 0
+        self.starts = np.zeros(1, np.int64)  # the first frame of every session
+
+    def new_session(self) -> None:
+        """The next frame starts a new session: no path carries over into it."""
+        if self.frames > self.starts[-1]:
+            self.starts = np.r_[self.starts, self.frames]
+        self.st[:] = (0.0, float(KD._NONE), float(self.frames))
 
     def _grow(self, n: int) -> None:
         if n > self.place.size:
@@ -94,7 +103,7 @@ class LoopDecider:
         out = KD.decide_frame(j, np.asarray(rows, np.int64), np.asarray(vals, np.float64), int(n), float(fill),
                               float(c.drift), float(c.min_score), int(c.back), int(c.ahead), float(c.island),
                               float(c.stop_ratio) if self._check_stops else 0.0, self._sdr_ptr, self._sdr_ind,
-                              self.place, self.path_b, self.st)
+                              self.place, self.path_b, self.st, self.starts)
         self.frames += 1
         return out
 
@@ -102,7 +111,7 @@ class LoopDecider:
         """The state after the frames decided so far, as arrays (:meth:`load_state` continues from it)."""
         n = self.frames
         return {"place": self.place[:n].copy(), "path_b": self.path_b[:n].copy(), "st": self.st.copy(),
-                "sdr_ptr": self._sdr_ptr.copy(), "sdr_ind": self._sdr_ind.copy()}
+                "sdr_ptr": self._sdr_ptr.copy(), "sdr_ind": self._sdr_ind.copy(), "starts": self.starts.copy()}
 
     def load_state(self, state: dict) -> LoopDecider:
         n = int(np.asarray(state["place"]).size)
@@ -111,6 +120,7 @@ class LoopDecider:
         self.place[:n], self.path_b[:n] = state["place"], state["path_b"]
         self.st[:] = state["st"]
         self._set_sdr(state["sdr_ptr"], state["sdr_ind"])
+        self.starts = np.asarray(state.get("starts", [0]), np.int64)  # states saved before sessions: one
         self.frames = n
         return self
 
@@ -124,10 +134,12 @@ class PathDecider:
     The state is the path score and its head (:meth:`state_dict`).
     """
 
-    def __init__(self, conf: PathConf | None = None):
+    def __init__(self, conf: PathConf | None = None, starts=None):
         self.conf = conf or PathConf()
         self.st = np.array([0.0, float(KD._NONE), 0.0])
         self._place = np.zeros(0, np.int64)
+        #: the first map frame of every session of the map (a path does not move on across one)
+        self.starts = np.zeros(1, np.int64) if starts is None else np.asarray(starts, np.int64)
 
     def decide(self, rows, vals, n: int, fill: float):
         if self._place.size < n:
@@ -135,7 +147,7 @@ class PathDecider:
         c = self.conf
         return KD.locate_frame(np.asarray(rows, np.int64), np.asarray(vals, np.float64), int(n), float(fill),
                                float(c.drift), float(c.min_score), int(c.back), int(c.ahead), float(c.island),
-                               self._place, self.st)
+                               self._place, self.st, self.starts)
 
     def reset(self) -> None:
         """A new query traverse: no path yet."""
@@ -191,9 +203,10 @@ def accept_loops(evidence, conf: LoopConf | None = None, sdr=None, exclude: int 
     LoopDecisions
     """
     conf = conf or LoopConf()
-    fill = None
+    fill, starts = None, (0,)
     if hasattr(evidence, "similarity") and hasattr(evidence, "fill"):  # a LoopEvidence
         S, fill, exclude = evidence.similarity, evidence.fill, evidence.exclude
+        starts = tuple(getattr(evidence, "starts", (0,)))
     else:
         S = evidence
         if exclude is None:
@@ -214,8 +227,13 @@ def accept_loops(evidence, conf: LoopConf | None = None, sdr=None, exclude: int 
         C.sort_indices()
     out = np.zeros((5, T))
     arange = np.arange(T, dtype=np.int64)
+    begin = set(starts) - {0}
+    start = 0
     for j in range(T):
-        n = max(j - exclude + 1, 0)
+        if j in begin:
+            decider.new_session()
+            start = j
+        n = n_candidates(j, exclude, start)
         if C is not None:
             a, b = C.indptr[j], C.indptr[j + 1]
             keep = C.indices[a:b] < n
@@ -229,6 +247,42 @@ def accept_loops(evidence, conf: LoopConf | None = None, sdr=None, exclude: int 
         out[:, j] = decider.decide(j, rows, vals, n, f)
     best = out[0].astype(np.int64)
     return LoopDecisions(best, out[1], out[2].astype(bool), out[3], out[4].astype(bool))
+
+
+def accept_path(S, conf: PathConf | None = None, sessions=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The decision against a map, query by query in order, over a whole query traverse's evidence.
+
+    The rule of :class:`vpr.Localizer` (:class:`PathDecider`, :class:`PathConf`):
+    the best database frame's margin over the strongest other place, minus
+    ``drift``, summed while the best frame moves on consistently; accepted
+    when the sum reaches ``min_score``. So that ``vpr match`` / ``compare``
+    accept what ``vpr localize`` would, with the same score, on the batch
+    evidence. ``S``: n_db x n_q z-scores, dense or top-K sparse (a missing
+    entry counts as the column's lowest stored z); ``sessions``: the first
+    database frame of each session of the map.
+
+    Returns
+    -------
+    (best, score, accepted): per query, the best database frame (-1: none), the path score, the decision.
+    """
+    decider = PathDecider(conf or PathConf(), sessions)
+    n_db, n_q = S.shape
+    best, score, ok = np.full(n_q, -1, np.int64), np.zeros(n_q), np.zeros(n_q, bool)
+    if sp.issparse(S):
+        C = sp.csc_matrix(S)
+        C.sort_indices()
+        cols = ((C.indices[C.indptr[j]:C.indptr[j + 1]], C.data[C.indptr[j]:C.indptr[j + 1]]) for j in range(n_q))
+    else:
+        A = np.asarray(S, np.float64)
+        rows_all = np.arange(n_db, dtype=np.int64)
+        cols = ((rows_all[np.isfinite(A[:, j])], A[np.isfinite(A[:, j]), j]) for j in range(n_q))
+    for j, (rows, vals) in enumerate(cols):
+        if not rows.size:
+            decider.decide(rows, vals, n_db, 0.0)
+            continue
+        b, sc, accepted, _ = decider.decide(rows, vals, n_db, float(vals.min()))
+        best[j], score[j], ok[j] = b, sc, accepted
+    return best, score, ok
 
 
 def stationary_closures(sdr, best, accepted, ratio: float = 0.35, chunk: int = 256) -> np.ndarray:

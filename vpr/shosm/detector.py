@@ -113,6 +113,8 @@ class LoopDetector:
         self._stream = LoopStream(exclude, self.seq)
         self.names: list[str] = []
         self.meta: dict = {}
+        #: answers of earlier frames decided late (:meth:`take_late`)
+        self._late: list[LoopResult] = []
 
     @property
     def frames(self) -> int:
@@ -149,34 +151,65 @@ class LoopDetector:
                              "encoder: pass SDR rows, or LoopDetector(encoder=...)")
         return self.update_encoded(self.encoder.push(frame_or_sdr), name)
 
-    def update_encoded(self, rows, name: str | None = None) -> LoopResult:
+    def update_encoded(self, rows, name: str | None = None) -> LoopResult | None:
         """The next frame, given what the encoder's ``push`` returned for it (the SDR rows of the frames now ready).
 
         :meth:`update` with an image is ``update_encoded(encoder.push(image))``;
-        separate, so that a caller can time encoding and deciding apart.
+        separate, so that a caller can time encoding and deciding apart. None
+        when the frame's answer is not known yet: the first frames of a later
+        session wait in a causal encoder for their statistics, and every frame
+        of the earlier sessions is their candidate; their answers come with
+        :meth:`take_late` once decided. (In the first session a waiting frame
+        has no candidate, so its answer is known at once.)
         """
         j = self.frames
         self.names.append(str(name) if name is not None else f"frame {j}")
         return self._learn(sp.csr_matrix(rows), j)
 
+    def new_session(self) -> None:
+        """The next frame starts a new run of the robot (a session): what was learned stays, closures onto earlier
+        sessions count, and nothing of the last frame carries over (:meth:`vpr.shosm.LoopStream.new_session`);
+        frames still waiting in the encoder are decided first, and its causal window starts again."""
+        if self.encoder is not None and hasattr(self.encoder, "new_session"):
+            self._release(sp.csr_matrix(self.encoder.new_session()))
+        self._stream.new_session()
+
+    def take_late(self) -> list[LoopResult]:
+        """The answers of earlier frames decided since the last call (frames that waited in the encoder)."""
+        out, self._late = self._late, []
+        return out
+
     def flush(self) -> None:
         """Learn the frames still waiting for their SDRs (a stream that ends before the encoder's delay)."""
         if self.encoder is not None and hasattr(self.encoder, "flush"):
-            self._learn(sp.csr_matrix(self.encoder.flush()), self.frames - 1)
+            self._release(sp.csr_matrix(self.encoder.flush()))
 
-    def _learn(self, rows: sp.csr_matrix, j: int) -> LoopResult:
+    def _release(self, rows: sp.csr_matrix) -> None:
+        """Decide the frames that waited in the encoder (the last ``rows.shape[0]`` frames pushed)."""
+        if not rows.shape[0]:
+            return
+        r = self._learn(rows, self.frames - 1)
+        if r is not None and self._stream.starts[-1] > 0:  # in a later session its answer was not given yet
+            self._late.append(r)
+
+    def _learn(self, rows: sp.csr_matrix, j: int) -> LoopResult | None:
         first = self._stream.frames
+        later_session = self._stream.starts[-1] > 0
         last = None
         for r in range(rows.shape[0]):
             last = self._stream.step(rows.indices[rows.indptr[r]:rows.indptr[r + 1]])
-            if first + r < j and last.n_candidates:  # pragma: no cover - guarded by exclude > delay
-                raise RuntimeError("a frame decided late had candidates")
+            if first + r < j:
+                if later_session:  # a frame that waited, with the earlier sessions as candidates: answered now
+                    self._late.append(self._result(first + r, last))
+                elif last.n_candidates:  # pragma: no cover - guarded by exclude > delay
+                    raise RuntimeError("a frame decided late had candidates")
         if self._stream.frames == j + 1 and last is not None:
             return self._result(j, last)
+        if j < 0 or later_session:
+            return None  # answered later (take_late)
         # the frame waits for its SDR; it has no candidate yet (exclude > delay), so its answer is known
         none = np.zeros(0, np.int64)
-        return LoopResult(j, self.names[j], -1, None, 0.0, False, 0.0, none, none.astype(np.float32)) \
-            if j >= 0 else None
+        return LoopResult(j, self.names[j], -1, None, 0.0, False, 0.0, none, none.astype(np.float32))
 
     def _result(self, j: int, f) -> LoopResult:
         b = int(f.best)

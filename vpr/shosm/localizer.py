@@ -40,7 +40,7 @@ from vpr import sdr as _sdr
 
 from .conf import RshosmSeqConf, memory_params
 from .decide import PathDecider
-from .memory import SequenceMemory
+from .memory import SequenceMemory, pad_codes
 from .state import load_state, save_state
 from .streaming import ForwardEvidence
 
@@ -99,7 +99,8 @@ class Localizer:
         Caller arrays stored with :meth:`save` (e.g. an encoder's fitted statistics).
     """
 
-    def __init__(self, memory: SequenceMemory, db_codes, names, conf: RshosmSeqConf | None = None, **flat):
+    def __init__(self, memory: SequenceMemory, db_codes, names, conf: RshosmSeqConf | None = None, sessions=None,
+                 **flat):
         self.seq = RshosmSeqConf.of(conf, flat, memory.get_params())
         names = [str(n) for n in names]
         if not sp.issparse(db_codes) or db_codes.shape[0] != len(names):
@@ -116,16 +117,21 @@ class Localizer:
         self._fwd = ForwardEvidence(memory, self.db_codes, seq.evidence, top_k=seq.top_k, exact=seq.exact,
                                     beam=seq.beam)
         self._initial = self._fwd.state_dict()
-        self._decider = PathDecider(seq.path())
+        #: the first map frame of each session of the map (a robot's runs learned one after the other)
+        self.sessions = np.asarray(sorted({0, *(int(s) for s in (sessions or ()))}), np.int64)
+        self._decider = PathDecider(seq.path(), self.sessions)
         self.meta: dict = {}
         self.arrays: dict = {}
 
     @classmethod
     def from_database(cls, db_sdr, names, progress: bool = False, conf: RshosmSeqConf | None = None,
-                      **flat) -> Localizer:
+                      sessions=None, **flat) -> Localizer:
         """Learn the database traverse ``db_sdr`` (SDR batch, frames x bits) named ``names``.
 
         ``conf`` (and ``**flat`` keys over it): rSHOSM-seq's conf, memory parameters included.
+        ``sessions``: the first frame of each session of a multi-session map: the
+        memory forgets its context at each (no frame is the successor of the last
+        one of another run), and a localisation path never moves on across one.
         """
         seq = RshosmSeqConf.of(conf, **flat)
         params = seq.memory_params
@@ -134,9 +140,14 @@ class Localizer:
         if x.shape[0] != len(names):
             raise ValueError(f"{x.shape[0]} database SDR rows but {len(names)} names")
         mem = SequenceMemory(**params)
-        codes = mem.run(x, progress=progress)
+        bounds = sorted({0, *(int(s) for s in (sessions or ()))} | {x.shape[0]})
+        parts = []
+        for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+            mem.reset()
+            parts.append(mem.run(x[a:b], progress=progress))
         mem.reset()
-        return cls(mem, codes, names, seq)
+        codes = sp.vstack(pad_codes(*parts)).tocsr() if len(parts) > 1 else parts[0]
+        return cls(mem, codes, names, seq, sessions=bounds[:-1])
 
     @property
     def n_db(self) -> int:
@@ -159,7 +170,7 @@ class Localizer:
         if fixed:
             raise ValueError(f"{', '.join(fixed)}: fixed by the map (the memory was learned with "
                              f"{', '.join(f'{k}={mine[k]}' for k in fixed)}); learn a new map to change them")
-        new = Localizer(self.memory, self.db_codes, self.names, self.seq.replace(**flat))
+        new = Localizer(self.memory, self.db_codes, self.names, self.seq.replace(**flat), sessions=self.sessions)
         if new.seq.exact == self.seq.exact:
             new._fwd.load_state(self._fwd.state_dict())
         new._decider.load_state(self._decider.state_dict())
@@ -199,7 +210,7 @@ class Localizer:
         """Write memory, database names and codes, streaming state, conf, ``meta`` and ``arrays`` (atomic ``.npz``)."""
         mem_header, mem_arrays = self.memory.to_arrays()
         header = {"conf": self.seq.flat(), "memory_params": mem_header["params"], "memory_rng": mem_header["rng"],
-                  "meta": self.meta, "db_shape": list(self.db_codes.shape)}
+                  "meta": self.meta, "db_shape": list(self.db_codes.shape), "sessions": self.sessions.tolist()}
         parts = {"mem": mem_arrays, "state": self._fwd.state_dict(), "decide": self._decider.state_dict(),
                  "user": self.arrays,
                  "db": {"indptr": self.db_codes.indptr.astype(np.int64),
@@ -224,7 +235,7 @@ class Localizer:
             codes = sp.csr_matrix((np.ones(idx.size, bool), idx, parts["db"]["indptr"]), shape=(n_db, width))
             # maps written before the path rule hold its predecessor's z_min: they load with the path rule
             conf = {k: v for k, v in header["conf"].items() if k != "z_min"}
-            loc = cls(mem, codes, names, **conf)
+            loc = cls(mem, codes, names, sessions=header.get("sessions"), **conf)
             loc._fwd.load_state(parts["state"])
             loc._decider.load_state(parts["decide"])
             loc.meta = header.get("meta", {})

@@ -19,6 +19,7 @@ from tqdm import tqdm
 
 from vpr import sdr as _sdr
 from vpr.checks import check_exclude, check_top_k
+from vpr.similarity import n_candidates
 
 from .beam import BIG, Beam, beam_params
 from .conf import LOOP_EXCLUDE, RshosmSeqConf
@@ -91,6 +92,7 @@ class LoopStream:
         self.conf, self.beam_conf, self.loop = self.seq.evidence, self.seq.beam, self.seq.loop()
         self.caps = caps
         self.mem = SequenceMemory(**self.seq.memory_params)
+        self.starts = [0]  # the first frame of every session
         self.decider = LoopDecider(self.loop)
         self.frames = 0
         self._params = {c: beam_params(self.conf, self.beam_conf if c else self.beam_conf.uncapped(), 0.0)
@@ -108,6 +110,22 @@ class LoopStream:
     @property
     def n_inputs(self) -> int:
         return self.mem.n_inputs
+
+    def new_session(self) -> None:
+        """The next frame starts a new run of the robot (a session).
+
+        What was learned stays, and later frames close loops onto every
+        earlier session; nothing of the last session's last moment carries
+        over: the memory's context (Algorithm 1's previous winner cells, so the
+        first frame of this run is nobody's successor), the evidence in the
+        beam and the decision's path. ``exclude`` holds within a session only.
+        """
+        if self.frames == self.starts[-1]:
+            return  # nothing since the last start: already a new session
+        self.mem.reset()
+        self._beam.set_beam(np.zeros(0, np.int64), np.zeros(0, np.float64))
+        self.decider.new_session()
+        self.starts.append(self.frames)
 
     def _capped(self, j: int) -> bool:
         return j >= LOOP_UNCAPPED_MAX if self.caps == "auto" else bool(self.caps)
@@ -154,6 +172,7 @@ class LoopStream:
         """
         mem_header, mem_arrays = self.mem.to_arrays()
         header = {"exclude": self.exclude, "seq": self.seq.flat(), "caps": self.caps, "frames": self.frames,
+                  "starts": list(self.starts),
                   "n_nodes": self._n_nodes, "n_cells": self._g["n_cells"], "memory": mem_header}
         arrays = {f"mem_{k}": v for k, v in mem_arrays.items()}
         arrays.update({f"g_{k}": self._g[k] for k in self._G_ARRAYS})
@@ -173,6 +192,7 @@ class LoopStream:
         s = cls(header["exclude"], RshosmSeqConf.build({**seq, **mem_h["params"]}), header["caps"])
         s.mem = SequenceMemory.from_arrays(mem_h, {k[4:]: v for k, v in arrays.items() if k.startswith("mem_")})
         s.frames, s._n_nodes = int(header["frames"]), int(header["n_nodes"])
+        s.starts = [int(v) for v in header.get("starts", [0])]
         g = s._g
         g["n_cells"] = int(header["n_cells"])
         for k in cls._G_ARRAYS:
@@ -200,10 +220,10 @@ class LoopStream:
         old_len, ne_old = self.mem.view().bit_len.copy(), self.mem.n_connections
         winners = self.mem.step(bits)
         self._attach(j, bits, winners, old_len, ne_old)
+        n = n_candidates(j, self.exclude, self.starts[-1])
         p, rows, val = self._beam.run(self._g, self._a, np.array([0, bits.size], np.int64), bits,
-                                      np.zeros(1, np.int64), np.array([j - self.exclude], np.int64),
+                                      np.zeros(1, np.int64), np.array([n - 1], np.int64),
                                       self._params[self._capped(j)])
-        n = max(j - self.exclude + 1, 0)
         order = np.argsort(rows, kind="stable")
         rows, val = rows[order], val[order]
         if self.conf.normalise == "query" and n > 0:
@@ -238,6 +258,8 @@ class LoopEvidence:
     fill: np.ndarray
     exclude: int
     decisions: LoopDecisions | None = None
+    #: the first frame of every session (``[0]``: one)
+    starts: tuple = (0,)
 
     def __iter__(self):  # ``S, codes = loop_evidence(...)``
         return iter((self.similarity, self.codes))
@@ -245,7 +267,7 @@ class LoopEvidence:
 
 def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf=None, top_k: int | None = None,
                   caps: str | bool = "auto", dense_max: int = LOOP_DENSE_MAX, stops: bool = True,
-                  progress: bool = False, **flat) -> LoopEvidence:
+                  progress: bool = False, sessions=None, **flat) -> LoopEvidence:
     """Loop closure within one stream with graded forward sequence evidence, learned online.
 
     Frame ``j`` is learned with Algorithm 1 (as the paper, one memory over the
@@ -272,6 +294,10 @@ def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf=None, top_k: int 
         ``dense_max`` frames, the conf's ``top_k`` beyond). The decisions do not depend on it.
     stops : bool
         False leaves out the decision's stop check.
+    sessions : sequence of int, optional
+        The first frame of each session (a stream that joins a robot's runs):
+        :meth:`LoopStream.new_session` there. Closures onto earlier sessions
+        count; the seam between two runs is never "moving on".
     progress : bool
         tqdm progress bar.
 
@@ -286,6 +312,9 @@ def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf=None, top_k: int 
     stream = LoopStream(exclude, seq, caps)
     x = _sdr.check_batch(sdr_batch, n_bits=stream.n_inputs, name="stream SDR batch")
     T = x.shape[0]
+    starts = sorted({int(s) for s in (sessions or ())} - {0})
+    if starts and (starts[0] < 0 or starts[-1] >= T):
+        raise ValueError(f"sessions must start at frames 0 .. {T - 1}, got {sorted(sessions)}")
     if top_k is None and T > int(dense_max):  # a dense T x T would not fit (the project's limit on dense matrices)
         if seq.top_k is None:
             raise ValueError(f"top_k none keeps every earlier frame, a dense {T} x {T} matrix: above the "
@@ -296,7 +325,10 @@ def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf=None, top_k: int 
     codes_ptr, codes_idx = np.zeros(T + 1, np.int64), []
     dec = np.zeros((5, T))
     fill = np.zeros(T, np.float32)
+    begin = set(starts)
     for j in tqdm(range(T), desc="rSHOSM loops", unit="frame", leave=False, disable=not progress):
+        if j in begin:
+            stream.new_session()
         f = stream.step(x.indices[x.indptr[j]:x.indptr[j + 1]])
         codes_idx.append(f.winners)
         codes_ptr[j + 1] = codes_ptr[j] + f.winners.size
@@ -314,9 +346,9 @@ def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf=None, top_k: int 
                            codes_ptr), shape=(T, max(stream.mem.n_cells, 1)))
     decisions = LoopDecisions(dec[0].astype(np.int64), dec[1], dec[2].astype(bool), dec[3], dec[4].astype(bool))
     if dense is not None:
-        return LoopEvidence(dense, codes, fill, stream.exclude, decisions)
+        return LoopEvidence(dense, codes, fill, stream.exclude, decisions, tuple(stream.starts))
     S = sp.csc_matrix((np.concatenate(cols_v + [np.zeros(0, np.float32)]),
                        np.concatenate(cols_i + [np.zeros(0, np.int64)]), np.r_[0, np.cumsum(counts)]),
                       shape=(T, T)).tocsr()
     S.sort_indices()
-    return LoopEvidence(S, codes, fill, stream.exclude, decisions)
+    return LoopEvidence(S, codes, fill, stream.exclude, decisions, tuple(stream.starts))

@@ -11,11 +11,12 @@ by row; a candidate not stored has the z ``fill``). A frame's decision:
    islands of earlier visits of the same place (frames linked to it by
    closures accepted before: a place seen on three laps is one place, not
    three competitors);
-3. ``near``: the island reaches the newest candidate (the best place is the
-   one just left, not a revisit);
+3. ``near``: the island reaches the newest candidate of the current session
+   (the best place is the one just left, not a revisit);
 4. the path score (a CUSUM): when the best candidate continues the path of the
    previous frames, ``score = max(0, score + (z_best - z_other) - drift)``,
-   else the score restarts from 0;
+   else the score restarts from 0; a path never continues across a session
+   boundary (``starts``: the first frame of every session, a robot's runs);
 5. accepted when the score reaches ``min_score``, the best place is not the
    one just left, and the camera left the place in between (SDR overlap of the
    frames in between, as :func:`vpr.shosm.stationary_closures`); then the
@@ -51,9 +52,18 @@ def _linked(place, root, row, w, n, skip_lo=-1, skip_hi=-2):
     return False
 
 
+@njit(cache=True, inline="always")
+def session_of(starts, f):
+    """The session of frame ``f`` (``starts``: the sessions' first frames, sorted, ``starts[0] == 0``)."""
+    return np.searchsorted(starts, f, side="right") - 1
+
+
 @njit(cache=True)
-def column_peaks(rows, vals, n, fill, island, place, link_w):  # pragma: no cover - compiled
-    """(best row, z_best, z_other, near) of one column (best -1 without candidates)."""
+def column_peaks(rows, vals, n, fill, island, place, link_w, newest):  # pragma: no cover - compiled
+    """(best row, z_best, z_other, near) of one column (best -1 without candidates).
+
+    ``near``: the best island reaches ``newest`` (the newest candidate of the current session; -1: none).
+    """
     m = rows.shape[0]
     if n <= 0 or m == 0:
         return -1, -np.inf, 0.0, False
@@ -63,7 +73,7 @@ def column_peaks(rows, vals, n, fill, island, place, link_w):  # pragma: no cove
             kb = k
     b = rows[kb]
     lo, hi = _island(rows, vals, kb, island)
-    near = rows[hi] == n - 1 and vals[hi] >= island
+    near = newest >= 0 and rows[hi] == newest and vals[hi] >= island
     out = np.ones(m, np.bool_)
     out[lo:hi + 1] = False
     root = place[b]
@@ -117,16 +127,19 @@ def stationary(ptr, ind, b, j, ratio):  # pragma: no cover - compiled
 
 @njit(cache=True)
 def decide_frame(j, rows, vals, n, fill, drift, min_score, back, ahead, island, stop_ratio, sdr_ptr, sdr_ind,
-                 place, path_b, st):  # pragma: no cover - compiled
+                 place, path_b, st, starts):  # pragma: no cover - compiled
     """The decision of frame ``j`` (rows/vals: its column); updates ``place``, the path buffers and ``st``.
 
     ``place[f]``: the place frame ``f`` belongs to (itself until a closure
     links it); ``path_b[f]``: the best candidate of frame ``f`` (the current
     path is ``st[S_START] .. j``); ``st``: float state (score, head, start).
-    ``sdr_ptr`` empty: stops are not checked.
+    ``sdr_ptr`` empty: stops are not checked. ``starts``: the sessions' first
+    frames (``[0]``: one session).
     Returns (best, score, accepted, margin, near).
     """
-    b, zb, zo, near = column_peaks(rows, vals, n, fill, island, place, back + ahead)
+    s_j = session_of(starts, j)
+    newest = n - 1 if n - 1 >= starts[s_j] else -1  # the current session's newest candidate, if any
+    b, zb, zo, near = column_peaks(rows, vals, n, fill, island, place, back + ahead, newest)
     path_b[j] = b
     if b < 0:
         st[S_SCORE] = 0.0
@@ -134,10 +147,14 @@ def decide_frame(j, rows, vals, n, fill, drift, min_score, back, ahead, island, 
         st[S_START] = j + 1
         return -1, 0.0, False, 0.0, False
     head = int(st[S_HEAD])
-    cont = head - back <= b <= head + ahead
+    # moving on along the frames of one session: the next session's first frame is not the next place
+    cont = head - back <= b <= head + ahead and session_of(starts, b) == session_of(starts, max(head, 0))
     jump = False
     if not cont and head >= 0:  # another visit of the place the path is at (linked earlier) continues it too
-        jump = _linked(place, place[b], head + (ahead - back) // 2, (back + ahead) // 2 + 1, place.shape[0])
+        # (across a session boundary the candidate itself is no other visit: the first frame of a run is not
+        # the place its previous run ended at)
+        own = b if session_of(starts, b) != session_of(starts, head) else -1
+        jump = _linked(place, place[b], head + (ahead - back) // 2, (back + ahead) // 2 + 1, place.shape[0], own, own)
     prev = st[S_SCORE] if cont or jump else 0.0
     score = max(0.0, prev + (zb - zo) - drift)
     if not (cont or jump):
@@ -148,7 +165,7 @@ def decide_frame(j, rows, vals, n, fill, drift, min_score, back, ahead, island, 
         st[S_START] = j + 1
     st[S_SCORE] = score
     ok = score >= min_score and not near
-    if ok and stop_ratio > 0.0 and sdr_ptr.shape[0] > j:
+    if ok and stop_ratio > 0.0 and sdr_ptr.shape[0] > j and session_of(starts, b) == s_j:  # within one run only
         ok = not stationary(sdr_ptr, sdr_ind, b, j, stop_ratio)
     if score > 0.0 and not near and place[j] == j:  # a frame on a path is (provisionally) the place it matched
         place[j] = place[b]
@@ -156,23 +173,24 @@ def decide_frame(j, rows, vals, n, fill, drift, min_score, back, ahead, island, 
 
 
 @njit(cache=True)
-def locate_frame(rows, vals, n, fill, drift, min_score, back, ahead, island, place, st):  # pragma: no cover
+def locate_frame(rows, vals, n, fill, drift, min_score, back, ahead, island, place, st, starts):  # pragma: no cover
     """The localisation decision of one query frame against a map of ``n`` frames; updates ``st``.
 
     The path score of :func:`decide_frame` without what only one stream has
     (no "just left" place, no links between visits, no stops): the best map
     frame's margin over the strongest other place, accumulated while the best
     map frame moves on consistently (``head - back .. head + ahead``).
-    ``place``: ``arange(n)`` (every map frame its own place).
+    ``place``: ``arange(n)`` (every map frame its own place); ``starts``: the
+    first frame of each session of the map (a path does not move on across one).
     Returns (best, score, accepted, margin).
     """
-    b, zb, zo, _ = column_peaks(rows, vals, n, fill, island, place, 0)
+    b, zb, zo, _ = column_peaks(rows, vals, n, fill, island, place, 0, -1)
     if b < 0:
         st[S_SCORE] = 0.0
         st[S_HEAD] = _NONE
         return -1, 0.0, False, 0.0
     head = int(st[S_HEAD])
-    cont = head - back <= b <= head + ahead
+    cont = head - back <= b <= head + ahead and session_of(starts, b) == session_of(starts, max(head, 0))
     prev = st[S_SCORE] if cont else 0.0
     score = max(0.0, prev + (zb - zo) - drift)
     st[S_HEAD] = max(head, b) if cont and score > 0.0 else b

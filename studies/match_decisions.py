@@ -1,0 +1,167 @@
+"""What ``vpr match`` / ``compare`` accept with rshosm-seq: the path rule of ``vpr localize`` on the batch evidence.
+
+``rshosm-seq``'s ``accepted`` in database x query matching is the decision a
+robot localising against the map takes (:func:`vpr.shosm.accept_path`,
+:class:`vpr.shosm.PathConf`): the best database frame's margin over the
+strongest other place, minus ``drift``, summed while the best frame moves on;
+accepted at ``min_score``. This study runs the method as ``vpr match`` does
+(each traverse encoded with a preset's encoder, standardised on its own
+frames; the evidence of both directions) on every case, keeps the z-score
+matrix, and decides under a grid of rules.
+
+Cases (database / query):
+
+- ``nordland_358`` / ``_120`` / ``_3576``: Nordland summer / winter, every 10th,
+  30th, every file; hard within 10 source frames, soft within 30 (as
+  ``studies.localize_decisions``).
+- ``nordland_half``: the first half of summer / all of winter (every 10th): half
+  the queries are not on the map, every answer there is false.
+- ``gardens_point``: day_left / day_right (hard 2 frames, soft 8).
+- ``two_seasons``: the rendered demo (summer day 476 / winter night 533 frames at
+  160 x 120; hard 3 m, soft 10 m), rendered here.
+- ``speed_change``: rendered, slow / fast (hard 5 m, soft 10 m).
+
+The rule is chosen as ``studies.localize_decisions`` chooses: precision of the
+accepted at least ``--min-precision`` (0.99) on every real case with the
+``default`` preset, then the largest mean recall; the rendered cases and the
+``fast`` preset are reported, and every case is held out in turn.
+
+Usage: python -m studies.match_decisions [--cache DIR] [--data DIR] [--presets default,fast]
+"""
+from __future__ import annotations
+
+import argparse
+import itertools
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+from studies.localize_decisions import case_sources, cell, measure
+from vpr import methods, presets
+from vpr.shosm import PathConf, accept_path
+
+CASES = ("nordland_358", "nordland_120", "nordland_3576", "nordland_half", "gardens_point", "two_seasons",
+         "speed_change")
+REAL = ("nordland_358", "nordland_120", "nordland_3576", "nordland_half", "gardens_point")
+CHOSEN_PRESET = "default"
+DRIFTS = (0.25, 0.5, 1.0, 1.5, 2.0, 3.0)
+SCORES = (8.0, 12.0, 16.0, 24.0, 32.0, 48.0, 64.0)
+
+
+def _case_sources(case: str, data: Path, tmp: Path):
+    if case != "two_seasons":
+        return case_sources(case, data, tmp)
+    from vpr.groundtruth import positions_of_frames
+    from vpr.render import write_scene
+    from vpr.sources import open_source
+
+    res = write_scene("two_seasons", tmp / "two_seasons", size=(160, 120), progress=False)
+    folders = {n: Path(t["folder"]) for n, t in res["traverses"].items()}
+    m, q = open_source(folders["summer_day"]), open_source(folders["winter_night"])
+    xm = positions_of_frames(res["ground_truth"], "summer_day", m.indices())
+    xq = positions_of_frames(res["ground_truth"], "winter_night", q.indices())
+    d = np.linalg.norm(xm[:, None] - xq[None], axis=-1)
+    return m, q, d <= 3.0, d <= 10.0
+
+
+def evidence(case: str, preset: str, data: Path, cache: Path):
+    """(S: the z-score matrix of ``vpr match``, hard, soft) of a case, cached."""
+    path = cache / f"match-{case}-{preset}.npz"
+    if path.is_file():
+        with np.load(path) as z:
+            S = sp.csr_matrix((z["val"], z["idx"], z["ptr"]), shape=tuple(z["shape"])) if "ptr" in z else z["S"]
+            return S, z["hard"], z["soft"]
+    import encoders
+    from pipelines.features import extract
+
+    m, q, hard, soft = _case_sources(case, data, cache)
+    s = presets.resolve(preset)
+    enc = encoders.get(s["encoder"], **s["encoder_conf"])
+    feats = [extract(src, enc, ("sdr",), progress=False) for src in (m, q)]  # each fitted on itself, as vpr match
+    res = methods.get("rshosm-seq").match(feats[0].features, feats[1].features)
+    rows = [{k: r for r, k in enumerate(src.indices())} for src in (m, q)]
+    ri = [rows[0][i] for i in feats[0].indices]
+    ci = [rows[1][i] for i in feats[1].indices]
+    hard, soft = hard[np.ix_(ri, ci)], soft[np.ix_(ri, ci)]
+    S = res.similarity
+    if sp.issparse(S):
+        S = sp.csr_matrix(S)
+        np.savez(path, val=S.data, idx=S.indices, ptr=S.indptr, shape=S.shape, hard=hard, soft=soft)
+    else:
+        np.savez(path, S=np.asarray(S, np.float32), hard=hard, soft=soft)
+    return S, hard, soft
+
+
+def decide(S, conf: PathConf):
+    best, _, ok = accept_path(S, conf)
+    return best, ok
+
+
+def choose(results: dict, keys: list[str], min_precision: float):
+    keys = [k for k in keys if k.split(": ")[-1] in REAL and k.split(": ")[0] == CHOSEN_PRESET]
+    best, best_key = None, None
+    for rule, per in results.items():
+        if any(per[k]["precision"] is not None and per[k]["precision"] < min_precision for k in keys):
+            continue
+        key = (round(float(np.mean([per[k]["recall"] for k in keys])), 3), rule[1])
+        if best_key is None or key > best_key:
+            best, best_key = rule, key
+    return best
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--cache", default="results/match_decisions", help="evidence matrices are cached here")
+    ap.add_argument("--data", default=None, help="datasets folder (default: $VPR_DATASETS or ../shared/datasets)")
+    ap.add_argument("--presets", default="default,fast")
+    ap.add_argument("--cases", default=",".join(CASES))
+    ap.add_argument("--min-precision", type=float, default=0.99)
+    a = ap.parse_args(argv)
+    cache = Path(a.cache)
+    cache.mkdir(parents=True, exist_ok=True)
+    data = Path(a.data or os.environ.get("VPR_DATASETS", "../shared/datasets"))
+    cases = [c for c in a.cases.split(",") if c]
+    keys, ev = [], {}
+    for preset in [p.strip() for p in a.presets.split(",") if p.strip()]:
+        for case in cases:
+            t = time.perf_counter()
+            k = f"{preset}: {case}"
+            ev[k] = evidence(case, preset, data, cache)
+            keys.append(k)
+            print(f"{k}: {ev[k][0].shape[0]} x {ev[k][0].shape[1]} ({time.perf_counter() - t:.0f} s)", flush=True)
+    results = {}
+    for drift, score in itertools.product(DRIFTS, SCORES):
+        conf = PathConf(drift=drift, min_score=score)
+        results[(drift, score)] = {k: measure(*decide(S, conf), h, s) for k, (S, h, s) in ev.items()}
+    print("\nPer case: recall of the accepted (their precision, how many accepted).\n")
+    print("| rule | " + " | ".join(keys) + " |")
+    print("|---|" + "---|" * len(keys))
+    for rule, per in results.items():
+        print(f"| drift {rule[0]:g}, min_score {rule[1]:g} | " + " | ".join(cell(per[k]) for k in keys) + " |")
+    chosen = choose(results, keys, a.min_precision)
+    print("\nchosen: " + ("none reaches the precision" if chosen is None else
+                          f"drift {chosen[0]:g}, min_score {chosen[1]:g}"))
+    print("\n| held out (both presets) | rule chosen without it | on it: recall (precision, accepted) |")
+    print("|---|---|---|")
+    for case in cases:
+        held = [k for k in keys if k.endswith(": " + case)]
+        rule = choose(results, [k for k in keys if k not in held], a.min_precision)
+        cells = "; ".join(f"{k.split(':')[0]} {cell(results[rule][k])}" for k in held) if rule else "-"
+        print(f"| {case} | " + (f"drift {rule[0]:g}, min_score {rule[1]:g}" if rule else "none") + f" | {cells} |")
+    conf = PathConf()
+    print(f"\nWith the defaults (PathConf, those of vpr localize: drift {conf.drift:g}, min_score "
+          f"{conf.min_score:g}):\n")
+    print("| case | database | query | R@1 | accepted | precision of accepted | recall of accepted |")
+    print("|---|---|---|---|---|---|---|")
+    for k, (S, h, s) in ev.items():
+        r = measure(*decide(S, conf), h, s)
+        p = "-" if r["precision"] is None else f"{r['precision']:.3f} ({r['false']} wrong)"
+        print(f"| {k} | {S.shape[0]:,} | {S.shape[1]:,} | {r['r1']:.2f} | {r['accepted']} | {p} | {r['recall']:.2f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

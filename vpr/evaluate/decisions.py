@@ -1,0 +1,167 @@
+"""Metrics of decisions, one per query (or per frame of a stream): what a robot acts on.
+
+Plain functions over the decisions (each query's best database frame and
+whether it is accepted, or its score) and ``gt_hard`` / ``gt_soft`` / ``mask``
+as :mod:`vpr.evaluate.ranking` takes them: the precision and recall of what
+was accepted, the decision curve of loop-closure papers, the best matches in
+the soft band, and the same per pair of sessions of a multi-session stream.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from vpr.checks import at
+
+__all__ = ["accepted_precision", "best_in_soft_band", "decision_curve", "session_pairs"]
+
+
+def accepted_precision(best_db, accepted, gt_hard, gt_soft=None, mask=None) -> dict:
+    """Precision and recall of the accepted best matches (one decision per query).
+
+    Parameters
+    ----------
+    best_db : array of int, (n_q,)
+        Best database frame per query (-1: none).
+    accepted : array of bool, (n_q,)
+        Whether each query's best match is accepted.
+    gt_hard, gt_soft : bool (n_db, n_q), dense or sparse
+        Ground truth; a best match that is only a soft pair counts neither as
+        right nor as wrong.
+    mask : bool (n_db, n_q), optional
+        Pairs evaluated (e.g. :func:`loop_closure_mask`); ground truth outside
+        it counts as no match, for the recall's queries too.
+
+    Returns
+    -------
+    dict
+        ``n_accepted`` (accepted best matches), ``precision_accepted`` (over
+        those not onto a soft-only pair; None when there are none: a precision
+        of nothing is not 1.0) and ``recall_accepted`` (correct accepted
+        matches over queries that have a true match).
+    """
+    if mask is not None:
+        gt_hard, gt_soft = (None if g is None else g.multiply(mask).tocsr() if sp.issparse(g) else np.asarray(g) & mask
+                            for g in (gt_hard, gt_soft))
+    best_db = np.asarray(best_db)
+    q = np.flatnonzero(np.asarray(accepted, bool) & (best_db >= 0))
+    n_accepted = int(q.size)
+    correct = at(gt_hard, best_db[q], q).astype(bool)
+    if gt_soft is not None:
+        keep = correct | ~at(gt_soft, best_db[q], q).astype(bool)
+        q, correct = q[keep], correct[keep]
+    n_with_match = int((np.asarray((gt_hard != 0).sum(axis=0)).ravel() > 0).sum())
+    return {"n_accepted": n_accepted, "precision_accepted": float(correct.mean()) if q.size else None,
+            "recall_accepted": float(correct.sum() / max(1, n_with_match))}
+
+
+def best_in_soft_band(best_db, gt_hard, gt_soft, mask=None) -> int:
+    """How many queries' best match is a soft-only pair (``gt_soft & ~gt_hard``), which every metric ignores.
+
+    Such a best match is neither right nor wrong for R@1, AP or the accepted
+    precision; this count says how many there are, so that an R@1 of 1.000 is
+    not read as "every best match is within the true radius".
+    """
+    if gt_soft is None:
+        return 0
+    best_db = np.asarray(best_db)
+    q = np.flatnonzero(best_db >= 0)
+    soft_only = at(gt_soft, best_db[q], q).astype(bool) & ~at(gt_hard, best_db[q], q).astype(bool)
+    if mask is not None:
+        soft_only &= at(mask, best_db[q], q).astype(bool)
+    return int(np.count_nonzero(soft_only))
+
+
+def decision_curve(best, score, gt_hard, gt_soft=None, mask=None) -> tuple[dict, tuple]:
+    """One decision per query (loop closure: per frame), with its own score: the metrics loop-closure users report.
+
+    Query ``j`` decides for its best database (earlier) frame ``best[j]`` with
+    ``score[j]``; thresholding the score accepts the decisions above it.
+    Precision is over the accepted decisions (one onto a soft-only pair counts
+    neither way), recall over the queries that have a true match inside
+    ``mask``. Sweeping the threshold over every distinct score gives the
+    precision-recall curve, its average precision and the recall at 100 %
+    precision.
+
+    Parameters
+    ----------
+    best : int array (n_q,); -1: no decision.
+    score : float array (n_q,); higher = more confident.
+    gt_hard, gt_soft, mask : as :func:`evaluate` (n_db x n_q).
+
+    Returns
+    -------
+    (metrics, (precision, recall, thresholds)): metrics ``ap``,
+    ``recall_at_100p`` and ``n_with_match`` (queries with a true match).
+    """
+    if mask is not None:
+        gt_hard, gt_soft = (None if g is None else g.multiply(mask).tocsr() if sp.issparse(g) else np.asarray(g) & mask
+                            for g in (gt_hard, gt_soft))
+    best = np.asarray(best, np.int64)
+    score = np.asarray(score, np.float64)
+    if best.shape != score.shape or best.ndim != 1:
+        raise ValueError(f"best and score must be 1-D of one length, got {best.shape} and {score.shape}")
+    q = np.flatnonzero((best >= 0) & np.isfinite(score))
+    correct = at(gt_hard, best[q], q).astype(bool)
+    if gt_soft is not None:
+        keep = correct | ~at(gt_soft, best[q], q).astype(bool)
+        q, correct = q[keep], correct[keep]
+    n_with = int((np.asarray((gt_hard != 0).sum(axis=0)).ravel() > 0).sum())
+    order = np.argsort(-score[q], kind="stable")
+    s, c = score[q][order], correct[order]
+    last = np.r_[s[1:] != s[:-1], True] if s.size else np.zeros(0, bool)  # the last decision of each score
+    tp, n = np.cumsum(c)[last], (np.arange(s.size) + 1)[last]
+    precision = tp / np.maximum(n, 1)
+    recall = tp / max(n_with, 1)
+    ap = float(np.sum(np.diff(np.r_[0.0, recall]) * precision)) if n_with else 0.0
+    perfect = precision >= 1.0
+    first_bad = np.flatnonzero(~perfect)
+    upto = first_bad[0] if first_bad.size else perfect.size
+    r100 = float(recall[upto - 1]) if upto > 0 else 0.0
+    return ({"ap": ap, "recall_at_100p": r100, "n_with_match": n_with},
+            (np.r_[1.0, precision] if precision.size else np.ones(1), np.r_[0.0, recall], s[last]))
+
+
+def session_pairs(best, accepted, gt_hard, starts, gt_soft=None, mask=None, names=None) -> list[dict]:
+    """Which session revisits which: the accepted closures of one multi-session stream, per pair of sessions.
+
+    For each session ``s`` and each session ``r <= s``: ``frames`` of ``s``
+    with a true loop onto ``r`` (inside ``mask``), ``accepted`` closures of
+    ``s``'s frames onto ``r``, their ``precision`` (None over none: a
+    precision of nothing is not 1.0; a closure onto a soft-only pair counts
+    neither way) and ``recall`` (correct accepted closures onto ``r`` over the
+    frames with a true loop onto ``r``).
+
+    Parameters
+    ----------
+    best, accepted : per frame of the stream, the best earlier frame (-1: none) and the decision.
+    gt_hard, gt_soft, mask : T x T (rows earlier frame), dense or sparse.
+    starts : the first frame of each session.
+    names : optional session names (the sources).
+    """
+    best, accepted = np.asarray(best, np.int64), np.asarray(accepted, bool)
+    T = best.size
+    starts = np.asarray(sorted(starts), np.int64)
+    if mask is not None:
+        gt_hard, gt_soft = (None if g is None else g.multiply(mask).tocsr() if sp.issparse(g) else
+                            np.asarray(g) & mask for g in (gt_hard, gt_soft))
+    hard = sp.csc_matrix(gt_hard, dtype=bool)
+    sess = np.searchsorted(starts, np.arange(T), side="right") - 1
+    label = (lambda k: names[k]) if names is not None else (lambda k: k)
+    out = []
+    q = np.flatnonzero(accepted & (best >= 0))
+    correct = at(gt_hard, best[q], q).astype(bool)
+    soft_only = at(gt_soft, best[q], q).astype(bool) & ~correct if gt_soft is not None else np.zeros(q.size, bool)
+    for s in range(starts.size):
+        cols = np.flatnonzero(sess == s)
+        for r in range(s + 1):
+            rows = (starts[r], starts[r + 1] if r + 1 < starts.size else T)
+            with_loop = np.asarray(hard[rows[0]:rows[1], cols].sum(axis=0)).ravel() > 0
+            onto = (sess[q] == s) & (best[q] >= rows[0]) & (best[q] < rows[1])
+            judged = onto & ~soft_only
+            n_ok = int((correct & onto).sum())
+            out.append({"session": label(s), "onto": label(r), "frames": int(with_loop.sum()),
+                        "accepted": int(onto.sum()),
+                        "precision": float(correct[judged].mean()) if judged.any() else None,
+                        "recall": n_ok / int(with_loop.sum()) if with_loop.any() else None})
+    return out
