@@ -65,6 +65,11 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     ap.add_argument("--exclude", default=None, metavar="W",
                     help="ignore matches fewer than W frames back, or W seconds for videos with 'Ws' "
                          f"(e.g. 5s; default {LOOP_EXCLUDE} frames)")
+    ap.add_argument("--geometry", choices=("on", "off"),
+                    help="rshosm-seq: a geometric second opinion (ORB + two-view RANSAC inliers of the best earlier "
+                         "frame, where the images are large enough) accepts closures the path score has not reached "
+                         "yet: short indoor loops, revisits the path is slow to trust; off by default, since on "
+                         "forward drives it confirms the same road ahead (docs/loops.md)")
     add_gt_arguments(ap, loops=True)
     online = ap.add_argument_group("online (SEQ is -)")
     online.add_argument("--state-out", metavar="FILE.npz", help="save the loop detector after the last frame")
@@ -83,8 +88,9 @@ def run_command(args) -> int:
     from pipelines.outputs import metrics_table
     from pipelines.runs import run_loops
 
-    report = run_loops(args.seq[0] if len(args.seq) == 1 else args.seq, settings["methods"][0],
-                       options_from_args(args, settings),
+    opts = options_from_args(args, settings)
+    opts.geometry = args.geometry == "on"
+    report = run_loops(args.seq[0] if len(args.seq) == 1 else args.seq, settings["methods"][0], opts,
                        exclude=LOOP_EXCLUDE if args.exclude is None else args.exclude)
     print(metrics_table(report["methods"], "loops"))
     print(f"wrote {args.out}/metrics.json")
@@ -95,7 +101,7 @@ def _run_online(args, settings: dict) -> int:
     """``vpr loops -``: refuse what does not apply to a stream on stdin, then decide it frame by frame."""
     given = [f for f, v in (("--fps", args.fps), ("--step", args.step), ("--max-frames", args.max_frames),
                             ("--cache", args.cache), ("--topic", args.topic), ("--every", args.every),
-                            ("--gt-topic", args.gt_topic)) if v is not None]
+                            ("--gt-topic", args.gt_topic), ("--geometry", args.geometry)) if v is not None]
     if given:
         raise ValueError(f"vpr loops -: {', '.join(given)} apply to a folder or video, not to image paths on stdin")
     if args.exclude is not None and str(args.exclude).strip().lower().endswith("s"):

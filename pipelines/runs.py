@@ -29,6 +29,7 @@ from pipelines.features import extract
 from pipelines.interrupts import deferred
 from pipelines.outputs import claim_methods, merge_metrics, method_metrics, versions, warn, write_method
 from pipelines.positions import prepare_positions
+from pipelines.second_opinion import second_opinion
 from vpr import evaluate, groundtruth, io, methods
 from vpr.groundtruth import GroundTruthSpec, build_gt, build_loop_gt
 from vpr.groundtruth.files import is_loop_pairs_file
@@ -65,6 +66,9 @@ class RunOptions:
     topic: str | None = None
     #: keep one frame per this many metres of travel (:mod:`pipelines.positions`)
     every: float | None = None
+    #: loops: a geometric second opinion on rshosm-seq's closures (:mod:`pipelines.second_opinion`); off by
+    #: default: it accepts closures onto the same road ahead on rendered forward drives (docs/loops.md)
+    geometry: bool = False
     #: methods whose candidates are verified (None: all); verification is the expensive part of a run
     verify_methods: tuple | None = None
     #: further :class:`vpr.verify.Verifier` conf (e.g. ``{"n_features": 500}``)
@@ -502,9 +506,19 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
             io.save_json(out / m / "config.json", _config(opts, command="loops", seq=[str(q) for q in seqs],
                                                           method=m, exclude=exclude))
 
-        done = run_methods(runners, lambda r: r.loops(features, exclude=exclude, progress=opts.progress,
-                                                      sessions=starts),
-                           gt_hard, gt_soft, mask, on_result=write, loops=True)
+        opinions = {}
+
+        def loops_of(r):
+            res = r.loops(features, exclude=exclude, progress=opts.progress, sessions=starts)
+            if opts.geometry and r.name == "rshosm-seq":
+                loop = r.seq.loop()
+                res, opinions[r.name] = second_opinion(res, _frame_images(srcs, exs), features.inputs["sdr"],
+                                                       loop.back, loop.ahead, loop.stop_ratio, sessions=starts)
+            return res
+
+        done = run_methods(runners, loops_of, gt_hard, gt_soft, mask, on_result=write, loops=True)
+        for m, o in opinions.items():
+            done[m][0]["geometry"] = o
         inputs = {"kind": "loops", "seq": [s.key() for s in srcs] if len(srcs) > 1 else srcs[0].key(),
                   "exclude": exclude, "encoder": encoder.name, "encoder_conf": encoder.conf,
                   "ground_truth": opts.gt.describe()}
@@ -519,6 +533,21 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
                              "ground_truth": opts.gt.describe(), "inputs": inputs},
                   "versions": versions()}
         return merge_metrics(out, report, f"loop closures in {', '.join(s.name for s in srcs)}")
+
+
+def _frame_images(srcs, exs):
+    """``image(j)``: frame ``j`` of the (joined) stream of frames read, decoded again at the source's resolution."""
+    where = [(src, i) for src, ex in zip(srcs, exs, strict=True) for i in ex.indices]
+    pos_of = {id(src): {k: p for p, k in enumerate(src.indices())} for src in srcs}
+
+    def image(j: int):
+        src, index = where[j]
+        pos = pos_of[id(src)][index]
+        for f in src.iter_range(pos, pos + 1):
+            return f.image
+        raise ValueError(f"{src.path}: frame {index} could not be read again for geometric verification")
+
+    return image
 
 
 def _joined(exs, srcs) -> EncodedTraverse:
