@@ -55,13 +55,13 @@ import scipy.sparse as sp  # noqa: E402
 TOLERANCE = 2  # frames: the query folder is frame-aligned with the database folder
 
 
-def _sdr_path(data: Path, preset: str, which: str) -> Path:
+def sdr_path(data: Path, preset: str, which: str) -> Path:
     return data / f"sdr_{preset}_{which}.npz"
 
 
 def encode(data: Path, preset: str, n: int) -> float:
     """Encode both folders with ``preset``'s encoder into ``data`` (once); the seconds it took (0 if cached)."""
-    if all(_sdr_path(data, preset, w).is_file() for w in ("db", "query")):
+    if all(sdr_path(data, preset, w).is_file() for w in ("db", "query")):
         return 0.0
     import encoders
     from pipelines.features import extract
@@ -75,7 +75,7 @@ def encode(data: Path, preset: str, n: int) -> float:
         ex = extract(open_source(data / "frames" / which), enc, progress=False)
         if ex.features.sdr.shape[0] != n:
             raise RuntimeError(f"{which}: {ex.features.sdr.shape[0]} frames encoded, expected {n}")
-        sp.save_npz(_sdr_path(data, preset, which), ex.features.sdr.tocsr(), compressed=False)
+        sp.save_npz(sdr_path(data, preset, which), ex.features.sdr.tocsr(), compressed=False)
     return time.perf_counter() - t
 
 
@@ -110,8 +110,8 @@ def child(data: Path, preset: str, n: int, agree: bool, prof: bool = False) -> N
     from vpr.shosm import query_evidence
     from vpr.types import EncodedTraverse
 
-    db = sp.load_npz(_sdr_path(data, preset, "db")).tocsr()[:n].astype(bool)
-    q = sp.load_npz(_sdr_path(data, preset, "query")).tocsr()[:n].astype(bool)
+    db = sp.load_npz(sdr_path(data, preset, "db")).tocsr()[:n].astype(bool)
+    q = sp.load_npz(sdr_path(data, preset, "query")).tocsr()[:n].astype(bool)
     similarity.DENSE_PAIRS_LIMIT = 0  # the large-input path at every size (the exponent is that path's)
     m = methods.get("rshosm-seq")
     m.warm_up()

@@ -83,7 +83,7 @@ def run_fleet(db, queries, method_names: list[str], opts: RunOptions, command: s
     workers, scheduler : where the queries run (module docstring); not both.
     progress : optional callable ``(query name, done, total)`` after each query.
     """
-    from pipelines.encode import check_workers
+    from pipelines.cluster import check_workers
 
     n_workers = check_workers(workers, scheduler)
     out = Path(opts.out)
@@ -135,7 +135,7 @@ def run_fleet(db, queries, method_names: list[str], opts: RunOptions, command: s
 def _run_on_dask(the_map, jobs, command, argv, n_workers, scheduler, out: Path, progress, shipped) -> dict:
     from distributed import as_completed
 
-    from pipelines.encode import dask_client
+    from pipelines.cluster import dask_client
 
     run = uuid.uuid4().hex[:8]
     reports = {}

@@ -33,12 +33,14 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
                          "OUT/<query name> each, on Dask (--workers, --scheduler)")
     add_run_arguments(ap, "methods" if command == "compare" else "first method")
     add_gt_arguments(ap)
-    fleet = ap.add_argument_group("several query traverses (a fleet)")
+    fleet = ap.add_argument_group("Dask: several query traverses (a fleet), or one split in blocks")
     fleet.add_argument("--workers", type=int, metavar="N",
                        help="run the query traverses on a local Dask cluster of N processes (default: the "
-                            "cores); 0 runs them one after the other in this process")
+                            "cores); 0 runs them one after the other in this process. One QUERY: its match is "
+                            "split in blocks of query frames across the workers")
     fleet.add_argument("--scheduler", metavar="ADDRESS",
-                       help="run the query traverses on a running Dask cluster, e.g. tcp://host:8786")
+                       help="run the query traverses (one QUERY: the blocks of its match) on a running Dask "
+                            "cluster, e.g. tcp://host:8786")
     ap.add_argument("--verify", type=int, default=0, metavar="N",
                     help="geometric verification of each query's N best candidates (ORB + pycolmap)")
     ap.add_argument("--min-inliers", type=int, default=15, help="inliers needed to accept a verified match")
@@ -62,11 +64,10 @@ def run_command(args) -> int:
         print(summary_table(summary))
         print(f"wrote {args.out}/metrics.json and a folder per query")
         return 0
-    if args.workers is not None or args.scheduler is not None:
-        raise ValueError("--workers and --scheduler run several query traverses in parallel; give more than one "
-                         "QUERY (one query runs in this process)")
     from pipelines.runs import run_compare
 
+    # one query with --workers / --scheduler: the match itself is split in blocks of queries (pipelines.split)
+    opts.workers, opts.scheduler = args.workers, args.scheduler
     report = run_compare(args.db, args.query[0], names, opts, command=args.command)
     print(metrics_table(report["methods"], "match"))
     print(f"wrote {args.out}/metrics.json")

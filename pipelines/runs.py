@@ -25,11 +25,13 @@ import numpy as np
 import scipy.sparse as sp
 
 import encoders
+from pipelines.cluster import check_workers, dask_client
 from pipelines.features import extract
 from pipelines.interrupts import deferred
 from pipelines.outputs import claim_methods, merge_metrics, method_metrics, versions, warn, write_method
 from pipelines.positions import prepare_positions
 from pipelines.second_opinion import second_opinion
+from pipelines.split import split_match
 from vpr import evaluate, groundtruth, io, methods
 from vpr.groundtruth import GroundTruthSpec, build_gt, build_loop_gt
 from vpr.groundtruth.files import is_loop_pairs_file
@@ -66,6 +68,10 @@ class RunOptions:
     topic: str | None = None
     #: keep one frame per this many metres of travel (:mod:`pipelines.positions`)
     every: float | None = None
+    #: one query traverse split in blocks across Dask workers (:mod:`pipelines.split`): a local cluster of this
+    #: many workers (0: serial), or the cluster at ``scheduler``; None and None: serial
+    workers: int | None = None
+    scheduler: str | None = None
     #: loops: a geometric second opinion on rshosm-seq's closures (:mod:`pipelines.second_opinion`); off by
     #: default: it accepts closures onto the same road ahead on rendered forward drives (docs/loops.md)
     geometry: bool = False
@@ -301,13 +307,29 @@ def run_compare(db, query, method_names: list[str], opts: RunOptions, command: s
     runners, encoder, (db_src, q_src), positions = prepare_run(out, [db, query], ["database", "query"], method_names,
                                                                opts)
     gt = check_match(runners, opts, db_src, q_src, positions)
+    split = opts.workers is not None or opts.scheduler is not None
+    n_workers = check_workers(opts.workers, opts.scheduler) if split else None
     # ---- the work starts here: nothing above wrote a file
     with claim_methods(out, runners):  # a second run of these methods into out meanwhile is refused
         db_ex, q_ex = extract_all([db_src, q_src], ["database", "query"], encoder, runners, opts)
         the_map = MatchMap(str(db), db_src, db_ex, encoder.name, dict(encoder.conf),
                            {m: r.fit(db_ex.features, progress=opts.progress) for m, r in runners.items()})
-        return compare_query(the_map, query, q_src, opts, command, q_ex=q_ex, argv=sys.argv[1:], gt=gt,
-                             encoder=encoder)
+        if not split or n_workers == 0:
+            return compare_query(the_map, query, q_src, opts, command, q_ex=q_ex, argv=sys.argv[1:], gt=gt,
+                                 encoder=encoder)
+        shipped: dict = {}
+        scratch = out / f".dask-scratch-{os.getpid()}" if opts.scheduler is None else None
+        with dask_client(n_workers, opts.scheduler, scratch) as client:
+            workers = n_workers or len(client.scheduler_info().get("workers", {})) or 1
+
+            def matcher(f):
+                if f.method.block_margin is None:
+                    return f.match(q_ex.features, progress=opts.progress)
+                return split_match(f, q_ex.features, client, workers, shipped.setdefault(f.name, {}))
+
+            report = compare_query(the_map, query, q_src, opts, command, q_ex=q_ex, argv=sys.argv[1:], gt=gt,
+                                   encoder=encoder, matcher=matcher, extra={"split": shipped})
+        return report
 
 
 def check_match(runners: dict, opts: RunOptions, db_src, q_src, positions=None):
@@ -345,13 +367,16 @@ class MatchMap:
 
 
 def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, command: str = "compare", q_ex=None,
-                  argv=None, gt=None, encoder=None) -> dict:
+                  argv=None, gt=None, encoder=None, matcher=None, extra: dict | None = None) -> dict:
     """One query traverse against a built map: encode it (unless ``q_ex``), run, evaluate, write ``opts.out``.
 
     What :func:`run_compare` does after the database is encoded and learned;
     the same files and ``metrics.json``, wherever it runs. ``gt`` (the
     ground truth of :func:`check_match`) and ``encoder`` (the map's) are
     built here when not given (a fleet's worker gets the map alone).
+    ``matcher(fitted)``: how each method matches the query (default: in this
+    process; :func:`pipelines.split.split_match` on a cluster); ``extra``: more
+    ``params`` for ``metrics.json``.
     """
     out = Path(opts.out)
     db_src, db_ex = the_map.src, the_map.ex
@@ -388,7 +413,7 @@ def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, command: st
                                                      methods=list(runners)))
         return {k: (e, None) for k, e in entries.items() if k != m}
 
-    done = run_methods(the_map.fitted, lambda f: f.match(q_ex.features, progress=opts.progress),
+    done = run_methods(the_map.fitted, matcher or (lambda f: f.match(q_ex.features, progress=opts.progress)),
                        gt_hard, gt_soft, on_result=write)
     metrics = {k: e for k, (e, _) in done.items()}
     # what makes two runs' metrics comparable: same frames (content keys), encoding and ground truth
@@ -403,7 +428,7 @@ def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, command: st
                    "cached": {"db": db_ex.cached, "query": q_ex.cached},
                    "skipped": {"db": db_ex.skipped, "query": q_ex.skipped},
                    "ignored_files": {"db": db_ex.ignored, "query": q_ex.ignored},
-                   "ground_truth": opts.gt.describe(), "inputs": inputs},
+                   "ground_truth": opts.gt.describe(), "inputs": inputs, **(extra or {})},
         "versions": versions(),
     }
     return merge_metrics(out, report, f"{db_src.name} vs {q_src.name} ({encoder.name})")

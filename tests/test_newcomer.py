@@ -124,9 +124,9 @@ def test_scheduler_that_is_not_dask_fails_in_one_error_line(scene, tmp_path, cap
     import socket
     import threading
 
-    import pipelines.encode as enc
+    import pipelines.cluster as cluster
 
-    monkeypatch.setattr(enc, "CONNECT_TIMEOUT", 3.0)
+    monkeypatch.setattr(cluster, "CONNECT_TIMEOUT", 3.0)
     srv = socket.socket()
     srv.bind(("127.0.0.1", 0))
     srv.listen(5)

@@ -84,6 +84,10 @@ class EncodedTraverse:
         """The same frames with only the inputs ``keys`` (those held)."""
         return EncodedTraverse(self.names, **{k: v for k, v in self.inputs.items() if k in set(keys)})
 
+    def slice(self, start: int, stop: int) -> EncodedTraverse:
+        """Frames ``start:stop`` with every input (a block of a long traverse)."""
+        return EncodedTraverse(self.names[start:stop], **{k: v[start:stop] for k, v in self.inputs.items()})
+
     def __len__(self) -> int:
         return len(self.names)
 

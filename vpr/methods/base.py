@@ -15,6 +15,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import scipy.sparse as sp
 
 from vpr.checks import check_exclude, check_top_k
 from vpr.config import merge_conf
@@ -88,6 +89,19 @@ class Method:
     def supports_loops(self) -> bool:
         """Whether :meth:`loops` (loop closure within one traverse) is implemented."""
         return type(self)._loops is not Method._loops
+
+    @property
+    def block_margin(self) -> int | None:
+        """Query frames of context a block of queries needs on each side to get the answers of the whole traverse
+        (:meth:`Fitted.match_block`), None when the method cannot be split. A method that can also takes
+        ``shape=(n_db, n_q)`` in :meth:`_match_fitted`: the size of the whole match (dense or top-K is chosen by
+        it, not by the block's)."""
+        return None
+
+    def _decide(self, S, best: np.ndarray, score: np.ndarray):
+        """(score, accepted) of a whole query traverse from its similarity (the decision, which may run over every
+        query in order); default: :meth:`accept` on the best matches."""
+        return score, self.accept(best, score)
 
     def accept(self, best: np.ndarray, score: np.ndarray) -> np.ndarray:
         """Accept a best match when there is one with a finite score (subclasses add their evidence test)."""
@@ -198,6 +212,40 @@ class Fitted:
             accepted = m.accept(best, score)
         return MatchResult(m.name, S, best, score, np.asarray(accepted, bool),
                            self.seconds + time.perf_counter() - t, dict(m.conf))
+
+    def match_block(self, query: EncodedTraverse, start: int, stop: int):
+        """(similarity columns, best, score) of queries ``start:stop``, computed on them and
+        :attr:`Method.block_margin` frames on each side: a part of :meth:`match` that a worker can run alone.
+
+        Raises ValueError for a method that cannot be split.
+        """
+        a, b = self.block_bounds(start, stop, len(query))
+        return self.match_part(query.slice(a, b), start - a, stop - a, len(query))
+
+    def block_bounds(self, start: int, stop: int, n_q: int) -> tuple[int, int]:
+        """The query frames a block ``start:stop`` is computed on: :attr:`Method.block_margin` more on each side."""
+        w = self.method.block_margin
+        if w is None:
+            raise ValueError(f"{self.method.name} cannot match a query traverse in blocks")
+        return max(start - w, 0), min(stop + w, n_q)
+
+    def match_part(self, part: EncodedTraverse, lo: int, hi: int, n_q: int):
+        """(similarity columns, best, z) of frames ``lo:hi`` of ``part`` (a block with its margins) of a query
+        traverse of ``n_q`` frames: what a worker computes (:meth:`match_block`)."""
+        S = self.method._match_fitted(self.state, self.db, part, False, shape=(len(self.db), n_q))[0]
+        S = S[:, lo:hi] if not sp.issparse(S) else sp.csc_matrix(S)[:, lo:hi].tocsr()
+        best, z = best_matches(S)
+        return S, best, z
+
+    def combine(self, blocks, seconds: float) -> MatchResult:
+        """The :class:`MatchResult` of the whole query traverse from its blocks (in order), decided over all."""
+        m = self.method
+        parts = [b[0] for b in blocks]
+        S = sp.hstack([sp.csr_matrix(p) for p in parts]).tocsr() if sp.issparse(parts[0]) else np.hstack(parts)
+        best = np.concatenate([b[1] for b in blocks]).astype(np.int64)
+        z = np.concatenate([b[2] for b in blocks]).astype(np.float64)
+        score, accepted = m._decide(S, best, z)
+        return MatchResult(m.name, S, best, score, np.asarray(accepted, bool), self.seconds + seconds, dict(m.conf))
 
     def __repr__(self) -> str:
         return f"Fitted({self.method!r}, db={len(self.db)} frames)"

@@ -92,16 +92,35 @@ class RshosmSeq(Method):
         mem.reset()
         return mem, db_codes
 
-    def _match_fitted(self, state, db: EncodedTraverse, query: EncodedTraverse, progress: bool):
+    #: Evidence forgotten by this much is negligible: the relative weight the frames before a block keep after
+    #: :attr:`block_margin` frames (``decay ** margin``), in both directions.
+    BLOCK_TOLERANCE = 1e-6
+
+    @property
+    def block_margin(self) -> int:
+        """Frames of warm-up a block of queries needs on each side: the evidence a frame carries forward (and
+        backward) is weighted ``decay ** k`` after ``k`` frames, so after ``log(tol) / log(decay)`` frames what came
+        before the block weighs less than :attr:`BLOCK_TOLERANCE` of it (0.9: 132 frames). Exact for the dense
+        evidence; the sparse beam's floors keep a longer history where they bind (``pipelines.split``)."""
+        decay = self.seq.evidence.decay
+        return 1 if decay <= 0 else int(np.ceil(np.log(self.BLOCK_TOLERANCE) / np.log(decay)))
+
+    def _match_fitted(self, state, db: EncodedTraverse, query: EncodedTraverse, progress: bool, shape=None):
         seq = self.seq
         mem, db_codes = state  # read, never changed, by the evidence
         q_sdr = self.need(query, "sdr", "query")
-        top_k = top_k_or_dense(len(db), len(query), seq.top_k, DENSE_EVIDENCE_PAIRS) if seq.top_k else None
+        n_db, n_q = shape or (len(db), len(query))  # a block of a larger match takes the path of the whole
+        top_k = top_k_or_dense(n_db, n_q, seq.top_k, DENSE_EVIDENCE_PAIRS) if seq.top_k else None
         r = query_evidence(mem, q_sdr, db_codes, seq.evidence, direction=seq.direction, top_k=top_k,
                            beam=seq.beam, progress=progress)
-        # the decision of a robot localising against the map (vpr localize): a path score, query by query
-        _, score, accepted = accept_path(r.similarity, seq.path())
-        return r.similarity, r.best_db, np.where(r.best_db >= 0, score, -np.inf), accepted & (r.best_db >= 0)
+        score, accepted = self._decide(r.similarity, r.best_db, r.score)
+        return r.similarity, r.best_db, score, accepted
+
+    def _decide(self, S, best, score):
+        """The decision of a robot localising against the map (vpr localize): a path score, query by query."""
+        _, path, accepted = accept_path(S, self.seq.path())
+        best = np.asarray(best)
+        return np.where(best >= 0, path, -np.inf), accepted & (best >= 0)
 
     def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool, sessions=(0,)):
         """Loop closures within one stream, learned online, scored by forward sequence evidence.
