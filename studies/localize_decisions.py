@@ -83,17 +83,21 @@ def case_sources(case: str, data: Path, tmp: Path):
         m, q = open_source(root / "day_left"), open_source(root / "day_right")
         d = np.abs(np.arange(len(m.names()))[:, None] - np.arange(len(q.names()))[None])
         return m, q, d <= 2, d <= 8
+    return rendered_pair("speed_change", "slow", "fast", tmp, 5.0, 10.0)
+
+
+def rendered_pair(scene: str, db: str, query: str, tmp: Path, radius: float, soft: float):
+    """(map source, query source, hard, soft) of two traverses of a rendered scene (160 x 120), by position."""
+    from vpr.groundtruth import positions_of_frames
     from vpr.render import write_scene
 
-    res = write_scene("speed_change", tmp / "speed_change", size=(160, 120), progress=False)
+    res = write_scene(scene, tmp / scene, size=(160, 120), progress=False)
     folders = {n: Path(t["folder"]) for n, t in res["traverses"].items()}
-    from vpr.groundtruth import positions_of_frames
-
-    m, q = open_source(folders["slow"]), open_source(folders["fast"])
-    xm = positions_of_frames(res["ground_truth"], "slow", m.indices())
-    xq = positions_of_frames(res["ground_truth"], "fast", q.indices())
+    m, q = open_source(folders[db]), open_source(folders[query])
+    xm = positions_of_frames(res["ground_truth"], db, m.indices())
+    xq = positions_of_frames(res["ground_truth"], query, q.indices())
     d = np.linalg.norm(xm[:, None] - xq[None], axis=-1)
-    return m, q, d <= 5.0, d <= 10.0
+    return m, q, d <= radius, d <= soft
 
 
 def columns(case: str, preset: str, data: Path, cache: Path):

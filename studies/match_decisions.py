@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
-from studies.localize_decisions import case_sources, cell, measure
+from studies.localize_decisions import case_sources, cell, measure, rendered_pair
 from vpr import methods, presets
 from vpr.shosm import PathConf, accept_path
 
@@ -54,17 +54,7 @@ SCORES = (8.0, 12.0, 16.0, 24.0, 32.0, 48.0, 64.0)
 def _case_sources(case: str, data: Path, tmp: Path):
     if case != "two_seasons":
         return case_sources(case, data, tmp)
-    from vpr.groundtruth import positions_of_frames
-    from vpr.render import write_scene
-    from vpr.sources import open_source
-
-    res = write_scene("two_seasons", tmp / "two_seasons", size=(160, 120), progress=False)
-    folders = {n: Path(t["folder"]) for n, t in res["traverses"].items()}
-    m, q = open_source(folders["summer_day"]), open_source(folders["winter_night"])
-    xm = positions_of_frames(res["ground_truth"], "summer_day", m.indices())
-    xq = positions_of_frames(res["ground_truth"], "winter_night", q.indices())
-    d = np.linalg.norm(xm[:, None] - xq[None], axis=-1)
-    return m, q, d <= 3.0, d <= 10.0
+    return rendered_pair("two_seasons", "summer_day", "winter_night", tmp, 3.0, 10.0)
 
 
 def evidence(case: str, preset: str, data: Path, cache: Path):

@@ -106,3 +106,25 @@ def run_in_thread(fn, timeout: float, log_path: Path):
         raise result["error"]
     assert "value" in result, f"the run did not finish in {timeout} s: " + log_path.read_text()[-3000:]
     return result["value"]
+
+
+def kill_a_busy_worker(workers: dict, busy_dir: Path, timeout: float = 60.0) -> list:
+    """Start a thread that SIGKILLs the first worker found holding work (a ``<pid>.busy`` file in ``busy_dir``,
+    :func:`busy_cluster`); returns the list it appends the killed worker's name to."""
+    killed: list = []
+
+    def kill():
+        deadline = time.monotonic() + timeout
+        while not killed and time.monotonic() < deadline:
+            for busy in sorted(busy_dir.glob("*.busy")):
+                name = next((n for n, p in workers.items() if p.pid == int(busy.stem)), None)
+                if name is not None:
+                    workers[name].send_signal(signal.SIGKILL)  # no goodbye to the scheduler
+                    workers[name].wait(timeout=10)
+                    killed.append(name)
+                    break
+            time.sleep(0.05)
+
+    threading.Thread(target=kill, daemon=True).start()
+    return killed
+

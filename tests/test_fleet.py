@@ -2,9 +2,6 @@
 cluster and on a real scheduler whose worker is killed mid-run."""
 import json
 import shutil
-import signal
-import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -101,27 +98,11 @@ if not hasattr(fleet, "unslowed_query_task"):
 @pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::UserWarning")
 def test_killed_worker_query_is_rerun_and_results_are_identical(fleet_data, tmp_path):
-    from tests.dask_cluster import busy_cluster, run_in_thread
+    from tests.dask_cluster import busy_cluster, kill_a_busy_worker, run_in_thread
 
     run_fleet(fleet_data["db"], fleet_data["queries"], METHODS, _opts(tmp_path / "serial"), workers=0)
     with busy_cluster(tmp_path, SLOW) as (address, workers, log, busy_dir):
-        killed = []
-
-        def kill_a_worker_holding_a_query():
-            deadline = time.monotonic() + 60
-            while not killed and time.monotonic() < deadline:
-                busy = sorted(busy_dir.glob("*.busy"))
-                if busy:
-                    pid = int(busy[0].stem)
-                    name = next((n for n, p in workers.items() if p.pid == pid), None)
-                    if name is not None:
-                        workers[name].send_signal(signal.SIGKILL)  # no goodbye to the scheduler
-                        workers[name].wait(timeout=10)
-                        killed.append(name)
-                time.sleep(0.05)
-
-        killer = threading.Thread(target=kill_a_worker_holding_a_query, daemon=True)
-        killer.start()
+        killed = kill_a_busy_worker(workers, busy_dir)
         run_in_thread(lambda: run_fleet(fleet_data["db"], fleet_data["queries"], METHODS, _opts(tmp_path / "dask"),
                                         scheduler=address), 240, log)
         assert killed, "no worker was killed while it held a query"

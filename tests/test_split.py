@@ -1,8 +1,6 @@
 """One large match split in blocks of query frames (issue 27): the blocks give the whole match's answers, in
 this process, on a local cluster, through `vpr match --workers`, and when a worker dies mid-block."""
 import json
-import signal
-import threading
 import time
 
 import numpy as np
@@ -164,28 +162,13 @@ def test_a_killed_worker_loses_its_block_to_the_other_and_the_answers_stay(tmp_p
     from distributed import Client
 
     from pipelines.split import split_match
-    from tests.dask_cluster import busy_cluster, run_in_thread
+    from tests.dask_cluster import busy_cluster, kill_a_busy_worker, run_in_thread
 
     db, q = _aliased(400, seed=3)
     fitted = methods.get("rshosm-seq", **METHOD_CONF).fit(db)
     whole = fitted.match(q)
     with busy_cluster(tmp_path, SLOW) as (address, workers, log, busy_dir):
-        killed = []
-
-        def kill_a_worker_holding_a_block():
-            deadline = time.monotonic() + 60
-            while not killed and time.monotonic() < deadline:
-                for busy in sorted(busy_dir.glob("*.busy")):
-                    name = next((n for n, p in workers.items() if p.pid == int(busy.stem)), None)
-                    if name is not None:
-                        workers[name].send_signal(signal.SIGKILL)  # no goodbye to the scheduler
-                        workers[name].wait(timeout=10)
-                        killed.append(name)
-                        break
-                time.sleep(0.05)
-
-        killer = threading.Thread(target=kill_a_worker_holding_a_block, daemon=True)
-        killer.start()
+        killed = kill_a_busy_worker(workers, busy_dir)
 
         def run():
             with Client(address, timeout="30s") as client:
