@@ -168,17 +168,35 @@ def cell(r: dict) -> str:
     return f"{r['recall']:.2f} ({p}, {r['accepted']})"
 
 
-def choose(results: dict, keys: list[str], min_precision: float):
-    keys = [k for k in keys if k.split(": ")[-1] in CHOSEN_ON and k.split(": ")[0] == CHOSEN_PRESET]
+def best_rule(results: dict, keys: list[str], min_precision: float, tiebreak, admit=lambda rule: True):
+    """The rule of ``results`` ({rule: {case: cell}}) with the highest mean recall over ``keys`` among those
+    ``admit`` admits whose precision is >= ``min_precision`` on every key; ties broken by ``tiebreak(rule)``."""
     best, best_key = None, None
     for rule, per in results.items():
-        if rule[0] != "path" or any(per[k]["precision"] is not None and per[k]["precision"] < min_precision
-                                    for k in keys):
+        if not admit(rule) or any(per[k]["precision"] is not None and per[k]["precision"] < min_precision
+                                  for k in keys):
             continue
-        key = (round(float(np.mean([per[k]["recall"] for k in keys])), 3), rule[2])
+        key = (round(float(np.mean([per[k]["recall"] for k in keys])), 3), tiebreak(rule))
         if best_key is None or key > best_key:
             best, best_key = rule, key
     return best
+
+
+def print_held_out(results: dict, keys: list[str], cases, choose_without, describe) -> None:
+    """The leave-one-case-out table: for each case, the rule ``choose_without(other keys)`` picks and how it
+    does on the case held out (``describe(rule)`` names a rule)."""
+    print("\n| held out (both presets) | rule chosen without it | on it: recall (precision, accepted) |")
+    print("|---|---|---|")
+    for case in cases:
+        held = [k for k in keys if k.endswith(": " + case)]
+        rule = choose_without([k for k in keys if k not in held])
+        cells = "; ".join(f"{k.split(':')[0]} {cell(results[rule][k])}" for k in held) if rule else "-"
+        print(f"| {case} | " + (describe(rule) if rule else "none") + f" | {cells} |")
+
+
+def choose(results: dict, keys: list[str], min_precision: float):
+    keys = [k for k in keys if k.split(": ")[-1] in CHOSEN_ON and k.split(": ")[0] == CHOSEN_PRESET]
+    return best_rule(results, keys, min_precision, lambda rule: rule[2], admit=lambda rule: rule[0] == "path")
 
 
 def main(argv=None) -> int:
@@ -219,13 +237,8 @@ def main(argv=None) -> int:
         print(f"\nno PathConf rule reaches precision {a.min_precision} on every case")
     else:
         print(f"\nchosen: drift {chosen[1]:g}, min_score {chosen[2]:g}")
-        print("\n| held out (both presets) | rule chosen without it | on it: recall (precision, accepted) |")
-        print("|---|---|---|")
-        for case in CASES:
-            held = [k for k in keys if k.endswith(": " + case)]
-            rule = choose(results, [k for k in keys if k not in held], a.min_precision)
-            cells = "; ".join(f"{k.split(':')[0]} {cell(results[rule][k])}" for k in held) if rule else "-"
-            print(f"| {case} | " + (f"drift {rule[1]:g}, min_score {rule[2]:g}" if rule else "none") + f" | {cells} |")
+        print_held_out(results, keys, CASES, lambda ks: choose(results, ks, a.min_precision),
+                       lambda rule: f"drift {rule[1]:g}, min_score {rule[2]:g}")
     conf = PathConf()
     print(f"\nWith the defaults (PathConf: drift {conf.drift:g}, min_score {conf.min_score:g}):\n")
     print("| case | map frames | query frames | R@1 | accepted | precision of accepted | recall of accepted |")

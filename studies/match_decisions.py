@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
-from studies.localize_decisions import case_sources, cell, measure, rendered_pair
+from studies.localize_decisions import best_rule, case_sources, cell, measure, print_held_out, rendered_pair
 from vpr import methods, presets
 from vpr.shosm import PathConf, accept_path
 
@@ -92,14 +92,7 @@ def decide(S, conf: PathConf):
 
 def choose(results: dict, keys: list[str], min_precision: float):
     keys = [k for k in keys if k.split(": ")[-1] in REAL and k.split(": ")[0] == CHOSEN_PRESET]
-    best, best_key = None, None
-    for rule, per in results.items():
-        if any(per[k]["precision"] is not None and per[k]["precision"] < min_precision for k in keys):
-            continue
-        key = (round(float(np.mean([per[k]["recall"] for k in keys])), 3), rule[1])
-        if best_key is None or key > best_key:
-            best, best_key = rule, key
-    return best
+    return best_rule(results, keys, min_precision, lambda rule: rule[1])
 
 
 def main(argv=None) -> int:
@@ -134,13 +127,8 @@ def main(argv=None) -> int:
     chosen = choose(results, keys, a.min_precision)
     print("\nchosen: " + ("none reaches the precision" if chosen is None else
                           f"drift {chosen[0]:g}, min_score {chosen[1]:g}"))
-    print("\n| held out (both presets) | rule chosen without it | on it: recall (precision, accepted) |")
-    print("|---|---|---|")
-    for case in cases:
-        held = [k for k in keys if k.endswith(": " + case)]
-        rule = choose(results, [k for k in keys if k not in held], a.min_precision)
-        cells = "; ".join(f"{k.split(':')[0]} {cell(results[rule][k])}" for k in held) if rule else "-"
-        print(f"| {case} | " + (f"drift {rule[0]:g}, min_score {rule[1]:g}" if rule else "none") + f" | {cells} |")
+    print_held_out(results, keys, cases, lambda ks: choose(results, ks, a.min_precision),
+                   lambda rule: f"drift {rule[0]:g}, min_score {rule[1]:g}")
     conf = PathConf()
     print(f"\nWith the defaults (PathConf, those of vpr localize: drift {conf.drift:g}, min_score "
           f"{conf.min_score:g}):\n")

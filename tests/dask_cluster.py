@@ -128,3 +128,26 @@ def kill_a_busy_worker(workers: dict, busy_dir: Path, timeout: float = 60.0) -> 
     threading.Thread(target=kill, daemon=True).start()
     return killed
 
+
+def slowed_task(module: str, name: str, seconds: float) -> str:
+    """Preload source for :func:`busy_cluster`: ``module.name`` (a task function) sleeps ``seconds`` first and
+    marks its worker busy meanwhile (``<pid>.busy`` in ``VPR_TEST_BUSY_DIR``), so a test can kill it mid-task."""
+    return f"""
+import os, time
+from pathlib import Path
+import {module} as target
+if not hasattr(target, "unslowed_{name}"):
+    target.unslowed_{name} = target.{name}
+
+    def _slow(*args, **kwargs):
+        busy = Path(os.environ["VPR_TEST_BUSY_DIR"]) / f"{{os.getpid()}}.busy"
+        busy.write_text("")
+        time.sleep({seconds})
+        try:
+            return target.unslowed_{name}(*args, **kwargs)
+        finally:
+            busy.unlink()
+
+    target.{name} = _slow
+"""
+

@@ -75,33 +75,16 @@ def test_local_cluster_fleet_equals_serial(fleet_data, tmp_path):
     assert not list((tmp_path / "dask").glob(".dask-scratch-*"))
 
 
-SLOW = """
-import os, time
-from pathlib import Path
-import pipelines.fleet as fleet
-if not hasattr(fleet, "unslowed_query_task"):
-    fleet.unslowed_query_task = fleet._query_task
-
-    def _slow(*args, **kwargs):
-        busy = Path(os.environ["VPR_TEST_BUSY_DIR"]) / f"{os.getpid()}.busy"
-        busy.write_text("")
-        time.sleep(1.5)
-        try:
-            return fleet.unslowed_query_task(*args, **kwargs)
-        finally:
-            busy.unlink()
-
-    fleet._query_task = _slow
-"""
 
 
 @pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::UserWarning")
 def test_killed_worker_query_is_rerun_and_results_are_identical(fleet_data, tmp_path):
-    from tests.dask_cluster import busy_cluster, kill_a_busy_worker, run_in_thread
+    from tests.dask_cluster import busy_cluster, kill_a_busy_worker, run_in_thread, slowed_task
 
     run_fleet(fleet_data["db"], fleet_data["queries"], METHODS, _opts(tmp_path / "serial"), workers=0)
-    with busy_cluster(tmp_path, SLOW) as (address, workers, log, busy_dir):
+    slow = slowed_task("pipelines.fleet", "_query_task", 1.5)
+    with busy_cluster(tmp_path, slow) as (address, workers, log, busy_dir):
         killed = kill_a_busy_worker(workers, busy_dir)
         run_in_thread(lambda: run_fleet(fleet_data["db"], fleet_data["queries"], METHODS, _opts(tmp_path / "dask"),
                                         scheduler=address), 240, log)

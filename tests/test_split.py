@@ -136,24 +136,6 @@ def test_vpr_compare_with_workers_splits_one_query_and_answers_like_the_serial_r
     assert not list((tmp_path / "split").glob(".dask-scratch-*"))
 
 
-SLOW = """
-import os, time
-from pathlib import Path
-import pipelines.split as split
-if not hasattr(split, "unslowed_block"):
-    split.unslowed_block = split._block
-
-    def _slow(*args, **kwargs):
-        busy = Path(os.environ["VPR_TEST_BUSY_DIR"]) / f"{os.getpid()}.busy"
-        busy.write_text("")
-        time.sleep(1.0)
-        try:
-            return split.unslowed_block(*args, **kwargs)
-        finally:
-            busy.unlink()
-
-    split._block = _slow
-"""
 
 
 @pytest.mark.slow
@@ -162,12 +144,13 @@ def test_a_killed_worker_loses_its_block_to_the_other_and_the_answers_stay(tmp_p
     from distributed import Client
 
     from pipelines.split import split_match
-    from tests.dask_cluster import busy_cluster, kill_a_busy_worker, run_in_thread
+    from tests.dask_cluster import busy_cluster, kill_a_busy_worker, run_in_thread, slowed_task
 
     db, q = _aliased(400, seed=3)
     fitted = methods.get("rshosm-seq", **METHOD_CONF).fit(db)
     whole = fitted.match(q)
-    with busy_cluster(tmp_path, SLOW) as (address, workers, log, busy_dir):
+    slow = slowed_task("pipelines.split", "_block", 1.0)
+    with busy_cluster(tmp_path, slow) as (address, workers, log, busy_dir):
         killed = kill_a_busy_worker(workers, busy_dir)
 
         def run():
