@@ -38,6 +38,7 @@ trail the true place by 6-10 m after a change of speed, just outside the soft
 radius), and choosing on it would leave the real cases with almost no answers.
 
 Usage: python -m studies.localize_decisions [--cache DIR] [--data DIR] [--presets default,fast]
+       [--cases A,B] [--decay D]
 """
 from __future__ import annotations
 
@@ -100,9 +101,10 @@ def rendered_pair(scene: str, db: str, query: str, tmp: Path, radius: float, sof
     return m, q, d <= radius, d <= soft
 
 
-def columns(case: str, preset: str, data: Path, cache: Path):
-    """Every query frame's evidence column over the map, as the localizer computes it (cached)."""
-    path = cache / f"localize-{case}-{preset}.npz"
+def columns(case: str, preset: str, data: Path, cache: Path, decay: float | None = None):
+    """Every query frame's evidence column over the map, as the localizer computes it (cached); ``decay``: another
+    than the conf's default."""
+    path = cache / f"localize-{case}-{preset}{'' if decay is None else f'-decay{decay:g}'}.npz"
     if path.is_file():
         with np.load(path) as z:
             C = sp.csr_matrix((z["val"], z["idx"], z["ptr"]), shape=tuple(z["shape"]))
@@ -111,7 +113,7 @@ def columns(case: str, preset: str, data: Path, cache: Path):
     s = presets.resolve(preset)
     enc = encoders.get(s["encoder"], **s["encoder_conf"])
     ex = extract(m, enc, ("sdr",), progress=False)  # fits standardise=fit on the map, as `vpr learn`
-    loc = Localizer.from_database(ex.features.sdr, ex.features.names)
+    loc = Localizer.from_database(ex.features.sdr, ex.features.names, **({} if decay is None else {"decay": decay}))
     qenc = StreamEncoder(enc)
     rows, vals, fill, zbest = [], [], [], []
     for f in q:
@@ -205,15 +207,22 @@ def main(argv=None) -> int:
     ap.add_argument("--data", default=None, help="datasets folder (default: $VPR_DATASETS or ../shared/datasets)")
     ap.add_argument("--presets", default="default,fast")
     ap.add_argument("--min-precision", type=float, default=0.99)
+    ap.add_argument("--cases", default=",".join(CASES), help="comma-separated subset of the cases")
+    ap.add_argument("--decay", type=float, default=None,
+                    help="the evidence's decay per frame (default: rshosm-seq's), e.g. 0.95 for a longer memory")
     a = ap.parse_args(argv)
+    cases = [c.strip() for c in a.cases.split(",") if c.strip()]
+    unknown = sorted(set(cases) - set(CASES))
+    if unknown:
+        ap.error(f"--cases: unknown {', '.join(unknown)} (cases: {', '.join(CASES)})")
     cache = Path(a.cache)
     cache.mkdir(parents=True, exist_ok=True)
     data = Path(a.data or os.environ.get("VPR_DATASETS", "../shared/datasets"))
     keys, cols = [], {}
     for preset in [p.strip() for p in a.presets.split(",") if p.strip()]:
-        for case in CASES:
+        for case in cases:
             t = time.perf_counter()
-            cols[f"{preset}: {case}"] = columns(case, preset, data, cache)
+            cols[f"{preset}: {case}"] = columns(case, preset, data, cache, a.decay)
             keys.append(f"{preset}: {case}")
             C = cols[keys[-1]][0]
             print(f"{keys[-1]}: map {C.shape[1]}, query {C.shape[0]} ({time.perf_counter() - t:.0f} s)", flush=True)
@@ -237,7 +246,7 @@ def main(argv=None) -> int:
         print(f"\nno PathConf rule reaches precision {a.min_precision} on every case")
     else:
         print(f"\nchosen: drift {chosen[1]:g}, min_score {chosen[2]:g}")
-        print_held_out(results, keys, CASES, lambda ks: choose(results, ks, a.min_precision),
+        print_held_out(results, keys, cases, lambda ks: choose(results, ks, a.min_precision),
                        lambda rule: f"drift {rule[1]:g}, min_score {rule[2]:g}")
     conf = PathConf()
     print(f"\nWith the defaults (PathConf: drift {conf.drift:g}, min_score {conf.min_score:g}):\n")

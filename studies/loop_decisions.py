@@ -17,6 +17,7 @@ repeats the choice without each stream in turn and prints what the rule chosen
 without it does on it: a rule that only holds where it was chosen shows there.
 
 Usage: python -m studies.loop_decisions [--cache DIR] [--data DIR] [--presets default,fast] [--leave-one-out]
+       [--decay D]
 """
 from __future__ import annotations
 
@@ -36,13 +37,15 @@ REVISITS = (*REAL_REVISITS, *RENDERED_REVISITS)
 EXCLUDE = 30
 
 
-def evidence(stream, cache: Path, preset: str = "default") -> LoopEvidence:
-    """The stream's loop evidence (cached: it takes minutes on the whole Nordland rides)."""
-    path = cache / f"evidence-{stream.name.replace('/', '-')}{'' if preset == 'default' else '-' + preset}.npz"
+def evidence(stream, cache: Path, preset: str = "default", decay: float | None = None) -> LoopEvidence:
+    """The stream's loop evidence (cached: it takes minutes on the whole Nordland rides); ``decay``: another
+    than the conf's default."""
+    path = cache / (f"evidence-{stream.name.replace('/', '-')}{'' if preset == 'default' else '-' + preset}"
+                    f"{'' if decay is None else f'-decay{decay:g}'}.npz")
     if path.is_file():
         with np.load(path) as z:
             return LoopEvidence(z["S"], None, z["fill"], int(z["exclude"]))
-    ev = loop_evidence(stream.x, exclude=EXCLUDE)
+    ev = loop_evidence(stream.x, exclude=EXCLUDE, **({} if decay is None else {"decay": decay}))
     np.savez(path, S=ev.similarity, fill=ev.fill, exclude=ev.exclude)
     return ev
 
@@ -154,6 +157,8 @@ def main(argv=None) -> int:
     ap.add_argument("--data", default=None, help="datasets folder (default: $VPR_DATASETS or ../shared/datasets)")
     ap.add_argument("--presets", default="default,fast", help="presets whose loop encoders are used")
     ap.add_argument("--leave-one-out", action="store_true", help="choose without each stream, check it")
+    ap.add_argument("--decay", type=float, default=None,
+                    help="the evidence's decay per frame (default: rshosm-seq's), e.g. 0.95 for a longer memory")
     a = ap.parse_args(argv)
     cache = Path(a.cache)
     cache.mkdir(parents=True, exist_ok=True)
@@ -167,7 +172,7 @@ def main(argv=None) -> int:
                 copies[n] = aliases(n)
             key = n if len(presets) == 1 else f"{preset}: {n}"
             names.append(key)
-            data[key] = (s, evidence(s, cache, preset), copies[n])
+            data[key] = (s, evidence(s, cache, preset, a.decay), copies[n])
             print(f"{key}: {len(s)} frames ({time.perf_counter() - t:.0f} s)", flush=True)
     results = {}
     for rule in itertools.product(DRIFTS, SCORES):
