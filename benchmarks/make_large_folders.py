@@ -57,15 +57,16 @@ def write_folders(out, n: int = 50_000, seed: int = 0) -> bool:
     return True
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def main(argv=None, write=None, doc: str | None = None, what: str = "64 x 32 grey PNG"):
+    """``OUT [--n N] [--seed S]``: write the folders with ``write`` (default: :func:`write_folders`)."""
+    ap = argparse.ArgumentParser(description=doc or __doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("out")
     ap.add_argument("--n", type=int, default=50_000)
     ap.add_argument("--seed", type=int, default=0)
     a = ap.parse_args(argv)
     t = time.perf_counter()
-    written = write_folders(a.out, a.n, a.seed)
-    print(f"{'wrote' if written else 'found'} 2 x {a.n} frames (64 x 32 grey PNG) in {a.out} "
+    written = (write or write_folders)(a.out, a.n, a.seed)
+    print(f"{'wrote' if written else 'found'} 2 x {a.n} frames ({what}) in {a.out} "
           f"({time.perf_counter() - t:.1f} s)")
 
 
