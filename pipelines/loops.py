@@ -88,9 +88,12 @@ def run_command(args) -> int:
     from pipelines.outputs import metrics_table
     from pipelines.runs import run_loops
 
+    method = settings["methods"][0]
+    if args.geometry == "on" and method != "rshosm-seq":
+        raise ValueError(f"--geometry on: a second opinion on rshosm-seq's loop closures, not on {method}'s")
     opts = options_from_args(args, settings)
     opts.geometry = args.geometry == "on"
-    report = run_loops(args.seq[0] if len(args.seq) == 1 else args.seq, settings["methods"][0], opts,
+    report = run_loops(args.seq[0] if len(args.seq) == 1 else args.seq, method, opts,
                        exclude=LOOP_EXCLUDE if args.exclude is None else args.exclude)
     print(metrics_table(report["methods"], "loops"))
     print(f"wrote {args.out}/metrics.json")

@@ -53,3 +53,16 @@ def test_too_few_inliers_are_not_enough():
     other = _textures(60, seed=9)  # the "revisits" show something else
     out, _ = second_opinion(res, lambda j: other[j], x, back=4, ahead=6, stop_ratio=0.35, conf=SecondOpinion())
     assert not out.accepted.any()
+
+
+def test_geometry_is_refused_for_a_method_it_does_not_apply_to(tmp_path, capsys):
+    from pipelines.cli import main
+
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    for j, img in enumerate(_textures(3)):
+        cv2.imwrite(str(seq / f"{j:03d}.png"), img)
+    out = tmp_path / "out"
+    code = main(["loops", str(seq), "--out", str(out), "--method", "seqslam", "--geometry", "on"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "--geometry on" in err[0] and not out.exists()
