@@ -40,9 +40,10 @@ def _unpack(payload: bytes):
     return pickle.loads(payload)
 
 
-def _block(fitted, part: EncodedTraverse, lo: int, hi: int, n_q: int):
+def _block(fitted, part: bytes, lo: int, hi: int, n_q: int):
+    """One block on a worker; ``part``: its query frames, pickled once by the client (their size is reported)."""
     t = time.process_time()
-    return fitted.match_part(part, lo, hi, n_q), time.process_time() - t
+    return fitted.match_part(_unpack(part), lo, hi, n_q), time.process_time() - t
 
 
 def split_match(fitted, query: EncodedTraverse, client, workers: int, shipped: dict | None = None,
@@ -73,8 +74,8 @@ def split_match(fitted, query: EncodedTraverse, client, workers: int, shipped: d
         for start in range(0, n_q, size):
             stop = min(start + size, n_q)
             a, b = fitted.block_bounds(start, stop, n_q)
-            part = query.slice(a, b)
-            task_bytes.append(len(pickle.dumps(part, protocol=pickle.HIGHEST_PROTOCOL)))
+            part = pickle.dumps(query.slice(a, b), protocol=pickle.HIGHEST_PROTOCOL)
+            task_bytes.append(len(part))
             futures.append(client.submit(_block, shared, part, start - a, stop - a, n_q, pure=False, retries=2,
                                          key=f"vpr-split-{run}-{start}"))
     try:
