@@ -34,12 +34,13 @@ def _header(ts, t: float, frame_id: str, ros1: bool):
 def write_bag(path, images, xy=None, *, ros: int = 1, storage: str = "sqlite3", compressed: bool = False,
               encoding: str = "rgb8", gps: bool = True, odom: bool = True, dt: float = 0.1,
               pos_dt: float | None = None, topic: str = "/camera/image_raw", extra_image_topic: str | None = None,
-              pos_start: int = 0):
+              pos_start: int = 0, empty=()):
     """A bag of ``images`` (BGR) on ``topic`` at ``dt`` s, with NavSatFix (``/gps/fix``) and Odometry (``/odom``)
     of positions ``xy`` (metres; sampled every ``pos_dt`` s, default: with the frames) over the same time span.
 
     ``ros`` 1: a ``.bag`` file; 2: a bag folder (``storage`` ``"sqlite3"`` or ``"mcap"``); ``pos_start``: the
-    positions begin at that frame's time (a GPS that gets its fix late). Returns the path.
+    positions begin at that frame's time (a GPS that gets its fix late); ``empty``: numbers of the frames written as
+    compressed images of 0 bytes (a camera driver's dropped frame). Returns the path.
     """
     from rosbags.typesys import Stores, get_typestore
 
@@ -64,7 +65,8 @@ def write_bag(path, images, xy=None, *, ros: int = 1, storage: str = "sqlite3", 
         if compressed:
             ok, buf = cv2.imencode(".png", img)
             assert ok
-            m = Compressed(header=_header(ts, t, "cam", ros1), format="png", data=buf.ravel())
+            data = np.zeros(0, np.uint8) if i in empty else buf.ravel()
+            m = Compressed(header=_header(ts, t, "cam", ros1), format="png", data=data)
             msgs.append((t, "img", m, Compressed.__msgtype__))
         else:
             if encoding == "rgb8":

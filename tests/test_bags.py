@@ -114,6 +114,24 @@ def test_a_cut_ros1_bag_reads_what_is_complete(seasons, tmp_path):
     assert [f.index for f in src] == list(range(n))
 
 
+def test_empty_compressed_frames_are_skipped_everywhere(seasons, tmp_path, capsys):
+    images = read_folder(seasons["day"])[:16]
+    bag = write_bag(tmp_path / "drops.bag", images, compressed=True, gps=False, odom=False, empty={3, 9})
+    first = write_bag(tmp_path / "first.bag", images, compressed=True, gps=False, odom=False, empty={0})
+    with pytest.warns(UserWarning, match=r"empty compressed image \(png, 0 bytes\)"):
+        assert [f.index for f in open_source(bag)] == [i for i in range(16) if i not in (3, 9)]
+    code, _, err = _run(["loops", bag, "--out", tmp_path / "loops", "--exclude", 2], capsys)
+    assert code == 0, err
+    skipped = json.loads((tmp_path / "loops" / "metrics.json").read_text())["params"]["skipped"]
+    assert [name for name, _ in skipped] == [f"/camera/image_raw@{int(T0)}.{i}00000000" for i in (3, 9)]
+    code, _, err = _run(["learn", first, "--out", tmp_path / "map.npz", "--preset", "fast"], capsys)
+    assert code == 0, err
+    code, _, err = _run(["localize", tmp_path / "map.npz", bag, "--out", tmp_path / "loc"], capsys)
+    assert code == 0, err
+    rows = (tmp_path / "loc" / "rshosm-seq" / "matches.csv").read_text().splitlines()
+    assert len(rows) == 1 + 14
+
+
 # ------------------------------------------------------------------ positions
 def test_gt_topic_navsatfix_and_odometry_give_the_rendered_positions(seasons):
     src = open_source(seasons["day_bag"])

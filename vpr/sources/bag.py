@@ -79,7 +79,12 @@ def decode_image_msg(msg, msgtype: str) -> tuple[np.ndarray | None, str]:
     """A BGR (or grey / 16-bit, which :func:`vpr.imageproc.to_bgr` converts) image of one message, or the reason."""
     data = np.frombuffer(bytes(msg.data), np.uint8) if not isinstance(msg.data, np.ndarray) else msg.data
     if msgtype.endswith("CompressedImage"):
-        img = cv2.imdecode(np.ascontiguousarray(data, np.uint8), cv2.IMREAD_COLOR)
+        if data.size == 0:
+            return None, f"empty compressed image ({msg.format or 'no format'}, 0 bytes)"
+        try:
+            img = cv2.imdecode(np.ascontiguousarray(data, np.uint8), cv2.IMREAD_COLOR)
+        except cv2.error:
+            img = None
         return (img, "") if img is not None else (None, f"compressed image ({msg.format}) could not be decoded")
     enc = str(msg.encoding).lower()
     if enc not in ENCODINGS:
