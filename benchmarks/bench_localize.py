@@ -41,7 +41,7 @@ def latency(n, frames, exact, seed=0):
         t = time.perf_counter()
         o = loc.update(bits)
         ms.append((time.perf_counter() - t) * 1e3)
-        best.append(o.best_db)
+        best.append(o.best)
     ms = np.array(ms)
     r1 = np.mean(np.abs(dp[np.maximum(best, 0)] - qp[: len(rows)]) <= 1)
     return ms, r1, t_learn
@@ -51,7 +51,7 @@ def nordland(path):
     from pathlib import Path
 
     import encoders
-    from vpr.shosm import ForwardEvidence, SequenceMemory
+    from vpr.shosm import Engine, Graph, SequenceMemory
     from vpr.sources import open_source
 
     enc = encoders.get("pixel", k=200, standardise="fit")
@@ -63,9 +63,10 @@ def nordland(path):
     codes = mem.run(x["summer"])
     mem.reset()
     for exact in (False, True):
-        loc = ForwardEvidence(mem, codes, top_k=50, exact=exact)
+        loc = Engine(Graph.of(mem, codes), exact=exact)
         w = x["winter"]
-        best = np.array([loc.update(w[j]).best_db for j in range(w.shape[0])])
+        best = np.array([loc.step(w.indices[w.indptr[j]:w.indptr[j + 1]].astype(np.int64)).best()[0]
+                         for j in range(w.shape[0])])
         r1 = np.mean(np.abs(best - np.arange(w.shape[0])) <= 1)
         print(f"Nordland 358 winter vs summer, causal forward evidence ({'exact' if exact else 'beam'}): "
               f"R@1 (radius 1) {r1:.3f}")
@@ -86,7 +87,7 @@ def nordland(path):
         t = time.perf_counter()
         r = loc.update(x)
         ms.append((time.perf_counter() - t) * 1e3)
-        best.append(r.best_db)
+        best.append(r.best)
         acc.append(r.accepted)
     ms, best, acc = np.array(ms), np.array(best), np.array(acc)
     right = np.abs(best - np.arange(best.size)) <= 10

@@ -102,7 +102,7 @@ def run_batch(n: int, out: Path) -> dict:
     t = time.perf_counter()
     ev = loop_evidence(x, top_k=50)
     sec = time.perf_counter() - t
-    d = ev.decisions
+    d = ev.decision
     np.savez(out, best=d.best, score=d.score, accepted=d.accepted)
     return {"seconds": sec, "peak_mb": _peak_mb(), "nnz": int(ev.similarity.nnz)}
 

@@ -105,9 +105,9 @@ def child(method, n, seed, agree, dense_below_limit):
         r = sparse_evidence(mem, q, codes, top_k=50)
         c2 = time.process_time()
         dense = dense_evidence(mem, q, codes).argmax(axis=0)
-        out.update(sparse_s=c2 - c1, dense_s=time.process_time() - c2, agree=float(np.mean(dense == r.best_db)),
+        out.update(sparse_s=c2 - c1, dense_s=time.process_time() - c2, agree=float(np.mean(dense == r.best)),
                    dense_r1=float(np.mean(np.abs(dp[dense] - qp) <= 1)),
-                   sparse_r1=float(np.mean(np.abs(dp[r.best_db] - qp) <= 1)))
+                   sparse_r1=float(np.mean(np.abs(dp[r.best] - qp) <= 1)))
     print(json.dumps(out))
 
 

@@ -136,8 +136,8 @@ def child(data: Path, preset: str, n: int, agree: bool, prof: bool = False, tole
         mem, codes = fitted.state
         c3 = time.process_time()
         d = query_evidence(mem, q, codes, m.seq.evidence, direction=m.seq.direction, top_k=None)
-        out.update(dense_s=time.process_time() - c3, agree=float(np.mean(d.best_db == r.best_db)),
-                   dense_r1=float(np.mean(np.abs(d.best_db - truth) <= tolerance)))
+        out.update(dense_s=time.process_time() - c3, agree=float(np.mean(d.best == r.best_db)),
+                   dense_r1=float(np.mean(np.abs(d.best - truth) <= tolerance)))
     if prof:
         out.update(profile(*fitted.state, q))
     print(json.dumps(out))

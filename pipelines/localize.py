@@ -54,15 +54,17 @@ from pipelines.args import (
     refuse_gone,
 )
 from pipelines.features import extract
-from pipelines.online import Answer, Online, run_online, source_frames, stdin_frames, summary_line
+from pipelines.online import Online, run_online, summary_line
 from pipelines.outputs import method_metrics
 from pipelines.positions import prepare_positions
 from pipelines.runs import check_fit_frames
 from vpr import io, methods, presets
 from vpr.groundtruth import GroundTruthSpec, build_gt
 from vpr.groundtruth.trajectories import parse_every
-from vpr.shosm import Localizer, MemoryFileError
+from vpr.shosm import Map
 from vpr.sources import open_source
+from vpr.sources.stdin import StdinSource
+from vpr.types import Decision
 
 __all__ = ["COMMANDS", "add_arguments", "run_command", "learn", "load_map", "localize"]
 
@@ -71,7 +73,6 @@ COMMANDS = {
     "localize": "localise a query stream (folder, video, list or stdin) frame by frame against a map",
 }
 
-_MAP_FORMAT = "vpr-map"
 
 
 # ------------------------------------------------------------------ learn
@@ -82,23 +83,18 @@ def map_path(out) -> Path:
     return out if out.suffix.lower() == ".npz" else out.with_name(out.name + ".npz")
 
 
-def is_map(path) -> bool:
-    """Whether ``path`` is a map or localizer file (read by content, whatever its name)."""
-    return io.is_versioned_npz(path, "vpr.Localizer")
-
-
 def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, method_conf: dict | None = None,
           fps=None, step=None, max_frames=None, progress: bool = True, topic: str | None = None,
-          positions: GroundTruthSpec | None = None, every: float | None = None) -> Localizer:
+          positions: GroundTruthSpec | None = None, every: float | None = None) -> Map:
     """Encode and learn the database traverse ``db``; write the map to :func:`map_path` ``(out)`` (atomic).
 
     ``db``: one source, or a list of sources: the sessions of a multi-session
     map (each encoded and standardised on its own frames, learned one after
-    the other from a fresh context; :meth:`vpr.shosm.Localizer.from_database`).
-    ``method_conf``: the ``rshosm-seq`` conf (``--method-conf rshosm-seq.KEY=VALUE``), checked before any work;
-    the map keeps it. ``topic``: a bag's camera topic. ``positions``: where the frames' positions are
-    (``--gt-topic``, ``--gt FILE``, ``names``, ``exif``): the map keeps them (``vpr localize`` evaluates against
-    them) and ``every`` (metres) keeps one frame per so much travel.
+    the other from a fresh context). ``method_conf``: the ``rshosm-seq`` conf,
+    checked before any work; the map keeps it. ``topic``: a bag's camera
+    topic. ``positions``: where the frames' positions are (``--gt-topic``,
+    ``--gt FILE``, ``names``, ``exif``): the map keeps them, and ``every``
+    (metres) keeps one frame per so much travel.
     """
     out = map_path(out)
     method = methods.get(ONLINE_METHOD, **(method_conf or {}))
@@ -121,52 +117,43 @@ def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, met
     prefix = len(srcs) > 1
     names = [f"{s.name}/{n}" if prefix else n for s, ex in zip(srcs, exs, strict=True) for n in ex.features.names]
     starts = np.cumsum([0, *[len(ex.features) for ex in exs[:-1]]]).tolist()
-    sdr = sp.vstack([ex.features.sdr for ex in exs]).tocsr()
-    loc = method.localizer(sdr, names, progress=progress, sessions=starts)
+    loc = method.localizer(sp.vstack([ex.features.sdr for ex in exs]).tocsr(), names, progress=progress,
+                           sessions=starts)
     fitted = isinstance(enc, DescriptorEncoder) and enc.conf.get("standardise") == "fit"
-    stats = enc.statistics() if fitted else []  # the last session's: the query's prior
-    loc.meta = {"format": _MAP_FORMAT, "encoder": enc.name, "encoder_conf": enc.conf,
-                "db": str(db) if not prefix else [str(d) for d in dbs], "db_source": srcs[0].name,
-                "db_indices": [] if prefix else list(exs[0].indices or []), "n_stats": len(stats),
-                "sessions": starts, "skipped": [sk for ex in exs for sk in ex.skipped], "encode_seconds": t_enc,
-                "learn_seconds": time.perf_counter() - t}
-    loc.arrays = {}
-    for i, (m, s) in enumerate(stats):
-        loc.arrays[f"enc_mean_{i}"], loc.arrays[f"enc_std_{i}"] = m, s
+    xy = None
     if pos is not None:  # the positions of the frames learned (skipped ones are not in the map)
-        rows = []
-        for src, ex, xy in zip(srcs, exs, pos, strict=True):
-            row = {k: r for r, k in enumerate(src.indices())}
-            rows.append(xy[[row[k] for k in ex.indices]])
-        loc.arrays["db_xy"] = np.concatenate(rows)
-        loc.meta["db_positions"] = {**spec.describe(), "gps_origin": pos.origin}
-    loc.save(out)
-    return loc
+        xy = np.concatenate([p[[{k: r for r, k in enumerate(src.indices())}[k] for k in ex.indices]]
+                             for src, ex, p in zip(srcs, exs, pos, strict=True)])
+    info = {"db": str(db) if not prefix else [str(d) for d in dbs], "db_source": srcs[0].name,
+            "db_indices": [] if prefix else list(exs[0].indices or []),
+            "skipped": [sk for ex in exs for sk in ex.skipped], "encode_seconds": t_enc,
+            "learn_seconds": time.perf_counter() - t, "positions": spec.describe() if pos is not None else None}
+    the_map = Map(loc, {"name": enc.name, "conf": enc.conf}, enc.statistics() if fitted else [],  # the last session's
+                  xy, None if pos is None else pos.origin, info)
+    the_map.save(out)
+    return the_map
 
 
-def load_map(path) -> tuple[Localizer, object]:
-    """(localizer, encoder with the database's fitted statistics) of a map written by :func:`learn`."""
-    loc = Localizer.load(path)
-    if loc.meta.get("format") != _MAP_FORMAT:
-        raise MemoryFileError(f"{path}: a localizer file without an encoder: write maps with `vpr learn`")
-    enc = encoders.get(loc.meta["encoder"], **loc.meta["encoder_conf"])
-    n = int(loc.meta.get("n_stats", 0))
-    if n:
-        enc.set_statistics([(loc.arrays[f"enc_mean_{i}"], loc.arrays[f"enc_std_{i}"]) for i in range(n)])
-    return loc, enc
+def load_map(path) -> tuple[Map, object]:
+    """(map, encoder with the database's fitted statistics) of a map written by :func:`learn`."""
+    the_map = Map.load(path)
+    enc = encoders.get(the_map.encoder["name"], **the_map.encoder["conf"])
+    if the_map.statistics:
+        enc.set_statistics(the_map.statistics)
+    return the_map, enc
 
 
 # ------------------------------------------------------------------ localize
 class LocalizeOnline(Online):
-    """``vpr localize``: each query frame encoded with the map's encoder and localised by a :class:`vpr.Localizer`."""
+    """``vpr localize``: each query frame encoded with the map's encoder and localised by its :class:`vpr.Localizer`."""
 
     command = "localize"
     method = ONLINE_METHOD
 
-    def __init__(self, loc: Localizer, qenc: StreamEncoder, gt: GroundTruthSpec, q_src, params: dict,
-                 q_xy=None):
-        self.loc, self.qenc, self.gt, self.q_src, self._params = loc, qenc, gt, q_src, params
-        self.q_xy = q_xy  # the query frames' positions (position ground truth), by q_src.indices()
+    def __init__(self, the_map: Map, qenc: StreamEncoder, gt: GroundTruthSpec, q_src, params: dict, q_xy=None):
+        self.map, self.loc, self.qenc, self.gt, self.q_src = the_map, the_map.localizer, qenc, gt, q_src
+        self._params, self.q_xy = params, q_xy  # the query frames' positions, by q_src.indices()
+        self.top_k = self.loc.seq.top_k
 
     def warm_up(self) -> None:
         self.loc.warm_up()
@@ -175,24 +162,23 @@ class LocalizeOnline(Online):
     def encode(self, image):
         return self.qenc.encode(image)
 
-    def decide(self, encoded, name: str) -> Answer:
-        q = self.loc.frames
-        r = self.loc.update(encoded)
-        score = float(r.score) if np.isfinite(r.score) else None
-        return Answer(q, r.best_db, r.db_name, score, r.accepted, r.db_idx, r.scores)
+    def decide(self, encoded, name: str) -> Decision:
+        return self.loc.update(encoded)
+
+    def name_of(self, frame: int) -> str | None:
+        return self.loc.names[frame]
 
     def evaluate(self, result, names, indices) -> dict:
-        gt, loc = self.gt, self.loc
+        gt, loc, info = self.gt, self.loc, self.map.info
         if gt.tolerance is None and not gt.files and gt.topic is None:
             return {}
         q_idx = [i if i >= 0 else k for k, i in enumerate(indices)]
         positions = None
         if self.q_xy is not None:
             row = {k: r for r, k in enumerate(self.q_src.indices())}
-            positions = (loc.arrays["db_xy"], self.q_xy[[row[k] for k in q_idx]])
-        gt_hard, gt_soft = build_gt(gt, loc.names, names, loc.meta.get("db_indices") or list(range(loc.n_db)),
-                                    q_idx, loc.meta.get("db_source", "database"),
-                                    self.q_src.name if self.q_src is not None else "query", positions=positions)
+            positions = (self.map.positions, self.q_xy[[row[k] for k in q_idx]])
+        gt_hard, gt_soft = build_gt(gt, loc.names, names, info.get("db_indices") or list(range(loc.n_db)), q_idx,
+                                    info.get("db_source", "database"), self.q_src.name, positions=positions)
         m, _ = method_metrics(result, gt_hard, gt_soft)
         m.pop("seconds", None)
         m.pop("n_accepted", None)
@@ -204,14 +190,13 @@ class LocalizeOnline(Online):
         self.qenc.new_session()
 
     def save(self, path) -> None:
-        loc = self.loc
-        loc.arrays = {**{k: v for k, v in loc.arrays.items() if not k.startswith("q_")}, **self.qenc.state()}
-        loc.save(path)
+        self.map.query_state = self.qenc.state()
+        self.map.save(path)
 
     def params(self) -> dict:
-        loc = self.loc
-        return {**self._params, "encoder": loc.meta.get("encoder"), "encoder_conf": loc.meta.get("encoder_conf"),
-                "method_conf": {self.method: loc.conf}, "n_db": loc.n_db, "ground_truth": self.gt.describe()}
+        return {**self._params, "encoder": self.map.encoder["name"], "encoder_conf": self.map.encoder["conf"],
+                "method_conf": {self.method: self.loc.conf}, "n_db": self.loc.n_db,
+                "ground_truth": self.gt.describe()}
 
 
 def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: str = "running",
@@ -223,16 +208,14 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
     Parameters
     ----------
     map_or_db : path of a map written by :func:`learn`, or a database source (learned with ``learn_options``).
-    query : folder, video, image list, or ``"-"`` (paths read from ``stdin``).
+    query : folder, video, image list, bag, or ``"-"`` (paths read from ``stdin``).
     out : output folder (``rshosm-seq/matches.csv``, ``metrics.json``; :mod:`pipelines.online`).
-    stdout : where the JSON lines go (default ``sys.stdout``).
     query_standardise, prior_frames, window : see :class:`encoders.stream.StreamEncoder` (None: its default;
         window 0: all frames so far); ``prior_frames`` and ``window`` apply to ``"running"`` only.
     gt : ground truth (as ``vpr match``), optional; position ground truth (``--radius``) needs the map's
-        positions (learned with them, or ``map_or_db`` a database learned here) and a query source.
+        positions and a query source.
     topic : bags' camera topic; every : one query frame per so many metres (with the query's positions).
-    state_out : optional path: the localizer with its streaming state after the last frame (a robot's restart
-        file), also when the run is stopped.
+    state_out : optional path: the map with the query's state after the last frame (a robot's restart file).
     progress : progress bar while learning a database (``map_or_db`` a traverse).
     """
     out = Path(out)
@@ -247,40 +230,37 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
     if running.get("window") == 0:
         running["window"] = None  # every frame so far
     p = Path(map_or_db)
-    if is_map(p) or (p.is_file() and p.suffix.lower() == ".npz"):  # a foreign .npz is refused by load_map
-        loc, enc = load_map(p)
+    if Map.is_map(p) or (p.is_file() and p.suffix.lower() == ".npz"):  # a foreign .npz is refused by Map.load
+        the_map, enc = load_map(p)
         if (learn_options or {}).get("method_conf"):  # query-time settings apply to a learned map
-            loc = loc.reconfigure(**learn_options["method_conf"])
+            the_map.localizer = the_map.localizer.reconfigure(**learn_options["method_conf"])
     else:
-        lo = dict(learn_options or {})
         learn_to = out / "map.npz"
         positional = gt is not None and gt.positional
         learn(map_or_db, learn_to, fps=fps, step=step, max_frames=max_frames, progress=progress, topic=topic,
-              positions=gt if positional else None, every=every if positional else None, **lo)
-        loc, enc = load_map(learn_to)
+              positions=gt if positional else None, every=every if positional else None, **dict(learn_options or {}))
+        the_map, enc = load_map(learn_to)
     qenc = StreamEncoder(enc, query_standardise, **running)
-    qenc.load_state(loc.arrays)  # a --state-out file continues its query's running statistics
-    q_src = None if str(query) == "-" else open_source(query, fps=fps, step=step, max_frames=max_frames, topic=topic)
+    qenc.load_state(the_map.query_state)  # a --state-out file continues its query's running statistics
+    q_src = StdinSource(stdin if stdin is not None else sys.stdin) if str(query) == "-" else \
+        open_source(query, fps=fps, step=step, max_frames=max_frames, topic=topic)
     gt = gt or GroundTruthSpec()
     q_xy = None
     if gt.positional:
-        if "db_xy" not in loc.arrays:
+        if the_map.positions is None:
             raise ValueError(f"{map_or_db}: the map holds no positions of its frames, so --radius has nothing to "
                              "match; learn it with --gt-topic or --gt (or give the database itself)")
-        if q_src is None:
+        if str(query) == "-":
             raise ValueError("position ground truth (--radius) reads the query's positions from its source; with "
                              "paths on stdin give --gt PAIRS.csv or --tolerance")
-        origin = (loc.meta.get("db_positions") or {}).get("gps_origin")  # GPS in the map's metres
-        q_xy = prepare_positions([q_src], ["query"], gt, every, loops=False,
-                                 origin=tuple(origin) if origin else None)[0]
+        q_xy = prepare_positions([q_src], ["query"], gt, every, loops=False, origin=the_map.origin)[0]
     elif every is not None:
-        prepare_positions([q_src] if q_src is not None else [], ["query"], gt, every)
-    frames = stdin_frames(stdin if stdin is not None else sys.stdin) if q_src is None else source_frames(q_src)
-    job = LocalizeOnline(loc, qenc, gt, q_src,
+        prepare_positions([q_src] if str(query) != "-" else [], ["query"], gt, every)
+    job = LocalizeOnline(the_map, qenc, gt, q_src,
                          {"map_or_db": str(map_or_db), "query": str(query), "query_standardise": query_standardise,
                           "prior_frames": prior_frames, "window": window}, q_xy)
     job.warm_up()
-    return run_online(job, frames, out, stdout, state_out, n_rows=loc.n_db)
+    return run_online(job, q_src, out, stdout, state_out, n_rows=the_map.localizer.n_db)
 
 
 # ------------------------------------------------------------------ command line
@@ -347,14 +327,15 @@ def run_command(args) -> int:
         # where the positions are (no radius: nothing is evaluated here; the map keeps them)
         spec = GroundTruthSpec(files=tuple(args.gt or ()), topic=args.gt_topic, radius=0.0) \
             if args.gt or args.gt_topic else None
-        loc = learn(args.db[0] if len(args.db) == 1 else args.db, args.out, fps=args.fps, step=args.step,
+        the_map = learn(args.db[0] if len(args.db) == 1 else args.db, args.out, fps=args.fps, step=args.step,
                     max_frames=args.max_frames,
                     progress=not args.no_progress, encoder=settings["encoder"], encoder_conf=settings["encoder_conf"],
                     method_conf=settings["method_conf"][ONLINE_METHOD], topic=args.topic, positions=spec,
                     every=every)
+        loc = the_map.localizer
         print(f"learned {loc.n_db} frames ({loc.memory!r}); wrote {map_path(args.out)}")
         return 0
-    if is_map(args.map) or Path(args.map).suffix.lower() == ".npz":
+    if Map.is_map(args.map) or Path(args.map).suffix.lower() == ".npz":
         fixed = [f for f, v in (("--encoder", args.encoder), ("--encoder-conf", args.encoder_conf),
                                 ("--preset", args.preset)) if v]
         if fixed:

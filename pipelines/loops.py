@@ -43,12 +43,13 @@ from pipelines.args import (
     options_from_args,
     settings_from_args,
 )
-from pipelines.online import Answer, Online, run_online, stdin_frames, summary_line
+from pipelines.online import Online, run_online, summary_line
 from pipelines.outputs import method_metrics
 from pipelines.runs import exclude_frames
 from vpr import groundtruth, io, methods
 from vpr.groundtruth import GroundTruthSpec, build_loop_gt, check_loop_gt_files
 from vpr.shosm import LOOP_EXCLUDE, LoopDetector
+from vpr.sources.stdin import StdinSource
 
 __all__ = ["COMMANDS", "add_arguments", "run_command", "detect_loops", "make_detector", "resume_detector",
            "LoopsOnline"]
@@ -162,6 +163,7 @@ class LoopsOnline(Online):
     def __init__(self, det: LoopDetector, gt: GroundTruthSpec):
         self.det, self.gt = det, gt
         self.row_offset = det.frames  # a resumed detector names frames from before this run too
+        self.top_k = det.seq.top_k
 
     def warm_up(self) -> None:
         self.det.warm_up()
@@ -170,22 +172,20 @@ class LoopsOnline(Online):
     def encode(self, image):
         return self.det.encoder.push(image)
 
-    def decide(self, encoded, name: str) -> list[Answer]:
-        r = self.det.update_encoded(encoded, name)
-        return self._answers([*self.det.take_late(), *([r] if r is not None else [])])
+    def decide(self, encoded, name: str):
+        d = self.det.update_encoded(encoded, name)
+        return sorted([*self.det.take_late(), *([d] if d is not None else [])], key=lambda d: d.frame)
 
-    @staticmethod
-    def _answers(results) -> list[Answer]:
-        return [Answer(r.frame, r.best, r.earlier_name, round(r.score, 4), r.accepted, r.earlier, r.scores, r.name)
-                for r in sorted(results, key=lambda r: r.frame)]
+    def name_of(self, frame: int) -> str | None:
+        return self.det.names[frame]
 
-    def finish(self) -> list[Answer]:
+    def finish(self):
         self.det.flush()
-        return self._answers(self.det.take_late())
+        return self.det.take_late()
 
-    def new_session(self) -> list[Answer]:
+    def new_session(self):
         self.det.new_session()
-        return self._answers(self.det.take_late())
+        return self.det.take_late()
 
     def evaluate(self, result, names, indices) -> dict:
         if not self.gt.files:
@@ -224,4 +224,4 @@ def detect_loops(det: LoopDetector, out, stdin=None, stdout=None, gt: GroundTrut
         io.check_writable(state_out, "--state-out")
     job = LoopsOnline(det, gt)
     job.warm_up()
-    return run_online(job, stdin_frames(stdin if stdin is not None else sys.stdin), out, stdout, state_out)
+    return run_online(job, StdinSource(stdin if stdin is not None else sys.stdin), out, stdout, state_out)

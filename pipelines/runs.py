@@ -30,7 +30,6 @@ from pipelines.features import extract
 from pipelines.interrupts import deferred
 from pipelines.outputs import claim_methods, merge_metrics, method_metrics, versions, warn, write_method
 from pipelines.positions import prepare_positions
-from pipelines.second_opinion import second_opinion
 from pipelines.split import split_match
 from vpr import evaluate, groundtruth, io, methods
 from vpr.groundtruth import GroundTruthSpec, build_gt, build_loop_gt
@@ -72,7 +71,7 @@ class RunOptions:
     #: many workers (0: serial), or the cluster at ``scheduler``; None and None: serial
     workers: int | None = None
     scheduler: str | None = None
-    #: loops: a geometric second opinion on rshosm-seq's closures (:mod:`pipelines.second_opinion`); off by
+    #: loops: a geometric second opinion on rshosm-seq's closures (:class:`vpr.verify.GeometricOpinion`); off by
     #: default: it accepts closures onto the same road ahead on rendered forward drives (docs/loops.md)
     geometry: bool = False
     #: methods whose candidates are verified (None: all); verification is the expensive part of a run
@@ -534,16 +533,20 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
         opinions = {}
 
         def loops_of(r):
-            res = r.loops(features, exclude=exclude, progress=opts.progress, sessions=starts)
-            if opts.geometry and r.name == "rshosm-seq":
-                loop = r.seq.loop()
-                res, opinions[r.name] = second_opinion(res, _frame_images(srcs, exs), features.inputs["sdr"],
-                                                       loop.back, loop.ahead, loop.stop_ratio, sessions=starts)
-            return res
+            opinion = None
+            if opts.geometry:
+                from vpr.verify import GeometricOpinion  # pycolmap: loaded only when verifying
+
+                loop, image = r.seq.loop(), _frame_images(srcs, exs)
+
+                def opinion(decider):
+                    opinions[r.name] = GeometricOpinion(decider, image, loop.back, loop.ahead, loop.stop_ratio)
+                    return opinions[r.name]
+            return r.loops(features, exclude=exclude, progress=opts.progress, sessions=starts, opinion=opinion)
 
         done = run_methods(runners, loops_of, gt_hard, gt_soft, mask, on_result=write, loops=True)
         for m, o in opinions.items():
-            done[m][0]["geometry"] = o
+            done[m][0]["geometry"] = o.report()
         inputs = {"kind": "loops", "seq": [s.key() for s in srcs] if len(srcs) > 1 else srcs[0].key(),
                   "exclude": exclude, "encoder": encoder.name, "encoder_conf": encoder.conf,
                   "ground_truth": opts.gt.describe()}

@@ -40,8 +40,8 @@ def compare(name, a, b, gt):
         t_s = time.process_time() - t
         bd = D.argmax(axis=0)
         r1 = lambda best: gt[np.maximum(best, 0), np.arange(n_q)].mean()  # noqa: E731
-        print(f"{name:28s} {direction:8s} same best match {100 * np.mean(bd == r.best_db):6.2f} %  "
-              f"R@1 dense {r1(bd):.3f} sparse {r1(r.best_db):.3f}  AUC dense {auc_pr(D, gt):.3f} "
+        print(f"{name:28s} {direction:8s} same best match {100 * np.mean(bd == r.best):6.2f} %  "
+              f"R@1 dense {r1(bd):.3f} sparse {r1(r.best):.3f}  AUC dense {auc_pr(D, gt):.3f} "
               f"sparse top-50 {auc_pr(r.similarity, gt):.3f}  ({t_d:.2f} s / {t_s:.2f} s)", flush=True)
 
 

@@ -55,8 +55,9 @@ import encoders
 from encoders.stream import StreamEncoder
 from pipelines.features import extract
 from vpr import presets
-from vpr.shosm import Localizer, PathConf, PathDecider
+from vpr.shosm import Localizer, PathConf, PathDecider, decide_all
 from vpr.sources import open_source
+from vpr.types import Column
 
 CASES = ("nordland_358", "nordland_120", "nordland_3576", "nordland_half", "gardens_point", "speed_change")
 #: The cases and the preset the rule is chosen on (see the module docstring).
@@ -117,11 +118,12 @@ def columns(case: str, preset: str, data: Path, cache: Path, decay: float | None
     qenc = StreamEncoder(enc)
     rows, vals, fill, zbest = [], [], [], []
     for f in q:
-        e = loc.forward.update(qenc.encode(f.image))
+        bits = qenc.encode(f.image).indices.astype(np.int64)
+        e = loc.engine.step(np.sort(bits), frame=loc.frames)
         rows.append(e.rows)
-        vals.append(e.vals)
+        vals.append(e.z)
         fill.append(e.fill)
-        zbest.append(e.score)
+        zbest.append(e.best()[1])
     ptr = np.r_[0, np.cumsum([r.size for r in rows])]
     C = sp.csr_matrix((np.concatenate(vals).astype(np.float32), np.concatenate(rows), ptr),
                       shape=(len(rows), loc.n_db))
@@ -135,13 +137,11 @@ def columns(case: str, preset: str, data: Path, cache: Path, decay: float | None
 
 def decide(C, fill, conf: PathConf):
     """(best, accepted) of every query frame under ``conf``, as :class:`vpr.Localizer` decides online."""
-    d = PathDecider(conf)
     n = C.shape[1]
-    best, ok = np.full(C.shape[0], -1), np.zeros(C.shape[0], bool)
-    for j in range(C.shape[0]):
-        a, b = C.indptr[j], C.indptr[j + 1]
-        best[j], _, ok[j], _ = d.decide(C.indices[a:b], C.data[a:b], n, float(fill[j]))
-    return best, ok
+    d = decide_all(PathDecider(conf), (Column(C.indices[C.indptr[j]:C.indptr[j + 1]].astype(np.int64),
+                                              C.data[C.indptr[j]:C.indptr[j + 1]], float(fill[j]), n, j)
+                                       for j in range(C.shape[0])))
+    return d.best, d.accepted
 
 
 def z_rule(C, fill, zbest, z_min: float):

@@ -1,4 +1,4 @@
-"""The geometric second opinion of ``vpr loops`` (``pipelines.second_opinion``), on every loop stream.
+"""The geometric second opinion of ``vpr loops`` (:class:`vpr.verify.GeometricOpinion`), on every loop stream.
 
 For each stream of ``studies.loop_streams`` (and RTAB-Map's 84-frame indoor
 loop, read with its own loop matrix), rSHOSM-seq decides with its defaults
@@ -24,12 +24,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pipelines.second_opinion import SecondOpinion, second_opinion
 from studies.loop_decisions import aliases, evidence
 from studies.loop_streams import FORWARD, REAL_REVISITS, RENDERED_REVISITS, Stream, encoder_for, load_stream
 from vpr.groundtruth.formats import loop_matrix
 from vpr.shosm import LoopConf, accept_loops, loop_evidence
-from vpr.types import MatchResult
+from vpr.verify import OpinionConf, second_opinion
 
 EXCLUDE = 30
 STREAMS = (*REAL_REVISITS, "rtabmap_loop", *RENDERED_REVISITS, *FORWARD)
@@ -101,14 +100,13 @@ def main(argv=None) -> int:
             ev = evidence(stream, cache, "default")
         alias = aliases(name) if not stream.forward_only or "/" in name else None
         d = accept_loops(ev, conf, sdr=stream.x)
-        res = MatchResult("rshosm-seq", None, d.best, d.score, d.accepted, 0.0, {})
         image = _images(stream)
         path_c = count(stream, d.best, d.accepted, alias)
         for k in grid:
-            out, rep = second_opinion(res, image, stream.x, conf.back, conf.ahead, conf.stop_ratio,
-                                      SecondOpinion(min_inliers=k))
-            per_grid.setdefault(k, {})[name] = count(stream, out.best_db, out.accepted, alias)
-            if k == SecondOpinion().min_inliers:
+            out, rep = second_opinion(d, image, stream.x, conf.back, conf.ahead, conf.stop_ratio,
+                                      OpinionConf(min_inliers=k))
+            per_grid.setdefault(k, {})[name] = count(stream, out.best, out.accepted, alias)
+            if k == OpinionConf().min_inliers:
                 both = per_grid[k][name]
                 rows.append((name, len(stream), path_c, both, rep))
                 print(f"| {name} | {len(stream):,} | {_cell(path_c)} | {_cell(both)} | {rep['accepted_by_geometry']} | "

@@ -42,7 +42,7 @@ def run(name, sdr, pixels, gt, exclude, soft=None, forward_only=False, **kw):
                          desc=None if pixels is not None else sdr.toarray().astype(np.float32))
     conf = {} if pixels is not None else {"descriptor": "desc"}
     r = methods.loops("seqslam", f, exclude=exclude, conf=conf)
-    d = ev.decisions  # the default LoopConf, decided as the stream went (vpr loops)
+    d = ev.decision  # the default LoopConf, decided as the stream went (vpr loops)
     best, score, ok = d.best, d.score, d.accepted
     T = sdr.shape[0]
     far = ok & (np.arange(T) - best >= 30)

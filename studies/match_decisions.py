@@ -86,7 +86,8 @@ def evidence(case: str, preset: str, data: Path, cache: Path):
 
 
 def decide(S, conf: PathConf):
-    best, _, ok = accept_path(S, conf)
+    d = accept_path(S, conf)
+    best, ok = d.best, d.accepted
     return best, ok
 
 

@@ -18,6 +18,10 @@ def traverses():
     return db, q, dp, qp
 
 
+def _map(loc) -> vpr.Map:
+    return vpr.Map(loc, {"name": "pixel", "conf": {"k": 200}})
+
+
 def test_localizer_equals_batch_forward_and_restarts(traverses, tmp_path):
     db, q, dp, qp = traverses
     names = [f"db{i:04d}.png" for i in range(db.shape[0])]
@@ -28,41 +32,44 @@ def test_localizer_equals_batch_forward_and_restarts(traverses, tmp_path):
     answers = []
     for j in range(q.shape[0]):
         if j == 100:  # the robot stops, and a new process continues from the file
-            loc.save(tmp_path / "loc.npz")
-            loc = vpr.Localizer.load(tmp_path / "loc.npz")
+            _map(loc).save(tmp_path / "loc.npz")
+            loc = vpr.Map.load(tmp_path / "loc.npz").localizer
             assert loc.frames == 100
         r, w = loc.update(q[j]), whole.update(q[j])
-        assert r.best_db == batch.best_db[j] and abs(r.z - batch.score[j]) <= 1e-6
-        assert r.db_name == names[r.best_db]
+        assert r.best == batch.best[j] and abs(r.column.best()[1] - batch.z[j]) <= 1e-6
         assert r.accepted == (r.score >= 4.0)
-        assert (r.best_db, r.score, r.accepted) == (w.best_db, w.score, w.accepted)  # the restart changes nothing
+        assert (r.best, r.score, r.accepted) == (w.best, w.score, w.accepted)  # the restart changes nothing
         answers.append(r)
     assert loc.memory.n_connections == n_conn  # queries do not change the memory
-    best = np.array([a.best_db for a in answers])
+    best = np.array([a.best for a in answers])
     assert np.mean(np.abs(dp[best] - qp) <= 1) >= 0.85
     acc = np.array([a.accepted for a in answers])
     # a world where every appearance recurs at ten places: only a path of answers stands out
     assert acc.sum() > 0.45 * acc.size and np.mean(np.abs(dp[best[acc]] - qp[acc]) <= 1) >= 0.95
     # same memory, same query, same answers after reset
     loc.reset()
-    again = [loc.update(q[j]).best_db for j in range(q.shape[0])]
+    again = [loc.update(q[j]).best for j in range(q.shape[0])]
     assert np.array_equal(again, best)
 
 
-def test_localizer_file_keeps_conf_meta_and_arrays(traverses, tmp_path):
+def test_map_file_keeps_conf_encoder_statistics_and_positions(traverses, tmp_path):
     db, q, _, _ = traverses
     loc = vpr.Localizer.from_database(db[:50], [str(i) for i in range(50)], decay=0.8, stay=None, top_k=5,
                                       seed=3)
-    loc.meta = {"encoder": "pixel", "encoder_conf": {"k": 200}}
-    loc.arrays = {"mean": np.arange(4, dtype=np.float32)}
+    m = vpr.Map(loc, {"name": "pixel", "conf": {"k": 200}}, [(np.arange(4.0), np.ones(4))],
+                positions=np.arange(100.0).reshape(50, 2), origin=(48.1, 11.5), info={"db": "day"})
+    m.query_state = {"q_n": np.array(3)}
     loc.update(q[0])
-    p = loc.save(tmp_path / "m.npz")
-    back = vpr.Localizer.load(p)
-    assert back.conf == loc.conf and back.conf["stay"] is None and back.conf["top_k"] == 5
-    assert back.meta == loc.meta and np.array_equal(back.arrays["mean"], loc.arrays["mean"])
-    assert back.names == loc.names and (back.db_codes != loc.db_codes).nnz == 0
-    a, b = loc.update(q[1]), back.update(q[1])
-    assert (a.best_db, a.score) == (b.best_db, b.score) and len(b.db_idx) <= 5
+    p = m.save(tmp_path / "m.npz")
+    back = vpr.Map.load(p)
+    b = back.localizer
+    assert b.conf == loc.conf and b.conf["stay"] is None and b.conf["top_k"] == 5
+    assert back.encoder == m.encoder and np.array_equal(back.statistics[0][0], np.arange(4.0))
+    assert np.array_equal(back.positions, m.positions) and back.origin == (48.1, 11.5) and back.info == m.info
+    assert int(back.query_state["q_n"]) == 3
+    assert b.names == loc.names and (b.db_codes != loc.db_codes).nnz == 0
+    x, y = loc.update(q[1]), b.update(q[1])
+    assert (x.best, x.score) == (y.best, y.score)
     assert not list(tmp_path.glob(".*"))  # atomic: no temporary file left
 
 
@@ -76,13 +83,13 @@ def test_localizer_bad_input(traverses, tmp_path):
     with pytest.raises(ValueError, match="shape"):
         loc.update(np.zeros(10, bool))
     (tmp_path / "x.npz").write_bytes(b"not a zip")
-    with pytest.raises(MemoryFileError, match="not a readable localizer"):
-        vpr.Localizer.load(tmp_path / "x.npz")
+    with pytest.raises(MemoryFileError, match="not a readable map"):
+        vpr.Map.load(tmp_path / "x.npz")
     with pytest.raises(MemoryFileError, match="no such"):
-        vpr.Localizer.load(tmp_path / "missing.npz")
+        vpr.Map.load(tmp_path / "missing.npz")
     np.savez(tmp_path / "y.npz", header=np.array(json.dumps({"format": "other"})))
-    with pytest.raises(MemoryFileError, match="not a localizer file"):
-        vpr.Localizer.load(tmp_path / "y.npz")
+    with pytest.raises(MemoryFileError, match="not a map file"):
+        vpr.Map.load(tmp_path / "y.npz")
 
 
 # ---------------------------------------------------------------- command line
@@ -146,7 +153,7 @@ def test_localize_bad_input(scene, tmp_path, capsys):
     assert code == 2 and "nothing.npz" in err
     np.savez(tmp_path / "mem.npz", header=np.array("{}"))
     code, _, err = _cli(["localize", tmp_path / "mem.npz", scene["summer_day"], "--out", tmp_path / "o"], capsys)
-    assert code == 2 and "not a localizer file" in err
+    assert code == 2 and "not a map file" in err
     code, _, err = _cli(["learn", scene["summer_day"], "--out", tmp_path / "m.npz", "--no-progress",
                          "--encoder-conf", "standardise=per_batch"], capsys)
     assert code == 2 and "per_batch" in err

@@ -241,7 +241,7 @@ def test_cache_that_is_a_file_is_refused(scene, tmp_path, capsys):
 def test_random_bytes_are_not_a_map(tmp_path, capsys, scene):
     (tmp_path / "m.npz").write_bytes(os.urandom(2000))
     code, _, err = _run(["localize", tmp_path / "m.npz", scene["q"], "--out", tmp_path / "o"], capsys)
-    _one_error_line(code, err, "m.npz", "not a readable localizer file")
+    _one_error_line(code, err, "m.npz", "not a readable map file")
     assert "allow_pickle" not in err
 
 

@@ -1,10 +1,10 @@
-"""The geometric second opinion on loop closures (issue 26, part 3): a second route to acceptance where it can see."""
+"""The geometric second opinion on loop closures: a decider around the loop rule, where geometry can see."""
 import cv2
 import numpy as np
 
-from pipelines.second_opinion import SecondOpinion, second_opinion
 from vpr import sdr
-from vpr.types import MatchResult
+from vpr.types import Decision
+from vpr.verify import OpinionConf, second_opinion
 
 
 def _textures(n, size=(240, 320), seed=0):
@@ -17,42 +17,46 @@ def _textures(n, size=(240, 320), seed=0):
 
 
 def _stream(n=60, back=40):
-    """Frames ``back..n-1`` show again what frames ``0..`` showed; the method found them but did not accept."""
+    """Frames ``back..n-1`` show again what frames ``0..`` showed; the loop rule found them but accepted none."""
     imgs = _textures(back)
     imgs += [np.roll(imgs[j - back], 3, axis=1) for j in range(back, n)]  # seen again, shifted a little
     best = np.r_[np.full(back, -1), np.arange(n - back)]
-    res = MatchResult("rshosm-seq", None, best, np.zeros(n), np.zeros(n, bool), 0.0, {})
-    return imgs, res, sdr.random_sdrs(n, 256, 20, seed=0)
+    return imgs, best, sdr.random_sdrs(n, 256, 20, seed=0)
+
+
+def _run(images, best, x, conf=None):
+    d = Decision(best, np.zeros(best.size), np.zeros(best.size, bool))
+    return second_opinion(d, lambda j: images[j], x, back=4, ahead=6, stop_ratio=0.35, conf=conf)
 
 
 def test_geometry_accepts_consistent_revisits_it_can_see():
-    imgs, res, x = _stream()
-    out, rep = second_opinion(res, lambda j: imgs[j], x, back=4, ahead=6, stop_ratio=0.35)
+    imgs, best, x = _stream()
+    d, rep = _run(imgs, best, x)
     # the first two revisit frames have no consistent past yet; from the third on geometry confirms them
-    assert not out.accepted[:42].any() and out.accepted[42:].all()
+    assert not d.accepted[:42].any() and d.accepted[42:].all()
     assert rep["accepted_by_geometry"] == 18 and rep["frames_verified"] == 18 and rep["frames_blind"] == 0
     assert rep["ms_per_verified_frame"] > 0
 
 
 def test_geometry_is_blind_on_small_frames_and_leaves_the_path_alone():
-    imgs, res, x = _stream()
+    imgs, best, x = _stream()
     small = [cv2.resize(i, (64, 32)) for i in imgs]
-    out, rep = second_opinion(res, lambda j: small[j], x, back=4, ahead=6, stop_ratio=0.35)
-    assert not out.accepted.any() and rep["frames_blind"] == 18 and rep["frames_verified"] == 0
+    d, rep = _run(small, best, x)
+    assert not d.accepted.any() and rep["frames_blind"] == 18 and rep["frames_verified"] == 0
 
 
 def test_a_stop_is_not_confirmed():
-    imgs, res, _ = _stream()
+    imgs, best, _ = _stream()
     x = sdr.from_indices([np.arange(20)] * 60, 256)  # every frame the same: the camera never left
-    out, rep = second_opinion(res, lambda j: imgs[j], x, back=4, ahead=6, stop_ratio=0.35)
-    assert not out.accepted.any() and rep["accepted_by_geometry"] == 0
+    d, rep = _run(imgs, best, x)
+    assert not d.accepted.any() and rep["accepted_by_geometry"] == 0
 
 
 def test_too_few_inliers_are_not_enough():
-    imgs, res, x = _stream()
+    imgs, best, x = _stream()
     other = _textures(60, seed=9)  # the "revisits" show something else
-    out, _ = second_opinion(res, lambda j: other[j], x, back=4, ahead=6, stop_ratio=0.35, conf=SecondOpinion())
-    assert not out.accepted.any()
+    d, _ = _run(other, best, x, OpinionConf())
+    assert not d.accepted.any()
 
 
 def test_geometry_is_refused_for_a_method_it_does_not_apply_to(tmp_path, capsys):

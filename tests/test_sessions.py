@@ -19,6 +19,7 @@ from vpr import evaluate, sdr
 from vpr.groundtruth import loop_closure_mask
 from vpr.shosm import LoopDecider, LoopDetector, LoopStream, RshosmSeqConf, loop_evidence
 from vpr.similarity import candidate_limit, mask_recent
+from vpr.types import Column
 
 
 def _stream(seed=0):
@@ -47,12 +48,12 @@ def test_a_path_does_not_move_on_across_a_session_boundary():
             if j in new_sessions:
                 d.new_session()
             if j < 200:
-                scores.append(d.decide(j, np.zeros(0, np.int64), np.zeros(0), 0, 0.0)[1])
+                scores.append(d.decide(Column(np.zeros(0, np.int64), np.zeros(0, np.float32), 0.0, 0, j)).score)
                 continue
             b = 90 + (j - 200)  # the best earlier frame walks from session 1 (..99) into session 2 (100..)
             rows = np.arange(200, dtype=np.int64)
-            vals = np.where(rows == b, 5.0, 0.0)
-            scores.append(d.decide(j, rows, vals, 200, 0.0)[1])
+            vals = np.where(rows == b, 5.0, 0.0).astype(np.float32)
+            scores.append(d.decide(Column(rows, vals, 0.0, 200, j)).score)
         return np.array(scores)
 
     joined, sessions = run(()), run((100, 200))
@@ -69,7 +70,7 @@ def test_batch_sessions_equal_the_online_detector_and_close_loops_onto_the_first
         if j == 80:
             det.new_session()
         out.append(det.update(x[j]))
-    d = batch.decisions
+    d = batch.decision
     np.testing.assert_array_equal([r.best for r in out], d.best)
     np.testing.assert_array_equal([r.accepted for r in out], d.accepted)
     assert batch.starts == (0, 80)

@@ -4,7 +4,7 @@ The core of the library is :class:`vpr.SequenceMemory`, the rSHOSM sequence
 memory of Neubert, Ahmad and Protzel (KI 2018), in :mod:`vpr.shosm` with
 rSHOSM-seq, our graded evidence over it. The house, from the bottom floor up:
 
-- shared types and helpers: :mod:`vpr.types` (encoded traverse, match result),
+- shared types and helpers: :mod:`vpr.types` (encoded traverse, column, decision, match result),
   :mod:`vpr.sdr`, :mod:`vpr.similarity`, :mod:`vpr.config`, :mod:`vpr.checks`,
   :mod:`vpr.io`, :mod:`vpr.imageproc`;
 - algorithms, one package each: :mod:`vpr.shosm`, :mod:`vpr.seqslam`,
@@ -19,7 +19,7 @@ from importlib import import_module
 
 __version__ = "0.1.0"
 
-_LAZY = {"SequenceMemory": "vpr.shosm", "Localizer": "vpr.shosm", "LoopDetector": "vpr.shosm"}
+_LAZY = {"SequenceMemory": "vpr.shosm", "Localizer": "vpr.shosm", "LoopDetector": "vpr.shosm", "Map": "vpr.shosm"}
 
 
 def __getattr__(name):
@@ -29,4 +29,4 @@ def __getattr__(name):
     raise AttributeError(f"module 'vpr' has no attribute {name!r}")
 
 
-__all__ = ["Localizer", "LoopDetector", "SequenceMemory", "__version__"]
+__all__ = ["Localizer", "LoopDetector", "Map", "SequenceMemory", "__version__"]

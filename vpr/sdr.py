@@ -10,6 +10,7 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 import scipy.sparse as sp
+from numba import njit
 
 __all__ = [
     "from_indices",
@@ -23,6 +24,7 @@ __all__ = [
     "density",
     "add_noise",
     "random_sdrs",
+    "stationary",
 ]
 
 
@@ -283,3 +285,37 @@ def random_sdrs(n: int, n_bits: int = 2048, n_active: int = 40, seed=None) -> sp
     idx = np.argsort(rng.random((n, n_bits)), axis=1)[:, :n_active] if n * n_bits <= 5e7 else \
         np.stack([rng.choice(n_bits, n_active, replace=False) for _ in range(n)])
     return from_indices(list(idx), n_bits)
+
+
+@njit(cache=True)
+def _overlap(ptr, ind, a, b):
+    i, j, c = ptr[a], ptr[b], 0
+    while i < ptr[a + 1] and j < ptr[b + 1]:
+        if ind[i] == ind[j]:
+            c += 1
+            i += 1
+            j += 1
+        elif ind[i] < ind[j]:
+            i += 1
+        else:
+            j += 1
+    return c
+
+
+@njit(cache=True)
+def stationary(ptr, ind, b, j, ratio):  # pragma: no cover - compiled
+    """Whether the camera never left place ``b`` before frame ``j`` (rows of a batch's sorted CSR ``ptr``, ``ind``).
+
+    A loop closure means the camera went elsewhere and came back: some frame
+    between ``b`` and ``j`` shares fewer than ``ratio`` times the bits ``b``
+    shares with ``j``. When every frame in between keeps at least that much,
+    the vehicle stood still or crept (a station, a traffic light): a stop,
+    not a loop. Frames that share nothing are not one place.
+    """
+    o_b = _overlap(ptr, ind, b, j)
+    if o_b == 0:
+        return False
+    for k in range(b + 1, j):
+        if _overlap(ptr, ind, k, j) < ratio * o_b:
+            return False
+    return True

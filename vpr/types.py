@@ -9,6 +9,9 @@
   raw images rather than taking it from the encoder. The extraction stage
   computes (and caches) it for every method that asks, so a method with a new
   kind of input touches only its own module.
+* :class:`Column`: one frame's evidence over its candidate frames.
+* :class:`Decision`: what a decision says of a frame (scalars) or of every
+  frame of a traverse (arrays).
 * :class:`MatchResult`: a database x query similarity (dense, or top-K
   sparse), the best database frame per query, its score and the decision.
 """
@@ -20,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["EncodedTraverse", "ImageInput", "MatchResult", "ENCODER_INPUTS"]
+__all__ = ["EncodedTraverse", "ImageInput", "Column", "Decision", "MatchResult", "ENCODER_INPUTS"]
 
 #: Inputs that come from the encoder (every other input is an :class:`ImageInput` of a method).
 ENCODER_INPUTS = {"sdr": "SDRs", "desc": "dense descriptors"}
@@ -94,6 +97,58 @@ class EncodedTraverse:
     def __repr__(self) -> str:
         held = ", ".join(f"{k}={getattr(v, 'shape', '?')}" for k, v in self.inputs.items())
         return f"EncodedTraverse({len(self)} frames, {held})"
+
+
+@dataclass
+class Column:
+    """One frame's evidence over its ``n`` candidate frames ``0 .. n - 1``.
+
+    ``rows``: the candidates with evidence (sorted), ``z`` their scores
+    (float32, as a similarity matrix keeps them); every other candidate scores
+    ``fill``. ``frame``: the frame the column belongs to (-1: not said).
+    """
+
+    rows: np.ndarray
+    z: np.ndarray
+    fill: float
+    n: int
+    frame: int = -1
+
+    def best(self) -> tuple[int, float]:
+        """(best candidate, its score), the smaller frame on ties; (-1, -inf) without evidence."""
+        if not self.rows.size:
+            return -1, float("-inf")
+        k = int(np.argmax(self.z))
+        return int(self.rows[k]), float(self.z[k])
+
+    def top(self, k: int | None) -> tuple[np.ndarray, np.ndarray]:
+        """The ``k`` candidates of most evidence (None: all with evidence) and their scores, best first."""
+        order = np.lexsort((self.rows, -self.z.astype(np.float64)))[:k]
+        return self.rows[order], self.z[order]
+
+    def dense(self) -> np.ndarray:
+        """The scores of all ``n`` candidates."""
+        out = np.full(self.n, self.fill, np.float32)
+        out[self.rows] = self.z
+        return out
+
+
+@dataclass
+class Decision:
+    """What a decision says of a frame (scalar fields) or of every frame of a traverse (arrays).
+
+    ``best``: the frame it matches (-1: none); ``score``: the decision's
+    statistic; ``accepted``; ``margin``: how far the best place stood out of
+    the others in this frame; ``frame``: the frame decided; ``column``: its
+    evidence, where one frame was decided online.
+    """
+
+    best: int | np.ndarray
+    score: float | np.ndarray
+    accepted: bool | np.ndarray
+    margin: float | np.ndarray = 0.0
+    frame: int | np.ndarray = -1
+    column: Column | None = None
 
 
 @dataclass

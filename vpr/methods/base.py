@@ -20,7 +20,7 @@ import scipy.sparse as sp
 from vpr.checks import check_exclude, check_top_k
 from vpr.config import merge_conf
 from vpr.similarity import best_matches, mask_recent
-from vpr.types import ENCODER_INPUTS, EncodedTraverse, ImageInput, MatchResult
+from vpr.types import ENCODER_INPUTS, Decision, EncodedTraverse, ImageInput, MatchResult
 
 __all__ = ["Method", "Fitted"]
 
@@ -85,6 +85,9 @@ class Method:
         which would be reported as the method's matching time.
         """
 
+    #: whether loop closure is decided frame by frame (a second opinion can wrap the decider)
+    decides_frames: bool = False
+
     @property
     def supports_loops(self) -> bool:
         """Whether :meth:`loops` (loop closure within one traverse) is implemented."""
@@ -98,17 +101,20 @@ class Method:
         it, not by the block's)."""
         return None
 
-    def _decide(self, S, best: np.ndarray, score: np.ndarray):
-        """(score, accepted) of a whole query traverse from its similarity (the decision, which may run over every
-        query in order); default: :meth:`accept` on the best matches."""
-        return score, self.accept(best, score)
+    def decide(self, S, best: np.ndarray, score: np.ndarray) -> Decision:
+        """The decision over a traverse's similarity ``S`` whose best matches are ``best`` (scoring ``score``).
 
-    def accept(self, best: np.ndarray, score: np.ndarray) -> np.ndarray:
-        """Accept a best match when there is one with a finite score (subclasses add their evidence test)."""
-        return (best >= 0) & np.isfinite(score)
+        The one decision hook: by default a best match with a finite score is
+        accepted; methods override it with their own rule (which may run over
+        every query in order). A run that decides itself returns its
+        :class:`~vpr.types.Decision` instead (SeqSLAM's uniqueness ratio).
+        """
+        score = np.asarray(score, np.float64)
+        best = np.where(np.isfinite(score), np.asarray(best, np.int64), -1)
+        return Decision(best, score, best >= 0)
 
     def _match(self, db: EncodedTraverse, query: EncodedTraverse, progress: bool):
-        """(similarity, best_db, score, accepted or None to use :meth:`accept`).
+        """(similarity, Decision or None: :meth:`decide` on the best matches).
 
         Methods that learn the database implement :meth:`_fit` and
         :meth:`_match_fitted` instead (:meth:`match` is ``fit``, then the fitted match).
@@ -124,10 +130,17 @@ class Method:
         return self._match(db, query, progress)
 
     def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool, sessions=(0,)):
-        """(similarity before masking, decisions): decisions None to use :meth:`accept` on the best matches, an
-        accepted array, or (best, score, accepted) of the method's own per-frame decision. ``sessions``: the first
+        """(similarity before masking, Decision or None): loop closure within one traverse; ``sessions``: the first
         frame of each session of the stream. Not overridden: unsupported."""
         raise NotImplementedError
+
+    def _result(self, S, d: Decision | None, seconds: float) -> MatchResult:
+        if d is None:
+            d = self.decide(S, *best_matches(S))
+        best = np.asarray(d.best, np.int64)
+        score = np.where(best >= 0, np.asarray(d.score, np.float64), -np.inf)
+        return MatchResult(self.name, S, best, score, np.asarray(d.accepted, bool) & (best >= 0), seconds,
+                           dict(self.conf))
 
     # ---------------------------------------------------------------- public
     def match(self, db: EncodedTraverse, query: EncodedTraverse, progress: bool = False) -> MatchResult:
@@ -147,7 +160,8 @@ class Method:
         state = self._fit(db, progress)
         return Fitted(self, db, state, time.perf_counter() - t)
 
-    def loops(self, seq: EncodedTraverse, exclude: int = 1, progress: bool = False, sessions=None) -> MatchResult:
+    def loops(self, seq: EncodedTraverse, exclude: int = 1, progress: bool = False, sessions=None,
+              opinion=None) -> MatchResult:
         """Loop closures within one traverse: for each frame, the best earlier frame and the decision.
 
         Only pairs ``i <= j - exclude`` are candidates (``exclude >= 1``); other
@@ -158,6 +172,8 @@ class Method:
         robot's runs): ``exclude`` holds within a session, every frame of an
         earlier session is a candidate, and a method with a memory forgets its
         context at each start (:meth:`vpr.shosm.LoopStream.new_session`).
+        ``opinion(decider)``: a second decider around a method's own per-frame
+        decision (:class:`vpr.verify.GeometricOpinion`; rshosm-seq).
         Methods that cannot do this raise ValueError.
         """
         exclude = check_exclude(exclude)
@@ -169,21 +185,12 @@ class Method:
         self.check_size(len(seq), len(seq))
         self.warm_up()
         t = time.perf_counter()
-        S, decisions = self._loops(seq, int(exclude), progress, sessions)
+        if opinion is not None and not self.decides_frames:
+            raise ValueError(f"a second opinion wraps a decision taken frame by frame (rshosm-seq's), not "
+                             f"{self.name}'s")
+        S, d = self._loops(seq, int(exclude), progress, sessions, **({"opinion": opinion} if opinion else {}))
         S = mask_recent(S, exclude, sessions)
-        if isinstance(decisions, tuple):  # the method's own decision: best frame, its score, accepted
-            best, score, accepted = (np.asarray(a) for a in decisions)
-            best = best.astype(np.int64)
-            score = np.where(best >= 0, score, -np.inf).astype(np.float64)
-            accepted = accepted.astype(bool) & (best >= 0)
-        else:
-            best, score = best_matches(S)
-            if decisions is None:
-                accepted = self.accept(best, score)
-            else:
-                accepted = np.asarray(decisions, bool) & np.isfinite(score)
-            best[~np.isfinite(score)] = -1
-        return MatchResult(self.name, S, best, score, accepted, time.perf_counter() - t, dict(self.conf))
+        return self._result(S, d, time.perf_counter() - t)
 
 
 class Fitted:
@@ -207,11 +214,8 @@ class Fitted:
         m.check_size(len(self.db), len(query))
         m.warm_up()
         t = time.perf_counter()
-        S, best, score, accepted = m._match_fitted(self.state, self.db, query, progress)
-        if accepted is None:
-            accepted = m.accept(best, score)
-        return MatchResult(m.name, S, best, score, np.asarray(accepted, bool),
-                           self.seconds + time.perf_counter() - t, dict(m.conf))
+        S, d = m._match_fitted(self.state, self.db, query, progress)
+        return m._result(S, d, self.seconds + time.perf_counter() - t)
 
     def match_block(self, query: EncodedTraverse, start: int, stop: int):
         """(similarity columns, best, score) of queries ``start:stop``, computed on them and
@@ -244,8 +248,7 @@ class Fitted:
         S = sp.hstack([sp.csr_matrix(p) for p in parts]).tocsr() if sp.issparse(parts[0]) else np.hstack(parts)
         best = np.concatenate([b[1] for b in blocks]).astype(np.int64)
         z = np.concatenate([b[2] for b in blocks]).astype(np.float64)
-        score, accepted = m._decide(S, best, z)
-        return MatchResult(m.name, S, best, score, np.asarray(accepted, bool), self.seconds + seconds, dict(m.conf))
+        return m._result(S, m.decide(S, best, z), self.seconds + seconds)
 
     def __repr__(self) -> str:
         return f"Fitted({self.method!r}, db={len(self.db)} frames)"

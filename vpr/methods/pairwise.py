@@ -6,7 +6,7 @@ import numpy as np
 from vpr import similarity
 from vpr.checks import check_choice
 from vpr.frame_pairs import METRICS, pairwise
-from vpr.similarity import TOP_K, best_matches, check_dense, top_k_or_dense
+from vpr.similarity import TOP_K, check_dense, top_k_or_dense
 from vpr.types import EncodedTraverse
 
 from .base import Method
@@ -46,10 +46,11 @@ class Pairwise(Method):
     def warm_up(self) -> None:
         similarity.mean_abs_diff(np.zeros((2, 2), np.float32))
 
-    def accept(self, best, score):
-        ok = super().accept(best, score)
-        # an SDR overlap of zero is no evidence
-        return ok & (score > 0) if self._attr == "sdr" else ok
+    def decide(self, S, best, score):
+        d = super().decide(S, best, score)
+        if self._attr == "sdr":
+            d.accepted &= d.score > 0  # an SDR overlap of zero is no evidence
+        return d
 
     def _similarity(self, db: EncodedTraverse, query: EncodedTraverse | None):
         a = self.need(db, self._attr, "database" if query is not None else "sequence")
@@ -59,9 +60,7 @@ class Pairwise(Method):
         return pairwise(a, b, metric=self.conf["metric"], top_k=top_k)
 
     def _match(self, db: EncodedTraverse, query: EncodedTraverse, progress: bool):
-        S = self._similarity(db, query)
-        best, score = best_matches(S)
-        return S, best, score, None
+        return self._similarity(db, query), None
 
     def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool, sessions=(0,)):
         return self._similarity(seq, None), None

@@ -5,7 +5,7 @@ import scipy.sparse as sp
 
 from vpr import sdr, similarity
 from vpr.shosm import SequenceMemory, pad_codes
-from vpr.similarity import TOP_K, best_matches, top_k_or_dense
+from vpr.similarity import TOP_K, top_k_or_dense
 from vpr.types import EncodedTraverse
 
 from .base import Method
@@ -49,9 +49,10 @@ class Rshosm(Method):
     def warm_up(self) -> None:
         warm_up_memory()
 
-    def accept(self, best, score):
-        # an overlap of zero is no evidence
-        return super().accept(best, score) & (score > 0)
+    def decide(self, S, best, score):
+        d = super().decide(S, best, score)
+        d.accepted &= d.score > 0  # an overlap of zero is no evidence
+        return d
 
     def _fit(self, db: EncodedTraverse, progress: bool):
         mem = self.memory()
@@ -65,9 +66,7 @@ class Rshosm(Method):
         q_codes = mem.run(self.need(query, "sdr", "query"), learn=False, progress=progress)
         db_codes, q_codes = pad_codes(db_codes, q_codes)
         top_k = top_k_or_dense(len(db), len(query), self.conf["top_k"])
-        S = similarity.overlap_similarity(db_codes, q_codes, top_k=top_k)
-        best, score = best_matches(S)
-        return S, best, score, None
+        return similarity.overlap_similarity(db_codes, q_codes, top_k=top_k), None
 
     def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool, sessions=(0,)):
         n = len(seq)

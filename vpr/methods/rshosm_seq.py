@@ -22,7 +22,7 @@ from vpr.shosm import (
     query_evidence,
 )
 from vpr.similarity import top_k_or_dense
-from vpr.types import EncodedTraverse
+from vpr.types import Decision, EncodedTraverse
 
 from .base import Method
 from .rshosm import warm_up_memory
@@ -63,6 +63,7 @@ class RshosmSeq(Method):
     default_conf = RshosmSeqConf.defaults()
     nullable_conf = RshosmSeqConf.NULLABLE
     required_inputs = ("sdr",)
+    decides_frames = True
 
     def __init__(self, **conf):
         super().__init__(**conf)
@@ -113,16 +114,15 @@ class RshosmSeq(Method):
         top_k = top_k_or_dense(n_db, n_q, seq.top_k, DENSE_EVIDENCE_PAIRS) if seq.top_k else None
         r = query_evidence(mem, q_sdr, db_codes, seq.evidence, direction=seq.direction, top_k=top_k,
                            beam=seq.beam, progress=progress)
-        score, accepted = self._decide(r.similarity, r.best_db, r.score)
-        return r.similarity, r.best_db, score, accepted
+        return r.similarity, self.decide(r.similarity, r.best, r.z)
 
-    def _decide(self, S, best, score):
+    def decide(self, S, best, score):
         """The decision of a robot localising against the map (vpr localize): a path score, query by query."""
-        _, path, accepted = accept_path(S, self.seq.path())
-        best = np.asarray(best)
-        return np.where(best >= 0, path, -np.inf), accepted & (best >= 0)
+        d = accept_path(S, self.seq.path())
+        best = np.asarray(best, np.int64)
+        return Decision(best, np.where(best >= 0, d.score, -np.inf), d.accepted & (best >= 0), d.margin)
 
-    def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool, sessions=(0,)):
+    def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool, sessions=(0,), opinion=None):
         """Loop closures within one stream, learned online, scored by forward sequence evidence.
 
         :func:`vpr.shosm.loop_evidence`: the stream is learned frame by frame
@@ -134,6 +134,6 @@ class RshosmSeq(Method):
         :func:`vpr.shosm.accept_loops`.
         """
         x = self.need(seq, "sdr", "loop")
-        ev = loop_evidence(x, exclude=int(exclude), conf=self.seq, progress=progress, sessions=sessions)
-        d = ev.decisions
-        return ev.similarity, (d.best, d.score, d.accepted)
+        ev = loop_evidence(x, exclude=int(exclude), conf=self.seq, progress=progress, sessions=sessions,
+                           opinion=opinion)
+        return ev.similarity, ev.decision

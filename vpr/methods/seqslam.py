@@ -15,8 +15,8 @@ import numpy as np
 from vpr import similarity
 from vpr.checks import check_choice, check_int
 from vpr.seqslam import check_sequence_params, difference_matrix, pixel_descriptors, seqslam, seqslam_topk
-from vpr.similarity import TOP_K, check_dense, top_k_or_dense
-from vpr.types import EncodedTraverse, ImageInput
+from vpr.similarity import TOP_K, best_matches, check_dense, mask_recent, top_k_or_dense
+from vpr.types import Decision, EncodedTraverse, ImageInput
 
 from .base import Method
 
@@ -103,8 +103,13 @@ class SeqSlam(Method):
         return self.need(feat, self._attr, role)
 
     def _run(self, D):
-        res = seqslam(D, **{k: self.conf[k] for k in _SEQSLAM_ARGS})
-        return res.similarity, res.best_db.astype(np.int64), -res.best_score.astype(np.float64), res.accepted
+        return self._decided(seqslam(D, **{k: self.conf[k] for k in _SEQSLAM_ARGS}))
+
+    @staticmethod
+    def _decided(res):
+        """SeqSLAM decides in its run: the uniqueness ratio needs every score, not the kept ones."""
+        return res.similarity, Decision(res.best_db.astype(np.int64), -res.best_score.astype(np.float64),
+                                        res.accepted)
 
     def _match(self, db: EncodedTraverse, query: EncodedTraverse, progress: bool):
         a, b = self.descriptors(db, "database"), self.descriptors(query, "query")
@@ -114,7 +119,7 @@ class SeqSlam(Method):
                                n_candidates=self.conf["n_candidates"],
                                **{k: self.conf[k] for k in _SEQSLAM_ARGS})
             # a query whose block had no candidate: best_db -1, best_score inf -> score -inf (never matched)
-            return res.similarity, res.best_db.astype(np.int64), -res.best_score.astype(np.float64), res.accepted
+            return self._decided(res)
         return self._run(difference_matrix(a, b, metric=self.conf["metric"]))
 
     def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool, sessions=(0,)):
@@ -124,8 +129,10 @@ class SeqSlam(Method):
         # recent frames must not win the sequence search: give them the worst difference
         i, j = np.indices(D.shape)
         D[np.abs(i - j) < exclude] = D.max()
-        S, _, _, accepted = self._run(D)
-        return S, accepted
+        S, d = self._run(D)
+        # the best earlier frame of the masked matrix, accepted by SeqSLAM's ratio test of its column
+        best, score = best_matches(mask_recent(S, exclude, sessions))
+        return S, Decision(np.where(np.isfinite(score), best, -1), score, d.accepted & np.isfinite(score))
 
 
 class SeqSlamDesc(SeqSlam):

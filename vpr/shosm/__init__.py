@@ -1,25 +1,20 @@
 """rSHOSM: the sequence memory of Neubert, Ahmad and Protzel (KI 2018), and rSHOSM-seq, our graded evidence over it.
 
-One entry point per use:
-
 - :class:`SequenceMemory`: Algorithm 1 of the paper (SHOSM; rSHOSM with
-  ``p_extra > 0``): ``step`` / ``run`` learn a stream and return winner cells
-  (:mod:`vpr.shosm.memory`).
-- :func:`query_evidence`: a query traverse against a learned database, the
-  graded evidence of rSHOSM-seq, dense or top-K sparse (:mod:`vpr.shosm.evidence`).
-- :class:`ForwardEvidence`: the same, causal, one query frame at a time
-  (:mod:`vpr.shosm.streaming`); :class:`Localizer` wraps it with a database
-  and a decision for a robot (:mod:`vpr.shosm.localizer`).
-- :func:`loop_evidence` and :func:`accept_loops`: loop closure within one
-  stream learned online (:mod:`vpr.shosm.loops`); :class:`LoopDetector`: the
-  same, one frame at a time, for a robot (:mod:`vpr.shosm.detector`).
+  ``p_extra > 0``), in its own room (:mod:`vpr.shosm.memory`; ``step`` /
+  ``run``, ``reset``, read-only ``connections``).
+- :class:`Engine`: rSHOSM-seq's graded evidence over a :class:`Graph` of a
+  learned memory, one frame (``step``) or a traverse (``run``;
+  :func:`query_evidence`).
+- Deciders, ``decide(column) -> Decision``: :class:`PathDecider` against a
+  map, :class:`LoopDecider` within one stream; :func:`decide_all` over a traverse.
+- :class:`Localizer` (engine and path decider over a learned map, saved as a
+  :class:`Map`), :class:`LoopStream` (a stream learned and decided frame by
+  frame; :func:`loop_evidence`, :class:`LoopDetector`).
+- :mod:`vpr.shosm.conf`: the one frozen conf, :class:`RshosmSeqConf`.
 
-:mod:`vpr.shosm.conf` holds rSHOSM-seq's parameters once (:class:`RshosmSeqConf`, the one
-frozen conf every entry point takes, of :class:`EvidenceConf`, :class:`BeamConf`,
-:class:`LoopConf` / :class:`PathConf`, :data:`LEARN_THRESHOLD`); :mod:`vpr.shosm.state` the one
-file format of saved memories, detectors and maps; :mod:`vpr.shosm.kernels` the
-compiled loops. Nothing outside this package reads the memory's private
-state: kernels read :meth:`SequenceMemory.view`, users :attr:`SequenceMemory.connections`.
+Every stateful object has ``state() -> (header, arrays)`` and
+``load_state(header, arrays)``; files are :mod:`vpr.shosm.state`'s.
 """
 from .conf import (
     DECISION_KEYS,
@@ -34,20 +29,19 @@ from .conf import (
     memory_params,
 )
 from .connections import Connections, MemoryView
-from .decide import LoopDecider, LoopDecisions, PathDecider, accept_loops, accept_path, stationary_closures
-from .detector import LoopDetector, LoopResult
-from .evidence import EvidenceResult, dense_evidence, query_evidence, sparse_evidence, zscore_columns
-from .localizer import Localizer, LocalizerResult
-from .loops import LOOP_DENSE_MAX, LOOP_UNCAPPED_MAX, FrameLoop, LoopEvidence, LoopStream, loop_evidence
+from .decide import LoopDecider, PathDecider, accept_loops, accept_path, decide_all, stationary_closures
+from .detector import LoopDetector
+from .evidence import Engine, Evidence, dense_evidence, query_evidence, sparse_evidence
+from .graph import Graph
+from .localizer import Localizer
+from .loops import LOOP_DENSE_MAX, LOOP_UNCAPPED_MAX, LoopStream, loop_evidence
+from .map import Map
 from .memory import SequenceMemory, pad_codes
 from .state import MemoryFileError
-from .streaming import ForwardEvidence, FrameEvidence
 
 __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pad_codes",
-           "LEARN_THRESHOLD", "LOOP_EXCLUDE", "DENSE_EVIDENCE_PAIRS", "EvidenceConf",
-           "BeamConf", "LoopConf", "PathConf", "RshosmSeqConf", "DECISION_KEYS", "memory_params",
-           "query_evidence", "dense_evidence", "sparse_evidence", "zscore_columns", "EvidenceResult",
-           "ForwardEvidence", "FrameEvidence", "Localizer", "LocalizerResult",
-           "loop_evidence", "LoopEvidence", "LoopStream", "FrameLoop", "accept_loops", "accept_path", "LoopDecider",
-           "LoopDecisions",
-           "PathDecider", "stationary_closures", "LOOP_UNCAPPED_MAX", "LOOP_DENSE_MAX", "LoopDetector", "LoopResult"]
+           "LEARN_THRESHOLD", "LOOP_EXCLUDE", "DENSE_EVIDENCE_PAIRS", "EvidenceConf", "BeamConf", "LoopConf",
+           "PathConf", "RshosmSeqConf", "DECISION_KEYS", "memory_params", "Graph", "Engine", "Evidence",
+           "query_evidence", "dense_evidence", "sparse_evidence", "LoopDecider", "PathDecider", "decide_all",
+           "accept_loops", "accept_path", "stationary_closures", "Localizer", "Map", "LoopStream", "loop_evidence",
+           "LOOP_UNCAPPED_MAX", "LOOP_DENSE_MAX", "LoopDetector"]

@@ -1,32 +1,30 @@
-"""rSHOSM-seq's graded sequence evidence of a query traverse against a learned database.
+"""rSHOSM-seq's graded sequence evidence: one engine, one frame at a time or a whole traverse.
 
 **Our extension, not the paper's.** A database traverse is learned with
 Algorithm 1 (:class:`vpr.shosm.SequenceMemory`); a query frame is then scored
 with graded evidence instead of binary winner cells (whose overlap cannot rank
-a query that is only partly like its place). The learned memory is read,
-never changed:
+a query that is only partly like its place). The memory is read, never changed:
 
 * feed-forward: a cell's input evidence ``z`` is the fraction of its
   minicolumn's connections that are 1-bits of the query SDR (the quantity
   Alg. 1 line 1 thresholds);
 * sequence: a cell's evidence is ``z + decay * p``, where ``p`` is the best
   evidence of a cell that predicts it through a learned lateral connection at
-  the previous query frame (the prediction of lines 7 and 10, graded instead of
-  binary); ``stay`` and ``skip`` admit a repeated or a skipped database frame
-  at that cost (:class:`vpr.shosm.EvidenceConf`);
-* ``direction="both"`` also runs the query traverse backwards along the
-  reversed connections and adds the two (the input term counted once), so that
-  evidence, like OpenSeqSLAM's centred window, comes from both sides of a
-  frame; ``"forward"`` is causal.
+  the previous query frame (lines 7 and 10, graded instead of binary);
+  ``stay`` and ``skip`` admit a repeated or a skipped database frame at that
+  cost (:class:`vpr.shosm.EvidenceConf`);
+* ``direction="both"`` also runs the query backwards along the reversed
+  connections and adds the two (the input term counted once), so that
+  evidence comes from both sides of a frame, as OpenSeqSLAM's centred window;
+  ``"forward"`` is causal.
 
 The similarity of database frame ``j`` and query frame ``q`` is the mean
-evidence of ``j``'s winner cells at ``q``, standardised per query.
-
-:func:`query_evidence` is the entry point; it runs :func:`dense_evidence`
-(every cell, every frame; a dense n_db x n_q matrix) or, with ``top_k``,
-:func:`sparse_evidence` (only the cells above the beam's floors are carried,
-top-K database frames per query; for large inputs). The streaming version is
-:class:`vpr.shosm.ForwardEvidence`, loop closure :func:`vpr.shosm.loop_evidence`.
+evidence of ``j``'s winner cells at ``q``, standardised per query
+(:func:`vpr.shosm.kernels.evidence.moments`). :class:`Engine` carries it: the
+beam (only the cells above :class:`vpr.shosm.BeamConf`'s floors) or, with
+``exact``, every relevant cell (dense). The same engine serves a query
+traverse (:func:`query_evidence`), the :class:`vpr.shosm.Localizer`, and loop
+closure over a graph that grows with the stream (:class:`vpr.shosm.LoopStream`).
 """
 from __future__ import annotations
 
@@ -39,40 +37,281 @@ from tqdm import tqdm
 from vpr import sdr as _sdr
 from vpr.checks import check_choice, check_top_k
 from vpr.similarity import TOP_K, best_matches
+from vpr.types import Column, Decision
 
-from .beam import BIG, NO_PASS, Beam, beam_params, check_codes, db_graph, finish, reverse_columns
 from .conf import BeamConf, EvidenceConf
+from .graph import BIG, Beam, Graph
 from .kernels import evidence as KE
 from .memory import SequenceMemory
 
-__all__ = ["query_evidence", "dense_evidence", "sparse_evidence", "zscore_columns", "EvidenceResult"]
+__all__ = ["Engine", "Evidence", "query_evidence", "dense_evidence", "sparse_evidence"]
 
-#: Query frames per call of the beam kernel and per block of finished columns (:func:`sparse_evidence`).
+#: Query frames per call of the beam kernel and per block of finished columns of a traverse.
 QUERY_CHUNK = 2048
 
 _DIRECTIONS = ("both", "forward")
+_ONE = np.zeros(1, np.int64)
+#: A second pass that holds nothing (one direction).
+_NO_PASS = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
 
 
 @dataclass
-class EvidenceResult:
-    """Evidence of a query traverse: ``similarity`` (n_db x n_q: dense ndarray, or top-K csr), best
-    database frame and score per query.
+class Evidence:
+    """The evidence of a traverse: the similarity (dense, or top-K csr), and per column its best frame and z-score.
 
-    ``best_db`` is -1 (score -inf) for a query frame that no database frame has evidence for.
+    ``best`` is -1 (``z`` -inf) for a column without evidence. Loop closure
+    (:func:`vpr.shosm.loop_evidence`) also gives ``fill`` (per frame, the
+    score of a candidate without evidence), the stream's winner ``codes``,
+    ``exclude``, the sessions' first frames ``starts`` and each frame's
+    ``decision``; it unpacks as ``similarity, codes``.
     """
 
     similarity: np.ndarray | sp.csr_matrix
-    best_db: np.ndarray
-    score: np.ndarray
+    best: np.ndarray
+    z: np.ndarray
+    fill: np.ndarray | None = None
+    codes: sp.csr_matrix | None = None
+    exclude: int | None = None
+    starts: tuple = (0,)
+    decision: Decision | None = None
+
+    def __iter__(self):
+        return iter((self.similarity, self.codes))
 
 
-def _check_top_k(top_k) -> int | None:
-    return check_top_k(top_k)
+def _params(evidence: EvidenceConf, beam: BeamConf, z_weight: float) -> tuple:
+    """The scalar arguments of the beam kernel (``z_weight``: 0.5 when two directions are added, else 0)."""
+    stay, skip = evidence.costs
+    return (float(evidence.decay), stay, skip, float(z_weight), float(beam.floor), float(beam.rel_floor),
+            float(beam.z_floor), *beam.caps)
+
+
+def _finish(a, b, n_per_q, n_rows, top_k, normalise: bool):
+    """Columns of one or two passes (``b`` empty: one) summed, standardised and cut to ``top_k``.
+
+    Returns (similarity csr n_rows x n_q float32, best row per query, its z).
+    """
+    size = max(n_rows, 1)
+    ptr, idx, val, best, z, _, _ = KE.finish_columns(a[0], a[1], a[2], b[0], b[1], b[2], n_per_q,
+                                                     0 if top_k is None else int(top_k), normalise,
+                                                     np.zeros(size), np.zeros(size, bool), np.zeros(size, np.int64))
+    S = sp.csc_matrix((val, idx, ptr), shape=(n_rows, ptr.size - 1)).tocsr()
+    S.sort_indices()
+    return S, best, z
+
+
+def _reversed(ptr, idx, val):
+    """Sparse columns given in reverse query order, put back in order."""
+    lens = np.diff(ptr)[::-1]
+    starts = ptr[:-1][::-1]
+    take = np.concatenate([np.arange(s, s + n) for s, n in zip(starts, lens, strict=True)]) if lens.sum() else \
+        np.zeros(0, np.int64)
+    return np.r_[0, np.cumsum(lens)].astype(np.int64), idx[take], val[take]
+
+
+class Engine:
+    """rSHOSM-seq's graded evidence over a :class:`~vpr.shosm.graph.Graph`: :meth:`step` one frame, :meth:`run` many.
+
+    Parameters
+    ----------
+    graph : Graph
+        The learned memory and its database frames.
+    evidence : EvidenceConf
+        Decay, transition costs and standardisation.
+    beam : BeamConf
+        The beam's floors and caps (not with ``exact``).
+    exact : bool
+        Carry every relevant cell (dense; cost per frame linear in the
+        connections) instead of the beam.
+
+    The state between frames (:meth:`state`) is the evidence of the last
+    frame: the beam, or every relevant cell. :meth:`step` is causal;
+    :meth:`run` over a whole traverse starts afresh and may add a backward pass.
+    """
+
+    def __init__(self, graph: Graph, evidence: EvidenceConf | None = None, beam: BeamConf | None = None,
+                 exact: bool = False):
+        self.graph, self.evidence, self.beam_conf = graph, evidence or EvidenceConf(), beam or BeamConf()
+        self.exact = bool(exact)
+        self.normalise = self.evidence.normalise == "query"
+        self.frames = 0
+        self._params = {c: _params(self.evidence, self.beam_conf if c else self.beam_conf.uncapped(), 0.0)
+                        for c in (True, False)}
+        if self.exact:
+            self._rel, self._dense = graph.dense()
+            self._e = np.zeros(self._rel.size, np.float64)
+            self._out = np.zeros((graph.n_db, 1), np.float32)
+        else:
+            self._beam = Beam(graph)
+
+    def column(self, rows, val, n: int, frame: int = -1) -> Column:
+        """The standardised column of raw evidence ``val`` at ``rows`` over ``n`` candidates."""
+        mu, sd = KE.moments(val, n) if self.normalise and n > 0 else (0.0, 1.0)
+        order = np.argsort(rows, kind="stable")
+        z = ((val[order] - mu) / sd).astype(np.float32)
+        return Column(np.asarray(rows, np.int64)[order], z, float(np.float32(-mu / sd)), int(n), frame)
+
+    def step(self, bits, n: int | None = None, capped: bool = True, frame: int = -1) -> Column:
+        """The evidence of the next frame (its active bits, sorted) over candidates ``0 .. n - 1`` (default: all).
+
+        Only cells learned by candidate ``n - 1`` take part (loop closure over a
+        growing graph); ``capped``: the beam's caps apply.
+        """
+        g = self.graph
+        n = g.n_db if n is None else int(n)
+        q_ptr = np.array([0, bits.size], np.int64)
+        if self.exact:
+            self._out[:] = 0.0
+            stay, skip = self.evidence.costs
+            KE.evidence_frames(q_ptr, bits, _ONE, *self._dense, float(self.evidence.decay), stay, skip, 0.0,
+                               self._out, self._e, self.frames == 0)
+            col = self._out[:, 0]
+            rows = np.flatnonzero(col)
+            val = col[rows].astype(np.float64)
+        else:
+            limit = np.array([n - 1 if n < g.n_db else BIG], np.int64)
+            _, rows, val = self._beam.run(g, g.fwd, q_ptr, bits, _ONE, limit, self._params[capped])
+        self.frames += 1
+        return self.column(rows, val, n, frame)
+
+    def grow(self) -> None:
+        """Make room after the graph grew (:meth:`Graph.attach`)."""
+        self._beam.grow(self.graph)
+
+    def reset(self) -> None:
+        """Forget the evidence carried from earlier frames (a new query traverse, a new session)."""
+        self.frames = 0
+        if self.exact:
+            self._e[:] = 0.0
+        else:
+            self._beam.set_cells(np.zeros(0, np.int64), np.zeros(0))
+
+    # ------------------------------------------------------------- state
+    def state(self) -> tuple[dict, dict]:
+        """(header, arrays) after the frames seen so far; :meth:`load_state` continues from them."""
+        if self.exact:
+            return {"frames": self.frames, "exact": True}, {"rel": self._rel.copy(), "e": self._e.copy()}
+        cells, values = self._beam.cells()
+        return {"frames": self.frames, "exact": False}, {"beam_cells": cells, "beam_e": values,
+                                                         "beam_st": self._beam.st.copy()}
+
+    def load_state(self, header: dict, arrays: dict) -> Engine:
+        """Continue from a :meth:`state` of an engine on the same graph and conf."""
+        if bool(header.get("exact")) != self.exact:
+            raise ValueError(f"the state is of {'an exact' if header.get('exact') else 'a beam'} engine, "
+                             f"this one is {'exact' if self.exact else 'a beam'}")
+        self.frames = int(header["frames"])
+        if self.exact:
+            if not np.array_equal(arrays["rel"], self._rel):
+                raise ValueError("the state is not of this memory and database")
+            self._e[:] = arrays["e"]
+            return self
+        cells = np.asarray(arrays["beam_cells"], np.int64)
+        if cells.size and (cells.min() < 0 or cells.max() >= self.graph.n_cells):
+            raise ValueError("the state has beam cells outside this memory: another memory's state?")
+        self._beam.set_cells(cells, np.asarray(arrays["beam_e"], np.float64))
+        if "beam_st" in arrays:
+            self._beam.st[:] = arrays["beam_st"]
+        return self
+
+    # ------------------------------------------------------------- a whole traverse
+    def run(self, query_batch, direction: str = "both", top_k: int | None = TOP_K, progress: bool = False,
+            stats: dict | None = None) -> Evidence:
+        """The beam's evidence of every frame of ``query_batch``, the ``top_k`` best database frames per query.
+
+        With ``normalise == "query"`` the scores are z-scores over **all**
+        database frames, as the dense column would be (absent frames are 0).
+        ``stats`` gets the largest beam and candidate set of any frame.
+        """
+        check_choice(direction, "direction", _DIRECTIONS)
+        top_k = check_top_k(top_k)
+        g = self.graph
+        q = _sdr.check_batch(query_batch, n_bits=g.mem.n_inputs, name="query SDR batch")
+        n_q, n_db = q.shape[0], g.n_db
+        q_ptr, q_ind = q.indptr.astype(np.int64), q.indices.astype(np.int64)
+        params = _params(self.evidence, self.beam_conf, 0.5 if direction == "both" else 0.0)
+        limits = np.full(n_q, BIG, np.int64)
+        seen = {"max_beam": 0, "max_candidates": 0}
+        passes = [("fwd", np.arange(n_q, dtype=np.int64))]
+        if direction == "both":
+            passes.append(("bwd", np.arange(n_q, dtype=np.int64)[::-1].copy()))
+        # Columns are finished (summed over the passes, standardised, cut to top_k) a chunk of queries at a
+        # time, as soon as every pass has given them: the forward columns wait for the backward pass (which
+        # runs the chunks in reverse). Only they are held whole: on SDRs that share many bits between places
+        # a column holds thousands of frames.
+        chunk = QUERY_CHUNK
+        starts = list(range(0, n_q, chunk))
+        held: dict[int, tuple] = {}
+        done: dict[int, tuple] = {}
+        n_per_q = np.full(n_q, n_db, np.int64)
+
+        def finish_chunk(c, a, b):
+            q0, q1 = starts[c], min(starts[c] + chunk, n_q)
+            done[c] = _finish(a, b, n_per_q[q0:q1], n_db, top_k, self.normalise)
+
+        with tqdm(total=n_q * len(passes), desc="rSHOSM evidence", unit="frame", leave=False,
+                  disable=not progress) as bar:
+            for name, order in passes:
+                b = Beam(g)
+                adj = g.fwd if name == "fwd" else g.bwd
+                for c in (range(len(starts)) if name == "fwd" else range(len(starts) - 1, -1, -1)):
+                    q0, q1 = starts[c], min(starts[c] + chunk, n_q)
+                    frames = order[q0:q1] if name == "fwd" else order[n_q - q1:n_q - q0]
+                    cols = b.run(g, adj, q_ptr, q_ind, frames, limits[q0:q1], params)
+                    bar.update(q1 - q0)
+                    if name == "bwd":
+                        finish_chunk(c, held.pop(c), _reversed(*cols))
+                    elif len(passes) == 1:
+                        finish_chunk(c, cols, _NO_PASS)
+                    else:  # held as the dense evidence is stored (float32, 32-bit frames): half the bytes
+                        held[c] = (cols[0], cols[1].astype(np.int32), cols[2].astype(np.float32))
+                largest = b.largest
+                seen["max_beam"] = max(seen["max_beam"], largest[0])
+                seen["max_candidates"] = max(seen["max_candidates"], largest[1])
+                del b
+        if stats is not None:
+            stats.update(seen)
+        parts = [done[c] for c in range(len(starts))]
+        if not parts:
+            return Evidence(sp.csr_matrix((n_db, 0), dtype=np.float32), np.zeros(0, np.int64), np.zeros(0))
+        S = sp.hstack([p[0] for p in parts], format="csr")
+        S.sort_indices()
+        return Evidence(S, np.concatenate([p[1] for p in parts]), np.concatenate([p[2] for p in parts]))
+
+    def run_dense(self, query_batch, direction: str = "both", progress: bool = False,
+                  clamp: bool = False) -> np.ndarray:
+        """The raw evidence of every query frame for every database frame (n_db x n_q float32, not standardised).
+
+        ``clamp`` floors the predicted term at 0, the beam's semantics (for tests).
+        """
+        check_choice(direction, "direction", _DIRECTIONS)
+        stay, skip = self.evidence.costs
+        g = self.graph
+        q = _sdr.check_batch(query_batch, n_bits=g.mem.n_inputs, name="query SDR batch")
+        rel, (bit_cols, bit_len, col_size, rel_col, rs, rd, db_ptr, db_ind, db_norm) = \
+            (self._rel, self._dense) if self.exact else g.dense()
+        n_q = q.shape[0]
+        out = np.zeros((g.n_db, n_q), dtype=np.float32)
+        passes = [(np.arange(n_q), rs, rd, 0.5 if direction == "both" else 0.0)]
+        if direction == "both":
+            passes.append((np.arange(n_q)[::-1].copy(), rd, rs, 0.5))
+        q_ptr, q_ind = q.indptr.astype(np.int64), q.indices.astype(np.int64)
+        chunk = 256 if progress else max(n_q, 1)
+        with tqdm(total=n_q * len(passes), desc="rSHOSM evidence", unit="frame", leave=False,
+                  disable=not progress) as bar:
+            for order, a, b, zw in passes:
+                e = np.zeros(rel.size, np.float64)
+                for f0 in range(0, n_q, chunk):
+                    KE.evidence_frames(q_ptr, q_ind, order[f0:f0 + chunk], bit_cols, bit_len, col_size, rel_col, a,
+                                       b, db_ptr, db_ind, db_norm, float(self.evidence.decay), stay, skip, zw, out,
+                                       e, f0 == 0, clamp)
+                    bar.update(min(chunk, n_q - f0))
+        return out
 
 
 def query_evidence(mem: SequenceMemory, query_batch, db_codes, conf: EvidenceConf | None = None,
                    direction: str = "both", top_k: int | None = None, beam: BeamConf | None = None,
-                   progress: bool = False) -> EvidenceResult:
+                   progress: bool = False) -> Evidence:
     """Graded evidence of every query frame for the database frames, standardised as ``conf.normalise`` says.
 
     Parameters
@@ -83,187 +322,48 @@ def query_evidence(mem: SequenceMemory, query_batch, db_codes, conf: EvidenceCon
     db_codes : csr matrix (n_db x cells)
         Winner codes of the database traverse from ``mem.run``.
     conf : EvidenceConf
-        Decay, transition costs and standardisation (default: the defaults).
     direction : {"both", "forward"}
     top_k : int or None
-        None: the dense evidence of every database frame (n_db x n_q ndarray).
-        An int: the sparse beam (:func:`sparse_evidence`, with ``beam``), the
-        ``top_k`` best database frames per query as a csr matrix.
+        None: the dense evidence of every database frame (n_db x n_q ndarray);
+        an int: the beam, the ``top_k`` best database frames per query (csr).
     beam : BeamConf
-        Floors and caps of the sparse beam (only with ``top_k``).
+        Floors and caps of the beam (only with ``top_k``).
     progress : bool
         tqdm progress bar.
     """
     conf = conf or EvidenceConf()
-    if _check_top_k(top_k) is not None:
+    if check_top_k(top_k) is not None:
         return sparse_evidence(mem, query_batch, db_codes, conf, direction, top_k=top_k, beam=beam, progress=progress)
     S = dense_evidence(mem, query_batch, db_codes, conf, direction, progress)
     if conf.normalise == "query":
-        S = zscore_columns(S)
-    best, score = best_matches(S)
-    return EvidenceResult(S, best, score)
-
-
-def zscore_columns(S: np.ndarray) -> np.ndarray:
-    """Standardise every query column of a dense S in place (``EvidenceConf.normalise == "query"``).
-
-    Each query's evidence has its own scale (how well that frame matches
-    anything); z-scores make one threshold mean the same for every query, as
-    SeqSLAM's contrast enhancement does.
-    """
-    for c0 in range(0, S.shape[1], 1024):
-        blk = S[:, c0:c0 + 1024]
-        sd = blk.std(axis=0)
-        blk -= blk.mean(axis=0)
-        blk /= np.where(sd > 0, sd, 1.0)
-    return S
-
-
-def dense_graph(mem: SequenceMemory, db: sp.csr_matrix) -> tuple:
-    """The dense kernel's view of a memory and its database codes, on the relevant cells only.
-
-    Only cells in database codes or on a connection can carry evidence to the
-    output; they are renumbered ``0 .. n_rel - 1``. Returns
-    ``(rel, (bit_cols, bit_len, col_size, rel_col, src, dst, db_ptr, db_ind, db_norm))``
-    with ``rel`` the memory's cell index of each relevant cell.
-    """
-    v = mem.view()
-    rel = np.unique(np.concatenate([db.indices.astype(np.int64), v.e_src, v.e_dst]))
-    db_ptr = db.indptr.astype(np.int64)
-    return rel, (v.bit_cols, v.bit_len, v.column_sizes.astype(np.float64), rel // v.cells_per_column,
-                 np.searchsorted(rel, v.e_src).astype(np.int64), np.searchsorted(rel, v.e_dst).astype(np.int64),
-                 db_ptr, np.searchsorted(rel, db.indices.astype(np.int64)).astype(np.int64),
-                 np.diff(db_ptr).astype(np.float64))
+        KE.zscore_dense(S)
+    best, z = best_matches(S)
+    return Evidence(S, best, z)
 
 
 def dense_evidence(mem: SequenceMemory, query_batch, db_codes, conf: EvidenceConf | None = None,
                    direction: str = "both", progress: bool = False, clamp: bool = False) -> np.ndarray:
-    """Raw graded sequence evidence of every query frame for every database frame (dense, not standardised).
+    """Raw evidence of every query frame for every database frame (dense n_db x n_q float32, not standardised).
 
-    Cost per query frame is linear in the number of learned connections.
-    ``conf.normalise`` is not applied here (:func:`query_evidence` applies it).
-    ``clamp=True`` floors the predicted term at 0, the semantics of
-    :func:`sparse_evidence` (for tests).
-
-    Returns
-    -------
-    ndarray, float32, n_db x n_q (higher = more similar).
+    ``clamp=True`` floors the predicted term at 0, the semantics of :func:`sparse_evidence` (for tests).
     """
-    conf = conf or EvidenceConf()
     check_choice(direction, "direction", _DIRECTIONS)
-    stay, skip = conf.costs
-    q = _sdr.check_batch(query_batch, n_bits=mem.n_inputs, name="query SDR batch")
-    db = check_codes(mem, db_codes)
-    rel, (bit_cols, bit_len, col_size, rel_col, rs, rd, db_ptr, db_ind, db_norm) = dense_graph(mem, db)
-    n_db, n_q = db.shape[0], q.shape[0]
-    out = np.zeros((n_db, n_q), dtype=np.float32)
-    passes = [(np.arange(n_q), rs, rd, 0.5 if direction == "both" else 0.0)]
-    if direction == "both":
-        passes.append((np.arange(n_q)[::-1].copy(), rd, rs, 0.5))
-    q_ptr, q_ind = q.indptr.astype(np.int64), q.indices.astype(np.int64)
-    chunk = 256 if progress else max(n_q, 1)
-    with tqdm(total=n_q * len(passes), desc="rSHOSM evidence", unit="frame", leave=False, disable=not progress) as bar:
-        for order, a, b, zw in passes:
-            e = np.zeros(rel.size, np.float64)
-            for f0 in range(0, n_q, chunk):
-                KE.evidence_frames(q_ptr, q_ind, order[f0:f0 + chunk], bit_cols, bit_len, col_size, rel_col, a, b,
-                                   db_ptr, db_ind, db_norm, float(conf.decay), stay, skip, zw, out, e, f0 == 0, clamp)
-                bar.update(min(chunk, n_q - f0))
-    return out
+    return Engine(Graph.of(mem, db_codes), conf).run_dense(query_batch, direction, progress, clamp)
 
 
 def sparse_evidence(mem: SequenceMemory, query_batch, db_codes, conf: EvidenceConf | None = None,
                     direction: str = "both", top_k: int | None = TOP_K, beam: BeamConf | None = None,
-                    progress: bool = False, stats: dict | None = None) -> EvidenceResult:
-    """Graded sequence evidence carried only where it is; the top-K database frames per query.
+                    progress: bool = False, stats: dict | None = None) -> Evidence:
+    """The beam's evidence (:meth:`Engine.run`): the top-K database frames per query.
 
-    The same evidence as :func:`dense_evidence`, but per query frame only the
-    cells whose evidence is above ``max(floor, rel_floor * largest)`` are
-    carried (a beam), and a minicolumn's cells enter by feed-forward only when
-    its overlap fraction is above ``z_floor`` (found through the memory's
-    inverted index, so the cost per frame follows the beam, not the database);
-    ``max_beam`` and ``max_enter`` cap both (:class:`vpr.shosm.BeamConf`).
-    A cell outside the beam has evidence 0 (evidence is never negative here; the
-    dense version lets a cell that nothing predicts drift below 0). With all
-    floors 0 and no caps the result equals ``dense_evidence(..., clamp=True)``.
-
-    Parameters
-    ----------
-    mem, query_batch, db_codes, conf, direction
-        As :func:`query_evidence`. With ``conf.normalise == "query"`` the
-        scores are z-scores over **all** database frames, exactly as the dense
-        column would be standardised (the mean and standard deviation are sums
-        over the carried entries; absent frames are 0).
-    top_k : int or None
-        Database frames kept per query (None: all that have evidence).
-    beam : BeamConf
-        Floors and caps (default: :class:`BeamConf`'s).
-    progress : bool
-        tqdm progress bar.
-    stats : dict, optional
-        Filled with ``max_beam`` and ``max_candidates``: the largest beam and
-        candidate set of any frame (to check the caps).
-
-    Returns
-    -------
-    EvidenceResult (similarity: csr n_db x n_q float32).
+    Per query frame only the cells whose evidence is above
+    ``max(floor, rel_floor * largest)`` are carried, and a minicolumn's cells
+    enter by feed-forward only when its overlap fraction is above ``z_floor``
+    (found through the memory's inverted index, so the cost per frame follows
+    the beam, not the database); ``max_beam`` and ``max_enter`` cap both. A
+    cell outside the beam has evidence 0. With all floors 0 and no caps the
+    result equals ``dense_evidence(..., clamp=True)`` standardised.
     """
-    conf, beam = conf or EvidenceConf(), beam or BeamConf()
     check_choice(direction, "direction", _DIRECTIONS)
-    top_k = _check_top_k(top_k)
-    q = _sdr.check_batch(query_batch, n_bits=mem.n_inputs, name="query SDR batch")
-    db = check_codes(mem, db_codes)
-    g = db_graph(mem, db, backward=direction == "both")
-    n_q, n_db = q.shape[0], db.shape[0]
-    q_ptr, q_ind = q.indptr.astype(np.int64), q.indices.astype(np.int64)
-    params = beam_params(conf, beam, 0.5 if direction == "both" else 0.0)
-    limits = np.full(n_q, BIG, np.int64)
-    seen = {"max_beam": 0, "max_candidates": 0}
-    passes = [("fwd", np.arange(n_q, dtype=np.int64))]
-    if direction == "both":
-        passes.append(("bwd", np.arange(n_q, dtype=np.int64)[::-1].copy()))
-    # Columns are finished (summed over the passes, standardised, cut to top_k) a chunk of queries at a
-    # time, as soon as every pass has given them: the forward pass's columns wait for the backward pass
-    # (which runs the chunks in reverse), the backward pass's never wait. Only the forward columns are
-    # ever held whole: on SDRs that share many bits between places a column holds thousands of frames.
-    chunk = QUERY_CHUNK
-    starts = list(range(0, n_q, chunk))
-    held: dict[int, tuple] = {}
-    done: dict[int, tuple] = {}
-    n_per_q = np.full(n_q, n_db, np.int64)
-
-    def finish_chunk(c, a, b):
-        q0, q1 = starts[c], min(starts[c] + chunk, n_q)
-        done[c] = finish(a, b, n_per_q[q0:q1], n_db, top_k, conf.normalise == "query")[:3]
-
-    with tqdm(total=n_q * len(passes), desc="rSHOSM evidence", unit="frame", leave=False, disable=not progress) as bar:
-        for adj_name, order in passes:
-            b = Beam(g["n_cells"], g["n_cols"], n_db)
-            chunks = range(len(starts)) if adj_name == "fwd" else range(len(starts) - 1, -1, -1)
-            for c in chunks:
-                q0, q1 = starts[c], min(starts[c] + chunk, n_q)
-                frames = order[q0:q1] if adj_name == "fwd" else order[n_q - q1:n_q - q0]
-                cols = b.run(g, g[adj_name], q_ptr, q_ind, frames, limits[q0:q1], params)
-                bar.update(q1 - q0)
-                if adj_name == "bwd":  # columns came in reverse query order
-                    finish_chunk(c, held.pop(c), reverse_columns(*cols))
-                elif len(passes) == 1:
-                    finish_chunk(c, cols, NO_PASS)
-                else:
-                    # held until the backward pass comes back to this chunk: stored as the dense
-                    # evidence is (float32), with 32-bit frame numbers, half the bytes of the pass's own
-                    held[c] = (cols[0], cols[1].astype(np.int32), cols[2].astype(np.float32))
-            largest_beam, largest_cand = b.largest
-            seen["max_beam"] = max(seen["max_beam"], largest_beam)
-            seen["max_candidates"] = max(seen["max_candidates"], largest_cand)
-            del b
-    if stats is not None:
-        stats.update(seen)
-    parts = [done[c] for c in range(len(starts))]
-    if parts:
-        S = sp.hstack([p[0] for p in parts], format="csr")
-        S.sort_indices()
-        best, score = np.concatenate([p[1] for p in parts]), np.concatenate([p[2] for p in parts])
-    else:
-        S, best, score = sp.csr_matrix((n_db, 0), dtype=np.float32), np.zeros(0, np.int64), np.zeros(0)
-    return EvidenceResult(S, best, score)
+    g = Graph.of(mem, db_codes, backward=direction == "both")
+    return Engine(g, conf, beam).run(query_batch, direction, top_k, progress, stats)

@@ -30,7 +30,7 @@ from vpr import sdr as _sdr
 
 from .connections import Connections, MemoryView, readonly
 from .kernels import memory as K
-from .state import MemoryFileError, load_state, save_state
+from .state import MemoryFileError, read_file, write_file
 
 __all__ = ["SequenceMemory", "MemoryFileError", "pad_codes"]
 
@@ -408,37 +408,35 @@ class SequenceMemory:
             "tape": self._tape[st[K.TAPE_POS]: st[K.TAPE_LEN]],
         }
 
-    def to_arrays(self) -> tuple[dict, dict]:
-        """(header, arrays): everything :meth:`from_arrays` needs to continue exactly as this memory would.
+    def state(self) -> tuple[dict, dict]:
+        """(header, arrays): what :meth:`load_state` needs to continue exactly as this memory would.
 
-        The header is JSON-serialisable (parameters and the random generator's
-        state); the arrays are the learned state and the sequence context. What
-        :meth:`save` writes, for containers that hold a memory among other
-        things (:class:`vpr.shosm.Localizer`).
+        The header (parameters, the random generator's state) is JSON; the
+        arrays are the learned state and the sequence context.
         """
         return {"params": self.get_params(), "rng": self._rng.bit_generator.state}, self._arrays()
 
-    @classmethod
-    def from_arrays(cls, header: dict, arrays: dict) -> SequenceMemory:
-        """The memory of a :meth:`to_arrays` pair.
+    def load_state(self, header: dict, arrays: dict) -> SequenceMemory:
+        """Continue from a :meth:`state` of a memory with this one's parameters.
 
         Raises
         ------
         MemoryFileError
             Arrays that are inconsistent (the kernels do not bounds-check).
         """
-        m = cls(**header["params"])
-        m._rng.bit_generator.state = header["rng"]
-        m._restore(arrays)
-        return m
+        if header["params"] != self.get_params():
+            raise MemoryFileError("the state is of a memory with other parameters")
+        self._rng.bit_generator.state = header["rng"]
+        self._restore(arrays)
+        return self
 
     def save(self, path) -> Path:
         """Save the learned memory and its sequence context to a versioned ``.npz`` (atomically).
 
         A loaded memory continues exactly as this one would (same random stream).
         """
-        header, arrays = self.to_arrays()
-        return save_state(path, _FORMAT, _FORMAT_VERSION, header, {"": arrays})
+        header, arrays = self.state()
+        return write_file(path, _FORMAT, _FORMAT_VERSION, header, {"": arrays})
 
     @classmethod
     def load(cls, path) -> SequenceMemory:
@@ -449,8 +447,8 @@ class SequenceMemory:
         MemoryFileError
             Missing, corrupt or foreign file, or an unsupported format version.
         """
-        with load_state(path, _FORMAT, _FORMAT_VERSION, "SequenceMemory", prefixes=()) as (header, parts, _):
-            return cls.from_arrays(header, parts.get("", {}))
+        with read_file(path, _FORMAT, _FORMAT_VERSION, "SequenceMemory", prefixes=()) as (header, parts, _):
+            return cls(**header["params"]).load_state(header, parts.get("", {}))
 
     def _restore(self, d: dict) -> None:
         nc, nd = d["col_thr"].size, d["e_src"].size

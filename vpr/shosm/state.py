@@ -3,8 +3,8 @@
 Each is a versioned ``.npz`` (:func:`vpr.io.save_versioned_npz`, written
 atomically, read without executing anything): a JSON header with ``format``
 and ``version``, and arrays in named parts (the memory's, the evidence's, the
-decision's, the caller's), stored under ``PART_key``. :func:`save_state` and
-:func:`load_state` are that format written once; a file that is missing,
+decision's, the caller's), stored under ``PART_key``. :func:`write_file` and
+:func:`read_file` are that format written once; a file that is missing,
 foreign, of another version or inconsistent is a :class:`MemoryFileError`
 naming the file.
 """
@@ -18,7 +18,7 @@ import numpy as np
 
 from vpr import io as _io
 
-__all__ = ["MemoryFileError", "save_state", "load_state"]
+__all__ = ["MemoryFileError", "write_file", "read_file"]
 
 
 class MemoryFileError(ValueError):
@@ -33,7 +33,7 @@ def _json_default(o):
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
-def save_state(path, fmt: str, version: int, header: dict, parts: Mapping[str, Mapping], names=None) -> Path:
+def write_file(path, fmt: str, version: int, header: dict, parts: Mapping[str, Mapping], names=None) -> Path:
     """Write ``header`` and the arrays of ``parts`` (part name -> arrays; ``""``: unprefixed) as one file.
 
     ``names``: frame names, stored as text.
@@ -46,9 +46,9 @@ def save_state(path, fmt: str, version: int, header: dict, parts: Mapping[str, M
 
 
 @contextlib.contextmanager
-def load_state(path, fmt: str, version: int, what: str, hint: str = "",
+def read_file(path, fmt: str, version: int, what: str, hint: str = "",
                prefixes: tuple[str, ...] | None = None) -> Iterator[tuple[dict, dict, list | None]]:
-    """Read a file of :func:`save_state`: yields ``(header, parts, names)``; errors in the block name the file.
+    """Read a file of :func:`write_file`: yields ``(header, parts, names)``; errors in the block name the file.
 
     ``parts``: part name -> arrays, for the parts in ``prefixes`` (None: every
     ``PART_key`` prefix); other arrays under ``""``. An exception in the

@@ -22,7 +22,8 @@ upscaled the two frames coincide.
 
 Modules: :mod:`~vpr.verify.features` (ORB keypoints, matching),
 :mod:`~vpr.verify.twoview` (RANSAC), :mod:`~vpr.verify.rerank` (candidates,
-re-ranking) and :mod:`~vpr.verify.verifier` (:class:`Verifier`).
+re-ranking), :mod:`~vpr.verify.verifier` (:class:`Verifier`) and
+:mod:`~vpr.verify.opinion` (:class:`GeometricOpinion`, a decider of loop closures).
 
 Determinism
 -----------
@@ -32,9 +33,11 @@ thread, so inlier counts are reproducible for a given seed (``seed=None``
 draws a fresh random seed per call instead).
 """
 from .features import Keypoints, extract_features, match_features
+from .opinion import GeometricOpinion, OpinionConf, second_opinion
 from .rerank import rerank, top_candidates
 from .twoview import MODELS, two_view_inliers
 from .verifier import Verifier, VerifyResult
 
 __all__ = ["Keypoints", "VerifyResult", "Verifier", "MODELS", "extract_features", "match_features",
-           "two_view_inliers", "top_candidates", "rerank"]
+           "two_view_inliers", "top_candidates", "rerank", "GeometricOpinion", "OpinionConf",
+           "second_opinion"]

@@ -19,7 +19,7 @@ by row; a candidate not stored has the z ``fill``). A frame's decision:
    boundary (``starts``: the first frame of every session, a robot's runs);
 5. accepted when the score reaches ``min_score``, the best place is not the
    one just left, and the camera left the place in between (SDR overlap of the
-   frames in between, as :func:`vpr.shosm.stationary_closures`); then the
+   frames in between, :func:`vpr.sdr.stationary`); then the
    frames of the path are linked to the places they matched.
 """
 from __future__ import annotations
@@ -27,9 +27,16 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-# state vector of decide_frame: path score (float), furthest best of the path, path start, frames seen
+from vpr.sdr import stationary
+
+# state vector of decide_frame: path score (float), furthest best of the path, path start
 S_SCORE, S_HEAD, S_START = range(3)
 _NONE = -(1 << 40)
+
+
+def path_state(start: int = 0) -> np.ndarray:
+    """The state of no path yet, the next path starting at frame ``start``."""
+    return np.array([0.0, float(_NONE), float(start)])
 
 
 @njit(cache=True, inline="always")
@@ -96,33 +103,6 @@ def column_peaks(rows, vals, n, fill, island, place, link_w, newest):  # pragma:
     if other == -np.inf:
         other = 0.0
     return b, vals[kb], other, near
-
-
-@njit(cache=True)
-def _overlap(ptr, ind, a, b):
-    i, j, c = ptr[a], ptr[b], 0
-    while i < ptr[a + 1] and j < ptr[b + 1]:
-        if ind[i] == ind[j]:
-            c += 1
-            i += 1
-            j += 1
-        elif ind[i] < ind[j]:
-            i += 1
-        else:
-            j += 1
-    return c
-
-
-@njit(cache=True)
-def stationary(ptr, ind, b, j, ratio):  # pragma: no cover - compiled
-    """Whether every frame between ``b`` and ``j`` keeps at least ``ratio`` times the overlap of ``b`` with ``j``."""
-    o_b = _overlap(ptr, ind, b, j)
-    if o_b == 0:  # the two frames share nothing: not one place the camera stood at
-        return False
-    for k in range(b + 1, j):
-        if _overlap(ptr, ind, k, j) < ratio * o_b:
-            return False
-    return True
 
 
 @njit(cache=True)

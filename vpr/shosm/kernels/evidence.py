@@ -7,8 +7,9 @@ along the memory's learned lateral connections.
 * :func:`evidence_frames`: the dense version, every relevant cell every frame
   (cost per frame linear in the number of connections; output n_db x n_q).
   The sparse version is :func:`vpr.shosm.kernels.beam.beam_frames`.
-* :func:`finish_columns`: per-query z-scores (mean and standard deviation over
-  all database frames, from the sparse column: absent frames are 0) and top-K.
+* :func:`moments`: the one z-score (mean and standard deviation over all
+  candidates, from a sparse column: absent ones are 0); :func:`zscore_dense`
+  and :func:`finish_columns` (summed passes, z-scores, top-K) apply it.
 """
 from __future__ import annotations
 
@@ -88,9 +89,42 @@ def evidence_frames(q_ptr, q_ind, order, bit_cols, bit_len, col_size, rel_col, e
 
 
 @njit(cache=True)
+def moments(vals, n):
+    """Mean and standard deviation of ``n`` scores of which ``vals`` are stored and the others are 0.
+
+    The one z-score of rSHOSM-seq: every column, dense or sparse, batch or
+    online, is standardised as ``(v - mean) / sd`` with these (sd 1 where
+    the scores do not vary).
+    """
+    s = 0.0
+    s2 = 0.0
+    for v in vals:
+        s += v
+        s2 += v * v
+    if n <= 0:
+        return 0.0, 1.0
+    mu = s / n
+    var = s2 / n - mu * mu
+    return mu, (np.sqrt(var) if var > 0 else 1.0)
+
+
+@njit(cache=True)
+def zscore_dense(S):
+    """Standardise every column of a dense n_db x n_q matrix in place (:func:`moments`)."""
+    col = np.empty(S.shape[0], np.float64)
+    for q in range(S.shape[1]):
+        for i in range(S.shape[0]):
+            col[i] = S[i, q]
+        mu, sd = moments(col, S.shape[0])
+        for i in range(S.shape[0]):
+            S[i, q] = (col[i] - mu) / sd
+    return S
+
+
+@njit(cache=True)
 def finish_columns(a_ptr, a_idx, a_val, b_ptr, b_idx, b_val, n_db, top_k, normalise, acc, mark, touch):
     """Per query: sum the two passes' sparse columns (``b_ptr`` empty: one pass),
-    standardise over all database frames and keep the ``top_k`` largest (``top_k <= 0``: all).
+    standardise over all database frames (:func:`moments`) and keep the ``top_k`` largest (``top_k <= 0``: all).
 
     ``n_db`` is an array (per query, the number of database frames it is scored
     against). Returns (ptr, idx, val, best, score, mean, sd); ``best`` is -1 for
@@ -130,28 +164,19 @@ def finish_columns(a_ptr, a_idx, a_val, b_ptr, b_idx, b_val, n_db, top_k, normal
                     touch[n_t] = j
                     n_t += 1
                 acc[j] += b_val[i]
-        s = 0.0
-        s2 = 0.0
+        vals = np.empty(n_t, np.float64)
         for i in range(n_t):
-            v = acc[touch[i]]
-            s += v
-            s2 += v * v
-        nd = n_db[q]
+            vals[i] = acc[touch[i]]
         mu = 0.0
         sig = 1.0
-        if normalise and nd > 0:
-            mu = s / nd
-            var = s2 / nd - mu * mu
-            sig = np.sqrt(var) if var > 0 else 1.0
+        if normalise:
+            mu, sig = moments(vals, n_db[q])
         mean[q] = mu
         sd[q] = sig
-        keys = np.empty(n_t, np.float64)
-        for i in range(n_t):
-            keys[i] = -acc[touch[i]]
         tj = touch[:n_t].copy()
         # sort by value descending, then index ascending (ties as argmax)
         o = np.argsort(tj, kind="mergesort")
-        o2 = np.argsort(keys[o], kind="mergesort")
+        o2 = np.argsort(-vals[o], kind="mergesort")
         o = o[o2]
         k = n_t if top_k <= 0 else min(n_t, top_k)
         if n_t > 0:

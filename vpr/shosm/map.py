@@ -1,0 +1,107 @@
+"""A learned map, one file: the :class:`~vpr.shosm.Localizer`, the encoder that made its SDRs, where its frames were.
+
+``vpr learn`` writes it, ``vpr localize`` reads it. The file is a versioned
+``.npz`` (:mod:`vpr.shosm.state`): the memory, the database's names, codes and
+sessions, rSHOSM-seq's conf, the query's state so far (evidence, decision,
+and the query encoder's running statistics), the encoder's name, conf and the
+statistics it fitted on the database, the frames' positions, and what the map
+was learned from. ``vpr`` does not import ``encoders``: the caller builds the
+encoder from :attr:`Map.encoder` and :attr:`Map.statistics`.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+from vpr import io
+
+from .localizer import Localizer
+from .memory import SequenceMemory
+from .state import read_file, write_file
+
+__all__ = ["Map"]
+
+_FORMAT = "vpr.Map"
+_FORMAT_VERSION = 1
+
+
+class Map:
+    """A localizer with what a robot needs to use it again.
+
+    Attributes
+    ----------
+    localizer : Localizer
+    encoder : dict
+        ``{"name": ..., "conf": {...}}`` of the encoder that made the database's SDRs.
+    statistics : list of (mean, std) arrays
+        What that encoder fitted on the database (``standardise=fit``), per part.
+    positions : (n_db, 2) array or None
+        Where each database frame was; ``origin``: the GPS origin (latitude,
+        longitude) they are metres from, or None.
+    query_state : dict of arrays
+        The query encoder's state so far (its running statistics).
+    info : dict
+        What the map was learned from (sources, frames, skipped frames, seconds).
+    """
+
+    def __init__(self, localizer: Localizer, encoder: dict, statistics=(), positions=None, origin=None,
+                 info: dict | None = None):
+        self.localizer, self.encoder = localizer, {"name": encoder["name"], "conf": dict(encoder["conf"])}
+        self.statistics = [(np.asarray(m), np.asarray(s)) for m, s in statistics]
+        self.positions = None if positions is None else np.asarray(positions, np.float64)
+        if self.positions is not None and self.positions.shape[0] != localizer.n_db:
+            raise ValueError(f"{self.positions.shape[0]} positions for a map of {localizer.n_db} frames")
+        self.origin = None if origin is None else tuple(float(v) for v in origin)
+        self.query_state: dict = {}
+        self.info = dict(info or {})
+
+    @staticmethod
+    def is_map(path) -> bool:
+        """Whether ``path`` is a map file (read by content, whatever its name)."""
+        return io.is_versioned_npz(path, _FORMAT)
+
+    def save(self, path) -> Path:
+        """Write the map (atomic ``.npz``)."""
+        loc = self.localizer
+        mem_header, mem_arrays = loc.memory.state()
+        q_header, q_arrays = loc.state()
+        header = {"conf": loc.seq.flat(), "memory": mem_header, "query": q_header, "encoder": self.encoder,
+                  "n_statistics": len(self.statistics), "db_shape": list(loc.db_codes.shape),
+                  "sessions": loc.sessions.tolist(), "origin": self.origin, "info": self.info}
+        stats = {}
+        for i, (m, s) in enumerate(self.statistics):
+            stats[f"mean{i}"], stats[f"std{i}"] = m, s
+        db = {"indptr": loc.db_codes.indptr.astype(np.int64), "indices": loc.db_codes.indices.astype(np.int64)}
+        if self.positions is not None:
+            db["xy"] = self.positions
+        parts = {"mem": mem_arrays, "query": q_arrays, "enc": stats, "qenc": self.query_state, "db": db}
+        return write_file(path, _FORMAT, _FORMAT_VERSION, header, parts, names=loc.names)
+
+    @classmethod
+    def load(cls, path) -> Map:
+        """Read a file written by :meth:`save`; its localizer continues where it was saved.
+
+        Raises
+        ------
+        MemoryFileError
+            Missing, corrupt or foreign file (a map is written by ``vpr learn``), or another format version.
+        """
+        with read_file(path, _FORMAT, _FORMAT_VERSION, "map", " (written by `vpr learn` / Map.save)",
+                       ("mem", "query", "enc", "qenc", "db")) as (header, parts, names):
+            mem_h = header["memory"]
+            mem = SequenceMemory(**mem_h["params"]).load_state(mem_h, parts["mem"])
+            n_db, width = header["db_shape"]
+            idx = parts["db"]["indices"]
+            codes = sp.csr_matrix((np.ones(idx.size, bool), idx, parts["db"]["indptr"]), shape=(n_db, width))
+            loc = Localizer(mem, codes, names, sessions=header["sessions"], **header["conf"])
+            loc.load_state(header["query"], parts["query"])
+            enc = parts["enc"]
+            stats = [(enc[f"mean{i}"], enc[f"std{i}"]) for i in range(int(header["n_statistics"]))]
+            out = cls(loc, header["encoder"], stats, parts["db"].get("xy"), header.get("origin"), header["info"])
+            out.query_state = parts["qenc"]
+        return out
+
+    def __repr__(self) -> str:
+        return f"Map({self.encoder['name']}, {self.localizer!r})"

@@ -1,0 +1,157 @@
+"""A geometric second opinion on loop closures: a decider over another, with two-view inliers where geometry can see.
+
+The path score of rSHOSM-seq (:class:`vpr.shosm.LoopConf`) needs a revisit to
+stand out for many frames: a short stream (an 84-frame indoor loop) never
+reaches it although its best matches are right. :class:`GeometricOpinion`
+wraps that decider: a frame the path has not accepted, whose best earlier frame
+moved on consistently with the frames before it (``back`` / ``ahead``, for
+``frames`` frames) and whose pair with it has at least ``min_inliers`` RANSAC
+inliers (ORB, :class:`vpr.verify.Verifier`, at the source's resolution) is
+accepted as well, unless the camera never left the place in between
+(:func:`vpr.sdr.stationary`: on a forward drive the frame 30 back shows the
+same road ahead, a scene seen again but no loop).
+
+It is blind where the images are small (a shorter side under ``min_side``)
+or bare (fewer than ``min_keypoints`` ORB keypoints); there the path decides
+alone. Measured in ``docs/loops.md`` ("A geometric second opinion").
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from vpr import sdr as _sdr
+from vpr.types import Column, Decision
+
+from .verifier import Verifier
+
+__all__ = ["OpinionConf", "GeometricOpinion", "second_opinion"]
+
+
+@dataclass(frozen=True)
+class OpinionConf:
+    """When geometry confirms a closure (see the module docstring)."""
+
+    min_inliers: int = 20
+    frames: int = 3
+    min_side: int = 120
+    min_keypoints: int = 100
+    n_features: int = 2000
+    max_error: float = 2.0
+
+
+class GeometricOpinion:
+    """``decide(column) -> Decision``: the wrapped decider's decision, and geometry's where the path has not accepted.
+
+    Parameters
+    ----------
+    decider : a loop decider (``decide``, ``add_sdr``, ``new_session``), e.g. :class:`vpr.shosm.LoopDecider`.
+    image : callable
+        ``image(j)``: frame ``j`` of the stream at its source's resolution.
+    back, ahead, stop_ratio : the loop decision's (:class:`vpr.shosm.LoopConf`).
+    conf : OpinionConf
+    """
+
+    def __init__(self, decider, image, back: int, ahead: int, stop_ratio: float, conf: OpinionConf | None = None):
+        self.decider, self.image, self.conf = decider, image, conf or OpinionConf()
+        self.back, self.ahead, self.stop_ratio = int(back), int(ahead), float(stop_ratio)
+        self._verifier = Verifier(image, image, n_features=self.conf.n_features, max_error=self.conf.max_error,
+                                  min_side=1)
+        self._recent: list[tuple[int, int]] = []  # (best, session) of the last frames
+        self._ptr, self._ind = [0], []
+        self._session = 0
+        self.verified = self.blind = self.accepted = 0
+        self.seconds = 0.0
+
+    def add_sdr(self, bits) -> None:
+        self.decider.add_sdr(bits)
+        self._ind.extend(np.asarray(bits, np.int64).tolist())
+        self._ptr.append(len(self._ind))
+
+    def new_session(self) -> None:
+        self.decider.new_session()
+        self._session += 1
+
+    def _consistent(self, best: int) -> bool:
+        need = self.conf.frames - 1
+        past = self._recent[-need:] if need else []
+        if best < 0 or len(past) < need or any(s != self._session for _, s in past):
+            return False
+        chain = [b for b, _ in past] + [best]
+        return all(a >= 0 and a - self.back <= b <= a + self.ahead for a, b in zip(chain[:-1], chain[1:], strict=True))
+
+    def decide(self, column: Column) -> Decision:
+        d = self.decider.decide(column)
+        j, b = int(d.frame), int(d.best)
+        consistent = self._consistent(b)
+        self._recent = (self._recent + [(b, self._session)])[-max(self.conf.frames, 1):]
+        if d.accepted or not consistent:
+            return d
+        t = time.perf_counter()
+        c = self.conf
+        try:
+            if min(self.image(j).shape[:2]) < c.min_side:  # frames too small for geometry
+                self.blind += 1
+                return d
+            fj, fb = self._verifier.query_features(j), self._verifier.db_features(b)
+            if min(fj.xy.shape[0], fb.xy.shape[0]) < c.min_keypoints:
+                self.blind += 1
+                return d
+            self.verified += 1
+            if self._verifier.pair_inliers(b, j) < c.min_inliers:
+                return d
+            if self.stop_ratio > 0 and self._same_session(b, j):
+                ptr, ind = np.asarray(self._ptr, np.int64), np.asarray(self._ind, np.int64)
+                if _sdr.stationary(ptr, ind, b, j, self.stop_ratio):
+                    return d
+            self.accepted += 1
+            return replace(d, accepted=True)
+        finally:
+            self.seconds += time.perf_counter() - t
+
+    def _same_session(self, b: int, j: int) -> bool:
+        """Whether ``b`` is in the current session (across runs the camera surely left)."""
+        starts = getattr(self.decider, "starts", np.zeros(1, np.int64))
+        return bool(np.searchsorted(starts, b, side="right") == np.searchsorted(starts, j, side="right"))
+
+    def report(self) -> dict:
+        """Frames verified, blind, accepted by geometry, milliseconds per verified frame."""
+        return {"frames_verified": self.verified, "frames_blind": self.blind, "accepted_by_geometry": self.accepted,
+                "ms_per_verified_frame": round(1e3 * self.seconds / max(self.verified, 1), 2),
+                "min_inliers": self.conf.min_inliers}
+
+
+class _Replay:
+    """Decisions already taken, given again frame by frame."""
+
+    def __init__(self, d: Decision, starts):
+        self.d, self.starts = d, np.asarray(starts, np.int64)
+
+    def add_sdr(self, bits) -> None:
+        pass
+
+    def new_session(self) -> None:
+        pass
+
+    def decide(self, column: Column) -> Decision:
+        j, d = column.frame, self.d
+        return Decision(int(d.best[j]), float(d.score[j]), bool(d.accepted[j]), 0.0, j)
+
+
+def second_opinion(decision: Decision, image, sdr, back: int, ahead: int, stop_ratio: float,
+                   conf: OpinionConf | None = None, sessions=(0,)) -> tuple[Decision, dict]:
+    """The opinion over decisions already taken (arrays ``best``, ``score``, ``accepted``), and its report."""
+    x = _sdr.check_batch(sdr, name="sdr")
+    starts = sorted({0, *(int(s) for s in sessions)})
+    op = GeometricOpinion(_Replay(decision, starts), image, back, ahead, stop_ratio, conf)
+    out = []
+    empty, none = np.zeros(0, np.int64), np.zeros(0, np.float32)
+    for j in range(x.shape[0]):
+        if j in starts[1:]:
+            op.new_session()
+        op.add_sdr(np.sort(x.indices[x.indptr[j]:x.indptr[j + 1]]))
+        out.append(op.decide(Column(empty, none, 0.0, 0, j)))
+    return Decision(np.array([d.best for d in out], np.int64), np.array([d.score for d in out]),
+                    np.array([d.accepted for d in out], bool), frame=np.arange(len(out))), op.report()
