@@ -118,6 +118,19 @@ class BaseEncoder:
         ValueError naming the option and the size; the default has nothing to check.
         """
 
+    def check_sources(self, srcs, roles, chosen: str = "") -> None:
+        """Refuse, before reading a frame, sources this encoder cannot encode: too short for statistics fitted on
+        them (``standardise=fit``), or too long for memory (:meth:`check_memory`). ``chosen``: the options that
+        chose the frames (``--max-frames 1``), named in the message."""
+        how = self.conf.get("standardise")
+        for src, role in zip(srcs, roles, strict=True):
+            n = len(src.indices())
+            if how in ("fit", "per_batch") and n < 2:
+                raise ValueError(f"{role} {src.path}: {n} frame(s) to read{f' with {chosen}' if chosen else ''}; "
+                                 f"encoder {self.name} with standardise={how} is fitted on the traverse and needs at "
+                                 "least 2 (more frames, or --encoder-conf standardise=none)")
+        self.check_memory(max((len(s.indices()) for s in srcs), default=0))
+
     def fit(self, images) -> BaseEncoder:
         """Learn statistics from ``images`` (default: nothing to learn). Returns self."""
         as_image_list(images)

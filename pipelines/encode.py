@@ -7,8 +7,8 @@ client joins the ranges of a source in frame order, fits the encoder on the
 whole traverse where its conf asks (``standardise="fit"``), sparsifies and
 writes one cache file per source atomically: the file ``vpr match``,
 ``compare``, ``loops`` and ``localize`` read with ``--cache DIR`` (see
-:func:`pipelines.features.cache_path`), byte for byte what the serial run and
-:func:`pipelines.features.extract` write.
+:func:`encoders.extract.cache_path`), byte for byte what the serial run and
+:func:`encoders.extract.extract` write.
 
 Execution: ``workers=0`` runs in this process; ``workers=N`` starts a local
 cluster of N single-threaded worker processes on 127.0.0.1 for the run;
@@ -28,9 +28,7 @@ import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from pipelines.args import add_common_arguments, add_preset_argument, add_source_arguments
-from pipelines.cluster import check_workers, dask_client, default_workers
-from pipelines.features import (
+from encoders.extract import (
     DEFAULT_CHUNK_FRAMES,
     assemble,
     available_inputs,
@@ -42,6 +40,8 @@ from pipelines.features import (
     load_cache,
     save_cache,
 )
+from pipelines.args import add_common_arguments, add_preset_argument, add_source_arguments
+from pipelines.cluster import check_workers, dask_client, default_workers
 from pipelines.interrupts import deferred
 from vpr import presets
 from vpr.sources import Source, open_source
@@ -94,7 +94,7 @@ def encode_sources(sources, cache_dir, encoder_name: str = "pixel", encoder_conf
         process; None (default) is the number of cores. Not with ``scheduler``.
     scheduler : address of a running Dask scheduler (``tcp://host:port``).
     chunk_frames : frames per task.
-    parts : the inputs to store, a subset of :func:`pipelines.features.available_inputs`
+    parts : the inputs to store, a subset of :func:`encoders.extract.available_inputs`
         (default all: ``sdr``, ``desc`` and every method's image inputs, so any
         later method finds what it needs).
     overwrite : encode again even when a cache file with these parts exists.

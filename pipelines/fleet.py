@@ -29,7 +29,7 @@ import warnings
 from pathlib import Path
 
 from pipelines.outputs import metrics_table, versions
-from pipelines.runs import MatchMap, RunOptions, check_match, compare_query, extract_all, prepare_run
+from pipelines.runs import MatchMap, RunOptions, check_match, compare_query, extract_run, prepare_run
 from vpr import io
 
 __all__ = ["run_fleet", "query_folders"]
@@ -100,7 +100,7 @@ def run_fleet(db, queries, method_names: list[str], opts: RunOptions, command: s
            for q_src, xy in zip(q_srcs, q_xy, strict=True)]
     # ---- the work starts here
     t0 = time.perf_counter()
-    (db_ex,) = extract_all([db_src], ["database"], encoder, runners, opts)
+    (db_ex,) = extract_run([db_src], ["database"], encoder, runners, opts)
     the_map = MatchMap(str(db), db_src, db_ex, encoder.name, dict(encoder.conf),
                        {m: r.fit(db_ex.features) for m, r in runners.items()})
     t_map = time.perf_counter() - t0

@@ -41,6 +41,7 @@ import scipy.sparse as sp
 
 import encoders
 from encoders.base import DescriptorEncoder
+from encoders.extract import extract
 from encoders.stream import PRIOR_FRAMES, WINDOW, StreamEncoder
 from pipelines.args import (
     ONLINE_METHOD,
@@ -53,13 +54,9 @@ from pipelines.args import (
     method_confs,
     refuse_gone,
 )
-from pipelines.features import extract
 from pipelines.online import Online, run_online, summary_line
-from pipelines.outputs import method_metrics
-from pipelines.positions import prepare_positions
-from pipelines.runs import check_fit_frames
-from vpr import io, methods, presets
-from vpr.groundtruth import GroundTruthSpec, build_gt
+from vpr import evaluate, io, methods, presets
+from vpr.groundtruth import GroundTruthSpec, build_gt, prepare_positions
 from vpr.groundtruth.trajectories import parse_every
 from vpr.shosm import Map
 from vpr.sources import open_source
@@ -104,9 +101,8 @@ def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, met
     spec = positions or GroundTruthSpec()
     pos = prepare_positions(srcs, roles, spec, every, loops=False, need=bool(spec.topic or spec.files))
     enc = encoders.get(encoder, **(encoder_conf or {}))
-    for src, role in zip(srcs, roles, strict=True):
-        check_fit_frames(src, enc, role, step, max_frames)
-    enc.check_memory(max(len(s.indices()) for s in srcs))
+    enc.check_sources(srcs, roles, " and ".join(f"{f} {v}" for f, v in (("--step", step),
+                                                                          ("--max-frames", max_frames)) if v))
     if enc.conf.get("standardise") in ("per_batch", "causal"):
         raise ValueError(f"encoders with standardise={enc.conf['standardise']} cannot encode one query frame at a "
                          "time; use standardise=fit (vpr localize then standardises the query causally, --window)")
@@ -179,7 +175,7 @@ class LocalizeOnline(Online):
             positions = (self.map.positions, self.q_xy[[row[k] for k in q_idx]])
         gt_hard, gt_soft = build_gt(gt, loc.names, names, info.get("db_indices") or list(range(loc.n_db)), q_idx,
                                     info.get("db_source", "database"), self.q_src.name, positions=positions)
-        m, _ = method_metrics(result, gt_hard, gt_soft)
+        m, _ = evaluate.method_metrics(result, gt_hard, gt_soft)
         m.pop("seconds", None)
         m.pop("n_accepted", None)
         return m

@@ -44,11 +44,10 @@ from pipelines.args import (
     settings_from_args,
 )
 from pipelines.online import Online, run_online, summary_line
-from pipelines.outputs import method_metrics
-from pipelines.runs import exclude_frames
-from vpr import groundtruth, io, methods
+from vpr import evaluate, groundtruth, io, methods
 from vpr.groundtruth import GroundTruthSpec, build_loop_gt, check_loop_gt_files
 from vpr.shosm import LOOP_EXCLUDE, LoopDetector
+from vpr.sources.base import frames_in
 from vpr.sources.stdin import StdinSource
 
 __all__ = ["COMMANDS", "add_arguments", "run_command", "detect_loops", "make_detector", "resume_detector",
@@ -108,9 +107,7 @@ def _run_online(args, settings: dict) -> int:
                             ("--gt-topic", args.gt_topic), ("--geometry", args.geometry)) if v is not None]
     if given:
         raise ValueError(f"vpr loops -: {', '.join(given)} apply to a folder or video, not to image paths on stdin")
-    if args.exclude is not None and str(args.exclude).strip().lower().endswith("s"):
-        raise ValueError(f"vpr loops -: --exclude {args.exclude} in seconds needs a video's frame rate; give frames")
-    exclude = exclude_frames(LOOP_EXCLUDE if args.exclude is None else args.exclude, None)
+    exclude = frames_in(LOOP_EXCLUDE if args.exclude is None else args.exclude, None, "image paths on stdin have none")
     if args.resume is not None:
         given = [f for f, v in (("--preset", args.preset), ("--method", args.method), ("--encoder", args.encoder),
                                 ("--encoder-conf", args.encoder_conf), ("--method-conf", args.method_conf),
@@ -196,7 +193,7 @@ class LoopsOnline(Online):
         mask = groundtruth.loop_closure_mask(T, exclude=exclude)
         if not (hard & mask).any():
             raise self.gt.no_match_error(exclude=exclude)
-        m, _ = method_metrics(result, hard, soft, mask=mask, loops=True)
+        m, _ = evaluate.method_metrics(result, hard, soft, mask=mask, loops=True)
         m.pop("seconds", None)
         m.pop("n_accepted", None)
         return m

@@ -20,7 +20,7 @@ import scipy.sparse as sp
 from vpr import evaluate, io, methods, plots
 from vpr.types import MatchResult
 
-__all__ = ["MATCH_COLUMNS", "versions", "write_similarity", "write_matches", "method_metrics", "metrics_table",
+__all__ = ["MATCH_COLUMNS", "versions", "write_similarity", "write_matches", "metrics_table",
            "write_method", "merge_metrics", "warn", "claim_methods"]
 
 
@@ -75,30 +75,6 @@ def write_matches(folder: Path, res: MatchResult, db_names, q_names, extra: dict
                         *(v[j] for v in extra.values())])
 
 
-def method_metrics(res: MatchResult, gt_hard, gt_soft, mask=None, loops: bool = False):
-    """(metrics dict, (precision, recall) or None without ground truth).
-
-    Always the seconds and the number of accepted matches; with ground truth
-    the metrics of :func:`vpr.evaluate.evaluate` over the (evaluated) pairs and
-    the precision and recall of the accepted matches. ``loops``: one stream's
-    loop closures, where the curve is that of the per-frame decisions
-    (:func:`vpr.evaluate.decision_curve`: ``frame_ap``, ``frame_recall_at_100p``),
-    what loop-closure detectors report; the pairs' metrics stay (``ap``, ...).
-    """
-    m = {"seconds": round(res.seconds, 4), "n_accepted": int(np.count_nonzero(res.accepted & (res.best_db >= 0)))}
-    if gt_hard is None:
-        return m, None
-    ev, (prec, rec, _) = evaluate.evaluate(res.similarity, gt_hard, gt_soft, mask=mask, return_curve=True)
-    m.update({k: float(v) for k, v in ev.items()})
-    m.update(evaluate.accepted_precision(res.best_db, res.accepted, gt_hard, gt_soft, mask=mask))
-    if gt_soft is not None:
-        m["best_in_soft"] = evaluate.best_in_soft_band(res.best_db, gt_hard, gt_soft, mask=mask)
-    if loops:
-        dm, (prec, rec, _) = evaluate.decision_curve(res.best_db, res.score, gt_hard, gt_soft, mask=mask)
-        m.update(frame_ap=dm["ap"], frame_recall_at_100p=dm["recall_at_100p"], frames_with_loop=dm["n_with_match"])
-    return m, (prec, rec)
-
-
 #: Columns of the printed table: (metrics key, header).
 TABLE = {"match": [("ap", "AP"), ("recall_at_100p", "R@100P"), ("recall_at_1", "R@1"), ("n_accepted", "accepted"),
                    ("precision_accepted", "P(acc)"), ("recall_accepted", "R(acc)"), ("seconds", "seconds")],
@@ -138,7 +114,7 @@ def write_method(folder: Path, m: str, res: MatchResult, evaluated: tuple, db_na
                  mask=None) -> dict:
     """Write one method's files in its folder; return its metrics entries (``m`` and ``m+verify``).
 
-    ``evaluated``: the (metrics, curve) of :func:`method_metrics` for ``res``.
+    ``evaluated``: the (metrics, curve) of :func:`vpr.evaluate.method_metrics` for ``res``.
     With a ``verifier``, each query's ``verify`` best candidates are re-ordered
     by geometric inliers (:meth:`vpr.verify.Verifier.verify`): the entry
     ``m+verify`` evaluates that matrix and its decisions.
@@ -162,7 +138,7 @@ def write_method(folder: Path, m: str, res: MatchResult, evaluated: tuple, db_na
         extra = {"verified_db": vr.best_db.tolist(),
                  "inliers": np.where(vr.best_db >= 0, vr.score, -1).astype(int).tolist(),
                  "verified": vr.accepted.astype(int).tolist()}
-        vm, vcurve = method_metrics(verified, gt_hard, gt_soft)
+        vm, vcurve = evaluate.method_metrics(verified, gt_hard, gt_soft)
         vm["seconds"] = round(verified.seconds, 4)
         vm["similarity_file"] = metrics["similarity_file"]
         entries[m + "+verify"] = (vm, vcurve)

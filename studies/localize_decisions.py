@@ -52,8 +52,8 @@ import numpy as np
 import scipy.sparse as sp
 
 import encoders
+from encoders.extract import extract
 from encoders.stream import StreamEncoder
-from pipelines.features import extract
 from vpr import presets
 from vpr.shosm import Localizer, PathConf, PathDecider, decide_all
 from vpr.sources import open_source

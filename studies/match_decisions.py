@@ -65,7 +65,7 @@ def evidence(case: str, preset: str, data: Path, cache: Path):
             S = sp.csr_matrix((z["val"], z["idx"], z["ptr"]), shape=tuple(z["shape"])) if "ptr" in z else z["S"]
             return S, z["hard"], z["soft"]
     import encoders
-    from pipelines.features import extract
+    from encoders.extract import extract
 
     m, q, hard, soft = _case_sources(case, data, cache)
     s = presets.resolve(preset)

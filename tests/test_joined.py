@@ -168,7 +168,7 @@ def test_cli_accepts_joined_names():
 def test_conf_round_trips_and_tells_pipelines_to_fit():
     e = encoders.get("pixel+cnn", **{"pixel.standardise": "fit", "pixel.k": 150, "pixel.n_bits": 1536,
                                      "cnn.k": 50, "cnn.n_bits": 512, **SMALL_CNN})
-    # pipelines/features.py fits when conf["standardise"] == "fit"; one fitting part is enough
+    # encoders/extract.py fits when conf["standardise"] == "fit"; one fitting part is enough
     assert e.conf["standardise"] == "fit" and e.encoders[1].conf["standardise"] == "none"
     again = encoders.get("pixel+cnn", **e.conf)
     assert again.conf == e.conf and [p.conf for p in again.encoders] == [p.conf for p in e.encoders]
@@ -178,7 +178,7 @@ def test_conf_round_trips_and_tells_pipelines_to_fit():
 def test_compare_pipeline_extracts_joined_features(frames, tmp_path):
     import cv2
 
-    from pipelines.features import extract
+    from encoders.extract import extract
     from vpr.sources import open_source
 
     db, _ = frames

@@ -159,22 +159,6 @@ def test_localize_bad_input(scene, tmp_path, capsys):
     assert code == 2 and "per_batch" in err
 
 
-def test_exclude_seconds():
-    from types import SimpleNamespace
-
-    from pipelines.runs import exclude_frames
-
-    video = SimpleNamespace(path="v.mp4", kind="video", video_fps=30.0, fps=None, step=3)
-    assert exclude_frames("5s", video) == 50 and exclude_frames("12", video) == 12 and exclude_frames(7, video) == 7
-    assert exclude_frames("2s", SimpleNamespace(path="v.mp4", kind="video", video_fps=30.0, fps=5.0, step=None)) == 10
-    folder = SimpleNamespace(path="imgs", kind="folder")
-    with pytest.raises(ValueError, match="seconds need a frame rate.*imgs"):
-        exclude_frames("5s", folder)
-    for bad in ("x", "0", "0.01s", "-3"):
-        with pytest.raises(ValueError, match="--exclude"):
-            exclude_frames(bad, video)
-
-
 def test_causal_standardisation_only_looks_back():
     import encoders
     from encoders.projection import CAUSAL_MIN, CAUSAL_WINDOW

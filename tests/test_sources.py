@@ -372,3 +372,24 @@ def test_load_all_and_iter_batches(tmp_path):
             list(iter_batches(src, 0))
         _, names2 = load_all(src, progress=True)
         assert names2 == names
+
+
+def test_exclude_in_seconds_uses_the_frames_rate(tmp_path):
+    from tests.bags import write_bag
+
+    video = _video(tmp_path / "v.mp4", n=60, fps=30.0)
+    src = open_source(video, step=3)
+    assert src.frames_in("5s") == 50 and src.frames_in("12") == 12 and src.frames_in(7) == 7
+    assert open_source(video, fps=5.0).frames_in("2s") == 10
+    frames = [np.full((32, 48, 3), 10 * i, np.uint8) for i in range(12)]
+    bag = write_bag(tmp_path / "b.bag", frames, gps=False, odom=False, dt=0.1)
+    assert open_source(bag).frames_in("2s") == 20 and open_source(bag, step=2).frames_in("2s") == 10
+    folder = tmp_path / "imgs"
+    folder.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(folder / f"img{i}.png"), frames[i])
+    with pytest.raises(ValueError, match="seconds need the frames' times, and .*imgs"):
+        open_source(folder).frames_in("5s")
+    for bad in ("x", "0", "0.01s", "-3"):
+        with pytest.raises(ValueError, match="--exclude"):
+            src.frames_in(bad)

@@ -25,6 +25,7 @@ __all__ = [
     "add_noise",
     "random_sdrs",
     "stationary",
+    "degenerate",
 ]
 
 
@@ -319,3 +320,23 @@ def stationary(ptr, ind, b, j, ratio):  # pragma: no cover - compiled
         if _overlap(ptr, ind, k, j) < ratio * o_b:
             return False
     return True
+
+
+def degenerate(x, duplicate_share: float = 0.1) -> str | None:
+    """What is wrong with an SDR batch whose frames cannot be told apart: empty rows, or many identical rows.
+
+    None when nothing is: no empty row, and fewer than ``duplicate_share`` of
+    the frames repeat an earlier frame's SDR exactly (a stop repeats a few).
+    """
+    x = sp.csr_matrix(x)
+    n = x.shape[0]
+    if n == 0:
+        return None
+    empty = int((np.diff(x.indptr) == 0).sum())
+    dup = n - len({x.indices[x.indptr[i]:x.indptr[i + 1]].tobytes() for i in range(n)})
+    parts = []
+    if empty:
+        parts.append(f"{empty} of {n} frames have an empty SDR")
+    if dup >= max(1, duplicate_share * n):
+        parts.append(f"{dup} of {n} frames repeat another frame's SDR exactly")
+    return "; ".join(parts) or None

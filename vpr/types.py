@@ -91,6 +91,18 @@ class EncodedTraverse:
         """Frames ``start:stop`` with every input (a block of a long traverse)."""
         return EncodedTraverse(self.names[start:stop], **{k: v[start:stop] for k, v in self.inputs.items()})
 
+    @classmethod
+    def join(cls, parts, prefixes) -> EncodedTraverse:
+        """The traverses ``parts`` one after the other (a robot's sessions as one stream), frame names prefixed
+        with their part's ``prefixes`` (``day/0001.png``); the inputs every part holds."""
+        names = [f"{p}/{n}" for p, t in zip(prefixes, parts, strict=True) for n in t.names]
+        keys = set.intersection(*(set(t.inputs) for t in parts))
+        inputs = {}
+        for k in keys:
+            arrays = [t.inputs[k] for t in parts]
+            inputs[k] = sp.vstack(arrays).tocsr() if sp.issparse(arrays[0]) else np.concatenate(arrays)
+        return cls(names, **inputs)
+
     def __len__(self) -> int:
         return len(self.names)
 

@@ -12,9 +12,7 @@ import time
 from pathlib import Path
 
 import encoders
-from pipelines.runs import peak_rss_mb
-from pipelines.runs import run_methods as run_harness
-from vpr import groundtruth, methods
+from vpr import evaluate, groundtruth, methods
 from vpr import io as _io
 from vpr.types import EncodedTraverse
 
@@ -45,7 +43,7 @@ def encode_sdrs(db_desc, q_desc, n_bits: int = 2048, k: int = 40, standardise: s
 
 
 def run_methods(db_desc, q_desc, db_sdr, q_sdr, specs: dict, progress: bool = False) -> tuple[dict, dict]:
-    """Run and evaluate every ``specs`` entry with the project's harness (:func:`pipelines.runs.run_methods`).
+    """Run and evaluate every ``specs`` entry with the project's harness (:func:`vpr.evaluate.run_methods`).
 
     Ground truth: |i - j| <= 1 true, 1 < |i - j| <= 3 ignored. Returns
     ``(metrics, curves)``: label -> metric dict (with the method's seconds, CPU
@@ -57,7 +55,7 @@ def run_methods(db_desc, q_desc, db_sdr, q_sdr, specs: dict, progress: bool = Fa
     q = EncodedTraverse(names[:n_q], sdr=q_sdr, desc=q_desc, pixels=q_desc)
     gh, gs = groundtruth.gt_from_tolerance(n_db, n_q, 1), groundtruth.gt_from_tolerance(n_db, n_q, 3)
     runners = {label: methods.get(method, **conf) for label, (method, conf) in specs.items()}  # bad conf: now
-    done = run_harness(runners, lambda r: r.match(db, q, progress=progress), gh, gs, resources=True)
+    done = evaluate.run_methods(runners, lambda r: r.match(db, q, progress=progress), gh, gs, resources=True)
     return {k: m for k, (m, _) in done.items()}, {k: c for k, (_, c) in done.items()}
 
 
@@ -118,7 +116,7 @@ def run_benchmark(subset: str, out, data=None, k: int = 40, threshold: float | N
                 "fitted_on": "each traverse itself", "seconds": t_enc},
         "methods": {label: {"method": m, "conf": methods.get(m, **c).conf, **metrics[label]}
                     for label, (m, c) in specs.items()},
-        "peak_rss_mb": peak_rss_mb(),
+        "peak_rss_mb": evaluate.peak_rss_mb(),
         "total_seconds": time.perf_counter() - t0,
     }
     _io.save_json(out / "metrics.json", doc)

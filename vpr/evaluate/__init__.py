@@ -2,7 +2,8 @@
 
 Rankings in :mod:`vpr.evaluate.ranking` (AP, curves, recall@K), decisions in
 :mod:`vpr.evaluate.decisions` (accepted precision and recall, per-frame
-curves, session pairs); every name is here too.
+curves, session pairs), the harness that runs and evaluates methods in
+:mod:`vpr.evaluate.harness`; every name is here too.
 
 The metrics follow the conventions of the VPR tutorial of Schubert, Neubert,
 Garg, Milford and Fischer (IEEE RAM 2023; ``createPR``, ``recallAt100precision``,
@@ -53,7 +54,9 @@ so ``n_db * n_q`` may be far larger than memory (pass ``gt_hard`` and
 of the builders in :mod:`vpr.groundtruth`).
 """
 from .decisions import accepted_precision, best_in_soft_band, decision_curve, session_pairs
+from .harness import method_metrics, peak_rss_mb, run_methods
 from .ranking import auc_from_pr, auc_pr, average_precision, evaluate, pr_curve, recall_at_100p, recall_at_k
 
 __all__ = ["average_precision", "pr_curve", "auc_pr", "auc_from_pr", "recall_at_100p", "recall_at_k", "evaluate",
-           "accepted_precision", "best_in_soft_band", "decision_curve", "session_pairs"]
+           "accepted_precision", "best_in_soft_band", "decision_curve", "session_pairs", "method_metrics",
+           "run_methods", "peak_rss_mb"]

@@ -9,7 +9,9 @@
   them (``GThard.npy``, VPR-Bench's ``ground_truth_new.npy``, loop matrices in
   ``.npy``, ``.png``, ``.bmp``, ``.mat``);
 - :mod:`~vpr.groundtruth.spec`: a run's ground-truth options
-  (:class:`GroundTruthSpec`) and :func:`build_gt`, the choice ``vpr match`` makes.
+  (:class:`GroundTruthSpec`) and :func:`build_gt`, the choice ``vpr match`` makes;
+  :mod:`~vpr.groundtruth.positions`: where every frame of a source was
+  (:func:`prepare_positions`), for a radius and for ``--every``.
 
 The metrics over them are in :mod:`vpr.evaluate`.
 """
@@ -23,6 +25,8 @@ from .files import (
 )
 from .formats import db_query_matrix, loop_matrix
 from .matrices import (
+    any_true,
+    frame_rows,
     gt_from_frames,
     gt_from_labels,
     gt_from_positions,
@@ -30,9 +34,11 @@ from .matrices import (
     loop_closure_gt,
     loop_closure_mask,
 )
-from .spec import GroundTruthSpec, build_gt, build_loop_gt, check_loop_gt_files
+from .positions import Positions, frame_positions, prepare_positions
+from .spec import GroundTruthSpec, build_gt, build_loop_gt, build_stream_gt, check_loop_gt_files
 
 __all__ = ["gt_from_labels", "gt_from_frames", "gt_from_tolerance", "gt_from_positions", "loop_closure_mask",
            "loop_closure_gt", "load_pairs_csv", "load_loop_pairs", "load_positions_csv", "gt_from_position_files",
            "load_traverse_positions", "positions_of_frames", "db_query_matrix", "loop_matrix", "GroundTruthSpec",
-           "build_gt", "build_loop_gt", "check_loop_gt_files"]
+           "build_gt", "build_loop_gt", "build_stream_gt", "check_loop_gt_files", "prepare_positions",
+           "frame_positions", "Positions", "any_true", "frame_rows"]

@@ -14,7 +14,7 @@ from vpr.checks import check_count, check_float
 from vpr.similarity import candidate_limit
 
 __all__ = ["gt_from_labels", "gt_from_frames", "gt_from_tolerance", "gt_from_positions", "loop_closure_mask",
-           "loop_closure_gt"]
+           "loop_closure_gt", "any_true", "frame_rows"]
 
 
 def _expand_ranges(starts, counts):
@@ -241,3 +241,14 @@ def loop_closure_gt(labels_or_xy, radius=None, exclude=0, sparse=False):
     if sparse:
         return sp.triu(gt, k=max(exclude, 1), format="csr").astype(bool)
     return gt & loop_closure_mask(len(a), exclude)
+
+
+def any_true(G) -> bool:
+    """Whether a dense or sparse bool ground truth holds any true pair (sparse has no ``any``)."""
+    return bool(G.count_nonzero()) if sp.issparse(G) else bool(np.any(G))
+
+
+def frame_rows(attempted, read, offset: int = 0) -> np.ndarray:
+    """The rows of the frames ``read`` (a source's frame numbers) in a ground truth built for ``attempted``."""
+    row = {k: r for r, k in enumerate(attempted)}
+    return np.asarray([row[k] + offset for k in read], np.int64)

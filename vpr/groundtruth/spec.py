@@ -335,3 +335,24 @@ def check_loop_gt_files(spec: GroundTruthSpec, traverse: str | None = None) -> N
         load_loop_pairs(files[0], traverse, [])
     else:
         read_rows(files[0], 2, "frame,earlier")
+
+
+def build_stream_gt(spec: GroundTruthSpec, srcs, attempted, positions=None):
+    """The loop ground truth of one stream, or of the sessions of one (``srcs``, in order), over the frames to
+    attempt (``attempted``: each source's frame numbers); ``positions``: each source's (:func:`prepare_positions`)."""
+    if len(srcs) == 1:
+        src = srcs[0]
+        return build_loop_gt(spec, src.names(), attempted[0], src.name, total=src.exact_total(),
+                             positions=None if positions is None else positions[0])
+    if positions is not None:
+        return build_loop_gt(spec, [], [], positions=np.concatenate(positions))
+    if spec.files and is_loop_pairs_file(spec.files[0]):
+        raise ValueError(f"--gt {spec.files[0]}: vpr render's loop_pairs.csv pairs frames of one traverse; for "
+                         "sessions give positions (its ground_truth.csv with --radius)")
+    totals = [s.exact_total() for s in srcs]
+    offsets = np.cumsum([0, *[t if t is not None else len(a) for t, a in zip(totals, attempted, strict=True)]])
+    names = [f"{s.name}/{n}" for s in srcs for n in s.names()]
+    indices = [int(i) + int(o) for a, o in zip(attempted, offsets, strict=False) for i in a]
+    total = int(offsets[-1]) if all(t is not None for t in totals) else None
+    return build_loop_gt(spec, names, indices, None, total=total)
+

@@ -37,13 +37,14 @@ lines, is a subpackage of :mod:`vpr` beside :mod:`vpr.shosm` and
 """
 from __future__ import annotations
 
+import warnings
 from importlib import import_module
 
 from vpr.types import EncodedTraverse, ImageInput, MatchResult
 
 from .base import Fitted, Method
 
-__all__ = ["get", "available", "get_class", "match", "loops", "image_inputs", "Method", "Fitted"]
+__all__ = ["get", "build", "available", "get_class", "match", "loops", "image_inputs", "Method", "Fitted"]
 
 # name -> (module, class); imported on first use, so that e.g. the SeqSLAM kernels load only for seqslam
 _REGISTRY = {
@@ -85,6 +86,34 @@ def image_inputs() -> dict[str, ImageInput]:
 def get(name: str, **conf) -> Method:
     """A new method ``name`` with ``conf`` merged over its ``default_conf``."""
     return get_class(name)(**conf)
+
+
+def build(names, confs: dict | None = None) -> dict[str, Method]:
+    """The methods ``names`` with their ``confs`` (method -> conf), built and checked before any work.
+
+    A conf for a method not in ``names`` is still checked (a typo should not
+    pass silently), then ignored with a warning; a name given twice runs once.
+    """
+    names = list(names)
+    if not names:
+        raise ValueError("--methods is empty")
+    unique = list(dict.fromkeys(names))
+    if len(unique) < len(names):
+        twice = sorted({m for m in names if names.count(m) > 1})
+        warnings.warn(f"--methods names {', '.join(twice)} more than once; each method runs once", stacklevel=2)
+    for m in unique:
+        get_class(m)  # unknown names fail here, with the list of methods
+    built = {}
+    for m, c in (confs or {}).items():
+        try:
+            built[m] = get(m, **c)
+        except ValueError as exc:
+            raise ValueError(f"--method-conf {m}: {exc}") from None
+    unused = [m for m in built if m not in unique]
+    if unused:
+        warnings.warn(f"--method-conf for {', '.join(unused)}, which this run does not use ({', '.join(unique)}); "
+                      "ignored", stacklevel=2)
+    return {m: built.get(m) or get(m) for m in unique}
 
 
 def match(method: str, db: EncodedTraverse, query: EncodedTraverse, conf: dict | None = None,

@@ -1,4 +1,4 @@
-"""Frame sources: image folders, video files, text files listing images, and ROS bags.
+"""Frame sources: image folders, video files, text files listing images, ROS bags, and image paths on stdin.
 
 Every source streams its frames: iterating over it decodes one image at a
 time, so a long traverse never has to fit in memory. A frame that cannot be
@@ -37,16 +37,23 @@ from .base import (
     natural_key,
 )
 from .files import FolderSource, ListSource
+from .stdin import StdinSource
 from .video import VideoSource
 
 __all__ = ["Frame", "FrameSkippedWarning", "IgnoredFilesWarning", "Source", "FolderSource", "ListSource", "VideoSource",
-           "BagSource", "is_bag",
+           "BagSource", "StdinSource", "KINDS", "is_bag",
            "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS", "LIST_EXTENSIONS", "natural_key", "decode_image", "open_source",
-           "load_all", "iter_batches"]
+           "load_all", "iter_batches", "frame_reader"]
+
+
+#: The kinds of source, asked in this order whether a path is theirs (:meth:`Source.accepts`).
+KINDS = (BagSource, FolderSource, VideoSource, ListSource)
+
+_WHERE = {"fps": "videos and bags (use --step for images)", "topic": "ROS bags (.bag, .mcap, .db3, a ROS 2 bag folder)"}
 
 
 def open_source(path, fps=None, step=None, max_frames=None, topic: str | None = None) -> Source:
-    """Open a folder, video file, image-list file or ROS bag as a :class:`Source`.
+    """Open a folder, video file, image-list file or ROS bag as a :class:`Source` (the first of :data:`KINDS`).
 
     Parameters
     ----------
@@ -68,30 +75,22 @@ def open_source(path, fps=None, step=None, max_frames=None, topic: str | None = 
     FileNotFoundError
         ``path`` does not exist.
     ValueError
-        Unknown kind of path, ``fps`` for a folder or list, ``topic`` for
-        anything but a bag, or an error from the source's constructor (empty
-        folder, unreadable video or bag, ...).
+        Unknown kind of path, an option the kind does not take, or an error
+        from the source's constructor (empty folder, unreadable video or bag, ...).
     """
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(f"no such file or folder: {p}")
-    if is_bag(p):
-        return BagSource(p, topic=topic, fps=fps, step=step, max_frames=max_frames)
-    if topic is not None:
-        raise ValueError(f"{p}: --topic applies to ROS bags (.bag, .mcap, .db3, a ROS 2 bag folder), not to this")
-    if p.is_dir():
-        if fps is not None:
-            raise ValueError(f"{p}: fps only applies to videos and bags; use step for image folders")
-        return FolderSource(p, step=step, max_frames=max_frames)
-    ext = p.suffix.lower()
-    if ext in VIDEO_EXTENSIONS:
-        return VideoSource(p, fps=fps, step=step, max_frames=max_frames)
-    if ext in LIST_EXTENSIONS:
-        if fps is not None:
-            raise ValueError(f"{p}: fps only applies to videos and bags; use step for image lists")
-        return ListSource(p, step=step, max_frames=max_frames)
+    given = {k: v for k, v in (("fps", fps), ("step", step), ("max_frames", max_frames), ("topic", topic))
+             if v is not None}
+    for kind in KINDS:
+        if kind.accepts(p):
+            for option in sorted(set(given) - kind.options):
+                raise ValueError(f"{p}: --{option.replace('_', '-')} applies to {_WHERE[option]}, not to a "
+                                 f"{kind.kind}")
+            return kind(p, **given)
     raise ValueError(
-        f"{p}: unknown source kind {ext or '(no extension)'!r}; expected a folder of images, a video "
+        f"{p}: unknown source kind {p.suffix.lower() or '(no extension)'!r}; expected a folder of images, a video "
         f"({' '.join(sorted(VIDEO_EXTENSIONS))}), an image list ({' '.join(sorted(LIST_EXTENSIONS))}) or a ROS bag "
         "(.bag .mcap .db3, or a folder with metadata.yaml)")
 
@@ -131,3 +130,19 @@ def iter_batches(source: Source, batch_size: int) -> Iterator[list[Frame]]:
             batch = []
     if batch:
         yield batch
+
+
+def frame_reader(srcs, read):
+    """``image(j)``: frame ``j`` of the sources' frames ``read`` (each source's frame numbers) one after the other,
+    decoded again at the source's resolution (frames that were read once, e.g. for geometric verification)."""
+    where = [(src, i) for src, numbers in zip(srcs, read, strict=True) for i in numbers]
+    pos_of = {id(src): {k: p for p, k in enumerate(src.indices())} for src in srcs}
+
+    def image(j: int):
+        src, index = where[j]
+        pos = pos_of[id(src)][index]
+        for f in src.iter_range(pos, pos + 1):
+            return f.image
+        raise ValueError(f"{src.path}: frame {index} could not be read again")
+
+    return image

@@ -210,6 +210,12 @@ class BagSource(Source):
     """
 
     kind = "bag"
+    carries = frozenset({"stamps", "positions"})
+    options = frozenset({"fps", "step", "max_frames", "topic"})
+
+    @classmethod
+    def accepts(cls, path: Path) -> bool:
+        return is_bag(path)
 
     def __init__(self, path, topic: str | None = None, fps=None, step=None, max_frames=None):
         super().__init__(path)

@@ -16,7 +16,7 @@ from vpr.imageproc import to_bgr
 
 __all__ = ["Frame", "FrameSkippedWarning", "IgnoredFilesWarning", "Source", "IMAGE_EXTENSIONS",
            "OTHER_IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS", "LIST_EXTENSIONS", "natural_key", "decode_image",
-           "check_range", "check_positive_int", "stat_token"]
+           "check_range", "check_positive_int", "stat_token", "frames_in"]
 
 log = logging.getLogger(__name__)
 
@@ -118,6 +118,27 @@ def decode_image(path: Path) -> tuple[np.ndarray | None, str]:
         return None, str(exc)
 
 
+def frames_in(exclude, rate: float | None = None, none: str = "the frames have none") -> int:
+    """A number of frames (``30``, ``"30"``) or of seconds (``"5s"``, at ``rate`` frames per second) in frames;
+    ``none``: says where the times are missing."""
+    text = str(exclude).strip().lower()
+    try:
+        if text.endswith("s"):
+            if not rate:
+                raise ValueError(f"--exclude {exclude}: seconds need the frames' times, and {none}; give frames "
+                                 "instead (e.g. --exclude 30)")
+            n = round(float(text[:-1]) * rate)
+        else:
+            n = int(text)
+    except (TypeError, ValueError) as e:
+        if "--exclude" in str(e):
+            raise
+        raise ValueError(f"--exclude must be a number of frames or seconds like 5s, got {exclude!r}") from None
+    if n < 1:
+        raise ValueError(f"--exclude must be at least 1 frame, got {exclude!r} ({n} frames)")
+    return n
+
+
 class Source:
     """Base class: a named, re-iterable stream of :class:`Frame` objects.
 
@@ -135,6 +156,16 @@ class Source:
     """
 
     kind = "source"
+    #: what the frames of this kind of source come with: ``"stamps"`` (times), ``"positions"``
+    #: (:meth:`trajectory`), ``"paths"`` (image files, :meth:`frame_paths`)
+    carries: frozenset = frozenset()
+    #: the options (:func:`vpr.sources.open_source`) this kind takes
+    options: frozenset = frozenset({"step", "max_frames"})
+
+    @classmethod
+    def accepts(cls, path: Path) -> bool:
+        """Whether ``path`` is a source of this kind (:func:`vpr.sources.open_source` asks each kind in turn)."""
+        return False
 
     def __init__(self, path):
         self.path = Path(path)
@@ -162,6 +193,26 @@ class Source:
         times (``1305031102.175304.png``, as the TUM RGB-D datasets name them).
         """
         return None
+
+    def rate(self) -> float | None:
+        """Frames per second of the frames kept, from their times (None without times)."""
+        t = self.stamps()
+        if t is None or len(t) < 2 or not np.all(np.isfinite(t)):
+            return None
+        span = float(t[-1] - t[0])
+        return (len(t) - 1) / span if span > 0 else None
+
+    def frames_in(self, exclude) -> int:
+        """:func:`frames_in` with this source's :meth:`rate`."""
+        return frames_in(exclude, self.rate(), f"{self.path} ({self.kind}) has none")
+
+    def frame_paths(self) -> list[Path] | None:
+        """The image files of the frames :meth:`indices` names (None: the frames are not files)."""
+        return None
+
+    def trajectory(self, topic: str):
+        """(times s, positions (n, 2), ``"latlon"`` or ``"metres"``) of a position topic (``"positions"``)."""
+        raise ValueError(f"--gt-topic {topic}: {self.path} is not a ROS bag; give its positions with --gt FILE")
 
     def restrict(self, indices) -> None:
         """Attempt only the frames numbered ``indices`` among those selected (e.g. one per 2 m of travel)."""

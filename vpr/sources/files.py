@@ -11,6 +11,7 @@ import numpy as np
 
 from .base import (
     IMAGE_EXTENSIONS,
+    LIST_EXTENSIONS,
     OTHER_IMAGE_EXTENSIONS,
     Frame,
     IgnoredFilesWarning,
@@ -39,6 +40,8 @@ class _FileListSource(Source):
         sel = [(i, n, p) for i, (n, p) in enumerate(self._entries)][::self.step]
         sel = sel[:self.max_frames] if self.max_frames else sel
         return [e for e in sel if self._allowed(e[0])]
+
+    carries = frozenset({"paths"})
 
     def frame_paths(self) -> list[Path]:
         """The files of the frames :meth:`indices` names."""
@@ -127,6 +130,10 @@ class FolderSource(_FileListSource):
 
     kind = "folder"
 
+    @classmethod
+    def accepts(cls, path: Path) -> bool:
+        return path.is_dir()
+
     def __init__(self, path, step=None, max_frames=None):
         super().__init__(path, step, max_frames)
         if not self.path.exists():
@@ -179,6 +186,10 @@ class ListSource(_FileListSource):
     """
 
     kind = "list"
+
+    @classmethod
+    def accepts(cls, path: Path) -> bool:
+        return path.suffix.lower() in LIST_EXTENSIONS
 
     def __init__(self, path, step=None, max_frames=None):
         super().__init__(path, step, max_frames)

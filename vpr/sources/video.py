@@ -4,13 +4,14 @@ from __future__ import annotations
 import hashlib
 import math
 from collections.abc import Iterator
+from pathlib import Path
 
 import cv2
 import numpy as np
 
 from vpr.imageproc import to_bgr
 
-from .base import Frame, Source, check_positive_int, check_range, stat_token
+from .base import VIDEO_EXTENSIONS, Frame, Source, check_positive_int, check_range, stat_token
 
 __all__ = ["VideoSource", "sample_by_time", "frame_times"]
 
@@ -115,6 +116,20 @@ class VideoSource(Source):
     """
 
     kind = "video"
+    carries = frozenset({"stamps"})
+    options = frozenset({"fps", "step", "max_frames"})
+
+    @classmethod
+    def accepts(cls, path: Path) -> bool:
+        return path.suffix.lower() in VIDEO_EXTENSIONS
+
+    def rate(self) -> float | None:
+        """Frames per second of the frames kept: ``fps`` where it lowers the video's rate, else its rate / ``step``."""
+        if not self.video_fps:
+            return super().rate()
+        if self.fps is not None and self.fps < self.video_fps:
+            return self.fps
+        return self.video_fps / (self.step or 1)
 
     def __init__(self, path, fps=None, step=None, max_frames=None):
         super().__init__(path)

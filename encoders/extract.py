@@ -13,7 +13,8 @@ skips encoding (as hloc's extractors skip work done).
 The work is split into frame ranges of the source (:func:`chunk_ranges`):
 :func:`encode_chunk` reads and describes one range, :func:`assemble` joins the
 ranges in order and fits and encodes the whole traverse. :func:`extract` runs
-the chunks one after the other; ``pipelines.encode`` runs them on Dask workers.
+the chunks one after the other (:func:`extract_all`: every source of a run);
+``pipelines.encode`` runs them on Dask workers.
 Both write the same bytes, because the chunks are the same and everything that
 depends on the whole traverse happens in :func:`assemble`.
 """
@@ -32,11 +33,12 @@ import scipy.sparse as sp
 
 from encoders.base import DescriptorEncoder
 from vpr import imageproc, io, methods
-from vpr.sources import Source
+from vpr import sdr as _sdr
+from vpr.sources import FrameSkippedWarning, Source
 from vpr.types import ENCODER_INPUTS, EncodedTraverse
 
-__all__ = ["Extracted", "Chunk", "extract", "cache_key", "cache_path", "chunk_ranges", "encode_chunk", "assemble",
-           "load_cache", "save_cache", "available_inputs", "check_inputs", "DEFAULT_CHUNK_FRAMES"]
+__all__ = ["Extracted", "Chunk", "extract", "extract_all", "cache_key", "cache_path", "chunk_ranges", "encode_chunk",
+           "assemble", "load_cache", "save_cache", "available_inputs", "check_inputs", "DEFAULT_CHUNK_FRAMES"]
 
 # v2: one file per source + encoder conf holding any subset of the inputs, no timings (byte-reproducible)
 CACHE_VERSION = 2
@@ -332,3 +334,25 @@ def extract(source: Source, encoder, inputs=("sdr",), thumbs=False, cache_dir=No
     ex.seconds = time.perf_counter() - t
     ex.features = ex.features.only(inputs)
     return ex
+
+
+def extract_all(srcs, roles, encoder, inputs, cache_dir=None, thumbs: bool = False, progress: bool = True):
+    """:func:`extract` of every source, with one warning per source whose frames were skipped or whose SDRs
+    cannot tell its frames apart (:func:`vpr.sdr.degenerate`)."""
+    exs = []
+    for src, role in zip(srcs, roles, strict=True):
+        attempted = len(src.indices())
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", FrameSkippedWarning)  # one line per source below, not one per frame
+            ex = extract(src, encoder, tuple(sorted(inputs)), thumbs=thumbs, cache_dir=cache_dir, progress=progress)
+        lost = attempted - len(ex.features)
+        if lost > 0 or ex.skipped:
+            first = f" (first: {ex.skipped[0][0]}: {ex.skipped[0][1]})" if ex.skipped else ""
+            warnings.warn(f"{role} {src.path}: {lost} of {attempted} frames could not be read and were skipped{first}",
+                          UserWarning, stacklevel=2)
+        bad = _sdr.degenerate(ex.features.sdr) if ex.features.sdr is not None else None
+        if bad:
+            warnings.warn(f"{role} {src.path}: {bad}; matching those frames is guesswork (encoder {encoder.name})",
+                          UserWarning, stacklevel=2)
+        exs.append(ex)
+    return exs

@@ -17,12 +17,13 @@ read.
 """
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
-from pipelines.outputs import warn
-from vpr.groundtruth import GroundTruthSpec
-from vpr.groundtruth import trajectories as tr
-from vpr.groundtruth.files import load_traverse_positions, positions_for, positions_for_frames, positions_of_frames
+from . import trajectories as tr
+from .files import load_traverse_positions, positions_for, positions_for_frames, positions_of_frames
+from .spec import GroundTruthSpec
 
 __all__ = ["prepare_positions", "frame_positions", "Positions"]
 
@@ -55,17 +56,15 @@ def frame_positions(src, spec: GroundTruthSpec, file: str | None, role: str,
     """
     what = f"{role} {src.path}"
     if spec.topic is not None:
-        if not hasattr(src, "trajectory"):
-            raise ValueError(f"--gt-topic {spec.topic}: {what} is not a ROS bag; give its positions with --gt FILE")
         t, values, kind = src.trajectory(spec.topic)
         return tr.positions_at(src.stamps(), t, values)[0], kind
     if file == "names":
         return tr.utm_from_names(src.names()), "metres"
     if file == "exif":
-        paths = getattr(src, "frame_paths", None)
+        paths = src.frame_paths()
         if paths is None:
             raise ValueError(f"--gt exif: {what} is not a folder or list of photos")
-        latlon, _ = tr.exif_positions(paths())
+        latlon, _ = tr.exif_positions(paths)
         if np.isnan(latlon[:, 0]).all():
             raise ValueError(f"--gt exif: no photo of {what} has a GPS position in its EXIF")
         return latlon, "latlon"
@@ -137,8 +136,8 @@ def prepare_positions(srcs, roles, spec: GroundTruthSpec, every: float | None = 
                 else "without a GPS position"
             if not known.any():
                 raise ValueError(f"{role} {src.path}: none of its {idx.size} frames has a position ({where})")
-            warn(f"{role} {src.path}: {int((~known).sum())} of {idx.size} frames have no position ({where}); "
-                 "left out, not extrapolated")
+            warnings.warn(f"{role} {src.path}: {int((~known).sum())} of {idx.size} frames have no position "
+                          f"({where}); left out, not extrapolated", UserWarning, stacklevel=2)
             src.restrict(idx[known])
             idx, xy = idx[known], xy[known]
         if every is not None:

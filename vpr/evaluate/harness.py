@@ -1,0 +1,80 @@
+"""The one evaluation harness: every method on the same inputs, evaluated against the same ground truth."""
+from __future__ import annotations
+
+import resource
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from .decisions import accepted_precision, best_in_soft_band, decision_curve
+from .ranking import evaluate
+
+__all__ = ["method_metrics", "run_methods", "peak_rss_mb"]
+
+
+def peak_rss_mb() -> float:
+    """Peak resident memory of this process so far, MB (Linux reports kB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def method_metrics(res, gt_hard, gt_soft, mask=None, loops: bool = False):
+    """(metrics dict, (precision, recall) or None without ground truth) of a :class:`~vpr.types.MatchResult`.
+
+    Always the seconds and the number of accepted matches; with ground truth
+    the metrics of :func:`evaluate` over the evaluated pairs and the precision
+    and recall of the accepted matches. ``loops``: one stream's loop closures,
+    where the curve is that of the per-frame decisions (:func:`decision_curve`:
+    ``frame_ap``, ``frame_recall_at_100p``), what loop-closure detectors report.
+    """
+    m = {"seconds": round(res.seconds, 4), "n_accepted": int(np.count_nonzero(res.accepted & (res.best_db >= 0)))}
+    if gt_hard is None:
+        return m, None
+    ev, (prec, rec, _) = evaluate(res.similarity, gt_hard, gt_soft, mask=mask, return_curve=True)
+    m.update({k: float(v) for k, v in ev.items()})
+    m.update(accepted_precision(res.best_db, res.accepted, gt_hard, gt_soft, mask=mask))
+    if gt_soft is not None:
+        m["best_in_soft"] = best_in_soft_band(res.best_db, gt_hard, gt_soft, mask=mask)
+    if loops:
+        dm, (prec, rec, _) = decision_curve(res.best_db, res.score, gt_hard, gt_soft, mask=mask)
+        m.update(frame_ap=dm["ap"], frame_recall_at_100p=dm["recall_at_100p"], frames_with_loop=dm["n_with_match"])
+    return m, (prec, rec)
+
+
+def run_methods(runners: dict, call: Callable, gt_hard=None, gt_soft=None, mask=None,
+                on_result: Callable | None = None, resources: bool = False, loops: bool = False) -> dict:
+    """Run and evaluate every method, one at a time (one similarity matrix alive at once).
+
+    Parameters
+    ----------
+    runners : dict
+        Label -> configured :class:`vpr.methods.Method`.
+    call : callable
+        ``call(runner) -> MatchResult``: the run (``runner.match(db, q)`` or ``runner.loops(seq, exclude)``).
+    gt_hard, gt_soft, mask
+        Ground truth and evaluated pairs (None: no metrics but the seconds).
+    on_result : callable, optional
+        ``on_result(label, result, (metrics, curve))``, e.g. writing the
+        method's files; may return further entries ``{label: (metrics, curve)}``.
+    resources : bool
+        Also record ``cpu_seconds`` and the process's ``peak_rss_mb`` after each method.
+    loops : bool
+        Loop closures within one stream (:func:`method_metrics`).
+
+    Returns
+    -------
+    dict: label -> (metrics, curve or None), in the order run.
+    """
+    out = {}
+    for label, runner in runners.items():
+        c0 = time.process_time()
+        res = call(runner)
+        cpu = time.process_time() - c0
+        metrics, curve = method_metrics(res, gt_hard, gt_soft, mask=mask, loops=loops)
+        if resources:
+            metrics.update(cpu_seconds=round(cpu, 4), peak_rss_mb=round(peak_rss_mb(), 1))
+        out[label] = (metrics, curve)
+        if on_result is not None:
+            out.update(on_result(label, res, (metrics, curve)) or {})
+        del res
+    return out
