@@ -1,21 +1,12 @@
 """``vpr encode SOURCE... --cache DIR``: encode traverses ahead of time, on a Dask cluster.
 
-Each source (image folder, video or image list) is split into frame ranges of
-``chunk_frames`` frames; workers read and describe their ranges themselves (a
-video seeks to its range), so one long video spreads over the cluster too. The
-client joins the ranges of a source in frame order, fits the encoder on the
-whole traverse where its conf asks (``standardise="fit"``), sparsifies and
-writes one cache file per source atomically: the file ``vpr match``,
-``compare``, ``loops`` and ``localize`` read with ``--cache DIR`` (see
-:func:`encoders.extract.cache_path`), byte for byte what the serial run and
-:func:`encoders.extract.extract` write.
-
-Execution: ``workers=0`` runs in this process; ``workers=N`` starts a local
-cluster of N single-threaded worker processes on 127.0.0.1 for the run;
-``scheduler=ADDRESS`` uses a running cluster (``dask scheduler`` plus ``dask
-worker ADDRESS --nthreads 1`` on each machine; the sources' paths must be
-readable by every worker). When a worker dies, the scheduler runs its chunks
-again on the others; chunks are pure, so the output does not change.
+Each source is split into frame ranges that workers read and describe
+themselves; the client joins a source's ranges in order, fits the encoder on
+the whole traverse where its conf asks, and writes one cache file per source
+(:func:`encoders.extract.cache_path`), byte for byte what a serial
+:func:`encoders.extract.extract` writes. ``workers=0`` runs here, ``workers=N``
+on a local cluster of single-threaded workers, ``scheduler=ADDRESS`` on a
+running one; a dead worker's chunks run again elsewhere.
 """
 from __future__ import annotations
 

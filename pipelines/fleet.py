@@ -1,22 +1,12 @@
 """A fleet: many query traverses against one map, in parallel on Dask (``vpr match DB Q1 Q2 ...``).
 
-The database is encoded and every method learns it once, in this process
-(:class:`pipelines.runs.MatchMap`); the map then goes to the cluster once, as
-the payload of one task that unpacks it, and each worker fetches that task's
-result once (not one copy per query task). Each query traverse is one task:
-encode it, match it with every method, evaluate it and write
-``OUT/<query name>/`` exactly as ``vpr match DB QUERY --out OUT/<query name>``
-would (:func:`pipelines.runs.compare_query`). ``OUT/metrics.json`` then
-summarises every query.
-
-Where the tasks run: ``workers=0`` in this process, one query after the other;
-``workers=N`` on an embedded local cluster of N processes (default: the
-cores); ``scheduler=ADDRESS`` on an existing Dask cluster (its workers must see
-the same file system). A worker that dies takes its task with it; the
-scheduler runs it again elsewhere (and unpacks the map again if its only copy
-was there: scattered data would be lost with the worker), and since a task writes only complete files
-(atomically) and removes what a killed attempt left half-written, the results
-are those of the serial run.
+The database is encoded and learned once, in this process
+(:class:`pipelines.runs.MatchMap`), and goes to the cluster once, as the one
+task that unpacks it; each query traverse is one task that writes
+``OUT/<query name>/`` exactly as ``vpr match DB QUERY`` would. ``workers=0``
+runs them here, ``workers=N`` on a local cluster, ``scheduler=ADDRESS`` on a
+running one. A task killed with its worker runs again elsewhere; its files are
+written atomically, so the results are the serial run's.
 """
 from __future__ import annotations
 

@@ -1,33 +1,12 @@
 """``vpr learn`` and ``vpr localize``: learn a map once, then localise a query stream frame by frame.
 
-``vpr learn DB --out map.npz`` encodes the database traverse, learns it
-(:meth:`vpr.Localizer.from_database`) and writes one file with the memory, the
-database names and codes, the localizer conf and the encoder: its name, its
-conf and, with ``standardise=fit``, the statistics fitted on the database.
-
-``vpr localize MAP_OR_DB QUERY --out DIR`` reads a map (or learns a database
-first), then encodes and localises each query frame as it arrives: QUERY is a
-folder, a video, an image list or ``-`` (image paths on stdin, one per line).
-Stdout gets one JSON line per frame, flushed as soon as it is done::
-
-    {"query": 0, "query_name": ..., "best_db": 12, "db_name": ..., "score": 5.1, "accepted": true,
-     "latency_ms": 3.2}
-
-(the fields of every command's ``matches.csv``; ``latency_ms``: encoding and
-localisation of the frame, reading the file excluded; ``score`` null when no
-database frame has evidence). ``DIR`` gets ``rshosm-seq/matches.csv`` and
-``metrics.json`` (latency median / p95 / max with and without encoding; with
-ground truth options AP and R@1 as ``vpr match``), also when the run is
-stopped (:mod:`pipelines.online`).
-
-Query standardisation (encoders with ``standardise=fit``): the batch commands
-standardise the query traverse on its own frames, which needs the whole
-traverse. Online that is impossible, so ``--query-standardise`` chooses
-``running`` (default: per-dimension mean and variance of the last ``--window``
-query frames plus the database's statistics with the weight of
-``--prior-frames`` frames) or ``db`` (the database's statistics, fixed); see
-:class:`encoders.stream.StreamEncoder`. The state of the running statistics is
-kept in ``--state-out`` files. Measured on Nordland, see ``docs/localize.md``.
+``learn`` encodes and learns the database and writes a :class:`vpr.shosm.Map`
+(the localizer, the encoder with what it fitted on the database, the frames'
+positions). ``localize`` reads a map (or learns a database first), then
+encodes and localises each query frame as it comes (a folder, video, bag, or
+``-``: image paths on stdin), one JSON line per frame (:mod:`pipelines.online`).
+The query is standardised causally (``--query-standardise``, ``--window``,
+``--prior-frames``: :class:`encoders.stream.StreamEncoder`); ``docs/localize.md``.
 """
 from __future__ import annotations
 

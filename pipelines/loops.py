@@ -1,31 +1,10 @@
-"""``vpr loops``: loop closures within one stream, of a folder, video or list, or online from stdin.
+"""``vpr loops``: loop closures within one stream (or the sessions of one), in batch or online from stdin.
 
-``vpr loops SEQ`` runs the batch (:func:`pipelines.runs.run_loops`, any
-method that supports loop closure). ``vpr loops -``: loop closure online, one
-image path per line on stdin, one JSON line per frame on stdout.
-
-The frames are encoded with the preset's loop encoder (causal standardisation,
-:class:`encoders.stream.StreamEncoder`) and decided by :class:`vpr.LoopDetector`
-with the ``rshosm-seq`` conf of the preset (``--method-conf rshosm-seq.KEY=V``):
-the answers are those of ``vpr loops SEQ`` on the same frames. Each frame's
-line is written and flushed as soon as it is decided::
-
-    {"query": 41, "query_name": "img/0041.png", "best_db": 3, "db_name": "img/0003.png",
-     "score": 35.2, "accepted": true, "latency_ms": 14.1}
-
-(the fields of every command's ``matches.csv``: ``best_db`` is the best
-earlier frame, null while no frame is far enough back; ``latency_ms``:
-encoding and deciding the frame, reading the file excluded). The first frames
-of a causally standardised stream wait for the first ``CAUSAL_MIN`` before
-they are encoded; they are never candidates of each other (``--exclude``
-must exceed that wait), so their answers are known at once.
-
-``--out DIR`` gets ``rshosm-seq/matches.csv`` and ``metrics.json`` (latency
-median / p95 / max with and without encoding; with ``--gt`` the loop metrics of
-``vpr loops`` over the frames read, numbered in the order they came), also when
-the run is stopped (:mod:`pipelines.online`). ``--state-out FILE`` saves the
-detector after the last frame; ``--resume FILE`` continues one (its encoder and
-conf are in the file).
+``vpr loops SEQ...`` runs the batch (:func:`pipelines.runs.run_loops`, any
+method that supports loop closure). ``vpr loops -`` decides image paths on
+stdin frame by frame with :class:`vpr.LoopDetector` and the preset's causal
+loop encoder: the answers of the batch on the same frames, one JSON line per
+frame (:mod:`pipelines.online`); ``--state-out`` / ``--resume`` keep the detector.
 """
 from __future__ import annotations
 

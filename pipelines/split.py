@@ -1,22 +1,12 @@
 """One large match split across Dask workers: blocks of query frames, each with enough warm-up frames.
 
-``vpr match MAP QUERY --workers N`` (or ``--scheduler ADDRESS``) with one
-query traverse: the map is learned once in the client and sent to the cluster
-once; the query is cut into blocks, and each task computes its block on the
-block and :attr:`vpr.methods.Method.block_margin` frames on each side
-(:meth:`vpr.methods.Fitted.match_part`). rSHOSM-seq's evidence forgets with
-``decay`` per frame, forwards and backwards: after the margin what came
-before the block weighs less than ``RshosmSeq.BLOCK_TOLERANCE`` (1e-6) of it.
-The dense evidence (up to 7,000 x 7,000 frames) and the sparse one where the
-beam's floors do not bind are therefore the serial columns up to that
-(``tests/test_split.py``). Where the floors bind (image SDRs that share many
-bits between places), which weak sequences the beam still carries depends on
-the whole history, not only the margin, so a block's top-K columns are another
-approximation of the same dense evidence: ``benchmarks/bench_split.py`` prints
-how often the best match and the decision are the serial run's. The decision
-then runs over every query in order in the client
-(:meth:`vpr.methods.Fitted.combine`). A worker that dies loses its tasks to
-the others (retried). Methods that cannot be split run in the client.
+The map is learned once and sent once; each task computes a block of query
+frames with :attr:`vpr.methods.Method.block_margin` frames of warm-up on each
+side (:meth:`vpr.methods.Fitted.match_part`), after which rSHOSM-seq's evidence
+has forgotten what came before to within ``RshosmSeq.BLOCK_TOLERANCE``; the
+decision then runs over every query in order in the client
+(:meth:`vpr.methods.Fitted.combine`). Where the beam's floors bind, a block's
+top-K columns approximate the serial ones (``benchmarks/bench_split.py``).
 """
 from __future__ import annotations
 

@@ -1,10 +1,11 @@
-"""vpr encoders list / test (pipelines/encoders_cmd.py) on tiny renders."""
+"""vpr encoders list / test (encoders.scenes, pipelines/encoders_cmd.py) on tiny renders."""
 import argparse
 import json
 
 import numpy as np
 import pytest
 
+from encoders.scenes import METHODS, EncoderTest, average_precision, list_encoders
 from pipelines import encoders_cmd as E
 
 
@@ -15,7 +16,7 @@ def _parse(argv):
 
 
 def test_list_names_every_encoder_with_its_defaults(capsys):
-    confs = E.list_encoders()
+    confs = list_encoders()
     assert {"pixel", "projection", "orb", "cnn"} <= set(confs)
     assert confs["pixel"]["k"] == 40 and confs["pixel"]["standardise"] == "none"
     assert E.run_command(_parse(["list"])) == 0
@@ -30,11 +31,11 @@ def test_average_precision_leaves_out_soft_and_masked_pairs():
     S = np.array([[0.9, 0.7], [0.8, 0.1]])
     hard = np.eye(2, dtype=bool)
     # ranking 0.9 (true), 0.8 (false), 0.7 (false), 0.1 (true): AP = (1/1 + 2/4) / 2
-    assert E.average_precision(S, hard) == pytest.approx(0.75)
+    assert average_precision(S, hard) == pytest.approx(0.75)
     soft = hard | np.array([[False, False], [True, False]])
-    assert E.average_precision(S, hard, soft) == pytest.approx((1 + 2 / 3) / 2)
+    assert average_precision(S, hard, soft) == pytest.approx((1 + 2 / 3) / 2)
     mask = np.array([[True, False], [False, True]])
-    assert E.average_precision(S, hard, mask=mask) == pytest.approx(1.0)
+    assert average_precision(S, hard, mask=mask) == pytest.approx(1.0)
 
 
 def test_test_command_scores_every_condition_pair(tmp_path, capsys):
@@ -50,7 +51,7 @@ def test_test_command_scores_every_condition_pair(tmp_path, capsys):
     assert pairs == {("summer_day", "winter_night"), ("winter_night", "summer_day")}
     for r in doc["rows"]:
         assert r["n_db"] == r["n_query"] == 30
-        for m in E.METHODS:
+        for m in METHODS:
             assert 0.0 <= r[m]["ap"] <= 1.0 and 0.0 <= r[m]["recall_at_1"] <= 1.0
         assert f"{r['rshosm-seq']['ap']:.3f}" in printed
     assert "summer_day -> winter_night" in printed
@@ -65,4 +66,4 @@ def test_test_command_names_bad_input(tmp_path, capsys):
     with pytest.raises(SystemExit):
         _parse(["test", "--encoder", "pixel", "--size", "8x8", "--out", str(tmp_path)])
     with pytest.raises(ValueError, match="frames"):
-        E.EncoderTest("pixel", tmp_path, n_frames=1)
+        EncoderTest("pixel", tmp_path, n_frames=1)
