@@ -4,7 +4,7 @@ Writes (once, into ``--data``) a 10,000-frame map folder and 8 query folders of
 2,000 frames each, as ``make_large_folders.py`` does: smooth random 64 x 32
 grey appearances, each reused at about ten places; a query drives a stretch of
 the route again, darker, shifted by up to two pixels, with pixel noise. Then
-runs ``pipelines.fleet.run_fleet`` (what ``vpr match MAP Q1 ... Q8`` runs) with
+runs ``pipelines.runs.run_fleet`` (what ``vpr match MAP Q1 ... Q8`` runs) with
 the ``fast`` preset's encoder and ``rshosm-seq`` and ``pairwise``, on an
 embedded local cluster of 1 and of 2 workers, and prints the wall time of each,
 their ratio, the bytes of the map (sent to the cluster once) and of the largest
@@ -58,8 +58,7 @@ def main(argv=None) -> int:
     ap.add_argument("--queries", type=int, default=8)
     ap.add_argument("--frames", type=int, default=2_000)
     a = ap.parse_args(argv)
-    from pipelines.fleet import run_fleet
-    from pipelines.runs import RunOptions
+    from pipelines.runs import RunOptions, run_fleet
     from vpr import presets
 
     t = time.perf_counter()
@@ -70,10 +69,11 @@ def main(argv=None) -> int:
     runs = {}
     with tempfile.TemporaryDirectory() as tmp:
         for workers in (1, 2):
-            opts = RunOptions(out=Path(tmp) / f"w{workers}", encoder=s["encoder"], encoder_conf=s["encoder_conf"],
-                              preset="fast", progress=False)
+            opts = RunOptions(out=Path(tmp) / f"w{workers}", methods=tuple(METHODS),
+                              encoder=s["encoder"], encoder_conf=s["encoder_conf"],
+                              preset="fast", progress=False, workers=workers)
             t = time.perf_counter()
-            summary = run_fleet(db, queries, METHODS, opts, workers=workers)
+            summary = run_fleet(db, queries, opts)
             runs[workers] = (time.perf_counter() - t, summary)
             print(f"{workers} worker(s): {runs[workers][0]:.0f} s wall (map built in "
                   f"{summary['params']['map_seconds']:.0f} s)", flush=True)

@@ -8,7 +8,7 @@ apart); then the query is matched three ways, each on the same learned map:
 
 * serial: ``Fitted.match`` in this process (what ``vpr match`` does without
   ``--workers``);
-* ``pipelines.split.split_match`` on an embedded local cluster of 1 worker and
+* ``pipelines.cluster.split_match`` on an embedded local cluster of 1 worker and
   of 2 workers (what ``vpr match MAP QUERY --workers N`` does): wall time from
   sending the map to the decided result, the cluster's start apart.
 
@@ -64,8 +64,7 @@ def main(argv=None) -> int:
     from bench_scale_images import encode, sdr_path  # beside this script
     from make_large_folders import write_folders
 
-    from pipelines.cluster import dask_client
-    from pipelines.split import split_match
+    from pipelines.cluster import dask_client, split_match
     from vpr import methods
     from vpr.types import EncodedTraverse
 

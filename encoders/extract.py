@@ -280,6 +280,10 @@ def held_inputs(ex: Extracted) -> tuple[str, ...]:
     return tuple(p for p in available_inputs() if p in ex.features.inputs)
 
 
+def _only(features: EncodedTraverse, inputs) -> EncodedTraverse:
+    return EncodedTraverse(features.names, **{k: v for k, v in features.inputs.items() if k in set(inputs)})
+
+
 def extract(source: Source, encoder, inputs=("sdr",), thumbs=False, cache_dir=None, batch_size=64, progress=True,
             chunk_frames=DEFAULT_CHUNK_FRAMES) -> Extracted:
     """Encode every readable frame of ``source``, or read it from the cache.
@@ -316,7 +320,7 @@ def extract(source: Source, encoder, inputs=("sdr",), thumbs=False, cache_dir=No
                                  "delete it and run again")
             hit.thumbs = [t for c in chunks for t in c.thumbs]
         hit.seconds = time.perf_counter() - t
-        hit.features = hit.features.only(inputs)
+        hit.features = _only(hit.features, inputs)
         return hit
     todo = check_inputs(set(inputs) | set(held_inputs(hit) if hit is not None else ()))
     total = len(source.names())
@@ -332,7 +336,7 @@ def extract(source: Source, encoder, inputs=("sdr",), thumbs=False, cache_dir=No
             warnings.warn(f"cache {path.parent}: not written ({e.strerror or e}); the encodings are not cached",
                           stacklevel=2)
     ex.seconds = time.perf_counter() - t
-    ex.features = ex.features.only(inputs)
+    ex.features = _only(ex.features, inputs)
     return ex
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import encoders
 from vpr import methods, presets
-from vpr.config import parse_key_values
+from vpr.config import parse_key_values, parse_method_confs
 from vpr.groundtruth import GroundTruthSpec
 from vpr.groundtruth.trajectories import parse_every
 
@@ -83,15 +83,7 @@ def gt_spec_from_args(args) -> GroundTruthSpec:
 
 def method_confs(items) -> dict:
     """Per-method conf (strings) from ``--method-conf METHOD.key=value`` items (repeatable)."""
-    confs: dict = {}
-    for head, value in parse_key_values(items, "--method-conf").items():
-        method, dot, key = head.partition(".")
-        if not dot or not key:
-            raise ValueError(f"--method-conf: expected METHOD.key=value, got {head}={value!r}")
-        if method not in methods.available():
-            raise ValueError(f"--method-conf: unknown method {method!r}; available: {', '.join(methods.available())}")
-        confs.setdefault(method, {})[key] = value
-    return confs
+    return parse_method_confs(items, methods.available())
 
 
 def add_method_conf_argument(ap: argparse.ArgumentParser) -> None:
@@ -128,22 +120,26 @@ def settings_from_args(args) -> dict:
         names = [m.strip() for m in args.methods.split(",") if m.strip()]
     else:
         names = [args.method] if getattr(args, "method", None) else None
-    confs = method_confs(args.method_conf)
-    s = presets.resolve(args.preset, encoder=args.encoder, encoder_conf=encoders.parse_conf(args.encoder_conf),
-                        methods=names, method_conf=confs, loops=args.command == "loops")
+    enc_conf = parse_key_values(args.encoder_conf, "--encoder-conf")
+    confs = parse_method_confs(args.method_conf, methods.available())
+    s = presets.resolve(args.preset, encoder=args.encoder, encoder_conf=enc_conf, methods=names, method_conf=confs,
+                        loops=args.command == "loops")
     if names is None and args.command != "compare":  # one method: the preset's headline or loop method
         s["methods"] = [s["loop_method"] if args.command == "loops" else s["methods"][0]]
     return s
 
 
-def options_from_args(args, settings: dict):
-    """The :class:`pipelines.runs.RunOptions` of parsed run arguments and their ``settings``."""
+def options_from_args(args):
+    """The :class:`pipelines.runs.RunOptions` of parsed run arguments: the settings (:func:`settings_from_args`),
+    the sources' frames, the ground truth and where the run goes."""
     from pipelines.runs import RunOptions  # the runs' module loads the methods: only once a run is under way
 
-    s = settings
+    gt = gt_spec_from_args(args)
+    s = settings_from_args(args)
     return RunOptions(
-        out=Path(args.out), preset=s["preset"], encoder=s["encoder"], encoder_conf=s["encoder_conf"],
-        method_conf=s["method_conf"], fps=args.fps, step=args.step, max_frames=args.max_frames,
-        gt=gt_spec_from_args(args), topic=args.topic, every=parse_every(args.every) if args.every else None,
+        out=Path(args.out), methods=tuple(s["methods"]), preset=s["preset"], encoder=s["encoder"],
+        encoder_conf=s["encoder_conf"], method_conf=s["method_conf"], fps=args.fps, step=args.step,
+        max_frames=args.max_frames, gt=gt, topic=args.topic, every=parse_every(args.every) if args.every else None,
         verify=getattr(args, "verify", 0), min_inliers=getattr(args, "min_inliers", 15),
+        workers=getattr(args, "workers", None), scheduler=getattr(args, "scheduler", None),
         progress=not args.no_progress, cache=Path(args.cache) if args.cache else None)

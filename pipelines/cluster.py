@@ -1,20 +1,38 @@
-"""The Dask cluster a run uses: a local one started for the run, or one already running.
+"""The Dask cluster a run uses, and what runs on it: a map sent once, then its tasks.
 
 ``workers=N`` starts N single-threaded worker processes on 127.0.0.1 for the
 run and stops them after it, Ctrl-C and SIGTERM included; ``scheduler=ADDRESS``
 connects to a running cluster and fails in one line within
 :data:`CONNECT_TIMEOUT` seconds when nothing there answers as Dask. Dask is
 imported only once a cluster is used: serial runs do not need it.
+
+:func:`send_once` puts a learned map on the cluster once, as the one task that
+unpacks it (not scattered: the cluster may drop replicas of scattered data, and
+data scattered to a worker that dies is lost; a task's result is recomputed).
+:func:`split_match` matches one long query in blocks of query frames, each with
+:attr:`vpr.methods.Method.block_margin` frames of warm-up on each side
+(:meth:`vpr.methods.Fitted.match_part`), after which rSHOSM-seq's evidence has
+forgotten what came before to within ``RshosmSeq.BLOCK_TOLERANCE``; the
+decision runs over every query in order in the client
+(:meth:`vpr.methods.Fitted.combine`). Where the beam's floors bind, a block's
+top-K columns approximate the serial ones (``benchmarks/bench_split.py``).
 """
 from __future__ import annotations
 
 import contextlib
+import math
 import os
+import pickle
+import time
+import uuid
+import warnings
 from pathlib import Path
 
 from pipelines.interrupts import deferred
+from vpr.types import EncodedTraverse, MatchResult
 
-__all__ = ["CONNECT_TIMEOUT", "check_workers", "dask_client", "default_workers", "max_local_workers"]
+__all__ = ["CONNECT_TIMEOUT", "check_workers", "dask_client", "default_workers", "max_local_workers", "send_once",
+           "run_tasks", "block_size", "split_match"]
 
 
 def default_workers() -> int:
@@ -117,3 +135,94 @@ def check_workers(workers, scheduler) -> int | None:
         raise ValueError(f"--workers {workers}: a local cluster of at most {max_local_workers()} worker processes "
                          f"on this machine ({default_workers()} cores); use --scheduler for a larger cluster")
     return workers
+
+
+def _unpack(payload: bytes):
+    return pickle.loads(payload)
+
+
+def send_once(client, obj, key: str):
+    """(future of ``obj`` on the cluster, its bytes): sent once, as the one task that unpacks it."""
+    payload = pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Large object")  # on purpose: the map, once
+        warnings.filterwarnings("ignore", message="Sending large graph")
+        return client.submit(_unpack, payload, key=key, pure=False), len(payload)
+
+
+def run_tasks(client, fn, shared, jobs: dict, progress=None) -> dict:
+    """``fn(shared, *job)`` of every job (name -> arguments) on the cluster, retried where a worker dies; results by
+    name; ``progress(name, done, total)`` as they come."""
+    from distributed import as_completed
+
+    run = uuid.uuid4().hex[:8]
+    futures = {client.submit(fn, shared, *job, key=f"vpr-task-{run}-{n}", pure=False, retries=2): n
+               for n, job in jobs.items()}
+    out = {}
+    try:
+        for k, fut in enumerate(as_completed(list(futures))):
+            out[futures[fut]] = fut.result()
+            fut.release()
+            if progress:
+                progress(futures[fut], k + 1, len(futures))
+    except BaseException:
+        client.cancel(list(futures))
+        raise
+    return out
+
+
+def block_size(n_q: int, margin: int, workers: int) -> int:
+    """Query frames per block: two blocks per worker, but at least eight margins (the warm-up stays under 25 %)."""
+    return max(8 * max(margin, 1), math.ceil(n_q / max(2 * workers, 1)))
+
+
+def _block(fitted, part: bytes, lo: int, hi: int, n_q: int):
+    """One block on a worker; ``part``: its query frames, pickled once by the client (their size is reported)."""
+    t = time.process_time()
+    return fitted.match_part(_unpack(part), lo, hi, n_q), time.process_time() - t
+
+
+def split_match(fitted, query: EncodedTraverse, client, workers: int, shipped: dict | None = None,
+                block_frames: int | None = None) -> MatchResult:
+    """``fitted.match(query)`` computed in blocks on ``client``'s workers.
+
+    ``block_frames``: query frames per block (default :func:`block_size`);
+    ``shipped`` gets what was sent: the map's bytes once, the largest task's
+    bytes, the blocks and their size.
+    """
+    from distributed import wait
+
+    t = time.perf_counter()
+    n_q = len(query)
+    margin = fitted.method.block_margin
+    size = block_size(n_q, margin, workers) if block_frames is None else int(block_frames)
+    if size < 1:
+        raise ValueError(f"block_frames must be >= 1, got {block_frames}")
+    run = uuid.uuid4().hex[:8]
+    shared, map_bytes = send_once(client, fitted, f"vpr-split-map-{run}")
+    t_pickle = time.perf_counter() - t
+    futures, task_bytes = [], []
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Large object")  # each block's query frames, once
+        warnings.filterwarnings("ignore", message="Sending large graph")
+        for start in range(0, n_q, size):
+            stop = min(start + size, n_q)
+            a, b = fitted.block_bounds(start, stop, n_q)
+            part = pickle.dumps(query.slice(a, b), protocol=pickle.HIGHEST_PROTOCOL)
+            task_bytes.append(len(part))
+            futures.append(client.submit(_block, shared, part, start - a, stop - a, n_q, pure=False, retries=2,
+                                         key=f"vpr-split-{run}-{start}"))
+    try:
+        wait(futures)
+        done = [f.result() for f in futures]
+    except BaseException:
+        client.cancel(futures + [shared])
+        raise
+    t_blocks = time.perf_counter() - t
+    result = fitted.combine([d[0] for d in done], time.perf_counter() - t)
+    if shipped is not None:  # what was sent, and where the time went (a block's CPU seconds on its worker)
+        shipped.update(map_bytes=map_bytes, blocks=len(futures), block_frames=size, margin=margin,
+                       task_bytes=max(task_bytes), pickle_seconds=round(t_pickle, 3),
+                       block_cpu_seconds=[round(d[1], 3) for d in done], blocks_done_seconds=round(t_blocks, 3),
+                       combine_seconds=round(time.perf_counter() - t - t_blocks, 3))
+    return result

@@ -103,14 +103,15 @@ def run_demo(out, scene=DEFAULTS["scene"], preset=DEFAULTS["preset"], encoder=No
     if len(names) < 2:
         raise ValueError(f"scene {scene!r} has {len(names)} traverse(s); the demo needs two")
     db, query = (rendered["traverses"][n]["folder"] for n in names[:2])
-    opts = RunOptions(out=out, preset=s["preset"], encoder=encoder, encoder_conf=s["encoder_conf"],
+    opts = RunOptions(out=out, methods=tuple(methods), preset=s["preset"], encoder=encoder,
+                      encoder_conf=s["encoder_conf"],
                             method_conf=s["method_conf"],
                             gt=GroundTruthSpec(files=(rendered["ground_truth"],), radius=radius, soft=soft_radius),
                             verify=verify, progress=progress,
                             verify_methods=tuple(m for m in DEFAULTS["verify_methods"] if m in methods) or None,
                             verify_conf=dict(DEFAULTS["verify_conf"]))
     t_render = time.perf_counter() - t0
-    report = run_compare(db, query, methods, opts, command="demo")
+    report = run_compare(db, query, opts, command="demo")
     ms = report["methods"]
     t_verify = sum(v["seconds"] - ms[k[:-len("+verify")]]["seconds"] for k, v in ms.items() if k.endswith("+verify"))
     t_methods = sum(v["seconds"] for k, v in ms.items() if not k.endswith("+verify"))

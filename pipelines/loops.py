@@ -10,6 +10,10 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
 
 import encoders
 from encoders.stream import StreamEncoder
@@ -23,11 +27,15 @@ from pipelines.args import (
     settings_from_args,
 )
 from pipelines.online import Online, run_online, summary_line
+from pipelines.outputs import claim_methods, merge_metrics, versions, write_method
+from pipelines.runs import RunOptions, config, extract_run, prepare_run
 from vpr import evaluate, groundtruth, io, methods
-from vpr.groundtruth import GroundTruthSpec, build_loop_gt, check_loop_gt_files
+from vpr.groundtruth import GroundTruthSpec, any_true, build_loop_gt, build_stream_gt, check_loop_gt_files, frame_rows
 from vpr.shosm import LOOP_EXCLUDE, LoopDetector
+from vpr.sources import frame_reader
 from vpr.sources.base import frames_in
 from vpr.sources.stdin import StdinSource
+from vpr.types import EncodedTraverse, MatchResult
 
 __all__ = ["COMMANDS", "add_arguments", "run_command", "detect_loops", "make_detector", "resume_detector",
            "LoopsOnline"]
@@ -65,12 +73,11 @@ def run_command(args) -> int:
     if args.state_out or args.resume:
         raise ValueError("--state-out and --resume are for online loop closure: SEQ - (image paths on stdin)")
     from pipelines.outputs import metrics_table
-    from pipelines.runs import run_loops
 
     method = settings["methods"][0]
     if args.geometry == "on" and method != "rshosm-seq":
         raise ValueError(f"--geometry on: a second opinion on rshosm-seq's loop closures, not on {method}'s")
-    opts = options_from_args(args, settings)
+    opts = options_from_args(args)
     opts.geometry = args.geometry == "on"
     report = run_loops(args.seq[0] if len(args.seq) == 1 else args.seq, method, opts,
                        exclude=LOOP_EXCLUDE if args.exclude is None else args.exclude)
@@ -201,3 +208,90 @@ def detect_loops(det: LoopDetector, out, stdin=None, stdout=None, gt: GroundTrut
     job = LoopsOnline(det, gt)
     job.warm_up()
     return run_online(job, StdinSource(stdin if stdin is not None else sys.stdin), out, stdout, state_out)
+
+
+def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCLUDE) -> dict:
+    """Loop closures within the traverse ``seq`` with ``method``; writes the same outputs as ``match``.
+
+    ``seq``: one source, or the sessions of one stream (a robot's runs, in
+    order): learned one after the other, closures onto every earlier session
+    count, nothing of a session's last moment carries into the next, and
+    ``metrics.json`` reports each session pair. ``exclude``: frames, or
+    ``"Ns"`` seconds where the frames have times (:meth:`vpr.sources.Source.frames_in`).
+    Ground truth: :func:`vpr.groundtruth.build_stream_gt`.
+    """
+    out = Path(opts.out)
+    seqs = [seq] if isinstance(seq, (str, Path)) else list(seq)
+    roles = ["sequence"] if len(seqs) == 1 else [f"session {k + 1}" for k in range(len(seqs))]
+    runners, encoder, srcs, positions, _ = prepare_run(out, seqs, roles, replace(opts, methods=(method,)))
+    exclude = srcs[0].frames_in(exclude)
+    runner = runners[method]
+    if not runner.supports_loops:
+        raise ValueError(runner.no_loops_reason or f"{method} does not support loop closure within one traverse")
+    attempted = [s.indices() for s in srcs]
+    T = sum(len(a) for a in attempted)
+    runner.check_size(T, T)
+    if exclude >= max(len(a) for a in attempted):
+        raise ValueError(f"--exclude {exclude} leaves no pair to compare within a session: {srcs[0].path} has "
+                         f"{len(attempted[0])} frames to read, and a loop closure needs frames at least --exclude "
+                         "apart")
+    sessions = [0, *np.cumsum([len(a) for a in attempted])[:-1].tolist()]
+    gt_hard, gt_soft = build_stream_gt(opts.gt, srcs, attempted, positions)
+    if gt_hard is not None and not any_true(gt_hard & groundtruth.loop_closure_mask(T, exclude, starts=sessions)):
+        raise opts.gt.no_match_error(exclude=exclude)
+    # ---- the work starts here: nothing above wrote a file
+    with claim_methods(out, runners):  # a second run of this method into out meanwhile is refused
+        exs = extract_run(srcs, roles, encoder, runners, opts)
+        read = [ex.indices for ex in exs]
+        starts = [0, *np.cumsum([len(ex.features) for ex in exs])[:-1].tolist()]
+        features = EncodedTraverse.from_parts([ex.features for ex in exs], [s.name for s in srcs]) if len(exs) > 1 \
+            else exs[0].features
+        mask = None
+        if gt_hard is not None:
+            rows = np.concatenate([frame_rows(a, r, o) for a, r, o in zip(attempted, read, sessions, strict=True)])
+            gt_hard = gt_hard[np.ix_(rows, rows)]
+            gt_soft = gt_soft[np.ix_(rows, rows)] if gt_soft is not None else None
+            mask = groundtruth.loop_closure_mask(len(features), exclude=exclude, starts=starts)
+            if not any_true(gt_hard & mask):  # skipped frames took the last true pairs
+                raise opts.gt.no_match_error(exclude=exclude)
+        confs, opinions = {}, {}
+
+        def write(m: str, res: MatchResult, evaluated) -> dict:
+            confs[m] = res.conf
+            if gt_hard is not None and len(srcs) > 1:
+                evaluated[0]["sessions"] = evaluate.session_pairs(res.best_db, res.accepted, gt_hard, starts,
+                                                                  gt_soft, mask, [s.name for s in srcs])
+            write_method(out / m, m, res, evaluated, features.names, features.names, gt_hard, gt_soft,
+                         title=f"{m}: loop closures", loops=True, mask=mask)
+            io.save_json(out / m / "config.json", config(opts, command="loops", seq=[str(q) for q in seqs],
+                                                          method=m, exclude=exclude))
+
+        def loops_of(r):
+            opinion = None
+            if opts.geometry:
+                from vpr.verify import GeometricOpinion  # pycolmap: loaded only when verifying
+
+                loop, image = r.seq.loop(), frame_reader(srcs, read)
+
+                def opinion(decider):
+                    opinions[r.name] = GeometricOpinion(decider, image, loop.back, loop.ahead, loop.stop_ratio)
+                    return opinions[r.name]
+            return r.loops(features, exclude=exclude, progress=opts.progress, sessions=starts, opinion=opinion)
+
+        done = evaluate.run_methods(runners, loops_of, gt_hard, gt_soft, mask, on_result=write, loops=True)
+        for m, o in opinions.items():
+            done[m][0]["geometry"] = o.report()
+        inputs = {"kind": "loops", "seq": [s.key() for s in srcs] if len(srcs) > 1 else srcs[0].key(),
+                  "exclude": exclude, "encoder": encoder.name, "encoder_conf": encoder.conf,
+                  "ground_truth": opts.gt.describe()}
+        report = {"methods": {k: e for k, (e, _) in done.items()},
+                  "params": {"command": "loops", "seq": str(seq) if len(seqs) == 1 else [str(q) for q in seqs],
+                             "exclude": exclude, "encoder": encoder.name, "encoder_conf": encoder.conf,
+                             "method_conf": confs, "n_frames": len(features),
+                             "sessions": [{"source": str(q), "first_frame": a, "frames": len(ex.features)}
+                                          for q, a, ex in zip(seqs, starts, exs, strict=True)],
+                             "encode_seconds": sum(ex.seconds for ex in exs),
+                             "skipped": [sk for ex in exs for sk in ex.skipped],
+                             "ground_truth": opts.gt.describe(), "inputs": inputs},
+                  "versions": versions()}
+        return merge_metrics(out, report, f"loop closures in {', '.join(s.name for s in srcs)}")

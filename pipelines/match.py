@@ -1,9 +1,8 @@
 """``vpr match`` and ``vpr compare`` on the command line: arguments in, a run, the table out.
 
-``match`` runs one method (the preset's headline), ``compare`` several; one
-query traverse runs here (:func:`pipelines.runs.run_compare`), several are a
-fleet on Dask (:func:`pipelines.fleet.run_fleet`). What they write is
-:mod:`pipelines.outputs`.
+``match`` runs one method (the preset's headline), ``compare`` several
+(:func:`pipelines.runs.run_compare`: one query traverse, or several as a fleet
+on Dask). What they write is :mod:`pipelines.outputs`.
 """
 from __future__ import annotations
 
@@ -15,7 +14,6 @@ from pipelines.args import (
     add_gt_arguments,
     add_run_arguments,
     options_from_args,
-    settings_from_args,
 )
 
 __all__ = ["COMMANDS", "add_arguments", "run_command"]
@@ -49,26 +47,18 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
 
 def run_command(args) -> int:
     from pipelines.outputs import metrics_table
+    from pipelines.runs import run_compare, run_fleet
 
-    settings = settings_from_args(args)
-    opts = options_from_args(args, settings)
-    names = settings["methods"]
-    if len(args.query) > 1:
-        from pipelines.fleet import run_fleet, summary_table
-
+    opts = options_from_args(args)
+    if len(args.query) > 1:  # a fleet: one table per query traverse
         def said(name, done, total):
             print(f"vpr {args.command}: query {name} done ({done} of {total})", file=sys.stderr, flush=True)
 
-        summary = run_fleet(args.db, args.query, names, opts, command=args.command, workers=args.workers,
-                            scheduler=args.scheduler, progress=said)
-        print(summary_table(summary))
+        report = run_fleet(args.db, args.query, opts, args.command, progress=said)
+        print("\n\n".join(f"query {name}:\n" + metrics_table(table) for name, table in report["queries"].items()))
         print(f"wrote {args.out}/metrics.json and a folder per query")
         return 0
-    from pipelines.runs import run_compare
-
-    # one query with --workers / --scheduler: the match itself is split in blocks of queries (pipelines.split)
-    opts.workers, opts.scheduler = args.workers, args.scheduler
-    report = run_compare(args.db, args.query[0], names, opts, command=args.command)
+    report = run_compare(args.db, args.query[0], opts, args.command)
     print(metrics_table(report["methods"], "match"))
     print(f"wrote {args.out}/metrics.json")
     return 0

@@ -94,7 +94,7 @@ def test_resolve_rejects_bad_arguments(kwargs):
 
 
 def run_options(args):
-    return options_from_args(args, settings_from_args(args))
+    return options_from_args(args)
 
 
 def _args(command, argv):

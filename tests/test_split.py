@@ -74,7 +74,7 @@ def test_a_shorter_memory_needs_a_shorter_margin_and_single_frame_methods_are_no
 
 
 def test_block_size_keeps_the_warm_up_small():
-    from pipelines.split import block_size
+    from pipelines.cluster import block_size
 
     assert block_size(50_000, 132, 2) == 12_500  # two blocks per worker
     assert block_size(2_000, 132, 8) == 8 * 132  # but at least eight margins
@@ -83,8 +83,7 @@ def test_block_size_keeps_the_warm_up_small():
 
 @pytest.mark.slow
 def test_local_cluster_split_equals_the_whole_match(tmp_path):
-    from pipelines.cluster import dask_client
-    from pipelines.split import split_match
+    from pipelines.cluster import dask_client, split_match
 
     db, q = _aliased(500, seed=2)
     fitted = methods.get("rshosm-seq", **METHOD_CONF).fit(db)
@@ -143,13 +142,13 @@ def test_vpr_compare_with_workers_splits_one_query_and_answers_like_the_serial_r
 def test_a_killed_worker_loses_its_block_to_the_other_and_the_answers_stay(tmp_path):
     from distributed import Client
 
-    from pipelines.split import split_match
+    from pipelines.cluster import split_match
     from tests.dask_cluster import busy_cluster, kill_a_busy_worker, run_in_thread, slowed_task
 
     db, q = _aliased(400, seed=3)
     fitted = methods.get("rshosm-seq", **METHOD_CONF).fit(db)
     whole = fitted.match(q)
-    slow = slowed_task("pipelines.split", "_block", 1.0)
+    slow = slowed_task("pipelines.cluster", "_block", 1.0)
     with busy_cluster(tmp_path, slow) as (address, workers, log, busy_dir):
         killed = kill_a_busy_worker(workers, busy_dir)
 

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["merge_conf", "coerce_value", "parse_key_values"]
+__all__ = ["merge_conf", "coerce_value", "parse_key_values", "parse_method_confs"]
 
 _TRUE = {"1", "true", "yes", "on", "y", "t"}
 _FALSE = {"0", "false", "no", "off", "n", "f"}
@@ -153,6 +153,22 @@ def merge_conf(default_conf: Mapping, conf: Mapping | None, what: str, nullable:
         except ValueError as e:
             raise ValueError(f"{what}: {e}") from None
     return out
+
+
+def parse_method_confs(items: Iterable[str] | None, known) -> dict:
+    """``["seqslam.ds=20", ...]`` (``--method-conf METHOD.key=value``, repeatable) -> {method: {key: string}}.
+
+    ``known``: the method names; another is refused, naming them.
+    """
+    confs: dict = {}
+    for head, value in parse_key_values(items, "--method-conf").items():
+        method, dot, key = head.partition(".")
+        if not dot or not key:
+            raise ValueError(f"--method-conf: expected METHOD.key=value, got {head}={value!r}")
+        if method not in known:
+            raise ValueError(f"--method-conf: unknown method {method!r}; available: {', '.join(known)}")
+        confs.setdefault(method, {})[key] = value
+    return confs
 
 
 def parse_key_values(items: Iterable[str] | None, flag: str) -> dict:

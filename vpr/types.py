@@ -92,7 +92,7 @@ class EncodedTraverse:
         return EncodedTraverse(self.names[start:stop], **{k: v[start:stop] for k, v in self.inputs.items()})
 
     @classmethod
-    def join(cls, parts, prefixes) -> EncodedTraverse:
+    def from_parts(cls, parts, prefixes) -> EncodedTraverse:
         """The traverses ``parts`` one after the other (a robot's sessions as one stream), frame names prefixed
         with their part's ``prefixes`` (``day/0001.png``); the inputs every part holds."""
         names = [f"{p}/{n}" for p, t in zip(prefixes, parts, strict=True) for n in t.names]
