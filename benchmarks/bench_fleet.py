@@ -1,4 +1,4 @@
-"""A fleet of query traverses against one map on Dask: 1 against 2 workers, and what is shipped (issue 19).
+"""A fleet of query traverses against one map on Dask: 1 against 2 workers, and what is shipped.
 
 Writes (once, into ``--data``) a 10,000-frame map folder and 8 query folders of
 2,000 frames each, as ``make_large_folders.py`` does: smooth random 64 x 32

@@ -1,4 +1,4 @@
-"""Online localisation: per-frame latency of vpr.Localizer.update (issue 12 §2).
+"""Online localisation: per-frame latency of vpr.Localizer.update.
 
 A database of n frames of ``vpr.simulate.aliased_traverses(n, n // 10)`` is
 learned (``vpr.Localizer.from_database``: Algorithm 1, threshold 0.75); then

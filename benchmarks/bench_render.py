@@ -3,7 +3,7 @@
 Renders frames of every traverse of a scene (default ``two_seasons``: a summer
 day and a winter night with blur and noise) at 160 x 120 and 640 x 480 and
 prints frames per second (min / median / max over repeats) next to the
-targets of the issue (>= 200 frames/s at 160 x 120, >= 30 frames/s at
+targets (>= 200 frames/s at 160 x 120, >= 30 frames/s at
 640 x 480). The one-off world/texture set-up is timed separately.
 
 Run ``python benchmarks/bench_render.py [--scene two_seasons] [--repeats 5]``.

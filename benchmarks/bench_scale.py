@@ -1,4 +1,4 @@
-"""Beyond 20,000 frames (issue 13): rshosm-seq, SeqSLAM, pairwise and rshosm at 5,000 - 50,000 frames, one core.
+"""Beyond 20,000 frames: rshosm-seq, SeqSLAM, pairwise and rshosm at 5,000 - 50,000 frames, one core.
 
 Data: ``vpr.simulate.aliased_traverses(n, n // 10)``: a database traverse of n
 places and a query traverse of about n frames (speed 0.8-1.2 places per frame),

@@ -1,4 +1,4 @@
-"""rshosm-seq on image SDRs at 5,000 - 50,000 frames, one core (issue 19, part 1).
+"""rshosm-seq on image SDRs at 5,000 - 50,000 frames, one core.
 
 Data: the two frame-aligned folders of ``make_large_folders.py`` (written once
 into ``--data``, 2 x 50,000 grey 64 x 32 PNG: n / 10 smooth random appearances
@@ -24,7 +24,7 @@ the query's overlap with every minicolumn through the inverted index), and count
 the distinct successor lists of the cells that relay evidence (cells sharing one
 could relax it once).
 
-Goals (issue 19, 50,000 x 50,000 image frames, one core): <= 3 min including
+Goals (50,000 x 50,000 image frames, one core): <= 3 min including
 learning, <= 3 GB peak, R@1 >= 0.95, the same best match as the dense evidence
 for >= 99 % of queries at 10,000 and 20,000 frames, growth exponent <= 1.3.
 

@@ -1,4 +1,4 @@
-"""One large rshosm-seq match split across Dask workers: serial against 1 and 2 workers (issue 27).
+"""One large rshosm-seq match split across Dask workers: serial against 1 and 2 workers.
 
 Data: the frame-aligned folders of ``make_large_folders.py`` encoded with the
 ``fast`` preset's pixel SDRs, shared with ``bench_scale_images.py`` (same

@@ -1,4 +1,4 @@
-"""Write two frame-aligned 50,000-frame image folders for the ``vpr compare`` large-input run (issue 13).
+"""Write two frame-aligned 50,000-frame image folders for the ``vpr compare`` large-input run.
 
 Place ``i`` of the route shows one of ``n / 10`` appearances (smooth random
 64 x 32 grey images, each reused at about ten random places, so single frames

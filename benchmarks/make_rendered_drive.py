@@ -1,4 +1,4 @@
-"""Write a rendered continuous drive as two frame-aligned folders of up to 50,000 frames (issue 27).
+"""Write a rendered continuous drive as two frame-aligned folders of up to 50,000 frames.
 
 The scene is ``benchmarks/long_drive.json``: a 20 km procedural street driven
 twice at the same steady 2 m/s and 5 frames per second, 0.4 m per frame, so

@@ -1,6 +1,6 @@
 """Places, not frames: does stepping the sequence memory per place make the loop decision hold at a robot's frame rate?
 
-The decisions issue's part 4 asks to step rSHOSM-seq per *place* (a new step
+This study steps rSHOSM-seq per *place* (a new step
 when the appearance has changed enough, or every N metres of odometry) and to
 map every frame's answer back, because at Nordland's every file (7,152 frames)
 the loop recall of accepted closures falls to 0.51 from 0.88 at every 10th

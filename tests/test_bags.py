@@ -1,4 +1,4 @@
-"""Robot logs in (issue 28): ROS bags as sources, positions from their topics, trajectories, names, EXIF, --every.
+"""Robot logs in: ROS bags as sources, positions from their topics, trajectories, names, EXIF, --every.
 
 Bags are written here with rosbags (ROS 1 and ROS 2, raw and compressed images,
 NavSatFix and Odometry) from rendered traverses; the same frames from a folder

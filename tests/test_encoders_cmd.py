@@ -23,7 +23,7 @@ def test_list_names_every_encoder_with_its_defaults(capsys):
     out = capsys.readouterr().out
     encoders_part, _, rest = out.partition("\n\n")
     assert [line.split()[0] for line in encoders_part.splitlines()] == list(confs)
-    # how to join them and the presets (issue 20): the names a newcomer passes to --encoder / --preset
+    # how to join them and the presets: the names a newcomer passes to --encoder / --preset
     assert "pixel+cnn" in rest and all(f"  {p} " in rest for p in ("default", "paper", "fast"))
 
 

@@ -1,4 +1,4 @@
-"""Faults and bad input through the ``vpr`` command line (issue 11).
+"""Faults and bad input through the ``vpr`` command line.
 
 Refused runs write nothing, file-system errors end in one line naming the path,
 interrupted runs leave only complete files and a rerun gives the uninterrupted
@@ -254,7 +254,6 @@ def test_bad_loop_acceptance_conf_is_refused_before_any_work(scene, tmp_path, ca
 
 
 # ------------------------------------------------------------ 6. options silently ignored
-# (a "no_loops" case went away: every method supports loop closure since rshosm-seq does, issue 12)
 @pytest.mark.parametrize("case", ["soft_without_gt", "soft_below_radius", "soft_below_tolerance", "exclude"])
 def test_ignored_options_are_errors(scene, tmp_path, capsys, case):
     out = tmp_path / "out"

@@ -1,4 +1,4 @@
-"""A fleet of query traverses against one map (issue 19, part 2): the same answers serially, on a local
+"""A fleet of query traverses against one map: the same answers serially, on a local
 cluster and on a real scheduler whose worker is killed mid-run."""
 import json
 import shutil

@@ -1,4 +1,4 @@
-"""The house rules that no linter checks: no module imports another module's private name (issue 25)."""
+"""The house rules that no linter checks: no module imports another module's private name."""
 import ast
 from pathlib import Path
 

@@ -3,7 +3,7 @@
 A robot that is stopped (SIGTERM from its supervisor, Ctrl-C) must not lose the
 session: the frames answered so far are written (``METHOD/matches.csv``,
 ``metrics.json``) with the state of ``--state-out``, and ``--resume`` from that
-state gives the answers of a run that was never stopped (issue 24, part 3).
+state gives the answers of a run that was never stopped.
 """
 import csv
 import json

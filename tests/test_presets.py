@@ -26,7 +26,7 @@ def test_presets_are_complete_and_build():
         methods.get(p["loop_method"])
 
 
-def test_the_presets_the_issue_asks_for():
+def test_the_three_presets():
     d, paper, fast = presets.get("default"), presets.get("paper"), presets.get("fast")
     assert d["methods"][0] == "rshosm-seq" and {"seqslam", "seqslam-desc", "pairwise"} <= set(d["methods"])
     assert d["encoder"] == "pixel+cnn" and d["loop_method"] == "rshosm-seq"

@@ -1,4 +1,4 @@
-"""Sessions (issue 26, part 1): a robot's runs joined into one stream without a seam between them.
+"""Sessions: a robot's runs joined into one stream without a seam between them.
 
 At a session start what was learned stays (later runs close loops onto earlier
 ones) and nothing of the last run's last moment carries over: the memory's

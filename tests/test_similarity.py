@@ -41,7 +41,7 @@ def test_dense_refused_above_the_pair_limit_only(monkeypatch):
 
 
 def test_large_database_with_top_k_or_few_queries():
-    # one side above 20,000 rows used to be refused even with top_k (issue 11 item 12)
+    # one side above 20,000 rows is fine with top_k
     db = sdr.random_sdrs(25_000, n_bits=64, n_active=4, seed=0)
     q = db[[3, 24_999] * 25]
     top = similarity.overlap_similarity(db, q, top_k=5)

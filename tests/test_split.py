@@ -1,4 +1,4 @@
-"""One large match split in blocks of query frames (issue 27): the blocks give the whole match's answers, in
+"""One large match split in blocks of query frames: the blocks give the whole match's answers, in
 this process, on a local cluster, through `vpr match --workers`, and when a worker dies mid-block."""
 import json
 import time

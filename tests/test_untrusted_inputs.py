@@ -1,4 +1,4 @@
-"""No input file runs code; inputs that would give wrong metrics are refused or warned about (issue 24).
+"""No input file runs code; inputs that would give wrong metrics are refused or warned about.
 
 Each case here failed before its fix. Tiny renders keep the command-line cases fast.
 """

@@ -1,5 +1,5 @@
-"""A newcomer's first hour (issue 20): options never silently ignored, refusals before work, clean stops,
-errors and warnings that say enough, pictures people read."""
+"""Options never silently ignored, refusals before work, clean stops, errors and warnings that say enough,
+pictures people read."""
 import json
 import os
 import shutil
