@@ -72,7 +72,7 @@ def _run(method, db, q):
     names = list(range(db.shape[0])), list(range(q.shape[0]))
     r = methods.match(method, EncodedTraverse(names=names[0], sdr=db),
                       EncodedTraverse(names=names[1], sdr=q))
-    return r.best_db, r.similarity
+    return r.best, r.similarity
 
 
 def child(method, n, seed, agree, dense_below_limit):

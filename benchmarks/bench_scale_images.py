@@ -129,14 +129,14 @@ def child(data: Path, preset: str, n: int, agree: bool, prof: bool = False, tole
     c2 = time.process_time()
     truth = np.arange(n)
     out = {"preset": preset, "n": n, "bits": int(db.shape[1]), "active": float(db.sum(1).mean()),
-           "learn_s": c1 - c0, "match_s": c2 - c1, "r1": float(np.mean(np.abs(r.best_db - truth) <= tolerance)),
+           "learn_s": c1 - c0, "match_s": c2 - c1, "r1": float(np.mean(np.abs(r.best - truth) <= tolerance)),
            "sparse": bool(sp.issparse(r.similarity)),
            "peak_rss_mb": peak_rss_mb()}
     if agree:
         mem, codes = fitted.state
         c3 = time.process_time()
         d = query_evidence(mem, q, codes, m.seq.evidence, direction=m.seq.direction, top_k=None)
-        out.update(dense_s=time.process_time() - c3, agree=float(np.mean(d.best == r.best_db)),
+        out.update(dense_s=time.process_time() - c3, agree=float(np.mean(d.best == r.best)),
                    dense_r1=float(np.mean(np.abs(d.best - truth) <= tolerance)))
     if prof:
         out.update(profile(*fitted.state, q))

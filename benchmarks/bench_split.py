@@ -43,7 +43,7 @@ def _dense(S):
 
 
 def compare(whole, split) -> str:
-    same_best = np.mean(whole.best_db == split.best_db)
+    same_best = np.mean(whole.best == split.best)
     same_acc = np.mean(whole.accepted == split.accepted)
     d_sim = (abs(whole.similarity - split.similarity).max() if sp.issparse(whole.similarity)
              else np.abs(_dense(whole.similarity) - _dense(split.similarity)).max())
@@ -101,7 +101,7 @@ def main(argv=None) -> int:
 
     walls, whole = timed(lambda: fitted.match(tq))
     runs = {0: np.median(walls)}
-    print(f"serial: {spread(walls)}, R@1 {np.mean(np.abs(whole.best_db - truth) <= TOLERANCE):.4f}, "
+    print(f"serial: {spread(walls)}, R@1 {np.mean(np.abs(whole.best - truth) <= TOLERANCE):.4f}, "
           f"{int(whole.accepted.sum()):,} accepted", flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         for w in sizes:
@@ -117,7 +117,7 @@ def main(argv=None) -> int:
                   f"{shipped['pickle_seconds']:.1f} s, blocks done at {shipped['blocks_done_seconds']:.1f} s (CPU s "
                   f"per block {', '.join(f'{x:.0f}' for x in shipped['block_cpu_seconds'])}), joined and decided in "
                   f"{shipped['combine_seconds']:.1f} s; R@1 "
-                  f"{np.mean(np.abs(split.best_db - truth) <= TOLERANCE):.4f}; {compare(whole, split)}", flush=True)
+                  f"{np.mean(np.abs(split.best - truth) <= TOLERANCE):.4f}; {compare(whole, split)}", flush=True)
     if 2 in runs:
         print(f"speed-up of 2 workers: {runs[0] / runs[2]:.2f} x serial"
               + (f", {runs[1] / runs[2]:.2f} x 1 worker" if 1 in runs else ""))

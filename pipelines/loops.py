@@ -259,7 +259,7 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
         def write(m: str, res: MatchResult, evaluated) -> dict:
             confs[m] = res.conf
             if gt_hard is not None and len(srcs) > 1:
-                evaluated[0]["sessions"] = evaluate.session_pairs(res.best_db, res.accepted, gt_hard, starts,
+                evaluated[0]["sessions"] = evaluate.session_pairs(res.best, res.accepted, gt_hard, starts,
                                                                   gt_soft, mask, [s.name for s in srcs])
             write_method(out / m, m, res, evaluated, features.names, features.names, gt_hard, gt_soft,
                          title=f"{m}: loop closures", loops=True, mask=mask)

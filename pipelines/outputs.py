@@ -68,7 +68,7 @@ def write_matches(folder: Path, res: MatchResult, db_names, q_names, extra: dict
         w = csv.writer(fh, lineterminator="\n")  # LF: awk, cut and diff read it as it is
         w.writerow([*MATCH_COLUMNS, *extra])
         for j in range(len(q_names)):
-            b = int(res.best_db[j])
+            b = int(res.best[j])
             name = "" if b < 0 else best_names[j] if best_names is not None else db_names[b]
             q = j if query_ids is None else query_ids[j]
             w.writerow([q, q_names[j], b, name, f"{res.score[j]:.6g}", int(bool(res.accepted[j])),
@@ -143,7 +143,7 @@ def write_method(folder: Path, m: str, res: MatchResult, evaluated: tuple, db_na
         vm["similarity_file"] = metrics["similarity_file"]
         entries[m + "+verify"] = (vm, vcurve)
     write_matches(folder, res, db_names, q_names, extra)
-    plots.plot_similarity(res.similarity, folder / "similarity.png", best_db=res.best_db, accepted=res.accepted,
+    plots.plot_similarity(res.similarity, folder / "similarity.png", best_db=res.best, accepted=res.accepted,
                           gt_hard=gt_hard, gt_soft=gt_soft, title=title or f"{m}: database x query",
                           value_label=methods.get_class(m).score_label if m in methods.available() else "similarity",
                           axis_labels=("earlier frame", "frame") if loops else ("database", "query"), mask=mask)

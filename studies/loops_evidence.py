@@ -52,7 +52,7 @@ def run(name, sdr, pixels, gt, exclude, soft=None, forward_only=False, **kw):
         line += f"  AP rshosm-seq {ap_s:.3f}  seqslam {ap_q:.3f}"
     tp = ok & (gt[np.maximum(best, 0), np.arange(T)] if gt is not None else False)
     line += f"  accepted {int(ok.sum())} (>=30 back {int(far.sum())}, true {int(np.sum(tp))})"
-    line += f"  seqslam accepted >=30 back {int((r.accepted & (np.arange(T) - r.best_db >= 30)).sum())}"
+    line += f"  seqslam accepted >=30 back {int((r.accepted & (np.arange(T) - r.best >= 30)).sum())}"
     line += f"  max path score {score.max():.1f}  {t_ev:.1f}s"
     print(line, flush=True)
 

@@ -324,16 +324,16 @@ def test_rshosm_seq_loops_method_defaults():
     # three laps of one loop (a small render, 4.6 m between frames): closures are found, each within 6 m
     r, gt = _rendered_loops("loop_revisits", 200, radius=6.0)
     T = gt.shape[0]
-    assert r.similarity.shape == (T, T) and np.all(r.best_db[:30] == -1)
+    assert r.similarity.shape == (T, T) and np.all(r.best[:30] == -1)
     ok = r.accepted
-    assert ok.sum() >= 20 and np.all(gt[r.best_db[ok], np.flatnonzero(ok)])
+    assert ok.sum() >= 20 and np.all(gt[r.best[ok], np.flatnonzero(ok)])
     # the result's score is the decision's (the path score): every accepted frame has reached min_score
-    assert np.all(r.score[ok] >= LoopConf().min_score) and np.all(r.score[r.best_db >= 0] >= 0)
+    assert np.all(r.score[ok] >= LoopConf().min_score) and np.all(r.score[r.best >= 0] >= 0)
     mask = groundtruth.loop_closure_mask(T, exclude=30)
     assert evaluate.average_precision(r.similarity, gt, None, mask=mask) >= 0.5
     # a forward-only drive (two_seasons by day, before the stretch its world repeats): no closure accepted
     r, gt = _rendered_loops("two_seasons", 150)
-    far = r.accepted & (np.arange(gt.shape[0]) - r.best_db >= 30)
+    far = r.accepted & (np.arange(gt.shape[0]) - r.best >= 30)
     assert not far.any(), r.score[far]
 
 
@@ -408,13 +408,13 @@ def test_default_loop_rule_finds_revisits_and_no_closure_on_a_forward_drive():
         x = encoders.get(s["encoder"], **s["encoder_conf"]).encode(list(t.images))
         r = methods.get("rshosm-seq").loops(EncodedTraverse(names=list(range(x.shape[0])), sdr=x), exclude=30)
         T = x.shape[0]
-        ok = r.accepted & (np.arange(T) - r.best_db >= 30)
-        dist = np.linalg.norm(t.xy[r.best_db[ok]] - t.xy[ok], axis=1)
+        ok = r.accepted & (np.arange(T) - r.best >= 30)
+        dist = np.linalg.norm(t.xy[r.best[ok]] - t.xy[ok], axis=1)
         if scene == "loop_revisits":  # closures in the second and third lap, all within 5 m
             assert ok.sum() >= 250 and np.all(dist <= 5.0), dist
             assert set(np.flatnonzero(ok) * 3 // T) == {1, 2}
         else:  # driven once: no closure but onto the stretch its world repeats identically 210 m later
-            onto_copy = np.abs(t.route_pos[ok] - t.route_pos[r.best_db[ok]] - 210.0) <= 10.0
+            onto_copy = np.abs(t.route_pos[ok] - t.route_pos[r.best[ok]] - 210.0) <= 10.0
             assert onto_copy.all(), (np.flatnonzero(ok), dist)
 
 

@@ -53,7 +53,7 @@ def test_every_method_finds_an_aligned_route(method):
     conf = {"ds": 4} if method.startswith("seqslam") else None
     res = methods.match(method, db, q, conf)
     assert res.similarity.shape == (30, 30)
-    assert np.mean(res.best_db == np.arange(30)) > 0.8
+    assert np.mean(res.best == np.arange(30)) > 0.8
 
 
 def test_best_matches_sparse_marks_empty_queries():
@@ -79,11 +79,11 @@ def test_loops_only_look_back_far_enough():
     obs, places = simulate.simulate_loops(n_loops=3, seed=0)
     feats = EncodedTraverse(names=list(range(len(places))), sdr=obs)
     res = methods.loops("rshosm", feats, exclude=5)
-    ok = res.best_db >= 0
-    assert np.all(res.best_db[ok] <= np.flatnonzero(ok) - 5)
+    ok = res.best >= 0
+    assert np.all(res.best[ok] <= np.flatnonzero(ok) - 5)
     # the second and third laps close the loop with the right places
     later = np.arange(20, 60)
-    assert np.mean(places[res.best_db[later]] == places[later]) > 0.9
+    assert np.mean(places[res.best[later]] == places[later]) > 0.9
     with pytest.raises(ValueError, match="exclude"):
         methods.loops("rshosm", feats, exclude=0)
 
@@ -102,7 +102,7 @@ def test_seqslam_desc_is_seqslam_on_the_encoder_descriptors_with_cosine():
     res = m.match(db, q)
     ref = methods.match("seqslam", db, q, {"ds": 4, "descriptor": "encoder", "metric": "cosine"})
     np.testing.assert_array_equal(res.similarity, ref.similarity)
-    np.testing.assert_array_equal(res.best_db, ref.best_db)
+    np.testing.assert_array_equal(res.best, ref.best)
     # "desc" is accepted as an alias of "encoder" (the spelling of EncodedTraverse.desc)
     assert methods.get("seqslam", descriptor="desc").required_inputs == ("desc",)
     assert methods.get("seqslam").required_inputs == ("pixels",)
@@ -131,12 +131,12 @@ def test_seqslam_above_the_dense_limit_runs_blocked_top_k(monkeypatch, name):
     C = sp.csc_matrix(exact.similarity)
     kept = np.stack([-np.sort(-C.data[C.indptr[j]:C.indptr[j + 1]]) for j in range(60)], axis=1)
     np.testing.assert_allclose(kept, top, rtol=1e-5, atol=1e-4)
-    np.testing.assert_array_equal(exact.best_db, dense.best_db)
+    np.testing.assert_array_equal(exact.best, dense.best)
     np.testing.assert_array_equal(exact.accepted, dense.accepted)
     # candidate mode (the default): approximate, but the route is found
     cand = methods.match(name, db, q, {"ds": 4})
     assert sp.issparse(cand.similarity)
-    assert np.mean(cand.best_db == dense.best_db) > 0.9
+    assert np.mean(cand.best == dense.best) > 0.9
     # loop closure has no blocked form: refused before any work
     with pytest.raises(ValueError, match=f"{name} loop closure needs a dense 60 x 60 matrix"):
         methods.loops(name, db, exclude=5)
@@ -177,7 +177,7 @@ def test_every_encoder_with_a_dense_descriptor_feeds_seqslam_desc(image_folders,
     d = feats[0].desc
     assert d.dtype == np.float32 and d.shape[0] == 12 and d.ndim == 2
     res = m.match(*feats)
-    assert res.similarity.shape == (12, 12) and res.best_db.shape == (12,)
+    assert res.similarity.shape == (12, 12) and res.best.shape == (12,)
 
 
 def test_an_encoder_without_a_dense_descriptor_is_named(image_folders):

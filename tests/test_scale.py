@@ -25,14 +25,14 @@ def test_rshosm_seq_goes_sparse_above_the_limit_with_the_dense_best_matches(monk
     assert per_query.max() == 7
     # the best match is the largest stored entry of its column (up to float32 ties), and the dense computation's
     # (the result's score is the decision's path score; the z-scores are the matrix's)
-    z = np.asarray(S.tocsc()[res.best_db, np.arange(len(q))]).ravel()
+    z = np.asarray(S.tocsc()[res.best, np.arange(len(q))]).ravel()
     assert np.allclose(z, best_matches(S)[1], rtol=1e-6)
-    assert np.mean(res.best_db == dense.best_db) >= 0.97
+    assert np.mean(res.best == dense.best) >= 0.97
     # aliasing: single frames are ambiguous, the sequence is not
-    assert np.mean(np.abs(dp[res.best_db] - qp) <= 1) >= 0.9
+    assert np.mean(np.abs(dp[res.best] - qp) <= 1) >= 0.9
     # the kept entries are the z-scores of the dense column (absent cells carry no evidence, so nearly equal)
-    cols = np.flatnonzero(res.best_db == dense.best_db)
-    z_dense = dense.similarity[dense.best_db, np.arange(len(q))]
+    cols = np.flatnonzero(res.best == dense.best)
+    z_dense = dense.similarity[dense.best, np.arange(len(q))]
     assert np.allclose(z[cols], z_dense[cols], atol=0.05 * np.abs(z_dense[cols]).max())
 
 

@@ -25,7 +25,7 @@ def _dense(S):
 
 def _same_answers(whole, split):
     """The same best matches and decisions; similarity and scores equal up to the forgotten warm-up (float32)."""
-    assert np.array_equal(whole.best_db, split.best_db)
+    assert np.array_equal(whole.best, split.best)
     assert np.array_equal(whole.accepted, split.accepted)
     a, b = _dense(whole.similarity), _dense(split.similarity)
     assert a.shape == b.shape and sp.issparse(whole.similarity) == sp.issparse(split.similarity)

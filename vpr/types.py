@@ -168,12 +168,12 @@ class MatchResult:
     """Database x query similarity (dense, or top-K sparse), best database frame per query, its score,
     the accept decision, the matching time in seconds and the conf used.
 
-    ``best_db`` is -1 (score ``-inf``) for a query without any candidate.
+    ``best`` is -1 (score ``-inf``) for a query without any candidate.
     """
 
     method: str
     similarity: np.ndarray | sp.csr_matrix
-    best_db: np.ndarray
+    best: np.ndarray
     score: np.ndarray
     accepted: np.ndarray
     seconds: float

@@ -27,16 +27,16 @@ def method_metrics(res, gt_hard, gt_soft, mask=None, loops: bool = False):
     where the curve is that of the per-frame decisions (:func:`decision_curve`:
     ``frame_ap``, ``frame_recall_at_100p``), what loop-closure detectors report.
     """
-    m = {"seconds": round(res.seconds, 4), "n_accepted": int(np.count_nonzero(res.accepted & (res.best_db >= 0)))}
+    m = {"seconds": round(res.seconds, 4), "n_accepted": int(np.count_nonzero(res.accepted & (res.best >= 0)))}
     if gt_hard is None:
         return m, None
     ev, (prec, rec, _) = evaluate(res.similarity, gt_hard, gt_soft, mask=mask, return_curve=True)
     m.update({k: float(v) for k, v in ev.items()})
-    m.update(accepted_precision(res.best_db, res.accepted, gt_hard, gt_soft, mask=mask))
+    m.update(accepted_precision(res.best, res.accepted, gt_hard, gt_soft, mask=mask))
     if gt_soft is not None:
-        m["best_in_soft"] = best_in_soft_band(res.best_db, gt_hard, gt_soft, mask=mask)
+        m["best_in_soft"] = best_in_soft_band(res.best, gt_hard, gt_soft, mask=mask)
     if loops:
-        dm, (prec, rec, _) = decision_curve(res.best_db, res.score, gt_hard, gt_soft, mask=mask)
+        dm, (prec, rec, _) = decision_curve(res.best, res.score, gt_hard, gt_soft, mask=mask)
         m.update(frame_ap=dm["ap"], frame_recall_at_100p=dm["recall_at_100p"], frames_with_loop=dm["n_with_match"])
     return m, (prec, rec)
 
