@@ -26,6 +26,7 @@ from .decide import PathDecider
 from .evidence import Engine
 from .graph import Graph
 from .memory import SequenceMemory, pad_codes
+from .state import joint_state, part_state
 
 __all__ = ["Localizer"]
 
@@ -140,20 +141,12 @@ class Localizer:
     # ------------------------------------------------------------ state
     def state(self) -> tuple[dict, dict]:
         """(header, arrays) of the query so far: the evidence and the decision (:meth:`load_state`)."""
-        header, arrays = {}, {}
-        for part, obj in (("engine", self.engine), ("dec", self.decider)):
-            h, a = obj.state()
-            header[part] = h
-            arrays.update({f"{part}_{k}": v for k, v in a.items()})
-        return header, arrays
+        return joint_state(engine=self.engine, dec=self.decider)
 
     def load_state(self, header: dict, arrays: dict) -> Localizer:
-        def part(name):
-            return {k[len(name) + 1:]: v for k, v in arrays.items() if k.startswith(name + "_")}
-
         if header.get("engine") is not None:
-            self.engine.load_state(header["engine"], part("engine"))
-        self.decider.load_state(header["dec"], part("dec"))
+            self.engine.load_state(*part_state(header, arrays, "engine"))
+        self.decider.load_state(*part_state(header, arrays, "dec"))
         return self
 
     def __repr__(self) -> str:

@@ -24,6 +24,7 @@ from .decide import LoopDecider
 from .evidence import Engine, Evidence
 from .graph import Graph
 from .memory import SequenceMemory
+from .state import joint_state, part_state
 
 __all__ = ["LoopStream", "loop_evidence", "LOOP_UNCAPPED_MAX", "LOOP_DENSE_MAX"]
 
@@ -109,25 +110,18 @@ class LoopStream:
     # ------------------------------------------------------------- state
     def state(self) -> tuple[dict, dict]:
         """(header, arrays): the memory, the graph, the evidence and the decisions so far (:meth:`load_state`)."""
-        header = {"exclude": self.exclude, "seq": self.seq.flat(), "caps": self.caps, "frames": self.frames,
-                  "starts": list(self.starts)}
-        arrays = {}
-        for part, obj in (("mem", self.mem), ("graph", self.graph), ("engine", self.engine), ("dec", self.decider)):
-            h, a = obj.state()
-            header[part] = h
-            arrays.update({f"{part}_{k}": v for k, v in a.items()})
+        header, arrays = joint_state(mem=self.mem, graph=self.graph, engine=self.engine, dec=self.decider)
+        header.update(exclude=self.exclude, seq=self.seq.flat(), caps=self.caps, frames=self.frames,
+                      starts=list(self.starts))
         return header, arrays
 
     def load_state(self, header: dict, arrays: dict) -> LoopStream:
         """Continue from a :meth:`state` (raises ValueError on inconsistent arrays)."""
-        def part(name):
-            return {k[len(name) + 1:]: v for k, v in arrays.items() if k.startswith(name + "_")}
-
-        self.mem.load_state(header["mem"], part("mem"))
-        self.graph.load_state(header["graph"], part("graph"))
-        self.engine = Engine(self.graph, self.seq.evidence, self.seq.beam).load_state(header["engine"],
-                                                                                       part("engine"))
-        self.decider.load_state(header["dec"], part("dec"))
+        self.mem.load_state(*part_state(header, arrays, "mem"))
+        self.graph.load_state(*part_state(header, arrays, "graph"))
+        self.engine = Engine(self.graph, self.seq.evidence, self.seq.beam).load_state(
+            *part_state(header, arrays, "engine"))
+        self.decider.load_state(*part_state(header, arrays, "dec"))
         self.frames, self.starts = int(header["frames"]), [int(v) for v in header["starts"]]
         if self.decider.frames != self.frames:
             raise ValueError(f"loop stream state: {self.decider.frames} decisions for {self.frames} frames")

@@ -18,7 +18,7 @@ import numpy as np
 
 from vpr import io as _io
 
-__all__ = ["MemoryFileError", "write_file", "read_file"]
+__all__ = ["MemoryFileError", "write_file", "read_file", "joint_state", "part_state"]
 
 
 class MemoryFileError(ValueError):
@@ -31,6 +31,21 @@ def _json_default(o):
     if isinstance(o, np.ndarray):
         return o.tolist()
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def joint_state(**objects) -> tuple[dict, dict]:
+    """The states of several objects as one (header, arrays), each under its name (:func:`part_state` splits it)."""
+    header, arrays = {}, {}
+    for name, obj in objects.items():
+        h, a = obj.state()
+        header[name] = h
+        arrays.update({f"{name}_{k}": v for k, v in a.items()})
+    return header, arrays
+
+
+def part_state(header: dict, arrays: dict, name: str) -> tuple[dict, dict]:
+    """The (header, arrays) of object ``name`` in a :func:`joint_state`."""
+    return header[name], {k[len(name) + 1:]: v for k, v in arrays.items() if k.startswith(name + "_")}
 
 
 def write_file(path, fmt: str, version: int, header: dict, parts: Mapping[str, Mapping], names=None) -> Path:
