@@ -32,9 +32,10 @@ def _run(images, best, x, conf=None):
 def test_geometry_accepts_consistent_revisits_it_can_see():
     imgs, best, x = _stream()
     d, rep = _run(imgs, best, x)
-    # the first two revisit frames have no consistent past yet; from the third on geometry confirms them
-    assert not d.accepted[:42].any() and d.accepted[42:].all()
-    assert rep["accepted_by_geometry"] == 18 and rep["frames_verified"] == 18 and rep["frames_blind"] == 0
+    # the first two revisit frames have no consistent past yet, the third is the first verified: from the fourth on
+    # geometry confirms them
+    assert not d.accepted[:43].any() and d.accepted[43:].all()
+    assert rep["accepted_by_geometry"] == 17 and rep["frames_verified"] == 18 and rep["frames_blind"] == 0
     assert rep["ms_per_verified_frame"] > 0
 
 
@@ -50,6 +51,16 @@ def test_a_stop_is_not_confirmed():
     x = sdr.from_indices([np.arange(20)] * 60, 256)  # every frame the same: the camera never left
     d, rep = _run(imgs, best, x)
     assert not d.accepted.any() and rep["accepted_by_geometry"] == 0
+
+
+def test_a_scene_never_out_of_sight_is_no_loop():
+    # a forward drive: every frame shows the same road ahead a little further on; frame j's best earlier frame
+    # j - 40 verifies, but so does every frame in between: the camera never lost sight of it
+    road = _textures(1)[0]
+    imgs = [np.roll(road, k, axis=1) for k in range(60)]
+    best = np.r_[np.full(40, -1), np.arange(20)]
+    d, rep = _run(imgs, best, sdr.random_sdrs(60, 256, 20, seed=0))
+    assert rep["frames_verified"] > 0 and not d.accepted.any()
 
 
 def test_too_few_inliers_are_not_enough():

@@ -376,12 +376,13 @@ class RshosmSeqConf:
         """The decision within one stream: the keys given over :class:`LoopConf`'s defaults."""
         return LoopConf(**{k: v for k, v in self.decision.items() if v is not None})
 
-    def path(self) -> PathConf:
+    def path(self, between_sessions: bool = False) -> PathConf:
         """The decision against a map: the keys given over :class:`PathConf`'s defaults.
 
-        ``stop_ratio`` is loop closure's (a stop is not a revisit); against a map it is refused.
+        ``stop_ratio`` is loop closure's (a stop is not a revisit); against a map it is refused, unless the map
+        is a stream's earlier sessions (``between_sessions``), where the loop decision uses it.
         """
-        if self.decision.get("stop_ratio") is not None:
+        if self.decision.get("stop_ratio") is not None and not between_sessions:
             raise ValueError("rshosm-seq: stop_ratio applies to loop closure within one stream, not to localisation "
                              "against a map")
         return PathConf(**{k: v for k, v in self.decision.items() if v is not None and k in PathConf.keys()})

@@ -29,11 +29,17 @@ class LoopDecider:
     Columns come in order ``0, 1, 2, ...`` (``column.frame``). The stop check
     reads the stream's SDRs, given frame by frame with :meth:`add_sdr` (or all
     at once with ``sdr``). :meth:`new_session` starts a new run of the robot:
-    the path restarts, and never moves on across the boundary.
+    the path restarts, and never moves on across the boundary. A frame of a
+    later session is also decided against the earlier sessions as ``vpr
+    localize`` decides against a map (``path``, :class:`PathConf`): a robot's
+    second run over its first is localisation; either decision accepts.
     """
 
-    def __init__(self, conf: LoopConf | None = None, capacity: int = 1024, sdr=None):
+    def __init__(self, conf: LoopConf | None = None, capacity: int = 1024, sdr=None, path: PathConf | None = None):
         self.conf = conf or LoopConf()
+        self.path = path or PathConf()
+        self.st_map = KD.path_state()  # the path against the earlier sessions
+        self._ar = np.arange(capacity, dtype=np.int64)
         self.frames = 0
         self.place = np.arange(capacity, dtype=np.int64)
         self.path_b = np.full(capacity, -1, np.int64)
@@ -49,6 +55,7 @@ class LoopDecider:
         if self.frames > self.starts[-1]:
             self.starts = np.r_[self.starts, self.frames]
         self.st[:] = KD.path_state(self.frames)
+        self.st_map[:] = KD.path_state()
 
     def add_sdr(self, bits) -> None:
         """Append the next frame's active bits (sorted) for the stop check (amortised O(bits))."""
@@ -79,18 +86,36 @@ class LoopDecider:
             self.path_b = np.concatenate([self.path_b, np.full(size - self.path_b.size, -1, np.int64)])
         c = self.conf
         end = int(self._ptr[self._n_sdr])
+        vals = column.z.astype(np.float64)
         best, score, ok, margin, _ = KD.decide_frame(
-            j, column.rows, column.z.astype(np.float64), int(column.n), float(column.fill), float(c.drift),
-            float(c.min_score), int(c.back), int(c.ahead), float(c.island), float(c.stop_ratio) if self._stops else 0.0,
-            self._ptr[: self._n_sdr + 1], self._ind[:end], self.place, self.path_b, self.st, self.starts)
+            j, column.rows, vals, int(column.n), float(column.fill), float(c.drift), float(c.min_score), int(c.back),
+            int(c.ahead), float(c.island), float(c.stop_ratio) if self._stops else 0.0, self._ptr[: self._n_sdr + 1],
+            self._ind[:end], self.place, self.path_b, self.st, self.starts)
+        start = int(self.starts[-1])
+        if start > 0 and not ok:  # a later session: its frame against the earlier ones, as against a map
+            keep = column.rows < start
+            p = self.path
+            b, s, accepted, m = KD.locate_frame(column.rows[keep], vals[keep], start, float(column.fill),
+                                                float(p.drift), float(p.min_score), int(p.back), int(p.ahead),
+                                                float(p.island), self._arange(start), self.st_map, self.starts[:-1])
+            if accepted:
+                best, score, ok, margin = b, s, True, m
+                if self.place[j] == j:
+                    self.place[j] = self.place[b]
         self.frames += 1
         return Decision(int(best), float(score), bool(ok), float(margin), j, column)
+
+    def _arange(self, n: int) -> np.ndarray:
+        if self._ar.size < n:
+            self._ar = np.arange(max(n, 2 * self._ar.size), dtype=np.int64)
+        return self._ar
 
     def state(self) -> tuple[dict, dict]:
         """(header, arrays) after the frames decided so far; :meth:`load_state` continues from them."""
         n, end = self.frames, int(self._ptr[self._n_sdr])
         return {"frames": n}, {"place": self.place[:n].copy(), "path_b": self.path_b[:n].copy(),
-                               "st": self.st.copy(), "sdr_ptr": self._ptr[: self._n_sdr + 1].copy(),
+                               "st": self.st.copy(), "st_map": self.st_map.copy(),
+                               "sdr_ptr": self._ptr[: self._n_sdr + 1].copy(),
                                "sdr_ind": self._ind[:end].copy(), "starts": self.starts.copy()}
 
     def load_state(self, header: dict, arrays: dict) -> LoopDecider:
@@ -99,6 +124,7 @@ class LoopDecider:
         self.path_b = np.full(self.place.size, -1, np.int64)
         self.place[:n], self.path_b[:n] = arrays["place"], arrays["path_b"]
         self.st[:] = arrays["st"]
+        self.st_map[:] = arrays["st_map"]
         self._set_sdr(arrays["sdr_ptr"], arrays["sdr_ind"])
         self.starts = np.asarray(arrays["starts"], np.int64)
         self.frames = n
@@ -148,7 +174,8 @@ def decide_all(decider, columns) -> Decision:
                     np.arange(len(out), dtype=np.int64))
 
 
-def accept_loops(evidence, conf: LoopConf | None = None, sdr=None, exclude: int | None = None) -> Decision:
+def accept_loops(evidence, conf: LoopConf | None = None, sdr=None, exclude: int | None = None,
+                 path: PathConf | None = None) -> Decision:
     """The loop decision of every frame of a stored loop matrix (:class:`LoopDecider`).
 
     For frame ``j`` the best earlier frame stands out from every other place by
@@ -171,6 +198,7 @@ def accept_loops(evidence, conf: LoopConf | None = None, sdr=None, exclude: int 
     conf : LoopConf
     sdr : SDR batch (T rows), optional: without it stops are not checked.
     exclude : int, read from ``evidence`` when it is an Evidence (required otherwise).
+    path : PathConf, the decision of a later session's frames against the earlier ones (default: its defaults).
     """
     conf = conf or LoopConf()
     fill, starts = None, (0,)
@@ -187,7 +215,8 @@ def accept_loops(evidence, conf: LoopConf | None = None, sdr=None, exclude: int 
     x = None if sdr is None else _sdr.check_batch(sdr, name="sdr")
     if x is not None and x.shape[0] != T:
         raise ValueError(f"sdr has {x.shape[0]} rows for a stream of {T} frames")
-    decider = LoopDecider(conf if x is not None else LoopConf(**{**conf.as_dict(), "stop_ratio": 0.0}), T, x)
+    decider = LoopDecider(conf if x is not None else LoopConf(**{**conf.as_dict(), "stop_ratio": 0.0}), T, x,
+                          path)
     C = sp.csc_matrix(S) if sp.issparse(S) else None
     if C is not None:
         C.sort_indices()

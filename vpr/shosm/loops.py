@@ -64,7 +64,7 @@ class LoopStream:
         self.mem = SequenceMemory(**self.seq.memory_params)
         self.graph = Graph.growing(self.mem)
         self.engine = Engine(self.graph, self.seq.evidence, self.seq.beam)
-        self.decider = LoopDecider(self.seq.loop())
+        self.decider = LoopDecider(self.seq.loop(), path=self.seq.path(between_sessions=True))
         if opinion is not None:
             self.decider = opinion(self.decider)
         self.starts = [0]  # the first frame of every session

@@ -6,10 +6,13 @@ reaches it although its best matches are right. :class:`GeometricOpinion`
 wraps that decider: a frame the path has not accepted, whose best earlier frame
 moved on consistently with the frames before it (``back`` / ``ahead``, for
 ``frames`` frames) and whose pair with it has at least ``min_inliers`` RANSAC
-inliers (ORB, :class:`vpr.verify.Verifier`, at the source's resolution) is
-accepted as well, unless the camera never left the place in between
-(:func:`vpr.sdr.stationary`: on a forward drive the frame 30 back shows the
-same road ahead, a scene seen again but no loop).
+inliers (ORB, :class:`vpr.verify.Verifier`, at the source's resolution) for
+``verified_frames`` frames in a row is accepted as well, but only where the
+camera lost sight of the earlier frame in between: some frame between the two
+has fewer inliers with it than ``break_ratio`` of the pair's own (ORB-SLAM's
+covisibility; a later session is out of sight by definition). On a forward drive the frame 30
+back shows the same road ahead: geometry confirms "the same scene", and every
+frame in between still sees it, so no loop is accepted.
 
 It is blind where the images are small (a shorter side under ``min_side``)
 or bare (fewer than ``min_keypoints`` ORB keypoints); there the path decides
@@ -36,6 +39,12 @@ class OpinionConf:
 
     min_inliers: int = 20
     frames: int = 3
+    #: consecutive frames that must verify before geometry accepts (the first of a run is not enough)
+    verified_frames: int = 2
+    #: frames between the earlier frame and this one checked for a break of view (spread, the middle first)
+    break_samples: int = 8
+    #: out of sight: a frame between has fewer inliers with the earlier frame than this share of this frame's
+    break_ratio: float = 0.25
     min_side: int = 120
     min_keypoints: int = 100
     n_features: int = 2000
@@ -60,6 +69,7 @@ class GeometricOpinion:
         self._verifier = Verifier(image, image, n_features=self.conf.n_features, max_error=self.conf.max_error,
                                   min_side=1)
         self._recent: list[tuple[int, int]] = []  # (best, session) of the last frames
+        self._run = 0  # consecutive frames geometry verified
         self._ptr, self._ind = [0], []
         self._session = 0
         self.verified = self.blind = self.accepted = 0
@@ -88,6 +98,7 @@ class GeometricOpinion:
         consistent = self._consistent(b)
         self._recent = (self._recent + [(b, self._session)])[-max(self.conf.frames, 1):]
         if d.accepted or not consistent:
+            self._run = 0
             return d
         t = time.perf_counter()
         c = self.conf
@@ -101,6 +112,10 @@ class GeometricOpinion:
                 return d
             self.verified += 1
             if self._verifier.pair_inliers(b, j) < c.min_inliers:
+                self._run = 0
+                return d
+            self._run += 1
+            if self._run < c.verified_frames or not self._out_of_sight(b, j, self._verifier.pair_inliers(b, j)):
                 return d
             if self.stop_ratio > 0 and self._same_session(b, j):
                 ptr, ind = np.asarray(self._ptr, np.int64), np.asarray(self._ind, np.int64)
@@ -110,6 +125,21 @@ class GeometricOpinion:
             return replace(d, accepted=True)
         finally:
             self.seconds += time.perf_counter() - t
+
+    def _out_of_sight(self, b: int, j: int, inliers: int) -> bool:
+        """Whether some frame between ``b`` and ``j`` lost sight of ``b``: fewer inliers with it than ``break_ratio``
+        of ``inliers`` (the pair's own)."""
+        if not self._same_session(b, j):
+            return True
+        between = np.arange(b + 1, j)
+        if not between.size:
+            return False
+        # the middle first, then spread: a loop is out of sight there at once, a road ahead nowhere
+        picks = np.unique(np.round(np.linspace(0, between.size - 1, self.conf.break_samples + 2)[1:-1]).astype(int))
+        for k in between[picks[np.argsort(np.abs(picks - between.size // 2), kind="stable")]]:
+            if self._verifier.pair_inliers(b, int(k)) < self.conf.break_ratio * inliers:
+                return True
+        return False
 
     def _same_session(self, b: int, j: int) -> bool:
         """Whether ``b`` is in the current session (across runs the camera surely left)."""
