@@ -41,8 +41,9 @@ def add_source_arguments(ap) -> None:
     ap.add_argument("--max-frames", type=int, help="read at most this many frames per source")
     ap.add_argument("--every", metavar="DISTANCE", help="keep one frame per DISTANCE of travel, e.g. 2m (needs the "
                     "frames' positions: --gt-topic, or --gt with --radius)")
-    ap.add_argument("--topic", metavar="NAME", help="ROS bags: the camera topic (sensor_msgs/Image or "
-                    "CompressedImage; default: the bag's only image topic)")
+    ap.add_argument("--topic", nargs="+", metavar="NAME", help="ROS bags: the camera topic (sensor_msgs/Image or "
+                    "CompressedImage; default: the bag's only image topic that is not depth); one for all inputs "
+                    "or one per input, in order")
 
 
 def add_preset_argument(ap) -> None:
@@ -67,8 +68,9 @@ def add_gt_arguments(ap, loops: bool = False, title: str = "ground truth (option
                              "ground_truth_new.npy; or with --radius: one positions CSV per traverse "
                              "(frame,x,y), or one CSV with traverse,frame,x,y rows for both; one TUM trajectory or "
                              "KITTI poses file per traverse; or the word names (UTM in the file names) or exif")
-    gt.add_argument("--gt-topic", metavar="TOPIC", help="ROS bags: positions from this topic (NavSatFix in metres "
-                    "from the first fix, Odometry, PoseStamped), interpolated at each frame's time; with --radius")
+    gt.add_argument("--gt-topic", nargs="+", metavar="TOPIC", help="ROS bags: positions from this topic (NavSatFix in "
+                    "metres from the first fix, Odometry, PoseStamped), interpolated at each frame's time, not across "
+                    "an outage; with --radius; one for all inputs or one per input, in order")
     gt.add_argument("--radius", type=float, help="match radius for position ground truth (same unit as x, y)")
     gt.add_argument("--gt-soft", type=float, metavar="R2",
                     help="also ignore pairs within this larger radius/tolerance (soft ground truth)")
@@ -78,7 +80,12 @@ def add_gt_arguments(ap, loops: bool = False, title: str = "ground truth (option
 def gt_spec_from_args(args) -> GroundTruthSpec:
     """The :class:`GroundTruthSpec` of the options added by :func:`add_gt_arguments`."""
     return GroundTruthSpec(tolerance=getattr(args, "tolerance", None), files=tuple(args.gt or ()),
-                           radius=args.radius, soft=args.gt_soft, topic=getattr(args, "gt_topic", None))
+                           radius=args.radius, soft=args.gt_soft, topic=topic_arg(getattr(args, "gt_topic", None)))
+
+
+def topic_arg(values):
+    """``--topic`` / ``--gt-topic`` as given: None, one topic (str) or one per input (tuple)."""
+    return None if not values else values[0] if len(values) == 1 else tuple(values)
 
 
 def method_confs(items) -> dict:
@@ -139,7 +146,8 @@ def options_from_args(args):
     return RunOptions(
         out=Path(args.out), methods=tuple(s["methods"]), preset=s["preset"], encoder=s["encoder"],
         encoder_conf=s["encoder_conf"], method_conf=s["method_conf"], fps=args.fps, step=args.step,
-        max_frames=args.max_frames, gt=gt, topic=args.topic, every=parse_every(args.every) if args.every else None,
+        max_frames=args.max_frames, gt=gt, topic=topic_arg(args.topic),
+        every=parse_every(args.every) if args.every else None,
         verify=getattr(args, "verify", 0), min_inliers=getattr(args, "min_inliers", 15),
         workers=getattr(args, "workers", None), scheduler=getattr(args, "scheduler", None),
         progress=not args.no_progress, cache=Path(args.cache) if args.cache else None)

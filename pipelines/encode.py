@@ -31,11 +31,11 @@ from encoders.extract import (
     load_cache,
     save_cache,
 )
-from pipelines.args import add_common_arguments, add_preset_argument, add_source_arguments
+from pipelines.args import add_common_arguments, add_preset_argument, add_source_arguments, topic_arg
 from pipelines.cluster import check_workers, dask_client, default_workers
 from pipelines.interrupts import deferred
 from vpr import presets
-from vpr.sources import Source, open_source
+from vpr.sources import Source, open_source, open_sources
 
 __all__ = ["COMMANDS", "add_arguments", "run_command", "encode_sources", "Encoded"]
 
@@ -242,8 +242,8 @@ def run_command(args) -> int:
     if args.every:
         raise ValueError("vpr encode: --every needs the frames' positions, which vpr encode does not read; encode "
                          "without it (vpr match / compare / loops --every then encode what they keep)")
-    srcs = [open_source(p, fps=args.fps, step=args.step, max_frames=args.max_frames, topic=args.topic)
-            for p in args.sources]
+    srcs = open_sources(args.sources, topic_arg(args.topic), False, fps=args.fps, step=args.step,
+                        max_frames=args.max_frames)
     parts = [p.strip() for p in args.parts.split(",") if p.strip()]
     s = presets.resolve(args.preset, encoder=args.encoder, encoder_conf=encoders.parse_conf(args.encoder_conf))
     out = encode_sources(srcs, args.cache, s["encoder"], s["encoder_conf"],

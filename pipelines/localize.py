@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -32,13 +33,15 @@ from pipelines.args import (
     gt_spec_from_args,
     method_confs,
     refuse_gone,
+    topic_arg,
 )
 from pipelines.online import Online, run_online, summary_line
 from vpr import evaluate, io, methods, presets
+from vpr.checks import per_input
 from vpr.groundtruth import GroundTruthSpec, build_gt, prepare_positions
 from vpr.groundtruth.trajectories import parse_every
 from vpr.shosm import Map
-from vpr.sources import open_source
+from vpr.sources import open_source, open_sources
 from vpr.sources.stdin import StdinSource
 from vpr.types import Decision
 
@@ -75,7 +78,7 @@ def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, met
     out = map_path(out)
     method = methods.get(ONLINE_METHOD, **(method_conf or {}))
     dbs = [db] if isinstance(db, (str, Path)) else list(db)
-    srcs = [open_source(d, fps=fps, step=step, max_frames=max_frames, topic=topic) for d in dbs]
+    srcs = open_sources(dbs, topic=topic, fps=fps, step=step, max_frames=max_frames)
     roles = ["database"] if len(srcs) == 1 else [f"database session {k + 1}" for k in range(len(srcs))]
     spec = positions or GroundTruthSpec()
     pos = prepare_positions(srcs, roles, spec, every, loops=False, need=bool(spec.topic or spec.files))
@@ -189,7 +192,8 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
         window 0: all frames so far); ``prior_frames`` and ``window`` apply to ``"running"`` only.
     gt : ground truth (as ``vpr match``), optional; position ground truth (``--radius``) needs the map's
         positions and a query source.
-    topic : bags' camera topic; every : one query frame per so many metres (with the query's positions).
+    topic : bags' camera topic (a pair: the database's and the query's); every : one query frame per so many
+        metres (with the query's positions).
     state_out : optional path: the map with the query's state after the last frame (a robot's restart file).
     progress : progress bar while learning a database (``map_or_db`` a traverse).
     """
@@ -205,21 +209,28 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
     if running.get("window") == 0:
         running["window"] = None  # every frame so far
     p = Path(map_or_db)
-    if Map.is_map(p) or (p.is_file() and p.suffix.lower() == ".npz"):  # a foreign .npz is refused by Map.load
+    learned = Map.is_map(p) or (p.is_file() and p.suffix.lower() == ".npz")  # a foreign .npz is refused by Map.load
+    gt = gt or GroundTruthSpec()
+    # one camera / position topic for both, or the database's and the query's
+    (db_topic, topic), (db_gt_topic, gt_topic) = ([None, *per_input(t, 1, option)] if learned
+                                                  else per_input(t, 2, option)
+                                                  for t, option in ((topic, "--topic"), (gt.topic, "--gt-topic")))
+    gt = replace(gt, topic=gt_topic)
+    if learned:
         the_map, enc = load_map(p)
         if (learn_options or {}).get("method_conf"):  # query-time settings apply to a learned map
             the_map.localizer = the_map.localizer.reconfigure(**learn_options["method_conf"])
     else:
         learn_to = out / "map.npz"
         positional = gt is not None and gt.positional
-        learn(map_or_db, learn_to, fps=fps, step=step, max_frames=max_frames, progress=progress, topic=topic,
-              positions=gt if positional else None, every=every if positional else None, **dict(learn_options or {}))
+        learn(map_or_db, learn_to, fps=fps, step=step, max_frames=max_frames, progress=progress, topic=db_topic,
+              positions=replace(gt, topic=db_gt_topic) if positional else None, every=every if positional else None,
+              **dict(learn_options or {}))
         the_map, enc = load_map(learn_to)
     qenc = StreamEncoder(enc, query_standardise, **running)
     qenc.load_state(the_map.query_state)  # a --state-out file continues its query's running statistics
     q_src = StdinSource(stdin if stdin is not None else sys.stdin) if str(query) == "-" else \
         open_source(query, fps=fps, step=step, max_frames=max_frames, topic=topic)
-    gt = gt or GroundTruthSpec()
     q_xy = None
     if gt.positional:
         if the_map.positions is None:
@@ -258,7 +269,8 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
                                     "against them; --every needs them)")
         pos.add_argument("--gt", nargs=1, metavar="FILE", help="positions CSV (frame,x,y), TUM trajectory, KITTI "
                          "poses, or the word names (UTM in the file names) or exif")
-        pos.add_argument("--gt-topic", metavar="TOPIC", help="ROS bags: a NavSatFix, Odometry or PoseStamped topic")
+        pos.add_argument("--gt-topic", nargs="+", metavar="TOPIC", help="ROS bags: a NavSatFix, Odometry or "
+                         "PoseStamped topic; one for all sessions or one per session, in order")
         add_common_arguments(ap)
         return
     ap.add_argument("map", metavar="MAP_OR_DB", help="map from `vpr learn` (.npz), or a database traverse to learn")
@@ -300,12 +312,12 @@ def run_command(args) -> int:
     every = parse_every(args.every) if args.every else None
     if args.command == "learn":
         # where the positions are (no radius: nothing is evaluated here; the map keeps them)
-        spec = GroundTruthSpec(files=tuple(args.gt or ()), topic=args.gt_topic, radius=0.0) \
+        spec = GroundTruthSpec(files=tuple(args.gt or ()), topic=topic_arg(args.gt_topic), radius=0.0) \
             if args.gt or args.gt_topic else None
         the_map = learn(args.db[0] if len(args.db) == 1 else args.db, args.out, fps=args.fps, step=args.step,
                     max_frames=args.max_frames,
                     progress=not args.no_progress, encoder=settings["encoder"], encoder_conf=settings["encoder_conf"],
-                    method_conf=settings["method_conf"][ONLINE_METHOD], topic=args.topic, positions=spec,
+                    method_conf=settings["method_conf"][ONLINE_METHOD], topic=topic_arg(args.topic), positions=spec,
                     every=every)
         loc = the_map.localizer
         print(f"learned {loc.n_db} frames ({loc.memory!r}); wrote {map_path(args.out)}")
@@ -321,7 +333,7 @@ def run_command(args) -> int:
     else:
         learn_opts = {"encoder": settings["encoder"], "encoder_conf": settings["encoder_conf"],
                       "method_conf": settings["method_conf"][ONLINE_METHOD]}
-    src_opts = {"fps": args.fps, "step": args.step, "max_frames": args.max_frames, "topic": args.topic,
+    src_opts = {"fps": args.fps, "step": args.step, "max_frames": args.max_frames, "topic": topic_arg(args.topic),
                 "every": every}
     report = localize(args.map, args.query, args.out, query_standardise=args.query_standardise,
                       prior_frames=args.prior_frames, window=args.window, state_out=args.state_out,

@@ -25,7 +25,7 @@ from pipelines.interrupts import deferred
 from pipelines.outputs import claim_methods, merge_metrics, versions, warn, write_method
 from vpr import evaluate, io, methods
 from vpr.groundtruth import GroundTruthSpec, any_true, build_gt, frame_rows, prepare_positions
-from vpr.sources import open_source
+from vpr.sources import open_sources
 from vpr.types import MatchResult
 
 __all__ = ["RunOptions", "run_compare", "run_fleet", "prepare_run", "compare_query", "MatchMap", "extract_run",
@@ -54,7 +54,8 @@ class RunOptions:
     gt: GroundTruthSpec = field(default_factory=GroundTruthSpec)
     verify: int = 0
     min_inliers: int = 15
-    topic: str | None = None
+    #: bags' camera topic: one for all inputs, or a tuple of one per input
+    topic: str | tuple | None = None
     #: keep one frame per this many metres of travel
     every: float | None = None
     #: Dask: a local cluster of this many workers (0: serial), or the cluster at ``scheduler``; None and None:
@@ -106,8 +107,7 @@ def prepare_run(out: Path, paths, roles, opts: RunOptions, match: bool = False):
     if unknown:
         raise ValueError(f"verify_methods: {', '.join(sorted(unknown))} not among the methods run")
     encoder = encoders.get(opts.encoder, **opts.encoder_conf)
-    srcs = [open_source(p, fps=opts.fps, step=opts.step, max_frames=opts.max_frames, topic=opts.topic)
-            for p in paths]
+    srcs = open_sources(paths, opts.topic, not match, fps=opts.fps, step=opts.step, max_frames=opts.max_frames)
     positions = prepare_positions(srcs, roles, opts.gt, opts.every)
     encoder.check_sources(srcs, roles, chosen)
     if out.exists() and not out.is_dir():

@@ -34,13 +34,17 @@ def _header(ts, t: float, frame_id: str, ros1: bool):
 def write_bag(path, images, xy=None, *, ros: int = 1, storage: str = "sqlite3", compressed: bool = False,
               encoding: str = "rgb8", gps: bool = True, odom: bool = True, dt: float = 0.1,
               pos_dt: float | None = None, topic: str = "/camera/image_raw", extra_image_topic: str | None = None,
-              pos_start: int = 0, empty=()):
+              pos_start: int = 0, empty=(), no_fix=(), fmt: str = "png", more=None):
     """A bag of ``images`` (BGR) on ``topic`` at ``dt`` s, with NavSatFix (``/gps/fix``) and Odometry (``/odom``)
     of positions ``xy`` (metres; sampled every ``pos_dt`` s, default: with the frames) over the same time span.
 
     ``ros`` 1: a ``.bag`` file; 2: a bag folder (``storage`` ``"sqlite3"`` or ``"mcap"``); ``pos_start``: the
     positions begin at that frame's time (a GPS that gets its fix late); ``empty``: numbers of the frames written as
-    compressed images of 0 bytes (a camera driver's dropped frame). Returns the path.
+    compressed images of 0 bytes (a camera driver's dropped frame); ``no_fix``: numbers of the position samples
+    whose NavSatFix has no fix (status -1, as a GPS receiver publishes in a tunnel); ``fmt``: the compressed
+    format (``"16UC1; compressedDepth png"``: a 12-byte header and a 16-bit PNG, as compressed_depth_image_transport
+    writes); ``more``: {topic: (images, encoding)} written beside, at the same times (a depth camera, a second
+    camera). Returns the path.
     """
     from rosbags.typesys import Stores, get_typestore
 
@@ -60,27 +64,34 @@ def write_bag(path, images, xy=None, *, ros: int = 1, storage: str = "sqlite3", 
     Image = ts.types["sensor_msgs/msg/Image"]
     Compressed = ts.types["sensor_msgs/msg/CompressedImage"]
     msgs = []  # (time, connection name, message, type)
+
+    def raw(img, enc, t):
+        if enc == "rgb8":
+            arr = img[:, :, ::-1]
+        elif enc == "mono8":
+            arr = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+        else:
+            arr = img
+        arr = np.ascontiguousarray(arr)
+        ch = 1 if arr.ndim == 2 else arr.shape[2]
+        return Image(header=_header(ts, t, "cam", ros1), height=arr.shape[0], width=arr.shape[1], encoding=enc,
+                     is_bigendian=0, step=arr.shape[1] * ch * arr.itemsize, data=arr.view(np.uint8).ravel())
+
     for i, img in enumerate(images):
         t = T0 + i * dt
         if compressed:
             ok, buf = cv2.imencode(".png", img)
             assert ok
-            data = np.zeros(0, np.uint8) if i in empty else buf.ravel()
-            m = Compressed(header=_header(ts, t, "cam", ros1), format="png", data=data)
+            data = buf.ravel() if "compressedDepth" not in fmt else np.r_[np.zeros(12, np.uint8), buf.ravel()]
+            data = np.zeros(0, np.uint8) if i in empty else data
+            m = Compressed(header=_header(ts, t, "cam", ros1), format=fmt, data=data)
             msgs.append((t, "img", m, Compressed.__msgtype__))
         else:
-            if encoding == "rgb8":
-                arr = img[:, :, ::-1]
-            elif encoding == "mono8":
-                arr = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-            else:
-                arr = img
-            arr = np.ascontiguousarray(arr)
-            ch = 1 if arr.ndim == 2 else arr.shape[2]
-            m = Image(header=_header(ts, t, "cam", ros1), height=arr.shape[0], width=arr.shape[1],
-                      encoding=encoding, is_bigendian=0, step=arr.shape[1] * ch * arr.itemsize,
-                      data=arr.view(np.uint8).ravel())
-            msgs.append((t, "img", m, Image.__msgtype__))
+            msgs.append((t, "img", raw(img, encoding, t), Image.__msgtype__))
+    topics = {"img": topic, "gps": "/gps/fix", "odom": "/odom"}
+    for k, (other, (imgs, enc)) in enumerate((more or {}).items()):
+        topics[f"more{k}"] = other
+        msgs += [(T0 + i * dt, f"more{k}", raw(img, enc, T0 + i * dt), Image.__msgtype__) for i, img in enumerate(imgs)]
     if xy is not None:
         xy = np.asarray(xy, np.float64)
         frame_t = T0 + np.arange(len(images)) * dt
@@ -94,9 +105,10 @@ def write_bag(path, images, xy=None, *, ros: int = 1, storage: str = "sqlite3", 
         Fix, Status = ts.types["sensor_msgs/msg/NavSatFix"], ts.types["sensor_msgs/msg/NavSatStatus"]
         Odom = ts.types["nav_msgs/msg/Odometry"]
         geo = "geometry_msgs/msg/"
-        for t, (x, y), (lat, lon) in zip(pos_t, pos_xy, latlon, strict=True):
+        for j, (t, (x, y), (lat, lon)) in enumerate(zip(pos_t, pos_xy, latlon, strict=True)):
             if gps:
-                m = Fix(header=_header(ts, t, "gps", ros1), status=Status(status=0, service=1), latitude=lat,
+                m = Fix(header=_header(ts, t, "gps", ros1), status=Status(status=-1 if j in no_fix else 0, service=1),
+                        latitude=lat,
                         longitude=lon, altitude=500.0, position_covariance=np.zeros(9), position_covariance_type=0)
                 msgs.append((t, "gps", m, Fix.__msgtype__))
             if odom:
@@ -108,7 +120,6 @@ def write_bag(path, images, xy=None, *, ros: int = 1, storage: str = "sqlite3", 
                          pose=ts.types[geo + "PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
                          twist=ts.types[geo + "TwistWithCovariance"](twist=twist, covariance=np.zeros(36)))
                 msgs.append((t, "odom", m, Odom.__msgtype__))
-    topics = {"img": topic, "gps": "/gps/fix", "odom": "/odom"}
     with writer as w:
         conns = {}
         for _, key, _, typ in msgs:

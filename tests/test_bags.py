@@ -93,8 +93,8 @@ def test_bad_bags_are_one_line(seasons, tmp_path, capsys):
         open_source(two)
     with pytest.raises(ValueError, match=r"no topic '/cam'; topics: /camera/depth .*/camera/image_raw"):
         open_source(two, topic="/cam")
-    odd = write_bag(tmp_path / "odd.bag", [np.zeros((4, 4), np.float32)] * 2, encoding="32FC1")
-    with pytest.raises(ValueError, match="image encoding '32FC1' is not read"):
+    odd = write_bag(tmp_path / "odd.bag", [np.zeros((4, 4), np.float64)] * 2, encoding="64FC1")
+    with pytest.raises(ValueError, match="image encoding '64FC1' is not read"):
         open_source(odd)
     code, _, err = _run(["loops", tmp_path / "text.bag", "--out", tmp_path / "o"], capsys)
     assert code == 2 and len(err.strip().splitlines()) == 1 and "text.bag" in err
@@ -138,24 +138,32 @@ def test_gt_topic_navsatfix_and_odometry_give_the_rendered_positions(seasons):
     for topic in ("/gps/fix", "/odom"):
         t, values, kind = src.trajectory(topic)
         xy = tr.latlon_to_metres(values[:, 0], values[:, 1]) if kind == "latlon" else values
-        got, inside = tr.positions_at(src.stamps(), t, xy)
-        assert inside.all()
+        got, why = tr.positions_at(src.stamps(), t, xy)
+        assert (why == 0).all()
         want = seasons["xy_day"] - (seasons["xy_day"][0] if kind == "latlon" else 0)
         np.testing.assert_allclose(got, want, atol=0.01)
 
 
 def test_positions_are_interpolated_at_frame_times_never_extrapolated():
-    xy, inside = tr.positions_at([0.5, 1.5, 3.0, -1.0], [0.0, 1.0, 2.0], [[0, 0], [10, 0], [10, 10]])
+    xy, why = tr.positions_at([0.5, 1.5, 3.0, -1.0], [0.0, 1.0, 2.0], [[0, 0], [10, 0], [10, 10]])
     np.testing.assert_allclose(xy[:2], [[5, 0], [10, 5]])
-    assert inside.tolist() == [True, True, False, False] and np.isnan(xy[2:]).all()
+    assert why.tolist() == [0, 0, 1, 1] and np.isnan(xy[2:]).all()
+
+
+def test_positions_are_not_interpolated_across_an_outage():
+    t = np.r_[np.arange(0.0, 10.0), np.arange(70.0, 80.0)]  # 1 Hz, then a minute without a fix
+    xy, why = tr.positions_at([5.5, 30.0, 69.5, 75.0], t, np.stack([t, 0 * t], axis=1))
+    assert why.tolist() == [0, 2, 2, 0] and np.isnan(xy[1:3]).all()
+    np.testing.assert_allclose(xy[[0, 3], 0], [5.5, 75.0])
+    np.testing.assert_allclose(tr.outages(t), [[9.0, 70.0]])
 
 
 @pytest.mark.slow
 def test_frames_outside_the_gps_span_are_left_out_with_a_warning(laps, tmp_path, capsys):
     late = write_bag(tmp_path / "late.bag", read_folder(laps["scene"]["laps"]), laps["xy"], odom=False, pos_start=10)
     n = len(laps["xy"])
-    with pytest.warns(UserWarning, match=rf"10 of {n} frames have no position \(outside the time span of /gps/fix\); "
-                                         "left out, not extrapolated"):
+    with pytest.warns(UserWarning, match=rf"10 of {n} frames have no position \(10 outside the time span of "
+                                         r"/gps/fix\); left out, not extrapolated"):
         code, _, err = _run(["loops", late, "--out", tmp_path / "o", "--gt-topic", "/gps/fix", "--radius", 4,
                              "--preset", "fast", "--exclude", 12], capsys)
     assert code == 0, err
@@ -176,9 +184,9 @@ def test_tum_kitti_names_and_exif_formats(tmp_path):
     src = open_source(folder)
     assert tr.trajectory_format(tmp_path / "traj.txt") == "tum"
     t, xyz = tr.load_tum(tmp_path / "traj.txt")
-    xy, inside = tr.positions_at(src.stamps(), t, xyz)
+    xy, why = tr.positions_at(src.stamps(), t, xyz)
     np.testing.assert_allclose(xy[:, 0], [0, 1, 2, 3, 4])
-    assert inside.all()
+    assert (why == 0).all()
     # KITTI: one 3x4 pose a line, translation last
     (tmp_path / "poses.txt").write_text("".join(f"1 0 0 {k} 0 1 0 0 0 0 1 {2 * k}\n" for k in range(4)))
     assert tr.trajectory_format(tmp_path / "poses.txt") == "kitti"

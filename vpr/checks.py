@@ -14,7 +14,7 @@ import numpy as np
 import scipy.sparse as sp
 
 __all__ = ["check_similarity", "check_int", "check_count", "check_float", "check_choice", "at",
-           "physical_memory", "check_top_k", "check_exclude"]
+           "physical_memory", "check_top_k", "check_exclude", "per_input"]
 
 _SPARSE_FORMATS = ("coo", "csr", "csc")
 
@@ -176,3 +176,17 @@ def check_top_k(value, name: str = "top_k", nullable: bool = True) -> int | None
 def check_exclude(value, name: str = "exclude") -> int:
     """Loop closure's ``exclude``: frames closer than this are not candidates, an integer >= 1 (one rule)."""
     return check_int(value, name, 1)
+
+
+def per_input(value, n: int, option: str) -> list:
+    """One value of an option per input: ``value`` None or one value for all ``n``, or a sequence of one per input
+    (in order, as ``--gt FILE [FILE ...]``); ``option`` names it in the refusal."""
+    if value is None or isinstance(value, (str, bytes, os.PathLike)):
+        return [value] * n
+    values = list(value)
+    if len(values) == 1:
+        return values * n
+    if len(values) != n:
+        raise ValueError(f"{option}: {len(values)} values for {n} inputs; give one for all, or one per input in "
+                         "order")
+    return values

@@ -9,11 +9,22 @@ import cv2
 import numpy as np
 
 __all__ = ["to_uint8", "to_grey", "to_bgr", "resize", "patch_normalise", "seqslam_preprocess",
-           "seqslam_descriptors"]
+           "seqslam_descriptors", "depth_bits"]
 
 
-def to_uint8(img, name: str = "image") -> np.ndarray:
+def depth_bits(img) -> int:
+    """The bits a 16-bit image uses: 10, 12, 14 or 16, the fewest that hold its largest value (a 12-bit camera's
+    frames are stored in 16 bits)."""
+    top = int(np.max(img)) if np.size(img) else 0
+    return next((b for b in (10, 12, 14) if top < (1 << b)), 16)
+
+
+def to_uint8(img, name: str = "image", bits: int | None = None) -> np.ndarray:
     """Validate ``img`` and convert it to uint8 with 1, 3 or 4 channels (channel axis last).
+
+    A 16-bit image is scaled from ``bits`` bits (default :func:`depth_bits` of it;
+    a source passes the depth of its first frame, so that all its frames are
+    scaled alike).
 
     Raises
     ------
@@ -31,7 +42,7 @@ def to_uint8(img, name: str = "image") -> np.ndarray:
     if a.dtype == np.uint8:
         return a
     if a.dtype == np.uint16:
-        return (a >> 8).astype(np.uint8)
+        return np.minimum(a >> ((bits or depth_bits(a)) - 8), 255).astype(np.uint8)
     if a.dtype == bool:
         return a.astype(np.uint8) * 255
     if a.dtype.kind == "f":
@@ -56,9 +67,9 @@ def to_grey(img, name: str = "image") -> np.ndarray:
     return cv2.cvtColor(a, code)
 
 
-def to_bgr(img, name: str = "image") -> np.ndarray:
-    """uint8 BGR (H, W, 3) from grey, BGR or BGRA input of any supported dtype."""
-    a = to_uint8(img, name)
+def to_bgr(img, name: str = "image", bits: int | None = None) -> np.ndarray:
+    """uint8 BGR (H, W, 3) from grey, BGR or BGRA input of any supported dtype (``bits``: :func:`to_uint8`)."""
+    a = to_uint8(img, name, bits)
     if a.ndim == 2 or a.shape[2] == 1:
         return cv2.cvtColor(a.reshape(a.shape[0], a.shape[1]), cv2.COLOR_GRAY2BGR)
     if a.shape[2] == 4:

@@ -425,8 +425,10 @@ def load_traverse_positions(path, traverse: str | None) -> dict[int, tuple[float
     stdin has no name).
 
     A source named like a file (``laps.mp4``, the video ``vpr render --video``
-    writes beside the folder ``laps``) also matches the rows of its stem
-    (``laps``) when the file has none under the full name.
+    writes beside the folder ``laps``) also matches the rows of its name
+    without the extension (``laps``) when the file has none under the full
+    name. Sessions named alike are named by their paths' ends
+    (``run1/img``, :func:`vpr.sources.open_sources`): their rows carry those names.
 
     Raises
     ------
@@ -450,7 +452,7 @@ def load_traverse_positions(path, traverse: str | None) -> dict[int, tuple[float
         if not need <= set(cols):
             raise ValueError(f"{path}:1: expected a header with columns {sorted(need)}, got {header}")
         ti, fi, xi, yi = (cols.index(c) for c in ("traverse", "frame", "x", "y"))
-        names = (traverse, Path(traverse).stem) if traverse is not None else ()
+        names = (traverse, str(Path(traverse).with_suffix(""))) if traverse is not None else ()
         by_name: dict[str, dict] = {n: {} for n in names}
         for line_no, row in enumerate(reader, start=2):
             if not row or row[0].startswith("#"):
@@ -462,9 +464,12 @@ def load_traverse_positions(path, traverse: str | None) -> dict[int, tuple[float
             elif row[ti] not in by_name:
                 continue
             try:
-                by_name[row[ti]][int(row[fi])] = (float(row[xi]), float(row[yi]))
+                x, y = float(row[xi]), float(row[yi])
+                by_name[row[ti]][int(row[fi])] = (x, y)
             except ValueError:
                 raise ValueError(f"{path}:{line_no}: frame must be an integer and x, y numbers") from None
+            if not (math.isfinite(x) and math.isfinite(y)):
+                raise ValueError(f"{path}:{line_no}: x, y must be finite numbers, got {row[xi]}, {row[yi]}")
     if traverse is None:  # a stream without a name (stdin): the file's only traverse
         if len(by_name) != 1:
             raise ValueError(f"{path}: {len(by_name)} traverses ({', '.join(sorted(by_name)) or 'none'}); a stream "

@@ -9,8 +9,10 @@ source's frames a position, from whichever of these the options name:
   number), or a ``frame,x,y`` / ``traverse,frame,x,y`` positions CSV;
 - ``--gt names`` (UTM in the file names) or ``--gt exif`` (GPS in the photos).
 
-Frames outside a trajectory's time span get no position: they are left out
-of the run with a warning, never extrapolated. ``--every 2m`` then keeps one
+Frames outside a trajectory's time span, or inside an outage of it (a GPS
+without a fix, :func:`vpr.groundtruth.trajectories.outages`), get no
+position: they are left out of the run with a warning that gives their count
+and the outages' spans, never extrapolated nor interpolated across the gap. ``--every 2m`` then keeps one
 frame per 2 m of travel. Both act on the sources' selection
 (:meth:`vpr.sources.Source.restrict`), so the frames left out are not even
 read.
@@ -20,6 +22,8 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
+
+from vpr.checks import per_input
 
 from . import trajectories as tr
 from .files import load_traverse_positions, positions_for, positions_for_frames, positions_of_frames
@@ -45,21 +49,54 @@ def _csv_positions(src, path, role: str, single: bool) -> np.ndarray:
     return positions_for_frames(path, src.names(), idx, role)
 
 
-def frame_positions(src, spec: GroundTruthSpec, file: str | None, role: str,
-                    single: bool = False) -> tuple[np.ndarray, str]:
-    """(positions (n, d), kind) of ``src``'s frames to attempt; NaN rows: outside a trajectory's time span.
+def _timed(stamps, t, values, kind: str, where: str) -> tuple[np.ndarray, str, str]:
+    """Positions at the frames' times, and why the frames without one have none (the outages' spans)."""
+    xy, why = tr.positions_at(stamps, t, values)
+    notes = []
+    if (why == 1).any():
+        notes.append(f"{int((why == 1).sum())} outside the time span of {where}")
+    if (why == 2).any():
+        gaps = tr.outages(t)
+        longest = float(np.max(gaps[:, 1] - gaps[:, 0]))
+        notes.append(f"{int((why == 2).sum())} in {len(gaps)} outage{'s' if len(gaps) > 1 else ''} of {where} "
+                     f"(no position for over {tr.OUTAGE_S:g} s; longest {longest:.1f} s, from "
+                     f"{float(gaps[0, 0] - t[0]):.1f} s after its first sample), not interpolated across")
+    return xy, kind, "; ".join(notes)
+
+
+def _check_alike(srcs, path) -> None:
+    """Refuse one ``traverse,frame,x,y`` file for sessions named alike (``run1/img``, ``run2/img``) unless its rows
+    tell them apart: the rows of ``img`` would be taken for both."""
+    alike = [s for s in srcs if "/" in s.name]
+    if not alike:
+        return
+    try:
+        for s in alike:
+            load_traverse_positions(path, s.name)
+    except ValueError:
+        base = " / ".join(sorted({repr(s.name.rsplit("/", 1)[-1]) for s in alike}))
+        raise ValueError(f"--gt {path}: {' and '.join(str(s.path) for s in alike)} share a name ({base}); "
+                         f"the file's traverse column must tell them apart ({', '.join(repr(s.name) for s in alike)}), "
+                         "or give one positions file per session (--gt FILE [FILE ...], in order)") from None
+
+
+def frame_positions(src, spec: GroundTruthSpec, file: str | None, role: str, single: bool = False,
+                    topic: str | None = None) -> tuple[np.ndarray, str, str]:
+    """(positions (n, d), kind, note) of ``src``'s frames to attempt; NaN rows: frames without a position.
 
     ``kind`` ``"latlon"`` (degrees: GPS, to be put in metres about one origin
     for every source of a run) or ``"metres"``. ``file``: this source's
-    ``--gt`` file or keyword (None with ``--gt-topic``); ``single``: the file
-    holds this stream alone (loop closure).
+    ``--gt`` file or keyword (None with ``--gt-topic``); ``topic``: this
+    source's ``--gt-topic``; ``single``: the file holds this stream alone
+    (loop closure). ``note`` says why frames have no position ("" when it goes
+    without saying).
     """
     what = f"{role} {src.path}"
-    if spec.topic is not None:
-        t, values, kind = src.trajectory(spec.topic)
-        return tr.positions_at(src.stamps(), t, values)[0], kind
+    if topic is not None:
+        t, values, kind = src.trajectory(topic)
+        return _timed(src.stamps(), t, values, kind, topic)
     if file == "names":
-        return tr.utm_from_names(src.names()), "metres"
+        return tr.utm_from_names(src.names()), "metres", ""
     if file == "exif":
         paths = src.frame_paths()
         if paths is None:
@@ -67,7 +104,7 @@ def frame_positions(src, spec: GroundTruthSpec, file: str | None, role: str,
         latlon, _ = tr.exif_positions(paths)
         if np.isnan(latlon[:, 0]).all():
             raise ValueError(f"--gt exif: no photo of {what} has a GPS position in its EXIF")
-        return latlon, "latlon"
+        return latlon, "latlon", "without a GPS position in the EXIF"
     kind = tr.trajectory_format(file)
     if kind == "tum":
         stamps = src.stamps()
@@ -75,14 +112,14 @@ def frame_positions(src, spec: GroundTruthSpec, file: str | None, role: str,
             raise ValueError(f"--gt {file}: a TUM trajectory is matched to the frames by time, and {what} has no "
                              "times (a bag, a video, or images named by their timestamps)")
         t, xyz = tr.load_tum(file)
-        return tr.positions_at(stamps, t, xyz)[0], "metres"
+        return _timed(stamps, t, xyz, "metres", str(file))
     if kind == "kitti":
         xyz = tr.load_kitti(file)
         idx = np.asarray(src.indices(), np.int64)
         if idx.size and idx.max() >= xyz.shape[0]:
             raise ValueError(f"--gt {file}: {xyz.shape[0]} KITTI poses, but {what} has frame {int(idx.max())}")
-        return xyz[idx], "metres"
-    return _csv_positions(src, file, role, single), "metres"
+        return xyz[idx], "metres", ""
+    return _csv_positions(src, file, role, single), "metres", ""
 
 
 def prepare_positions(srcs, roles, spec: GroundTruthSpec, every: float | None = None, loops: bool | None = None,
@@ -113,31 +150,32 @@ def prepare_positions(srcs, roles, spec: GroundTruthSpec, every: float | None = 
             combined = "traverse" in fh.readline().lower()
         if kind is not None or not combined:
             raise ValueError(f"--gt {files[0]}: one {'trajectory' if kind else 'positions file'} for "
-                             f"{len(srcs)} traverses; give one per traverse (--gt DB_FILE QUERY_FILE), or one CSV "
-                             "with traverse,frame,x,y rows")
+                             f"{len(srcs)} traverses; give one per traverse, in order (--gt "
+                             f"{' '.join(f'FILE{k + 1}' for k in range(len(srcs)))}), or one CSV with "
+                             "traverse,frame,x,y rows")
+        _check_alike(srcs, files[0])
     read = []
+    topics = per_input(spec.topic, len(srcs), "--gt-topic")
     for k, (src, role) in enumerate(zip(srcs, roles, strict=True)):
         file = None if spec.topic is not None else files[k] if len(files) == len(srcs) > 1 else files[0]
-        read.append(frame_positions(src, spec, file, role, single=len(srcs) == 1))
+        read.append(frame_positions(src, spec, file, role, single=len(srcs) == 1, topic=topics[k]))
     # GPS in metres about one origin for every source (each bag's own first fix would shift one traverse)
     if origin is None:
-        origin = next((tuple(float(a) for a in v[~np.isnan(v).any(axis=1)][0]) for v, kind in read
-                       if kind == "latlon"), None)
+        origin = next((tuple(float(a) for a in v[~np.isnan(v).any(axis=1)][0]) for v, kind, _ in read
+                       if kind == "latlon" and not np.isnan(v).all()), None)
     out = Positions()
     out.origin = origin
-    for src, role, (values, kind) in zip(srcs, roles, read, strict=True):
+    for src, role, (values, kind, note) in zip(srcs, roles, read, strict=True):
         xy = np.asarray(values, np.float64)
         if kind == "latlon":
             xy = np.where(np.isnan(xy), np.nan, tr.latlon_to_metres(xy[:, 0], xy[:, 1], origin))
         idx = np.asarray(src.indices(), np.int64)
         known = ~np.isnan(xy).any(axis=1)
         if not known.all():
-            where = f"outside the time span of {spec.topic or file}" if spec.topic or file not in ("exif",) \
-                else "without a GPS position"
             if not known.any():
-                raise ValueError(f"{role} {src.path}: none of its {idx.size} frames has a position ({where})")
+                raise ValueError(f"{role} {src.path}: none of its {idx.size} frames has a position ({note})")
             warnings.warn(f"{role} {src.path}: {int((~known).sum())} of {idx.size} frames have no position "
-                          f"({where}); left out, not extrapolated", UserWarning, stacklevel=2)
+                          f"({note}); left out, not extrapolated", UserWarning, stacklevel=2)
             src.restrict(idx[known])
             idx, xy = idx[known], xy[known]
         if every is not None:

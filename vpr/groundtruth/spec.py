@@ -49,16 +49,17 @@ class GroundTruthSpec:
         Match radius for position ground truth.
     soft : float, optional
         Larger radius (or tolerance) within which pairs are ignored.
-    topic : str, optional
+    topic : str or tuple of str, optional
         Positions from this topic of each bag (``--gt-topic``: NavSatFix,
-        Odometry, PoseStamped), with ``radius``.
+        Odometry, PoseStamped), with ``radius``; a tuple: one topic per input,
+        in order.
     """
 
     tolerance: int | None = None
     files: tuple[str, ...] = ()
     radius: float | None = None
     soft: float | None = None
-    topic: str | None = None
+    topic: str | tuple[str, ...] | None = None
 
     #: ``--gt`` words that name where positions are, not a file.
     KEYWORDS = ("names", "exif")
@@ -67,7 +68,13 @@ class GroundTruthSpec:
         """The spec under the command line's names (for ``metrics.json``)."""
         out = {"tolerance": self.tolerance, "gt": list(self.files) or None, "radius": self.radius,
                "gt_soft": self.soft}
-        return {**out, "gt_topic": self.topic} if self.topic is not None else out
+        topic = list(self.topic) if isinstance(self.topic, tuple) else self.topic
+        return {**out, "gt_topic": topic} if self.topic is not None else out
+
+    @property
+    def topic_text(self) -> str:
+        """``--gt-topic`` as written on the command line."""
+        return " ".join(self.topic) if isinstance(self.topic, tuple) else str(self.topic)
 
     @property
     def keyword(self) -> str | None:
@@ -97,10 +104,10 @@ class GroundTruthSpec:
         tol, files, radius, soft = self.tolerance, list(self.files), self.radius, self.soft
         if self.topic is not None:
             if files or tol is not None:
-                raise ValueError(f"--gt-topic {self.topic}: positions come from the bags' topic; give it instead of "
-                                 "--gt or --tolerance, not with them")
+                raise ValueError(f"--gt-topic {self.topic_text}: positions come from the bags' topic; give it "
+                                 "instead of --gt or --tolerance, not with them")
             if radius is None:
-                raise ValueError(f"--gt-topic {self.topic} needs --radius (metres)")
+                raise ValueError(f"--gt-topic {self.topic_text} needs --radius (metres)")
         if self.keyword is not None:
             if radius is None:
                 raise ValueError(f"--gt {self.keyword} needs --radius (metres)")
@@ -165,7 +172,7 @@ class GroundTruthSpec:
             return ValueError(f"ground truth --tolerance {self.tolerance}: no query frame has a database frame "
                               f"within {self.tolerance} frame numbers (database frames {span(db_indices)}, "
                               f"query frames {span(q_indices)}); recall is undefined")
-        files = f"--gt {', '.join(str(f) for f in self.files)}" if self.files else f"--gt-topic {self.topic}"
+        files = f"--gt {', '.join(str(f) for f in self.files)}" if self.files else f"--gt-topic {self.topic_text}"
         if exclude is not None and self.radius is not None:
             return ValueError(f"ground truth {files} --radius {self.radius:g}: no frame is within "
                               f"{self.radius:g} of a frame at least --exclude {exclude} frames earlier; "

@@ -14,7 +14,8 @@ distances :func:`vpr.groundtruth.gt_from_positions` thresholds with
   turned into local metres.
 
 :func:`positions_at` interpolates a trajectory at the frames' times and
-never extrapolates: frames outside the trajectory's time span are reported,
+never extrapolates, nor interpolates across an outage (:func:`outages`):
+frames outside the trajectory's time span or inside an outage are reported,
 for the caller to leave out with a warning. :func:`every` keeps one frame
 per so many metres of travel, as a robot's loop-closure front end does.
 """
@@ -27,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["trajectory_format", "load_tum", "load_kitti", "utm_from_names", "exif_positions", "positions_at",
-           "every", "latlon_to_metres", "parse_every", "EARTH_RADIUS"]
+           "outages", "OUTAGE_S", "every", "latlon_to_metres", "parse_every", "EARTH_RADIUS"]
 
 #: Mean Earth radius, m: latitude and longitude to local metres (an equirectangular plane about the first
 #: point, within a few centimetres per kilometre at the scale of a route).
@@ -146,21 +147,43 @@ def exif_positions(paths) -> tuple[np.ndarray, list[int]]:
     return np.asarray(out, np.float64).reshape(-1, 2), missing
 
 
-def positions_at(times, traj_t, traj_xy) -> tuple[np.ndarray, np.ndarray]:
-    """The trajectory's position at each of ``times``, linearly interpolated; and which lie inside its span.
+#: A gap between two samples of a trajectory longer than this (seconds), or than ``OUTAGE_INTERVALS`` of its
+#: median sampling interval if that is longer, is an outage (a GPS without a fix, odometry that stopped): the
+#: frames inside it get no position, since a straight line across a minute of driving is no ground truth.
+OUTAGE_S = 5.0
+OUTAGE_INTERVALS = 10
 
-    Frames before the first or after the last sample have no position (NaN):
-    they are never extrapolated.
+
+def outages(traj_t) -> np.ndarray:
+    """(k, 2) start and end times of the gaps in a trajectory's times that are outages (see :data:`OUTAGE_S`)."""
+    t = np.asarray(traj_t, np.float64)
+    if t.size < 2:
+        return np.zeros((0, 2))
+    dt = np.diff(t)
+    limit = max(OUTAGE_S, OUTAGE_INTERVALS * float(np.median(dt)))
+    k = np.flatnonzero(dt > limit)
+    return np.stack([t[k], t[k + 1]], axis=1)
+
+
+def positions_at(times, traj_t, traj_xy) -> tuple[np.ndarray, np.ndarray]:
+    """The trajectory's position at each of ``times``, linearly interpolated; and why a time has none.
+
+    Returns ``(xy, why)``: ``why`` 0 where the time has a position, 1 before
+    the first or after the last sample (never extrapolated), 2 inside an
+    outage (:func:`outages`; never interpolated across); ``xy`` is NaN where
+    ``why`` is not 0.
     """
     times = np.asarray(times, np.float64)
     traj_t = np.asarray(traj_t, np.float64)
     traj_xy = np.asarray(traj_xy, np.float64)
-    inside = (times >= traj_t[0]) & (times <= traj_t[-1])
+    why = np.where((times >= traj_t[0]) & (times <= traj_t[-1]), 0, 1)
+    for a, b in outages(traj_t):
+        why[(times > a) & (times < b)] = 2
     xy = np.full((times.size, traj_xy.shape[1]), np.nan)
-    if inside.any():
-        xy[inside] = np.stack([np.interp(times[inside], traj_t, traj_xy[:, d]) for d in range(traj_xy.shape[1])],
-                              axis=1)
-    return xy, inside
+    ok = why == 0
+    if ok.any():
+        xy[ok] = np.stack([np.interp(times[ok], traj_t, traj_xy[:, d]) for d in range(traj_xy.shape[1])], axis=1)
+    return xy, why
 
 
 def parse_every(text) -> float:

@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from vpr.checks import per_input
+
 from .bag import BagSource, is_bag
 from .base import (
     IMAGE_EXTENSIONS,
@@ -43,7 +45,7 @@ from .video import VideoSource
 __all__ = ["Frame", "FrameSkippedWarning", "IgnoredFilesWarning", "Source", "FolderSource", "ListSource", "VideoSource",
            "BagSource", "StdinSource", "KINDS", "is_bag",
            "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS", "LIST_EXTENSIONS", "natural_key", "decode_image", "open_source",
-           "load_all", "iter_batches", "frame_reader"]
+           "open_sources", "load_all", "iter_batches", "frame_reader"]
 
 
 #: The kinds of source, asked in this order whether a path is theirs (:meth:`Source.accepts`).
@@ -93,6 +95,52 @@ def open_source(path, fps=None, step=None, max_frames=None, topic: str | None = 
         f"{p}: unknown source kind {p.suffix.lower() or '(no extension)'!r}; expected a folder of images, a video "
         f"({' '.join(sorted(VIDEO_EXTENSIONS))}), an image list ({' '.join(sorted(LIST_EXTENSIONS))}) or a ROS bag "
         "(.bag .mcap .db3, or a folder with metadata.yaml)")
+
+
+def _identity(src: Source) -> tuple:
+    return (src.path.resolve(), getattr(src, "topic", None))
+
+
+def open_sources(paths, topic=None, distinct: bool = True, **options) -> list[Source]:
+    """:func:`open_source` of each of ``paths``, with a ``topic`` each (:func:`per_input`), named apart.
+
+    Two inputs that are the same source (the same file or folder, the same
+    topic) are refused with ``distinct`` (sessions of one robot, a map's
+    sessions: a traverse learned twice closes perfect loops onto its own copy);
+    else warned. Inputs whose names coincide (``run1/img``, ``run2/img``) are
+    named by as much of their path as tells them apart (``run1/img``), so that
+    outputs, tables and a ``traverse,frame,x,y`` file never mix them up.
+    """
+    import warnings
+
+    paths = list(paths)
+    srcs = [open_source(p, topic=t, **options) for p, t in zip(paths, per_input(topic, len(paths), "--topic"),
+                                                                   strict=True)]
+    seen: dict[tuple, int] = {}
+    for k, src in enumerate(srcs):
+        first = seen.setdefault(_identity(src), k)
+        if first != k:
+            msg = (f"{src.path} is given twice (inputs {first + 1} and {k + 1})"
+                   + (f", topic {src.topic}" if getattr(src, "topic", None) else ""))
+            if distinct:
+                raise ValueError(f"{msg}: the same recording would be matched against itself; give each once")
+            warnings.warn(f"{msg}: it is matched against itself (every match is trivially right)", UserWarning,
+                          stacklevel=2)
+    _name_apart(srcs)
+    return srcs
+
+
+def _name_apart(srcs) -> None:
+    by_name: dict[str, list[Source]] = {}
+    for src in srcs:
+        by_name.setdefault(src.name, []).append(src)
+    for same in by_name.values():
+        parts = [src.path.resolve().parts for src in same]
+        if len(same) < 2 or len(set(parts)) < len(parts):
+            continue
+        depth = next(d for d in range(1, max(map(len, parts)) + 1) if len({p[-d:] for p in parts}) == len(parts))
+        for src, p in zip(same, parts, strict=True):
+            src.name = "/".join(p[-depth:])
 
 
 def load_all(source: Source, progress: bool = True) -> tuple[list[np.ndarray], list[str]]:

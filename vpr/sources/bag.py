@@ -7,25 +7,28 @@ install): a ROS 1 ``.bag`` file, a ROS 2 bag folder (``metadata.yaml`` with
 - Frames are the messages of one image topic (``sensor_msgs/Image`` in the
   usual encodings, :data:`ENCODINGS`, or ``sensor_msgs/CompressedImage``):
   ``topic`` names it, or the bag's only image topic is taken; several are
-  refused with the list and their message counts.
+  refused with the list and their message counts. Depth images (16UC1,
+  32FC1, compressedDepth) are not a camera's appearance: they are read only
+  when their topic is named. 16-bit images are scaled by the bits they use
+  (a 12-bit camera keeps its contrast).
 - A frame's time is the bag's record time of its message (the clock every
   topic of the bag shares, so that positions are interpolated on the same
   clock); ``fps`` samples by it (as for videos), ``step`` and ``max_frames``
   as for every source. Frame names are ``TOPIC@SECONDS.NANOSECONDS``.
 - :meth:`BagSource.trajectory` reads positions: ``sensor_msgs/NavSatFix``
-  (latitude and longitude; fixes without a fix status left out; turned into
+  (latitude and longitude; fixes without a fix left out; turned into
   metres by :func:`vpr.groundtruth.trajectories.latlon_to_metres`),
   ``nav_msgs/Odometry``, ``geometry_msgs/PoseStamped`` and
   ``PoseWithCovarianceStamped`` (x, y).
-- A ROS 1 bag that was cut short (a recording stopped, a copy interrupted)
-  has no index: its complete records are read in order and a warning gives
-  the count. Any other unreadable bag is refused in one line naming it.
+- A recording killed or cut short (:mod:`vpr.sources.salvage`): a ROS 1 bag
+  without its index, a ``.bag.active`` file, an ``.mcap`` without its summary
+  or end, are read record by record up to the damage; a ROS 2 folder without
+  ``metadata.yaml`` from the storage files in it. Each with a warning saying
+  what was read. Any other unreadable bag is refused in one line naming it.
 """
 from __future__ import annotations
 
-import bz2
 import hashlib
-import struct
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
@@ -33,11 +36,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from vpr.imageproc import to_bgr
+from vpr.imageproc import depth_bits
 
-from .base import Frame, Source, check_positive_int, check_range, stat_token
+from .base import Frame, Source, check_positive_int, check_range, natural_key, stat_token
+from .salvage import scan_mcap, scan_ros1
 
-__all__ = ["BagSource", "is_bag", "ENCODINGS", "IMAGE_TYPES", "POSITION_TYPES", "decode_image_msg"]
+__all__ = ["BagSource", "is_bag", "ENCODINGS", "DEPTH_ENCODINGS", "IMAGE_TYPES", "POSITION_TYPES",
+           "decode_image_msg", "depth_of"]
 
 #: Message types read as frames.
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
@@ -52,17 +57,33 @@ ENCODINGS = {
     "bayer_rggb8": cv2.COLOR_BayerBG2BGR, "bayer_bggr8": cv2.COLOR_BayerRG2BGR,
     "bayer_gbrg8": cv2.COLOR_BayerGR2BGR, "bayer_grbg8": cv2.COLOR_BayerGB2BGR,
     "yuv422": cv2.COLOR_YUV2BGR_UYVY, "uyvy": cv2.COLOR_YUV2BGR_UYVY, "yuv422_yuy2": cv2.COLOR_YUV2BGR_YUY2,
-    "yuyv": cv2.COLOR_YUV2BGR_YUY2,
+    "yuyv": cv2.COLOR_YUV2BGR_YUY2, "32fc1": None,
 }
 _CHANNELS = {"bgr8": 3, "8uc3": 3, "rgb8": 3, "bgra8": 4, "8uc4": 4, "rgba8": 4, "yuv422": 2, "uyvy": 2,
              "yuv422_yuy2": 2, "yuyv": 2}
 
+_STORAGE = (".db3", ".mcap")
+
+
 def is_bag(path) -> bool:
-    """Whether ``path`` is a ROS bag: a ``.bag``, ``.mcap`` or ``.db3`` file, or a folder with ``metadata.yaml``."""
+    """Whether ``path`` is a ROS bag: a ``.bag`` (or ``.bag.active``), ``.mcap`` or ``.db3`` file, or a folder with
+    ``metadata.yaml`` or ``.db3`` / ``.mcap`` files (a ROS 2 recording killed before it wrote its metadata)."""
     p = Path(path)
     if p.is_dir():
-        return (p / "metadata.yaml").is_file()
-    return p.suffix.lower() in (".bag", ".mcap", ".db3")
+        return (p / "metadata.yaml").is_file() or any(f.suffix.lower() in _STORAGE for f in p.iterdir())
+    return p.suffix.lower() in (".bag", *_STORAGE) or p.name.lower().endswith(".bag.active")
+
+
+def _storage_files(path: Path) -> list[Path]:
+    """The files a reader opens: the bag itself, a ROS 2 folder, or the storage files of a folder without
+    ``metadata.yaml`` (said with a warning: its message counts and time span are read from the files)."""
+    if not path.is_dir() or (path / "metadata.yaml").is_file():
+        return [path]
+    files = sorted((f for f in path.iterdir() if f.suffix.lower() in _STORAGE), key=lambda f: natural_key(f.name))
+    warnings.warn(f"{path}: no metadata.yaml (a ROS 2 recording killed before it wrote it); read its "
+                  f"{len(files)} storage file{'s' if len(files) > 1 else ''} ({', '.join(f.name for f in files)})",
+                  UserWarning, stacklevel=4)
+    return files
 
 
 def _typestore():
@@ -75,17 +96,56 @@ def _stamp_name(topic: str, t_ns: int) -> str:
     return f"{topic}@{t_ns // 1_000_000_000}.{t_ns % 1_000_000_000:09d}"
 
 
+def _short(msgtype: str) -> str:
+    return msgtype.replace("/msg/", "/")
+
+
+def _listing(topics: dict[str, tuple[str, int]]) -> str:
+    return ", ".join(f"{t} ({_short(typ)}, {n})" for t, (typ, n) in sorted(topics.items())) or "none"
+
+
+#: Encodings and compressed formats of depth images: a depth topic is not taken unless it is named.
+DEPTH_ENCODINGS = ("16uc1", "32fc1")
+
+
+def depth_of(msg, msgtype: str) -> str | None:
+    """The encoding or format of a depth image message (``"16UC1"``, ``"compressedDepth"``), else None."""
+    if msgtype.endswith("CompressedImage"):
+        return "compressedDepth" if "compresseddepth" in str(msg.format).lower() else None
+    enc = str(msg.encoding)
+    return enc if enc.lower() in DEPTH_ENCODINGS else None
+
+
+def _unread_format(reason: str) -> bool:
+    """Whether a decoding failure is of the topic's format (every frame would fail) rather than of one frame."""
+    return "encoding" in reason or "format" in reason
+
+
+#: Compressed formats OpenCV has no decoder for, and what to do instead.
+_UNREAD_FORMATS = {"qoi": "QOI has no decoder in OpenCV; republish with image_transport's jpeg or png"}
+
+
 def decode_image_msg(msg, msgtype: str) -> tuple[np.ndarray | None, str]:
     """A BGR (or grey / 16-bit, which :func:`vpr.imageproc.to_bgr` converts) image of one message, or the reason."""
     data = np.frombuffer(bytes(msg.data), np.uint8) if not isinstance(msg.data, np.ndarray) else msg.data
     if msgtype.endswith("CompressedImage"):
+        fmt = str(msg.format)
         if data.size == 0:
-            return None, f"empty compressed image ({msg.format or 'no format'}, 0 bytes)"
+            return None, f"empty compressed image ({fmt or 'no format'}, 0 bytes)"
+        low = fmt.lower()
+        unread = next((why for key, why in _UNREAD_FORMATS.items() if key in low), None)
+        if unread:
+            return None, f"compressed format {fmt!r} is not read: {unread}"
+        flags = cv2.IMREAD_COLOR
+        if "compresseddepth" in low:  # compressed_depth_image_transport: a 12-byte header, then a 16-bit PNG
+            if "png" not in low:
+                return None, f"compressed format {fmt!r} is not read (compressedDepth is read as PNG only)"
+            data, flags = data[12:], cv2.IMREAD_ANYDEPTH
         try:
-            img = cv2.imdecode(np.ascontiguousarray(data, np.uint8), cv2.IMREAD_COLOR)
+            img = cv2.imdecode(np.ascontiguousarray(data, np.uint8), flags)
         except cv2.error:
             img = None
-        return (img, "") if img is not None else (None, f"compressed image ({msg.format}) could not be decoded")
+        return (img, "") if img is not None else (None, f"compressed image ({fmt}) could not be decoded")
     enc = str(msg.encoding).lower()
     if enc not in ENCODINGS:
         return None, f"image encoding {msg.encoding!r} is not read (read: {', '.join(sorted(ENCODINGS))})"
@@ -95,96 +155,14 @@ def decode_image_msg(msg, msgtype: str) -> tuple[np.ndarray | None, str]:
     rows = np.asarray(data[: h * step], np.uint8).reshape(h, step)
     if enc in ("mono16", "16uc1"):
         img = rows[:, : 2 * w].copy().view(">u2" if msg.is_bigendian else "<u2").astype(np.uint16)
+    elif enc == "32fc1":  # depth in metres, read only when its topic is named: 0..65.535 m as 16-bit millimetres
+        m = rows[:, : 4 * w].copy().view(">f4" if msg.is_bigendian else "<f4")
+        img = np.clip(np.nan_to_num(m, nan=0.0, posinf=0.0, neginf=0.0) * 1000.0, 0, 65535).astype(np.uint16)
     else:
         img = rows[:, : w * _CHANNELS.get(enc, 1)].reshape(h, w, -1) if enc in _CHANNELS else rows[:, :w]
         code = ENCODINGS[enc]
         img = cv2.cvtColor(np.ascontiguousarray(img), code) if code is not None else np.ascontiguousarray(img)
     return img, ""
-
-
-# --------------------------------------------------------------------- a ROS 1 bag without its index
-_OP_MSG, _OP_CHUNK, _OP_CONN = 0x02, 0x05, 0x07
-
-
-def _fields(header: bytes) -> dict[str, bytes]:
-    out, i = {}, 0
-    while i + 4 <= len(header):
-        (n,) = struct.unpack_from("<I", header, i)
-        name, _, value = header[i + 4:i + 4 + n].partition(b"=")
-        out[name.decode("ascii", "replace")] = value
-        i += 4 + n
-    return out
-
-
-def _records(buf: bytes, start: int = 0):
-    """(fields, data, complete) of the records of ``buf`` from ``start``.
-
-    The last record may be cut short: it comes with the data there is and
-    ``complete`` False (an uncompressed chunk is still read up to its last
-    complete record), and nothing follows it.
-    """
-    i = start
-    while i + 4 <= len(buf):
-        (hl,) = struct.unpack_from("<I", buf, i)
-        if i + 8 + hl > len(buf):
-            return
-        header = buf[i + 4:i + 4 + hl]
-        (dl,) = struct.unpack_from("<I", buf, i + 4 + hl)
-        end = i + 8 + hl + dl
-        yield _fields(header), buf[i + 8 + hl:end], end <= len(buf)
-        if end > len(buf):
-            return
-        i = end
-
-
-def _scan_ros1(path: Path):
-    """Connections and messages of a ROS 1 bag read record by record (no index): (connections, messages).
-
-    ``connections``: id -> (topic, msgtype); ``messages``: (connection id, time ns, raw bytes), in file order.
-    Chunks compressed with bz2 or lz4 are read whole or not at all; an uncompressed chunk up to its last
-    complete record.
-    """
-    raw = path.read_bytes()
-    magic = b"#ROSBAG V2.0\n"
-    if not raw.startswith(magic):
-        raise ValueError("not a ROS 1 bag (no '#ROSBAG V2.0' header)")
-    conns: dict[int, tuple[str, str]] = {}
-    msgs: list[tuple[int, int, bytes]] = []
-
-    def take(records):
-        for f, data, complete in records:
-            op = f.get("op", b"\0")[0]
-            if not complete and op != _OP_CHUNK:
-                return
-            if op == _OP_CONN:
-                c = _fields(data)
-                typ = c.get("type", b"").decode()
-                pkg, _, name = typ.partition("/")
-                conns[struct.unpack("<I", f["conn"])[0]] = (f.get("topic", b"").decode(), f"{pkg}/msg/{name}")
-            elif op == _OP_MSG:
-                sec, nsec = struct.unpack("<II", f["time"])
-                msgs.append((struct.unpack("<I", f["conn"])[0], sec * 1_000_000_000 + nsec, data))
-            elif op == _OP_CHUNK:
-                comp = f.get("compression", b"none").decode()
-                if comp == "none":
-                    take(_records(data))
-                else:
-                    if not complete:  # a cut compressed chunk: nothing of it is readable
-                        return
-                    try:
-                        if comp == "bz2":
-                            inner = bz2.decompress(data)
-                        else:
-                            from lz4.frame import decompress  # rosbags' own dependency
-
-                            inner = decompress(data)
-                    except Exception:  # a cut compressed chunk: nothing of it is readable
-                        continue
-                    take(_records(inner))
-
-    take(_records(raw, len(magic)))
-    msgs.sort(key=lambda m: m[1])  # time order, as an indexed bag is read
-    return conns, msgs
 
 
 class BagSource(Source):
@@ -229,20 +207,17 @@ class BagSource(Source):
         self.max_frames = check_positive_int(max_frames, "max_frames")
         if not self.path.exists():
             raise FileNotFoundError(f"no such bag: {self.path}")
+        self._files = _storage_files(self.path)
         self.truncated = False
         self._scan: tuple | None = None
         topics = self._topics()
         images = {t: (typ, n) for t, (typ, n) in topics.items() if typ in IMAGE_TYPES}
         if topic is None:
-            if len(images) != 1:
-                listing = ", ".join(f"{t} ({n} messages)" for t, (_, n) in sorted(images.items())) or "none"
-                raise ValueError(f"{self.path}: {len(images)} image topics ({listing}); name one with --topic")
-            topic = next(iter(images))
+            topic = self._camera_topic(topics, images)
         elif topic not in topics:
-            listing = ", ".join(f"{t} ({typ.replace('/msg/', '/')}, {n})" for t, (typ, n) in sorted(topics.items()))
-            raise ValueError(f"{self.path}: no topic {topic!r}; topics: {listing or 'none'}")
+            raise ValueError(f"{self.path}: no topic {topic!r}; topics: {_listing(topics)}")
         elif topic not in images:
-            raise ValueError(f"{self.path}: topic {topic} holds {topics[topic][0]}, not images (image topics: "
+            raise ValueError(f"{self.path}: topic {topic} holds {_short(topics[topic][0])}, not images (image topics: "
                              f"{', '.join(sorted(images)) or 'none'})")
         self.topic = topic
         self.msgtype = topics[topic][0]
@@ -251,16 +226,39 @@ class BagSource(Source):
             raise ValueError(f"{self.path}: topic {topic} has no messages")
         first = next(self._messages(topic))[1]
         img, reason = decode_image_msg(first, self.msgtype)
-        if img is None and "encoding" in reason:
+        if img is None and _unread_format(reason):
             raise ValueError(f"{self.path}: topic {topic}: {reason}")
+        if img is not None and img.dtype == np.uint16:
+            self._bits = depth_bits(img)
         self._sel = self._select()
         self._only: np.ndarray | None = None
+
+    def _camera_topic(self, topics, images) -> str:
+        """The bag's only image topic that is not depth (:func:`depth_of`), or a refusal listing what there is."""
+        if not images:
+            raise ValueError(f"{self.path}: no image topic (sensor_msgs/Image or CompressedImage); topics: "
+                             f"{_listing(topics)}")
+        depth = {}
+        for t in images:
+            first = next(self._messages(t), None)
+            kind = depth_of(first[1], images[t][0]) if first is not None else None
+            if kind:
+                depth[t] = kind
+        cameras = sorted(set(images) - set(depth))
+        if len(cameras) == 1:
+            return cameras[0]
+        if not cameras:
+            listing = ", ".join(f"{t} ({k})" for t, k in sorted(depth.items()))
+            raise ValueError(f"{self.path}: its only image topics hold depth ({listing}), not an appearance camera; "
+                             "name one with --topic to read it anyway")
+        listing = ", ".join(f"{t} ({images[t][1]} messages)" for t in cameras)
+        raise ValueError(f"{self.path}: {len(cameras)} image topics ({listing}); name one with --topic")
 
     # ------------------------------------------------------------- reading
     def _reader(self):
         from rosbags.highlevel import AnyReader
 
-        return AnyReader([self.path], default_typestore=_typestore())
+        return AnyReader(self._files, default_typestore=_typestore())
 
     def _topics(self) -> dict[str, tuple[str, int]]:
         from rosbags.highlevel import AnyReaderError
@@ -273,21 +271,35 @@ class BagSource(Source):
                     out[c.topic] = (typ, n + c.msgcount)
                 return out
         except (AnyReaderError, OSError, ValueError, KeyError) as e:
-            if self.path.suffix.lower() != ".bag" or not self.path.is_file():
-                raise ValueError(f"{self.path}: not a readable ROS bag ({e})") from None
+            return self._salvage(e)
+
+    def _salvage(self, error) -> dict[str, tuple[str, int]]:
+        """Read what is complete of a recording the readers refuse (:mod:`vpr.sources.salvage`), with a warning."""
+        ros1 = self._ros1()
+        if not (ros1 or all(f.suffix.lower() == ".mcap" for f in self._files)):
+            raise ValueError(f"{self.path}: not a readable ROS bag ({error})") from None
+        conns: dict[int, tuple[str, str]] = {}
+        msgs: list[tuple[int, int, bytes]] = []
+        for k, f in enumerate(self._files):  # connection ids of each file apart
             try:
-                conns, msgs = _scan_ros1(self.path)
+                c, m = (scan_ros1 if ros1 else scan_mcap)(f)
             except ValueError as e2:
                 raise ValueError(f"{self.path}: not a readable ROS bag ({e2})") from None
-            self._scan = (conns, msgs)
-            self.truncated = True
-            warnings.warn(f"{self.path}: damaged or cut short ({e}); read its {len(msgs)} complete messages",
-                          UserWarning, stacklevel=3)
-            counts: dict[str, tuple[str, int]] = {}
-            for cid, _, _ in msgs:
-                t, typ = conns.get(cid, ("?", "?"))
-                counts[t] = (typ, counts.get(t, (typ, 0))[1] + 1)
-            return counts
+            conns.update({(k << 32) + cid: v for cid, v in c.items()})
+            msgs += [((k << 32) + cid, t, raw) for cid, t, raw in m]
+        msgs.sort(key=lambda m: m[1])
+        self._scan = (conns, msgs)
+        self.truncated = True
+        warnings.warn(f"{self.path}: damaged or cut short ({error}); read its {len(msgs)} complete messages",
+                      UserWarning, stacklevel=4)
+        counts: dict[str, tuple[str, int]] = {}
+        for cid, _, _ in msgs:
+            t, typ = conns.get(cid, ("?", "?"))
+            counts[t] = (typ, counts.get(t, (typ, 0))[1] + 1)
+        return counts
+
+    def _ros1(self) -> bool:
+        return self.path.is_file() and self.path.name.lower().endswith((".bag", ".bag.active"))
 
     def _raw(self, topic: str, data: bool = True, start: int | None = None, stop: int | None = None):
         """(time ns, raw bytes or None) of ``topic``'s messages in time order, within [start, stop)."""
@@ -306,10 +318,15 @@ class BagSource(Source):
     def _messages(self, topic: str, start: int | None = None, stop: int | None = None):
         """(time ns, message) of ``topic``, deserialised."""
         if self._scan is not None:
-            ts = _ros1_typestore()
             typ = next(typ for t, (typ, _) in self._topics_cache().items() if t == topic)
-            for t, raw in self._raw(topic, True, start, stop):
-                yield t, ts.deserialize_ros1(raw, typ)
+            if self._ros1():
+                ts = _ros1_typestore()
+                for t, raw in self._raw(topic, True, start, stop):
+                    yield t, ts.deserialize_ros1(raw, typ)
+            else:
+                ts = _typestore()
+                for t, raw in self._raw(topic, True, start, stop):
+                    yield t, ts.deserialize_cdr(raw, typ)
             return
         with self._reader() as r:
             cons = [c for c in r.connections if c.topic == topic]
@@ -380,7 +397,7 @@ class BagSource(Source):
                 self._skip(name, reason)
                 continue
             try:
-                img = to_bgr(img, f"{self.path} {name}")
+                img = self._bgr(img, name)
             except ValueError as e:
                 self._skip(name, str(e))
                 continue
@@ -405,7 +422,7 @@ class BagSource(Source):
         """(times s, positions (n, 2), kind) of a position topic (see :data:`POSITION_TYPES`).
 
         ``kind`` ``"latlon"``: NavSatFix latitude and longitude (messages
-        without a fix, status < 0, or with NaN coordinates left out);
+        without a fix, status < 0, with NaN or zero coordinates left out);
         ``"metres"``: x and y of an odometry or pose topic.
 
         Raises
@@ -417,14 +434,16 @@ class BagSource(Source):
         topics = self._topics_cache() if self._scan is not None else self._topics()
         if topic not in topics or topics[topic][0] not in POSITION_TYPES:
             have = sorted(t for t, (typ, _) in topics.items() if typ in POSITION_TYPES)
-            what = "no topic" if topic not in topics else f"topic {topic} holds {topics[topic][0]}, not positions;"
-            raise ValueError(f"{self.path}: {what} {topic!r} with positions (NavSatFix, Odometry, PoseStamped); "
-                             f"position topics: {', '.join(have) or 'none'}")
+            what = (f"no topic {topic!r}" if topic not in topics
+                    else f"topic {topic} holds {_short(topics[topic][0])}, not positions")
+            raise ValueError(f"{self.path}: --gt-topic: {what} (read: NavSatFix, Odometry, PoseStamped, "
+                             f"PoseWithCovarianceStamped); position topics here: {', '.join(have) or 'none'}")
         typ = topics[topic][0]
         t, a, b = [], [], []
         for stamp, msg in self._messages(topic):
             if typ.endswith("NavSatFix"):
-                if int(msg.status.status) < 0 or not (np.isfinite(msg.latitude) and np.isfinite(msg.longitude)):
+                lat, lon = float(msg.latitude), float(msg.longitude)
+                if int(msg.status.status) < 0 or not (np.isfinite(lat) and np.isfinite(lon)) or lat == lon == 0.0:
                     continue
                 a.append(float(msg.latitude))
                 b.append(float(msg.longitude))

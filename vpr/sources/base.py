@@ -12,11 +12,11 @@ import cv2
 import numpy as np
 
 from vpr.checks import check_int
-from vpr.imageproc import to_bgr
+from vpr.imageproc import depth_bits, to_bgr
 
 __all__ = ["Frame", "FrameSkippedWarning", "IgnoredFilesWarning", "Source", "IMAGE_EXTENSIONS",
            "OTHER_IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS", "LIST_EXTENSIONS", "natural_key", "decode_image",
-           "check_range", "check_positive_int", "stat_token", "frames_in"]
+           "read_image", "check_range", "check_positive_int", "stat_token", "frames_in"]
 
 log = logging.getLogger(__name__)
 
@@ -94,8 +94,8 @@ def stat_token(path: Path) -> str:
     return f"{path}|{st.st_size}|{st.st_mtime_ns}"
 
 
-def decode_image(path: Path) -> tuple[np.ndarray | None, str]:
-    """Read and decode one image file; return (image, "") or (None, reason)."""
+def read_image(path: Path) -> tuple[np.ndarray | None, str]:
+    """Read and decode one image file as it is stored (grey, colour, 16-bit); return (image, "") or (None, reason)."""
     try:
         # imdecode on bytes rather than imread: works with non-ASCII paths on
         # every platform and separates "cannot read" from "cannot decode"
@@ -112,8 +112,16 @@ def decode_image(path: Path) -> tuple[np.ndarray | None, str]:
         return None, f"OpenCV error while decoding ({str(exc).strip().splitlines()[-1]})"
     if img is None:
         return None, "not a decodable image (corrupt, truncated or unsupported format)"
+    return img, ""
+
+
+def decode_image(path: Path, bits: int | None = None) -> tuple[np.ndarray | None, str]:
+    """:func:`read_image` as uint8 BGR (``bits``: :func:`vpr.imageproc.to_uint8`); (image, "") or (None, reason)."""
+    img, reason = read_image(path)
+    if img is None:
+        return None, reason
     try:
-        return to_bgr(img, str(path)), ""
+        return to_bgr(img, str(path), bits), ""
     except ValueError as exc:
         return None, str(exc)
 
@@ -172,6 +180,7 @@ class Source:
         self.name = self.path.resolve().name or str(self.path)
         self.skipped: list[tuple[str, str]] = []
         self.ignored = 0
+        self._bits: int | None = None  # of 16-bit frames: one scale for every frame of the source
 
     def names(self) -> list[str]:
         """Names of the frames that will be attempted, in order."""
@@ -242,6 +251,17 @@ class Source:
         ``skipped`` holds the range's skipped frames.
         """
         raise NotImplementedError
+
+    def _bgr(self, img: np.ndarray, name: str) -> np.ndarray:
+        """uint8 BGR of a decoded frame; 16-bit frames scaled alike, by the bits the source's first frame uses
+        (a 12-bit camera keeps its contrast; :meth:`_first_bits`)."""
+        if img.dtype == np.uint16 and self._bits is None:
+            self._bits = self._first_bits(img)
+        return to_bgr(img, f"{self.path} {name}", self._bits)
+
+    def _first_bits(self, img: np.ndarray) -> int:
+        """The bits of the source's first 16-bit frame (here: ``img``, the first one read)."""
+        return depth_bits(img)
 
     def _skip(self, name: str, reason: str) -> None:
         self.skipped.append((name, reason))

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from vpr.imageproc import depth_bits
+
 from .base import (
     IMAGE_EXTENSIONS,
     LIST_EXTENSIONS,
@@ -18,8 +20,8 @@ from .base import (
     Source,
     check_positive_int,
     check_range,
-    decode_image,
     natural_key,
+    read_image,
     stat_token,
 )
 
@@ -77,28 +79,39 @@ class _FileListSource(Source):
     def exact_total(self) -> int:
         return len(self._entries)
 
-    def __iter__(self) -> Iterator[Frame]:
-        self.skipped = []
-        n_yielded = 0
-        for index, name, p in self._selected():
-            img, reason = decode_image(p)
+    def _first_bits(self, img: np.ndarray) -> int:
+        for _, _, p in self._selected():  # the first readable frame, whichever range is read
+            first, _ = read_image(p)
+            if first is not None:
+                return depth_bits(first) if first.dtype == np.uint16 else depth_bits(img)
+        return depth_bits(img)
+
+    def _decoded(self, entries) -> Iterator[Frame]:
+        for index, name, p in entries:
+            img, reason = read_image(p)
+            if img is not None:
+                try:
+                    img = self._bgr(img, name)
+                except ValueError as exc:
+                    img, reason = None, str(exc)
             if img is None:
                 self._skip(name, reason)
                 continue
-            n_yielded += 1
             yield Frame(index, name, img)
+
+    def __iter__(self) -> Iterator[Frame]:
+        self.skipped = []
+        n_yielded = 0
+        for f in self._decoded(self._selected()):
+            n_yielded += 1
+            yield f
         if n_yielded == 0:
             raise self._no_frames_error()
 
     def iter_range(self, start: int, stop: int) -> Iterator[Frame]:
         start, stop = check_range(start, stop)
         self.skipped = []
-        for index, name, p in self._selected()[start:stop]:
-            img, reason = decode_image(p)
-            if img is None:
-                self._skip(name, reason)
-                continue
-            yield Frame(index, name, img)
+        yield from self._decoded(self._selected()[start:stop])
 
 
 class FolderSource(_FileListSource):

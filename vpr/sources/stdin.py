@@ -13,7 +13,7 @@ import os
 from collections.abc import Iterator
 from pathlib import Path
 
-from .base import Frame, Source, decode_image
+from .base import Frame, Source, read_image
 
 __all__ = ["StdinSource", "SESSION"]
 
@@ -50,10 +50,8 @@ class StdinSource(Source):
     carries = frozenset({"paths"})
 
     def __init__(self, stream, name: str = "stdin"):
-        self.path = Path(name)
+        super().__init__(name)
         self.name = name
-        self.skipped: list[tuple[str, str]] = []
-        self.ignored = 0
         self._stream = stream
 
     def _lines(self):
@@ -81,8 +79,13 @@ class StdinSource(Source):
                 continue
             seen_path = True
             name = os.fsdecode(text)
-            img, reason = decode_image(Path(name))
+            img, reason = read_image(Path(name))
             index += 1
+            if img is not None:
+                try:
+                    img = self._bgr(img, name)
+                except ValueError as exc:
+                    img, reason = None, str(exc)
             if img is None:
                 self.skipped.append((name, reason))
                 continue

@@ -1,0 +1,233 @@
+"""Robot logs as they come off real robots: outages, other encodings, killed recordings, two robots, sessions.
+
+Every faulty log is written here (rosbags for the bags, ``vpr render`` for the
+frames); each case checks what is said and what is written.
+"""
+import csv
+import json
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from pipelines.cli import main
+from tests.bags import read_folder, write_bag
+from vpr.sources import open_source, open_sources
+
+
+def _run(argv, capsys):
+    code = main([str(a) for a in argv] + ["--no-progress"])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def _positions(gt_csv, traverse) -> np.ndarray:
+    with open(gt_csv) as fh:
+        rows = [r for r in csv.DictReader(fh) if r["traverse"] == traverse]
+    return np.array([(float(r["x"]), float(r["y"])) for r in sorted(rows, key=lambda r: int(r["frame"]))])
+
+
+def _metrics(out: Path) -> dict:
+    return json.loads((out / "metrics.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def laps(scene_on_disk):
+    s = scene_on_disk("loop_revisits", (48, 36), 240)
+    return {"scene": s, "images": read_folder(s["laps"]), "xy": _positions(s["gt"], "laps")}
+
+
+@pytest.fixture(scope="module")
+def seasons(scene_on_disk):
+    s = scene_on_disk("two_seasons", (48, 32), 40)
+    return {"scene": s, "day": read_folder(s["summer_day"]), "xy": _positions(s["gt"], "summer_day")}
+
+
+LOOSE = ["--preset", "fast", "--exclude", "12", "--method-conf", "rshosm-seq.min_score=10"]
+
+
+# ------------------------------------------------------------------ outages
+def test_a_gps_outage_is_said_and_its_frames_have_no_ground_truth(laps, tmp_path, capsys):
+    # 1 frame a second; the receiver loses its fix for frames 100..159 (a minute in a tunnel)
+    bag = write_bag(tmp_path / "outage.bag", laps["images"], laps["xy"], dt=1.0, odom=False,
+                    no_fix=set(range(100, 160)))
+    with pytest.warns(UserWarning, match=r"60 of 240 frames have no position \(60 in 1 outage of /gps/fix \(no "
+                                         r"position for over 5 s; longest 61\.0 s, from 99\.0 s after its first "
+                                         r"sample\), not interpolated across\); left out"):
+        code, _, err = _run(["loops", bag, "--out", tmp_path / "o", "--gt-topic", "/gps/fix", "--radius", 4,
+                             *LOOSE], capsys)
+    assert code == 0, err
+    rows = (tmp_path / "o" / "rshosm-seq" / "matches.csv").read_text().splitlines()
+    assert len(rows) == 1 + 180  # the frames of the outage are not in the run
+
+
+# ------------------------------------------------------------------ encodings
+def test_a_12_bit_camera_keeps_its_contrast(seasons, tmp_path):
+    grey = [cv2.cvtColor(im, cv2.COLOR_BGR2GRAY) for im in seasons["day"][:6]]
+    twelve = [g.astype(np.uint16) << 4 for g in grey]  # a 12-bit sensor's values in 16-bit words
+    bag = write_bag(tmp_path / "mono16.bag", [np.ascontiguousarray(t) for t in twelve], encoding="mono16",
+                    gps=False, odom=False)
+    frames = list(open_source(bag))
+    for f, g in zip(frames, grey, strict=True):
+        np.testing.assert_array_equal(f.image[:, :, 0], g)  # not shifted by 8 bits into near black
+
+
+def test_depth_topics_are_not_taken_for_the_camera(seasons, tmp_path, capsys):
+    depth = [np.full((32, 48), 1500 + 10 * k, np.uint16) for k in range(6)]
+    both = write_bag(tmp_path / "rgbd.bag", seasons["day"][:6], gps=False, odom=False,
+                     more={"/camera/depth/image_raw": (depth, "16UC1")})
+    assert open_source(both).topic == "/camera/image_raw"  # the depth topic is not a candidate
+    only = write_bag(tmp_path / "depth.bag", depth, encoding="16UC1", gps=False, odom=False,
+                     topic="/camera/depth/image_raw")
+    code, _, err = _run(["loops", only, "--out", tmp_path / "o"], capsys)
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "/camera/depth/image_raw (16UC1)" in err and "not an appearance camera" in err and "--topic" in err
+    assert not (tmp_path / "o").exists()
+    src = open_source(only, topic="/camera/depth/image_raw")  # asked for: read
+    assert len(list(src)) == 6
+
+
+def test_compressed_depth_is_read_when_named_and_qoi_is_named_in_the_refusal(seasons, tmp_path, capsys):
+    depth = [np.full((32, 48), 1000 * (k + 1), np.uint16) for k in range(4)]
+    cd = write_bag(tmp_path / "cd.bag", depth, compressed=True, fmt="16UC1; compressedDepth png", gps=False,
+                   odom=False, topic="/depth/compressed")
+    code, _, err = _run(["loops", cd, "--out", tmp_path / "o"], capsys)
+    assert code == 2 and "/depth/compressed (compressedDepth)" in err
+    frames = list(open_source(cd, topic="/depth/compressed"))
+    assert len(frames) == 4 and frames[0].image.mean() < frames[-1].image.mean()
+    qoi = write_bag(tmp_path / "qoi.bag", seasons["day"][:4], compressed=True, fmt="qoi", gps=False, odom=False)
+    code, _, err = _run(["loops", qoi, "--out", tmp_path / "q"], capsys)
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert "compressed format 'qoi' is not read: QOI has no decoder in OpenCV" in err
+
+
+def test_a_bag_without_images_lists_its_topics_and_gt_topic_says_what_it_reads(seasons, tmp_path, capsys):
+    bag = write_bag(tmp_path / "cam.bag", seasons["day"][:4], seasons["xy"][:4])
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    with Writer(tmp_path / "imu.bag") as w:
+        c = w.add_connection("/imu/temperature", "sensor_msgs/msg/Temperature", typestore=ts)
+        T = ts.types["sensor_msgs/msg/Temperature"]
+        H, Time = ts.types["std_msgs/msg/Header"], ts.types["builtin_interfaces/msg/Time"]
+        w.write(c, 1, ts.serialize_ros1(T(header=H(seq=0, stamp=Time(sec=0, nanosec=1), frame_id="imu"),
+                                            temperature=20.0, variance=0.0), T.__msgtype__))
+    code, _, err = _run(["loops", tmp_path / "imu.bag", "--out", tmp_path / "o"], capsys)
+    assert code == 2 and "no image topic" in err and "/imu/temperature (sensor_msgs/Temperature, 1)" in err
+    code, _, err = _run(["loops", bag, "--out", tmp_path / "o", "--gt-topic", "/camera/image_raw", "--radius", 4],
+                        capsys)
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert ("--gt-topic: topic /camera/image_raw holds sensor_msgs/Image, not positions (read: NavSatFix" in err
+            and "position topics here: /gps/fix, /odom" in err)
+
+
+# ------------------------------------------------------------------ two robots
+def test_topics_per_input(seasons, scene_on_disk, tmp_path, capsys):
+    night = scene_on_disk("two_seasons", (48, 32), 40)
+    a = write_bag(tmp_path / "a.bag", seasons["day"], seasons["xy"], topic="/robot_a/camera/image_raw")
+    b = write_bag(tmp_path / "b", read_folder(night["winter_night"]), _positions(night["gt"], "winter_night"), ros=2,
+                  compressed=True, topic="/robot_b/camera/image_raw/compressed")
+    with pytest.raises(ValueError, match="--topic: 3 values for 2 inputs"):
+        open_sources([a, b], topic=("/x", "/y", "/z"))
+    code, _, err = _run(["compare", a, b, "--out", tmp_path / "o", "--topic", "/robot_a/camera/image_raw",
+                         "/robot_b/camera/image_raw/compressed", "--gt-topic", "/gps/fix", "/odom", "--radius", 4,
+                         "--preset", "fast"], capsys)
+    assert code == 0, err
+    assert _metrics(tmp_path / "o")["params"]["ground_truth"]["gt_topic"] == ["/gps/fix", "/odom"]
+    code, _, err = _run(["compare", a, b, "--out", tmp_path / "p", "--topic", "/robot_a/camera/image_raw"], capsys)
+    assert code == 2 and "b: no topic '/robot_a/camera/image_raw'" in err
+
+
+# ------------------------------------------------------------------ sessions
+@pytest.fixture
+def two_runs(seasons, scene_on_disk, tmp_path):
+    """run1/img and run2/img: a robot's two runs under the usual layout, and one traverse,frame,x,y file for both."""
+    s = seasons["scene"]
+    for run, traverse in (("run1", "summer_day"), ("run2", "winter_night")):
+        (tmp_path / run).mkdir()
+        shutil.copytree(s[traverse], tmp_path / run / "img")
+    with open(s["gt"]) as fh:
+        rows = list(csv.DictReader(fh))
+    return tmp_path, rows
+
+
+def _write_positions(path, rows, names):
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["traverse", "frame", "x", "y"])
+        for r in rows:
+            if r["traverse"] in names:
+                w.writerow([names[r["traverse"]], r["frame"], r["x"], r["y"]])
+    return path
+
+
+def test_sessions_named_alike_are_told_apart(two_runs, capsys):
+    root, rows = two_runs
+    runs = [root / "run1" / "img", root / "run2" / "img"]
+    alike = _write_positions(root / "alike.csv", rows, {"summer_day": "img", "winter_night": "img"})
+    code, _, err = _run(["loops", *runs, "--out", root / "o", "--gt", alike, "--radius", 4, *LOOSE], capsys)
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert f"{runs[0]} and {runs[1]} share a name ('img')" in err and "'run1/img', 'run2/img'" in err
+    assert not (root / "o").exists()
+    apart = _write_positions(root / "apart.csv", rows, {"summer_day": "run1/img", "winter_night": "run2/img"})
+    code, _, err = _run(["loops", *runs, "--out", root / "o", "--gt", apart, "--radius", 4, *LOOSE], capsys)
+    assert code == 0, err
+    pairs = _metrics(root / "o")["methods"]["rshosm-seq"]["sessions"]
+    assert [(p["session"], p["onto"]) for p in pairs] == [("run1/img", "run1/img"), ("run2/img", "run1/img"),
+                                                          ("run2/img", "run2/img")]
+    assert pairs[1]["frames"] > 0  # the second run revisits the first: its rows were not overwritten
+
+
+def test_the_same_recording_twice_is_refused_as_sessions(two_runs, capsys):
+    root, _ = two_runs
+    run = root / "run1" / "img"
+    for argv in (["loops", run, run, "--out", root / "o"], ["learn", run, run, "--out", root / "map.npz"]):
+        code, _, err = _run(argv, capsys)
+        assert code == 2 and len(err.strip().splitlines()) == 1
+        assert f"{run} is given twice (inputs 1 and 2)" in err
+    assert not (root / "o").exists() and not (root / "map.npz").exists()
+
+
+def test_nan_in_a_traverse_positions_file_is_refused_with_its_line(two_runs, capsys):
+    root, rows = two_runs
+    bad = _write_positions(root / "nan.csv", rows, {"summer_day": "img"})
+    lines = bad.read_text().splitlines()
+    lines[5] = ",".join(lines[5].split(",")[:2] + ["nan", "0"])
+    bad.write_text("\n".join(lines) + "\n")
+    s = root / "run1" / "img"
+    code, _, err = _run(["loops", s, "--out", root / "o", "--gt", bad, "--radius", 4], capsys)
+    assert code == 2 and f"{bad}:6: x, y must be finite numbers, got nan, 0" in err
+
+
+# ------------------------------------------------------------------ killed recordings
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_a_killed_ros2_folder_without_metadata_reads(seasons, tmp_path, storage):
+    whole = write_bag(tmp_path / "whole", seasons["day"][:12], seasons["xy"][:12], ros=2, storage=storage)
+    (whole / "metadata.yaml").unlink()
+    with pytest.warns(UserWarning, match=r"no metadata.yaml \(a ROS 2 recording killed before it wrote it\); read "
+                                         r"its 1 storage file \(whole\."):
+        src = open_source(whole)
+    assert len(list(src)) == 12
+    t, _, kind = src.trajectory("/gps/fix")
+    assert kind == "latlon" and len(t) == 12
+
+
+def test_a_cut_mcap_and_an_active_ros1_bag_read_up_to_the_damage(seasons, tmp_path, capsys):
+    folder = write_bag(tmp_path / "rec", seasons["day"][:20], seasons["xy"][:20], ros=2, storage="mcap")
+    data = next(folder.glob("*.mcap")).read_bytes()
+    (tmp_path / "cut.mcap").write_bytes(data[: int(len(data) * 0.6)])
+    with pytest.warns(UserWarning, match=r"cut.mcap: damaged or cut short .*read its \d+ complete messages"):
+        src = open_source(tmp_path / "cut.mcap")
+    frames = list(src)
+    assert 5 < len(frames) < 20
+    np.testing.assert_array_equal(frames[3].image, seasons["day"][3])  # CDR messages decoded as they were written
+    bag = write_bag(tmp_path / "run.bag", seasons["day"][:20], seasons["xy"][:20])
+    active = tmp_path / "run.bag.active"
+    active.write_bytes(bag.read_bytes()[: int(bag.stat().st_size * 0.7)])
+    with pytest.warns(UserWarning, match=r"run.bag.active: damaged or cut short"):
+        code, _, err = _run(["loops", active, "--out", tmp_path / "o", "--exclude", 3, "--preset", "fast"], capsys)
+    assert code == 0, err
+    assert 5 < len((tmp_path / "o" / "rshosm-seq" / "matches.csv").read_text().splitlines()) - 1 < 20
