@@ -36,9 +36,11 @@ from pipelines.args import (
     topic_arg,
 )
 from pipelines.online import Online, run_online, summary_line
+from pipelines.outputs import warn
 from vpr import evaluate, io, methods, presets
 from vpr.checks import per_input
 from vpr.groundtruth import GroundTruthSpec, build_gt, prepare_positions
+from vpr.groundtruth import trajectories as tr
 from vpr.groundtruth.trajectories import parse_every
 from vpr.shosm import Map
 from vpr.sources import open_source, open_sources
@@ -95,8 +97,8 @@ def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, met
     prefix = len(srcs) > 1
     names = [f"{s.name}/{n}" if prefix else n for s, ex in zip(srcs, exs, strict=True) for n in ex.features.names]
     starts = np.cumsum([0, *[len(ex.features) for ex in exs[:-1]]]).tolist()
-    loc = method.localizer(sp.vstack([ex.features.sdr for ex in exs]).tocsr(), names, progress=progress,
-                           sessions=starts)
+    sdr = sp.vstack([ex.features.sdr for ex in exs]).tocsr()
+    loc = method.localizer(sdr, names, progress=progress, sessions=starts)
     fitted = isinstance(enc, DescriptorEncoder) and enc.conf.get("standardise") == "fit"
     xy = None
     if pos is not None:  # the positions of the frames learned (skipped ones are not in the map)
@@ -105,9 +107,10 @@ def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, met
     info = {"db": str(db) if not prefix else [str(d) for d in dbs], "db_source": srcs[0].name,
             "db_indices": [] if prefix else list(exs[0].indices or []),
             "skipped": [sk for ex in exs for sk in ex.skipped], "encode_seconds": t_enc,
-            "learn_seconds": time.perf_counter() - t, "positions": spec.describe() if pos is not None else None}
+            "learn_seconds": time.perf_counter() - t, "positions": spec.describe() if pos is not None else None,
+            "every": every}
     the_map = Map(loc, {"name": enc.name, "conf": enc.conf}, enc.statistics() if fitted else [],  # the last session's
-                  xy, None if pos is None else pos.origin, info)
+                  xy, None if pos is None else pos.origin, info, sdr)
     the_map.save(out)
     return the_map
 
@@ -122,6 +125,40 @@ def load_map(path) -> tuple[Map, object]:
 
 
 # ------------------------------------------------------------------ localize
+def same_sampling(the_map: Map, every: float | None, positions: bool, where: str, progress: bool = False):
+    """The map and the query's ``--every`` made to agree: the sequence evidence follows a query that moves about one
+    map frame per query frame, and a query sampled coarser than the map moves several (its decisions lose their
+    precision). A query ``--every`` coarser than the map's sampling: the map is learned again at it
+    (:meth:`vpr.shosm.Map.subset`); a map learned ``--every D`` and a query with positions: the query is sampled
+    so too. Each said; where neither can be done, the difference is said."""
+    map_every, spacing = the_map.info.get("every"), the_map.spacing()
+    if every is not None and map_every != every:
+        if spacing is None:
+            warn(f"{where}: the map has no positions, so its sampling is unknown; a query one frame per "
+                 f"{every:g} m keeps its precision only if the map was sampled alike")
+        elif spacing < every / 1.5:
+            if the_map.sdr is None:
+                warn(f"{where}: the map was learned every {spacing:.2g} m of travel and the query comes every "
+                     f"{every:g} m, but the map holds no SDRs to learn it again so: learn it again (vpr learn "
+                     f"--every {every:g}m), or its decisions lose their precision")
+            else:
+                keep = tr.every(the_map.positions, every)
+                warn(f"{where}: the map was learned every {spacing:.2g} m of travel and the query comes every "
+                     f"{every:g} m: the map is learned again one frame per {every:g} m ({keep.size} of "
+                     f"{the_map.localizer.n_db} frames), so that its sequences follow the query's")
+                the_map = the_map.subset(keep, progress)
+    elif every is None and map_every is not None:
+        if positions:
+            warn(f"{where}: the map was learned one frame per {map_every:g} m of travel: the query is sampled so "
+                 f"too (--every {map_every:g}m)")
+            every = map_every
+        else:
+            warn(f"{where}: the map was learned one frame per {map_every:g} m of travel and the query's frames "
+                 f"are taken as they come: give the query --every {map_every:g}m with its positions (--gt-topic, "
+                 "--gt), or its decisions lose their precision")
+    return the_map, every
+
+
 class LocalizeOnline(Online):
     """``vpr localize``: each query frame encoded with the map's encoder and localised by its :class:`vpr.Localizer`."""
 
@@ -227,6 +264,7 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
               positions=replace(gt, topic=db_gt_topic) if positional else None, every=every if positional else None,
               **dict(learn_options or {}))
         the_map, enc = load_map(learn_to)
+    the_map, every = same_sampling(the_map, every, gt.positional or bool(gt.topic), str(map_or_db), progress)
     qenc = StreamEncoder(enc, query_standardise, **running)
     qenc.load_state(the_map.query_state)  # a --state-out file continues its query's running statistics
     q_src = StdinSource(stdin if stdin is not None else sys.stdin) if str(query) == "-" else \

@@ -27,7 +27,7 @@ from pipelines.args import (
     settings_from_args,
 )
 from pipelines.online import Online, run_online, summary_line
-from pipelines.outputs import claim_methods, merge_metrics, versions, write_method
+from pipelines.outputs import claim_methods, merge_metrics, versions, warn, write_method
 from pipelines.runs import RunOptions, config, extract_run, prepare_run
 from vpr import evaluate, groundtruth, io, methods
 from vpr.groundtruth import GroundTruthSpec, any_true, build_loop_gt, build_stream_gt, check_loop_gt_files, frame_rows
@@ -147,6 +147,7 @@ class LoopsOnline(Online):
         self.det, self.gt = det, gt
         self.row_offset = det.frames  # a resumed detector names frames from before this run too
         self.top_k = det.seq.top_k
+        self.starts = [0]  # this run's frame numbers that begin a session
 
     def warm_up(self) -> None:
         self.det.warm_up()
@@ -168,6 +169,8 @@ class LoopsOnline(Online):
 
     def new_session(self):
         self.det.new_session()
+        if self.det.frames - self.row_offset > self.starts[-1]:
+            self.starts.append(self.det.frames - self.row_offset)
         return self.det.take_late()
 
     def evaluate(self, result, names, indices) -> dict:
@@ -176,10 +179,13 @@ class LoopsOnline(Online):
         T = len(names)
         hard, soft = build_loop_gt(self.gt, names, list(range(T)), total=T)
         exclude = self.det.conf["exclude"]
-        mask = groundtruth.loop_closure_mask(T, exclude=exclude)
+        mask = groundtruth.loop_closure_mask(T, exclude=exclude, starts=self.starts)
         if not (hard & mask).any():
-            raise self.gt.no_match_error(exclude=exclude)
+            no_revisit(self.gt, exclude)
         m, _ = evaluate.method_metrics(result, hard, soft, mask=mask, loops=True)
+        if len(self.starts) > 1:  # as the batch run's table, the sessions named by their number
+            m["sessions"] = evaluate.session_pairs(result.best, result.accepted, hard, self.starts, soft, mask,
+                                                   [str(k + 1) for k in range(len(self.starts))])
         m.pop("seconds", None)
         m.pop("n_accepted", None)
         return m
@@ -210,6 +216,12 @@ def detect_loops(det: LoopDetector, out, stdin=None, stdout=None, gt: GroundTrut
     return run_online(job, StdinSource(stdin if stdin is not None else sys.stdin), out, stdout, state_out)
 
 
+def no_revisit(gt: GroundTruthSpec, exclude: int) -> None:
+    """Say that the ground truth holds no loop to close: a drive without revisits, whose closures are all false."""
+    warn(f"{gt.no_match_error(exclude=exclude)}: every closure accepted is false (metrics.json: n_false, "
+         "false_per_1000 frames)")
+
+
 def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCLUDE) -> dict:
     """Loop closures within the traverse ``seq`` with ``method``; writes the same outputs as ``match``.
 
@@ -238,7 +250,7 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
     sessions = [0, *np.cumsum([len(a) for a in attempted])[:-1].tolist()]
     gt_hard, gt_soft = build_stream_gt(opts.gt, srcs, attempted, positions)
     if gt_hard is not None and not any_true(gt_hard & groundtruth.loop_closure_mask(T, exclude, starts=sessions)):
-        raise opts.gt.no_match_error(exclude=exclude)
+        no_revisit(opts.gt, exclude)
     # ---- the work starts here: nothing above wrote a file
     with claim_methods(out, runners):  # a second run of this method into out meanwhile is refused
         exs = extract_run(srcs, roles, encoder, runners, opts)
@@ -252,8 +264,6 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
             gt_hard = gt_hard[np.ix_(rows, rows)]
             gt_soft = gt_soft[np.ix_(rows, rows)] if gt_soft is not None else None
             mask = groundtruth.loop_closure_mask(len(features), exclude=exclude, starts=starts)
-            if not any_true(gt_hard & mask):  # skipped frames took the last true pairs
-                raise opts.gt.no_match_error(exclude=exclude)
         confs, opinions = {}, {}
 
         def write(m: str, res: MatchResult, evaluated) -> dict:

@@ -132,7 +132,8 @@ def _run(job: Online, src, out: Path, stdout, state_out, n_rows, claim: contextl
             rows.append((name, index, d, ms, ms_dec))
             lines.write({"query": int(d.frame), "query_name": name, "best_db": d.best if d.best >= 0 else None,
                          "db_name": job.name_of(d.best) if d.best >= 0 else None,
-                         "score": round(d.score, 4) if np.isfinite(d.score) else None, "accepted": bool(d.accepted),
+                         "score": round(d.score, 4) if np.isfinite(d.score) and d.best >= 0 else None,
+                         "accepted": bool(d.accepted),
                          "latency_ms": round(ms, 3)})
 
     stop = None
@@ -147,6 +148,8 @@ def _run(job: Online, src, out: Path, stdout, state_out, n_rows, claim: contextl
                 if f is SESSION:
                     with deferred():
                         answered(job.new_session())
+                    print(f"vpr {job.command}: #session{_line(src)}: the frames that follow are a new run (nothing "
+                          "carries over but what was learned)", file=sys.stderr, flush=True)
                     continue
                 if not rows and not waiting:
                     claim.enter_context(claim_methods(out, [job.method]))
@@ -165,18 +168,42 @@ def _run(job: Online, src, out: Path, stdout, state_out, n_rows, claim: contextl
     seconds = time.perf_counter() - t_run
     for name, reason in src.skipped[told:]:
         print(f"vpr {job.command}: skipped {name}: {reason}", file=sys.stderr, flush=True)
+    if stop is not None and (rows or waiting):
+        print(_stopped(job, src, [w[0] for w in waiting], state_out), file=sys.stderr, flush=True)
     if not rows:
         if stop is not None:
             raise stop
-        raise ValueError(f"vpr {job.command}: no readable frames")
+        raise ValueError("no readable frames")
     with deferred():  # the outputs are written whole; a second signal stops at once
-        report = _write(job, out, rows, [list(s) for s in src.skipped], seconds, n_rows, state_out, stop is not None)
+        report = _write(job, out, rows, [list(s) for s in src.skipped], seconds, n_rows, state_out,
+                        None if stop is None else [w[0] for w in waiting])
     if stop is not None:
         raise stop
     return report
 
 
-def _write(job: Online, out: Path, rows, skipped, seconds, n_rows, state_out, stopped: bool) -> dict:
+def _line(src) -> str:
+    line = getattr(src, "line", None)
+    return f" (input line {line})" if line else ""
+
+
+def _stopped(job: Online, src, waiting: list[str], state_out) -> str:
+    """What a stop leaves: the frames answered are in the outputs; those read but still waiting for the frames
+    after them (a loop closure is decided a few frames late) are in the state, answered after ``--resume``."""
+    line = getattr(src, "line", None)
+    go_on = f"feed it from input line {line + 1}" if line else "feed it the frames after the last one read"
+    if not waiting:
+        return f"vpr {job.command}: stopped; every frame read{_line(src)} is answered in the outputs" + (
+            f"; to continue, --resume {state_out} and {go_on}" if state_out else "")
+    which = f"{len(waiting)} frame{'s' if len(waiting) > 1 else ''} read ({waiting[0]} .. {waiting[-1]})"
+    if not state_out:
+        return f"vpr {job.command}: stopped; {which} wait for later frames and are not answered (no --state-out)"
+    return (f"vpr {job.command}: stopped; {which} wait in {state_out} for later frames, not yet in the outputs: "
+            f"to continue, --resume {state_out} and {go_on}; their answers come first")
+
+
+def _write(job: Online, out: Path, rows, skipped, seconds, n_rows, state_out, waiting: list[str] | None) -> dict:
+    """The outputs of the frames answered; ``waiting``: after a stop, the frames read and not yet answered."""
     import scipy.sparse as sp
 
     names = [r[0] for r in rows]
@@ -186,7 +213,7 @@ def _write(job: Online, out: Path, rows, skipped, seconds, n_rows, state_out, st
     shown = np.array([d.best for d in ds], np.int64)
     best = np.where(shown >= off, shown - off, -1)
     score = np.array([d.score for d in ds], np.float64)
-    score = np.where(np.isfinite(score), score, -np.inf)
+    score = np.where(np.isfinite(score) & (shown >= 0), score, -np.inf)  # no candidate: -inf, as a batch run
     accepted = np.array([d.accepted for d in ds], bool)
     cand = [d.column.top(job.top_k) if d.column is not None else (np.zeros(0, np.int64), np.zeros(0, np.float32))
             for d in ds]
@@ -201,8 +228,10 @@ def _write(job: Online, out: Path, rows, skipped, seconds, n_rows, state_out, st
                   {"latency_ms": [round(v, 3) for v in lat_all], "latency_decide_ms": [round(v, 3) for v in lat_dec]},
                   best_names=[job.name_of(b) if b >= 0 else "" for b in shown],
                   query_ids=[int(d.frame) for d in ds])
-    m = {"frames": T, "seconds": round(seconds, 4), "n_accepted": int(accepted.sum()), "stopped": stopped,
+    m = {"frames": T, "seconds": round(seconds, 4), "n_accepted": int(accepted.sum()), "stopped": waiting is not None,
          "latency_ms": {"with_encoding": latency_summary(lat_all), "without_encoding": latency_summary(lat_dec)}}
+    if waiting:
+        m["waiting"] = waiting  # in the state (--state-out), answered after --resume
     m.update(job.evaluate(res, names, [r[1] for r in rows]))
     if state_out:
         job.save(state_out)

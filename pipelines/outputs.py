@@ -78,8 +78,9 @@ def write_matches(folder: Path, res: MatchResult, db_names, q_names, extra: dict
 #: Columns of the printed table: (metrics key, header).
 TABLE = {"match": [("ap", "AP"), ("recall_at_100p", "R@100P"), ("recall_at_1", "R@1"), ("n_accepted", "accepted"),
                    ("precision_accepted", "P(acc)"), ("recall_accepted", "R(acc)"), ("seconds", "seconds")],
-         "loops": [("ap", "AP"), ("recall_at_1", "R@1"), ("frame_recall_at_100p", "R@100P"), ("n_accepted", "accepted"),
-                   ("precision_accepted", "P(acc)"), ("recall_accepted", "R(acc)"), ("seconds", "seconds")]}
+         "loops": [("ap", "AP"), ("frame_recall_at_100p", "R@100P"), ("recall_at_1", "R@1"), ("n_accepted", "accepted"),
+                   ("precision_accepted", "P(acc)"), ("recall_accepted", "R(acc)"), ("false_per_1000", "false/1k"),
+                   ("seconds", "seconds")]}
 
 
 def metrics_table(table: dict, kind: str = "match") -> str:

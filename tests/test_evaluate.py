@@ -478,19 +478,26 @@ def test_accepted_precision_counts_one_decision_per_query():
     accepted = np.array([True, True, True, True])
     # query 0 right, query 1 wrong, query 2 wrong (a soft pair without soft gt), query 3 has no best match
     m = E.accepted_precision(best, accepted, gt)
-    assert m == {"n_accepted": 3, "precision_accepted": pytest.approx(1 / 3), "recall_accepted": 0.5}
+    assert m == {"n_accepted": 3, "precision_accepted": pytest.approx(1 / 3), "recall_accepted": 0.5,
+                 "n_false": 2, "false_per_1000": 500.0}
     # with soft gt query 2's soft pair counts neither way (it is still accepted); sparse gt gives the same
     m = E.accepted_precision(best, accepted, sp.csr_matrix(gt), sp.csr_matrix(soft))
-    assert m == {"n_accepted": 3, "precision_accepted": 0.5, "recall_accepted": 0.5}
+    assert m == {"n_accepted": 3, "precision_accepted": 0.5, "recall_accepted": 0.5, "n_false": 1,
+                 "false_per_1000": 250.0}
     # nothing accepted: the precision of nothing is undefined, not 1.0
     assert E.accepted_precision(best, np.zeros(4, bool), gt) == {"n_accepted": 0, "precision_accepted": None,
-                                                                 "recall_accepted": 0.0}
+                                                                 "recall_accepted": 0.0, "n_false": 0,
+                                                                 "false_per_1000": 0.0}
+    # no query with a true match (a drive without revisits): recall undefined, every accepted match false
+    none = E.accepted_precision(best, accepted, np.zeros_like(gt))
+    assert none["recall_accepted"] is None and none["n_false"] == 3 and none["false_per_1000"] == 750.0
     # a mask without query 1's true pair: its match no longer counts for the recall
     mask = np.ones_like(gt)
     mask[1, 1] = False
     for g in (gt, sp.csr_matrix(gt)):
         assert E.accepted_precision(best, accepted, g, mask=mask) == {
-            "n_accepted": 3, "precision_accepted": pytest.approx(1 / 3), "recall_accepted": 1.0}
+            "n_accepted": 3, "precision_accepted": pytest.approx(1 / 3), "recall_accepted": 1.0, "n_false": 2,
+            "false_per_1000": 500.0}
 
 
 # --------------------------------------------------------------------------- #

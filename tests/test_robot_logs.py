@@ -231,3 +231,100 @@ def test_a_cut_mcap_and_an_active_ros1_bag_read_up_to_the_damage(seasons, tmp_pa
         code, _, err = _run(["loops", active, "--out", tmp_path / "o", "--exclude", 3, "--preset", "fast"], capsys)
     assert code == 0, err
     assert 5 < len((tmp_path / "o" / "rshosm-seq" / "matches.csv").read_text().splitlines()) - 1 < 20
+
+
+# ------------------------------------------------------------------ time and sampling
+def test_time_where_there_are_stamps(seasons, tmp_path, capsys):
+    bag = write_bag(tmp_path / "two_hz.bag", seasons["day"], seasons["xy"], dt=0.5)  # a 2 Hz camera
+    with pytest.warns(UserWarning, match=r"--fps 10 is above its frame rate \(2 frames/s\): every frame is read"):
+        assert len(open_source(bag, fps=10).indices()) == 40
+    code, _, err = _run(["loops", bag, "--out", tmp_path / "o", "--exclude", "10s", "--preset", "fast"], capsys)
+    assert code == 0, err
+    assert _metrics(tmp_path / "o")["params"]["exclude"] == 20  # 10 s at 2 frames a second
+
+
+def test_a_drive_without_revisits_counts_its_false_closures(laps, tmp_path, capsys):
+    # a drive along a street that looks the same twice (the frames repeat), 3 m a frame: no revisit
+    straight = np.stack([3.0 * np.arange(80), np.zeros(80)], axis=1)
+    bag = write_bag(tmp_path / "drive.bag", laps["images"][:40] * 2, straight, dt=0.5)
+    with pytest.warns(UserWarning, match=r"no frame is within 2 of a frame at least --exclude 5 frames earlier; "
+                                         r"there is no loop closure to find: every closure accepted is false"):
+        code, _, err = _run(["loops", bag, "--out", tmp_path / "o", "--gt-topic", "/gps/fix", "--radius", 2,
+                             "--every", "2m", "--exclude", 5, "--preset", "fast", "--method-conf",
+                             "rshosm-seq.min_score=10"], capsys)
+    assert code == 0, err
+    m = _metrics(tmp_path / "o")["methods"]["rshosm-seq"]
+    n = _metrics(tmp_path / "o")["params"]["n_frames"]
+    assert m["revisits"] == 0 and m["n_false"] == m["n_accepted"] > 0 and m["recall_accepted"] is None
+    assert m["false_per_1000"] == pytest.approx(1000 * m["n_accepted"] / n)
+    assert m["precision_accepted"] == 0.0 and "ap" not in m
+
+
+# ------------------------------------------------------------------ sessions online
+class _Stopped:
+    """Lines of stdin, then a Ctrl-C as the next one is awaited (a robot's supervisor stopping the run)."""
+
+    def __init__(self, lines):
+        self.lines = lines
+
+    def __iter__(self):
+        yield from (line + "\n" for line in self.lines)
+        raise KeyboardInterrupt
+
+
+def test_online_sessions_are_said_reported_and_resumed_without_a_gap_or_a_repeat(laps, tmp_path, capsys,
+                                                                                 monkeypatch):
+    paths = sorted(str(p) for p in laps["scene"]["laps"].glob("*.png"))
+    lines = paths[:120] + ["#session"] + paths[120:]
+    gt = ["--gt", laps["scene"]["gt"], "--radius", 4]
+    monkeypatch.setattr("sys.stdin", _Stopped(lines[:126]))  # 5 frames of the second session read, then a stop
+    code = main(["loops", "-", "--out", str(tmp_path / "a"), "--state-out", str(tmp_path / "s.npz"),
+                 "--no-progress"])
+    _, err = capsys.readouterr()
+    assert code == 130
+    assert "#session (input line 121): the frames that follow are a new run" in err
+    # the first frames of a later session wait in the causal encoder: said, with where to go on
+    waiting = json.loads((tmp_path / "a" / "metrics.json").read_text())["methods"]["rshosm-seq"]["waiting"]
+    assert [Path(w).name for w in waiting] == [f"{k:06d}.png" for k in range(120, 125)]
+    assert f"5 frames read ({waiting[0]} .. {waiting[-1]}) wait in {tmp_path / 's.npz'} for later frames" in err
+    assert "feed it from input line 127" in err
+    monkeypatch.setattr("sys.stdin", _Lines(lines[126:]))
+    assert main(["loops", "-", "--out", str(tmp_path / "b"), "--resume", str(tmp_path / "s.npz"),
+                 "--no-progress"]) == 0
+    done = [r for f in ("a", "b") for r in csv.DictReader(open(tmp_path / f / "rshosm-seq" / "matches.csv"))]
+    assert sorted(int(r["query"]) for r in done) == list(range(240))  # every frame answered once
+    monkeypatch.setattr("sys.stdin", _Lines(lines))
+    assert main(["loops", "-", "--out", str(tmp_path / "whole"), *LOOSE, *map(str, gt), "--no-progress"]) == 0
+    pairs = _metrics(tmp_path / "whole")["methods"]["rshosm-seq"]["sessions"]
+    assert [(p["session"], p["onto"]) for p in pairs] == [("1", "1"), ("2", "1"), ("2", "2")]
+    assert pairs[1]["frames"] > 0
+
+
+class _Lines(_Stopped):
+    def __iter__(self):
+        yield from (line + "\n" for line in self.lines)
+
+
+# ------------------------------------------------------------------ sampling of the map and the query
+def test_a_query_every_4m_against_a_full_rate_map_keeps_its_precision(scene_on_disk, tmp_path, capsys):
+    s = scene_on_disk("speed_change", (64, 48), 240)  # 400 m: a frame every 1.7 m
+    gt = ["--gt", s["gt"], "--radius", 5]
+    code, _, err = _run(["learn", s["slow"], "--out", tmp_path / "map.npz", "--gt", s["gt"]], capsys)
+    assert code == 0, err
+    with pytest.warns(UserWarning, match=r"the map was learned every 1.7 m of travel and the query comes every 4 m: "
+                                         r"the map is learned again one frame per 4 m \(\d+ of 240 frames\)"):
+        code, _, err = _run(["localize", tmp_path / "map.npz", s["fast"], "--out", tmp_path / "q", *gt,
+                             "--every", "4m"], capsys)
+    assert code == 0, err
+    m = _metrics(tmp_path / "q")["methods"]["rshosm-seq"]
+    assert m["frames"] < 120 and m["n_accepted"] > m["frames"] / 2 and m["precision_accepted"] >= 0.95
+    # a map learned every 4 m and a query with positions: the query is sampled alike
+    code, _, err = _run(["learn", s["slow"], "--out", tmp_path / "map4.npz", "--gt", s["gt"], "--every", "4m"],
+                        capsys)
+    assert code == 0, err
+    with pytest.warns(UserWarning, match=r"the map was learned one frame per 4 m of travel: the query is sampled so "
+                                         r"too \(--every 4m\)"):
+        code, _, err = _run(["localize", tmp_path / "map4.npz", s["fast"], "--out", tmp_path / "r", *gt], capsys)
+    assert code == 0, err
+    r = _metrics(tmp_path / "r")["methods"]["rshosm-seq"]
+    assert r["frames"] == m["frames"] and r["precision_accepted"] >= 0.95

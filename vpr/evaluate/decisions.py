@@ -37,8 +37,11 @@ def accepted_precision(best_db, accepted, gt_hard, gt_soft=None, mask=None) -> d
     dict
         ``n_accepted`` (accepted best matches), ``precision_accepted`` (over
         those not onto a soft-only pair; None when there are none: a precision
-        of nothing is not 1.0) and ``recall_accepted`` (correct accepted
-        matches over queries that have a true match).
+        of nothing is not 1.0), ``recall_accepted`` (correct accepted
+        matches over queries that have a true match; None when none has one),
+        ``n_false`` (accepted matches that are wrong) and ``false_per_1000``
+        (per 1,000 queries: the false-alarm rate of a drive without revisits,
+        where recall is undefined and every accepted match is false).
     """
     if mask is not None:
         gt_hard, gt_soft = (None if g is None else g.multiply(mask).tocsr() if sp.issparse(g) else np.asarray(g) & mask
@@ -51,8 +54,10 @@ def accepted_precision(best_db, accepted, gt_hard, gt_soft=None, mask=None) -> d
         keep = correct | ~at(gt_soft, best_db[q], q).astype(bool)
         q, correct = q[keep], correct[keep]
     n_with_match = int((np.asarray((gt_hard != 0).sum(axis=0)).ravel() > 0).sum())
+    n_false = int((~correct).sum())
     return {"n_accepted": n_accepted, "precision_accepted": float(correct.mean()) if q.size else None,
-            "recall_accepted": float(correct.sum() / max(1, n_with_match))}
+            "recall_accepted": float(correct.sum() / n_with_match) if n_with_match else None, "n_false": n_false,
+            "false_per_1000": 1000.0 * n_false / max(1, best_db.size)}
 
 
 def best_in_soft_band(best_db, gt_hard, gt_soft, mask=None) -> int:

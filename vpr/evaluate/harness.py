@@ -6,6 +6,7 @@ import time
 from collections.abc import Callable
 
 import numpy as np
+import scipy.sparse as sp
 
 from .decisions import accepted_precision, best_in_soft_band, decision_curve
 from .ranking import evaluate
@@ -18,6 +19,13 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+def _count(g, mask=None) -> int:
+    """True pairs of a dense or sparse ground truth inside ``mask``."""
+    if mask is not None:
+        g = g.multiply(mask) if sp.issparse(g) else mask.multiply(g) if sp.issparse(mask) else np.asarray(g) & mask
+    return int(g.count_nonzero() if sp.issparse(g) else np.count_nonzero(g))
+
+
 def method_metrics(res, gt_hard, gt_soft, mask=None, loops: bool = False):
     """(metrics dict, (precision, recall) or None without ground truth) of a :class:`~vpr.types.MatchResult`.
 
@@ -25,10 +33,17 @@ def method_metrics(res, gt_hard, gt_soft, mask=None, loops: bool = False):
     the metrics of :func:`evaluate` over the evaluated pairs and the precision
     and recall of the accepted matches. ``loops``: one stream's loop closures,
     where the curve is that of the per-frame decisions (:func:`decision_curve`:
-    ``frame_ap``, ``frame_recall_at_100p``), what loop-closure detectors report.
+    ``frame_ap``, ``frame_recall_at_100p``), what loop-closure detectors report;
+    a stream without a true loop (a drive without revisits) has no ranking or
+    recall to measure: ``revisits`` 0 and the accepted closures, all false
+    (``false_per_1000``).
     """
     m = {"seconds": round(res.seconds, 4), "n_accepted": int(np.count_nonzero(res.accepted & (res.best >= 0)))}
     if gt_hard is None:
+        return m, None
+    if loops and not _count(gt_hard, mask):
+        # a drive without revisits: no ranking or recall to measure, every accepted closure is false
+        m.update(accepted_precision(res.best, res.accepted, gt_hard, gt_soft, mask=mask), revisits=0)
         return m, None
     ev, (prec, rec, _) = evaluate(res.similarity, gt_hard, gt_soft, mask=mask, return_curve=True)
     m.update({k: float(v) for k, v in ev.items()})

@@ -4,8 +4,9 @@
 ``.npz`` (:mod:`vpr.shosm.state`): the memory, the database's names, codes and
 sessions, rSHOSM-seq's conf, the query's state so far (evidence, decision,
 and the query encoder's running statistics), the encoder's name, conf and the
-statistics it fitted on the database, the frames' positions, and what the map
-was learned from. ``vpr`` does not import ``encoders``: the caller builds the
+statistics it fitted on the database, the frames' positions and SDRs (so that
+the map can be learned again at another sampling, :meth:`Map.subset`), and
+what the map was learned from. ``vpr`` does not import ``encoders``: the caller builds the
 encoder from :attr:`Map.encoder` and :attr:`Map.statistics`.
 """
 from __future__ import annotations
@@ -43,11 +44,14 @@ class Map:
     query_state : dict of arrays
         The query encoder's state so far (its running statistics).
     info : dict
-        What the map was learned from (sources, frames, skipped frames, seconds).
+        What the map was learned from (sources, frames, skipped frames, seconds, ``every``: the metres of
+        travel per frame it was sampled at, or None).
+    sdr : csr matrix (n_db x bits) or None
+        The database's SDRs, which :meth:`subset` learns again.
     """
 
     def __init__(self, localizer: Localizer, encoder: dict, statistics=(), positions=None, origin=None,
-                 info: dict | None = None):
+                 info: dict | None = None, sdr=None):
         self.localizer, self.encoder = localizer, {"name": encoder["name"], "conf": dict(encoder["conf"])}
         self.statistics = [(np.asarray(m), np.asarray(s)) for m, s in statistics]
         self.positions = None if positions is None else np.asarray(positions, np.float64)
@@ -56,6 +60,40 @@ class Map:
         self.origin = None if origin is None else tuple(float(v) for v in origin)
         self.query_state: dict = {}
         self.info = dict(info or {})
+        self.sdr = None if sdr is None else sp.csr_matrix(sdr, dtype=bool)
+        if self.sdr is not None and self.sdr.shape[0] != localizer.n_db:
+            raise ValueError(f"{self.sdr.shape[0]} SDRs for a map of {localizer.n_db} frames")
+
+    def spacing(self) -> float | None:
+        """The median travel between consecutive frames of a session, metres (None without positions)."""
+        if self.positions is None or self.positions.shape[0] < 2:
+            return None
+        step = np.linalg.norm(np.diff(self.positions, axis=0), axis=1)
+        step[np.asarray(self.localizer.sessions[1:], np.int64) - 1] = np.nan  # no step across a session start
+        moving = step[np.isfinite(step) & (step > 0)]
+        return float(np.median(moving)) if moving.size else None
+
+    def subset(self, keep, progress: bool = False) -> Map:
+        """The map learned again from the frames numbered ``keep`` alone (e.g. one per so many metres, to follow a
+        query sampled so: the sequence memory learns each kept frame as the successor of the one kept before).
+
+        Raises
+        ------
+        ValueError
+            The map holds no SDRs (written before they were kept): learn it again.
+        """
+        if self.sdr is None:
+            raise ValueError("the map holds no SDRs of its frames to learn again at another sampling; learn it again "
+                             "with vpr learn")
+        keep = np.asarray(sorted(set(int(k) for k in keep)), np.int64)
+        loc = self.localizer
+        sessions = sorted({int(np.searchsorted(keep, s)) for s in loc.sessions} - {keep.size})
+        new = Localizer.from_database(self.sdr[keep], [loc.names[k] for k in keep], progress, loc.seq,
+                                      sessions=sessions)
+        out = Map(new, self.encoder, self.statistics, None if self.positions is None else self.positions[keep],
+                  self.origin, {**self.info, "subset_of": loc.n_db}, self.sdr[keep])
+        out.query_state = self.query_state
+        return out
 
     @staticmethod
     def is_map(path) -> bool:
@@ -76,6 +114,9 @@ class Map:
         db = {"indptr": loc.db_codes.indptr.astype(np.int64), "indices": loc.db_codes.indices.astype(np.int64)}
         if self.positions is not None:
             db["xy"] = self.positions
+        if self.sdr is not None:
+            db["sdr_indptr"], db["sdr_indices"] = self.sdr.indptr.astype(np.int64), self.sdr.indices.astype(np.int64)
+            header["sdr_width"] = int(self.sdr.shape[1])
         parts = {"mem": mem_arrays, "query": q_arrays, "enc": stats, "qenc": self.query_state, "db": db}
         return write_file(path, _FORMAT, _FORMAT_VERSION, header, parts, names=loc.names)
 
@@ -99,7 +140,12 @@ class Map:
             loc.load_state(header["query"], parts["query"])
             enc = parts["enc"]
             stats = [(enc[f"mean{i}"], enc[f"std{i}"]) for i in range(int(header["n_statistics"]))]
-            out = cls(loc, header["encoder"], stats, parts["db"].get("xy"), header.get("origin"), header["info"])
+            db = parts["db"]
+            sdr = None
+            if "sdr_indptr" in db:
+                sdr = sp.csr_matrix((np.ones(db["sdr_indices"].size, bool), db["sdr_indices"], db["sdr_indptr"]),
+                                    shape=(n_db, int(header["sdr_width"])))
+            out = cls(loc, header["encoder"], stats, db.get("xy"), header.get("origin"), header["info"], sdr)
             out.query_state = parts["qenc"]
         return out
 

@@ -38,7 +38,7 @@ import numpy as np
 
 from vpr.imageproc import depth_bits
 
-from .base import Frame, Source, check_positive_int, check_range, natural_key, stat_token
+from .base import Frame, Source, check_fps, check_positive_int, check_range, natural_key, stat_token
 from .salvage import scan_mcap, scan_ros1
 
 __all__ = ["BagSource", "is_bag", "ENCODINGS", "DEPTH_ENCODINGS", "IMAGE_TYPES", "POSITION_TYPES",
@@ -230,6 +230,8 @@ class BagSource(Source):
             raise ValueError(f"{self.path}: topic {topic}: {reason}")
         if img is not None and img.dtype == np.uint16:
             self._bits = depth_bits(img)
+        span = (self._times[-1] - self._times[0]) / 1e9
+        check_fps(self.path, self.fps, (self._times.size - 1) / span if span > 0 else None)
         self._sel = self._select()
         self._only: np.ndarray | None = None
 

@@ -16,7 +16,7 @@ from vpr.imageproc import depth_bits, to_bgr
 
 __all__ = ["Frame", "FrameSkippedWarning", "IgnoredFilesWarning", "Source", "IMAGE_EXTENSIONS",
            "OTHER_IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS", "LIST_EXTENSIONS", "natural_key", "decode_image",
-           "read_image", "check_range", "check_positive_int", "stat_token", "frames_in"]
+           "read_image", "check_fps", "check_range", "check_positive_int", "stat_token", "frames_in"]
 
 log = logging.getLogger(__name__)
 
@@ -124,6 +124,14 @@ def decode_image(path: Path, bits: int | None = None) -> tuple[np.ndarray | None
         return to_bgr(img, str(path), bits), ""
     except ValueError as exc:
         return None, str(exc)
+
+
+def check_fps(path, fps: float | None, rate: float | None) -> None:
+    """Warn when ``fps`` asks for more frames per second than the source has (``rate``): every frame is read,
+    and a frame is never repeated to make up the rate."""
+    if fps is not None and rate and fps > rate * 1.01:
+        warnings.warn(f"{path}: --fps {fps:g} is above its frame rate ({rate:.3g} frames/s): every frame is read",
+                      UserWarning, stacklevel=3)
 
 
 def frames_in(exclude, rate: float | None = None, none: str = "the frames have none") -> int:

@@ -53,6 +53,7 @@ class StdinSource(Source):
         super().__init__(name)
         self.name = name
         self._stream = stream
+        self.line = 0  # the input line last read
 
     def _lines(self):
         buf = getattr(self._stream, "buffer", None)
@@ -65,6 +66,7 @@ class StdinSource(Source):
     def __iter__(self) -> Iterator[Frame]:
         index, seen_path = 0, False
         for lineno, raw in enumerate(self._lines(), start=1):
+            self.line = lineno
             text = raw.rstrip(b"\r\n").strip()
             if text == b"#session":
                 yield SESSION

@@ -11,7 +11,7 @@ import numpy as np
 
 from vpr.imageproc import to_bgr
 
-from .base import VIDEO_EXTENSIONS, Frame, Source, check_positive_int, check_range, stat_token
+from .base import VIDEO_EXTENSIONS, Frame, Source, check_fps, check_positive_int, check_range, stat_token
 
 __all__ = ["VideoSource", "sample_by_time", "frame_times"]
 
@@ -158,6 +158,7 @@ class VideoSource(Source):
             self.video_fps = 0.0
             if fps is not None:
                 raise ValueError(f"{self.path}: the video reports no frame rate; use step instead of fps")
+        check_fps(self.path, fps, self.video_fps)
         self._reported_count = int(reported) if math.isfinite(reported) and reported > 0 else None
         self._count: int | None = self._reported_count
         self._times: np.ndarray | None = None  # frame timestamps, read for fps on first use

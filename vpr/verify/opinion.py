@@ -122,7 +122,9 @@ class GeometricOpinion:
                 if _sdr.stationary(ptr, ind, b, j, self.stop_ratio):
                     return d
             self.accepted += 1
-            return replace(d, accepted=True)
+            # its score ranks it with the closures the decider accepts (the decision's curve, R@100P)
+            floor = float(getattr(getattr(self.decider, "conf", None), "min_score", d.score))
+            return replace(d, accepted=True, score=max(float(d.score), floor))
         finally:
             self.seconds += time.perf_counter() - t
 
