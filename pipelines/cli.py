@@ -24,6 +24,7 @@ import ast
 import importlib
 import importlib.util
 import os
+import re
 import signal
 import sys
 import warnings
@@ -105,6 +106,21 @@ def _check_paths(args) -> None:
             raise ValueError(f"--{name.replace('_', '-')}: an empty path; name a folder or a file")
 
 
+_NEGATIVE = re.compile(r"-\.?\d")
+
+
+def _join_negative_values(argv: list[str]) -> list[str]:
+    """``--every -1m`` as ``--every=-1m``: argparse takes a value that starts with ``-`` for an option, and would
+    answer with its usage instead of the option's own one-line refusal of a negative value."""
+    out = []
+    for a in argv:
+        if out and out[-1].startswith("--") and "=" not in out[-1] and _NEGATIVE.match(a):
+            out[-1] = f"{out[-1]}={a}"
+        else:
+            out.append(a)
+    return out
+
+
 def main(argv=None) -> int:
     """Run ``vpr`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit status.
 
@@ -113,7 +129,7 @@ def main(argv=None) -> int:
     its reader: no message, status 141 (as a process killed by SIGPIPE). Warnings are
     printed as ``vpr: warning: ...``; progress bars only on a terminal.
     """
-    argv = sys.argv[1:] if argv is None else list(argv)
+    argv = _join_negative_values(sys.argv[1:] if argv is None else list(argv))
     # FFmpeg's decoder log (hundreds of lines for a damaged video) would bury the project's own
     # one-line report of skipped frames; read when OpenCV first opens a video, so set before any
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")

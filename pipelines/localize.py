@@ -358,6 +358,10 @@ def run_command(args) -> int:
                     method_conf=settings["method_conf"][ONLINE_METHOD], topic=topic_arg(args.topic), positions=spec,
                     every=every)
         loc = the_map.localizer
+        skipped = the_map.info.get("skipped") or []
+        if skipped:
+            warn(f"{len(skipped)} of the frames could not be read and are not in the map "
+                 f"(first: {skipped[0][0]}: {skipped[0][1]})")
         print(f"learned {loc.n_db} frames ({loc.memory!r}); wrote {map_path(args.out)}")
         return 0
     if Map.is_map(args.map) or Path(args.map).suffix.lower() == ".npz":

@@ -328,3 +328,9 @@ def test_a_query_every_4m_against_a_full_rate_map_keeps_its_precision(scene_on_d
     assert code == 0, err
     r = _metrics(tmp_path / "r")["methods"]["rshosm-seq"]
     assert r["frames"] == m["frames"] and r["precision_accepted"] >= 0.95
+
+
+def test_a_negative_distance_is_one_line(two_runs, capsys):
+    root, _ = two_runs
+    code, _, err = _run(["loops", root / "run1" / "img", "--out", root / "o", "--every", "-1m"], capsys)
+    assert code == 2 and err.strip() == "vpr loops: error: --every must be a distance in metres like 2m, got '-1m'"
