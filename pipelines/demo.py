@@ -126,7 +126,8 @@ def run_demo(out, scene=DEFAULTS["scene"], preset=DEFAULTS["preset"], encoder=No
         print(f"'+verify': each query's {verify} best candidates re-ordered by ORB + pycolmap RANSAC inliers "
               f"(other pairs keep their scores, so AP compares); P(acc) = precision of the accepted best matches")
     print("seconds: " + ", ".join(f"{k} {v:.1f}" for k, v in report["params"]["demo_seconds"].items()))
-    print(f"wrote {out}/metrics.json, pr.png, per-method folders; contact sheet {out}/scene/contact_sheet.png")
+    print(f"wrote {out}/report.html (open it: the table, the plots and the frames side by side), metrics.json, "
+          f"pr.png, per-method folders; contact sheet {out}/scene/contact_sheet.png")
     return report
 
 

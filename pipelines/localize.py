@@ -11,8 +11,10 @@ The query is standardised causally (``--query-standardise``, ``--window``,
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 import time
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
@@ -195,6 +197,7 @@ class LocalizeOnline(Online):
         gt_hard, gt_soft = build_gt(gt, loc.names, names, info.get("db_indices") or list(range(loc.n_db)), q_idx,
                                     info.get("db_source", "database"), self.q_src.name, positions=positions)
         m, _ = evaluate.method_metrics(result, gt_hard, gt_soft)
+        self.ground_truth = (gt_hard, gt_soft, None)
         m.pop("seconds", None)
         m.pop("n_accepted", None)
         return m
@@ -207,6 +210,16 @@ class LocalizeOnline(Online):
     def save(self, path) -> None:
         self.map.query_state = self.qenc.state()
         self.map.save(path)
+
+    def report_sources(self, src) -> tuple[list, list]:
+        """The map's sources where they are still on disk (the map keeps their paths, not their frames)."""
+        dbs = self.map.info.get("db")
+        srcs = []
+        for d in [dbs] if isinstance(dbs, str) else dbs or []:
+            with contextlib.suppress(OSError, ValueError), warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                srcs.append(open_source(d))
+        return srcs, [src]
 
     def params(self) -> dict:
         return {**self._params, "encoder": self.map.encoder["name"], "encoder_conf": self.map.encoder["conf"],

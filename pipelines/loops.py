@@ -28,6 +28,7 @@ from pipelines.args import (
 )
 from pipelines.online import Online, run_online, summary_line
 from pipelines.outputs import claim_methods, merge_metrics, versions, warn, write_method
+from pipelines.report import write_report
 from pipelines.runs import RunOptions, config, extract_run, prepare_run
 from vpr import evaluate, groundtruth, io, methods
 from vpr.groundtruth import GroundTruthSpec, any_true, build_loop_gt, build_stream_gt, check_loop_gt_files, frame_rows
@@ -183,6 +184,7 @@ class LoopsOnline(Online):
         if not (hard & mask).any():
             no_revisit(self.gt, exclude)
         m, _ = evaluate.method_metrics(result, hard, soft, mask=mask, loops=True)
+        self.ground_truth = (hard, soft, mask)
         if len(self.starts) > 1:  # as the batch run's table, the sessions named by their number
             m["sessions"] = evaluate.session_pairs(result.best, result.accepted, hard, self.starts, soft, mask,
                                                    [str(k + 1) for k in range(len(self.starts))])
@@ -304,4 +306,6 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
                              "skipped": [sk for ex in exs for sk in ex.skipped],
                              "ground_truth": opts.gt.describe(), "inputs": inputs},
                   "versions": versions()}
-        return merge_metrics(out, report, f"loop closures in {', '.join(s.name for s in srcs)}")
+        merged = merge_metrics(out, report, f"loop closures in {', '.join(s.name for s in srcs)}")
+    write_report(out, srcs, srcs, kind="loops")
+    return merged

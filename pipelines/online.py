@@ -22,6 +22,8 @@ import numpy as np
 
 from pipelines.interrupts import deferred
 from pipelines.outputs import claim_methods, merge_metrics, versions, write_matches
+from pipelines.report import write_report
+from vpr import evaluate
 from vpr.sources.stdin import SESSION
 from vpr.types import Decision, MatchResult
 
@@ -41,6 +43,8 @@ class Online:
     method = "rshosm-seq"
     row_offset = 0
     top_k: int | None = None
+    #: (gt_hard, gt_soft, mask) of this run's frames, set by :meth:`evaluate` where there is ground truth
+    ground_truth: tuple | None = None
 
     def warm_up(self) -> None:
         """Compile kernels and load models now, so that the first frame's latency is its own."""
@@ -68,6 +72,10 @@ class Online:
 
     def save(self, path) -> None:
         raise NotImplementedError
+
+    def report_sources(self, src) -> tuple[list, list]:
+        """The sources of the candidate frames and of the frames answered (``src``), for the report's pictures."""
+        return [src], [src]
 
     def params(self) -> dict:
         """What ``metrics.json`` records under ``params`` (besides the command and the frames skipped)."""
@@ -175,7 +183,7 @@ def _run(job: Online, src, out: Path, stdout, state_out, n_rows, claim: contextl
             raise stop
         raise ValueError("no readable frames")
     with deferred():  # the outputs are written whole; a second signal stops at once
-        report = _write(job, out, rows, [list(s) for s in src.skipped], seconds, n_rows, state_out,
+        report = _write(job, out, src, rows, [list(s) for s in src.skipped], seconds, n_rows, state_out,
                         None if stop is None else [w[0] for w in waiting])
     if stop is not None:
         raise stop
@@ -202,7 +210,7 @@ def _stopped(job: Online, src, waiting: list[str], state_out) -> str:
             f"to continue, --resume {state_out} and {go_on}; their answers come first")
 
 
-def _write(job: Online, out: Path, rows, skipped, seconds, n_rows, state_out, waiting: list[str] | None) -> dict:
+def _write(job: Online, out: Path, src, rows, skipped, seconds, n_rows, state_out, waiting: list[str] | None) -> dict:
     """The outputs of the frames answered; ``waiting``: after a stop, the frames read and not yet answered."""
     import scipy.sparse as sp
 
@@ -224,15 +232,22 @@ def _write(job: Online, out: Path, rows, skipped, seconds, n_rows, state_out, wa
                       shape=(T if n_rows is None else int(n_rows), T)).tocsr()
     res = MatchResult(job.method, S, best, score, accepted, seconds, {})
     lat_all, lat_dec = [r[3] for r in rows], [r[4] for r in rows]
-    write_matches(out / job.method, MatchResult(job.method, S, shown, score, accepted, seconds, {}), None, names,
-                  {"latency_ms": [round(v, 3) for v in lat_all], "latency_decide_ms": [round(v, 3) for v in lat_dec]},
-                  best_names=[job.name_of(b) if b >= 0 else "" for b in shown],
-                  query_ids=[int(d.frame) for d in ds])
     m = {"frames": T, "seconds": round(seconds, 4), "n_accepted": int(accepted.sum()), "stopped": waiting is not None,
          "latency_ms": {"with_encoding": latency_summary(lat_all), "without_encoding": latency_summary(lat_dec)}}
     if waiting:
         m["waiting"] = waiting  # in the state (--state-out), answered after --resume
     m.update(job.evaluate(res, names, [r[1] for r in rows]))
+    extra = {}
+    if job.ground_truth is not None:  # as a batch run's matches.csv (GT_COLUMNS)
+        right, truth = evaluate.outcomes(best, *job.ground_truth)
+        extra = {"right": ["" if r < 0 else int(r) for r in right],
+                 "true_db": [t + off if t >= 0 else -1 for t in truth],
+                 "true_name": [job.name_of(t + off) if t >= 0 else "" for t in truth]}
+    write_matches(out / job.method, MatchResult(job.method, S, shown, score, accepted, seconds, {}), None, names,
+                  {**extra, "latency_ms": [round(v, 3) for v in lat_all],
+                   "latency_decide_ms": [round(v, 3) for v in lat_dec]},
+                  best_names=[job.name_of(b) if b >= 0 else "" for b in shown],
+                  query_ids=[int(d.frame) for d in ds])
     if state_out:
         job.save(state_out)
     params = {"command": job.command, **job.params(), "skipped": skipped}
@@ -241,4 +256,7 @@ def _write(job: Online, out: Path, rows, skipped, seconds, n_rows, state_out, wa
     digest = hashlib.sha256("\n".join(names).encode("utf-8", "surrogateescape")).hexdigest()
     params["inputs"] = {"kind": job.command, "n_frames": T, "frames_sha256": digest}
     report = {"methods": {job.method: m}, "params": params, "versions": versions()}
-    return merge_metrics(out, report, f"{job.command}: {job.method}")
+    merged = merge_metrics(out, report, f"{job.command}: {job.method}")
+    db_srcs, q_srcs = job.report_sources(src)
+    write_report(out, db_srcs, q_srcs, kind="loops" if job.command == "loops" else "match")
+    return merged

@@ -20,8 +20,8 @@ import scipy.sparse as sp
 from vpr import evaluate, io, methods, plots
 from vpr.types import MatchResult
 
-__all__ = ["MATCH_COLUMNS", "versions", "write_similarity", "write_matches", "metrics_table",
-           "write_method", "merge_metrics", "warn", "claim_methods"]
+__all__ = ["MATCH_COLUMNS", "GT_COLUMNS", "versions", "write_similarity", "write_matches", "metrics_table",
+           "write_method", "merge_metrics", "warn", "claim_methods", "table_cells", "TABLE"]
 
 
 def warn(msg: str) -> None:
@@ -52,18 +52,28 @@ def write_similarity(folder: Path, S) -> str:
 
 #: The columns of every command's ``matches.csv``, in order (extra columns follow them).
 MATCH_COLUMNS = ("query", "query_name", "best_db", "db_name", "score", "accepted")
+#: With ground truth, next: whether the best match is right (1, 0; empty: no best match or a soft-only pair),
+#: and a true database frame of the query (the middle one; -1 and empty: it has none).
+GT_COLUMNS = ("right", "true_db", "true_name")
 
 
 def write_matches(folder: Path, res: MatchResult, db_names, q_names, extra: dict | None = None,
-                  best_names=None, query_ids=None) -> None:
+                  best_names=None, query_ids=None, gt=None, name_of=None) -> None:
     """``matches.csv``: one row per query with its best database frame, score, decision and ``extra`` columns.
 
-    The schema of every command (:data:`MATCH_COLUMNS`, then ``extra``'s
-    columns); ``best_names``: the name of each query's best frame, where the
-    database's names are not all at hand (``db_names`` None); ``query_ids``:
-    the queries' numbers where they do not start at 0 (a resumed online run).
+    The schema of every command (:data:`MATCH_COLUMNS`, then :data:`GT_COLUMNS`
+    with ground truth, then ``extra``'s columns); ``best_names``: the name of
+    each query's best frame, where the database's names are not all at hand
+    (``db_names`` None; ``name_of(frame)`` names a true frame then);
+    ``query_ids``: the queries' numbers where they do not start at 0 (a
+    resumed online run); ``gt``: (gt_hard, gt_soft, mask) as evaluated.
     """
-    extra = extra or {}
+    extra = dict(extra or {})
+    if gt is not None:
+        right, truth = evaluate.outcomes(res.best, *gt)
+        name = name_of or (lambda b: db_names[b])
+        extra = {"right": ["" if r < 0 else int(r) for r in right], "true_db": truth.tolist(),
+                 "true_name": ["" if t < 0 else name(int(t)) for t in truth], **extra}
     with io.atomic_open(folder / "matches.csv", "w", newline="", encoding="utf-8", errors="surrogateescape") as fh:
         w = csv.writer(fh, lineterminator="\n")  # LF: awk, cut and diff read it as it is
         w.writerow([*MATCH_COLUMNS, *extra])
@@ -83,6 +93,13 @@ TABLE = {"match": [("ap", "AP"), ("recall_at_100p", "R@100P"), ("recall_at_1", "
                    ("seconds", "seconds")]}
 
 
+def table_cells(m: dict, kind: str = "match") -> list[str]:
+    """One method's cells of the printed table (:data:`TABLE`): integers as they are, numbers to 3 decimals, ``-``
+    for a metric that is not there or undefined."""
+    return [(str(m[k]) if isinstance(m[k], int) else f"{m[k]:.3f}") if isinstance(m.get(k), (int, float)) else "-"
+            for k, _ in TABLE[kind]]
+
+
 def metrics_table(table: dict, kind: str = "match") -> str:
     """The printed table: one row per method of ``{method: metrics}`` (``kind``: ``"match"`` or ``"loops"``).
 
@@ -93,9 +110,7 @@ def metrics_table(table: dict, kind: str = "match") -> str:
     keys = TABLE[kind]
     lines = [f"{'method':<22}" + "".join(f"{h:>10}" for _, h in keys)]
     for name, m in table.items():
-        cells = "".join((f"{m[k]:10d}" if isinstance(m[k], int) else f"{m[k]:10.3f}")
-                        if isinstance(m.get(k), (int, float)) else f"{'-':>10}" for k, _ in keys)
-        lines.append(f"{name:<22}{cells}")
+        lines.append(f"{name:<22}" + "".join(f"{c:>10}" for c in table_cells(m, kind)))
     soft = {name: m["best_in_soft"] for name, m in table.items() if "best_in_soft" in m}
     if soft:
         lines.append("R@1, AP, R@100P and P(acc) ignore best matches in the soft band (--gt-soft): neither right nor "
@@ -143,7 +158,7 @@ def write_method(folder: Path, m: str, res: MatchResult, evaluated: tuple, db_na
         vm["seconds"] = round(verified.seconds, 4)
         vm["similarity_file"] = metrics["similarity_file"]
         entries[m + "+verify"] = (vm, vcurve)
-    write_matches(folder, res, db_names, q_names, extra)
+    write_matches(folder, res, db_names, q_names, extra, gt=None if gt_hard is None else (gt_hard, gt_soft, mask))
     plots.plot_similarity(res.similarity, folder / "similarity.png", best_db=res.best, accepted=res.accepted,
                           gt_hard=gt_hard, gt_soft=gt_soft, title=title or f"{m}: database x query",
                           value_label=methods.get_class(m).score_label if m in methods.available() else "similarity",

@@ -22,7 +22,8 @@ import encoders
 from encoders.extract import extract_all
 from pipelines.cluster import check_workers, dask_client, run_tasks, send_once, split_match
 from pipelines.interrupts import deferred
-from pipelines.outputs import claim_methods, merge_metrics, versions, warn, write_method
+from pipelines.outputs import TABLE, claim_methods, merge_metrics, table_cells, versions, warn, write_method
+from pipelines.report import write_report, write_table_report
 from vpr import evaluate, io, methods
 from vpr.groundtruth import GroundTruthSpec, any_true, build_gt, frame_rows, prepare_positions
 from vpr.sources import open_sources
@@ -238,6 +239,9 @@ def run_fleet(db, queries, opts: RunOptions, command: str = "match", progress=No
         "versions": versions(),
     }
     io.save_json(out / "metrics.json", summary)
+    write_table_report(out, f"vpr {command}: {len(jobs)} query traverses against {db}", TABLE["match"],
+                       [(f"{n}: {m}", table_cells(v)) for n in jobs for m, v in summary["queries"][n].items()],
+                       [], ["each query traverse's page, with its frames: OUT/<query>/report.html"])
     return summary
 
 
@@ -328,4 +332,6 @@ def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, command: st
                    "ground_truth": opts.gt.describe(), "inputs": inputs, **(extra or {})},
         "versions": versions(),
     }
-    return merge_metrics(out, report, f"{db_src.name} vs {q_src.name} ({encoder.name})")
+    merged = merge_metrics(out, report, f"{db_src.name} vs {q_src.name} ({encoder.name})")
+    write_report(out, [db_src], [q_src])
+    return merged

@@ -53,10 +53,10 @@ so ``n_db * n_q`` may be far larger than memory (pass ``gt_hard`` and
 ``gt_soft`` sparse as well in that case, e.g. from the ``sparse=True`` option
 of the builders in :mod:`vpr.groundtruth`).
 """
-from .decisions import accepted_precision, best_in_soft_band, decision_curve, session_pairs
+from .decisions import accepted_precision, best_in_soft_band, decision_curve, outcomes, session_pairs
 from .harness import method_metrics, peak_rss_mb, run_methods
 from .ranking import auc_from_pr, auc_pr, average_precision, evaluate, pr_curve, recall_at_100p, recall_at_k
 
 __all__ = ["average_precision", "pr_curve", "auc_pr", "auc_from_pr", "recall_at_100p", "recall_at_k", "evaluate",
-           "accepted_precision", "best_in_soft_band", "decision_curve", "session_pairs", "method_metrics",
+           "accepted_precision", "best_in_soft_band", "decision_curve", "session_pairs", "outcomes", "method_metrics",
            "run_methods", "peak_rss_mb"]

@@ -13,7 +13,7 @@ import scipy.sparse as sp
 
 from vpr.checks import at
 
-__all__ = ["accepted_precision", "best_in_soft_band", "decision_curve", "session_pairs"]
+__all__ = ["accepted_precision", "best_in_soft_band", "decision_curve", "session_pairs", "outcomes"]
 
 
 def accepted_precision(best_db, accepted, gt_hard, gt_soft=None, mask=None) -> dict:
@@ -170,3 +170,30 @@ def session_pairs(best, accepted, gt_hard, starts, gt_soft=None, mask=None, name
                         "precision": float(correct[judged].mean()) if judged.any() else None,
                         "recall": n_ok / int(with_loop.sum()) if with_loop.any() else None})
     return out
+
+
+def outcomes(best, gt_hard, gt_soft=None, mask=None) -> tuple[np.ndarray, np.ndarray]:
+    """Per query: whether its best match is right, and one true database frame to show beside it.
+
+    Returns ``(right, truth)``: ``right`` 1 (a true pair), 0 (wrong) or -1
+    (no best match, or a soft-only pair, which counts neither way);
+    ``truth`` the middle one of the query's true database frames inside
+    ``mask`` (-1: it has none). What ``matches.csv`` and the report show
+    beside each decision.
+    """
+    if mask is not None:
+        gt_hard, gt_soft = (None if g is None else g.multiply(mask).tocsr() if sp.issparse(g) else np.asarray(g) & mask
+                            for g in (gt_hard, gt_soft))
+    best = np.asarray(best, np.int64)
+    q = np.flatnonzero(best >= 0)
+    right = np.full(best.size, -1, np.int64)
+    correct = at(gt_hard, best[q], q).astype(bool)
+    right[q] = correct
+    if gt_soft is not None:
+        right[q[~correct & at(gt_soft, best[q], q).astype(bool)]] = -1
+    hard = sp.csc_matrix(gt_hard, dtype=bool)
+    hard.sort_indices()
+    counts = np.diff(hard.indptr)
+    truth = np.where(counts > 0, hard.indices[np.minimum(hard.indptr[:-1] + counts // 2, max(hard.nnz - 1, 0))]
+                     if hard.nnz else -1, -1)
+    return right, truth.astype(np.int64)

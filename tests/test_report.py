@@ -1,0 +1,104 @@
+"""The report page: written by every command that writes metrics.json, and checked in a real browser.
+
+The browser is the distribution's headless Chromium driven by Selenium (no
+download at run time); where it is not installed the browser test is skipped
+with one line saying how to install it.
+"""
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from pipelines.cli import main
+from pipelines.outputs import TABLE, table_cells
+from tests.browser import chromium
+from vpr import report
+
+
+def _run(argv, capsys):
+    code = main([str(a) for a in argv] + ["--no-progress"])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def compared(scene_on_disk, tmp_path_factory):
+    s = scene_on_disk("two_seasons", (64, 48), 120)
+    out = tmp_path_factory.mktemp("report") / "run"
+    assert main([str(a) for a in ["compare", s["summer_day"], s["winter_night"], "--out", out, "--gt", s["gt"],
+                                  "--radius", 5, "--preset", "fast", "--no-progress"]]) == 0
+    return out
+
+
+def test_choose_shows_the_worst_first_within_the_limit():
+    keys = np.array(["right"] * 50 + ["wrong"] * 5 + ["missed"] * 30 + ["lost"] * 10)
+    score = np.r_[np.arange(50.0), 100 + np.arange(5.0), np.arange(30.0), np.arange(10.0)]
+    shown, counts = report.choose(keys, score, 40)
+    # shares of 40: wrong 14 (5 there: 9 go on), missed 10 + 9, lost 6, right 4; the 6 left to missed
+    assert counts == {"wrong": (5, 5), "missed": (25, 30), "lost": (6, 10), "right": (4, 50)}
+    assert list(keys[shown[:5]]) == ["wrong"] * 5 and score[shown[0]] == 104.0  # the most confident mistake first
+    assert score[shown[-4]] == 0.0  # accepted and right: the closest call first
+    assert report.outcome(True, 0, True) == "wrong" and report.outcome(False, 1, True) == "missed"
+    assert report.outcome(True, None, None) == "accepted" and report.outcome(True, None, True) == "soft"
+
+
+def test_compare_writes_a_report_with_a_strip_per_decision_shown(compared):
+    page = (compared / "report.html").read_text()
+    metrics = json.loads((compared / "metrics.json").read_text())["methods"]
+    for m, v in metrics.items():
+        cells = table_cells(v, "match")
+        row = page[page.index(f'<tr data-method="{m}">'):]
+        assert all(f'data-key="{k}">{c}<' in row[:row.index("</tr>")] for (k, _), c in zip(TABLE["match"], cells,
+                                                                                            strict=True))
+    with open(compared / "rshosm-seq" / "matches.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert {"right", "true_db", "true_name"} <= set(rows[0])  # matches.csv says which decisions are right
+    wrong = [r for r in rows if r["accepted"] == "1" and r["right"] == "0"]
+    for r in wrong[:5]:
+        assert f'id="s-rshosm-seq-{r["query"]}"' in page
+    assert (compared / "report.html").stat().st_size < 20e6
+
+
+def test_the_report_renders_in_a_real_browser(compared):
+    from selenium.webdriver.common.by import By
+
+    browser = chromium()
+    try:
+        browser.get((compared / "report.html").as_uri())
+        errors = [e for e in browser.get_log("browser") if e["level"] == "SEVERE"]
+        assert not errors, errors
+        metrics = json.loads((compared / "metrics.json").read_text())["methods"]
+        for m, v in metrics.items():  # the table the browser shows is metrics.json's
+            shown = [td.text for td in browser.find_elements(By.CSS_SELECTOR, f'tr[data-method="{m}"] td')[1:]]
+            assert shown == table_cells(v, "match")
+        strips = browser.find_elements(By.CSS_SELECTOR, ".strip")
+        assert {s.get_attribute("data-method") for s in strips} == {m for m in metrics if "+" not in m}
+        visible = browser.execute_script("return [...document.querySelectorAll('.strip')]"
+                                         ".filter(s => s.offsetParent !== null).length")
+        assert visible == len(strips)
+        browser.find_element(By.CSS_SELECTOR, 'button[data-filter="outcome"][data-value="wrong"]').click()
+        wrong = browser.execute_script("return [...document.querySelectorAll('.strip')]"
+                                       ".filter(s => s.offsetParent !== null).length")
+        assert 0 < wrong < visible
+        assert browser.find_element(By.ID, "shown").text == f"{wrong} shown"
+        loaded = browser.execute_script("return [...document.querySelectorAll('img')]"
+                                        ".map(i => i.complete && i.naturalWidth > 0)")
+        assert loaded and all(loaded)  # every thumbnail and plot is there
+    finally:
+        browser.quit()
+
+
+def test_loops_and_localize_write_reports(scene_on_disk, tmp_path, capsys):
+    s = scene_on_disk("loop_revisits", (48, 36), 240)
+    code, _, err = _run(["loops", s["laps"], "--out", tmp_path / "loops", "--gt", s["gt"], "--radius", 4,
+                         "--preset", "fast", "--exclude", 12, "--method-conf", "rshosm-seq.min_score=10"], capsys)
+    assert code == 0, err
+    page = (tmp_path / "loops" / "report.html").read_text()
+    assert "closes onto" in page and 'class="strip right"' in page
+    t = scene_on_disk("two_seasons", (64, 48), 120)
+    code, _, err = _run(["localize", t["summer_day"], t["winter_night"], "--out", tmp_path / "loc", "--tolerance",
+                         3], capsys)
+    assert code == 0, err
+    page = (tmp_path / "loc" / "report.html").read_text()
+    assert 'data-method="rshosm-seq"' in page and "not read" not in page  # the map's frames found again

@@ -1,0 +1,206 @@
+"""The report page of a run: the metrics table, the plots, and the frames side by side, worst first.
+
+One self-contained HTML file (images embedded as ``data:`` URIs, a few lines
+of JavaScript for the filters; no server, no network) that a user opens from
+disk to see *why* a match is wrong. :func:`choose` picks the decisions to
+show for each method, by outcome, worst first, at most ``limit`` per method
+(what was left out is said on the page); :func:`thumbnail` makes the
+pictures; :func:`page` writes the HTML. Reading the frames and the run's
+files is the caller's (``pipelines.report``).
+"""
+from __future__ import annotations
+
+import base64
+import html
+import json
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+__all__ = ["OUTCOMES", "Strip", "outcome", "choose", "thumbnail", "picture", "page"]
+
+#: Outcomes of a decision, worst first: (key, label). Without ground truth only ``accepted`` and ``rejected``.
+OUTCOMES = (("wrong", "accepted, wrong"), ("missed", "rejected, right"), ("lost", "rejected, wrong"),
+            ("right", "accepted, right"), ("soft", "in the soft band (neither)"), ("none", "no true match"),
+            ("accepted", "accepted"), ("rejected", "rejected"))
+_LABEL = dict(OUTCOMES)
+#: Of ``limit`` strips per method, the share each outcome may take before what it leaves goes to the next.
+_SHARE = {"wrong": 0.35, "missed": 0.25, "lost": 0.15, "right": 0.1, "soft": 0.05, "none": 0.1, "accepted": 0.5,
+          "rejected": 0.5}
+
+
+def outcome(accepted: bool, right: int | None, has_truth: bool | None) -> str:
+    """The outcome key of one decision: ``right`` 1, 0 or None (no ground truth, a soft-only pair, no match)."""
+    if has_truth is None:
+        return "accepted" if accepted else "rejected"
+    if accepted:
+        return "right" if right == 1 else "wrong" if right == 0 else "soft" if has_truth else "none"
+    if not has_truth:
+        return "none"
+    return "missed" if right == 1 else "lost"
+
+
+def choose(keys, score, limit: int) -> tuple[np.ndarray, dict]:
+    """The decisions to show, worst first, at most ``limit``: ``(positions, {outcome: (shown, of)})``.
+
+    Within an outcome: accepted and wrong, rejected ones and those without a
+    true match by score, highest first (the most confident mistakes, the
+    nearest misses); accepted and right by score, lowest first (the closest
+    calls). An outcome's share (:data:`_SHARE`) that it does not fill goes
+    to the outcomes after it; what is still left, to the worst outcomes first.
+    """
+    keys = np.asarray(keys)
+    score = np.nan_to_num(np.asarray(score, np.float64), nan=-np.inf)
+    picks, counts, left, carry = {}, {}, int(limit), 0
+    for k, _ in OUTCOMES:
+        pos = np.flatnonzero(keys == k)
+        if not pos.size:
+            continue
+        order = np.argsort(score[pos] if k == "right" else -score[pos], kind="stable")
+        quota = int(round(limit * _SHARE[k])) + carry
+        take = min(pos.size, quota, left)
+        carry, left = quota - take, left - take
+        picks[k] = pos[order]
+        counts[k] = [int(take), int(pos.size)]
+    for k in picks:  # what the shares left unused, to the worst outcomes first
+        more = min(left, counts[k][1] - counts[k][0])
+        counts[k][0] += more
+        left -= more
+    out = [picks[k][:counts[k][0]] for k in picks]
+    counts = {k: tuple(c) for k, c in counts.items()}
+    return (np.concatenate(out) if out else np.zeros(0, np.int64)), counts
+
+
+def thumbnail(img: np.ndarray | None, width: int = 128, quality: int = 75) -> str | None:
+    """A JPEG ``data:`` URI of ``img`` (uint8 BGR) scaled down to ``width`` pixels (None for None)."""
+    if img is None:
+        return None
+    h, w = img.shape[:2]
+    small = cv2.resize(img, (width, max(1, round(h * width / w))), interpolation=cv2.INTER_AREA) if w > width else img
+    ok, buf = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    return "data:image/jpeg;base64," + base64.b64encode(buf.tobytes()).decode("ascii") if ok else None
+
+
+def picture(data: bytes, width: int = 900) -> str | None:
+    """A plot (PNG bytes) as a JPEG ``data:`` URI at most ``width`` pixels wide: a page of several stays small."""
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    return thumbnail(img, width, 88)
+
+
+@dataclass
+class Strip:
+    """One decision as the page shows it: the query frame, its best match and a true match, with what was decided."""
+
+    method: str
+    outcome: str
+    query: int
+    query_name: str
+    best_name: str
+    true_name: str
+    score: float
+    images: tuple  # data URIs (or None) of the query, the best match and the true match
+
+
+_CSS = """
+body{font:14px/1.4 system-ui,sans-serif;margin:1.5em;color:#222;max-width:1400px}
+table{border-collapse:collapse;margin:.5em 0}td,th{padding:.2em .7em;text-align:right;border-bottom:1px solid #ddd}
+td:first-child,th:first-child{text-align:left}figure{display:inline-block;margin:.3em;vertical-align:top}
+figcaption{font-size:12px;color:#555;max-width:128px;overflow-wrap:anywhere}
+.figs img{width:400px;border:1px solid #ccc}.figs a{display:inline-block}
+.strip{border-left:6px solid #999;padding:.3em .6em;margin:.4em;display:inline-block;vertical-align:top;width:430px}
+.strip.wrong{border-color:#c0392b}.strip.missed{border-color:#e67e22}.strip.lost{border-color:#f1c40f}
+.strip.right{border-color:#27ae60}.strip.none,.strip.soft{border-color:#8e44ad}.strip img{width:128px;display:block}
+.strip .missing{width:128px;height:96px;background:#eee;color:#888;display:flex;align-items:center;
+justify-content:center}button{margin:.15em;padding:.2em .6em}button.on{background:#333;color:#fff}
+.note{color:#555}
+"""
+
+_JS = """
+const pics = JSON.parse(document.getElementById("pics").textContent);
+for (const img of document.querySelectorAll("img[data-pic]")) img.src = pics[img.dataset.pic];
+const state = {method: "all", outcome: "all"};
+function apply() {
+  let n = 0;
+  for (const s of document.querySelectorAll(".strip")) {
+    const show = (state.method === "all" || s.dataset.method === state.method)
+      && (state.outcome === "all" || s.dataset.outcome === state.outcome);
+    s.style.display = show ? "" : "none";
+    if (show) n++;
+  }
+  document.getElementById("shown").textContent = n + " shown";
+  for (const b of document.querySelectorAll("button[data-filter]"))
+    b.classList.toggle("on", state[b.dataset.filter] === b.dataset.value);
+}
+for (const b of document.querySelectorAll("button[data-filter]"))
+  b.addEventListener("click", () => { state[b.dataset.filter] = b.dataset.value; apply(); });
+for (const a of document.querySelectorAll("a[data-method]"))
+  a.addEventListener("click", () => { state.method = a.dataset.method; state.outcome = "all"; apply(); });
+apply();
+"""
+
+
+def _esc(x) -> str:
+    return html.escape(str(x), quote=True)
+
+
+def _figure(uri: str | None, caption: str, pics: dict | None = None) -> str:
+    """A picture with its caption; with ``pics`` (data URI -> id) the picture is named and filled in by the page's
+    script, so that a frame shown in many strips is in the file once."""
+    if not uri:
+        pic = '<div class="missing">not read</div>'
+    elif pics is None:
+        pic = f'<a href="{uri}" target="_blank"><img src="{uri}" alt="{_esc(caption)}"></a>'
+    else:
+        pic = f'<img data-pic="{pics.setdefault(uri, f"p{len(pics)}")}" alt="{_esc(caption)}">'
+    return f"<figure>{pic}<figcaption>{_esc(caption)}</figcaption></figure>"
+
+
+def page(title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[str]]], figures: list[tuple[str, str]],
+         strips: list[Strip], counts: dict, notes: list[str], sides=("query", "best match", "true match")) -> str:
+    """The report's HTML.
+
+    ``header``/``rows``: the metrics table: (metrics key, label) of its
+    columns, and per method its cells as printed; ``figures``: (caption, data URI) of the plots; ``strips``: the
+    decisions shown; ``counts``: per method, {outcome: (shown, of)};
+    ``notes``: lines said under the title; ``sides``: what the three frames
+    of a strip are.
+    """
+    out = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
+           f"<title>{_esc(title)}</title><style>{_CSS}</style></head><body>", f"<h1>{_esc(title)}</h1>"]
+    out += [f'<p class="note">{_esc(n)}</p>' for n in notes]
+    labels = ["method", *(lab for _, lab in header)]
+    out.append('<table id="metrics"><tr>' + "".join(f"<th>{_esc(h)}</th>" for h in labels) + "</tr>")
+    for name, cells in rows:
+        link = f'<a href="#strips" data-method="{_esc(name)}">{_esc(name)}</a>' if name in counts else _esc(name)
+        out.append(f'<tr data-method="{_esc(name)}"><td>{link}</td>'
+                   + "".join(f'<td data-key="{_esc(k)}">{_esc(c)}</td>'
+                             for (k, _), c in zip(header, cells, strict=True))
+                   + "</tr>")
+    out.append("</table>")
+    out.append('<div class="figs">' + "".join(_figure(uri, cap) for cap, uri in figures) + "</div>")
+    out.append('<h2 id="strips">The decisions, worst first</h2>')
+    for m, c in counts.items():
+        said = "; ".join(f"{_LABEL[k]} {s} of {n}" for k, (s, n) in c.items())
+        out.append(f'<p class="note">{_esc(m)}: {_esc(said)}</p>')
+    out.append('<div id="filters">method: <button data-filter="method" data-value="all">all</button>'
+               + "".join(f'<button data-filter="method" data-value="{_esc(m)}">{_esc(m)}</button>' for m in counts)
+               + '<br>outcome: <button data-filter="outcome" data-value="all">all</button>'
+               + "".join(f'<button data-filter="outcome" data-value="{k}">{_esc(lab)}</button>'
+                         for k, lab in OUTCOMES if any(k in c for c in counts.values()))
+               + ' <span id="shown"></span></div>')
+    pics: dict[str, str] = {}
+    for s in strips:
+        caps = (f"{sides[0]} {s.query}: {s.query_name}", f"{sides[1]}: {s.best_name or '(none)'}",
+                f"{sides[2]}: {s.true_name or '(none)'}")
+        score = f"{s.score:.3f}" if np.isfinite(s.score) else "-"
+        out.append(f'<div class="strip {s.outcome}" data-method="{_esc(s.method)}" data-outcome="{s.outcome}" '
+                   f'id="s-{_esc(s.method)}-{s.query}"><b>{_esc(s.method)}</b> · {_esc(_LABEL[s.outcome])} · score '
+                   f"{score}<br>" + "".join(_figure(u, c, pics) for u, c in zip(s.images, caps, strict=True))
+                   + "</div>")
+    # the pictures once, before the script that puts them in place
+    out.append('<script type="application/json" id="pics">'
+               + json.dumps({k: uri for uri, k in pics.items()}).replace("</", "<\\/") + "</script>")
+    out.append(f"<script>{_JS}</script>")
+    out.append(f'<script type="application/json" id="counts">{_esc(json.dumps(counts))}</script></body></html>')
+    return "\n".join(out)
