@@ -106,7 +106,7 @@ _CSS = """
 body{font:14px/1.4 system-ui,sans-serif;margin:1.5em;color:#222;max-width:1400px}
 table{border-collapse:collapse;margin:.5em 0}td,th{padding:.2em .7em;text-align:right;border-bottom:1px solid #ddd}
 td:first-child,th:first-child{text-align:left}figure{display:inline-block;margin:.3em;vertical-align:top}
-figcaption{font-size:12px;color:#555;max-width:128px;overflow-wrap:anywhere}
+figcaption{font-size:12px;color:#555;max-width:128px;overflow-wrap:anywhere}.figs figcaption{max-width:400px}
 .figs img{width:400px;border:1px solid #ccc}.figs a{display:inline-block}
 .strip{border-left:6px solid #999;padding:.3em .6em;margin:.4em;display:inline-block;vertical-align:top;width:430px}
 .strip.wrong{border-color:#c0392b}.strip.missed{border-color:#e67e22}.strip.lost{border-color:#f1c40f}

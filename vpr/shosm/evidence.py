@@ -28,8 +28,11 @@ closure over a graph that grows with the stream (:class:`vpr.shosm.LoopStream`).
 """
 from __future__ import annotations
 
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 from tqdm import tqdm
@@ -123,6 +126,9 @@ class Engine:
     exact : bool
         Carry every relevant cell (dense; cost per frame linear in the
         connections) instead of the beam.
+    threads : int, optional
+        :meth:`run`'s two passes run on two threads at once when 2 or more
+        (default: numba's thread count, capped at 2); the answers are the same.
 
     The state between frames (:meth:`state`) is the evidence of the last
     frame: the beam, or every relevant cell. :meth:`step` is causal;
@@ -130,9 +136,10 @@ class Engine:
     """
 
     def __init__(self, graph: Graph, evidence: EvidenceConf | None = None, beam: BeamConf | None = None,
-                 exact: bool = False):
+                 exact: bool = False, threads: int | None = None):
         self.graph, self.evidence, self.beam_conf = graph, evidence or EvidenceConf(), beam or BeamConf()
         self.exact = bool(exact)
+        self.threads = min(2, numba.config.NUMBA_NUM_THREADS) if threads is None else int(threads)
         self.normalise = self.evidence.normalise == "query"
         self.frames = 0
         self._params = {c: _params(self.evidence, self.beam_conf if c else self.beam_conf.uncapped(), 0.0)
@@ -236,12 +243,10 @@ class Engine:
         if direction == "both":
             passes.append(("bwd", np.arange(n_q, dtype=np.int64)[::-1].copy()))
         # Columns are finished (summed over the passes, standardised, cut to top_k) a chunk of queries at a
-        # time, as soon as every pass has given them: the forward columns wait for the backward pass (which
-        # runs the chunks in reverse). Only they are held whole: on SDRs that share many bits between places
-        # a column holds thousands of frames.
+        # time once both passes have given them; the passes run at once, each on its own thread, so both
+        # are held until then (float32 values, 32-bit frames).
         chunk = QUERY_CHUNK
         starts = list(range(0, n_q, chunk))
-        held: dict[int, tuple] = {}
         done: dict[int, tuple] = {}
         n_per_q = np.full(n_q, n_db, np.int64)
 
@@ -249,26 +254,35 @@ class Engine:
             q0, q1 = starts[c], min(starts[c] + chunk, n_q)
             done[c] = _finish(a, b, n_per_q[q0:q1], n_db, top_k, self.normalise)
 
+        lock = threading.Lock()
+
+        def run_pass(name, order, bar):
+            """One direction's columns, per chunk (held as the dense evidence is stored: float32, 32-bit frames)."""
+            b = Beam(g)
+            adj = g.fwd if name == "fwd" else g.bwd
+            out = {}
+            for c in (range(len(starts)) if name == "fwd" else range(len(starts) - 1, -1, -1)):
+                q0, q1 = starts[c], min(starts[c] + chunk, n_q)
+                frames = order[q0:q1] if name == "fwd" else order[n_q - q1:n_q - q0]
+                cols = b.run(g, adj, q_ptr, q_ind, frames, limits[q0:q1], params)
+                cols = _reversed(*cols) if name == "bwd" else cols
+                out[c] = (cols[0], cols[1].astype(np.int32), cols[2].astype(np.float32)) if len(passes) > 1 else cols
+                with lock:
+                    bar.update(q1 - q0)
+            return out, b.largest
+
         with tqdm(total=n_q * len(passes), desc="rSHOSM evidence", unit="frame", leave=False,
                   disable=not progress) as bar:
-            for name, order in passes:
-                b = Beam(g)
-                adj = g.fwd if name == "fwd" else g.bwd
-                for c in (range(len(starts)) if name == "fwd" else range(len(starts) - 1, -1, -1)):
-                    q0, q1 = starts[c], min(starts[c] + chunk, n_q)
-                    frames = order[q0:q1] if name == "fwd" else order[n_q - q1:n_q - q0]
-                    cols = b.run(g, adj, q_ptr, q_ind, frames, limits[q0:q1], params)
-                    bar.update(q1 - q0)
-                    if name == "bwd":
-                        finish_chunk(c, held.pop(c), _reversed(*cols))
-                    elif len(passes) == 1:
-                        finish_chunk(c, cols, _NO_PASS)
-                    else:  # held as the dense evidence is stored (float32, 32-bit frames): half the bytes
-                        held[c] = (cols[0], cols[1].astype(np.int32), cols[2].astype(np.float32))
-                largest = b.largest
-                seen["max_beam"] = max(seen["max_beam"], largest[0])
-                seen["max_candidates"] = max(seen["max_candidates"], largest[1])
-                del b
+            if len(passes) > 1 and self.threads > 1:  # the passes do not depend on each other: one per core
+                with ThreadPoolExecutor(2) as pool:
+                    results = list(pool.map(lambda p: run_pass(*p, bar), passes))
+            else:
+                results = [run_pass(*p, bar) for p in passes]
+        for _, largest in results:
+            seen["max_beam"] = max(seen["max_beam"], largest[0])
+            seen["max_candidates"] = max(seen["max_candidates"], largest[1])
+        for c in range(len(starts)):
+            finish_chunk(c, results[0][0].pop(c), results[1][0].pop(c) if len(passes) > 1 else _NO_PASS)
         if stats is not None:
             stats.update(seen)
         parts = [done[c] for c in range(len(starts))]

@@ -38,7 +38,7 @@ import numpy as np
 
 from vpr.imageproc import depth_bits
 
-from .base import Frame, Source, check_fps, check_positive_int, check_range, natural_key, stat_token
+from .base import Frame, Source, check_fps, check_positive_int, natural_key, stat_token
 from .salvage import scan_mcap, scan_ros1
 
 __all__ = ["BagSource", "is_bag", "ENCODINGS", "DEPTH_ENCODINGS", "IMAGE_TYPES", "POSITION_TYPES",
@@ -404,20 +404,6 @@ class BagSource(Source):
                 self._skip(name, str(e))
                 continue
             yield Frame(k, name, img)
-
-    def __iter__(self) -> Iterator[Frame]:
-        self.skipped = []
-        n = 0
-        for f in self._frames(self._selected()):
-            n += 1
-            yield f
-        if n == 0:
-            raise self._no_frames_error()
-
-    def iter_range(self, start: int, stop: int) -> Iterator[Frame]:
-        start, stop = check_range(start, stop)
-        self.skipped = []
-        yield from self._frames(self._selected()[start:stop])
 
     # ----------------------------------------------------------- positions
     def trajectory(self, topic: str) -> tuple[np.ndarray, np.ndarray, str]:

@@ -248,8 +248,22 @@ class Source:
         """
         return None
 
-    def __iter__(self) -> Iterator[Frame]:
+    def _selected(self):
+        """The frames to attempt, as the kind keeps them (sliced by :meth:`iter_range`)."""
         raise NotImplementedError
+
+    def _frames(self, selection) -> Iterator[Frame]:
+        """The readable frames of a slice of :meth:`_selected`; the others skipped (:meth:`_skip`)."""
+        raise NotImplementedError
+
+    def __iter__(self) -> Iterator[Frame]:
+        self.skipped = []
+        n = 0
+        for f in self._frames(self._selected()):
+            n += 1
+            yield f
+        if n == 0:
+            raise self._no_frames_error()
 
     def iter_range(self, start: int, stop: int) -> Iterator[Frame]:
         """Frames at positions ``start:stop`` of :meth:`names` (as a slice; unreadable ones skipped).
@@ -258,7 +272,19 @@ class Source:
         seeks to it). Unlike iteration, an empty result does not raise;
         ``skipped`` holds the range's skipped frames.
         """
-        raise NotImplementedError
+        start, stop = check_range(start, stop)
+        self.skipped = []
+        yield from self._frames(self._selected()[start:stop])
+
+    def _read(self, path: Path, name: str) -> tuple[np.ndarray | None, str]:
+        """An image file as a frame (:meth:`_bgr`), or the reason it is not one."""
+        img, reason = read_image(path)
+        if img is None:
+            return None, reason
+        try:
+            return self._bgr(img, name), ""
+        except ValueError as exc:
+            return None, str(exc)
 
     def _bgr(self, img: np.ndarray, name: str) -> np.ndarray:
         """uint8 BGR of a decoded frame; 16-bit frames scaled alike, by the bits the source's first frame uses

@@ -19,7 +19,6 @@ from .base import (
     IgnoredFilesWarning,
     Source,
     check_positive_int,
-    check_range,
     natural_key,
     read_image,
     stat_token,
@@ -86,32 +85,13 @@ class _FileListSource(Source):
                 return depth_bits(first) if first.dtype == np.uint16 else depth_bits(img)
         return depth_bits(img)
 
-    def _decoded(self, entries) -> Iterator[Frame]:
+    def _frames(self, entries) -> Iterator[Frame]:
         for index, name, p in entries:
-            img, reason = read_image(p)
-            if img is not None:
-                try:
-                    img = self._bgr(img, name)
-                except ValueError as exc:
-                    img, reason = None, str(exc)
+            img, reason = self._read(p, name)
             if img is None:
                 self._skip(name, reason)
                 continue
             yield Frame(index, name, img)
-
-    def __iter__(self) -> Iterator[Frame]:
-        self.skipped = []
-        n_yielded = 0
-        for f in self._decoded(self._selected()):
-            n_yielded += 1
-            yield f
-        if n_yielded == 0:
-            raise self._no_frames_error()
-
-    def iter_range(self, start: int, stop: int) -> Iterator[Frame]:
-        start, stop = check_range(start, stop)
-        self.skipped = []
-        yield from self._decoded(self._selected()[start:stop])
 
 
 class FolderSource(_FileListSource):

@@ -13,7 +13,7 @@ import os
 from collections.abc import Iterator
 from pathlib import Path
 
-from .base import Frame, Source, read_image
+from .base import Frame, Source
 
 __all__ = ["StdinSource", "SESSION"]
 
@@ -81,13 +81,8 @@ class StdinSource(Source):
                 continue
             seen_path = True
             name = os.fsdecode(text)
-            img, reason = read_image(Path(name))
+            img, reason = self._read(Path(name), name)
             index += 1
-            if img is not None:
-                try:
-                    img = self._bgr(img, name)
-                except ValueError as exc:
-                    img, reason = None, str(exc)
             if img is None:
                 self.skipped.append((name, reason))
                 continue

@@ -65,7 +65,7 @@ def _relax_groups(n_g, gtouch, gmax, gmark, a_head, a_dst, a_next, birth, limit,
     return n_c
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # the forward and backward passes run on two threads at once
 def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
                 a_head, a_next, a_dst, grp, c_head, c_next, c_frame, relevant, birth, db_norm,
                 decay, stay, skip, z_weight, floor, rel_floor, z_floor, max_beam, max_enter,
