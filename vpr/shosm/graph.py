@@ -70,46 +70,6 @@ def grouped_lists(keys, vals, n_heads):
     return head, nxt, value, group
 
 
-#: No groups: the beam kernel counts every minicolumn through the inverted index.
-_NO_GROUPS = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(1, np.int64), np.zeros(0, np.int64),
-              np.zeros(0, np.float64), np.zeros(1, np.int64), np.zeros(0, np.int64))
-
-
-def feed_forward_groups(v, codes: sp.csr_matrix, n_cols: int, n_inputs: int) -> tuple:
-    """The minicolumns in groups for the beam's feed-forward (:func:`vpr.shosm.kernels.beam.beam_frames`).
-
-    A minicolumn joins the group of the first database frame whose code holds
-    one of its cells (Algorithm 1 makes it at that frame, from that frame's
-    input bits; minicolumns in no code form one group more). Returns
-    ``(bg_ptr, bg_groups, g_ptr, g_cols, g_minsize, col_ptr, col_bits)``: the
-    groups' unions of connections as an inverted index bit -> groups, each
-    group's minicolumns and smallest connection count, and each minicolumn's
-    connections. Any grouping gives the kernel's exact answers; this one makes
-    its bound tight, so few groups are opened per query frame.
-    """
-    cpc = v.cells_per_column
-    n_db = codes.shape[0]
-    coo = codes.tocoo()
-    group = np.full(n_cols, n_db, np.int64)
-    np.minimum.at(group, coo.col.astype(np.int64) // cpc, coo.row.astype(np.int64))
-    width = v.bit_cols.shape[1] if v.bit_cols.ndim == 2 else 0
-    taken = np.arange(width)[None, :] < v.bit_len[:, None]
-    bits_of, cols_of = np.nonzero(taken)
-    cols_of = v.bit_cols[bits_of, cols_of].astype(np.int64)
-    conn = sp.csr_matrix((np.ones(cols_of.size, np.float32), (cols_of, bits_of)), shape=(n_cols, n_inputs))
-    conn.sum_duplicates()
-    members = sp.csr_matrix((np.ones(n_cols, np.float32), (group, np.arange(n_cols))), shape=(n_db + 1, n_cols))
-    union = (members @ conn).tocsc()  # groups x bits: a bit's groups are a column
-    union.sort_indices()
-    size = v.column_sizes.astype(np.float64)
-    size = np.r_[size, np.zeros(max(0, n_cols - size.size))][:n_cols]
-    minsize = np.full(n_db + 1, np.inf)
-    pos = size > 0
-    np.minimum.at(minsize, group[pos], size[pos])
-    return (union.indptr.astype(np.int64), union.indices.astype(np.int64), members.indptr.astype(np.int64),
-            members.indices.astype(np.int64), minsize, conn.indptr.astype(np.int64), conn.indices.astype(np.int64))
-
-
 def _grown(a, size, fill):
     out = np.full(size, fill, a.dtype)
     out[: a.size] = a
@@ -147,7 +107,6 @@ class Graph:
             self.db_norm = np.ones(1024, np.float64)
             self.fwd, self.bwd = (np.full(cap, -1, np.int64), np.zeros(4096, np.int64), np.zeros(4096, np.int64)), None
             self.n_nodes = 0
-            self.ff = _NO_GROUPS  # a growing memory counts every minicolumn
             return
         n_cells = max(v.n_cells, codes.shape[1], 1)
         self.n_cells, self.n_cols, self.n_db = n_cells, max(v.n_columns, 1), codes.shape[0]
@@ -163,7 +122,6 @@ class Graph:
         self.db_norm = np.maximum(np.diff(codes.indptr), 1).astype(np.float64)
         self.fwd = grouped_lists(v.e_src, v.e_dst, n_cells)
         self.bwd = grouped_lists(v.e_dst, v.e_src, n_cells) if backward else None
-        self.ff = feed_forward_groups(v, codes, self.n_cols, mem.n_inputs)
 
     @classmethod
     def of(cls, mem: SequenceMemory, db_codes, backward: bool = False) -> Graph:
@@ -261,10 +219,6 @@ class Beam:
                                                                                                              np.int64)
         self.out_idx, self.out_val = np.zeros(4096, np.int64), np.zeros(4096, np.float64)
         self.gmax, self.gmark, self.gtouch = np.zeros(0), np.zeros(0, bool), np.zeros(0, np.int64)
-        n_groups = max(graph.ff[2].size - 1, 0)
-        self.qmask, self.zdone = np.zeros(graph.mem.n_inputs, bool), np.zeros(n_cols, bool)
-        self.fgcount, self.fgub, self.fgtouch = np.zeros(n_groups), np.zeros(n_groups), np.zeros(n_groups, np.int64)
-        self.heap = np.zeros(1)
 
     @property
     def largest(self) -> tuple[int, int]:
@@ -304,8 +258,6 @@ class Beam:
         n = order.size
         out_ptr = np.zeros(n + 1, np.int64)
         st = self.st
-        if self.heap.size < params[-1] + 1:  # the max_enter + 1 largest overlap fractions
-            self.heap = np.zeros(int(params[-1]) + 1)
         st[KB.B_OUT_POS] = 0
         st[KB.B_FRAMES] = 0
         while True:
@@ -314,8 +266,7 @@ class Beam:
                                   g.birth, g.db_norm, *params, st, self.beam, self.beam_e, self.e_cur,
                                   self.counts, self.touched_cols, self.p1, self.p2, self.z, self.mark, self.cand,
                                   self.e_new, self.gmax, self.gmark, self.gtouch, self.acc, self.db_mark,
-                                  self.db_touch, out_ptr, self.out_idx, self.out_val, *g.ff, self.qmask,
-                                  self.fgcount, self.fgtouch, self.fgub, self.zdone, self.heap)
+                                  self.db_touch, out_ptr, self.out_idx, self.out_val)
             if done >= n:
                 break
             size = max(int(st[KB.B_NEED]), 2 * self.out_idx.size)

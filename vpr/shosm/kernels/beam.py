@@ -65,161 +65,12 @@ def _relax_groups(n_g, gtouch, gmax, gmark, a_head, a_dst, a_next, birth, limit,
     return n_c
 
 
-@njit(cache=True, inline="always")
-def _col_z(col, col_ptr, col_bits, col_size, qmask):  # pragma: no cover - compiled
-    """A minicolumn's overlap fraction with the query (``qmask``), from its own connections."""
-    cnt = 0.0
-    for m in range(col_ptr[col], col_ptr[col + 1]):
-        if qmask[col_bits[m]]:
-            cnt += 1.0
-    return cnt / col_size[col] if col_size[col] > 0 else 0.0
-
-
-@njit(cache=True, inline="always")
-def _heap_push(heap, n, v):  # pragma: no cover - compiled
-    """A min-heap of the ``heap.size`` largest values so far; returns its size."""
-    if n < heap.shape[0]:
-        i = n
-        n += 1
-    elif v > heap[0]:
-        i = 0
-        # sift the root down to make room, then place v
-        while True:
-            left = 2 * i + 1
-            if left >= n:
-                break
-            small = left + 1 if left + 1 < n and heap[left + 1] < heap[left] else left
-            if heap[small] >= v:
-                break
-            heap[i] = heap[small]
-            i = small
-        heap[i] = v
-        return n
-    else:
-        return n
-    while i > 0:  # sift up
-        parent = (i - 1) // 2
-        if heap[parent] <= v:
-            break
-        heap[i] = heap[parent]
-        i = parent
-    heap[i] = v
-    return n
-
-
-@njit(cache=True, inline="always")
-def _bounded(q_ptr, q_ind, q, bg_ptr, bg_groups, g_ptr, g_cols, g_minsize, col_ptr, col_bits, col_size,
-             z_floor, max_enter, qmask, gcount, gtouch, gub, counts, zdone, touched_cols, heap):  # pragma: no cover
-    """The minicolumns that may enter by feed-forward, found group by group in descending bound.
-
-    A group's minicolumns connect only to bits of the group's union, so none
-    overlaps the query more than the group does: ``|q & group| / smallest
-    size`` bounds their overlap fractions. Groups are opened in descending
-    bound until the next cannot pass the floor nor the ``max_enter + 1``-th
-    largest fraction so far: the minicolumns above ``zf`` and ``zf`` itself
-    are those of counting every minicolumn. Returns (minicolumns opened, zf).
-    """
-    n_g = 0
-    for i in range(q_ptr[q], q_ptr[q + 1]):
-        b = q_ind[i]
-        qmask[b] = True
-        for k in range(bg_ptr[b], bg_ptr[b + 1]):
-            gi = bg_groups[k]
-            if gcount[gi] == 0.0:
-                gtouch[n_g] = gi
-                n_g += 1
-            gcount[gi] += 1.0
-    n_up = 0  # the groups that may pass the floor, first in gtouch (their bounds in gub)
-    for i in range(n_g):
-        gi = gtouch[i]
-        ub = min(1.0, gcount[gi] / g_minsize[gi])
-        gcount[gi] = 0.0
-        if ub > z_floor:
-            gtouch[i] = gtouch[n_up]
-            gtouch[n_up] = gi
-            gub[n_up] = ub
-            n_up += 1
-    order = np.argsort(-gub[:n_up], kind="mergesort")
-    cap = max_enter + 1 if max_enter > 0 else 0
-    n_h = 0
-    n_tc = 0
-    for oi in range(n_up):
-        i = order[oi]
-        ub = gub[i]
-        if cap > 0 and n_h == cap and ub <= heap[0]:
-            break
-        gi = gtouch[i]
-        for k in range(g_ptr[gi], g_ptr[gi + 1]):
-            col = g_cols[k]
-            zz = _col_z(col, col_ptr, col_bits, col_size, qmask)
-            counts[col] = zz
-            zdone[col] = True
-            touched_cols[n_tc] = col
-            n_tc += 1
-            if cap > 0 and zz > z_floor:
-                n_h = _heap_push(heap[:cap], n_h, zz)
-    zf = z_floor
-    if cap > 0 and n_h == cap and heap[0] > zf:
-        zf = heap[0]
-    return n_tc, zf
-
-
-@njit(cache=True, inline="always")
-def _counted(q_ptr, q_ind, q, bit_cols, bit_len, col_size, z_floor, max_enter, counts,
-             touched_cols):  # pragma: no cover - compiled
-    """The overlap fraction of every minicolumn the query touches, through the inverted index; (touched, zf)."""
-    n_tc = 0
-    for i in range(q_ptr[q], q_ptr[q + 1]):
-        b = q_ind[i]
-        for j in range(bit_len[b]):
-            col = bit_cols[b, j]
-            if counts[col] == 0.0:
-                touched_cols[n_tc] = col
-                n_tc += 1
-            counts[col] += 1.0
-    # counts become overlap fractions; they stay until the end of the frame so that every
-    # candidate (also one that enters by prediction) gets its feed-forward term
-    n_above = 0
-    for i in range(n_tc):
-        col = touched_cols[i]
-        zz = counts[col] / col_size[col] if col_size[col] > 0 else 0.0
-        counts[col] = zz
-        if zz > z_floor:
-            n_above += 1
-    zf = z_floor
-    if max_enter > 0 and n_above > max_enter:
-        # SDRs that share many bits between places pass the floor in very many minicolumns:
-        # only the max_enter of largest overlap enter (partial selection, O(touched))
-        vals = np.empty(n_above, np.float64)
-        m = 0
-        for i in range(n_tc):
-            zz = counts[touched_cols[i]]
-            if zz > z_floor:
-                vals[m] = zz
-                m += 1
-        zf = max(zf, np.partition(vals, n_above - max_enter - 1)[n_above - max_enter - 1])
-    return n_tc, zf
-
-
-@njit(cache=True, inline="always")
-def _reset_ff(q_ptr, q_ind, q, n_tc, touched_cols, counts, zdone, qmask, grouped_ff):  # pragma: no cover
-    for i in range(n_tc):
-        counts[touched_cols[i]] = 0.0
-        if grouped_ff:
-            zdone[touched_cols[i]] = False
-    if grouped_ff:
-        for i in range(q_ptr[q], q_ptr[q + 1]):
-            qmask[q_ind[i]] = False
-
-
 @njit(cache=True, nogil=True)  # the forward and backward passes run on two threads at once
 def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
                 a_head, a_next, a_dst, grp, c_head, c_next, c_frame, relevant, birth, db_norm,
                 decay, stay, skip, z_weight, floor, rel_floor, z_floor, max_beam, max_enter,
                 st, beam, beam_e, e_cur, counts, touched_cols, p1, p2, z, mark, cand, e_new,
-                gmax, gmark, gtouch, acc, db_mark, db_touch, out_ptr, out_idx, out_val,
-                bg_ptr, bg_groups, g_ptr, g_cols, g_minsize, col_ptr, col_bits, qmask, fgcount, fgtouch, fgub,
-                zdone, heap):
+                gmax, gmark, gtouch, acc, db_mark, db_touch, out_ptr, out_idx, out_val):
     """Sparse graded evidence for the query frames ``order`` (one direction).
 
     Parameters (all arrays owned by the caller; cells are the memory's cell indices)
@@ -258,12 +109,6 @@ def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
     beam, beam_e : the beam (cells, evidence), carried from call to call.
     out_ptr, out_idx, out_val : per processed frame the sparse column
         (database frame, evidence); ``out_ptr[t + 1]`` ends frame ``order[t]``.
-    bg_ptr, bg_groups, g_ptr, g_cols, g_minsize, col_ptr, col_bits : the minicolumns in groups (those
-        that first won at one database frame), each group's union of connections as an inverted index
-        bit -> groups, its smallest minicolumn, and each minicolumn's connections: the feed-forward is
-        then found group by group (:func:`_bounded`), with the same answers as counting every
-        minicolumn through ``bit_cols``; empty ``bg_ptr``: count every minicolumn (a growing graph).
-    qmask, fgcount, fgtouch, fgub, zdone, heap : scratch of the grouped feed-forward.
 
     Returns the number of frames of ``order`` processed; fewer than all when
     ``out_idx`` is too small for the next frame (``st[B_NEED]`` = size needed),
@@ -273,14 +118,37 @@ def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
     for t in range(st[B_FRAMES], n):
         q = order[t]
         limit = limits[t]
-        grouped_ff = bg_ptr.shape[0] > 0
-        if grouped_ff:
-            n_tc, zf = _bounded(q_ptr, q_ind, q, bg_ptr, bg_groups, g_ptr, g_cols, g_minsize, col_ptr, col_bits,
-                                col_size, z_floor, max_enter, qmask, fgcount, fgtouch, fgub, counts, zdone,
-                                touched_cols, heap)
-        else:
-            n_tc, zf = _counted(q_ptr, q_ind, q, bit_cols, bit_len, col_size, z_floor, max_enter, counts,
-                                touched_cols)
+        # ---- feed-forward: overlap of every touched minicolumn via the inverted index
+        n_tc = 0
+        for i in range(q_ptr[q], q_ptr[q + 1]):
+            b = q_ind[i]
+            for j in range(bit_len[b]):
+                col = bit_cols[b, j]
+                if counts[col] == 0.0:
+                    touched_cols[n_tc] = col
+                    n_tc += 1
+                counts[col] += 1.0
+        # counts become overlap fractions; they stay until the end of the frame so that every
+        # candidate (also one that enters by prediction) gets its feed-forward term
+        n_above = 0
+        for i in range(n_tc):
+            col = touched_cols[i]
+            zz = counts[col] / col_size[col] if col_size[col] > 0 else 0.0
+            counts[col] = zz
+            if zz > z_floor:
+                n_above += 1
+        zf = z_floor
+        if max_enter > 0 and n_above > max_enter:
+            # SDRs that share many bits between places pass the floor in very many minicolumns:
+            # only the max_enter of largest overlap enter (partial selection, O(touched))
+            vals = np.empty(n_above, np.float64)
+            m = 0
+            for i in range(n_tc):
+                zz = counts[touched_cols[i]]
+                if zz > z_floor:
+                    vals[m] = zz
+                    m += 1
+            zf = max(zf, np.partition(vals, n_above - max_enter - 1)[n_above - max_enter - 1])
         n_c = 0
         for i in range(n_tc):
             col = touched_cols[i]
@@ -331,13 +199,7 @@ def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
         emax = 0.0
         for i in range(n_c):
             c = cand[i]
-            col = c // cpc
-            if grouped_ff and not zdone[col]:  # a minicolumn not opened: its fraction, for this candidate
-                counts[col] = _col_z(col, col_ptr, col_bits, col_size, qmask)
-                zdone[col] = True
-                touched_cols[n_tc] = col
-                n_tc += 1
-            z[c] = counts[col]
+            z[c] = counts[c // cpc]
             p = p1[c]
             if skip >= 0.0 and p2[c] - skip > p:
                 p = p2[c] - skip
@@ -367,7 +229,8 @@ def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
                 p1[c] = 0.0
                 p2[c] = 0.0
                 z[c] = 0.0
-            _reset_ff(q_ptr, q_ind, q, n_tc, touched_cols, counts, zdone, qmask, grouped_ff)
+            for i in range(n_tc):
+                counts[touched_cols[i]] = 0.0
             st[B_NEED] = need
             st[B_FRAMES] = t
             return t
@@ -420,7 +283,8 @@ def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
         st[B_SIZE] = nb2
         if nb2 > st[B_MAX_BEAM]:
             st[B_MAX_BEAM] = nb2
-        _reset_ff(q_ptr, q_ind, q, n_tc, touched_cols, counts, zdone, qmask, grouped_ff)
+        for i in range(n_tc):
+            counts[touched_cols[i]] = 0.0
         pos = st[B_OUT_POS]
         for i in range(n_touch):
             j = db_touch[i]
