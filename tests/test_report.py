@@ -89,6 +89,7 @@ def test_the_report_renders_in_a_real_browser(compared):
         browser.quit()
 
 
+@pytest.mark.slow
 def test_loops_and_localize_write_reports(scene_on_disk, tmp_path, capsys):
     s = scene_on_disk("loop_revisits", (48, 36), 240)
     code, _, err = _run(["loops", s["laps"], "--out", tmp_path / "loops", "--gt", s["gt"], "--radius", 4,

@@ -49,6 +49,7 @@ LOOSE = ["--preset", "fast", "--exclude", "12", "--method-conf", "rshosm-seq.min
 
 
 # ------------------------------------------------------------------ outages
+@pytest.mark.slow
 def test_a_gps_outage_is_said_and_its_frames_have_no_ground_truth(laps, tmp_path, capsys):
     # 1 frame a second; the receiver loses its fix for frames 100..159 (a minute in a tunnel)
     bag = write_bag(tmp_path / "outage.bag", laps["images"], laps["xy"], dt=1.0, odom=False,
@@ -125,6 +126,7 @@ def test_a_bag_without_images_lists_its_topics_and_gt_topic_says_what_it_reads(s
 
 
 # ------------------------------------------------------------------ two robots
+@pytest.mark.slow
 def test_topics_per_input(seasons, scene_on_disk, tmp_path, capsys):
     night = scene_on_disk("two_seasons", (48, 32), 40)
     a = write_bag(tmp_path / "a.bag", seasons["day"], seasons["xy"], topic="/robot_a/camera/image_raw")
@@ -234,6 +236,7 @@ def test_a_cut_mcap_and_an_active_ros1_bag_read_up_to_the_damage(seasons, tmp_pa
 
 
 # ------------------------------------------------------------------ time and sampling
+@pytest.mark.slow
 def test_time_where_there_are_stamps(seasons, tmp_path, capsys):
     bag = write_bag(tmp_path / "two_hz.bag", seasons["day"], seasons["xy"], dt=0.5)  # a 2 Hz camera
     with pytest.warns(UserWarning, match=r"--fps 10 is above its frame rate \(2 frames/s\): every frame is read"):
@@ -243,6 +246,7 @@ def test_time_where_there_are_stamps(seasons, tmp_path, capsys):
     assert _metrics(tmp_path / "o")["params"]["exclude"] == 20  # 10 s at 2 frames a second
 
 
+@pytest.mark.slow
 def test_a_drive_without_revisits_counts_its_false_closures(laps, tmp_path, capsys):
     # a drive along a street that looks the same twice (the frames repeat), 3 m a frame: no revisit
     straight = np.stack([3.0 * np.arange(80), np.zeros(80)], axis=1)
@@ -272,6 +276,7 @@ class _Stopped:
         raise KeyboardInterrupt
 
 
+@pytest.mark.slow
 def test_online_sessions_are_said_reported_and_resumed_without_a_gap_or_a_repeat(laps, tmp_path, capsys,
                                                                                  monkeypatch):
     paths = sorted(str(p) for p in laps["scene"]["laps"].glob("*.png"))
@@ -306,6 +311,7 @@ class _Lines(_Stopped):
 
 
 # ------------------------------------------------------------------ sampling of the map and the query
+@pytest.mark.slow
 def test_a_query_every_4m_against_a_full_rate_map_keeps_its_precision(scene_on_disk, tmp_path, capsys):
     s = scene_on_disk("speed_change", (64, 48), 240)  # 400 m: a frame every 1.7 m
     gt = ["--gt", s["gt"], "--radius", 5]
