@@ -36,8 +36,8 @@ def _vpr(*argv) -> float:
 def _browse(page: Path, kind: str, repeats: int) -> dict:
     from selenium.webdriver.common.by import By
 
-    from pipelines.outputs import table_cells
     from tests.browser import chromium
+    from vpr.report import table_cells
 
     metrics = json.loads((page.parent / "metrics.json").read_text())["methods"]
     loads, errors, same, strips = [], 0, True, {}

@@ -9,6 +9,7 @@ import argparse
 from pathlib import Path
 
 import encoders
+from encoders.maps import ONLINE_METHOD  # the method of the online commands
 from vpr import methods, presets
 from vpr.config import parse_key_values, parse_method_confs
 from vpr.groundtruth import GroundTruthSpec
@@ -17,10 +18,6 @@ from vpr.groundtruth.trajectories import parse_every
 __all__ = ["add_common_arguments", "add_source_arguments", "add_preset_argument", "add_gt_arguments",
            "gt_spec_from_args", "method_confs", "add_method_conf_argument", "refuse_gone", "ONLINE_METHOD",
            "add_run_arguments", "settings_from_args", "options_from_args"]
-
-#: The method of the online commands (``vpr learn`` / ``localize``, ``vpr loops -``).
-ONLINE_METHOD = "rshosm-seq"
-
 
 def refuse_gone(args, gone: dict) -> None:
     """Refuse a flag that went away, saying what replaces it: ``gone`` maps an ``args`` name to (flag, replacement)."""

@@ -18,12 +18,12 @@ import time
 from pathlib import Path
 
 from pipelines.args import add_common_arguments, add_preset_argument, method_confs
-from pipelines.outputs import metrics_table
 from pipelines.render import parse_size
 from pipelines.runs import RunOptions, run_compare
 from vpr import io, presets, render
 from vpr.config import parse_key_values
 from vpr.groundtruth import GroundTruthSpec
+from vpr.report import metrics_table
 
 __all__ = ["COMMANDS", "add_arguments", "run_command", "run_demo", "render_once", "DEFAULTS"]
 

@@ -16,9 +16,9 @@ import numpy as np
 import encoders
 from encoders.scenes import METHODS, EncoderTest, list_encoders, score_encoder
 from pipelines.args import add_common_arguments
-from pipelines.report import write_table_report
 from vpr import io as _io
 from vpr import render
+from vpr.report import write_table
 
 __all__ = ["COMMANDS", "add_arguments", "run_command", "format_list", "format_table"]
 
@@ -122,7 +122,7 @@ def run_command(args) -> int:
     _plot(doc["rows"], cfg.out / "metrics.png", f"{cfg.encoder} on the synthetic scenes")
     print(format_table(doc["rows"]))
     header = [(f"{m}.{k}", f"{m} {lab}") for m in METHODS for k, lab in (("ap", "AP"), ("recall_at_1", "R@1"))]
-    write_table_report(cfg.out, f"vpr encoders test: {cfg.encoder}", header,
+    write_table(cfg.out, f"vpr encoders test: {cfg.encoder}", header,
                        [(_label(r), [c for m in METHODS for c in (["-", "-"] if r[m] is None else
                                                                  [f"{r[m]['ap']:.3f}", f"{r[m]['recall_at_1']:.3f}"])])
                         for r in doc["rows"]], [("AP and R@1 per scene", cfg.out / "metrics.png")],

@@ -13,17 +13,12 @@ from __future__ import annotations
 import argparse
 import contextlib
 import sys
-import time
 import warnings
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-import scipy.sparse as sp
-
 import encoders
-from encoders.base import DescriptorEncoder
-from encoders.extract import extract
+from encoders.maps import learn, load_map, map_path
 from encoders.stream import PRIOR_FRAMES, WINDOW, StreamEncoder
 from pipelines.args import (
     ONLINE_METHOD,
@@ -39,13 +34,12 @@ from pipelines.args import (
 )
 from pipelines.online import Online, run_online, summary_line
 from pipelines.outputs import warn
-from vpr import evaluate, io, methods, presets
+from vpr import evaluate, io, presets
 from vpr.checks import per_input
-from vpr.groundtruth import GroundTruthSpec, build_gt, prepare_positions
-from vpr.groundtruth import trajectories as tr
+from vpr.groundtruth import GroundTruthSpec, build_gt, prepare_positions, same_sampling
 from vpr.groundtruth.trajectories import parse_every
 from vpr.shosm import Map
-from vpr.sources import open_source, open_sources
+from vpr.sources import open_source
 from vpr.sources.stdin import StdinSource
 from vpr.types import Decision
 
@@ -58,109 +52,7 @@ COMMANDS = {
 
 
 
-# ------------------------------------------------------------------ learn
-def map_path(out) -> Path:
-    """Where ``vpr learn --out OUT`` writes: ``OUT``, with ``.npz`` added when it has another suffix or none."""
-    out = Path(out)
-    io.check_writable(out, "--out")
-    return out if out.suffix.lower() == ".npz" else out.with_name(out.name + ".npz")
-
-
-def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, method_conf: dict | None = None,
-          fps=None, step=None, max_frames=None, progress: bool = True, topic: str | None = None,
-          positions: GroundTruthSpec | None = None, every: float | None = None) -> Map:
-    """Encode and learn the database traverse ``db``; write the map to :func:`map_path` ``(out)`` (atomic).
-
-    ``db``: one source, or a list of sources: the sessions of a multi-session
-    map (each encoded and standardised on its own frames, learned one after
-    the other from a fresh context). ``method_conf``: the ``rshosm-seq`` conf,
-    checked before any work; the map keeps it. ``topic``: a bag's camera
-    topic. ``positions``: where the frames' positions are (``--gt-topic``,
-    ``--gt FILE``, ``names``, ``exif``): the map keeps them, and ``every``
-    (metres) keeps one frame per so much travel.
-    """
-    out = map_path(out)
-    method = methods.get(ONLINE_METHOD, **(method_conf or {}))
-    dbs = [db] if isinstance(db, (str, Path)) else list(db)
-    srcs = open_sources(dbs, topic=topic, fps=fps, step=step, max_frames=max_frames)
-    roles = ["database"] if len(srcs) == 1 else [f"database session {k + 1}" for k in range(len(srcs))]
-    spec = positions or GroundTruthSpec()
-    pos = prepare_positions(srcs, roles, spec, every, loops=False, need=bool(spec.topic or spec.files))
-    enc = encoders.get(encoder, **(encoder_conf or {}))
-    enc.check_sources(srcs, roles, " and ".join(f"{f} {v}" for f, v in (("--step", step),
-                                                                          ("--max-frames", max_frames)) if v))
-    if enc.conf.get("standardise") in ("per_batch", "causal"):
-        raise ValueError(f"encoders with standardise={enc.conf['standardise']} cannot encode one query frame at a "
-                         "time; use standardise=fit (vpr localize then standardises the query causally, --window)")
-    t = time.perf_counter()
-    exs = [extract(src, enc, ("sdr",), progress=progress) for src in srcs]  # each session fitted on itself
-    t_enc = time.perf_counter() - t
-    t = time.perf_counter()
-    prefix = len(srcs) > 1
-    names = [f"{s.name}/{n}" if prefix else n for s, ex in zip(srcs, exs, strict=True) for n in ex.features.names]
-    starts = np.cumsum([0, *[len(ex.features) for ex in exs[:-1]]]).tolist()
-    sdr = sp.vstack([ex.features.sdr for ex in exs]).tocsr()
-    loc = method.localizer(sdr, names, progress=progress, sessions=starts)
-    fitted = isinstance(enc, DescriptorEncoder) and enc.conf.get("standardise") == "fit"
-    xy = None
-    if pos is not None:  # the positions of the frames learned (skipped ones are not in the map)
-        xy = np.concatenate([p[[{k: r for r, k in enumerate(src.indices())}[k] for k in ex.indices]]
-                             for src, ex, p in zip(srcs, exs, pos, strict=True)])
-    info = {"db": str(db) if not prefix else [str(d) for d in dbs], "db_source": srcs[0].name,
-            "db_indices": [] if prefix else list(exs[0].indices or []),
-            "skipped": [sk for ex in exs for sk in ex.skipped], "encode_seconds": t_enc,
-            "learn_seconds": time.perf_counter() - t, "positions": spec.describe() if pos is not None else None,
-            "every": every}
-    the_map = Map(loc, {"name": enc.name, "conf": enc.conf}, enc.statistics() if fitted else [],  # the last session's
-                  xy, None if pos is None else pos.origin, info, sdr)
-    the_map.save(out)
-    return the_map
-
-
-def load_map(path) -> tuple[Map, object]:
-    """(map, encoder with the database's fitted statistics) of a map written by :func:`learn`."""
-    the_map = Map.load(path)
-    enc = encoders.get(the_map.encoder["name"], **the_map.encoder["conf"])
-    if the_map.statistics:
-        enc.set_statistics(the_map.statistics)
-    return the_map, enc
-
-
 # ------------------------------------------------------------------ localize
-def same_sampling(the_map: Map, every: float | None, positions: bool, where: str, progress: bool = False):
-    """The map and the query's ``--every`` made to agree: the sequence evidence follows a query that moves about one
-    map frame per query frame, and a query sampled coarser than the map moves several (its decisions lose their
-    precision). A query ``--every`` coarser than the map's sampling: the map is learned again at it
-    (:meth:`vpr.shosm.Map.subset`); a map learned ``--every D`` and a query with positions: the query is sampled
-    so too. Each said; where neither can be done, the difference is said."""
-    map_every, spacing = the_map.info.get("every"), the_map.spacing()
-    if every is not None and map_every != every:
-        if spacing is None:
-            warn(f"{where}: the map has no positions, so its sampling is unknown; a query one frame per "
-                 f"{every:g} m keeps its precision only if the map was sampled alike")
-        elif spacing < every / 1.5:
-            if the_map.sdr is None:
-                warn(f"{where}: the map was learned every {spacing:.2g} m of travel and the query comes every "
-                     f"{every:g} m, but the map holds no SDRs to learn it again so: learn it again (vpr learn "
-                     f"--every {every:g}m), or its decisions lose their precision")
-            else:
-                keep = tr.every(the_map.positions, every)
-                warn(f"{where}: the map was learned every {spacing:.2g} m of travel and the query comes every "
-                     f"{every:g} m: the map is learned again one frame per {every:g} m ({keep.size} of "
-                     f"{the_map.localizer.n_db} frames), so that its sequences follow the query's")
-                the_map = the_map.subset(keep, progress)
-    elif every is None and map_every is not None:
-        if positions:
-            warn(f"{where}: the map was learned one frame per {map_every:g} m of travel: the query is sampled so "
-                 f"too (--every {map_every:g}m)")
-            every = map_every
-        else:
-            warn(f"{where}: the map was learned one frame per {map_every:g} m of travel and the query's frames "
-                 f"are taken as they come: give the query --every {map_every:g}m with its positions (--gt-topic, "
-                 "--gt), or its decisions lose their precision")
-    return the_map, every
-
-
 class LocalizeOnline(Online):
     """``vpr localize``: each query frame encoded with the map's encoder and localised by its :class:`vpr.Localizer`."""
 

@@ -73,7 +73,7 @@ def run_command(args) -> int:
         return _run_online(args, settings)
     if args.state_out or args.resume:
         raise ValueError("--state-out and --resume are for online loop closure: SEQ - (image paths on stdin)")
-    from pipelines.outputs import metrics_table
+    from vpr.report import metrics_table
 
     method = settings["methods"][0]
     if args.geometry == "on" and method != "rshosm-seq":

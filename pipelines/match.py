@@ -46,8 +46,8 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
 
 
 def run_command(args) -> int:
-    from pipelines.outputs import metrics_table
     from pipelines.runs import run_compare, run_fleet
+    from vpr.report import metrics_table
 
     opts = options_from_args(args)
     if len(args.query) > 1:  # a fleet: one table per query traverse

@@ -20,8 +20,8 @@ import scipy.sparse as sp
 from vpr import evaluate, io, methods, plots
 from vpr.types import MatchResult
 
-__all__ = ["MATCH_COLUMNS", "GT_COLUMNS", "versions", "write_similarity", "write_matches", "metrics_table",
-           "write_method", "merge_metrics", "warn", "claim_methods", "table_cells", "TABLE"]
+__all__ = ["MATCH_COLUMNS", "GT_COLUMNS", "versions", "write_similarity", "write_matches",
+           "write_method", "merge_metrics", "warn", "claim_methods"]
 
 
 def warn(msg: str) -> None:
@@ -83,39 +83,6 @@ def write_matches(folder: Path, res: MatchResult, db_names, q_names, extra: dict
             q = j if query_ids is None else query_ids[j]
             w.writerow([q, q_names[j], b, name, f"{res.score[j]:.6g}", int(bool(res.accepted[j])),
                         *(v[j] for v in extra.values())])
-
-
-#: Columns of the printed table: (metrics key, header).
-TABLE = {"match": [("ap", "AP"), ("recall_at_100p", "R@100P"), ("recall_at_1", "R@1"), ("n_accepted", "accepted"),
-                   ("precision_accepted", "P(acc)"), ("recall_accepted", "R(acc)"), ("seconds", "seconds")],
-         "loops": [("ap", "AP"), ("frame_recall_at_100p", "R@100P"), ("recall_at_1", "R@1"), ("n_accepted", "accepted"),
-                   ("precision_accepted", "P(acc)"), ("recall_accepted", "R(acc)"), ("false_per_1000", "false/1k"),
-                   ("seconds", "seconds")]}
-
-
-def table_cells(m: dict, kind: str = "match") -> list[str]:
-    """One method's cells of the printed table (:data:`TABLE`): integers as they are, numbers to 3 decimals, ``-``
-    for a metric that is not there or undefined."""
-    return [(str(m[k]) if isinstance(m[k], int) else f"{m[k]:.3f}") if isinstance(m.get(k), (int, float)) else "-"
-            for k, _ in TABLE[kind]]
-
-
-def metrics_table(table: dict, kind: str = "match") -> str:
-    """The printed table: one row per method of ``{method: metrics}`` (``kind``: ``"match"`` or ``"loops"``).
-
-    A metric that is not there (no ground truth) or undefined (the precision
-    of no accepted match) prints as ``-``. With a soft band (``--gt-soft``) a
-    legend says that R@1 and P(acc) ignore best matches there, and how many.
-    """
-    keys = TABLE[kind]
-    lines = [f"{'method':<22}" + "".join(f"{h:>10}" for _, h in keys)]
-    for name, m in table.items():
-        lines.append(f"{name:<22}" + "".join(f"{c:>10}" for c in table_cells(m, kind)))
-    soft = {name: m["best_in_soft"] for name, m in table.items() if "best_in_soft" in m}
-    if soft:
-        lines.append("R@1, AP, R@100P and P(acc) ignore best matches in the soft band (--gt-soft): neither right nor "
-                     "wrong. Best matches there: " + ", ".join(f"{n} {c}" for n, c in soft.items()))
-    return "\n".join(lines)
 
 
 def _score_at(S, rows) -> np.ndarray:

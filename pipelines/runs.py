@@ -22,10 +22,11 @@ import encoders
 from encoders.extract import extract_all
 from pipelines.cluster import check_workers, dask_client, run_tasks, send_once, split_match
 from pipelines.interrupts import deferred
-from pipelines.outputs import TABLE, claim_methods, merge_metrics, table_cells, versions, warn, write_method
-from pipelines.report import write_report, write_table_report
+from pipelines.outputs import claim_methods, merge_metrics, versions, warn, write_method
+from pipelines.report import write_report
 from vpr import evaluate, io, methods
 from vpr.groundtruth import GroundTruthSpec, any_true, build_gt, frame_rows, prepare_positions
+from vpr.report import TABLE, table_cells, write_table
 from vpr.sources import open_sources
 from vpr.types import MatchResult
 
@@ -239,7 +240,7 @@ def run_fleet(db, queries, opts: RunOptions, command: str = "match", progress=No
         "versions": versions(),
     }
     io.save_json(out / "metrics.json", summary)
-    write_table_report(out, f"vpr {command}: {len(jobs)} query traverses against {db}", TABLE["match"],
+    write_table(out, f"vpr {command}: {len(jobs)} query traverses against {db}", TABLE["match"],
                        [(f"{n}: {m}", table_cells(v)) for n in jobs for m, v in summary["queries"][n].items()],
                        [], ["each query traverse's page, with its frames: OUT/<query>/report.html"])
     return summary

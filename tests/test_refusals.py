@@ -30,7 +30,7 @@ def scene(scene_on_disk):
 
 # ------------------------------------------------------------ 1. headlines
 def test_precision_over_nothing_accepted_prints_a_dash_and_the_count():
-    from pipelines.outputs import metrics_table
+    from vpr.report import metrics_table
 
     table = metrics_table({"m": {"ap": 0.5, "n_accepted": 0, "precision_accepted": None, "recall_accepted": 0.0}})
     row = table.splitlines()[1].split()

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from pipelines.cli import main
-from pipelines.outputs import TABLE, table_cells
 from tests.browser import chromium
 from vpr import report
+from vpr.report import TABLE, table_cells
 
 
 def _run(argv, capsys):

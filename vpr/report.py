@@ -1,24 +1,35 @@
-"""The report page of a run: the metrics table, the plots, and the frames side by side, worst first.
+"""A run's table and report page: the metrics as printed, the plots, and the frames side by side, worst first.
 
-One self-contained HTML file (images embedded as ``data:`` URIs, a few lines
-of JavaScript for the filters; no server, no network) that a user opens from
-disk to see *why* a match is wrong. :func:`choose` picks the decisions to
-show for each method, by outcome, worst first, at most ``limit`` per method
-(what was left out is said on the page); :func:`thumbnail` makes the
-pictures; :func:`page` writes the HTML. Reading the frames and the run's
-files is the caller's (``pipelines.report``).
+:func:`metrics_table` is the table every command prints (:data:`TABLE`).
+:func:`write` makes ``DIR/report.html`` from what a run wrote there
+(``metrics.json``, ``pr.png``, each method's ``matches.csv`` and
+``similarity.png``) and the frames, read by name with a function the caller
+gives (``vpr`` does not open sources here): one self-contained HTML file
+(images embedded as ``data:`` URIs, a few lines of JavaScript for the filters;
+no server, no network) that a user opens from disk to see *why* a match is
+wrong. :func:`choose` picks the decisions shown for each method, by outcome,
+worst first, at most :data:`LIMIT` (the page says what was left out).
 """
 from __future__ import annotations
 
 import base64
+import csv
 import html
 import json
+import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
 
-__all__ = ["OUTCOMES", "Strip", "outcome", "choose", "thumbnail", "picture", "page"]
+from vpr import io
+
+__all__ = ["OUTCOMES", "TABLE", "Strip", "table_cells", "metrics_table", "outcome", "choose", "thumbnail", "picture",
+           "page", "write", "write_table"]
+
+#: Strips per method: the page of a 50,000-frame run stays a few MB.
+LIMIT = 120
 
 #: Outcomes of a decision, worst first: (key, label). Without ground truth only ``accepted`` and ``rejected``.
 OUTCOMES = (("wrong", "accepted, wrong"), ("missed", "rejected, right"), ("lost", "rejected, wrong"),
@@ -28,6 +39,39 @@ _LABEL = dict(OUTCOMES)
 #: Of ``limit`` strips per method, the share each outcome may take before what it leaves goes to the next.
 _SHARE = {"wrong": 0.35, "missed": 0.25, "lost": 0.15, "right": 0.1, "soft": 0.05, "none": 0.1, "accepted": 0.5,
           "rejected": 0.5}
+
+
+#: Columns of the printed table: (metrics key, header).
+TABLE = {"match": [("ap", "AP"), ("recall_at_100p", "R@100P"), ("recall_at_1", "R@1"), ("n_accepted", "accepted"),
+                   ("precision_accepted", "P(acc)"), ("recall_accepted", "R(acc)"), ("seconds", "seconds")],
+         "loops": [("ap", "AP"), ("frame_recall_at_100p", "R@100P"), ("recall_at_1", "R@1"), ("n_accepted", "accepted"),
+                   ("precision_accepted", "P(acc)"), ("recall_accepted", "R(acc)"), ("false_per_1000", "false/1k"),
+                   ("seconds", "seconds")]}
+
+
+def table_cells(m: dict, kind: str = "match") -> list[str]:
+    """One method's cells of the printed table (:data:`TABLE`): integers as they are, numbers to 3 decimals, ``-``
+    for a metric that is not there or undefined."""
+    return [(str(m[k]) if isinstance(m[k], int) else f"{m[k]:.3f}") if isinstance(m.get(k), (int, float)) else "-"
+            for k, _ in TABLE[kind]]
+
+
+def metrics_table(table: dict, kind: str = "match") -> str:
+    """The printed table: one row per method of ``{method: metrics}`` (``kind``: ``"match"`` or ``"loops"``).
+
+    A metric that is not there (no ground truth) or undefined (the precision
+    of no accepted match) prints as ``-``. With a soft band (``--gt-soft``) a
+    legend says that R@1 and P(acc) ignore best matches there, and how many.
+    """
+    keys = TABLE[kind]
+    lines = [f"{'method':<22}" + "".join(f"{h:>10}" for _, h in keys)]
+    for name, m in table.items():
+        lines.append(f"{name:<22}" + "".join(f"{c:>10}" for c in table_cells(m, kind)))
+    soft = {name: m["best_in_soft"] for name, m in table.items() if "best_in_soft" in m}
+    if soft:
+        lines.append("R@1, AP, R@100P and P(acc) ignore best matches in the soft band (--gt-soft): neither right nor "
+                     "wrong. Best matches there: " + ", ".join(f"{n} {c}" for n, c in soft.items()))
+    return "\n".join(lines)
 
 
 def outcome(accepted: bool, right: int | None, has_truth: bool | None) -> str:
@@ -204,3 +248,72 @@ def page(title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[s
     out.append(f"<script>{_JS}</script>")
     out.append(f'<script type="application/json" id="counts">{_esc(json.dumps(counts))}</script></body></html>')
     return "\n".join(out)
+
+
+def _rows(path: Path) -> list[dict]:
+    with open(path, newline="", encoding="utf-8", errors="surrogateescape") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _save(out: Path, text: str) -> Path:
+    with io.atomic_open(out / "report.html", "w", encoding="utf-8", errors="surrogateescape") as fh:
+        fh.write(text)
+    return out / "report.html"
+
+
+def write(out, read_query, read_db, kind: str = "match", title: str | None = None) -> Path:
+    """Write ``out/report.html`` (atomic) from ``out/metrics.json``, the methods' files and their frames.
+
+    ``read_query(names)`` / ``read_db(names)``: ``{name: uint8 BGR image}`` of
+    the frames named in ``matches.csv`` (a frame left out is shown as not
+    read). ``kind``: ``"match"`` (database x query) or ``"loops"`` (one
+    stream: the frame, the earlier frame it closes onto, a true earlier frame).
+    """
+    out = Path(out)
+    metrics = json.loads((out / "metrics.json").read_text())
+    params, methods = metrics.get("params", {}), metrics.get("methods", {})
+    rows = [(m, table_cells(v, kind)) for m, v in methods.items()]
+    figures = [("precision-recall", picture((out / "pr.png").read_bytes()))] if (out / "pr.png").is_file() else []
+    picked, counts = {}, {}
+    for m in methods:
+        folder = out / m
+        if not (folder / "matches.csv").is_file():
+            continue  # a verified variant shares its method's folder
+        if (folder / "similarity.png").is_file():
+            figures.append((f"{m}: similarity, the accepted matches on it",
+                            picture((folder / "similarity.png").read_bytes())))
+        decisions = _rows(folder / "matches.csv")
+        has_gt = bool(decisions) and "right" in decisions[0]
+        keys = [outcome(r["accepted"] == "1", int(r["right"]) if has_gt and r["right"] != "" else None,
+                        (r["true_db"] != "-1") if has_gt else None) for r in decisions]
+        score = [float(r["score"]) if r["score"] not in ("", "nan") else -math.inf for r in decisions]
+        chosen, counts[m] = choose(keys, score, LIMIT)
+        picked[m] = [(decisions[k], keys[k], score[k]) for k in chosen]
+    q_img = read_query([r["query_name"] for rs in picked.values() for r, _, _ in rs])
+    db_img = read_db([r[c] for rs in picked.values() for r, _, _ in rs for c in ("db_name", "true_name") if r.get(c)])
+    thumbs = {("q", n): thumbnail(i) for n, i in q_img.items()}
+    thumbs.update({("db", n): thumbnail(i) for n, i in db_img.items()})
+    strips = [Strip(m, key, int(r["query"]), r["query_name"], r["db_name"], r.get("true_name", ""), s,
+                    (thumbs.get(("q", r["query_name"])), thumbs.get(("db", r["db_name"])),
+                     thumbs.get(("db", r.get("true_name", "")))))
+              for m, rs in picked.items() for r, key, s in rs]
+    seq = params.get("seq", "")
+    what = f"{params.get('db', '')} vs {params.get('query', '')}" if kind == "match" else \
+        ", ".join(map(str, seq if isinstance(seq, list) else [seq]))
+    gt = {k: v for k, v in (params.get("ground_truth") or {}).items() if v not in (None, [], "")}
+    gt_text = ", ".join(f"{k} {' '.join(map(str, v)) if isinstance(v, list) else v}" for k, v in gt.items())
+    notes = [f"vpr {params.get('command', '')}: {what}",
+             f"ground truth: {gt_text or 'none'}; the table as metrics.json holds it",
+             f"at most {LIMIT} decisions per method are shown, chosen by outcome, worst first"]
+    sides = ("query", "best match", "true match") if kind == "match" else \
+        ("frame", "closes onto", "a true earlier frame")
+    return _save(out, page(title or f"vpr {params.get('command', '')}: {out.name}", TABLE[kind], rows, figures,
+                           strips, counts, notes, sides))
+
+
+def write_table(out, title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[str]]], figures=(),
+                notes=()) -> Path:
+    """``out/report.html`` of a run without frames to show (a fleet's summary, an encoder's test): its table,
+    as printed, and its plots (``figures``: (caption, PNG path))."""
+    pics = [(cap, picture(Path(p).read_bytes())) for cap, p in figures if Path(p).is_file()]
+    return _save(Path(out), page(title, header, rows, pics, [], {}, list(notes)))

@@ -34,11 +34,11 @@ from .matrices import (
     loop_closure_gt,
     loop_closure_mask,
 )
-from .positions import Positions, frame_positions, prepare_positions
+from .positions import Positions, frame_positions, prepare_positions, same_sampling
 from .spec import GroundTruthSpec, build_gt, build_loop_gt, build_stream_gt, check_loop_gt_files
 
 __all__ = ["gt_from_labels", "gt_from_frames", "gt_from_tolerance", "gt_from_positions", "loop_closure_mask",
            "loop_closure_gt", "load_pairs_csv", "load_loop_pairs", "load_positions_csv", "gt_from_position_files",
            "load_traverse_positions", "positions_of_frames", "db_query_matrix", "loop_matrix", "GroundTruthSpec",
            "build_gt", "build_loop_gt", "build_stream_gt", "check_loop_gt_files", "prepare_positions",
-           "frame_positions", "Positions", "any_true", "frame_rows"]
+           "frame_positions", "Positions", "same_sampling", "any_true", "frame_rows"]

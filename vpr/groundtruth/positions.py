@@ -29,7 +29,7 @@ from . import trajectories as tr
 from .files import load_traverse_positions, positions_for, positions_for_frames, positions_of_frames
 from .spec import GroundTruthSpec
 
-__all__ = ["prepare_positions", "frame_positions", "Positions"]
+__all__ = ["prepare_positions", "frame_positions", "Positions", "same_sampling"]
 
 
 class Positions(list):
@@ -185,3 +185,42 @@ def prepare_positions(srcs, roles, spec: GroundTruthSpec, every: float | None = 
         out.append(xy)
     return out
 
+
+def same_sampling(the_map, every: float | None, positions: bool, where: str, progress: bool = False):
+    """A map (:class:`vpr.shosm.Map`) and a query's ``--every`` made to agree; returns (map, query's every).
+
+    The sequence evidence follows a query that moves about one map frame per
+    query frame; a query sampled coarser than the map moves several, and its
+    decisions lose their precision. A query ``--every`` coarser than the map's
+    sampling: the map is learned again at it (``Map.subset``); a map learned
+    ``--every D`` and a query with ``positions``: the query is sampled so too.
+    Each is said (``where``: the map's path); where neither can be done, the
+    difference is said.
+    """
+    map_every, spacing = the_map.info.get("every"), the_map.spacing()
+    said = None
+    if every is not None and map_every != every:
+        if spacing is None:
+            said = (f"the map has no positions, so its sampling is unknown; a query one frame per {every:g} m keeps "
+                    "its precision only if the map was sampled alike")
+        elif spacing < every / 1.5 and the_map.sdr is None:
+            said = (f"the map was learned every {spacing:.2g} m of travel and the query comes every {every:g} m, but "
+                    f"the map holds no SDRs to learn it again so: learn it again (vpr learn --every {every:g}m), or "
+                    "its decisions lose their precision")
+        elif spacing < every / 1.5:
+            keep = tr.every(the_map.positions, every)
+            said = (f"the map was learned every {spacing:.2g} m of travel and the query comes every {every:g} m: the "
+                    f"map is learned again one frame per {every:g} m ({keep.size} of {the_map.localizer.n_db} "
+                    "frames), so that its sequences follow the query's")
+            the_map = the_map.subset(keep, progress)
+    elif every is None and map_every is not None and positions:
+        said = f"the map was learned one frame per {map_every:g} m of travel: the query is sampled so too " \
+               f"(--every {map_every:g}m)"
+        every = map_every
+    elif every is None and map_every is not None:
+        said = (f"the map was learned one frame per {map_every:g} m of travel and the query's frames are taken as "
+                f"they come: give the query --every {map_every:g}m with its positions (--gt-topic, --gt), or its "
+                "decisions lose their precision")
+    if said:
+        warnings.warn(f"{where}: {said}", UserWarning, stacklevel=2)
+    return the_map, every
