@@ -1,6 +1,7 @@
 """``DIR/report.html`` (:func:`vpr.report.write`) with the frames of the run's sources, found by name."""
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 from vpr import report
@@ -34,6 +35,14 @@ def _frames(srcs):
     return read
 
 
-def write_report(out, db_srcs=(), q_srcs=(), kind: str = "match") -> Path:
-    """``out/report.html`` of a run into ``out`` whose frames come from ``db_srcs`` and ``q_srcs``."""
-    return report.write(out, _frames(q_srcs), _frames(db_srcs or q_srcs), kind)
+def write_report(out, db_srcs=(), q_srcs=(), kind: str = "match") -> Path | None:
+    """``out/report.html`` of a run into ``out`` whose frames come from ``db_srcs`` and ``q_srcs``.
+
+    The run's results are written before: a page that cannot be made (a file
+    of the run removed meanwhile, a source that moved) is said, not an error.
+    """
+    try:
+        return report.write(out, _frames(q_srcs), _frames(db_srcs or q_srcs), kind)
+    except (OSError, ValueError, KeyError) as e:
+        warnings.warn(f"{Path(out) / 'report.html'} not written: {e}", UserWarning, stacklevel=2)
+        return None
