@@ -256,3 +256,27 @@ def test_plot_similarity_bins_a_sparse_matrix_max_per_bin_with_thinned_markers(t
     marks = _markers(figs[0])
     assert 0 < len(marks) <= 2 * px
     assert all(best[int(x)] == int(y) for x, y in marks)
+
+
+@pytest.mark.parametrize("shape", [(20, 10), (30, 400)])
+def test_plot_similarity_says_where_its_matrix_lies_in_the_picture(tmp_path, shape):
+    import json
+
+    from vpr.report import png_text
+
+    S = np.zeros(shape)
+    S[7, 3] = 1.0  # the one bright cell
+    path = plot_similarity(S, tmp_path / "s.png", title="t")
+    where = json.loads(png_text(path.read_bytes())["vpr-matrix"])
+    assert where["shape"] == list(shape)
+    x0, y0, x1, y1 = where["box"]
+    img = mpimg.imread(path)[..., :3]
+    h, w = img.shape[:2]
+
+    def near(r, c):  # the pixels within 2 of where cell (r, c)'s centre should be (cells are drawn pixel-snapped)
+        y, x = int((y0 + (r + 0.5) / shape[0] * (y1 - y0)) * h), int((x0 + (c + 0.5) / shape[1] * (x1 - x0)) * w)
+        return img[y - 2:y + 3, x - 2:x + 3].reshape(-1, 3)
+
+    yellow = (near(7, 3)[:, 0] > 0.8) & (near(7, 3)[:, 2] < 0.4)  # viridis' top
+    assert yellow.any() and (near(9, 3)[:, 0] < 0.5).all()  # and dark purple two rows down
+    assert img[int(y0 * h) - 3, w // 2].min() > 0.9 and img[int(y1 * h) + 3, w // 2].min() > 0.9  # white beyond

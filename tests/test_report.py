@@ -85,8 +85,37 @@ def test_the_report_renders_in_a_real_browser(compared):
         loaded = browser.execute_script("return [...document.querySelectorAll('img')]"
                                         ".map(i => i.complete && i.naturalWidth > 0)")
         assert loaded and all(loaded)  # every thumbnail and plot is there
+        _click_a_match_on_the_matrix(browser, "rshosm-seq")
     finally:
         browser.quit()
+
+
+def _click_a_match_on_the_matrix(browser, method):
+    """A click on a strip's match on the method's similarity matrix scrolls to that strip, the others hidden."""
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+
+    img = browser.find_element(By.CSS_SELECTOR, f'img.matrix[data-method="{method}"]')
+    x0, y0, x1, y1 = json.loads(img.get_attribute("data-box"))
+    rows, cols = json.loads(img.get_attribute("data-shape"))
+    strip = next(s for s in browser.find_elements(By.CSS_SELECTOR, f'.strip[data-method="{method}"]')
+                 if int(s.get_attribute("data-best")) >= 0)
+    q, b = int(strip.get_attribute("data-query")), int(strip.get_attribute("data-best"))
+    browser.execute_script("arguments[0].scrollIntoView({block: 'center'})", img)
+    w, h = img.size["width"], img.size["height"]
+    x = (x0 + (q + 0.5) / cols * (x1 - x0)) * w - w / 2  # from the picture's centre
+    y = (y0 + (b + 0.5) / rows * (y1 - y0)) * h - h / 2
+    ActionChains(browser).move_to_element_with_offset(img, round(x), round(y)).click().perform()
+    hit = browser.find_elements(By.CSS_SELECTOR, ".strip.hit")
+    assert len(hit) == 1 and hit[0].get_attribute("data-method") == method
+    # a cell of the picture is a few pixels: the strip hit is the one clicked or a neighbour on the matrix
+    near = int(hit[0].get_attribute("data-query")), int(hit[0].get_attribute("data-best"))
+    assert abs(near[0] - q) <= 2 and abs(near[1] - b) <= 2
+    shown = browser.execute_script("return [...document.querySelectorAll('.strip')]"
+                                   ".filter(s => s.offsetParent !== null).map(s => s.dataset.method)")
+    assert set(shown) == {method}
+    said = img.find_element(By.XPATH, "..").find_element(By.CSS_SELECTOR, ".at").text
+    assert said.startswith("database ") and "nearest shown" in said
 
 
 @pytest.mark.slow

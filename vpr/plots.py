@@ -7,13 +7,14 @@ format follows the suffix of ``path``.
 """
 from __future__ import annotations
 
+import json
 import numbers
 from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
-from matplotlib import colormaps
+from matplotlib import colormaps, rcParams
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
@@ -350,7 +351,22 @@ def plot_similarity(S, path, best_db=None, accepted=None, gt_hard=None, title=No
     if fr > 1 or fc > 1:
         ax.text(1.0, 1.01, f"display max-pooled {fr}x{fc}", transform=ax.transAxes, ha="right",
                 fontsize="x-small", va="bottom")
-    return save_figure(fig, path, dpi=dpi, bbox_inches="tight")
+    # where the matrix lies in the saved picture, so that a page showing it can tell which pair a click is on
+    meta = {"vpr-matrix": _matrix_box(fig, ax, n_db, n_q)} if Path(path).suffix.lower() == ".png" else None
+    return save_figure(fig, path, dpi=dpi, bbox_inches="tight", metadata=meta)
+
+
+def _matrix_box(fig, ax, n_db: int, n_q: int) -> str:
+    """JSON of the axes' box in the picture ``savefig(bbox_inches="tight")`` writes, as fractions of its width and
+    height from the top left (``box``: x0, y0, x1, y1), and the matrix's ``shape``."""
+    fig.canvas.draw()  # lays the figure out as saving will
+    renderer = fig.canvas.get_renderer()
+    tight = fig.get_tightbbox(renderer).padded(rcParams["savefig.pad_inches"])  # inches, as savefig crops
+    w, h = fig.get_size_inches()
+    pos = ax.get_position()  # figure fractions
+    x0, x1 = ((pos.x0 * w - tight.x0) / tight.width, (pos.x1 * w - tight.x0) / tight.width)
+    y0, y1 = ((tight.y1 - pos.y1 * h) / tight.height, (tight.y1 - pos.y0 * h) / tight.height)
+    return json.dumps({"box": [round(v, 5) for v in (x0, y0, x1, y1)], "shape": [int(n_db), int(n_q)]})
 
 
 def _pairs_in(G, rows, cols) -> np.ndarray:

@@ -17,6 +17,7 @@ import csv
 import html
 import json
 import math
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,7 +27,7 @@ import numpy as np
 from vpr import io
 
 __all__ = ["OUTCOMES", "TABLE", "Strip", "table_cells", "metrics_table", "outcome", "choose", "thumbnail", "picture",
-           "page", "write", "write_table"]
+           "png_text", "page", "write", "write_table"]
 
 #: Strips per method: the page of a 50,000-frame run stays a few MB.
 LIMIT = 120
@@ -132,6 +133,22 @@ def picture(data: bytes, width: int = 900) -> str | None:
     return thumbnail(img, width, 88)
 
 
+def png_text(data: bytes) -> dict:
+    """The text chunks (``tEXt``) of a PNG file's bytes: {keyword: text}; {} for bytes that are not a PNG."""
+    if data[:8] != b"\x89PNG\r\n\x1a\n":
+        return {}
+    out, pos = {}, 8
+    while pos + 8 <= len(data):
+        n, kind = struct.unpack(">I4s", data[pos:pos + 8])
+        if kind == b"tEXt":
+            key, _, text = data[pos + 8:pos + 8 + n].partition(b"\0")
+            out[key.decode("latin-1")] = text.decode("latin-1")
+        elif kind == b"IEND":
+            break
+        pos += 12 + n
+    return out
+
+
 @dataclass
 class Strip:
     """One decision as the page shows it: the query frame, its best match and a true match, with what was decided."""
@@ -140,6 +157,7 @@ class Strip:
     outcome: str
     query: int
     query_name: str
+    best: int  # the best match's index (-1: none)
     best_name: str
     true_name: str
     score: float
@@ -157,7 +175,7 @@ figcaption{font-size:12px;color:#555;max-width:128px;overflow-wrap:anywhere}.fig
 .strip.right{border-color:#27ae60}.strip.none,.strip.soft{border-color:#8e44ad}.strip img{width:128px;display:block}
 .strip .missing{width:128px;height:96px;background:#eee;color:#888;display:flex;align-items:center;
 justify-content:center}button{margin:.15em;padding:.2em .6em}button.on{background:#333;color:#fff}
-.note{color:#555}
+.note{color:#555}.strip.hit{outline:3px solid #2980b9}img.matrix{cursor:crosshair}
 """
 
 _JS = """
@@ -180,6 +198,39 @@ for (const b of document.querySelectorAll("button[data-filter]"))
   b.addEventListener("click", () => { state[b.dataset.filter] = b.dataset.value; apply(); });
 for (const a of document.querySelectorAll("a[data-method]"))
   a.addEventListener("click", () => { state.method = a.dataset.method; state.outcome = "all"; apply(); });
+// a similarity matrix: the pair under the pointer said, a click shows the strip of the nearest match shown
+for (const img of document.querySelectorAll("img.matrix")) {
+  const [x0, y0, x1, y1] = JSON.parse(img.dataset.box), [rows, cols] = JSON.parse(img.dataset.shape);
+  const names = JSON.parse(img.dataset.labels), at = img.parentElement.querySelector(".at");
+  const pair = e => {
+    const r = img.getBoundingClientRect();
+    const fx = ((e.clientX - r.left) / r.width - x0) / (x1 - x0);
+    const fy = ((e.clientY - r.top) / r.height - y0) / (y1 - y0);
+    if (fx < 0 || fx >= 1 || fy < 0 || fy >= 1) return null;
+    return [Math.floor(fy * rows), Math.floor(fx * cols)];
+  };
+  img.addEventListener("mousemove", e => {
+    const p = pair(e);
+    at.textContent = p ? `${names[0]} ${p[0]}, ${names[1]} ${p[1]}` : "";
+  });
+  img.addEventListener("click", e => {
+    const p = pair(e);
+    if (!p) return;
+    let near = null, dist = Infinity;
+    for (const s of document.querySelectorAll(".strip")) {
+      if (s.dataset.method !== img.dataset.method) continue;
+      const best = +s.dataset.best, d = Math.abs(+s.dataset.query - p[1]) / cols
+        + (best < 0 ? 1 : Math.abs(best - p[0]) / rows);
+      if (d < dist) { near = s; dist = d; }
+    }
+    if (!near) return;
+    state.method = img.dataset.method; state.outcome = "all"; apply();
+    for (const s of document.querySelectorAll(".strip.hit")) s.classList.remove("hit");
+    near.classList.add("hit");
+    near.scrollIntoView({block: "center"});
+    at.textContent = `${names[0]} ${p[0]}, ${names[1]} ${p[1]}: nearest shown, ${names[1]} ${near.dataset.query}`;
+  });
+}
 apply();
 """
 
@@ -188,11 +239,16 @@ def _esc(x) -> str:
     return html.escape(str(x), quote=True)
 
 
-def _figure(uri: str | None, caption: str, pics: dict | None = None) -> str:
+def _figure(uri: str | None, caption: str, pics: dict | None = None, matrix: dict | None = None) -> str:
     """A picture with its caption; with ``pics`` (data URI -> id) the picture is named and filled in by the page's
-    script, so that a frame shown in many strips is in the file once."""
+    script, so that a frame shown in many strips is in the file once. ``matrix``: a similarity matrix's
+    ``method``, ``box``, ``shape`` and ``labels`` (rows, columns): a click on it shows the nearest strip."""
     if not uri:
         pic = '<div class="missing">not read</div>'
+    elif matrix is not None:
+        attrs = " ".join(f'data-{k}="{_esc(json.dumps(v) if k != "method" else v)}"' for k, v in matrix.items())
+        return (f'<figure><img class="matrix" src="{uri}" alt="{_esc(caption)}" {attrs}><figcaption>{_esc(caption)}'
+                f' (click a match to see it below) <span class="at"></span></figcaption></figure>')
     elif pics is None:
         pic = f'<a href="{uri}" target="_blank"><img src="{uri}" alt="{_esc(caption)}"></a>'
     else:
@@ -200,12 +256,13 @@ def _figure(uri: str | None, caption: str, pics: dict | None = None) -> str:
     return f"<figure>{pic}<figcaption>{_esc(caption)}</figcaption></figure>"
 
 
-def page(title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[str]]], figures: list[tuple[str, str]],
+def page(title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[str]]], figures: list[tuple],
          strips: list[Strip], counts: dict, notes: list[str], sides=("query", "best match", "true match")) -> str:
     """The report's HTML.
 
     ``header``/``rows``: the metrics table: (metrics key, label) of its
-    columns, and per method its cells as printed; ``figures``: (caption, data URI) of the plots; ``strips``: the
+    columns, and per method its cells as printed; ``figures``: (caption, data URI) of the plots, or (caption,
+    data URI, matrix) of a similarity matrix (see :func:`_figure`); ``strips``: the
     decisions shown; ``counts``: per method, {outcome: (shown, of)};
     ``notes``: lines said under the title; ``sides``: what the three frames
     of a strip are.
@@ -222,7 +279,7 @@ def page(title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[s
                              for (k, _), c in zip(header, cells, strict=True))
                    + "</tr>")
     out.append("</table>")
-    out.append('<div class="figs">' + "".join(_figure(uri, cap) for cap, uri in figures) + "</div>")
+    out.append('<div class="figs">' + "".join(_figure(f[1], f[0], None, *f[2:]) for f in figures) + "</div>")
     out.append('<h2 id="strips">The decisions, worst first</h2>')
     for m, c in counts.items():
         said = "; ".join(f"{_LABEL[k]} {s} of {n}" for k, (s, n) in c.items())
@@ -239,7 +296,8 @@ def page(title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[s
                 f"{sides[2]}: {s.true_name or '(none)'}")
         score = f"{s.score:.3f}" if np.isfinite(s.score) else "-"
         out.append(f'<div class="strip {s.outcome}" data-method="{_esc(s.method)}" data-outcome="{s.outcome}" '
-                   f'id="s-{_esc(s.method)}-{s.query}"><b>{_esc(s.method)}</b> · {_esc(_LABEL[s.outcome])} · score '
+                   f'data-query="{s.query}" data-best="{s.best}" id="s-{_esc(s.method)}-{s.query}">'
+                   f'<b>{_esc(s.method)}</b> · {_esc(_LABEL[s.outcome])} · score '
                    f"{score}<br>" + "".join(_figure(u, c, pics) for u, c in zip(s.images, caps, strict=True))
                    + "</div>")
     # the pictures once, before the script that puts them in place
@@ -275,13 +333,16 @@ def write(out, read_query, read_db, kind: str = "match", title: str | None = Non
     rows = [(m, table_cells(v, kind)) for m, v in methods.items()]
     figures = [("precision-recall", picture((out / "pr.png").read_bytes()))] if (out / "pr.png").is_file() else []
     picked, counts = {}, {}
+    labels = ["database", "query"] if kind == "match" else ["earlier frame", "frame"]
     for m in methods:
         folder = out / m
         if not (folder / "matches.csv").is_file():
             continue  # a verified variant shares its method's folder
         if (folder / "similarity.png").is_file():
-            figures.append((f"{m}: similarity, the accepted matches on it",
-                            picture((folder / "similarity.png").read_bytes())))
+            png = (folder / "similarity.png").read_bytes()
+            where = png_text(png).get("vpr-matrix")
+            figures.append((f"{m}: similarity, the accepted matches on it", picture(png),
+                            *([{"method": m, **json.loads(where), "labels": labels}] if where else [])))
         decisions = _rows(folder / "matches.csv")
         has_gt = bool(decisions) and "right" in decisions[0]
         keys = [outcome(r["accepted"] == "1", int(r["right"]) if has_gt and r["right"] != "" else None,
@@ -293,7 +354,8 @@ def write(out, read_query, read_db, kind: str = "match", title: str | None = Non
     db_img = read_db([r[c] for rs in picked.values() for r, _, _ in rs for c in ("db_name", "true_name") if r.get(c)])
     thumbs = {("q", n): thumbnail(i) for n, i in q_img.items()}
     thumbs.update({("db", n): thumbnail(i) for n, i in db_img.items()})
-    strips = [Strip(m, key, int(r["query"]), r["query_name"], r["db_name"], r.get("true_name", ""), s,
+    strips = [Strip(m, key, int(r["query"]), r["query_name"], int(r["best_db"] or -1), r["db_name"],
+                    r.get("true_name", ""), s,
                     (thumbs.get(("q", r["query_name"])), thumbs.get(("db", r["db_name"])),
                      thumbs.get(("db", r.get("true_name", "")))))
               for m, rs in picked.items() for r, key, s in rs]
