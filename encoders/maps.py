@@ -15,7 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from vpr import io, methods
-from vpr.groundtruth import GroundTruthSpec, prepare_positions
+from vpr.groundtruth import GroundTruthSpec, check_rates, prepare_positions
 from vpr.shosm import Map
 from vpr.sources import open_sources
 
@@ -56,6 +56,8 @@ def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, met
     roles = ["database"] if len(srcs) == 1 else [f"database session {k + 1}" for k in range(len(srcs))]
     spec = positions or GroundTruthSpec()
     pos = prepare_positions(srcs, roles, spec, every, loops=False, need=bool(spec.topic or spec.files))
+    check_rates(srcs, every)
+    rates = [r for r in (s.rate() for s in srcs) if r]  # frames per second where the sources have times
     enc = get(encoder, **(encoder_conf or {}))
     enc.check_sources(srcs, roles, " and ".join(f"{f} {v}" for f, v in (("--step", step),
                                                                           ("--max-frames", max_frames)) if v))
@@ -80,7 +82,7 @@ def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, met
             "db_indices": [] if prefix else list(exs[0].indices or []),
             "skipped": [sk for ex in exs for sk in ex.skipped], "encode_seconds": t_enc,
             "learn_seconds": time.perf_counter() - t, "positions": spec.describe() if pos is not None else None,
-            "every": every}
+            "every": every, "rate": float(np.median(rates)) if rates else None}
     the_map = Map(loc, {"name": enc.name, "conf": enc.conf}, enc.statistics() if fitted else [],  # the last session's
                   xy, None if pos is None else pos.origin, info, sdr)
     the_map.save(out)

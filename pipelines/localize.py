@@ -36,7 +36,7 @@ from pipelines.online import Online, run_online, summary_line
 from pipelines.outputs import warn
 from vpr import evaluate, io, presets
 from vpr.checks import per_input
-from vpr.groundtruth import GroundTruthSpec, build_gt, prepare_positions, same_sampling
+from vpr.groundtruth import GroundTruthSpec, build_gt, prepare_positions, same_rate, same_sampling
 from vpr.groundtruth.trajectories import parse_every
 from vpr.shosm import Map
 from vpr.sources import open_source
@@ -170,10 +170,15 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
               **dict(learn_options or {}))
         the_map, enc = load_map(learn_to)
     the_map, every = same_sampling(the_map, every, gt.positional or bool(gt.topic), str(map_or_db), progress)
-    qenc = StreamEncoder(enc, query_standardise, **running)
-    qenc.load_state(the_map.query_state)  # a --state-out file continues its query's running statistics
     q_src = StdinSource(stdin if stdin is not None else sys.stdin) if str(query) == "-" else \
         open_source(query, fps=fps, step=step, max_frames=max_frames, topic=topic)
+    if str(query) != "-" and every is None:
+        the_map, q_fps = same_rate(the_map, q_src.rate(), fps is None and "fps" in q_src.options, str(map_or_db),
+                                   progress)
+        if q_fps:
+            q_src = open_source(query, fps=q_fps, step=step, max_frames=max_frames, topic=topic)
+    qenc = StreamEncoder(enc, query_standardise, **running)
+    qenc.load_state(the_map.query_state)  # a --state-out file continues its query's running statistics
     q_xy = None
     if gt.positional:
         if the_map.positions is None:

@@ -25,7 +25,7 @@ from pipelines.interrupts import deferred
 from pipelines.outputs import claim_methods, merge_metrics, versions, warn, write_method
 from pipelines.report import write_report
 from vpr import evaluate, io, methods
-from vpr.groundtruth import GroundTruthSpec, any_true, build_gt, frame_rows, prepare_positions
+from vpr.groundtruth import GroundTruthSpec, any_true, build_gt, check_rates, frame_rows, prepare_positions
 from vpr.report import TABLE, table_cells, write_table
 from vpr.sources import open_sources
 from vpr.types import MatchResult
@@ -111,6 +111,8 @@ def prepare_run(out: Path, paths, roles, opts: RunOptions, match: bool = False):
     encoder = encoders.get(opts.encoder, **opts.encoder_conf)
     srcs = open_sources(paths, opts.topic, not match, fps=opts.fps, step=opts.step, max_frames=opts.max_frames)
     positions = prepare_positions(srcs, roles, opts.gt, opts.every)
+    for q_src in srcs[1:] if match else [None]:  # a query against the database; sessions among themselves
+        check_rates(srcs if q_src is None else [srcs[0], q_src], opts.every)
     encoder.check_sources(srcs, roles, chosen)
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out}: exists and is not a folder")

@@ -336,6 +336,48 @@ def test_a_query_every_4m_against_a_full_rate_map_keeps_its_precision(scene_on_d
     assert r["frames"] == m["frames"] and r["precision_accepted"] >= 0.95
 
 
+@pytest.mark.slow
+def test_a_map_and_a_query_at_frame_rates_four_times_apart_keep_their_precision(scene_on_disk, tmp_path, capsys):
+    s = scene_on_disk("speed_change", (64, 48), 240)
+    img, xy = read_folder(s["slow"]), _positions(s["gt"], "slow")
+    gt = ["--gt-topic", "/gps/fix", "--radius", 5]
+    full = write_bag(tmp_path / "full.bag", img, xy, dt=0.2, odom=False)  # 5 frames/s
+    sparse = write_bag(tmp_path / "sparse.bag", img[1::4], xy[1::4], dt=0.8, odom=False)  # the same drive, 1.25
+    with pytest.warns(UserWarning, match=r"the map's frames came at 5 per second and the query's come at 1.25: the "
+                                         r"map is learned again from one frame in 4 \(60 of 240\)"):
+        code, _, err = _run(["localize", full, sparse, "--out", tmp_path / "a", *gt], capsys)
+    assert code == 0, err
+    a = _metrics(tmp_path / "a")["methods"]["rshosm-seq"]
+    assert a["frames"] == 60 and a["n_accepted"] > 40 and a["precision_accepted"] >= 0.95  # 0.40 of 5 unchanged
+    code, _, err = _run(["learn", write_bag(tmp_path / "slow_map.bag", img[::4], xy[::4], dt=0.8, odom=False),
+                         "--out", tmp_path / "map.npz", "--gt-topic", "/gps/fix"], capsys)
+    assert code == 0, err
+    query = write_bag(tmp_path / "query.bag", img[1:], xy[1:], dt=0.2, odom=False)
+    with pytest.warns(UserWarning, match=r"the query is read at the map's rate \(--fps 1.25\)"):
+        code, _, err = _run(["localize", tmp_path / "map.npz", query, "--out", tmp_path / "b", *gt], capsys)
+    assert code == 0, err
+    b = _metrics(tmp_path / "b")["methods"]["rshosm-seq"]
+    assert 55 <= b["frames"] <= 60 and b["precision_accepted"] >= 0.95  # 0.72 at every frame unchanged
+    with pytest.warns(UserWarning, match=r"full.bag comes at 5 frames per second and .*sparse.bag at 1.25: a "
+                                         r"sequence of one moves 4 frames per frame of the other"):
+        code, _, err = _run(["compare", full, sparse, "--out", tmp_path / "c", "--methods", "pairwise", *gt], capsys)
+    assert code == 0, err
+
+
+def test_frame_numbers_are_not_times(tmp_path):
+    from vpr.sources.files import name_time
+
+    assert name_time("000042") is None and name_time("frame1") is None  # numbered frames have no frame rate
+    assert name_time("1305031102.175304") == 1305031102.175304  # TUM RGB-D
+    assert name_time("1700000000250") == 1700000000.25 and name_time("1700000000250000000") == 1700000000.25
+    for name, rate in (("numbered", None), ("timed", 4.0)):
+        (tmp_path / name).mkdir()
+        for k in range(5):
+            stem = f"{k:06d}" if name == "numbered" else f"{1700000000 + 0.25 * k:.6f}"
+            cv2.imwrite(str(tmp_path / name / f"{stem}.png"), np.full((8, 8, 3), 40 * k, np.uint8))
+        assert open_source(tmp_path / name).rate() == rate
+
+
 def test_a_negative_distance_is_one_line(two_runs, capsys):
     root, _ = two_runs
     code, _, err = _run(["loops", root / "run1" / "img", "--out", root / "o", "--every", "-1m"], capsys)

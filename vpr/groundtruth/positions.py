@@ -224,3 +224,66 @@ def same_sampling(the_map, every: float | None, positions: bool, where: str, pro
     if said:
         warnings.warn(f"{where}: {said}", UserWarning, stacklevel=2)
     return the_map, every
+
+
+#: Frame rates this far apart (a ratio) make a sequence of one source move several frames per frame of the other
+#: and cost the decisions their precision (twice: not measurably; docs/localize.md, "Frame rates").
+RATE_RATIO = 2.5
+
+
+def same_rate(the_map, rate: float | None, can_resample: bool, where: str, progress: bool = False):
+    """A map and a query taken at different frame rates made to agree; returns (map, fps to read the query at).
+
+    Where neither is sampled by travel (``--every``), a query whose frames
+    come :data:`RATE_RATIO` or more times slower than the map's (``rate``: the
+    query's frames per second, None: unknown) moves several map frames per
+    frame, as a query sampled coarser does: the map is learned again at the
+    query's rate (every k-th frame of each session). A query that comes faster
+    is read at the map's rate where its source can be (``can_resample``: a
+    video or bag without ``--fps``; the fps is returned, else None). Each is
+    said (``where``: the map's path); where neither can be done, the difference.
+    The same speed is assumed: a query driven twice as fast at the same rate is
+    not seen (``--every`` with positions is).
+    """
+    map_rate = the_map.info.get("rate")
+    if not map_rate or not rate or the_map.info.get("every") is not None:
+        return the_map, None
+    said, fps = None, None
+    head = f"the map's frames came at {map_rate:.3g} per second and the query's come at {rate:.3g}"
+    if map_rate >= rate * RATE_RATIO:
+        k = int(map_rate / rate + 0.5)
+        if the_map.sdr is None:
+            said = (f"{head}, but the map holds no SDRs to learn it again so: learn it again with --fps {rate:.3g}, "
+                    "or its decisions lose their precision")
+        else:
+            starts = [*the_map.localizer.sessions.tolist(), the_map.localizer.n_db]
+            keep = np.concatenate([np.arange(a, b, k) for a, b in zip(starts[:-1], starts[1:], strict=True)])
+            said = (f"{head}: the map is learned again from one frame in {k} ({keep.size} of "
+                    f"{the_map.localizer.n_db}), so that its sequences follow the query's")
+            the_map = the_map.subset(keep, progress)
+            the_map.info["rate"] = map_rate / k
+    elif rate >= map_rate * RATE_RATIO:
+        if can_resample:
+            fps = float(map_rate)
+            said = f"{head}: the query is read at the map's rate (--fps {fps:.3g})"
+        else:
+            said = (f"{head}: read the query at the map's rate (--fps {map_rate:.3g} on a video or bag), or its "
+                    "decisions lose their precision")
+    if said:
+        warnings.warn(f"{where}: {said}", UserWarning, stacklevel=2)
+    return the_map, fps
+
+
+def check_rates(srcs, every: float | None = None) -> None:
+    """Warn when the sources' frame rates (where they have times) are :data:`RATE_RATIO` or more apart and frames
+    are not chosen by travel (``every``): a sequence of one moves several frames per frame of the other."""
+    rates = [(s, s.rate()) for s in srcs]
+    rates = [(s, r) for s, r in rates if r]
+    if every is not None or len(rates) < 2:
+        return
+    (slow, lo), (fast, hi) = min(rates, key=lambda x: x[1]), max(rates, key=lambda x: x[1])
+    if hi >= lo * RATE_RATIO:
+        warnings.warn(f"{fast.path} comes at {hi:.3g} frames per second and {slow.path} at {lo:.3g}: a sequence of "
+                      f"one moves {hi / lo:.2g} frames per frame of the other, and decisions lose their precision; "
+                      f"read them alike (--fps {lo:.3g}) or one frame per so many metres (--every)",
+                      UserWarning, stacklevel=2)

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
@@ -24,7 +25,19 @@ from .base import (
     stat_token,
 )
 
-__all__ = ["FolderSource", "ListSource"]
+__all__ = ["FolderSource", "ListSource", "name_time"]
+
+_WHOLE = re.compile(r"\d{10}|\d{13}|\d{16}|\d{19}")
+_FRACTION = re.compile(r"\d+\.\d+")
+
+
+def name_time(stem: str) -> float | None:
+    """Seconds a file name's stem stands for (see :meth:`FolderSource.stamps`), or None."""
+    if _FRACTION.fullmatch(stem):
+        return float(stem)
+    if _WHOLE.fullmatch(stem):
+        return int(stem) / 10 ** (len(stem) - 10)
+    return None
 
 
 class _FileListSource(Source):
@@ -49,13 +62,15 @@ class _FileListSource(Source):
         return [p for _, _, p in self._selected()]
 
     def stamps(self):
-        """Times from file names that are numbers (``1305031102.175304.png``), else None."""
+        """Times from file names that are times, else None: seconds with a fraction (``1305031102.175304.png``,
+        the TUM RGB-D datasets), or whole Unix seconds, milliseconds, microseconds or nanoseconds (10, 13, 16
+        or 19 digits, as ROS exporters write them). A frame number (``000042.png``) is not a time."""
         out = []
         for _, name, _ in self._selected():
-            try:
-                out.append(float(Path(name).stem))
-            except ValueError:
+            t = name_time(Path(name).stem)
+            if t is None:
                 return None
+            out.append(t)
         return np.asarray(out, np.float64)
 
     def names(self) -> list[str]:
