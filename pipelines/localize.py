@@ -51,7 +51,6 @@ COMMANDS = {
 }
 
 
-
 # ------------------------------------------------------------------ localize
 class LocalizeOnline(Online):
     """``vpr localize``: each query frame encoded with the map's encoder and localised by its :class:`vpr.Localizer`."""
@@ -172,11 +171,9 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
     the_map, every = same_sampling(the_map, every, gt.positional or bool(gt.topic), str(map_or_db), progress)
     q_src = StdinSource(stdin if stdin is not None else sys.stdin) if str(query) == "-" else \
         open_source(query, fps=fps, step=step, max_frames=max_frames, topic=topic)
-    if str(query) != "-" and every is None:
-        the_map, q_fps = same_rate(the_map, q_src.rate(), fps is None and "fps" in q_src.options, str(map_or_db),
-                                   progress)
-        if q_fps:
-            q_src = open_source(query, fps=q_fps, step=step, max_frames=max_frames, topic=topic)
+    if str(query) != "-" and every is None:  # a query at another frame rate than the map's
+        the_map, q_fps = same_rate(the_map, q_src, fps, str(map_or_db), progress)
+        q_src = open_source(query, fps=q_fps, step=step, max_frames=max_frames, topic=topic) if q_fps else q_src
     qenc = StreamEncoder(enc, query_standardise, **running)
     qenc.load_state(the_map.query_state)  # a --state-out file continues its query's running statistics
     q_xy = None

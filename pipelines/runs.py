@@ -111,8 +111,7 @@ def prepare_run(out: Path, paths, roles, opts: RunOptions, match: bool = False):
     encoder = encoders.get(opts.encoder, **opts.encoder_conf)
     srcs = open_sources(paths, opts.topic, not match, fps=opts.fps, step=opts.step, max_frames=opts.max_frames)
     positions = prepare_positions(srcs, roles, opts.gt, opts.every)
-    for q_src in srcs[1:] if match else [None]:  # a query against the database; sessions among themselves
-        check_rates(srcs if q_src is None else [srcs[0], q_src], opts.every)
+    check_rates(srcs, opts.every, against_first=match)
     encoder.check_sources(srcs, roles, chosen)
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out}: exists and is not a folder")

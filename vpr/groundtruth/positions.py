@@ -231,21 +231,21 @@ def same_sampling(the_map, every: float | None, positions: bool, where: str, pro
 RATE_RATIO = 2.5
 
 
-def same_rate(the_map, rate: float | None, can_resample: bool, where: str, progress: bool = False):
+def same_rate(the_map, src, fps: float | None, where: str, progress: bool = False):
     """A map and a query taken at different frame rates made to agree; returns (map, fps to read the query at).
 
-    Where neither is sampled by travel (``--every``), a query whose frames
-    come :data:`RATE_RATIO` or more times slower than the map's (``rate``: the
-    query's frames per second, None: unknown) moves several map frames per
-    frame, as a query sampled coarser does: the map is learned again at the
-    query's rate (every k-th frame of each session). A query that comes faster
-    is read at the map's rate where its source can be (``can_resample``: a
-    video or bag without ``--fps``; the fps is returned, else None). Each is
+    Where neither is sampled by travel (``--every``), a query (``src``) whose
+    frames come :data:`RATE_RATIO` or more times slower than the map's (both
+    known from the frames' times) moves several map frames per frame, as a
+    query sampled coarser does: the map is learned again at the query's rate
+    (every k-th frame of each session). A query that comes faster is read at
+    the map's rate where its source can be (a video or bag, ``fps``, the
+    query's ``--fps``, not given; that rate is returned, else None). Each is
     said (``where``: the map's path); where neither can be done, the difference.
     The same speed is assumed: a query driven twice as fast at the same rate is
     not seen (``--every`` with positions is).
     """
-    map_rate = the_map.info.get("rate")
+    map_rate, rate, can_resample = the_map.info.get("rate"), src.rate(), fps is None and "fps" in src.options
     if not map_rate or not rate or the_map.info.get("every") is not None:
         return the_map, None
     said, fps = None, None
@@ -274,12 +274,19 @@ def same_rate(the_map, rate: float | None, can_resample: bool, where: str, progr
     return the_map, fps
 
 
-def check_rates(srcs, every: float | None = None) -> None:
+def check_rates(srcs, every: float | None = None, against_first: bool = False) -> None:
     """Warn when the sources' frame rates (where they have times) are :data:`RATE_RATIO` or more apart and frames
-    are not chosen by travel (``every``): a sequence of one moves several frames per frame of the other."""
-    rates = [(s, s.rate()) for s in srcs]
-    rates = [(s, r) for s, r in rates if r]
-    if every is not None or len(rates) < 2:
+    are not chosen by travel (``every``): a sequence of one moves several frames per frame of the other.
+    ``against_first``: each source against the first (queries against a database), else all together (sessions)."""
+    if every is not None:
+        return
+    for group in ([srcs[0], s] for s in srcs[1:]) if against_first else [srcs]:
+        _check_rates(group)
+
+
+def _check_rates(srcs) -> None:
+    rates = [(s, r) for s, r in ((s, s.rate()) for s in srcs) if r]
+    if len(rates) < 2:
         return
     (slow, lo), (fast, hi) = min(rates, key=lambda x: x[1]), max(rates, key=lambda x: x[1])
     if hi >= lo * RATE_RATIO:
