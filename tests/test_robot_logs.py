@@ -181,6 +181,11 @@ def test_sessions_named_alike_are_told_apart(two_runs, capsys):
     assert [(p["session"], p["onto"]) for p in pairs] == [("run1/img", "run1/img"), ("run2/img", "run1/img"),
                                                           ("run2/img", "run2/img")]
     assert pairs[1]["frames"] > 0  # the second run revisits the first: its rows were not overwritten
+    page = (root / "o" / "report.html").read_text()  # the page shows the closures per pair of sessions
+    table = page[page.index('<table class="sessions" data-method="rshosm-seq">'):]
+    rec = "-" if pairs[1]["recall"] is None else f"{pairs[1]['recall']:.3f}"
+    assert f"<td>run2/img</td><td>run1/img</td><td>{pairs[1]['frames']}</td><td>{pairs[1]['accepted']}</td>" in \
+        table[:table.index("</table>")] and rec in table[:table.index("</table>")]
 
 
 def test_the_same_recording_twice_is_refused_as_sessions(two_runs, capsys):

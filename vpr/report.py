@@ -175,7 +175,8 @@ figcaption{font-size:12px;color:#555;max-width:128px;overflow-wrap:anywhere}.fig
 .strip.right{border-color:#27ae60}.strip.none,.strip.soft{border-color:#8e44ad}.strip img{width:128px;display:block}
 .strip .missing{width:128px;height:96px;background:#eee;color:#888;display:flex;align-items:center;
 justify-content:center}button{margin:.15em;padding:.2em .6em}button.on{background:#333;color:#fff}
-.note{color:#555}.strip.hit{outline:3px solid #2980b9}img.matrix{cursor:crosshair}
+caption{text-align:left;font-weight:600;padding:.3em 0}.note{color:#555}
+.strip.hit{outline:3px solid #2980b9}img.matrix{cursor:crosshair}
 """
 
 _JS = """
@@ -257,7 +258,8 @@ def _figure(uri: str | None, caption: str, pics: dict | None = None, matrix: dic
 
 
 def page(title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[str]]], figures: list[tuple],
-         strips: list[Strip], counts: dict, notes: list[str], sides=("query", "best match", "true match")) -> str:
+         strips: list[Strip], counts: dict, notes: list[str], sides=("query", "best match", "true match"),
+         sessions: dict | None = None) -> str:
     """The report's HTML.
 
     ``header``/``rows``: the metrics table: (metrics key, label) of its
@@ -265,7 +267,8 @@ def page(title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[s
     data URI, matrix) of a similarity matrix (see :func:`_figure`); ``strips``: the
     decisions shown; ``counts``: per method, {outcome: (shown, of)};
     ``notes``: lines said under the title; ``sides``: what the three frames
-    of a strip are.
+    of a strip are; ``sessions``: per method, the closures per pair of
+    sessions (:func:`vpr.evaluate.session_pairs`' rows).
     """
     out = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
            f"<title>{_esc(title)}</title><style>{_CSS}</style></head><body>", f"<h1>{_esc(title)}</h1>"]
@@ -279,6 +282,15 @@ def page(title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[s
                              for (k, _), c in zip(header, cells, strict=True))
                    + "</tr>")
     out.append("</table>")
+    for m, pairs in (sessions or {}).items():
+        out.append(f'<table class="sessions" data-method="{_esc(m)}"><caption>{_esc(m)}: closures per pair of '
+                   "sessions</caption><tr><th>session</th><th>onto</th><th>frames with a loop</th><th>accepted</th>"
+                   "<th>precision</th><th>recall</th></tr>")
+        for p in pairs:
+            cells = [p["session"], p["onto"], p["frames"], p["accepted"],
+                     *("-" if p[k] is None else f"{p[k]:.3f}" for k in ("precision", "recall"))]
+            out.append("<tr>" + "".join(f"<td>{_esc(c)}</td>" for c in cells) + "</tr>")
+        out.append("</table>")
     out.append('<div class="figs">' + "".join(_figure(f[1], f[0], None, *f[2:]) for f in figures) + "</div>")
     out.append('<h2 id="strips">The decisions, worst first</h2>')
     for m, c in counts.items():
@@ -369,8 +381,9 @@ def write(out, read_query, read_db, kind: str = "match", title: str | None = Non
              f"at most {LIMIT} decisions per method are shown, chosen by outcome, worst first"]
     sides = ("query", "best match", "true match") if kind == "match" else \
         ("frame", "closes onto", "a true earlier frame")
+    sessions = {m: v["sessions"] for m, v in methods.items() if v.get("sessions")}
     return _save(out, page(title or f"vpr {params.get('command', '')}: {out.name}", TABLE[kind], rows, figures,
-                           strips, counts, notes, sides))
+                           strips, counts, notes, sides, sessions))
 
 
 def write_table(out, title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[str]]], figures=(),
