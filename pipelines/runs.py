@@ -165,8 +165,8 @@ def run_compare(db, query, opts: RunOptions, command: str = "compare") -> dict:
         db_ex, q_ex = extract_all([db_src, q_src], ["database", "query"], encoder,
                                   set().union(*(r.required_inputs for r in runners.values())),
                                   opts.cache or out / "cache", opts.verify > 0, opts.progress)
-        the_map = MatchMap(str(db), db_src, db_ex, encoder.name, dict(encoder.conf),
-                           {m: r.fit(db_ex.features, progress=opts.progress) for m, r in runners.items()})
+        the_map = MatchMap(str(db), db_src, db_ex, encoder.name, dict(encoder.conf),  # one query: learned as matched
+                           {m: r.fit(db_ex.features, opts.progress, once=not split) for m, r in runners.items()})
         matcher, extra = None, {}
         if split and opts.workers != 0:
             scratch = out / f".dask-scratch-{os.getpid()}" if opts.scheduler is None else None

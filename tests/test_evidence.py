@@ -102,10 +102,13 @@ def test_columns_finished_block_by_block_are_those_of_one_block(aliased, directi
             one = ev.sparse_evidence(mem, q[:60], codes, direction=direction, top_k=top_k, beam=beam)
             monkeypatch.setattr(mod, "QUERY_CHUNK", 7)
             blocks = ev.sparse_evidence(mem, q[:60], codes, direction=direction, top_k=top_k, beam=beam)
+            graph = mod.Graph.of(mem, codes, backward=direction == "both")  # the passes one after the other
+            serial = mod.Engine(graph, None, beam, threads=1).run(q[:60], direction, top_k)
             monkeypatch.undo()
-            assert blocks.similarity.shape == one.similarity.shape
-            assert (blocks.similarity != one.similarity).nnz == 0
-            assert np.array_equal(blocks.best, one.best) and np.array_equal(blocks.z, one.z)
+            for other in (blocks, serial):
+                assert other.similarity.shape == one.similarity.shape
+                assert (other.similarity != one.similarity).nnz == 0
+                assert np.array_equal(other.best, one.best) and np.array_equal(other.z, one.z)
 
 
 def test_cells_with_the_same_targets_share_one_list():

@@ -56,6 +56,22 @@ def test_every_method_finds_an_aligned_route(method):
     assert np.mean(res.best == np.arange(30)) > 0.8
 
 
+@pytest.mark.parametrize("method", methods.available())
+def test_a_method_learned_for_one_query_answers_as_one_learned_once(method):
+    db, q = _features()
+    m = methods.get(method, **({"ds": 4} if method.startswith("seqslam") else {}))
+    kept, once = m.fit(db), m.fit(db, once=True)
+    assert once.state is None  # nothing is learned before the match, nor kept after it
+    a, b = kept.match(q), once.match(q)
+    assert once.state is None and np.array_equal(a.best, b.best) and np.array_equal(a.accepted, b.accepted)
+    same = (a.similarity != b.similarity).nnz == 0 if sp.issparse(a.similarity) else \
+        np.array_equal(a.similarity, b.similarity)
+    assert same and np.allclose(a.score, b.score, equal_nan=True)
+    if m.block_margin is not None:
+        with pytest.raises(ValueError, match="learned for one match"):
+            once.match_block(q, 0, 10)
+
+
 def test_best_matches_sparse_marks_empty_queries():
     S = sp.csr_matrix(np.array([[0.0, 0.5, 0], [0.7, 0, 0]]))
     S.eliminate_zeros()

@@ -148,13 +148,17 @@ class Method:
         self.check_size(len(db), len(query))
         return self.fit(db, progress).match(query, progress)
 
-    def fit(self, db: EncodedTraverse, progress: bool = False) -> Fitted:
+    def fit(self, db: EncodedTraverse, progress: bool = False, once: bool = False) -> Fitted:
         """Learn the database once; the :class:`Fitted` result matches any number of query traverses.
 
         A fleet of query traverses against one map learns the map once (and
         ships it to workers once); each query's answers are those of
-        :meth:`match` on that query alone.
+        :meth:`match` on that query alone. ``once``: for one query, learned
+        when it is matched and not kept after (a run of several methods then
+        holds one method's learned database at a time, not all of them).
         """
+        if once:
+            return Fitted(self, db, None, 0.0, once=True)
         self.warm_up()
         t = time.perf_counter()
         state = self._fit(db, progress)
@@ -199,10 +203,11 @@ class Fitted:
     Picklable, so that a cluster receives it once and matches many query
     traverses with it. ``seconds``: the learning time, counted in every
     query's :attr:`MatchResult.seconds` (as :meth:`Method.match` counts it).
+    ``once``: learned at :meth:`match` and not kept (``Method.fit(once=True)``).
     """
 
-    def __init__(self, method: Method, db: EncodedTraverse, state, seconds: float):
-        self.method, self.db, self.state, self.seconds = method, db, state, float(seconds)
+    def __init__(self, method: Method, db: EncodedTraverse, state, seconds: float, once: bool = False):
+        self.method, self.db, self.state, self.seconds, self.once = method, db, state, float(seconds), once
 
     @property
     def name(self) -> str:
@@ -214,7 +219,9 @@ class Fitted:
         m.check_size(len(self.db), len(query))
         m.warm_up()
         t = time.perf_counter()
-        S, d = m._match_fitted(self.state, self.db, query, progress)
+        state = m._fit(self.db, progress) if self.once else self.state
+        S, d = m._match_fitted(state, self.db, query, progress)
+        del state  # a state learned for this query alone goes before the result is evaluated and written
         return m._result(S, d, self.seconds + time.perf_counter() - t)
 
     def match_block(self, query: EncodedTraverse, start: int, stop: int):
@@ -236,6 +243,8 @@ class Fitted:
     def match_part(self, part: EncodedTraverse, lo: int, hi: int, n_q: int):
         """(similarity columns, best, z) of frames ``lo:hi`` of ``part`` (a block with its margins) of a query
         traverse of ``n_q`` frames: what a worker computes (:meth:`match_block`)."""
+        if self.once:
+            raise ValueError(f"{self.method.name}: learned for one match (fit(once=True)), not for blocks")
         S = self.method._match_fitted(self.state, self.db, part, False, shape=(len(self.db), n_q))[0]
         S = S[:, lo:hi] if not sp.issparse(S) else sp.csc_matrix(S)[:, lo:hi].tocsr()
         best, z = best_matches(S)

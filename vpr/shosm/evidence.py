@@ -243,46 +243,51 @@ class Engine:
         if direction == "both":
             passes.append(("bwd", np.arange(n_q, dtype=np.int64)[::-1].copy()))
         # Columns are finished (summed over the passes, standardised, cut to top_k) a chunk of queries at a
-        # time once both passes have given them; the passes run at once, each on its own thread, so both
-        # are held until then (float32 values, 32-bit frames).
+        # time as soon as every pass has given it, and the passes' columns of that chunk freed: the forward
+        # pass gives the chunks first to last and the backward pass last to first, so at most half of each
+        # pass's columns are held at once (float32 values, 32-bit frames), not both whole passes.
         chunk = QUERY_CHUNK
         starts = list(range(0, n_q, chunk))
         done: dict[int, tuple] = {}
         n_per_q = np.full(n_q, n_db, np.int64)
-
-        def finish_chunk(c, a, b):
-            q0, q1 = starts[c], min(starts[c] + chunk, n_q)
-            done[c] = _finish(a, b, n_per_q[q0:q1], n_db, top_k, self.normalise)
-
+        pending: list[dict] = [{} for _ in passes]  # per pass: chunks given, not yet finished
         lock = threading.Lock()
 
-        def run_pass(name, order, bar):
-            """One direction's columns, per chunk (held as the dense evidence is stored: float32, 32-bit frames)."""
+        def give(k, c, cols):
+            with lock:
+                pending[k][c] = cols
+                parts = [p.pop(c) for p in pending] if all(c in p for p in pending) else None
+            if parts is not None:
+                q0, q1 = starts[c], min(starts[c] + chunk, n_q)
+                done[c] = _finish(parts[0], parts[1] if len(parts) > 1 else _NO_PASS, n_per_q[q0:q1], n_db, top_k,
+                                  self.normalise)
+
+        def run_pass(k, name, order, bar):
+            """One direction's columns, per chunk, each given to :func:`give` as it is made."""
             b = Beam(g)
             adj = g.fwd if name == "fwd" else g.bwd
-            out = {}
             for c in (range(len(starts)) if name == "fwd" else range(len(starts) - 1, -1, -1)):
                 q0, q1 = starts[c], min(starts[c] + chunk, n_q)
                 frames = order[q0:q1] if name == "fwd" else order[n_q - q1:n_q - q0]
                 cols = b.run(g, adj, q_ptr, q_ind, frames, limits[q0:q1], params)
                 cols = _reversed(*cols) if name == "bwd" else cols
-                out[c] = (cols[0], cols[1].astype(np.int32), cols[2].astype(np.float32)) if len(passes) > 1 else cols
+                give(k, c, (cols[0], cols[1].astype(np.int32), cols[2].astype(np.float32)) if len(passes) > 1
+                     else cols)
                 with lock:
                     bar.update(q1 - q0)
-            return out, b.largest
+            return b.largest
 
         with tqdm(total=n_q * len(passes), desc="rSHOSM evidence", unit="frame", leave=False,
                   disable=not progress) as bar:
+            jobs = [(k, *p, bar) for k, p in enumerate(passes)]
             if len(passes) > 1 and self.threads > 1:  # the passes do not depend on each other: one per core
                 with ThreadPoolExecutor(2) as pool:
-                    results = list(pool.map(lambda p: run_pass(*p, bar), passes))
+                    largest = list(pool.map(lambda job: run_pass(*job), jobs))
             else:
-                results = [run_pass(*p, bar) for p in passes]
-        for _, largest in results:
-            seen["max_beam"] = max(seen["max_beam"], largest[0])
-            seen["max_candidates"] = max(seen["max_candidates"], largest[1])
-        for c in range(len(starts)):
-            finish_chunk(c, results[0][0].pop(c), results[1][0].pop(c) if len(passes) > 1 else _NO_PASS)
+                largest = [run_pass(*job) for job in jobs]
+        for most in largest:
+            seen["max_beam"] = max(seen["max_beam"], most[0])
+            seen["max_candidates"] = max(seen["max_candidates"], most[1])
         if stats is not None:
             stats.update(seen)
         parts = [done[c] for c in range(len(starts))]
