@@ -227,7 +227,7 @@ def same_sampling(the_map, every: float | None, positions: bool, where: str, pro
 
 
 #: Frame rates this far apart (a ratio) make a sequence of one source move several frames per frame of the other
-#: and cost the decisions their precision (twice: not measurably; docs/localize.md, "Frame rates").
+#: and cost the decisions their precision (chosen on rendered drives: docs/localize.md, "Frame rates").
 RATE_RATIO = 2.5
 
 
