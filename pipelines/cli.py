@@ -30,7 +30,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from pipelines.interrupts import Terminated, on_sigterm
+from vpr.interrupts import Terminated, on_sigterm
 
 __all__ = ["MODULES", "commands", "build_parser", "main"]
 
@@ -156,6 +156,8 @@ def main(argv=None) -> int:
         if hasattr(args, "no_progress") and not sys.stderr.isatty():
             args.no_progress = True  # bars redrawn into a log file are noise
         try:
+            if getattr(args, "verify", 0) or getattr(args, "geometry", "off") == "on":
+                importlib.import_module("vpr.verify")  # its library's signal handlers replaced now, not mid-run
             _check_paths(args)
             return int(importlib.import_module(table[args.command][0]).run_command(args) or 0)
         except ValueError as e:  # bad input, including vpr.shosm.MemoryFileError
@@ -182,7 +184,8 @@ def main(argv=None) -> int:
     finally:
         warnings.formatwarning = saved_format
         if saved_term is not None:
-            signal.signal(signal.SIGTERM, saved_term)
+            signal.signal(signal.SIGTERM, saved_term[0])
+            sys.unraisablehook = saved_term[1]
 
 
 if __name__ == "__main__":

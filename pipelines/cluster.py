@@ -28,7 +28,7 @@ import uuid
 import warnings
 from pathlib import Path
 
-from pipelines.interrupts import deferred
+from vpr.interrupts import deferred
 from vpr.types import EncodedTraverse, MatchResult
 
 __all__ = ["CONNECT_TIMEOUT", "check_workers", "dask_client", "default_workers", "max_local_workers", "send_once",

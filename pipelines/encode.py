@@ -33,8 +33,8 @@ from encoders.extract import (
 )
 from pipelines.args import add_common_arguments, add_preset_argument, add_source_arguments, topic_arg
 from pipelines.cluster import check_workers, dask_client, default_workers
-from pipelines.interrupts import deferred
 from vpr import presets
+from vpr.interrupts import deferred
 from vpr.sources import Source, open_source, open_sources
 
 __all__ = ["COMMANDS", "add_arguments", "run_command", "encode_sources", "Encoded"]

@@ -4,7 +4,7 @@
 paths on stdin), times encoding and deciding, writes one flushed JSON line per
 frame and, at the end, the outputs every command writes and the state
 (``--state-out``). A stop (Ctrl-C, SIGTERM) waits for the frame being decided
-(:func:`pipelines.interrupts.deferred`); then the answers so far and the
+(:func:`vpr.interrupts.deferred`); then the answers so far and the
 state are written whole and the stop goes on (exit 130 / 143): ``--resume``
 continues exactly where it stopped.
 """
@@ -20,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from pipelines.interrupts import deferred
 from pipelines.outputs import claim_methods, merge_metrics, versions, write_matches
 from pipelines.report import write_report
 from vpr import evaluate
+from vpr.interrupts import deferred
 from vpr.sources.stdin import SESSION
 from vpr.types import Decision, MatchResult
 
@@ -171,7 +171,7 @@ def _run(job: Online, src, out: Path, stdout, state_out, n_rows, claim: contextl
                     answered(got)
             with deferred():
                 answered(job.finish())
-    except KeyboardInterrupt as e:  # Ctrl-C, and SIGTERM (pipelines.interrupts.Terminated)
+    except KeyboardInterrupt as e:  # Ctrl-C, and SIGTERM (vpr.interrupts.Terminated)
         stop = e
     seconds = time.perf_counter() - t_run
     for name, reason in src.skipped[told:]:

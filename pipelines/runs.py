@@ -21,11 +21,11 @@ import numpy as np
 import encoders
 from encoders.extract import extract_all
 from pipelines.cluster import check_workers, dask_client, run_tasks, send_once, split_match
-from pipelines.interrupts import deferred
 from pipelines.outputs import claim_methods, merge_metrics, versions, warn, write_method
 from pipelines.report import write_report
 from vpr import evaluate, io, methods
 from vpr.groundtruth import GroundTruthSpec, any_true, build_gt, check_rates, frame_rows, prepare_positions
+from vpr.interrupts import deferred
 from vpr.report import TABLE, table_cells, write_table
 from vpr.sources import open_sources
 from vpr.types import MatchResult

@@ -1,17 +1,33 @@
-"""pipelines.interrupts: a signal during a deferred section is raised when the section ends."""
+"""vpr.interrupts: a signal during a deferred section is raised when the section ends."""
 import os
 import signal
 
 import pytest
 
-from pipelines.interrupts import Terminated, deferred, on_sigterm
+from vpr.interrupts import Terminated, deferred, on_sigterm
 
 
 @pytest.fixture
 def sigterm_raises():
-    saved = on_sigterm()
+    import sys
+
+    handler, hook = on_sigterm()
     yield
-    signal.signal(signal.SIGTERM, saved)
+    signal.signal(signal.SIGTERM, handler)
+    sys.unraisablehook = hook
+
+
+def test_a_stop_inside_a_finalizer_is_sent_again(sigterm_raises, capsys):
+    import time
+
+    class Stops:
+        def __del__(self):  # Python drops an exception raised here (a signal that lands in a finalizer)
+            raise Terminated()
+
+    with pytest.raises(Terminated):
+        Stops()
+        time.sleep(2)  # the stop comes again where it can be raised
+    assert "Traceback" not in capsys.readouterr().err
 
 
 def test_signal_in_a_deferred_section_is_raised_after_it(sigterm_raises):

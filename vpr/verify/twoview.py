@@ -7,6 +7,7 @@ import threading
 import numpy as np
 
 from vpr.checks import check_choice, check_float, check_int
+from vpr.interrupts import deferred
 
 from .features import Keypoints, check_keypoints
 
@@ -15,18 +16,20 @@ def _import_pycolmap():
     """pycolmap, without the SIGTERM / SIGINT handlers its logging library installs on import.
 
     Those print a native stack trace on a plain ``kill`` and bypass Python's
-    own handlers (a command line's clean stop); the handlers Python had are put back.
+    own handlers (a command line's clean stop): Python's are put back after the
+    import, and a stop that comes before the library installs its own is held
+    (:func:`vpr.interrupts.deferred`) and raised once the import is done.
     """
     if threading.current_thread() is not threading.main_thread():
         import pycolmap
 
         return pycolmap
-    saved = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
-    import pycolmap
+    stops = (signal.SIGTERM, signal.SIGINT)
+    with deferred(stops):
+        import pycolmap
 
-    for s, h in saved.items():
-        if h is not None:
-            signal.signal(s, h)
+        for s in stops:  # Python's handlers (the held ones here) in place of the library's
+            signal.signal(s, signal.getsignal(s))
     return pycolmap
 
 

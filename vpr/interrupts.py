@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
+import sys
 import threading
 
 __all__ = ["Terminated", "on_sigterm", "deferred"]
@@ -25,12 +26,26 @@ def _raise_terminated(signum, frame):
     raise Terminated()
 
 
+def _stop_again(hook):
+    """``sys.unraisablehook`` that sends again a stop raised inside a finalizer or weakref callback (where Python
+    drops it with a traceback): a run stopped there must still stop, with one line."""
+    def handle(u):
+        if not isinstance(u.exc_value, KeyboardInterrupt):
+            return hook(u)
+        again = signal.SIGTERM if isinstance(u.exc_value, Terminated) else signal.SIGINT
+        threading.Timer(0.01, signal.raise_signal, (again,)).start()
+    return handle
+
+
 def on_sigterm():
-    """Handle SIGTERM as an interrupt (main thread only); returns the handler it replaced, or None."""
+    """Handle SIGTERM as an interrupt (main thread only); returns (the handler and the unraisable hook it replaced),
+    or None."""
     try:
-        return signal.signal(signal.SIGTERM, _raise_terminated)
+        saved = signal.signal(signal.SIGTERM, _raise_terminated), sys.unraisablehook
     except ValueError:  # not the main thread (e.g. main() called from a worker thread)
         return None
+    sys.unraisablehook = _stop_again(sys.unraisablehook)
+    return saved
 
 
 def _deliver(signum: int, handler) -> None:
