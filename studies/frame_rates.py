@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import csv
 import io
 import json
 import tempfile
@@ -27,20 +26,12 @@ import warnings
 from pathlib import Path
 from unittest import mock
 
-import numpy as np
-
 from pipelines.cli import main as vpr
-from tests.bags import read_folder, write_bag
+from tests.bags import positions_of, read_folder, write_bag
 from vpr.groundtruth import RATE_RATIO
 from vpr.render import write_scene
 
 STREAMS = (("speed_change", "slow"), ("speed_change", "fast"), ("two_seasons", "summer_day"))
-
-
-def _positions(gt_csv: Path, traverse: str) -> np.ndarray:
-    with open(gt_csv) as fh:
-        rows = [r for r in csv.DictReader(fh) if r["traverse"] == traverse]
-    return np.array([(float(r["x"]), float(r["y"])) for r in sorted(rows, key=lambda r: int(r["frame"]))])
 
 
 def _localize(map_bag: Path, query_bag: Path, out: Path, how: str) -> dict:
@@ -75,7 +66,7 @@ def main(argv=None) -> None:
             if not (scene / "ground_truth.csv").is_file():
                 write_scene(spec, scene, size=(64, 48), n_frames=240, progress=False)
             folder = next(p for p in scene.iterdir() if p.is_dir() and p.name.endswith(traverse))
-            img, xy = read_folder(folder), _positions(scene / "ground_truth.csv", traverse)
+            img, xy = read_folder(folder), positions_of(scene / "ground_truth.csv", traverse)
             for k in ks:
                 cases = {"slower": ((img, xy, 0.2), (img[1::k], xy[1::k], 0.2 * k)),
                          "faster": ((img[::k], xy[::k], 0.2 * k), (img[1:], xy[1:], 0.2))}

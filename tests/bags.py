@@ -134,3 +134,12 @@ def write_bag(path, images, xy=None, *, ros: int = 1, storage: str = "sqlite3", 
 
 def read_folder(folder) -> list[np.ndarray]:
     return [cv2.imread(str(p)) for p in sorted(Path(folder).glob("*.png"))]
+
+
+def positions_of(gt_csv, traverse) -> np.ndarray:
+    """The (x, y) of each frame of ``traverse`` in a rendered scene's ``ground_truth.csv``, in frame order."""
+    import csv
+
+    with open(gt_csv) as fh:
+        rows = [r for r in csv.DictReader(fh) if r["traverse"] == traverse]
+    return np.array([(float(r["x"]), float(r["y"])) for r in sorted(rows, key=lambda r: int(r["frame"]))])

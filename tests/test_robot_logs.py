@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from pipelines.cli import main
-from tests.bags import read_folder, write_bag
+from tests.bags import positions_of, read_folder, write_bag
 from vpr.sources import open_source, open_sources
 
 
@@ -23,12 +23,6 @@ def _run(argv, capsys):
     return code, out, err
 
 
-def _positions(gt_csv, traverse) -> np.ndarray:
-    with open(gt_csv) as fh:
-        rows = [r for r in csv.DictReader(fh) if r["traverse"] == traverse]
-    return np.array([(float(r["x"]), float(r["y"])) for r in sorted(rows, key=lambda r: int(r["frame"]))])
-
-
 def _metrics(out: Path) -> dict:
     return json.loads((out / "metrics.json").read_text())
 
@@ -36,13 +30,13 @@ def _metrics(out: Path) -> dict:
 @pytest.fixture(scope="module")
 def laps(scene_on_disk):
     s = scene_on_disk("loop_revisits", (48, 36), 240)
-    return {"scene": s, "images": read_folder(s["laps"]), "xy": _positions(s["gt"], "laps")}
+    return {"scene": s, "images": read_folder(s["laps"]), "xy": positions_of(s["gt"], "laps")}
 
 
 @pytest.fixture(scope="module")
 def seasons(scene_on_disk):
     s = scene_on_disk("two_seasons", (48, 32), 40)
-    return {"scene": s, "day": read_folder(s["summer_day"]), "xy": _positions(s["gt"], "summer_day")}
+    return {"scene": s, "day": read_folder(s["summer_day"]), "xy": positions_of(s["gt"], "summer_day")}
 
 
 LOOSE = ["--preset", "fast", "--exclude", "12", "--method-conf", "rshosm-seq.min_score=10"]
@@ -130,7 +124,7 @@ def test_a_bag_without_images_lists_its_topics_and_gt_topic_says_what_it_reads(s
 def test_topics_per_input(seasons, scene_on_disk, tmp_path, capsys):
     night = scene_on_disk("two_seasons", (48, 32), 40)
     a = write_bag(tmp_path / "a.bag", seasons["day"], seasons["xy"], topic="/robot_a/camera/image_raw")
-    b = write_bag(tmp_path / "b", read_folder(night["winter_night"]), _positions(night["gt"], "winter_night"), ros=2,
+    b = write_bag(tmp_path / "b", read_folder(night["winter_night"]), positions_of(night["gt"], "winter_night"), ros=2,
                   compressed=True, topic="/robot_b/camera/image_raw/compressed")
     with pytest.raises(ValueError, match="--topic: 3 values for 2 inputs"):
         open_sources([a, b], topic=("/x", "/y", "/z"))
@@ -344,7 +338,7 @@ def test_a_query_every_4m_against_a_full_rate_map_keeps_its_precision(scene_on_d
 @pytest.mark.slow
 def test_a_map_and_a_query_at_frame_rates_four_times_apart_keep_their_precision(scene_on_disk, tmp_path, capsys):
     s = scene_on_disk("speed_change", (64, 48), 240)
-    img, xy = read_folder(s["slow"]), _positions(s["gt"], "slow")
+    img, xy = read_folder(s["slow"]), positions_of(s["gt"], "slow")
     gt = ["--gt-topic", "/gps/fix", "--radius", 5]
     full = write_bag(tmp_path / "full.bag", img, xy, dt=0.2, odom=False)  # 5 frames/s
     sparse = write_bag(tmp_path / "sparse.bag", img[1::4], xy[1::4], dt=0.8, odom=False)  # the same drive, 1.25

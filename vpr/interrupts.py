@@ -33,7 +33,9 @@ def _stop_again(hook):
         if not isinstance(u.exc_value, KeyboardInterrupt):
             return hook(u)
         again = signal.SIGTERM if isinstance(u.exc_value, Terminated) else signal.SIGINT
-        threading.Timer(0.01, signal.raise_signal, (again,)).start()
+        timer = threading.Timer(0.01, signal.raise_signal, (again,))
+        timer.daemon = True  # never keeps a finished process alive to signal it
+        timer.start()
     return handle
 
 
