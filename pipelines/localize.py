@@ -76,7 +76,10 @@ class LocalizeOnline(Online):
     def name_of(self, frame: int) -> str | None:
         return self.loc.names[frame]
 
-    def evaluate(self, result, names, indices) -> dict:
+    def n_candidates(self) -> int:
+        return self.loc.n_db
+
+    def evaluate(self, result, names, indices, frames) -> dict:
         gt, loc, info = self.gt, self.loc, self.map.info
         if gt.tolerance is None and not gt.files and gt.topic is None:
             return {}
@@ -101,6 +104,9 @@ class LocalizeOnline(Online):
     def save(self, path) -> None:
         self.map.query_state = self.qenc.state()
         self.map.save(path)
+
+    def resume_hint(self, path) -> str:
+        return f"give {path} as the map (vpr localize {path} QUERY)"
 
     def report_sources(self, src) -> tuple[list, list]:
         """The map's sources where they are still on disk (the map keeps their paths, not their frames)."""
@@ -191,7 +197,7 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
                          {"map_or_db": str(map_or_db), "query": str(query), "query_standardise": query_standardise,
                           "prior_frames": prior_frames, "window": window}, q_xy)
     job.warm_up()
-    return run_online(job, q_src, out, stdout, state_out, n_rows=the_map.localizer.n_db)
+    return run_online(job, q_src, out, stdout, state_out)
 
 
 # ------------------------------------------------------------------ command line

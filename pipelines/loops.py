@@ -146,9 +146,7 @@ class LoopsOnline(Online):
 
     def __init__(self, det: LoopDetector, gt: GroundTruthSpec):
         self.det, self.gt = det, gt
-        self.row_offset = det.frames  # a resumed detector names frames from before this run too
         self.top_k = det.seq.top_k
-        self.starts = [0]  # this run's frame numbers that begin a session
 
     def warm_up(self) -> None:
         self.det.warm_up()
@@ -164,30 +162,35 @@ class LoopsOnline(Online):
     def name_of(self, frame: int) -> str | None:
         return self.det.names[frame]
 
+    def n_candidates(self) -> int:
+        return self.det.frames  # a resumed detector's frames from before this run are candidates too
+
     def finish(self):
         self.det.flush()
         return self.det.take_late()
 
     def new_session(self):
         self.det.new_session()
-        if self.det.frames - self.row_offset > self.starts[-1]:
-            self.starts.append(self.det.frames - self.row_offset)
         return self.det.take_late()
 
-    def evaluate(self, result, names, indices) -> dict:
+    def evaluate(self, result, names, indices, frames) -> dict:
+        """Metrics over the frames answered in this run, against every frame of the stream before them (those
+        from before a resume too: the state's names)."""
         if not self.gt.files:
             return {}
-        T = len(names)
-        hard, soft = build_loop_gt(self.gt, names, list(range(T)), total=T)
+        N = self.det.frames
+        hard, soft = build_loop_gt(self.gt, self.det.names, list(range(N)), total=N)
+        hard, soft = (None if g is None else g[:, frames] for g in (hard, soft))
         exclude = self.det.conf["exclude"]
-        mask = groundtruth.loop_closure_mask(T, exclude=exclude, starts=self.starts)
+        starts = list(self.det.stream.starts)
+        mask = groundtruth.loop_closure_mask(N, exclude=exclude, starts=starts)[:, frames]
         if not (hard & mask).any():
             no_revisit(self.gt, exclude)
         m, _ = evaluate.method_metrics(result, hard, soft, mask=mask, loops=True)
         self.ground_truth = (hard, soft, mask)
-        if len(self.starts) > 1:  # as the batch run's table, the sessions named by their number
-            m["sessions"] = evaluate.session_pairs(result.best, result.accepted, hard, self.starts, soft, mask,
-                                                   [str(k + 1) for k in range(len(self.starts))])
+        if len(starts) > 1:  # as the batch run's table, the sessions named by their number
+            m["sessions"] = evaluate.session_pairs(result.best, result.accepted, hard, starts, soft, mask,
+                                                   [str(k + 1) for k in range(len(starts))], frames=frames)
         m.pop("seconds", None)
         m.pop("n_accepted", None)
         return m

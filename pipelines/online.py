@@ -33,15 +33,11 @@ __all__ = ["Online", "run_online", "latency_summary", "summary_line"]
 class Online:
     """What an online command does with a frame; :func:`run_online` does the rest.
 
-    ``row_offset``: the first candidate frame this run's metrics are over (a
-    map's first frame, 0; in loop closure, the first frame of this run: a
-    resumed detector also names frames from before it). ``top_k``: the
-    candidates an answer keeps.
+    ``top_k``: the candidates an answer keeps.
     """
 
     command = "online"
     method = "rshosm-seq"
-    row_offset = 0
     top_k: int | None = None
     #: (gt_hard, gt_soft, mask) of this run's frames, set by :meth:`evaluate` where there is ground truth
     ground_truth: tuple | None = None
@@ -60,18 +56,28 @@ class Online:
         """The name of a candidate frame."""
         raise NotImplementedError
 
+    def n_candidates(self) -> int:
+        """The candidate frames the answers index (the rows of the similarity): a map's frames, or in loop closure
+        every frame of the stream so far (those before a resume too)."""
+        raise NotImplementedError
+
     def new_session(self):
         """A line ``#session``: the next frame starts a new run (returns decisions of frames that waited)."""
 
     def finish(self):
         """The stream ended (not stopped): decide what still waits; returns decisions as :meth:`decide`."""
 
-    def evaluate(self, result: MatchResult, names: list[str], indices: list[int]) -> dict:
-        """Metrics of the answers against the ground truth ({} without one)."""
+    def evaluate(self, result: MatchResult, names: list[str], indices: list[int], frames: np.ndarray) -> dict:
+        """Metrics of the answers (``frames``: the frame numbers answered, the columns) against the ground truth
+        ({} without one)."""
         return {}
 
     def save(self, path) -> None:
         raise NotImplementedError
+
+    def resume_hint(self, path) -> str:
+        """How the command goes on from the state saved at ``path`` (the stop message's words)."""
+        return f"--resume {path}"
 
     def report_sources(self, src) -> tuple[list, list]:
         """The sources of the candidate frames and of the frames answered (``src``), for the report's pictures."""
@@ -115,23 +121,22 @@ class _Lines:
                 self.open = False
 
 
-def run_online(job: Online, src, out, stdout=None, state_out=None, n_rows: int | None = None) -> dict:
+def run_online(job: Online, src, out, stdout=None, state_out=None) -> dict:
     """Answer every frame of the source ``src`` with ``job``; write the outputs and the state; return metrics.json.
 
-    ``n_rows``: the rows of the similarity the candidates index (the map's
-    frames; None: this run's frames, as in loop closure). The method's folder
-    is claimed with the first frame (a second run of the method into ``out``
-    meanwhile is refused; a run refused before it writes nothing).
+    The method's folder is claimed with the first frame (a second run of the
+    method into ``out`` meanwhile is refused; a run refused before it writes nothing).
     """
     with contextlib.ExitStack() as claim:
-        return _run(job, src, Path(out), sys.stdout if stdout is None else stdout, state_out, n_rows, claim)
+        return _run(job, src, Path(out), sys.stdout if stdout is None else stdout, state_out, claim)
 
 
-def _run(job: Online, src, out: Path, stdout, state_out, n_rows, claim: contextlib.ExitStack) -> dict:
+def _run(job: Online, src, out: Path, stdout, state_out, claim: contextlib.ExitStack) -> dict:
     lines = _Lines(stdout)
     rows = []  # (name, source index, decision, ms, ms deciding)
     waiting: list[tuple] = []  # (name, index, ms, ms_dec) of frames whose answers come later, in order
     told = 0
+    taken = None  # (input line, name) of the last frame or #session taken in whole: a stop goes on after it
 
     def answered(got) -> None:
         for d in ([] if got is None else [got] if isinstance(got, Decision) else got):
@@ -156,6 +161,7 @@ def _run(job: Online, src, out: Path, stdout, state_out, n_rows, claim: contextl
                 if f is SESSION:
                     with deferred():
                         answered(job.new_session())
+                        taken = (getattr(src, "line", None), taken[1] if taken else None)
                     print(f"vpr {job.command}: #session{_line(src)}: the frames that follow are a new run (nothing "
                           "carries over but what was learned)", file=sys.stderr, flush=True)
                     continue
@@ -169,6 +175,7 @@ def _run(job: Online, src, out: Path, stdout, state_out, n_rows, claim: contextl
                     t2 = time.perf_counter()
                     waiting.append((f.name, f.index, (t2 - t0) * 1e3, (t2 - t1) * 1e3))
                     answered(got)
+                    taken = (getattr(src, "line", None), f.name)
             with deferred():
                 answered(job.finish())
     except KeyboardInterrupt as e:  # Ctrl-C, and SIGTERM (vpr.interrupts.Terminated)
@@ -177,13 +184,13 @@ def _run(job: Online, src, out: Path, stdout, state_out, n_rows, claim: contextl
     for name, reason in src.skipped[told:]:
         print(f"vpr {job.command}: skipped {name}: {reason}", file=sys.stderr, flush=True)
     if stop is not None and (rows or waiting):
-        print(_stopped(job, src, [w[0] for w in waiting], state_out), file=sys.stderr, flush=True)
+        print(_stopped(job, taken, [w[0] for w in waiting], state_out), file=sys.stderr, flush=True)
     if not rows:
         if stop is not None:
             raise stop
         raise ValueError("no readable frames")
     with deferred():  # the outputs are written whole; a second signal stops at once
-        report = _write(job, out, src, rows, [list(s) for s in src.skipped], seconds, n_rows, state_out,
+        report = _write(job, out, src, rows, [list(s) for s in src.skipped], seconds, state_out,
                         None if stop is None else [w[0] for w in waiting])
     if stop is not None:
         raise stop
@@ -195,59 +202,59 @@ def _line(src) -> str:
     return f" (input line {line})" if line else ""
 
 
-def _stopped(job: Online, src, waiting: list[str], state_out) -> str:
-    """What a stop leaves: the frames answered are in the outputs; those read but still waiting for the frames
-    after them (a loop closure is decided a few frames late) are in the state, answered after ``--resume``."""
-    line = getattr(src, "line", None)
-    go_on = f"feed it from input line {line + 1}" if line else "feed it the frames after the last one read"
+def _stopped(job: Online, taken: tuple | None, waiting: list[str], state_out) -> str:
+    """What a stop leaves: the frames taken (``taken``: the input line and name of the last) are answered in the
+    outputs, or wait in the state for the frames after them (a loop closure is decided a few frames late); a frame
+    read as the stop came is not taken, and is fed again."""
+    line, name = taken if taken is not None else (None, None)
+    go_on = (f"feed it from input line {line + 1}" if line else f"feed it the frames after {name}" if name
+             else "feed it every frame")
+    upto = f" up to input line {line}" if line else f" up to {name}" if name else ""
     if not waiting:
-        return f"vpr {job.command}: stopped; every frame read{_line(src)} is answered in the outputs" + (
-            f"; to continue, --resume {state_out} and {go_on}" if state_out else "")
+        return f"vpr {job.command}: stopped; every frame{upto} is answered in the outputs" + (
+            f"; to continue, {job.resume_hint(state_out)} and {go_on}" if state_out else "")
     which = f"{len(waiting)} frame{'s' if len(waiting) > 1 else ''} read ({waiting[0]} .. {waiting[-1]})"
     if not state_out:
         return f"vpr {job.command}: stopped; {which} wait for later frames and are not answered (no --state-out)"
     return (f"vpr {job.command}: stopped; {which} wait in {state_out} for later frames, not yet in the outputs: "
-            f"to continue, --resume {state_out} and {go_on}; their answers come first")
+            f"to continue, {job.resume_hint(state_out)} and {go_on}; their answers come first")
 
 
-def _write(job: Online, out: Path, src, rows, skipped, seconds, n_rows, state_out, waiting: list[str] | None) -> dict:
+def _write(job: Online, out: Path, src, rows, skipped, seconds, state_out, waiting: list[str] | None) -> dict:
     """The outputs of the frames answered; ``waiting``: after a stop, the frames read and not yet answered."""
     import scipy.sparse as sp
 
     names = [r[0] for r in rows]
     ds = [r[2] for r in rows]
     T = len(ds)
-    off = job.row_offset
-    shown = np.array([d.best for d in ds], np.int64)
-    best = np.where(shown >= off, shown - off, -1)
+    frames = np.array([d.frame for d in ds], np.int64)
+    best = np.array([d.best for d in ds], np.int64)
     score = np.array([d.score for d in ds], np.float64)
-    score = np.where(np.isfinite(score) & (shown >= 0), score, -np.inf)  # no candidate: -inf, as a batch run
+    score = np.where(np.isfinite(score) & (best >= 0), score, -np.inf)  # no candidate: -inf, as a batch run
     accepted = np.array([d.accepted for d in ds], bool)
     cand = [d.column.top(job.top_k) if d.column is not None else (np.zeros(0, np.int64), np.zeros(0, np.float32))
             for d in ds]
-    keep = [c >= off for c, _ in cand]  # candidates of this run's frames (and the map's)
-    ptr = np.r_[0, np.cumsum([k.sum() for k in keep])]
-    S = sp.csc_matrix((np.concatenate([z[k] for (_, z), k in zip(cand, keep, strict=True)]).astype(np.float32),
-                       np.concatenate([c[k] - off for (c, _), k in zip(cand, keep, strict=True)]), ptr),
-                      shape=(T if n_rows is None else int(n_rows), T)).tocsr()
+    ptr = np.r_[0, np.cumsum([c.size for c, _ in cand])]
+    S = sp.csc_matrix((np.concatenate([z for _, z in cand]).astype(np.float32),
+                       np.concatenate([c for c, _ in cand]).astype(np.int64), ptr),
+                      shape=(job.n_candidates(), T)).tocsr()
     res = MatchResult(job.method, S, best, score, accepted, seconds, {})
     lat_all, lat_dec = [r[3] for r in rows], [r[4] for r in rows]
     m = {"frames": T, "seconds": round(seconds, 4), "n_accepted": int(accepted.sum()), "stopped": waiting is not None,
          "latency_ms": {"with_encoding": latency_summary(lat_all), "without_encoding": latency_summary(lat_dec)}}
     if waiting:
         m["waiting"] = waiting  # in the state (--state-out), answered after --resume
-    m.update(job.evaluate(res, names, [r[1] for r in rows]))
+    m.update(job.evaluate(res, names, [r[1] for r in rows], frames))
     extra = {}
     if job.ground_truth is not None:  # as a batch run's matches.csv (GT_COLUMNS)
         right, truth = evaluate.outcomes(best, *job.ground_truth)
         extra = {"right": ["" if r < 0 else int(r) for r in right],
-                 "true_db": [t + off if t >= 0 else -1 for t in truth],
-                 "true_name": [job.name_of(t + off) if t >= 0 else "" for t in truth]}
-    write_matches(out / job.method, MatchResult(job.method, S, shown, score, accepted, seconds, {}), None, names,
+                 "true_db": [int(t) for t in truth],
+                 "true_name": [job.name_of(t) if t >= 0 else "" for t in truth]}
+    write_matches(out / job.method, res, None, names,
                   {**extra, "latency_ms": [round(v, 3) for v in lat_all],
                    "latency_decide_ms": [round(v, 3) for v in lat_dec]},
-                  best_names=[job.name_of(b) if b >= 0 else "" for b in shown],
-                  query_ids=[int(d.frame) for d in ds])
+                  best_names=[job.name_of(b) if b >= 0 else "" for b in best], query_ids=frames.tolist())
     if state_out:
         job.save(state_out)
     params = {"command": job.command, **job.params(), "skipped": skipped}

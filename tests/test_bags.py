@@ -161,18 +161,20 @@ def test_positions_are_not_interpolated_across_an_outage():
 
 
 @pytest.mark.slow
-def test_frames_outside_the_gps_span_are_left_out_with_a_warning(laps, tmp_path, capsys):
+def test_frames_outside_the_gps_span_are_said_and_left_out_of_the_metrics_only(laps, tmp_path, capsys):
     late = write_bag(tmp_path / "late.bag", read_folder(laps["scene"]["laps"]), laps["xy"], odom=False, pos_start=10)
     n = len(laps["xy"])
     with pytest.warns(UserWarning, match=rf"10 of {n} frames have no position \(10 outside the time span of "
-                                         r"/gps/fix\); left out, not extrapolated"):
+                                         r"/gps/fix\); not extrapolated: the method sees them"):
         code, _, err = _run(["loops", late, "--out", tmp_path / "o", "--gt-topic", "/gps/fix", "--radius", 4,
                              "--preset", "fast", "--exclude", 12], capsys)
     assert code == 0, err
     doc = json.loads((tmp_path / "o" / "metrics.json").read_text())
-    assert doc["params"]["n_frames"] == n - 10
+    assert doc["params"]["n_frames"] == n  # ground truth only scores: every frame is in the run
     with open(tmp_path / "o" / "rshosm-seq" / "matches.csv") as fh:
-        assert next(csv.DictReader(fh))["query_name"] == f"/camera/image_raw@{int(T0) + 1}.000000000"
+        rows = list(csv.DictReader(fh))
+    assert rows[0]["query_name"] == f"/camera/image_raw@{int(T0)}.000000000"
+    assert all(r["right"] == "" for r in rows[:10])  # no position: neither right nor wrong
 
 
 def test_tum_kitti_names_and_exif_formats(tmp_path):

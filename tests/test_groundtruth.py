@@ -293,3 +293,24 @@ def test_build_gt_tolerance_and_pairs(tmp_path):
 def test_build_gt_rejects_contradictory_options(spec, msg):
     with pytest.raises(ValueError, match=re.escape(msg)):
         build_gt(spec, ["a"], ["b"], [0], [0])
+
+
+def test_frames_without_a_position_are_unknown_pairs_not_left_out_of_the_matrix():
+    from vpr.groundtruth import GroundTruthSpec, build_gt, build_loop_gt
+    from vpr.groundtruth.trajectories import every
+
+    nan = np.nan
+    db = np.array([[0.0, 0], [1, 0], [nan, nan], [3, 0]])
+    q = np.array([[0.2, 0], [nan, nan], [3.1, 0]])
+    hard, soft = build_gt(GroundTruthSpec(radius=0.5, files=("x",)), [], [], [], [], positions=(db, q))
+    assert hard.shape == soft.shape == (4, 3)
+    np.testing.assert_array_equal(hard, [[1, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 1]])
+    # every pair of a frame without a position is in the soft band (ignored), the rest as the radius says
+    np.testing.assert_array_equal(soft, [[1, 1, 0], [0, 1, 0], [1, 1, 1], [0, 1, 1]])
+    hard, soft = build_gt(GroundTruthSpec(radius=0.5, soft=1.5, files=("x",)), [], [], [], [], positions=(db, q))
+    np.testing.assert_array_equal(soft, [[1, 1, 0], [1, 1, 0], [1, 1, 1], [0, 1, 1]])
+    loop_hard, loop_soft = build_loop_gt(GroundTruthSpec(radius=0.5, files=("x",)), [], [], positions=db)
+    assert loop_hard.shape == (4, 4) and loop_soft[2].all() and loop_soft[:, 2].all() and not loop_hard[2].any()
+    # --every samples by travel among the frames with a position only
+    np.testing.assert_array_equal(every(np.array([[nan, nan], [0, 0], [1, 0], [nan, nan], [2, 0], [3, 0]]), 2.0),
+                                  [1, 4])

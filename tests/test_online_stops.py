@@ -135,3 +135,79 @@ def test_a_second_run_into_the_same_out_is_refused_while_the_first_runs(laps, tm
     assert second.returncode == 2 and len(lines) == 1, second.stderr
     assert "rshosm-seq: another run is writing it now" in lines[0]
     assert json.loads((tmp_path / "o" / "metrics.json").read_text())["methods"]["rshosm-seq"]["frames"] == 1
+
+
+# ------------------------------------------------------------------ where a stop leaves a stream
+def _stop_while_reading(monkeypatch, path: str) -> None:
+    """A stop (Ctrl-C) that comes while ``path`` is being read: its line is read, the frame is not taken."""
+    from vpr.sources.stdin import StdinSource
+
+    read = StdinSource._read
+
+    def reading(self, p, name):
+        if name == path:
+            raise KeyboardInterrupt
+        return read(self, p, name)
+
+    monkeypatch.setattr(StdinSource, "_read", reading)
+
+
+def test_a_stop_while_a_frame_is_read_names_that_frames_line_to_go_on_from(laps, tmp_path, capsys, monkeypatch):
+    import io
+
+    paths = laps["paths"]
+    _stop_while_reading(monkeypatch, paths[120])  # 120 frames answered, the 121st line read when the stop comes
+    monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(paths) + "\n"))
+    assert _main(["loops", "-", "--out", tmp_path / "a", *LOOSE, "--state-out", tmp_path / "s.npz"]) == 130
+    err = capsys.readouterr().err
+    assert "every frame up to input line 120 is answered in the outputs" in err, err
+    assert f"to continue, --resume {tmp_path / 's.npz'} and feed it from input line 121" in err
+    assert len(_rows(tmp_path / "a")) == 120
+    monkeypatch.undo()
+    monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(paths[120:]) + "\n"))  # as the message says
+    assert _main(["loops", "-", "--out", tmp_path / "b", "--resume", tmp_path / "s.npz"]) == 0
+    done = [int(r["query"]) for f in ("a", "b") for r in _rows(tmp_path / f)]
+    assert sorted(done) == list(range(len(paths)))  # every frame answered once
+
+
+def test_a_resumed_run_is_scored_against_the_frames_in_its_state(laps, tmp_path, capsys, monkeypatch):
+    import io
+
+    paths, gt = laps["paths"], ["--gt", laps["gt"], "--radius", 4]
+    monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(paths) + "\n"))
+    assert _main(["loops", "-", "--out", tmp_path / "whole", *LOOSE, *gt]) == 0
+    monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(paths[:120]) + "\n"))
+    assert _main(["loops", "-", "--out", tmp_path / "a", *LOOSE, "--state-out", tmp_path / "s.npz"]) == 0
+    monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(paths[120:]) + "\n"))
+    assert _main(["loops", "-", "--out", tmp_path / "b", "--resume", tmp_path / "s.npz", *gt]) == 0
+    err = capsys.readouterr().err
+    assert "no loop closure to find" not in err
+    whole = {r["query"]: r for r in _rows(tmp_path / "whole")}
+    resumed = _rows(tmp_path / "b")
+    assert sum(r["accepted"] == "1" for r in resumed) > 50  # the laps after the first revisit frames of the first
+    for r in resumed:  # each answer scored as in the run that was never stopped
+        assert (r["best_db"], r["accepted"], r["right"], r["true_db"]) == \
+            tuple(whole[r["query"]][k] for k in ("best_db", "accepted", "right", "true_db"))
+    m = json.loads((tmp_path / "b" / "metrics.json").read_text())["methods"]["rshosm-seq"]
+    right = [r for r in resumed if r["accepted"] == "1" and r["right"] != ""]
+    assert m["precision_accepted"] == sum(r["right"] == "1" for r in right) / len(right)
+    assert m["precision_accepted"] > 0.9 and m["n_false"] == sum(r["right"] == "0" for r in right)
+
+
+def test_a_stopped_localize_says_how_to_go_on_with_its_state(laps, tmp_path, capsys, monkeypatch):
+    import io
+
+    assert _main(["learn", laps["laps"], "--out", tmp_path / "map.npz", "--preset", "fast"]) == 0
+    paths = laps["paths"]
+    _stop_while_reading(monkeypatch, paths[30])
+    monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(paths) + "\n"))
+    assert _main(["localize", tmp_path / "map.npz", "-", "--out", tmp_path / "a", "--state-out",
+                  tmp_path / "s.npz"]) == 130
+    err = capsys.readouterr().err
+    assert "--resume" not in err
+    assert (f"every frame up to input line 30 is answered in the outputs; to continue, give {tmp_path / 's.npz'} as "
+            f"the map (vpr localize {tmp_path / 's.npz'} QUERY) and feed it from input line 31") in err, err
+    monkeypatch.undo()
+    monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(paths[30:]) + "\n"))
+    assert _main(["localize", tmp_path / "s.npz", "-", "--out", tmp_path / "b"]) == 0
+    assert len(_rows(tmp_path / "a")) + len(_rows(tmp_path / "b")) == len(paths)

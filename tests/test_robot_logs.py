@@ -44,18 +44,54 @@ LOOSE = ["--preset", "fast", "--exclude", "12", "--method-conf", "rshosm-seq.min
 
 # ------------------------------------------------------------------ outages
 @pytest.mark.slow
-def test_a_gps_outage_is_said_and_its_frames_have_no_ground_truth(laps, tmp_path, capsys):
+def test_a_gps_outage_is_said_and_only_leaves_its_frames_out_of_the_metrics(laps, tmp_path, capsys):
     # 1 frame a second; the receiver loses its fix for frames 100..159 (a minute in a tunnel)
     bag = write_bag(tmp_path / "outage.bag", laps["images"], laps["xy"], dt=1.0, odom=False,
                     no_fix=set(range(100, 160)))
     with pytest.warns(UserWarning, match=r"60 of 240 frames have no position \(60 in 1 outage of /gps/fix \(no "
-                                         r"position for over 5 s; longest 61\.0 s, from 99\.0 s after its first "
-                                         r"sample\), not interpolated across\); left out"):
+                                         r"position for over 10 s; longest 61\.0 s, from 99\.0 s after its first "
+                                         r"sample\), not interpolated across\); not extrapolated: the method sees "
+                                         r"them as every frame, and their pairs are left out of the metrics"):
         code, _, err = _run(["loops", bag, "--out", tmp_path / "o", "--gt-topic", "/gps/fix", "--radius", 4,
                              *LOOSE], capsys)
     assert code == 0, err
-    rows = (tmp_path / "o" / "rshosm-seq" / "matches.csv").read_text().splitlines()
-    assert len(rows) == 1 + 180  # the frames of the outage are not in the run
+    code, _, err = _run(["loops", bag, "--out", tmp_path / "plain", *LOOSE], capsys)
+    assert code == 0, err
+    with_gt, without = (list(csv.DictReader(open(tmp_path / d / "rshosm-seq" / "matches.csv")))
+                        for d in ("o", "plain"))
+    assert len(with_gt) == len(without) == 240  # the frames of the outage are in the run
+    for a, b in zip(with_gt, without, strict=True):  # ground truth only scores
+        assert (a["query"], a["best_db"], a["accepted"], a["score"]) == (b["query"], b["best_db"], b["accepted"],
+                                                                         b["score"])
+    assert any(r["accepted"] == "1" for r in with_gt[100:160])  # the tunnel is a revisit the method still closes
+    for r in with_gt:  # a frame without a position, or onto one, is neither right nor wrong
+        if r["accepted"] == "1" and (100 <= int(r["query"]) < 160 or 100 <= int(r["best_db"]) < 160):
+            assert r["right"] == "", r
+    m = _metrics(tmp_path / "o")["methods"]["rshosm-seq"]
+    accepted_scored = sum(r["accepted"] == "1" and r["right"] != "" for r in with_gt)
+    assert m["n_false"] == sum(r["accepted"] == "1" and r["right"] == "0" for r in with_gt)
+    assert accepted_scored > 0
+
+
+def test_short_gaps_in_the_fixes_are_said_and_an_outage_is_named_by_its_own_start(laps, tmp_path):
+    from vpr.groundtruth import GroundTruthSpec, prepare_positions
+
+    # 1 frame and 1 fix a second: 3 fixes with status -1 (a 4 s gap, interpolated across), a 13 s outage from 9 s
+    # and a 61 s one from 149 s (the longest, named by its start); an outage is a gap of over 10 intervals here
+    no_fix = {50, 51, 52, *range(10, 22), *range(150, 210)}
+    bag = write_bag(tmp_path / "gaps.bag", laps["images"], laps["xy"], dt=1.0, odom=False, no_fix=no_fix)
+    src = open_source(bag)
+    spec = GroundTruthSpec(radius=4.0, topic="/gps/fix")
+    with pytest.warns(UserWarning) as said:
+        (xy,) = prepare_positions([src], ["sequence"], spec, loops=True)
+    text = [str(w.message) for w in said]
+    short = [t for t in text if "short gap" in t]
+    assert len(short) == 1 and "/gps/fix: 3 frames fall in 1 short gap of its positions (longest 4.0 s, from " \
+        "49.0 s after its first sample" in short[0] and "interpolated across" in short[0], text
+    outage = [t for t in text if "outage" in t and "short gap" not in t]
+    assert len(outage) == 1 and "in 2 outages of /gps/fix" in outage[0] and "longest 61.0 s, from 149.0 s" in \
+        outage[0], text
+    assert len(xy) == 240 and np.isnan(xy[:, 0]).sum() == 12 + 60 and not np.isnan(xy[50:53]).any()
 
 
 # ------------------------------------------------------------------ encodings

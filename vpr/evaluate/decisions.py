@@ -127,7 +127,7 @@ def decision_curve(best, score, gt_hard, gt_soft=None, mask=None) -> tuple[dict,
             (np.r_[1.0, precision] if precision.size else np.ones(1), np.r_[0.0, recall], s[last]))
 
 
-def session_pairs(best, accepted, gt_hard, starts, gt_soft=None, mask=None, names=None) -> list[dict]:
+def session_pairs(best, accepted, gt_hard, starts, gt_soft=None, mask=None, names=None, frames=None) -> list[dict]:
     """Which session revisits which: the accepted closures of one multi-session stream, per pair of sessions.
 
     For each session ``s`` and each session ``r <= s``: ``frames`` of ``s``
@@ -143,6 +143,8 @@ def session_pairs(best, accepted, gt_hard, starts, gt_soft=None, mask=None, name
     gt_hard, gt_soft, mask : T x T (rows earlier frame), dense or sparse.
     starts : the first frame of each session.
     names : optional session names (the sources).
+    frames : optional, the frame number of each column (default: column ``j`` is frame ``j``); a session without
+        a column is left out.
     """
     best, accepted = np.asarray(best, np.int64), np.asarray(accepted, bool)
     T = best.size
@@ -151,7 +153,8 @@ def session_pairs(best, accepted, gt_hard, starts, gt_soft=None, mask=None, name
         gt_hard, gt_soft = (None if g is None else g.multiply(mask).tocsr() if sp.issparse(g) else
                             np.asarray(g) & mask for g in (gt_hard, gt_soft))
     hard = sp.csc_matrix(gt_hard, dtype=bool)
-    sess = np.searchsorted(starts, np.arange(T), side="right") - 1
+    sess = np.searchsorted(starts, np.arange(T) if frames is None else np.asarray(frames, np.int64), side="right") - 1
+    n_rows = gt_hard.shape[0]
     label = (lambda k: names[k]) if names is not None else (lambda k: k)
     out = []
     q = np.flatnonzero(accepted & (best >= 0))
@@ -159,8 +162,10 @@ def session_pairs(best, accepted, gt_hard, starts, gt_soft=None, mask=None, name
     soft_only = at(gt_soft, best[q], q).astype(bool) & ~correct if gt_soft is not None else np.zeros(q.size, bool)
     for s in range(starts.size):
         cols = np.flatnonzero(sess == s)
+        if frames is not None and not cols.size:
+            continue
         for r in range(s + 1):
-            rows = (starts[r], starts[r + 1] if r + 1 < starts.size else T)
+            rows = (starts[r], starts[r + 1] if r + 1 < starts.size else n_rows)
             with_loop = np.asarray(hard[rows[0]:rows[1], cols].sum(axis=0)).ravel() > 0
             onto = (sess[q] == s) & (best[q] >= rows[0]) & (best[q] < rows[1])
             judged = onto & ~soft_only

@@ -11,11 +11,13 @@ source's frames a position, from whichever of these the options name:
 
 Frames outside a trajectory's time span, or inside an outage of it (a GPS
 without a fix, :func:`vpr.groundtruth.trajectories.outages`), get no
-position: they are left out of the run with a warning that gives their count
-and the outages' spans, never extrapolated nor interpolated across the gap. ``--every 2m`` then keeps one
-frame per 2 m of travel. Both act on the sources' selection
-(:meth:`vpr.sources.Source.restrict`), so the frames left out are not even
-read.
+position (NaN), said with their count and the outages' spans, never
+extrapolated nor interpolated across the gap. Ground truth only scores: the
+method sees those frames as every other, and their pairs are left out of the
+metrics (:func:`vpr.groundtruth.build_gt` puts them in the soft band).
+``--every 2m`` keeps one frame per 2 m of travel, which only frames with a
+position have; it acts on the sources' selection
+(:meth:`vpr.sources.Source.restrict`), so the frames left out are not even read.
 """
 from __future__ import annotations
 
@@ -57,10 +59,23 @@ def _timed(stamps, t, values, kind: str, where: str) -> tuple[np.ndarray, str, s
         notes.append(f"{int((why == 1).sum())} outside the time span of {where}")
     if (why == 2).any():
         gaps = tr.outages(t)
-        longest = float(np.max(gaps[:, 1] - gaps[:, 0]))
+        g = int(np.argmax(gaps[:, 1] - gaps[:, 0]))
         notes.append(f"{int((why == 2).sum())} in {len(gaps)} outage{'s' if len(gaps) > 1 else ''} of {where} "
-                     f"(no position for over {tr.OUTAGE_S:g} s; longest {longest:.1f} s, from "
-                     f"{float(gaps[0, 0] - t[0]):.1f} s after its first sample), not interpolated across")
+                     f"(no position for over {tr.outage_limit(t):g} s; longest {float(gaps[g, 1] - gaps[g, 0]):.1f} s, "
+                     f"from {float(gaps[g, 0] - t[0]):.1f} s after its first sample), not interpolated across")
+    short = tr.short_gaps(t)
+    stamps = np.asarray(stamps, np.float64)
+    inside = np.zeros(len(xy), bool)
+    for a, b in short:
+        inside |= (stamps > a) & (stamps < b)
+    if inside.any():
+        g = int(np.argmax(short[:, 1] - short[:, 0]))
+        warnings.warn(f"{where}: {int(inside.sum())} frames fall in {len(short)} short gap"
+                      f"{'s' if len(short) > 1 else ''} of its positions (longest "
+                      f"{float(short[g, 1] - short[g, 0]):.1f}"
+                      f" s, from {float(short[g, 0] - t[0]):.1f} s after its first sample; fixes without a position "
+                      f"are dropped) and are interpolated across them (gaps over {tr.outage_limit(t):g} s are "
+                      "outages, not interpolated)", UserWarning, stacklevel=4)
     return xy, kind, "; ".join(notes)
 
 
@@ -126,9 +141,10 @@ def prepare_positions(srcs, roles, spec: GroundTruthSpec, every: float | None = 
                       need: bool | None = None, origin: tuple | None = None) -> list | None:
     """Every source's frame positions (aligned with its ``indices()`` after this), or None when none are needed.
 
-    Leaves out, with a warning, frames without a position; with ``every``
-    (metres), keeps one frame per ``every`` metres of travel. Refuses a
-    source left with no frame. ``need``: positions are wanted (default: for
+    Frames without a position keep their place with NaN positions, said in a
+    warning; with ``every`` (metres), keeps one frame per ``every`` metres of
+    travel among the frames with a position (the others are left out, said).
+    Refuses a source none of whose frames has a position. ``need``: positions are wanted (default: for
     position ground truth, ``--radius``); ``loops``: the options of one
     stream's loop closure (default: one source). GPS positions of every
     source are put in metres about one ``origin`` (latitude, longitude;
@@ -174,10 +190,10 @@ def prepare_positions(srcs, roles, spec: GroundTruthSpec, every: float | None = 
         if not known.all():
             if not known.any():
                 raise ValueError(f"{role} {src.path}: none of its {idx.size} frames has a position ({note})")
+            what = ("left out, since --every samples by travel" if every is not None else
+                    "the method sees them as every frame, and their pairs are left out of the metrics")
             warnings.warn(f"{role} {src.path}: {int((~known).sum())} of {idx.size} frames have no position "
-                          f"({note}); left out, not extrapolated", UserWarning, stacklevel=2)
-            src.restrict(idx[known])
-            idx, xy = idx[known], xy[known]
+                          f"({note}); not extrapolated: {what}", UserWarning, stacklevel=2)
         if every is not None:
             keep = tr.every(xy, every)
             src.restrict(idx[keep])

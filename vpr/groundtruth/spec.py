@@ -7,6 +7,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 
 from vpr.similarity import fits_dense
 
@@ -215,9 +216,28 @@ def build_gt(spec: GroundTruthSpec, db_names: Sequence[str], q_names: Sequence[s
 
 
 def _from_positions(spec: GroundTruthSpec, a, b):
+    """Hard and soft ground truth within ``spec``'s radii; a frame without a position (a NaN row) has every pair
+    in the soft band: unknown, left out of the metrics, while the method still saw the frame."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    ka, kb = ~np.isnan(a).any(axis=1), ~np.isnan(b).any(axis=1)
     big = not fits_dense(len(a), len(b))
-    hard = gt_from_positions(a, b, spec.radius, sparse=big)
-    return hard, (gt_from_positions(a, b, spec.soft, sparse=big) if spec.soft is not None else None)
+    if ka.all() and kb.all():
+        hard = gt_from_positions(a, b, spec.radius, sparse=big)
+        return hard, (gt_from_positions(a, b, spec.soft, sparse=big) if spec.soft is not None else None)
+    rows, cols, shape = np.flatnonzero(ka), np.flatnonzero(kb), (len(a), len(b))
+
+    def within(radius):  # the pairs of frames with a position, at their places in the whole matrix
+        g = gt_from_positions(a[ka], b[kb], radius, sparse=True).tocoo()
+        return sp.csr_matrix((g.data, (rows[g.row], cols[g.col])), shape=shape, dtype=bool)
+
+    hard = within(spec.radius)
+    soft = within(spec.soft) if spec.soft is not None else hard.copy()
+    ua, ub = np.flatnonzero(~ka), np.flatnonzero(~kb)
+    unknown = sp.csr_matrix((np.ones(ua.size * shape[1] + shape[0] * ub.size, bool),
+                             (np.r_[np.repeat(ua, shape[1]), np.tile(np.arange(shape[0]), ub.size)],
+                              np.r_[np.tile(np.arange(shape[1]), ua.size), np.repeat(ub, shape[0])])), shape=shape)
+    soft = (soft + unknown).astype(bool)
+    return (hard, soft.tocsr()) if big else (hard.toarray(), soft.toarray())
 
 
 def _db_query_gt(spec, db_names, q_names, db_indices, q_indices, db_traverse, q_traverse, totals):

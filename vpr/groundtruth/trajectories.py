@@ -28,7 +28,8 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["trajectory_format", "load_tum", "load_kitti", "utm_from_names", "exif_positions", "positions_at",
-           "outages", "OUTAGE_S", "every", "latlon_to_metres", "parse_every", "EARTH_RADIUS"]
+           "outages", "outage_limit", "short_gaps", "OUTAGE_S", "every", "latlon_to_metres", "parse_every",
+           "EARTH_RADIUS"]
 
 #: Mean Earth radius, m: latitude and longitude to local metres (an equirectangular plane about the first
 #: point, within a few centimetres per kilometre at the scale of a route).
@@ -160,8 +161,31 @@ def outages(traj_t) -> np.ndarray:
     if t.size < 2:
         return np.zeros((0, 2))
     dt = np.diff(t)
-    limit = max(OUTAGE_S, OUTAGE_INTERVALS * float(np.median(dt)))
-    k = np.flatnonzero(dt > limit)
+    k = np.flatnonzero(dt > outage_limit(t))
+    return np.stack([t[k], t[k + 1]], axis=1)
+
+
+def outage_limit(traj_t) -> float:
+    """The gap (seconds) beyond which a trajectory with these sample times has an outage (:data:`OUTAGE_S`)."""
+    t = np.asarray(traj_t, np.float64)
+    return max(OUTAGE_S, OUTAGE_INTERVALS * float(np.median(np.diff(t)))) if t.size > 1 else OUTAGE_S
+
+
+#: A gap between two samples longer than this many of the trajectory's median intervals, and no outage, is a
+#: short gap (a few fixes without a position): the frames inside it are interpolated across, and that is said.
+SHORT_GAP_INTERVALS = 3
+
+
+def short_gaps(traj_t) -> np.ndarray:
+    """(k, 2) start and end times of the gaps in a trajectory's times that are longer than
+    :data:`SHORT_GAP_INTERVALS` median intervals but are not :func:`outages`."""
+    t = np.asarray(traj_t, np.float64)
+    if t.size < 2:
+        return np.zeros((0, 2))
+    dt = np.diff(t)
+    if not (dt > 0).any():
+        return np.zeros((0, 2))
+    k = np.flatnonzero((dt > SHORT_GAP_INTERVALS * float(np.median(dt[dt > 0]))) & (dt <= outage_limit(t)))
     return np.stack([t[k], t[k + 1]], axis=1)
 
 
@@ -203,16 +227,19 @@ def every(xy, metres: float) -> np.ndarray:
     """Positions of the frames to keep: the first, then each frame at least ``metres`` of travel after the last kept.
 
     Travel is summed along the path (a stop adds nothing; a loop adds its
-    length), so a robot standing at a traffic light keeps one frame.
+    length), so a robot standing at a traffic light keeps one frame. Frames
+    without a position (NaN) are never kept; travel runs from one frame with a
+    position to the next.
     """
     xy = np.asarray(xy, np.float64)
-    if xy.shape[0] == 0:
+    known = np.flatnonzero(~np.isnan(xy).any(axis=1)) if xy.ndim == 2 else np.zeros(0, np.int64)
+    if known.size == 0:
         return np.zeros(0, np.int64)
-    step = np.r_[0.0, np.linalg.norm(np.diff(xy, axis=0), axis=1)]
-    keep, since = [0], 0.0
-    for k in range(1, xy.shape[0]):
+    step = np.r_[0.0, np.linalg.norm(np.diff(xy[known], axis=0), axis=1)]
+    keep, since = [known[0]], 0.0
+    for k in range(1, known.size):
         since += step[k]
         if since >= metres:
-            keep.append(k)
+            keep.append(known[k])
             since = 0.0
     return np.asarray(keep, np.int64)
