@@ -59,7 +59,9 @@ def add_gt_arguments(ap, loops: bool = False, title: str = "ground truth (option
                              "pairs; or a frame x frame matrix: .npy, .png/.bmp (nonzero = loop) or .mat[:VARIABLE] "
                              "(a second matrix: the soft ground truth)")
     else:
-        gt.add_argument("--tolerance", type=int, metavar="K", help="frame-aligned traverses: |i - j| <= K")
+        gt.add_argument("--tolerance", type=int, metavar="K",
+                        help="frame-aligned traverses: |i - j| <= K, in frames kept (after --step, --fps, --every): "
+                             "at --step 10, --tolerance 1 is 10 input frames")
         gt.add_argument("--gt", nargs="+", metavar="FILE",
                         help="CSV of query,db pairs; a db x query matrix (GThard.npy [GTsoft.npy]) or VPR-Bench's "
                              "ground_truth_new.npy; or with --radius: one positions CSV per traverse "
@@ -70,7 +72,8 @@ def add_gt_arguments(ap, loops: bool = False, title: str = "ground truth (option
                     "an outage; with --radius; one for all inputs or one per input, in order")
     gt.add_argument("--radius", type=float, help="match radius for position ground truth (same unit as x, y)")
     gt.add_argument("--gt-soft", type=float, metavar="R2",
-                    help="also ignore pairs within this larger radius/tolerance (soft ground truth)")
+                    help="also ignore pairs within this larger radius/tolerance (soft ground truth; a tolerance in "
+                         "frames kept, as --tolerance)")
     return gt
 
 

@@ -36,7 +36,7 @@ from pipelines.online import Online, run_online, summary_line
 from pipelines.outputs import warn
 from vpr import evaluate, io, presets
 from vpr.checks import per_input
-from vpr.groundtruth import GroundTruthSpec, build_gt, prepare_positions, same_rate, same_sampling
+from vpr.groundtruth import GroundTruthSpec, build_gt, prepare_positions, same_rate, same_sampling, sampling_step
 from vpr.groundtruth.trajectories import parse_every
 from vpr.shosm import Map
 from vpr.sources import open_source
@@ -121,7 +121,8 @@ class LocalizeOnline(Online):
     def params(self) -> dict:
         return {**self._params, "encoder": self.map.encoder["name"], "encoder_conf": self.map.encoder["conf"],
                 "method_conf": {self.method: self.loc.conf}, "n_db": self.loc.n_db,
-                "ground_truth": self.gt.describe()}
+                "ground_truth": self.gt.describe(sampling_step(self.map.info.get("db_indices") or
+                                                               range(self.loc.n_db)))}
 
 
 def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: str = "running",

@@ -83,7 +83,7 @@ def run_command(args) -> int:
     report = run_loops(args.seq[0] if len(args.seq) == 1 else args.seq, method, opts,
                        exclude=LOOP_EXCLUDE if args.exclude is None else args.exclude)
     print(metrics_table(report["methods"], "loops"))
-    print(f"wrote {args.out}/metrics.json")
+    print(f"wrote {args.out}/report.html (open it: the table, the plots and the frames side by side), metrics.json")
     return 0
 
 

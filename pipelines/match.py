@@ -55,10 +55,12 @@ def run_command(args) -> int:
             print(f"vpr {args.command}: query {name} done ({done} of {total})", file=sys.stderr, flush=True)
 
         report = run_fleet(args.db, args.query, opts, args.command, progress=said)
-        print("\n\n".join(f"query {name}:\n" + metrics_table(table) for name, table in report["queries"].items()))
-        print(f"wrote {args.out}/metrics.json and a folder per query")
+        truth = report["params"]["ground_truth"]
+        print("\n\n".join(f"query {name}:\n" + metrics_table(table, ground_truth=truth)
+                           for name, table in report["queries"].items()))
+        print(f"wrote {args.out}/metrics.json and a folder per query (each with its report.html)")
         return 0
     report = run_compare(args.db, args.query[0], opts, args.command)
-    print(metrics_table(report["methods"], "match"))
-    print(f"wrote {args.out}/metrics.json")
+    print(metrics_table(report["methods"], "match", report["params"].get("ground_truth")))
+    print(f"wrote {args.out}/report.html (open it: the table, the plots and the frames side by side), metrics.json")
     return 0

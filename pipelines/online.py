@@ -101,9 +101,11 @@ def summary_line(report: dict, method: str, out, accepted: str | None = None) ->
     m = report["methods"][method]
     lat = m["latency_ms"]
     what = f", {m['n_accepted']} {accepted}" if accepted else ""
+    truth = report["params"].get("ground_truth") or {}
+    unit = f"; ground truth {truth['tolerance_text']}" if truth.get("tolerance_text") else ""
     return (f"vpr {report['params']['command']}: {m['frames']} frames{what}, latency median "
-            f"{lat['with_encoding']['median']:.2f} ms ({lat['without_encoding']['median']:.2f} ms without encoding); "
-            f"wrote {out}/metrics.json")
+            f"{lat['with_encoding']['median']:.2f} ms ({lat['without_encoding']['median']:.2f} ms without encoding)"
+            f"{unit}; wrote {out}/report.html and metrics.json")
 
 
 class _Lines:

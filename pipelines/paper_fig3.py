@@ -14,6 +14,7 @@ Run: ``vpr paper-fig3 --out results/fig3`` or ``python -m pipelines.paper_fig3 -
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from pathlib import Path
 
@@ -99,6 +100,15 @@ def run(out_dir, seeds: int = 5, n_loops: int = 10, progress: bool = True) -> di
         plots.plot_pr(plot_curves, out / f"fig3_{panel}.png", title=f"{title}; seed 0",
                       ap={name: results[(panel, name)][0]["ap"] for name in curves})
     io.save_json(out / "metrics.json", metrics)
+    from vpr.report import write_table
+
+    header = [("ap", "AP"), ("ap_std", "(std)"), ("auc_pr", "AUC"), ("auc_pr_std", "(std)"),
+              ("recall_at_100p", "R@100P"), ("recall_at_100p_std", "(std)")]
+    write_table(out, "vpr paper-fig3: the paper's Fig. 3 on its simulated world",
+                header, [(name, [f"{m[k]:.3f}" for k, _ in header]) for name, m in metrics["curves"].items()],
+                [(f"Fig. 3 {panel} (seed 0)", out / f"fig3_{panel}.png") for panel in panels],
+                [f"means over {seeds} seeds, {n_loops} laps of a 20-place loop; the settings: "
+                 + json.dumps(metrics["params"], sort_keys=True)])
     return metrics
 
 
@@ -121,7 +131,8 @@ def add_arguments(ap: argparse.ArgumentParser, command: str = "paper-fig3") -> N
 def run_command(args) -> int:
     metrics = run(args.out, seeds=args.seeds, n_loops=args.loops, progress=not args.no_progress)
     print(format_table(metrics))
-    print(f"wrote {Path(args.out) / 'fig3_left.png'}, fig3_right.png, metrics.json")
+    print(f"wrote {Path(args.out) / 'report.html'} (open it: the table and both panels), fig3_left.png, "
+          "fig3_right.png, metrics.json")
     return 0
 
 

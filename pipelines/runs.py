@@ -24,7 +24,15 @@ from pipelines.cluster import check_workers, dask_client, run_tasks, send_once, 
 from pipelines.outputs import claim_methods, merge_metrics, versions, warn, write_method
 from pipelines.report import write_report
 from vpr import evaluate, io, methods
-from vpr.groundtruth import GroundTruthSpec, any_true, build_gt, check_rates, frame_rows, prepare_positions
+from vpr.groundtruth import (
+    GroundTruthSpec,
+    any_true,
+    build_gt,
+    check_rates,
+    frame_rows,
+    prepare_positions,
+    sampling_step,
+)
 from vpr.interrupts import deferred
 from vpr.report import TABLE, table_cells, write_table
 from vpr.sources import open_sources
@@ -237,7 +245,8 @@ def run_fleet(db, queries, opts: RunOptions, command: str = "match", progress=No
                    "methods": list(runners), "n_db": len(db_ex.features),
                    "n_query": {n: reports[n]["params"]["n_query"] for n in jobs},
                    "workers": n_workers, "scheduler": opts.scheduler, "map_seconds": t_map,
-                   "seconds": time.perf_counter() - t0, "shipped": shipped, "ground_truth": opts.gt.describe()},
+                   "seconds": time.perf_counter() - t0, "shipped": shipped,
+                   "ground_truth": opts.gt.describe(sampling_step(srcs[0].indices()))},
         "versions": versions(),
     }
     io.save_json(out / "metrics.json", summary)
@@ -320,8 +329,9 @@ def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, command: st
     done = evaluate.run_methods(the_map.fitted, matcher or (lambda f: f.match(q_ex.features, progress=opts.progress)),
                                 gt_hard, gt_soft, on_result=write)
     # what makes two runs' metrics comparable: same frames (content keys), encoding and ground truth
+    truth = opts.gt.describe(sampling_step(db_src.indices()))  # a tolerance in frames kept and in input frames
     inputs = {"kind": "match", "db": db_src.key(), "query": q_src.key(), "encoder": encoder.name,
-              "encoder_conf": encoder.conf, "ground_truth": opts.gt.describe()}
+              "encoder_conf": encoder.conf, "ground_truth": truth}
     report = {
         "methods": {k: e for k, (e, _) in done.items()},
         "params": {"command": command, "db": str(db), "query": str(query), "preset": opts.preset,
@@ -331,7 +341,7 @@ def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, command: st
                    "cached": {"db": db_ex.cached, "query": q_ex.cached},
                    "skipped": {"db": db_ex.skipped, "query": q_ex.skipped},
                    "ignored_files": {"db": db_ex.ignored, "query": q_ex.ignored},
-                   "ground_truth": opts.gt.describe(), "inputs": inputs, **(extra or {})},
+                   "ground_truth": truth, "inputs": inputs, **(extra or {})},
         "versions": versions(),
     }
     merged = merge_metrics(out, report, f"{db_src.name} vs {q_src.name} ({encoder.name})")

@@ -111,6 +111,11 @@ def test_benchmark_end_to_end(tmp_path, dataset, capsys):
     assert auc["rSHOSM-seq"] > auc["pairwise (SDR overlap)"] + 0.2
     assert auc["SeqSLAM (pixel)"] > auc["pairwise (pixel, SAD)"]
     assert doc["methods"]["rSHOSM-seq"]["conf"]["threshold"] == 0.75
+    # the tolerance's unit is said, kept in metrics.json and on the page
+    assert "ground truth in frames kept: tolerance 1: 1 frame kept = 1 input frame true" in printed
+    assert doc["ground_truth"]["tolerance_unit"] == "frames kept" and doc["ground_truth"]["frame_step"] == 1
+    page = (out / "report.html").read_text()
+    assert "1 frame kept = 1 input frame" in page and "rSHOSM-seq" in page and "report.html" in printed
 
 
 def test_vpr_cli_registration(tmp_path, dataset):

@@ -41,7 +41,7 @@ def test_noise_alone_hurts_neither_much():
 def test_cli_writes_plots_and_metrics(tmp_path, capsys):
     out = tmp_path / "fig3"
     assert cli_main(["paper-fig3", "--out", str(out), "--seeds", "1", "--loops", "4"]) == 0
-    for name in ("fig3_left.png", "fig3_right.png", "metrics.json"):
+    for name in ("fig3_left.png", "fig3_right.png", "metrics.json", "report.html"):
         assert (out / name).stat().st_size > 0
     m = json.loads((out / "metrics.json").read_text())
     assert set(m["curves"]) == set(paper_fig3.CURVES_LEFT) | set(paper_fig3.CURVES_RIGHT)

@@ -13,7 +13,7 @@ import pytest
 from pipelines.cli import main
 from tests.browser import chromium
 from vpr import report
-from vpr.report import TABLE, table_cells
+from vpr.report import TABLE, settings, table_cells
 
 
 def _run(argv, capsys):
@@ -85,6 +85,12 @@ def test_the_report_renders_in_a_real_browser(compared):
         loaded = browser.execute_script("return [...document.querySelectorAll('img')]"
                                         ".map(i => i.complete && i.naturalWidth > 0)")
         assert loaded and all(loaded)  # every thumbnail and plot is there
+        # the run's settings, as metrics.json holds them (a run can be made again from its page)
+        params = json.loads((compared / "metrics.json").read_text())["params"]
+        shown = browser.execute_script("return Object.fromEntries([...document.querySelectorAll('#settings td')]"
+                                       ".map(td => [td.dataset.key, td.textContent]))")
+        assert shown == dict(settings(params)) and {"preset", "encoder", "method_conf", "ground_truth"} <= set(shown)
+        assert json.loads(shown["ground_truth"]) == params["ground_truth"]
         _click_a_match_on_the_matrix(browser, "rshosm-seq")
     finally:
         browser.quit()

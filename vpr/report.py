@@ -27,7 +27,7 @@ import numpy as np
 from vpr import io
 
 __all__ = ["OUTCOMES", "TABLE", "Strip", "table_cells", "metrics_table", "outcome", "choose", "thumbnail", "picture",
-           "png_text", "page", "write", "write_table"]
+           "png_text", "page", "settings", "write", "write_table"]
 
 #: Strips per method: the page of a 50,000-frame run stays a few MB.
 LIMIT = 120
@@ -57,12 +57,14 @@ def table_cells(m: dict, kind: str = "match") -> list[str]:
             for k, _ in TABLE[kind]]
 
 
-def metrics_table(table: dict, kind: str = "match") -> str:
+def metrics_table(table: dict, kind: str = "match", ground_truth: dict | None = None) -> str:
     """The printed table: one row per method of ``{method: metrics}`` (``kind``: ``"match"`` or ``"loops"``).
 
     A metric that is not there (no ground truth) or undefined (the precision
     of no accepted match) prints as ``-``. With a soft band (``--gt-soft``) a
     legend says that R@1 and P(acc) ignore best matches there, and how many.
+    ``ground_truth``: ``params.ground_truth`` of ``metrics.json``; a tolerance
+    is said in both its units (frames kept, input frames).
     """
     keys = TABLE[kind]
     lines = [f"{'method':<22}" + "".join(f"{h:>10}" for _, h in keys)]
@@ -72,6 +74,9 @@ def metrics_table(table: dict, kind: str = "match") -> str:
     if soft:
         lines.append("R@1, AP, R@100P and P(acc) ignore best matches in the soft band (--gt-soft): neither right nor "
                      "wrong. Best matches there: " + ", ".join(f"{n} {c}" for n, c in soft.items()))
+    units = [t for t in ((ground_truth or {}).get(k) for k in ("tolerance_text", "gt_soft_text")) if t]
+    if units:
+        lines.append("ground truth in frames kept (after --step / --fps / --every): " + "; ".join(units))
     return "\n".join(lines)
 
 
@@ -170,6 +175,7 @@ table{border-collapse:collapse;margin:.5em 0}td,th{padding:.2em .7em;text-align:
 td:first-child,th:first-child{text-align:left}figure{display:inline-block;margin:.3em;vertical-align:top}
 figcaption{font-size:12px;color:#555;max-width:128px;overflow-wrap:anywhere}.figs figcaption{max-width:400px}
 .figs img{width:400px;border:1px solid #ccc}.figs a{display:inline-block}
+#settings td{text-align:left;font-family:monospace;font-size:12px;overflow-wrap:anywhere}#settings th{text-align:left}
 .strip{border-left:6px solid #999;padding:.3em .6em;margin:.4em;display:inline-block;vertical-align:top;width:430px}
 .strip.wrong{border-color:#c0392b}.strip.missed{border-color:#e67e22}.strip.lost{border-color:#f1c40f}
 .strip.right{border-color:#27ae60}.strip.none,.strip.soft{border-color:#8e44ad}.strip img{width:128px;display:block}
@@ -257,9 +263,22 @@ def _figure(uri: str | None, caption: str, pics: dict | None = None, matrix: dic
     return f"<figure>{pic}<figcaption>{_esc(caption)}</figcaption></figure>"
 
 
+#: ``params`` of ``metrics.json`` that are measurements or bookkeeping, not settings of the run
+_NOT_SETTINGS = frozenset({"inputs", "skipped", "ignored_files", "encode_seconds", "cached", "seconds", "map_seconds",
+                           "shipped", "learn_seconds"})
+
+
+def settings(params: dict) -> list[tuple[str, str]]:
+    """The settings of a run as the page shows them: ``(key, value)`` of ``metrics.json``'s ``params`` (a value
+    that is not a string or number as compact JSON), measurements and bookkeeping left out."""
+    def text(v) -> str:
+        return v if isinstance(v, str) else json.dumps(v, sort_keys=True, separators=(", ", ": "))
+    return [(k, text(v)) for k, v in params.items() if k not in _NOT_SETTINGS]
+
+
 def page(title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[str]]], figures: list[tuple],
          strips: list[Strip], counts: dict, notes: list[str], sides=("query", "best match", "true match"),
-         sessions: dict | None = None) -> str:
+         sessions: dict | None = None, params: dict | None = None) -> str:
     """The report's HTML.
 
     ``header``/``rows``: the metrics table: (metrics key, label) of its
@@ -268,7 +287,8 @@ def page(title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[s
     decisions shown; ``counts``: per method, {outcome: (shown, of)};
     ``notes``: lines said under the title; ``sides``: what the three frames
     of a strip are; ``sessions``: per method, the closures per pair of
-    sessions (:func:`vpr.evaluate.session_pairs`' rows).
+    sessions (:func:`vpr.evaluate.session_pairs`' rows); ``params``: the
+    run's ``metrics.json`` params, shown as its settings (:func:`settings`).
     """
     out = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
            f"<title>{_esc(title)}</title><style>{_CSS}</style></head><body>", f"<h1>{_esc(title)}</h1>"]
@@ -291,6 +311,10 @@ def page(title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[s
                      *("-" if p[k] is None else f"{p[k]:.3f}" for k in ("precision", "recall"))]
             out.append("<tr>" + "".join(f"<td>{_esc(c)}</td>" for c in cells) + "</tr>")
         out.append("</table>")
+    if params:
+        out.append('<details id="settings"><summary>Settings of this run (metrics.json params)</summary><table>'
+                   + "".join(f'<tr><th>{_esc(k)}</th><td data-key="{_esc(k)}">{_esc(v)}</td></tr>'
+                             for k, v in settings(params)) + "</table></details>")
     out.append('<div class="figs">' + "".join(_figure(f[1], f[0], None, *f[2:]) for f in figures) + "</div>")
     out.append('<h2 id="strips">The decisions, worst first</h2>')
     for m, c in counts.items():
@@ -374,8 +398,13 @@ def write(out, read_query, read_db, kind: str = "match", title: str | None = Non
     seq = params.get("seq", "")
     what = f"{params.get('db', '')} vs {params.get('query', '')}" if kind == "match" else \
         ", ".join(map(str, seq if isinstance(seq, list) else [seq]))
-    gt = {k: v for k, v in (params.get("ground_truth") or {}).items() if v not in (None, [], "")}
+    truth = params.get("ground_truth") or {}
+    gt = {k: v for k, v in truth.items() if v not in (None, [], "") and k in ("tolerance", "gt", "radius", "gt_soft",
+                                                                               "gt_topic")}
     gt_text = ", ".join(f"{k} {' '.join(map(str, v)) if isinstance(v, list) else v}" for k, v in gt.items())
+    units = [t for t in (truth.get("tolerance_text"), truth.get("gt_soft_text")) if t]
+    if units:
+        gt_text += f" (in frames kept: {'; '.join(units)})"
     notes = [f"vpr {params.get('command', '')}: {what}",
              f"ground truth: {gt_text or 'none'}; the table as metrics.json holds it",
              f"at most {LIMIT} decisions per method are shown, chosen by outcome, worst first"]
@@ -383,7 +412,7 @@ def write(out, read_query, read_db, kind: str = "match", title: str | None = Non
         ("frame", "closes onto", "a true earlier frame")
     sessions = {m: v["sessions"] for m, v in methods.items() if v.get("sessions")}
     return _save(out, page(title or f"vpr {params.get('command', '')}: {out.name}", TABLE[kind], rows, figures,
-                           strips, counts, notes, sides, sessions))
+                           strips, counts, notes, sides, sessions, params))
 
 
 def write_table(out, title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[str]]], figures=(),

@@ -50,7 +50,10 @@ def run_command(args) -> int:
     metrics = {label: m for label, m in doc["methods"].items()}
     print(markdown_table(metrics, f"Nordland summer vs winter, {doc['frames']} frames (subset {doc['subset']})"),
           end="")
-    print(f"peak memory {doc['peak_rss_mb']:.0f} MB, total {doc['total_seconds']:.1f} s; outputs in {args.out}")
+    truth = doc["ground_truth"]
+    print(f"ground truth in frames kept: {truth['tolerance_text']} true; {truth['gt_soft_text']} ignored")
+    print(f"peak memory {doc['peak_rss_mb']:.0f} MB, total {doc['total_seconds']:.1f} s; wrote {args.out}/report.html "
+          "(open it: the table and the plot), metrics.json, table.md")
     return 0
 
 

@@ -111,7 +111,10 @@ def run_benchmark(subset: str, out, data=None, k: int = 40, threshold: float | N
         fh.write(table)
     doc = {
         "subset": subset, "frames": len(names), "step": SUBSETS[subset], "data": str(root),
-        "ground_truth": {"hard": "|i - j| <= 1", "soft": "|i - j| <= 3"},
+        "ground_truth": {"hard": "|i - j| <= 1", "soft": "|i - j| <= 3", "tolerance_unit": "frames kept",
+                         "frame_step": SUBSETS[subset], "tolerance_input_frames": SUBSETS[subset],
+                         "tolerance_text": groundtruth.tolerance_text("tolerance", 1, SUBSETS[subset]),
+                         "gt_soft_text": groundtruth.tolerance_text("soft", 3, SUBSETS[subset])},
         "sdr": {"encoder": "projection", "descriptor": "pixel", "n_bits": 2048, "k": k, "standardise": "fit",
                 "fitted_on": "each traverse itself", "seconds": t_enc},
         "methods": {label: {"method": m, "conf": methods.get(m, **c).conf, **metrics[label]}
@@ -120,4 +123,14 @@ def run_benchmark(subset: str, out, data=None, k: int = 40, threshold: float | N
         "total_seconds": time.perf_counter() - t0,
     }
     _io.save_json(out / "metrics.json", doc)
+    from vpr.report import write_table
+
+    header = [("ap", "AP"), ("auc_pr", "AUC"), ("recall_at_100p", "R@100P"), ("recall_at_1", "R@1"),
+              ("recall_at_5", "R@5"), ("seconds", "seconds")]
+    truth = doc["ground_truth"]
+    write_table(out, f"vpr nordland: {title}", header,
+                [(label, [f"{m[k]:.3f}" if k != "seconds" else f"{m[k]:.2f}" for k, _ in header])
+                 for label, m in metrics.items()], [("precision-recall", out / "pr.png")],
+                [f"ground truth in frames kept: {truth['tolerance_text']} true; {truth['gt_soft_text']} ignored",
+                 f"data {root}, subset {subset}: {len(names)} frames of each season"])
     return doc

@@ -12,20 +12,21 @@ import scipy.sparse as sp
 from vpr.similarity import fits_dense
 
 from .files import (
-    gt_from_position_files,
     is_loop_pairs_file,
     load_loop_pairs,
     load_pairs_csv,
     load_traverse_positions,
     parse_float,
     positions_for,
+    positions_for_frames,
     positions_of_frames,
     read_rows,
 )
 from .formats import db_query_matrix, is_matrix_file, loop_matrix, split_variable
 from .matrices import gt_from_frames, gt_from_positions
 
-__all__ = ["GroundTruthSpec", "build_gt", "build_loop_gt", "check_loop_gt_files", "warn_if_mostly_true"]
+__all__ = ["GroundTruthSpec", "build_gt", "build_loop_gt", "check_loop_gt_files", "warn_if_mostly_true",
+           "sampling_step", "tolerance_text", "check_tolerance", "check_radius"]
 
 
 @dataclass(frozen=True)
@@ -35,7 +36,9 @@ class GroundTruthSpec:
     Attributes
     ----------
     tolerance : int, optional
-        Frame-aligned traverses: ``|i - j| <= tolerance`` (source frame numbers).
+        Frame-aligned traverses: ``|i - j| <= tolerance`` in **frames kept**
+        (after ``--step`` / ``--fps`` / ``--every``): with ``--step 10``, 1
+        frame kept is 10 input frames (:func:`sampling_step`).
     files : tuple of str
         One CSV of ``query,db`` pairs (``frame,earlier`` for loops); one or two
         matrix files (hard, then soft: ``GThard.npy GTsoft.npy``, VPR-Bench's
@@ -65,10 +68,18 @@ class GroundTruthSpec:
     #: ``--gt`` words that name where positions are, not a file.
     KEYWORDS = ("names", "exif")
 
-    def describe(self) -> dict:
-        """The spec under the command line's names (for ``metrics.json``)."""
+    def describe(self, step: float | None = None) -> dict:
+        """The spec under the command line's names (for ``metrics.json``); ``step``: the database's input frames per
+        frame kept (:func:`sampling_step`), which puts a tolerance in both units."""
         out = {"tolerance": self.tolerance, "gt": list(self.files) or None, "radius": self.radius,
                "gt_soft": self.soft}
+        if self.tolerance is not None and step is not None:
+            out.update(tolerance_unit="frames kept", frame_step=step,
+                       tolerance_input_frames=self.tolerance * step,
+                       tolerance_text=tolerance_text("--tolerance", self.tolerance, step))
+            if self.soft is not None:
+                out.update(gt_soft_input_frames=self.soft * step,
+                           gt_soft_text=tolerance_text("--gt-soft", self.soft, step))
         topic = list(self.topic) if isinstance(self.topic, tuple) else self.topic
         return {**out, "gt_topic": topic} if self.topic is not None else out
 
@@ -188,6 +199,63 @@ class GroundTruthSpec:
                           "are read; recall is undefined")
 
 
+def sampling_step(indices) -> float:
+    """Input frames per frame kept: the median step between a traverse's frame numbers (1 with fewer than two).
+
+    ``--step 10`` gives 10; ``--fps`` on a video the ratio of the rates; a few
+    unreadable frames do not change it.
+    """
+    idx = np.unique(np.asarray(indices, np.int64))
+    return float(np.median(np.diff(idx))) if idx.size > 1 else 1.0
+
+
+def tolerance_text(flag: str, value: float, step: float) -> str:
+    """A tolerance in both units, e.g. ``--tolerance 1: 1 frame kept = 10 input frames``."""
+    kept = f"{value:g} frame{'' if value == 1 else 's'} kept"
+    return f"{flag} {value:g}: {kept} = {value * step:g} input frame{'' if value * step == 1 else 's'}"
+
+
+def check_tolerance(spec: GroundTruthSpec, db_indices, q_indices) -> bool:
+    """Say a ``--tolerance`` that probably means something else (one line, the run goes on); returns whether said.
+
+    A tolerance of 0 at a subsampling (``--step`` > 1) accepts only the exact
+    frame, where the neighbours kept are input frames apart; one wider than a
+    tenth of the route (the frames kept of the shorter traverse) makes most of
+    a route's pairs true: likely given in input frames.
+    """
+    tol = spec.tolerance
+    if tol is None:
+        return False
+    step = sampling_step(db_indices)
+    n = min(len(db_indices), len(q_indices))
+    if tol == 0 and step > 1:
+        warnings.warn(f"--tolerance 0 accepts only the exact frame, where frames kept are {step:g} input frames "
+                      "apart; --tolerance 1 (a neighbour kept) was probably meant", UserWarning, stacklevel=3)
+        return True
+    if n and tol > n / 10:
+        meant = f"--tolerance {max(round(tol / step), 1)} ({tol} input frames)" if step > 1 else \
+            f"--tolerance {max(n // 10, 1)} or less"
+        warnings.warn(f"--tolerance {tol} counts frames kept and spans more than a tenth of the route ({n} frames "
+                      f"kept, 1 kept = {step:g} input frames): {meant} was probably meant", UserWarning, stacklevel=3)
+        return True
+    return False
+
+
+def check_radius(spec: GroundTruthSpec, db_xy) -> None:
+    """Say a ``--radius`` smaller than the median travel between consecutive database frames kept: a query between
+    two of them has no true match, and recall counts it lost (one line, the run goes on)."""
+    xy = np.asarray(db_xy, np.float64)
+    if spec.radius is None or xy.ndim != 2 or xy.shape[0] < 2:
+        return
+    step = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+    step = step[np.isfinite(step) & (step > 0)]
+    if step.size and spec.radius < float(np.median(step)):
+        med = float(np.median(step))
+        warnings.warn(f"--radius {spec.radius:g} is smaller than the median travel between consecutive database "
+                      f"frames kept ({med:.3g}): a query between two of them has no true match; --radius {med:.3g} or "
+                      "more was probably meant", UserWarning, stacklevel=3)
+
+
 def build_gt(spec: GroundTruthSpec, db_names: Sequence[str], q_names: Sequence[str], db_indices: Sequence[int],
              q_indices: Sequence[int], db_traverse: str = "database", q_traverse: str = "query", totals=None,
              positions=None):
@@ -207,10 +275,12 @@ def build_gt(spec: GroundTruthSpec, db_names: Sequence[str], q_names: Sequence[s
         Contradictory or incomplete options (the message names them), or a bad file.
     """
     if positions is not None:  # read by the caller from a checked spec
+        check_radius(spec, positions[0])
         hard, soft = _from_positions(spec, positions[0], positions[1])
     else:
         hard, soft = _db_query_gt(spec, db_names, q_names, db_indices, q_indices, db_traverse, q_traverse, totals)
-    if hard is not None:
+    said = check_tolerance(spec, db_indices, q_indices)
+    if hard is not None and not said:
         warn_if_mostly_true(spec, hard)
     return hard, soft
 
@@ -243,10 +313,11 @@ def _from_positions(spec: GroundTruthSpec, a, b):
 def _db_query_gt(spec, db_names, q_names, db_indices, q_indices, db_traverse, q_traverse, totals):
     spec.check()
     files = list(spec.files)
-    if spec.tolerance is not None:
+    if spec.tolerance is not None:  # in frames kept: the input frames a kept frame stands for
+        step = sampling_step(db_indices)
         big = not fits_dense(len(db_indices), len(q_indices))  # a band, never the dense matrix
-        hard = gt_from_frames(db_indices, q_indices, spec.tolerance, sparse=big)
-        soft = gt_from_frames(db_indices, q_indices, spec.soft, sparse=big) if spec.soft is not None else None
+        hard = gt_from_frames(db_indices, q_indices, spec.tolerance * step, sparse=big)
+        soft = gt_from_frames(db_indices, q_indices, spec.soft * step, sparse=big) if spec.soft is not None else None
         return hard, soft
     if not files:
         return None, None
@@ -260,12 +331,12 @@ def _db_query_gt(spec, db_names, q_names, db_indices, q_indices, db_traverse, q_
                               db_indices=db_indices, q_indices=q_indices)
         return hard, None
     if len(files) == 2:
-        kw = dict(db_names=db_names, q_names=q_names, db_indices=db_indices, q_indices=q_indices)
-        hard = gt_from_position_files(files[0], files[1], spec.radius, **kw)
-        soft = gt_from_position_files(files[0], files[1], spec.soft, **kw) if spec.soft is not None else None
-        return hard, soft
-    db_xy = positions_for(load_traverse_positions(files[0], db_traverse), db_indices, files[0], db_traverse)
-    q_xy = positions_for(load_traverse_positions(files[0], q_traverse), q_indices, files[0], q_traverse)
+        db_xy = positions_for_frames(files[0], db_names, db_indices, "database")
+        q_xy = positions_for_frames(files[1], q_names, q_indices, "query")
+    else:
+        db_xy = positions_for(load_traverse_positions(files[0], db_traverse), db_indices, files[0], db_traverse)
+        q_xy = positions_for(load_traverse_positions(files[0], q_traverse), q_indices, files[0], q_traverse)
+    check_radius(spec, db_xy)
     big = not fits_dense(len(db_xy), len(q_xy))
     hard = gt_from_positions(db_xy, q_xy, spec.radius, sparse=big)
     soft = gt_from_positions(db_xy, q_xy, spec.soft, sparse=big) if spec.soft is not None else None
@@ -287,6 +358,7 @@ def build_loop_gt(spec: GroundTruthSpec, names: Sequence[str], indices: Sequence
     are true.
     """
     if positions is not None:  # read by the caller from a checked spec
+        check_radius(spec, positions)
         hard, soft = _from_positions(spec, positions, positions)
     else:
         hard, soft = _loop_gt(spec, names, indices, traverse, total)
@@ -313,6 +385,7 @@ def _loop_gt(spec, names, indices, traverse, total):
         pairs = pairs.toarray() if hasattr(pairs, "toarray") else pairs
         return pairs | pairs.T, None
     xy = positions_of_frames(files[0], traverse, indices)
+    check_radius(spec, xy)
     hard = gt_from_positions(xy, xy, spec.radius)
     return hard, (gt_from_positions(xy, xy, spec.soft) if spec.soft is not None else None)
 
