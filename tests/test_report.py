@@ -138,3 +138,34 @@ def test_loops_and_localize_write_reports(scene_on_disk, tmp_path, capsys):
     assert code == 0, err
     page = (tmp_path / "loc" / "report.html").read_text()
     assert 'data-method="rshosm-seq"' in page and "not read" not in page  # the map's frames found again
+
+
+def test_a_rejected_best_match_in_the_soft_band_is_neither_and_the_counts_parse(scene_on_disk, tmp_path, capsys):
+    s = scene_on_disk("two_seasons", (64, 48), 120)
+    out = tmp_path / "soft"
+    code, _, err = _run(["compare", s["summer_day"], s["winter_night"], "--out", out, "--gt", s["gt"], "--radius", 5,
+                         "--gt-soft", 15, "--preset", "fast", "--methods", "pairwise"], capsys)
+    assert code == 0, err
+    with open(out / "pairwise" / "matches.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    soft = sum(r["right"] == "" and int(r["best_db"]) >= 0 for r in rows)
+    lost = sum(r["accepted"] == "0" and r["right"] == "0" for r in rows)
+    assert soft > 0
+    page = (out / "report.html").read_text()
+    text = page[page.index('<script type="application/json" id="counts">'):]
+    counts = json.loads(text[text.index(">") + 1:text.index("</script>")])  # as JSON.parse reads it
+    assert counts["pairwise"].get("soft", [0, 0])[1] == soft  # accepted or not, neither right nor wrong
+    assert counts["pairwise"].get("lost", [0, 0])[1] == lost
+
+
+def test_without_ground_truth_a_strip_is_query_and_best_match_by_score(scene_on_disk, tmp_path, capsys):
+    s = scene_on_disk("two_seasons", (64, 48), 120)
+    out = tmp_path / "nogt"
+    code, _, err = _run(["compare", s["summer_day"], s["winter_night"], "--out", out, "--preset", "fast",
+                         "--methods", "pairwise"], capsys)
+    assert code == 0, err
+    page = (out / "report.html").read_text()
+    assert "true match" not in page and "not read" not in page
+    assert "no ground truth" in page and "worst first</h2>" not in page
+    strip = page[page.index('<div class="strip'):]
+    assert strip[:strip.index("</div>")].count("<figure>") == 2  # query | best match

@@ -80,10 +80,13 @@ def metrics_table(table: dict, kind: str = "match", ground_truth: dict | None = 
     return "\n".join(lines)
 
 
-def outcome(accepted: bool, right: int | None, has_truth: bool | None) -> str:
-    """The outcome key of one decision: ``right`` 1, 0 or None (no ground truth, a soft-only pair, no match)."""
+def outcome(accepted: bool, right: int | None, has_truth: bool | None, soft: bool = False) -> str:
+    """The outcome key of one decision: ``right`` 1, 0 or None (no ground truth, a soft-only pair, no match);
+    ``soft``: the best match is a soft-only pair, neither right nor wrong, accepted or not."""
     if has_truth is None:
         return "accepted" if accepted else "rejected"
+    if soft:
+        return "soft"
     if accepted:
         return "right" if right == 1 else "wrong" if right == 0 else "soft" if has_truth else "none"
     if not has_truth:
@@ -316,7 +319,8 @@ def page(title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[s
                    + "".join(f'<tr><th>{_esc(k)}</th><td data-key="{_esc(k)}">{_esc(v)}</td></tr>'
                              for k, v in settings(params)) + "</table></details>")
     out.append('<div class="figs">' + "".join(_figure(f[1], f[0], None, *f[2:]) for f in figures) + "</div>")
-    out.append('<h2 id="strips">The decisions, worst first</h2>')
+    out.append('<h2 id="strips">The decisions, worst first</h2>' if len(sides) > 2 else
+               '<h2 id="strips">The decisions, by score (no ground truth: none is known right or wrong)</h2>')
     for m, c in counts.items():
         said = "; ".join(f"{_LABEL[k]} {s} of {n}" for k, (s, n) in c.items())
         out.append(f'<p class="note">{_esc(m)}: {_esc(said)}</p>')
@@ -329,18 +333,19 @@ def page(title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[s
     pics: dict[str, str] = {}
     for s in strips:
         caps = (f"{sides[0]} {s.query}: {s.query_name}", f"{sides[1]}: {s.best_name or '(none)'}",
-                f"{sides[2]}: {s.true_name or '(none)'}")
+                *([f"{sides[2]}: {s.true_name or '(none)'}"] if len(sides) > 2 else []))
         score = f"{s.score:.3f}" if np.isfinite(s.score) else "-"
         out.append(f'<div class="strip {s.outcome}" data-method="{_esc(s.method)}" data-outcome="{s.outcome}" '
                    f'data-query="{s.query}" data-best="{s.best}" id="s-{_esc(s.method)}-{s.query}">'
                    f'<b>{_esc(s.method)}</b> · {_esc(_LABEL[s.outcome])} · score '
-                   f"{score}<br>" + "".join(_figure(u, c, pics) for u, c in zip(s.images, caps, strict=True))
+                   f"{score}<br>" + "".join(_figure(u, c, pics) for u, c in zip(s.images, caps, strict=False))
                    + "</div>")
     # the pictures once, before the script that puts them in place
     out.append('<script type="application/json" id="pics">'
                + json.dumps({k: uri for uri, k in pics.items()}).replace("</", "<\\/") + "</script>")
     out.append(f"<script>{_JS}</script>")
-    out.append(f'<script type="application/json" id="counts">{_esc(json.dumps(counts))}</script></body></html>')
+    out.append('<script type="application/json" id="counts">' + json.dumps(counts).replace("</", "<\\/")
+               + "</script></body></html>")
     return "\n".join(out)
 
 
@@ -368,7 +373,7 @@ def write(out, read_query, read_db, kind: str = "match", title: str | None = Non
     params, methods = metrics.get("params", {}), metrics.get("methods", {})
     rows = [(m, table_cells(v, kind)) for m, v in methods.items()]
     figures = [("precision-recall", picture((out / "pr.png").read_bytes()))] if (out / "pr.png").is_file() else []
-    picked, counts = {}, {}
+    picked, counts, truth_known = {}, {}, False
     labels = ["database", "query"] if kind == "match" else ["earlier frame", "frame"]
     for m in methods:
         folder = out / m
@@ -382,7 +387,9 @@ def write(out, read_query, read_db, kind: str = "match", title: str | None = Non
         decisions = _rows(folder / "matches.csv")
         has_gt = bool(decisions) and "right" in decisions[0]
         keys = [outcome(r["accepted"] == "1", int(r["right"]) if has_gt and r["right"] != "" else None,
-                        (r["true_db"] != "-1") if has_gt else None) for r in decisions]
+                        (r["true_db"] != "-1") if has_gt else None,
+                        has_gt and r["right"] == "" and int(r["best_db"] or -1) >= 0) for r in decisions]
+        truth_known = truth_known or has_gt
         score = [float(r["score"]) if r["score"] not in ("", "nan") else -math.inf for r in decisions]
         chosen, counts[m] = choose(keys, score, LIMIT)
         picked[m] = [(decisions[k], keys[k], score[k]) for k in chosen]
@@ -407,9 +414,12 @@ def write(out, read_query, read_db, kind: str = "match", title: str | None = Non
         gt_text += f" (in frames kept: {'; '.join(units)})"
     notes = [f"vpr {params.get('command', '')}: {what}",
              f"ground truth: {gt_text or 'none'}; the table as metrics.json holds it",
-             f"at most {LIMIT} decisions per method are shown, chosen by outcome, worst first"]
+             f"at most {LIMIT} decisions per method are shown, chosen by outcome, worst first" if truth_known else
+             f"no ground truth: at most {LIMIT} decisions per method are shown, the accepted and the rejected by "
+             "score, highest first"]
     sides = ("query", "best match", "true match") if kind == "match" else \
         ("frame", "closes onto", "a true earlier frame")
+    sides = sides if truth_known else sides[:2]
     sessions = {m: v["sessions"] for m, v in methods.items() if v.get("sessions")}
     return _save(out, page(title or f"vpr {params.get('command', '')}: {out.name}", TABLE[kind], rows, figures,
                            strips, counts, notes, sides, sessions, params))
