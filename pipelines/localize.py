@@ -82,7 +82,7 @@ class LocalizeOnline(Online):
     def evaluate(self, result, names, indices, frames) -> dict:
         gt, loc, info = self.gt, self.loc, self.map.info
         if gt.tolerance is None and not gt.files and gt.topic is None:
-            return {}
+            return {}, None
         q_idx = [i if i >= 0 else k for k, i in enumerate(indices)]
         positions = None
         if self.q_xy is not None:
@@ -90,11 +90,11 @@ class LocalizeOnline(Online):
             positions = (self.map.positions, self.q_xy[[row[k] for k in q_idx]])
         gt_hard, gt_soft = build_gt(gt, loc.names, names, info.get("db_indices") or list(range(loc.n_db)), q_idx,
                                     info.get("db_source", "database"), self.q_src.name, positions=positions)
-        m, _ = evaluate.method_metrics(result, gt_hard, gt_soft)
+        m, curve = evaluate.method_metrics(result, gt_hard, gt_soft)
         self.ground_truth = (gt_hard, gt_soft, None)
         m.pop("seconds", None)
         m.pop("n_accepted", None)
-        return m
+        return m, curve
 
     def new_session(self) -> None:
         """A new query traverse: no evidence or path carries over, the query statistics start again."""

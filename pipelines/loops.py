@@ -177,7 +177,7 @@ class LoopsOnline(Online):
         """Metrics over the frames answered in this run, against every frame of the stream before them (those
         from before a resume too: the state's names)."""
         if not self.gt.files:
-            return {}
+            return {}, None
         N = self.det.frames
         hard, soft = build_loop_gt(self.gt, self.det.names, list(range(N)), total=N)
         hard, soft = (None if g is None else g[:, frames] for g in (hard, soft))
@@ -186,14 +186,14 @@ class LoopsOnline(Online):
         mask = groundtruth.loop_closure_mask(N, exclude=exclude, starts=starts)[:, frames]
         if not (hard & mask).any():
             no_revisit(self.gt, exclude)
-        m, _ = evaluate.method_metrics(result, hard, soft, mask=mask, loops=True)
+        m, curve = evaluate.method_metrics(result, hard, soft, mask=mask, loops=True)
         self.ground_truth = (hard, soft, mask)
         if len(starts) > 1:  # as the batch run's table, the sessions named by their number
             m["sessions"] = evaluate.session_pairs(result.best, result.accepted, hard, starts, soft, mask,
                                                    [str(k + 1) for k in range(len(starts))], frames=frames)
         m.pop("seconds", None)
         m.pop("n_accepted", None)
-        return m
+        return m, curve
 
     def save(self, path) -> None:
         self.det.save(path)

@@ -20,9 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipelines.outputs import claim_methods, merge_metrics, versions, write_matches
+from pipelines.outputs import claim_methods, merge_metrics, versions, write_method
 from pipelines.report import write_report
-from vpr import evaluate
 from vpr.interrupts import deferred
 from vpr.sources.stdin import SESSION
 from vpr.types import Decision, MatchResult
@@ -67,10 +66,10 @@ class Online:
     def finish(self):
         """The stream ended (not stopped): decide what still waits; returns decisions as :meth:`decide`."""
 
-    def evaluate(self, result: MatchResult, names: list[str], indices: list[int], frames: np.ndarray) -> dict:
-        """Metrics of the answers (``frames``: the frame numbers answered, the columns) against the ground truth
-        ({} without one)."""
-        return {}
+    def evaluate(self, result: MatchResult, names: list[str], indices: list[int], frames: np.ndarray) -> tuple:
+        """(metrics, precision-recall curve or None) of the answers (``frames``: the frame numbers answered, the
+        columns) against the ground truth (({}, None) without one); sets :attr:`ground_truth`."""
+        return {}, None
 
     def save(self, path) -> None:
         raise NotImplementedError
@@ -246,17 +245,16 @@ def _write(job: Online, out: Path, src, rows, skipped, seconds, state_out, waiti
          "latency_ms": {"with_encoding": latency_summary(lat_all), "without_encoding": latency_summary(lat_dec)}}
     if waiting:
         m["waiting"] = waiting  # in the state (--state-out), answered after --resume
-    m.update(job.evaluate(res, names, [r[1] for r in rows], frames))
-    extra = {}
-    if job.ground_truth is not None:  # as a batch run's matches.csv (GT_COLUMNS)
-        right, truth = evaluate.outcomes(best, *job.ground_truth)
-        extra = {"right": ["" if r < 0 else int(r) for r in right],
-                 "true_db": [int(t) for t in truth],
-                 "true_name": [job.name_of(t) if t >= 0 else "" for t in truth]}
-    write_matches(out / job.method, res, None, names,
-                  {**extra, "latency_ms": [round(v, 3) for v in lat_all],
-                   "latency_decide_ms": [round(v, 3) for v in lat_dec]},
-                  best_names=[job.name_of(b) if b >= 0 else "" for b in best], query_ids=frames.tolist())
+    scored, curve = job.evaluate(res, names, [r[1] for r in rows], frames)
+    m.update(scored)
+    gt_hard, gt_soft, mask = job.ground_truth or (None, None, None)
+    m = write_method(out / job.method, job.method, res, (m, curve), None, names, gt_hard, gt_soft,
+                     title=f"{job.method}: {'loop closures' if job.command == 'loops' else 'the map x the query'}",
+                     loops=job.command == "loops", mask=mask,
+                     columns={"latency_ms": [round(v, 3) for v in lat_all],
+                              "latency_decide_ms": [round(v, 3) for v in lat_dec]},
+                     best_names=[job.name_of(b) if b >= 0 else "" for b in best], query_ids=frames.tolist(),
+                     name_of=job.name_of)[job.method]
     if state_out:
         job.save(state_out)
     params = {"command": job.command, **job.params(), "skipped": skipped}

@@ -94,13 +94,15 @@ def _score_at(S, rows) -> np.ndarray:
 
 def write_method(folder: Path, m: str, res: MatchResult, evaluated: tuple, db_names, q_names, gt_hard, gt_soft,
                  verifier=None, verify: int = 0, progress: bool = False, title: str = "", loops: bool = False,
-                 mask=None) -> dict:
+                 mask=None, columns: dict | None = None, **names) -> dict:
     """Write one method's files in its folder; return its metrics entries (``m`` and ``m+verify``).
 
     ``evaluated``: the (metrics, curve) of :func:`vpr.evaluate.method_metrics` for ``res``.
     With a ``verifier``, each query's ``verify`` best candidates are re-ordered
     by geometric inliers (:meth:`vpr.verify.Verifier.verify`): the entry
-    ``m+verify`` evaluates that matrix and its decisions.
+    ``m+verify`` evaluates that matrix and its decisions. ``columns``: more
+    columns of ``matches.csv``; ``names``: ``best_names``, ``query_ids``,
+    ``name_of`` of :func:`write_matches` (an online run's).
     """
     sim_file = write_similarity(folder, res.similarity)
     entries = {}
@@ -125,7 +127,8 @@ def write_method(folder: Path, m: str, res: MatchResult, evaluated: tuple, db_na
         vm["seconds"] = round(verified.seconds, 4)
         vm["similarity_file"] = metrics["similarity_file"]
         entries[m + "+verify"] = (vm, vcurve)
-    write_matches(folder, res, db_names, q_names, extra, gt=None if gt_hard is None else (gt_hard, gt_soft, mask))
+    write_matches(folder, res, db_names, q_names, {**extra, **(columns or {})},
+                  gt=None if gt_hard is None else (gt_hard, gt_soft, mask), **names)
     plots.plot_similarity(res.similarity, folder / "similarity.png", best_db=res.best, accepted=res.accepted,
                           gt_hard=gt_hard, gt_soft=gt_soft, title=title or f"{m}: database x query",
                           value_label=methods.get_class(m).score_label if m in methods.available() else "similarity",

@@ -191,6 +191,7 @@ def test_a_resumed_run_is_scored_against_the_frames_in_its_state(laps, tmp_path,
     m = json.loads((tmp_path / "b" / "metrics.json").read_text())["methods"]["rshosm-seq"]
     right = [r for r in resumed if r["accepted"] == "1" and r["right"] != ""]
     assert m["precision_accepted"] == sum(r["right"] == "1" for r in right) / len(right)
+    assert (tmp_path / "b" / "pr.png").is_file() and 'class="matrix"' in (tmp_path / "b" / "report.html").read_text()
     assert m["precision_accepted"] > 0.9 and m["n_false"] == sum(r["right"] == "0" for r in right)
 
 

@@ -136,8 +136,13 @@ def test_loops_and_localize_write_reports(scene_on_disk, tmp_path, capsys):
     code, _, err = _run(["localize", t["summer_day"], t["winter_night"], "--out", tmp_path / "loc", "--tolerance",
                          3], capsys)
     assert code == 0, err
+    assert "ground truth --tolerance 3: 3 frames kept = 3 input frames; wrote" in err
     page = (tmp_path / "loc" / "report.html").read_text()
     assert 'data-method="rshosm-seq"' in page and "not read" not in page  # the map's frames found again
+    assert f"vpr localize: {t['summer_day']} vs {t['winter_night']}" in page
+    # an online run's page has the plot and the matrix of a batch run's
+    assert 'alt="precision-recall"' in page and 'class="matrix"' in page
+    assert (tmp_path / "loc" / "pr.png").is_file() and (tmp_path / "loc" / "rshosm-seq" / "similarity.png").is_file()
 
 
 def test_a_rejected_best_match_in_the_soft_band_is_neither_and_the_counts_parse(scene_on_disk, tmp_path, capsys):

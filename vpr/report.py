@@ -402,9 +402,12 @@ def write(out, read_query, read_db, kind: str = "match", title: str | None = Non
                     (thumbs.get(("q", r["query_name"])), thumbs.get(("db", r["db_name"])),
                      thumbs.get(("db", r.get("true_name", "")))))
               for m, rs in picked.items() for r, key, s in rs]
+    def source(v) -> str:
+        return "image paths on stdin" if v == "-" else str(v)
+
     seq = params.get("seq", "")
-    what = f"{params.get('db', '')} vs {params.get('query', '')}" if kind == "match" else \
-        ", ".join(map(str, seq if isinstance(seq, list) else [seq]))
+    what = f"{source(params.get('db') or params.get('map_or_db', ''))} vs {source(params.get('query', ''))}" \
+        if kind == "match" else ", ".join(map(source, seq if isinstance(seq, list) else [seq]))
     truth = params.get("ground_truth") or {}
     gt = {k: v for k, v in truth.items() if v not in (None, [], "") and k in ("tolerance", "gt", "radius", "gt_soft",
                                                                                "gt_topic")}
