@@ -29,6 +29,8 @@ __all__ = ["COMMANDS", "add_arguments", "run_command", "run_demo", "render_once"
 
 COMMANDS = {"demo": "render the two_seasons scene and compare the default preset's methods on it (no download)"}
 
+#: Most frames per traverse ``--frames`` may ask for: the dense limit of the methods' matrices.
+MAX_FRAMES = 20_000
 #: Fewest frames per traverse ``--frames`` may ask for.
 MIN_FRAMES = 20
 
@@ -94,6 +96,9 @@ def run_demo(out, scene=DEFAULTS["scene"], preset=DEFAULTS["preset"], encoder=No
     if n_frames is not None and (isinstance(n_frames, bool) or int(n_frames) < MIN_FRAMES):
         raise ValueError(f"--frames {n_frames}: the demo needs at least {MIN_FRAMES} frames per traverse (sequence "
                          "methods compare stretches of frames)")
+    if n_frames is not None and int(n_frames) > MAX_FRAMES:
+        raise ValueError(f"--frames {n_frames}: the demo renders at most {MAX_FRAMES} frames per traverse (its "
+                         "methods keep dense matrices); a longer drive: vpr render, then vpr compare")
     GroundTruthSpec(radius=radius, soft=soft_radius, files=("ground_truth.csv",)).check(files=False)
     s = presets.resolve(preset, encoder=encoder, encoder_conf=encoder_conf, methods=methods, method_conf=method_conf)
     encoder, methods = s["encoder"], s["methods"]

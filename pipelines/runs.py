@@ -133,6 +133,10 @@ def prepare_run(out: Path, paths, roles, opts: RunOptions, match: bool = False):
                              "outputs among the frames it reads. Choose another --out")
     if opts.cache is not None and Path(opts.cache).is_dir() and not os.access(opts.cache, os.W_OK | os.X_OK):
         warn(f"--cache {opts.cache}: not writable; encodings found there are read, new ones are not cached")
+    n_db = len(srcs[0].indices())
+    if opts.verify > n_db:
+        raise ValueError(f"--verify {opts.verify}: more candidates per query than the database's {n_db} frames to read "
+                         f"({srcs[0].path}); at most {n_db}")
     gts = []
     for k, q_src in enumerate(srcs[1:] if match else [], start=1):
         db_att, q_att = srcs[0].indices(), q_src.indices()

@@ -79,7 +79,7 @@ def test_stopped_loops_writes_its_outputs_and_state_then_resumes_exactly(laps, t
     assert [int(r["query"]) for r in rows] == list(range(40))
     m = json.loads((tmp_path / "a" / "metrics.json").read_text())["methods"]["rshosm-seq"]
     assert m["frames"] == 40 and m["stopped"] is True
-    assert not [f for f in tmp_path.rglob(".*") if not f.name.endswith(".lock")]  # no temporary file left
+    assert not list(tmp_path.rglob(".*"))  # no temporary file or lock left
     monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(paths[40:]) + "\n"))
     assert _main(["loops", "-", "--out", tmp_path / "b", "--resume", tmp_path / "state.npz"]) == 0
     rest = [json.loads(s) for s in capsys.readouterr().out.splitlines()]

@@ -328,3 +328,31 @@ def test_sigterm_of_a_local_dask_encode_leaves_no_scratch_and_no_semaphores(scen
     assert p.returncode in (0, 143, -signal.SIGTERM), err
     assert "leaked semaphore" not in err and "Traceback" not in err, err
     assert not list(tmp_path.glob("dask-scratch-space*")) and not list(cache.glob(".dask-scratch-*"))
+
+
+# ------------------------------------------------------------ huge values and what a run leaves
+@pytest.mark.parametrize("argv, expect", [
+    (["match", "{db}", "{q}", "--method", "pairwise", "--verify", "1000000000"],
+     ["--verify 1000000000: more candidates per query than the database's", "at most"]),
+    (["demo", "--frames", "100000000"], ["--frames 100000000: the demo renders at most 20000 frames"]),
+    (["render", "two_seasons", "--frames", "100000000"], ["at most 1000000 frames per traverse"]),
+])
+def test_huge_values_are_refused_in_one_line_before_anything_is_written(scene, tmp_path, capsys, argv, expect):
+    out = tmp_path / "o"
+    argv = [a.format(db=scene["db"], q=scene["q"]) for a in argv] + ["--out", out]
+    code, _, err = _run(argv, capsys)
+    _one_error_line(code, err, *expect)
+    assert not out.exists()
+
+
+def test_a_run_leaves_no_lock_behind_and_a_refused_one_no_folder(scene, tmp_path, capsys):
+    out = tmp_path / "o"
+    code, _, err = _run(["compare", scene["db"], scene["q"], "--out", out, "--methods", "pairwise,seqslam",
+                         "--tolerance", 2], capsys)
+    assert code == 0, err
+    assert not list(out.rglob("*.lock")) and (out / "metrics.json").is_file()
+    from vpr import io
+
+    with io.claimed(tmp_path / "new" / ".m.lock", "m"):  # a run refused once it holds its claim
+        assert (tmp_path / "new" / ".m.lock").is_file()
+    assert not (tmp_path / "new").exists()  # the folder the claim made, empty, goes with it

@@ -228,6 +228,22 @@ def test_the_same_recording_twice_is_refused_as_sessions(two_runs, capsys):
     assert not (root / "o").exists() and not (root / "map.npz").exists()
 
 
+def test_a_byte_identical_copy_of_a_recording_is_refused_as_a_second_session(laps, two_runs, tmp_path, capsys):
+    root, _ = two_runs
+    copy = tmp_path / "copy" / "img"
+    shutil.copytree(root / "run1" / "img", copy)
+    bag = write_bag(tmp_path / "run.bag", laps["images"][:30], gps=False, odom=False)
+    shutil.copy(bag, tmp_path / "run_copy.bag")
+    for first, second in ((root / "run1" / "img", copy), (bag, tmp_path / "run_copy.bag")):
+        code, _, err = _run(["loops", first, second, "--out", tmp_path / "o"], capsys)
+        assert code == 2 and len(err.strip().splitlines()) == 1, err
+        assert f"{first} and {second} (inputs 1 and 2) hold the same recording, byte for byte" in err
+    assert not (tmp_path / "o").exists()
+    code, _, err = _run(["loops", root / "run1" / "img", root / "run2" / "img", "--out", tmp_path / "o", *LOOSE],
+                        capsys)
+    assert code == 0, err  # two recordings of one route are two sessions
+
+
 def test_nan_in_a_traverse_positions_file_is_refused_with_its_line(two_runs, capsys):
     root, rows = two_runs
     bad = _write_positions(root / "nan.csv", rows, {"summer_day": "img"})

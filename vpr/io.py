@@ -84,29 +84,49 @@ def _write_error(exc: OSError, path: Path) -> OSError:
 @contextlib.contextmanager
 def _flocked(path, wait: bool):
     """Hold ``fcntl.flock`` on ``path`` (created if missing); yields False where the lock is held elsewhere and
-    ``wait`` is off. Advisory, released if the process dies; where ``fcntl`` does not exist (Windows), unlocked."""
+    ``wait`` is off. Advisory, released if the process dies; where ``fcntl`` does not exist (Windows), unlocked.
+
+    The lock file is removed when the lock is released (a run leaves no ``.lock`` behind), and so is its folder
+    when this lock made it and it is left empty: unlinked while held, so that a process that opened the old file
+    meanwhile sees it gone and locks a new one.
+    """
     try:
         import fcntl  # POSIX only
     except ImportError:  # pragma: no cover - Windows
         fcntl = None
     path = Path(path)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fh = open(path, "a")
-    except OSError as exc:
-        raise _write_error(exc, path) from exc
-    with fh:
+    made = not path.parent.exists()
+    while True:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fh = open(path, "a")
+        except OSError as exc:
+            raise _write_error(exc, path) from exc
         if fcntl is None:
-            yield True
+            with fh:
+                yield True
             return
         try:
             fcntl.flock(fh.fileno(), fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
         except BlockingIOError:
+            fh.close()
             yield False
             return
         try:
+            same = os.fstat(fh.fileno()).st_ino == os.stat(path).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        fh.close()  # the holder before removed it on release: lock the file there now
+    with fh:
+        try:
             yield True
         finally:
+            with contextlib.suppress(OSError):
+                path.unlink()
+                if made:
+                    path.parent.rmdir()  # only if empty
             fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
 
 

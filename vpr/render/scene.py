@@ -12,7 +12,11 @@ from .engine import Camera, ConditionAtlas, FrameRenderer, plan_traverse, textur
 from .spec import SpecContext, check_spec_size, load_spec
 from .world import LANE_CENTRE, build_world, route_polyline
 
-__all__ = ["Traverse", "Scene", "SceneRenderer", "render_scene", "gt_matrix", "loop_pairs", "apply_overrides"]
+__all__ = ["Traverse", "Scene", "SceneRenderer", "render_scene", "gt_matrix", "loop_pairs", "apply_overrides",
+           "MAX_FRAMES"]
+
+#: Most frames a traverse may be rendered with (about 28 hours at 10 frames per second): a larger count is a typo.
+MAX_FRAMES = 1_000_000
 
 
 @dataclass
@@ -91,6 +95,8 @@ def apply_overrides(spec, size=None, n_frames=None, traverses=None, seed=None) -
     if n_frames is not None:
         if isinstance(n_frames, bool) or not isinstance(n_frames, (int, np.integer)) or n_frames < 1:
             raise ValueError(f"n_frames: expected a positive integer number of frames, got {n_frames!r}")
+        if n_frames > MAX_FRAMES:
+            raise ValueError(f"n_frames: at most {MAX_FRAMES} frames per traverse, got {n_frames}")
     if seed is not None:
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise ValueError(f"seed: expected a non-negative integer, got {seed!r}")

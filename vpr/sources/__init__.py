@@ -101,6 +101,25 @@ def _identity(src: Source) -> tuple:
     return (src.path.resolve(), getattr(src, "topic", None))
 
 
+def fingerprint(path) -> str:
+    """What a recording holds, cheaply: its files' relative names and sizes, and the first and last MiB of its
+    first and last file (a byte-identical copy under another name has the same; another recording does not)."""
+    import hashlib
+
+    root = Path(path)
+    files = [root] if root.is_file() else sorted(p for p in root.rglob("*") if p.is_file())
+    h = hashlib.sha256()
+    for f in files:
+        h.update(f"{f.relative_to(root) if f != root else ''}\0{f.stat().st_size}\0".encode("utf-8",
+                                                                                         "surrogateescape"))
+    for f in {files[0], files[-1]} if files else ():
+        with open(f, "rb") as fh:
+            h.update(fh.read(1 << 20))
+            fh.seek(max(f.stat().st_size - (1 << 20), 0))
+            h.update(fh.read(1 << 20))
+    return h.hexdigest()
+
+
 def open_sources(paths, topic=None, distinct: bool = True, **options) -> list[Source]:
     """:func:`open_source` of each of ``paths``, with a ``topic`` each (:func:`per_input`), named apart.
 
@@ -117,11 +136,19 @@ def open_sources(paths, topic=None, distinct: bool = True, **options) -> list[So
     srcs = [open_source(p, topic=t, **options) for p, t in zip(paths, per_input(topic, len(paths), "--topic"),
                                                                    strict=True)]
     seen: dict[tuple, int] = {}
+    content: dict[tuple, int] = {}
     for k, src in enumerate(srcs):
         first = seen.setdefault(_identity(src), k)
+        msg = None
         if first != k:
             msg = (f"{src.path} is given twice (inputs {first + 1} and {k + 1})"
                    + (f", topic {src.topic}" if getattr(src, "topic", None) else ""))
+        elif len(srcs) > 1 and src.path.exists():
+            first = content.setdefault((fingerprint(src.path), getattr(src, "topic", None)), k)
+            if first != k:
+                msg = (f"{srcs[first].path} and {src.path} (inputs {first + 1} and {k + 1}) hold the same recording, "
+                       "byte for byte")
+        if msg is not None:
             if distinct:
                 raise ValueError(f"{msg}: the same recording would be matched against itself; give each once")
             warnings.warn(f"{msg}: it is matched against itself (every match is trivially right)", UserWarning,
