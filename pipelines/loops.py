@@ -307,6 +307,7 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
                                           for q, a, ex in zip(seqs, starts, exs, strict=True)],
                              "encode_seconds": sum(ex.seconds for ex in exs),
                              "skipped": [sk for ex in exs for sk in ex.skipped],
+                             "salvaged": {s.name: s.salvaged for s in srcs if s.salvaged} or None,
                              "ground_truth": opts.gt.describe(), "inputs": inputs},
                   "versions": versions()}
         merged = merge_metrics(out, report, f"loop closures in {', '.join(s.name for s in srcs)}")

@@ -257,7 +257,8 @@ def _write(job: Online, out: Path, src, rows, skipped, seconds, state_out, waiti
                      name_of=job.name_of)[job.method]
     if state_out:
         job.save(state_out)
-    params = {"command": job.command, **job.params(), "skipped": skipped}
+    params = {"command": job.command, **job.params(), "skipped": skipped,
+              "salvaged": {src.name: src.salvaged} if src.salvaged else None}
     params.setdefault("method_conf", {})
     # what makes two runs' results belong to one metrics.json (compared by merge_metrics)
     digest = hashlib.sha256("\n".join(names).encode("utf-8", "surrogateescape")).hexdigest()

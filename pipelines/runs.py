@@ -345,7 +345,9 @@ def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, command: st
                    "cached": {"db": db_ex.cached, "query": q_ex.cached},
                    "skipped": {"db": db_ex.skipped, "query": q_ex.skipped},
                    "ignored_files": {"db": db_ex.ignored, "query": q_ex.ignored},
-                   "ground_truth": truth, "inputs": inputs, **(extra or {})},
+                   "ground_truth": truth, "inputs": inputs,
+                   "salvaged": {r: s.salvaged for r, s in (("db", db_src), ("query", q_src)) if s.salvaged} or None,
+                   **(extra or {})},
         "versions": versions(),
     }
     merged = merge_metrics(out, report, f"{db_src.name} vs {q_src.name} ({encoder.name})")

@@ -284,6 +284,8 @@ def test_a_cut_mcap_and_an_active_ros1_bag_read_up_to_the_damage(seasons, tmp_pa
         code, _, err = _run(["loops", active, "--out", tmp_path / "o", "--exclude", 3, "--preset", "fast"], capsys)
     assert code == 0, err
     assert 5 < len((tmp_path / "o" / "rshosm-seq" / "matches.csv").read_text().splitlines()) - 1 < 20
+    salvaged = _metrics(tmp_path / "o")["params"]["salvaged"]["run.bag.active"]  # the run says what it read
+    assert salvaged["messages_read"] > 5 and salvaged["damage"]
 
 
 # ------------------------------------------------------------------ time and sampling

@@ -208,7 +208,6 @@ class BagSource(Source):
         if not self.path.exists():
             raise FileNotFoundError(f"no such bag: {self.path}")
         self._files = _storage_files(self.path)
-        self.truncated = False
         self._scan: tuple | None = None
         topics = self._topics()
         images = {t: (typ, n) for t, (typ, n) in topics.items() if typ in IMAGE_TYPES}
@@ -291,7 +290,7 @@ class BagSource(Source):
             msgs += [((k << 32) + cid, t, raw) for cid, t, raw in m]
         msgs.sort(key=lambda m: m[1])
         self._scan = (conns, msgs)
-        self.truncated = True
+        self.salvaged = {"damage": str(error), "messages_read": len(msgs)}
         warnings.warn(f"{self.path}: damaged or cut short ({error}); read its {len(msgs)} complete messages",
                       UserWarning, stacklevel=4)
         counts: dict[str, tuple[str, int]] = {}

@@ -169,6 +169,9 @@ class Source:
         iteration; reset when a new iteration starts.
     ignored : int
         Non-image files ignored in a folder (0 for other sources).
+    salvaged : dict or None
+        A damaged or cut recording read up to the damage: ``{"damage": what the readers said, "messages_read": n}``
+        (None for a whole source); ``metrics.json`` records it.
     """
 
     kind = "source"
@@ -188,6 +191,7 @@ class Source:
         self.name = self.path.resolve().name or str(self.path)
         self.skipped: list[tuple[str, str]] = []
         self.ignored = 0
+        self.salvaged: dict | None = None
         self._bits: int | None = None  # of 16-bit frames: one scale for every frame of the source
 
     def names(self) -> list[str]:
