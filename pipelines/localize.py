@@ -70,7 +70,7 @@ class LocalizeOnline(Online):
     def encode(self, image):
         return self.qenc.encode(image)
 
-    def decide(self, encoded, name: str) -> Decision:
+    def answer(self, encoded, name: str) -> Decision:
         return self.loc.update(encoded)
 
     def name_of(self, frame: int) -> str | None:

@@ -155,7 +155,7 @@ class LoopsOnline(Online):
     def encode(self, image):
         return self.det.encoder.push(image)
 
-    def decide(self, encoded, name: str):
+    def answer(self, encoded, name: str):
         d = self.det.update_encoded(encoded, name)
         return sorted([*self.det.take_late(), *([d] if d is not None else [])], key=lambda d: d.frame)
 
@@ -286,10 +286,11 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
             if opts.geometry:
                 from vpr.verify import GeometricOpinion  # pycolmap: loaded only when verifying
 
-                loop, image = r.seq.loop(), frame_reader(srcs, read)
+                image = frame_reader(srcs, read)
 
-                def opinion(decider):
-                    opinions[r.name] = GeometricOpinion(decider, image, loop.back, loop.ahead, loop.stop_ratio)
+                def opinion(rule):
+                    loop = rule.loop  # the loop rule's own settings say what a consistent path is
+                    opinions[r.name] = GeometricOpinion(rule, image, loop.back, loop.ahead, loop.stop_ratio)
                     return opinions[r.name]
             return r.loops(features, exclude=exclude, progress=opts.progress, sessions=starts, opinion=opinion)
 

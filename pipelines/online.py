@@ -47,7 +47,7 @@ class Online:
     def encode(self, image):
         raise NotImplementedError
 
-    def decide(self, encoded, name: str) -> Decision | list[Decision] | None:
+    def answer(self, encoded, name: str) -> Decision | list[Decision] | None:
         """The frame's decision; or None while it waits (decided later, with another frame's, as a list)."""
         raise NotImplementedError
 
@@ -64,7 +64,7 @@ class Online:
         """A line ``#session``: the next frame starts a new run (returns decisions of frames that waited)."""
 
     def finish(self):
-        """The stream ended (not stopped): decide what still waits; returns decisions as :meth:`decide`."""
+        """The stream ended (not stopped): decide what still waits; returns decisions as :meth:`answer`."""
 
     def evaluate(self, result: MatchResult, names: list[str], indices: list[int], frames: np.ndarray) -> tuple:
         """(metrics, precision-recall curve or None) of the answers (``frames``: the frame numbers answered, the
@@ -172,7 +172,7 @@ def _run(job: Online, src, out: Path, stdout, state_out, claim: contextlib.ExitS
                     t0 = time.perf_counter()
                     x = job.encode(f.image)
                     t1 = time.perf_counter()
-                    got = job.decide(x, f.name)
+                    got = job.answer(x, f.name)
                     t2 = time.perf_counter()
                     waiting.append((f.name, f.index, (t2 - t0) * 1e3, (t2 - t1) * 1e3))
                     answered(got)

@@ -76,8 +76,8 @@ def test_a_tolerance_at_a_step_counts_frames_kept_and_is_said_in_both_units(alig
 @pytest.mark.parametrize("tolerance, said", [
     (0, "--tolerance 0 accepts only the exact frame, where frames kept are 10 input frames apart; --tolerance 1 "
         "(a neighbour kept) was probably meant"),
-    (10, "--tolerance 10 counts frames kept and spans more than a tenth of the route (20 frames kept, 1 kept = 10 "
-         "input frames): --tolerance 1 (10 input frames) was probably meant"),
+    (10, "--tolerance 10 counts frames kept and spans more than a tenth of the route (20 frames kept, 1 frame kept = "
+         "10 input frames): --tolerance 1 (10 input frames) was probably meant"),
 ])
 def test_a_tolerance_that_probably_means_another_unit_is_said_in_one_line(aligned, tmp_path, capsys, tolerance,
                                                                            said):

@@ -11,19 +11,22 @@
   kind of input touches only its own module.
 * :class:`Column`: one frame's evidence over its candidate frames.
 * :class:`Decision`: what a decision says of a frame (scalars) or of every
-  frame of a traverse (arrays).
+  frame of a traverse (arrays, :meth:`Decision.stack`).
+* :class:`Decider`: the contract of everything that decides a stream one
+  :class:`Column` at a time (a map's localisation, a loop rule, a second opinion).
 * :class:`MatchResult`: a database x query similarity (dense, or top-K
   sparse), the best database frame per query, its score and the decision.
 """
 from __future__ import annotations
 
-from collections.abc import Callable
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["EncodedTraverse", "ImageInput", "Column", "Decision", "MatchResult", "ENCODER_INPUTS"]
+__all__ = ["EncodedTraverse", "ImageInput", "Column", "Decision", "Decider", "MatchResult", "ENCODER_INPUTS"]
 
 #: Inputs that come from the encoder (every other input is an :class:`ImageInput` of a method).
 ENCODER_INPUTS = {"sdr": "SDRs", "desc": "dense descriptors"}
@@ -161,6 +164,67 @@ class Decision:
     margin: float | np.ndarray = 0.0
     frame: int | np.ndarray = -1
     column: Column | None = None
+
+    @classmethod
+    def stack(cls, decisions: Iterable[Decision]) -> Decision:
+        """The decisions of single frames as one :class:`Decision` of arrays (in the order given)."""
+        ds = list(decisions)
+        return cls(np.array([d.best for d in ds], np.int64), np.array([d.score for d in ds], np.float64),
+                   np.array([d.accepted for d in ds], bool), np.array([d.margin for d in ds], np.float64),
+                   np.array([d.frame for d in ds], np.int64))
+
+
+class Decider(ABC):
+    """Decides a stream one frame at a time, from the frame's :class:`Column`, with the state the stream carries.
+
+    Every decider (a localisation against a map, a loop rule, a second opinion
+    around one) implements the two hooks :meth:`_decide` and
+    :meth:`new_session` and its state (:meth:`state`, :meth:`load_state`);
+    :meth:`decide` checks the column and counts the frames. Deciders that read
+    the frames' SDRs (a loop rule's stop check) override :meth:`add_sdr`.
+
+    Attributes
+    ----------
+    frames : int
+        Frames decided so far.
+    starts : ndarray of int
+        The first frame of each session (``[0]``: one), as the candidates are numbered.
+    """
+
+    frames: int = 0
+    starts: np.ndarray
+
+    @property
+    @abstractmethod
+    def accept_score(self) -> float:
+        """The score at which this decider accepts (a second opinion ranks its own accepts with it)."""
+
+    def decide(self, column: Column) -> Decision:
+        """The decision of the frame whose evidence is ``column``."""
+        if not isinstance(column, Column):
+            raise TypeError(f"{type(self).__name__}.decide takes a Column, got {type(column).__name__}")
+        d = self._decide(column)
+        self.frames += 1
+        return d
+
+    @abstractmethod
+    def _decide(self, column: Column) -> Decision:
+        """The decision of one frame (``self.frames`` frames decided before it)."""
+
+    @abstractmethod
+    def new_session(self) -> None:
+        """The next frame starts a new session: nothing of the last frames' path carries over."""
+
+    def add_sdr(self, bits) -> None:  # noqa: B027 - a hook most deciders do not need
+        """The next frame's active bits (sorted), given before its column, for deciders that read them."""
+
+    @abstractmethod
+    def state(self) -> tuple[dict, dict]:
+        """(header, arrays) after the frames decided so far; :meth:`load_state` continues from them."""
+
+    @abstractmethod
+    def load_state(self, header: dict, arrays: dict) -> Decider:
+        """Continue from a :meth:`state`; returns self."""
 
 
 @dataclass

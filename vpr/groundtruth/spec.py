@@ -232,11 +232,12 @@ def check_tolerance(spec: GroundTruthSpec, db_indices, q_indices) -> bool:
         warnings.warn(f"--tolerance 0 accepts only the exact frame, where frames kept are {step:g} input frames "
                       "apart; --tolerance 1 (a neighbour kept) was probably meant", UserWarning, stacklevel=3)
         return True
-    if n and tol > n / 10:
+    if n and tol > max(n / 10, 1):
         meant = f"--tolerance {max(round(tol / step), 1)} ({tol} input frames)" if step > 1 else \
             f"--tolerance {max(n // 10, 1)} or less"
         warnings.warn(f"--tolerance {tol} counts frames kept and spans more than a tenth of the route ({n} frames "
-                      f"kept, 1 kept = {step:g} input frames): {meant} was probably meant", UserWarning, stacklevel=3)
+                      f"kept, {tolerance_text('', 1, step)[4:]}): {meant} was probably meant", UserWarning,
+                      stacklevel=3)
         return True
     return False
 

@@ -101,7 +101,7 @@ class Method:
         it, not by the block's)."""
         return None
 
-    def decide(self, S, best: np.ndarray, score: np.ndarray) -> Decision:
+    def decisions(self, S, best: np.ndarray, score: np.ndarray) -> Decision:
         """The decision over a traverse's similarity ``S`` whose best matches are ``best`` (scoring ``score``).
 
         The one decision hook: by default a best match with a finite score is
@@ -114,7 +114,7 @@ class Method:
         return Decision(best, score, best >= 0)
 
     def _match(self, db: EncodedTraverse, query: EncodedTraverse, progress: bool):
-        """(similarity, Decision or None: :meth:`decide` on the best matches).
+        """(similarity, Decision or None: :meth:`decisions` on the best matches).
 
         Methods that learn the database implement :meth:`_fit` and
         :meth:`_match_fitted` instead (:meth:`match` is ``fit``, then the fitted match).
@@ -136,7 +136,7 @@ class Method:
 
     def _result(self, S, d: Decision | None, seconds: float) -> MatchResult:
         if d is None:
-            d = self.decide(S, *best_matches(S))
+            d = self.decisions(S, *best_matches(S))
         best = np.asarray(d.best, np.int64)
         score = np.where(best >= 0, np.asarray(d.score, np.float64), -np.inf)
         return MatchResult(self.name, S, best, score, np.asarray(d.accepted, bool) & (best >= 0), seconds,
@@ -257,7 +257,7 @@ class Fitted:
         S = sp.hstack([sp.csr_matrix(p) for p in parts]).tocsr() if sp.issparse(parts[0]) else np.hstack(parts)
         best = np.concatenate([b[1] for b in blocks]).astype(np.int64)
         z = np.concatenate([b[2] for b in blocks]).astype(np.float64)
-        return m._result(S, m.decide(S, best, z), self.seconds + seconds)
+        return m._result(S, m.decisions(S, best, z), self.seconds + seconds)
 
     def __repr__(self) -> str:
         return f"Fitted({self.method!r}, db={len(self.db)} frames)"

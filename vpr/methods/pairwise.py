@@ -46,8 +46,8 @@ class Pairwise(Method):
     def warm_up(self) -> None:
         similarity.mean_abs_diff(np.zeros((2, 2), np.float32))
 
-    def decide(self, S, best, score):
-        d = super().decide(S, best, score)
+    def decisions(self, S, best, score):
+        d = super().decisions(S, best, score)
         if self._attr == "sdr":
             d.accepted &= d.score > 0  # an SDR overlap of zero is no evidence
         return d

@@ -49,8 +49,8 @@ class Rshosm(Method):
     def warm_up(self) -> None:
         warm_up_memory()
 
-    def decide(self, S, best, score):
-        d = super().decide(S, best, score)
+    def decisions(self, S, best, score):
+        d = super().decisions(S, best, score)
         d.accepted &= d.score > 0  # an overlap of zero is no evidence
         return d
 

@@ -19,6 +19,7 @@ from vpr.shosm import (
     SequenceMemory,
     accept_path,
     loop_evidence,
+    loop_rule,
     query_evidence,
 )
 from vpr.similarity import top_k_or_dense
@@ -69,6 +70,7 @@ class RshosmSeq(Method):
         super().__init__(**conf)
         #: the conf, built and checked once: every value is refused here, before any work
         self.seq = RshosmSeqConf.build(self.conf, self.name)
+        loop_rule(self.seq.loop_rule)  # a rule not registered is refused now
 
     def loop_detector(self, encoder=None, exclude: int = LOOP_EXCLUDE) -> LoopDetector:
         """Loop closure one frame at a time with this conf (``vpr loops -``): the answers of :meth:`loops`."""
@@ -114,9 +116,9 @@ class RshosmSeq(Method):
         top_k = top_k_or_dense(n_db, n_q, seq.top_k, DENSE_EVIDENCE_PAIRS) if seq.top_k else None
         r = query_evidence(mem, q_sdr, db_codes, seq.evidence, direction=seq.direction, top_k=top_k,
                            beam=seq.beam, progress=progress)
-        return r.similarity, self.decide(r.similarity, r.best, r.z)
+        return r.similarity, self.decisions(r.similarity, r.best, r.z)
 
-    def decide(self, S, best, score):
+    def decisions(self, S, best, score):
         """The decision of a robot localising against the map (vpr localize): a path score, query by query."""
         d = accept_path(S, self.seq.path())
         best = np.asarray(best, np.int64)

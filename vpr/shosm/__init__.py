@@ -7,7 +7,8 @@
   learned memory, one frame (``step``) or a traverse (``run``;
   :func:`query_evidence`).
 - Deciders, ``decide(column) -> Decision``: :class:`PathDecider` against a
-  map, :class:`LoopDecider` within one stream; :func:`decide_all` over a traverse.
+  map, a loop rule (:class:`LoopRule`, by name in :data:`LOOP_RULES`; :class:`LoopDecider` by default) within
+  one stream; :func:`decide_all` over a traverse.
 - :class:`Localizer` (engine and path decider over a learned map, saved as a
   :class:`Map`), :class:`LoopStream` (a stream learned and decided frame by
   frame; :func:`loop_evidence`, :class:`LoopDetector`).
@@ -29,7 +30,17 @@ from .conf import (
     memory_params,
 )
 from .connections import Connections, MemoryView
-from .decide import LoopDecider, PathDecider, accept_loops, accept_path, decide_all, stationary_closures
+from .decide import (
+    LOOP_RULES,
+    LoopDecider,
+    LoopRule,
+    PathDecider,
+    accept_loops,
+    accept_path,
+    decide_all,
+    loop_rule,
+    stationary_closures,
+)
 from .detector import LoopDetector
 from .evidence import Engine, Evidence, dense_evidence, query_evidence, sparse_evidence
 from .graph import Graph
@@ -43,5 +54,6 @@ __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pa
            "LEARN_THRESHOLD", "LOOP_EXCLUDE", "DENSE_EVIDENCE_PAIRS", "EvidenceConf", "BeamConf", "LoopConf",
            "PathConf", "RshosmSeqConf", "DECISION_KEYS", "memory_params", "Graph", "Engine", "Evidence",
            "query_evidence", "dense_evidence", "sparse_evidence", "LoopDecider", "PathDecider", "decide_all",
+           "LoopRule", "LOOP_RULES", "loop_rule",
            "accept_loops", "accept_path", "stationary_closures", "Localizer", "Map", "LoopStream", "loop_evidence",
            "LOOP_UNCAPPED_MAX", "LOOP_DENSE_MAX", "LoopDetector"]

@@ -207,6 +207,11 @@ class PathConf(_Conf):
     def __post_init__(self):
         _check_path(self)
 
+    @property
+    def rule(self) -> tuple:
+        """(drift, min_score, back, ahead, island) as the decision kernel reads them."""
+        return float(self.drift), float(self.min_score), int(self.back), int(self.ahead), float(self.island)
+
 
 @dataclass(frozen=True)
 class LoopConf(PathConf):
@@ -247,6 +252,11 @@ class LoopConf(PathConf):
         if not 0.0 <= float(self.stop_ratio) < 1.0:
             raise ValueError(f"stop_ratio must be in [0, 1) (0: stops are not checked), got {self.stop_ratio}")
 
+    @property
+    def rule(self) -> tuple:
+        """(drift, min_score, back, ahead, island, stop_ratio) as the decision kernel reads them."""
+        return (*super().rule, float(self.stop_ratio))
+
 
 #: The decision's keys (:class:`LoopConf`'s, which extends :class:`PathConf` by ``stop_ratio``). In
 #: :class:`RshosmSeqConf` a decision key left None takes the default of the setting that decides:
@@ -256,8 +266,9 @@ DECISION_KEYS = LoopConf.keys()
 #: rSHOSM-seq's own keys besides the memory, the evidence, the beam and the decision: ``direction`` of the
 #: batch evidence (``"both"``, or the causal ``"forward"``), ``top_k`` (frames kept per query: database frames
 #: above :data:`DENSE_EVIDENCE_PAIRS`, earlier frames reported per frame in loop closure, the localizer's
-#: candidates; None: all), ``exact`` (the localizer's dense column instead of the beam).
-_OWN = MappingProxyType({"direction": "both", "top_k": TOP_K, "exact": False})
+#: candidates; None: all), ``exact`` (the localizer's dense column instead of the beam), ``loop_rule`` (the
+#: loop closure decider, by its name in :data:`vpr.shosm.LOOP_RULES`).
+_OWN = MappingProxyType({"direction": "both", "top_k": TOP_K, "exact": False, "loop_rule": "path"})
 _DIRECTIONS = ("both", "forward")
 
 
@@ -282,7 +293,7 @@ class RshosmSeqConf:
     beam : BeamConf
     decision : mapping
         The decision keys (:data:`DECISION_KEYS`) given; None: the setting's default.
-    direction, top_k, exact
+    direction, top_k, exact, loop_rule
         See :data:`_OWN`.
     """
 
@@ -293,6 +304,7 @@ class RshosmSeqConf:
     direction: str
     top_k: int | None
     exact: bool
+    loop_rule: str = "path"
 
     #: Keys that also take None ("none" on the command line).
     NULLABLE = frozenset({"seed", "stay", "skip", "top_k", "max_beam", "max_enter", *DECISION_KEYS})
@@ -326,10 +338,12 @@ class RshosmSeqConf:
             if flat["direction"] not in _DIRECTIONS:
                 raise ValueError(f"direction must be one of {_DIRECTIONS}, got {flat['direction']!r}")
             top_k = check_top_k(flat["top_k"])
+            if not (isinstance(flat["loop_rule"], str) and flat["loop_rule"]):
+                raise ValueError(f"loop_rule must name a loop rule, got {flat['loop_rule']!r}")
         except ValueError as e:
             raise ValueError(f"{what}: {e}") from None
         return cls(MappingProxyType(memory), evidence, beam, MappingProxyType(decision), flat["direction"],
-                   None if top_k is None else int(top_k), bool(flat["exact"]))
+                   None if top_k is None else int(top_k), bool(flat["exact"]), flat["loop_rule"])
 
     @classmethod
     def of(cls, *confs, **flat) -> RshosmSeqConf:
@@ -361,7 +375,7 @@ class RshosmSeqConf:
     def flat(self) -> dict:
         """The flat keys and values (``--method-conf rshosm-seq.KEY=VALUE``; saved in map and detector files)."""
         return {**self.memory, **self.evidence.as_dict(), **self.beam.as_dict(), "direction": self.direction,
-                "top_k": self.top_k, "exact": self.exact, **self.decision}
+                "top_k": self.top_k, "exact": self.exact, "loop_rule": self.loop_rule, **self.decision}
 
     def replace(self, **flat) -> RshosmSeqConf:
         """This conf with some flat keys changed (checked as :meth:`build`)."""

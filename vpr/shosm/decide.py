@@ -1,9 +1,12 @@
-"""Deciders: ``decide(column) -> Decision``, one frame at a time, with the state a stream carries.
+"""Deciders (:class:`vpr.types.Decider`): ``decide(column) -> Decision``, one frame at a time, with the state a
+stream carries.
 
-:class:`LoopDecider` (a closure onto an earlier frame of the stream, or a new
-place; :class:`vpr.shosm.LoopConf`) and :class:`PathDecider` (a place of a
-map; :class:`vpr.shosm.PathConf`) share the path score of
-:mod:`vpr.shosm.kernels.decide`. :func:`decide_all` runs a decider over the
+:class:`PathDecider` (a place of a map; :class:`vpr.shosm.PathConf`) and the
+loop rules (:class:`LoopRule`: a closure onto an earlier frame of the stream,
+or a new place), registered by name in :data:`LOOP_RULES`; the default,
+:class:`LoopDecider` (:class:`vpr.shosm.LoopConf`), shares the path score of
+:mod:`vpr.shosm.kernels.decide` and holds a :class:`PathDecider` for a later
+session against the earlier ones. :func:`decide_all` runs a decider over the
 columns of a whole traverse; :func:`accept_loops` and :func:`accept_path` are
 it on a stored matrix. :func:`stationary_closures` tells a stop from a loop.
 """
@@ -15,37 +18,109 @@ import scipy.sparse as sp
 from vpr import sdr as _sdr
 from vpr.checks import check_exclude
 from vpr.similarity import n_candidates
-from vpr.types import Column, Decision
+from vpr.types import Column, Decider, Decision
 
 from .conf import LoopConf, PathConf
 from .kernels import decide as KD
+from .state import joint_state, part_state
 
-__all__ = ["LoopDecider", "PathDecider", "decide_all", "accept_loops", "accept_path", "stationary_closures"]
+__all__ = ["LoopRule", "LoopDecider", "PathDecider", "LOOP_RULES", "loop_rule", "decide_all", "accept_loops",
+           "accept_path", "stationary_closures"]
 
 
-class LoopDecider:
-    """The loop decision of one stream, frame by frame (:class:`vpr.shosm.LoopConf`).
+class PathDecider(Decider):
+    """The localisation decision against a map, query frame by query frame (:class:`vpr.shosm.PathConf`).
 
-    Columns come in order ``0, 1, 2, ...`` (``column.frame``). The stop check
-    reads the stream's SDRs, given frame by frame with :meth:`add_sdr` (or all
-    at once with ``sdr``). :meth:`new_session` starts a new run of the robot:
-    the path restarts, and never moves on across the boundary. A frame of a
-    later session is also decided against the earlier sessions as ``vpr
-    localize`` decides against a map (``path``, :class:`PathConf`): a robot's
-    second run over its first is localisation; either decision accepts.
+    ``starts``: the first map frame of each session of the map (a path does
+    not move on across one). The state is the path's score, head and start.
     """
 
-    def __init__(self, conf: LoopConf | None = None, capacity: int = 1024, sdr=None, path: PathConf | None = None):
-        self.conf = conf or LoopConf()
-        self.path = path or PathConf()
-        self.st_map = KD.path_state()  # the path against the earlier sessions
-        self._ar = np.arange(capacity, dtype=np.int64)
+    def __init__(self, conf: PathConf | None = None, starts=None):
+        self.conf = conf or PathConf()
+        self._rule = self.conf.rule
+        self.st = KD.path_state()
+        self._place = np.zeros(0, np.int64)
+        self.starts = np.zeros(1, np.int64) if starts is None else np.asarray(starts, np.int64)
         self.frames = 0
+
+    @property
+    def accept_score(self) -> float:
+        return float(self.conf.min_score)
+
+    def _decide(self, column: Column) -> Decision:
+        n = int(column.n)
+        if self._place.size < n:
+            self._place = np.arange(max(n, 2 * self._place.size), dtype=np.int64)
+        best, score, ok, margin = KD.locate_frame(
+            (column.rows, column.z.astype(np.float64), n, float(column.fill)), self._rule, self._place, self.st,
+            self.starts)
+        return Decision(int(best), float(score), bool(ok), float(margin), column.frame, column)
+
+    def new_session(self) -> None:
+        """A new query traverse: no path yet."""
+        self.st[:] = KD.path_state()
+
+    def state(self) -> tuple[dict, dict]:
+        return {"frames": self.frames}, {"path": self.st.copy()}
+
+    def load_state(self, header: dict, arrays: dict) -> PathDecider:
+        self.st[:] = np.asarray(arrays["path"], KD.PATH_STATE)
+        self.frames = int(header.get("frames", 0))
+        return self
+
+
+class LoopRule(Decider):
+    """The contract of a loop-closure rule: decides frame ``column.frame`` of one stream (columns in order ``0, 1,
+    2, ...``) as a closure onto an earlier frame or a new place. Registered by name in :data:`LOOP_RULES`, it is
+    chosen with ``rshosm-seq.loop_rule`` and built as ``Rule(loop, path, sdr)``.
+
+    Parameters
+    ----------
+    loop : LoopConf
+        The decision within the stream (``accept_score``: its ``min_score``).
+    path : PathConf, optional
+        The decision of a later session's frame against the earlier sessions, as against a map.
+    sdr : SDR batch, optional
+        The stream's SDRs at once (else frame by frame with :meth:`add_sdr`), for rules that read them.
+    """
+
+    def __init__(self, loop: LoopConf | None = None, path: PathConf | None = None, sdr=None):
+        self.loop = loop or LoopConf()
+        self.path = path or PathConf()
+        self.starts = np.zeros(1, np.int64)
+        self.frames = 0
+
+    @property
+    def accept_score(self) -> float:
+        return float(self.loop.min_score)
+
+    def decide(self, column: Column) -> Decision:
+        if column.frame != self.frames:
+            raise ValueError(f"frames must be decided in order: expected frame {self.frames}, got {column.frame}")
+        return super().decide(column)
+
+
+class LoopDecider(LoopRule):
+    """The path rule of one stream, frame by frame (:class:`vpr.shosm.LoopConf`; ``LOOP_RULES["path"]``).
+
+    The stop check reads the stream's SDRs, given frame by frame with
+    :meth:`add_sdr` (or all at once with ``sdr``). :meth:`new_session` starts
+    a new run of the robot: the path restarts, and never moves on across the
+    boundary. A frame of a later session is also decided against the earlier
+    sessions by a :class:`PathDecider` (``path``), as ``vpr localize``
+    decides against a map: a robot's second run over its first is
+    localisation; either decision accepts.
+    """
+
+    def __init__(self, loop: LoopConf | None = None, path: PathConf | None = None, sdr=None,
+                 capacity: int = 1024):
+        super().__init__(loop, path, sdr)
+        self.map_rule = PathDecider(self.path)  # against the earlier sessions
         self.place = np.arange(capacity, dtype=np.int64)
         self.path_b = np.full(capacity, -1, np.int64)
         self.st = KD.path_state()
-        self.starts = np.zeros(1, np.int64)
-        self._stops = float(self.conf.stop_ratio) > 0
+        self._stops = float(self.loop.stop_ratio) > 0
+        self._rule = self.loop.rule if self._stops else (*self.loop.rule[:-1], 0.0)
         x = None if sdr is None else _sdr.check_batch(sdr, name="sdr")
         self._set_sdr(np.zeros(1, np.int64) if x is None else x.indptr, np.zeros(0, np.int64) if x is None else
                       x.indices)
@@ -55,7 +130,8 @@ class LoopDecider:
         if self.frames > self.starts[-1]:
             self.starts = np.r_[self.starts, self.frames]
         self.st[:] = KD.path_state(self.frames)
-        self.st_map[:] = KD.path_state()
+        self.map_rule.starts = self.starts[:-1]
+        self.map_rule.new_session()
 
     def add_sdr(self, bits) -> None:
         """Append the next frame's active bits (sorted) for the stop check (amortised O(bits))."""
@@ -75,107 +151,68 @@ class LoopDecider:
         self._ptr, self._ind = np.array(ptr, np.int64), np.array(ind, np.int64)
         self._n_sdr = self._ptr.size - 1
 
-    def decide(self, column: Column) -> Decision:
-        """The decision of frame ``column.frame``: a closure onto its best earlier frame, or a new place."""
+    def _decide(self, column: Column) -> Decision:
         j = column.frame
-        if j != self.frames:
-            raise ValueError(f"frames must be decided in order: expected frame {self.frames}, got {j}")
         if j + 1 > self.place.size:
             size = max(j + 1, 2 * self.place.size)
             self.place = np.concatenate([self.place, np.arange(self.place.size, size, dtype=np.int64)])
             self.path_b = np.concatenate([self.path_b, np.full(size - self.path_b.size, -1, np.int64)])
-        c = self.conf
-        end = int(self._ptr[self._n_sdr])
         vals = column.z.astype(np.float64)
+        end = int(self._ptr[self._n_sdr])
         best, score, ok, margin, _ = KD.decide_frame(
-            j, column.rows, vals, int(column.n), float(column.fill), float(c.drift), float(c.min_score), int(c.back),
-            int(c.ahead), float(c.island), float(c.stop_ratio) if self._stops else 0.0, self._ptr[: self._n_sdr + 1],
-            self._ind[:end], self.place, self.path_b, self.st, self.starts)
+            j, (column.rows, vals, int(column.n), float(column.fill)), self._rule,
+            (self._ptr[: self._n_sdr + 1], self._ind[:end], self.place, self.path_b, self.st, self.starts))
         start = int(self.starts[-1])
         if start > 0 and not ok:  # a later session: its frame against the earlier ones, as against a map
             keep = column.rows < start
-            p = self.path
-            b, s, accepted, m = KD.locate_frame(column.rows[keep], vals[keep], start, float(column.fill),
-                                                float(p.drift), float(p.min_score), int(p.back), int(p.ahead),
-                                                float(p.island), self._arange(start), self.st_map, self.starts[:-1])
-            if accepted:
-                best, score, ok, margin = b, s, True, m
+            d = self.map_rule.decide(Column(column.rows[keep], vals[keep], float(column.fill), start, j))
+            if d.accepted:
+                best, score, ok, margin = d.best, d.score, True, d.margin
                 if self.place[j] == j:
-                    self.place[j] = self.place[b]
-        self.frames += 1
+                    self.place[j] = self.place[d.best]
         return Decision(int(best), float(score), bool(ok), float(margin), j, column)
 
-    def _arange(self, n: int) -> np.ndarray:
-        if self._ar.size < n:
-            self._ar = np.arange(max(n, 2 * self._ar.size), dtype=np.int64)
-        return self._ar
-
     def state(self) -> tuple[dict, dict]:
-        """(header, arrays) after the frames decided so far; :meth:`load_state` continues from them."""
         n, end = self.frames, int(self._ptr[self._n_sdr])
-        return {"frames": n}, {"place": self.place[:n].copy(), "path_b": self.path_b[:n].copy(),
-                               "st": self.st.copy(), "st_map": self.st_map.copy(),
-                               "sdr_ptr": self._ptr[: self._n_sdr + 1].copy(),
-                               "sdr_ind": self._ind[:end].copy(), "starts": self.starts.copy()}
+        header, arrays = joint_state(map=self.map_rule)
+        return {**header, "frames": n}, {**arrays, "place": self.place[:n].copy(), "path_b": self.path_b[:n].copy(),
+                                         "st": self.st.copy(), "sdr_ptr": self._ptr[: self._n_sdr + 1].copy(),
+                                         "sdr_ind": self._ind[:end].copy(), "starts": self.starts.copy()}
 
     def load_state(self, header: dict, arrays: dict) -> LoopDecider:
         n = int(header["frames"])
         self.place = np.arange(max(n, 1024), dtype=np.int64)
         self.path_b = np.full(self.place.size, -1, np.int64)
         self.place[:n], self.path_b[:n] = arrays["place"], arrays["path_b"]
-        self.st[:] = arrays["st"]
-        self.st_map[:] = arrays["st_map"]
+        self.st[:] = np.asarray(arrays["st"], KD.PATH_STATE)
         self._set_sdr(arrays["sdr_ptr"], arrays["sdr_ind"])
         self.starts = np.asarray(arrays["starts"], np.int64)
+        self.map_rule.load_state(*part_state(header, arrays, "map"))
+        self.map_rule.starts = self.starts[:-1]
         self.frames = n
         return self
 
 
-class PathDecider:
-    """The localisation decision against a map, query frame by query frame (:class:`vpr.shosm.PathConf`).
-
-    ``starts``: the first map frame of each session of the map (a path does
-    not move on across one). The state is the path score and its head.
-    """
-
-    def __init__(self, conf: PathConf | None = None, starts=None):
-        self.conf = conf or PathConf()
-        self.st = KD.path_state()
-        self._place = np.zeros(0, np.int64)
-        self.starts = np.zeros(1, np.int64) if starts is None else np.asarray(starts, np.int64)
-
-    def decide(self, column: Column) -> Decision:
-        n = int(column.n)
-        if self._place.size < n:
-            self._place = np.arange(n, dtype=np.int64)
-        c = self.conf
-        best, score, ok, margin = KD.locate_frame(
-            column.rows, column.z.astype(np.float64), n, float(column.fill), float(c.drift), float(c.min_score),
-            int(c.back), int(c.ahead), float(c.island), self._place, self.st, self.starts)
-        return Decision(int(best), float(score), bool(ok), float(margin), column.frame, column)
-
-    def new_session(self) -> None:
-        """A new query traverse: no path yet."""
-        self.st[:] = KD.path_state()
-
-    def state(self) -> tuple[dict, dict]:
-        return {}, {"path": self.st.copy()}
-
-    def load_state(self, header: dict, arrays: dict) -> PathDecider:
-        self.st[:] = np.asarray(arrays["path"], np.float64)
-        return self
+#: The loop rules by name (``rshosm-seq.loop_rule``): a new rule is a :class:`LoopRule` and one line here.
+LOOP_RULES: dict[str, type[LoopRule]] = {"path": LoopDecider}
 
 
-def decide_all(decider, columns) -> Decision:
+def loop_rule(name: str) -> type[LoopRule]:
+    """The loop rule registered as ``name`` in :data:`LOOP_RULES` (ValueError naming the known ones)."""
+    try:
+        return LOOP_RULES[name]
+    except KeyError:
+        raise ValueError(f"rshosm-seq: loop_rule {name!r} is not a loop rule (known: "
+                         f"{', '.join(sorted(LOOP_RULES))})") from None
+
+
+def decide_all(decider: Decider, columns) -> Decision:
     """Every column of a traverse decided in order by ``decider``: a :class:`~vpr.types.Decision` of arrays."""
-    out = [decider.decide(c) for c in columns]
-    return Decision(np.array([d.best for d in out], np.int64), np.array([d.score for d in out], np.float64),
-                    np.array([d.accepted for d in out], bool), np.array([d.margin for d in out], np.float64),
-                    np.arange(len(out), dtype=np.int64))
+    return Decision.stack(decider.decide(c) for c in columns)
 
 
 def accept_loops(evidence, conf: LoopConf | None = None, sdr=None, exclude: int | None = None,
-                 path: PathConf | None = None) -> Decision:
+                 path: PathConf | None = None, rule: str = "path") -> Decision:
     """The loop decision of every frame of a stored loop matrix (:class:`LoopDecider`).
 
     For frame ``j`` the best earlier frame stands out from every other place by
@@ -199,6 +236,7 @@ def accept_loops(evidence, conf: LoopConf | None = None, sdr=None, exclude: int 
     sdr : SDR batch (T rows), optional: without it stops are not checked.
     exclude : int, read from ``evidence`` when it is an Evidence (required otherwise).
     path : PathConf, the decision of a later session's frames against the earlier ones (default: its defaults).
+    rule : the loop rule (:data:`LOOP_RULES`).
     """
     conf = conf or LoopConf()
     fill, starts = None, (0,)
@@ -215,8 +253,7 @@ def accept_loops(evidence, conf: LoopConf | None = None, sdr=None, exclude: int 
     x = None if sdr is None else _sdr.check_batch(sdr, name="sdr")
     if x is not None and x.shape[0] != T:
         raise ValueError(f"sdr has {x.shape[0]} rows for a stream of {T} frames")
-    decider = LoopDecider(conf if x is not None else LoopConf(**{**conf.as_dict(), "stop_ratio": 0.0}), T, x,
-                          path)
+    decider = loop_rule(rule)(conf if x is not None else LoopConf(**{**conf.as_dict(), "stop_ratio": 0.0}), path, x)
     C = sp.csc_matrix(S) if sp.issparse(S) else None
     if C is not None:
         C.sort_indices()

@@ -31,7 +31,7 @@ from .state import read_file, write_file
 __all__ = ["LoopDetector"]
 
 _FORMAT = "vpr.LoopDetector"
-_FORMAT_VERSION = 2
+_FORMAT_VERSION = 3
 
 
 def _is_sdr(x) -> bool:

@@ -4,7 +4,7 @@
 ``rshosm`` does that). :class:`LoopStream` learns each frame, attaches it to a
 growing :class:`~vpr.shosm.graph.Graph`, scores the frames far enough back
 with the :class:`~vpr.shosm.evidence.Engine` and decides with a
-:class:`~vpr.shosm.decide.LoopDecider`. :func:`loop_evidence` runs it over a
+:class:`~vpr.shosm.decide.LoopRule` (``loop_rule``). :func:`loop_evidence` runs it over a
 whole stream; :class:`vpr.shosm.LoopDetector` one frame at a time for a
 robot: the same engine, the same answers.
 """
@@ -17,10 +17,10 @@ from tqdm import tqdm
 from vpr import sdr as _sdr
 from vpr.checks import check_exclude, check_top_k
 from vpr.similarity import n_candidates
-from vpr.types import Decision
+from vpr.types import Decider, Decision
 
 from .conf import LOOP_EXCLUDE, RshosmSeqConf
-from .decide import LoopDecider
+from .decide import loop_rule
 from .evidence import Engine, Evidence
 from .graph import Graph
 from .memory import SequenceMemory
@@ -64,7 +64,7 @@ class LoopStream:
         self.mem = SequenceMemory(**self.seq.memory_params)
         self.graph = Graph.growing(self.mem)
         self.engine = Engine(self.graph, self.seq.evidence, self.seq.beam)
-        self.decider = LoopDecider(self.seq.loop(), path=self.seq.path(between_sessions=True))
+        self.decider: Decider = loop_rule(self.seq.loop_rule)(self.seq.loop(), self.seq.path(between_sessions=True))
         if opinion is not None:
             self.decider = opinion(self.decider)
         self.starts = [0]  # the first frame of every session
@@ -209,9 +209,7 @@ def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf=None, top_k: int 
             counts[j] = rows.size
     codes = sp.csr_matrix((np.ones(int(codes_ptr[-1]), bool), np.concatenate(codes_idx + [np.zeros(0, np.int64)]),
                            codes_ptr), shape=(T, max(stream.mem.n_cells, 1)))
-    decision = Decision(np.array([d.best for d in decisions], np.int64), np.array([d.score for d in decisions]),
-                        np.array([d.accepted for d in decisions], bool), np.array([d.margin for d in decisions]),
-                        np.arange(T, dtype=np.int64))
+    decision = Decision.stack(decisions)
     if dense is not None:
         S = dense
     else:

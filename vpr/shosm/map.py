@@ -25,7 +25,7 @@ from .state import read_file, write_file
 __all__ = ["Map"]
 
 _FORMAT = "vpr.Map"
-_FORMAT_VERSION = 1
+_FORMAT_VERSION = 2
 
 
 class Map:

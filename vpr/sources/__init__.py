@@ -112,7 +112,7 @@ def fingerprint(path) -> str:
     for f in files:
         h.update(f"{f.relative_to(root) if f != root else ''}\0{f.stat().st_size}\0".encode("utf-8",
                                                                                          "surrogateescape"))
-    for f in {files[0], files[-1]} if files else ():
+    for f in dict.fromkeys((files[0], files[-1])) if files else ():
         with open(f, "rb") as fh:
             h.update(fh.read(1 << 20))
             fh.seek(max(f.stat().st_size - (1 << 20), 0))

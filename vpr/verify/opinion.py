@@ -26,7 +26,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from vpr import sdr as _sdr
-from vpr.types import Column, Decision
+from vpr.types import Column, Decider, Decision
 
 from .verifier import Verifier
 
@@ -51,19 +51,21 @@ class OpinionConf:
     max_error: float = 2.0
 
 
-class GeometricOpinion:
-    """``decide(column) -> Decision``: the wrapped decider's decision, and geometry's where the path has not accepted.
+class GeometricOpinion(Decider):
+    """The wrapped decider's decision, and geometry's where the path has not accepted (a :class:`Decider`).
 
     Parameters
     ----------
-    decider : a loop decider (``decide``, ``add_sdr``, ``new_session``), e.g. :class:`vpr.shosm.LoopDecider`.
+    decider : Decider
+        The loop rule it is a second opinion on, e.g. :class:`vpr.shosm.LoopDecider`.
     image : callable
         ``image(j)``: frame ``j`` of the stream at its source's resolution.
     back, ahead, stop_ratio : the loop decision's (:class:`vpr.shosm.LoopConf`).
     conf : OpinionConf
     """
 
-    def __init__(self, decider, image, back: int, ahead: int, stop_ratio: float, conf: OpinionConf | None = None):
+    def __init__(self, decider: Decider, image, back: int, ahead: int, stop_ratio: float,
+                 conf: OpinionConf | None = None):
         self.decider, self.image, self.conf = decider, image, conf or OpinionConf()
         self.back, self.ahead, self.stop_ratio = int(back), int(ahead), float(stop_ratio)
         self._verifier = Verifier(image, image, n_features=self.conf.n_features, max_error=self.conf.max_error,
@@ -74,6 +76,15 @@ class GeometricOpinion:
         self._session = 0
         self.verified = self.blind = self.accepted = 0
         self.seconds = 0.0
+        self.frames = decider.frames
+
+    @property
+    def starts(self) -> np.ndarray:
+        return self.decider.starts
+
+    @property
+    def accept_score(self) -> float:
+        return self.decider.accept_score
 
     def add_sdr(self, bits) -> None:
         self.decider.add_sdr(bits)
@@ -84,6 +95,25 @@ class GeometricOpinion:
         self.decider.new_session()
         self._session += 1
 
+    def state(self) -> tuple[dict, dict]:
+        """The wrapped decider's state and the opinion's own (its recent best frames, its run, its counts); the
+        features and inliers it computed are not kept (computed again as needed)."""
+        header, arrays = self.decider.state()
+        own = {"recent": [list(r) for r in self._recent], "run": self._run, "session": self._session,
+               "verified": self.verified, "blind": self.blind, "accepted": self.accepted, "frames": self.frames}
+        return {"rule": header, "opinion": own}, {**{f"rule_{k}": v for k, v in arrays.items()},
+                                                  "opinion_ptr": np.asarray(self._ptr, np.int64),
+                                                  "opinion_ind": np.asarray(self._ind, np.int64)}
+
+    def load_state(self, header: dict, arrays: dict) -> GeometricOpinion:
+        self.decider.load_state(header["rule"], {k[5:]: v for k, v in arrays.items() if k.startswith("rule_")})
+        own = header["opinion"]
+        self._recent = [tuple(r) for r in own["recent"]]
+        self._run, self._session, self.frames = int(own["run"]), int(own["session"]), int(own["frames"])
+        self.verified, self.blind, self.accepted = int(own["verified"]), int(own["blind"]), int(own["accepted"])
+        self._ptr, self._ind = arrays["opinion_ptr"].tolist(), arrays["opinion_ind"].tolist()
+        return self
+
     def _consistent(self, best: int) -> bool:
         need = self.conf.frames - 1
         past = self._recent[-need:] if need else []
@@ -92,7 +122,7 @@ class GeometricOpinion:
         chain = [b for b, _ in past] + [best]
         return all(a >= 0 and a - self.back <= b <= a + self.ahead for a, b in zip(chain[:-1], chain[1:], strict=True))
 
-    def decide(self, column: Column) -> Decision:
+    def _decide(self, column: Column) -> Decision:
         d = self.decider.decide(column)
         j, b = int(d.frame), int(d.best)
         consistent = self._consistent(b)
@@ -123,8 +153,7 @@ class GeometricOpinion:
                     return d
             self.accepted += 1
             # its score ranks it with the closures the decider accepts (the decision's curve, R@100P)
-            floor = float(getattr(getattr(self.decider, "conf", None), "min_score", d.score))
-            return replace(d, accepted=True, score=max(float(d.score), floor))
+            return replace(d, accepted=True, score=max(float(d.score), self.decider.accept_score))
         finally:
             self.seconds += time.perf_counter() - t
 
@@ -145,7 +174,7 @@ class GeometricOpinion:
 
     def _same_session(self, b: int, j: int) -> bool:
         """Whether ``b`` is in the current session (across runs the camera surely left)."""
-        starts = getattr(self.decider, "starts", np.zeros(1, np.int64))
+        starts = self.decider.starts
         return bool(np.searchsorted(starts, b, side="right") == np.searchsorted(starts, j, side="right"))
 
     def report(self) -> dict:
@@ -155,29 +184,42 @@ class GeometricOpinion:
                 "min_inliers": self.conf.min_inliers}
 
 
-class _Replay:
-    """Decisions already taken, given again frame by frame."""
+class _Replay(Decider):
+    """Decisions already taken (arrays of a whole stream), given again frame by frame."""
 
-    def __init__(self, d: Decision, starts):
-        self.d, self.starts = d, np.asarray(starts, np.int64)
+    def __init__(self, d: Decision, starts, accept_score: float):
+        self.d, self.starts, self._accept = d, np.asarray(starts, np.int64), float(accept_score)
+        self.frames = 0
 
-    def add_sdr(self, bits) -> None:
-        pass
+    @property
+    def accept_score(self) -> float:
+        return self._accept
 
     def new_session(self) -> None:
         pass
 
-    def decide(self, column: Column) -> Decision:
+    def _decide(self, column: Column) -> Decision:
         j, d = column.frame, self.d
         return Decision(int(d.best[j]), float(d.score[j]), bool(d.accepted[j]), 0.0, j)
 
+    def state(self) -> tuple[dict, dict]:
+        return {"frames": self.frames}, {}
+
+    def load_state(self, header: dict, arrays: dict) -> _Replay:
+        self.frames = int(header["frames"])
+        return self
+
 
 def second_opinion(decision: Decision, image, sdr, back: int, ahead: int, stop_ratio: float,
-                   conf: OpinionConf | None = None, sessions=(0,)) -> tuple[Decision, dict]:
-    """The opinion over decisions already taken (arrays ``best``, ``score``, ``accepted``), and its report."""
+                   conf: OpinionConf | None = None, sessions=(0,), accept_score: float = float("-inf")
+                   ) -> tuple[Decision, dict]:
+    """The opinion over decisions already taken (arrays ``best``, ``score``, ``accepted``), and its report.
+
+    ``accept_score``: the score at which the rule that took them accepts (geometry's accepts score at least it).
+    """
     x = _sdr.check_batch(sdr, name="sdr")
     starts = sorted({0, *(int(s) for s in sessions)})
-    op = GeometricOpinion(_Replay(decision, starts), image, back, ahead, stop_ratio, conf)
+    op = GeometricOpinion(_Replay(decision, starts, accept_score), image, back, ahead, stop_ratio, conf)
     out = []
     empty, none = np.zeros(0, np.int64), np.zeros(0, np.float32)
     for j in range(x.shape[0]):
@@ -185,5 +227,4 @@ def second_opinion(decision: Decision, image, sdr, back: int, ahead: int, stop_r
             op.new_session()
         op.add_sdr(np.sort(x.indices[x.indptr[j]:x.indptr[j + 1]]))
         out.append(op.decide(Column(empty, none, 0.0, 0, j)))
-    return Decision(np.array([d.best for d in out], np.int64), np.array([d.score for d in out]),
-                    np.array([d.accepted for d in out], bool), frame=np.arange(len(out))), op.report()
+    return Decision.stack(out), op.report()

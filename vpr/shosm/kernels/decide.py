@@ -29,14 +29,16 @@ from numba import njit
 
 from vpr.sdr import stationary
 
-# state vector of decide_frame: path score (float), furthest best of the path, path start
-S_SCORE, S_HEAD, S_START = range(3)
-_NONE = -(1 << 40)
+#: The state a path decision carries between frames (one record): the path's score, its ``head`` (the
+#: furthest best frame of the path; -1: no path) and its ``start`` (the frame the path began at).
+PATH_STATE = np.dtype([("score", np.float64), ("head", np.int64), ("start", np.int64)])
 
 
 def path_state(start: int = 0) -> np.ndarray:
-    """The state of no path yet, the next path starting at frame ``start``."""
-    return np.array([0.0, float(_NONE), float(start)])
+    """The state of no path yet (a 1-record :data:`PATH_STATE` array), the next path starting at frame ``start``."""
+    st = np.zeros(1, PATH_STATE)
+    st[0]["head"], st[0]["start"] = -1, start
+    return st
 
 
 @njit(cache=True, inline="always")
@@ -106,44 +108,52 @@ def column_peaks(rows, vals, n, fill, island, place, link_w, newest):  # pragma:
 
 
 @njit(cache=True)
-def decide_frame(j, rows, vals, n, fill, drift, min_score, back, ahead, island, stop_ratio, sdr_ptr, sdr_ind,
-                 place, path_b, st, starts):  # pragma: no cover - compiled
-    """The decision of frame ``j`` (rows/vals: its column); updates ``place``, the path buffers and ``st``.
+def decide_frame(j, column, rule, stream):  # pragma: no cover - compiled
+    """The decision of frame ``j``; updates the stream's ``place``, ``path_b`` and ``st``.
 
-    ``place[f]``: the place frame ``f`` belongs to (itself until a closure
-    links it); ``path_b[f]``: the best candidate of frame ``f`` (the current
-    path is ``st[S_START] .. j``); ``st``: float state (score, head, start).
-    ``sdr_ptr`` empty: stops are not checked. ``starts``: the sessions' first
-    frames (``[0]``: one session).
+    ``column``: (rows, vals, n, fill), the frame's evidence (candidates
+    ``0 .. n - 1``; rows sorted, a candidate not stored has the z ``fill``);
+    ``rule``: (drift, min_score, back, ahead, island, stop_ratio) of
+    :class:`vpr.shosm.LoopConf` (stop_ratio 0: stops are not checked);
+    ``stream``: (sdr_ptr, sdr_ind, place, path_b, st, starts): the stream's
+    SDRs for the stop check (``sdr_ptr`` empty: not checked), ``place[f]`` the
+    place frame ``f`` belongs to (itself until a closure links it),
+    ``path_b[f]`` the best candidate of frame ``f`` (the current path is
+    ``st.start .. j``), ``st`` the path's :data:`PATH_STATE`, ``starts`` the
+    sessions' first frames (``[0]``: one session).
     Returns (best, score, accepted, margin, near).
     """
+    rows, vals, n, fill = column
+    drift, min_score, back, ahead, island, stop_ratio = rule
+    sdr_ptr, sdr_ind, place, path_b, st, starts = stream
+    p = st[0]
     s_j = session_of(starts, j)
     newest = n - 1 if n - 1 >= starts[s_j] else -1  # the current session's newest candidate, if any
     b, zb, zo, near = column_peaks(rows, vals, n, fill, island, place, back + ahead, newest)
     path_b[j] = b
     if b < 0:
-        st[S_SCORE] = 0.0
-        st[S_HEAD] = _NONE
-        st[S_START] = j + 1
+        p.score = 0.0
+        p.head = -1
+        p.start = j + 1
         return -1, 0.0, False, 0.0, False
-    head = int(st[S_HEAD])
+    head = p.head
     # moving on along the frames of one session: the next session's first frame is not the next place
-    cont = head - back <= b <= head + ahead and session_of(starts, b) == session_of(starts, max(head, 0))
+    cont = head >= 0 and head - back <= b <= head + ahead and session_of(starts, b) == session_of(starts, head)
     jump = False
     if not cont and head >= 0:  # another visit of the place the path is at (linked earlier) continues it too
         # (across a session boundary the candidate itself is no other visit: the first frame of a run is not
         # the place its previous run ended at)
         own = b if session_of(starts, b) != session_of(starts, head) else -1
         jump = _linked(place, place[b], head + (ahead - back) // 2, (back + ahead) // 2 + 1, place.shape[0], own, own)
-    prev = st[S_SCORE] if cont or jump else 0.0
+    prev = p.score if cont or jump else 0.0
     score = max(0.0, prev + (zb - zo) - drift)
     if not (cont or jump):
-        st[S_START] = j
-    st[S_HEAD] = max(head, b) if cont else b
+        p.start = j
+    p.head = max(head, b) if cont else b
     if score == 0.0:
-        st[S_HEAD] = b
-        st[S_START] = j + 1
-    st[S_SCORE] = score
+        p.head = b
+        p.start = j + 1
+    p.score = score
     ok = score >= min_score and not near
     if ok and stop_ratio > 0.0 and sdr_ptr.shape[0] > j and session_of(starts, b) == s_j:  # within one run only
         ok = not stationary(sdr_ptr, sdr_ind, b, j, stop_ratio)
@@ -153,26 +163,32 @@ def decide_frame(j, rows, vals, n, fill, drift, min_score, back, ahead, island, 
 
 
 @njit(cache=True)
-def locate_frame(rows, vals, n, fill, drift, min_score, back, ahead, island, place, st, starts):  # pragma: no cover
+def locate_frame(column, rule, place, st, starts):  # pragma: no cover - compiled
     """The localisation decision of one query frame against a map of ``n`` frames; updates ``st``.
 
     The path score of :func:`decide_frame` without what only one stream has
     (no "just left" place, no links between visits, no stops): the best map
     frame's margin over the strongest other place, accumulated while the best
     map frame moves on consistently (``head - back .. head + ahead``).
-    ``place``: ``arange(n)`` (every map frame its own place); ``starts``: the
-    first frame of each session of the map (a path does not move on across one).
+    ``column``: (rows, vals, n, fill) as :func:`decide_frame`'s; ``rule``:
+    (drift, min_score, back, ahead, island) of :class:`vpr.shosm.PathConf`;
+    ``place``: ``arange(n)`` (every map frame its own place); ``st``: the
+    path's :data:`PATH_STATE`; ``starts``: the first frame of each session of
+    the map (a path does not move on across one).
     Returns (best, score, accepted, margin).
     """
+    rows, vals, n, fill = column
+    drift, min_score, back, ahead, island = rule
+    p = st[0]
     b, zb, zo, _ = column_peaks(rows, vals, n, fill, island, place, 0, -1)
     if b < 0:
-        st[S_SCORE] = 0.0
-        st[S_HEAD] = _NONE
+        p.score = 0.0
+        p.head = -1
         return -1, 0.0, False, 0.0
-    head = int(st[S_HEAD])
-    cont = head - back <= b <= head + ahead and session_of(starts, b) == session_of(starts, max(head, 0))
-    prev = st[S_SCORE] if cont else 0.0
+    head = p.head
+    cont = head >= 0 and head - back <= b <= head + ahead and session_of(starts, b) == session_of(starts, head)
+    prev = p.score if cont else 0.0
     score = max(0.0, prev + (zb - zo) - drift)
-    st[S_HEAD] = max(head, b) if cont and score > 0.0 else b
-    st[S_SCORE] = score
+    p.head = max(head, b) if cont and score > 0.0 else b
+    p.score = score
     return b, score, score >= min_score, zb - zo
