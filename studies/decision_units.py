@@ -40,7 +40,7 @@ from studies.loop_decisions import EXCLUDE, REVISITS, aliases, count, evidence
 from studies.loop_streams import FORWARD, load_stream
 from vpr import sdr as _sdr
 from vpr.shosm import LoopConf, PathConf, accept_path, loop_evidence
-from vpr.similarity import n_candidates
+from vpr.similarity import n_candidates, stationary
 
 COST, K, PRIOR = 2.0, 10, 1.0
 LOC_CASES = ("gardens_point", "nordland_358", "nordland_half", "nordland_3576")
@@ -150,7 +150,7 @@ def decide(S, fill, n_of, nov, h, back=4, ahead=6, sdr=None, stop_ratio=0.35, ex
         near = exclude is not None and b >= n - 1 - ahead
         accepted = score >= h and not near
         if accepted and ptr is not None and stop_ratio > 0:
-            accepted = not _sdr.stationary(ptr, ind, b, j, stop_ratio)
+            accepted = not stationary(ptr, ind, b, j, stop_ratio)
         ok[j] = accepted
     return best, ev, ok
 

@@ -14,7 +14,7 @@ import encoders
 from encoders.projection import TopKProjection
 from vpr.config import coerce_value
 from vpr.imageproc import seqslam_preprocess
-from vpr.sdr import overlap_count
+from vpr.similarity import overlap_count
 
 NAMES = ["cnn", "orb", "pixel", "projection"]
 

@@ -10,7 +10,6 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 import scipy.sparse as sp
-from numba import njit
 
 __all__ = [
     "from_indices",
@@ -19,12 +18,10 @@ __all__ = [
     "to_indices",
     "row_bits",
     "check_batch",
-    "overlap_count",
     "union",
     "density",
     "add_noise",
     "random_sdrs",
-    "stationary",
     "degenerate",
 ]
 
@@ -218,17 +215,6 @@ def check_batch(batch, n_bits: int | None = None, name: str = "SDR batch") -> sp
     return b
 
 
-def overlap_count(a, b=None) -> np.ndarray:
-    """Overlap counts |a_i & b_j| between the rows of two SDR batches (dense int array).
-
-    For the normalised similarity matrix, and for large batches (``top_k``),
-    use :func:`vpr.similarity.overlap_similarity`.
-    """
-    A = check_batch(a).astype(np.int32)
-    B = A if b is None else check_batch(b, n_bits=A.shape[1]).astype(np.int32)
-    return np.asarray((A @ B.T).toarray(), dtype=np.int64)
-
-
 def union(batch) -> np.ndarray:
     """Indices of bits active in any row of the batch."""
     b = check_batch(batch)
@@ -286,40 +272,6 @@ def random_sdrs(n: int, n_bits: int = 2048, n_active: int = 40, seed=None) -> sp
     idx = np.argsort(rng.random((n, n_bits)), axis=1)[:, :n_active] if n * n_bits <= 5e7 else \
         np.stack([rng.choice(n_bits, n_active, replace=False) for _ in range(n)])
     return from_indices(list(idx), n_bits)
-
-
-@njit(cache=True)
-def _overlap(ptr, ind, a, b):
-    i, j, c = ptr[a], ptr[b], 0
-    while i < ptr[a + 1] and j < ptr[b + 1]:
-        if ind[i] == ind[j]:
-            c += 1
-            i += 1
-            j += 1
-        elif ind[i] < ind[j]:
-            i += 1
-        else:
-            j += 1
-    return c
-
-
-@njit(cache=True)
-def stationary(ptr, ind, b, j, ratio):  # pragma: no cover - compiled
-    """Whether the camera never left place ``b`` before frame ``j`` (rows of a batch's sorted CSR ``ptr``, ``ind``).
-
-    A loop closure means the camera went elsewhere and came back: some frame
-    between ``b`` and ``j`` shares fewer than ``ratio`` times the bits ``b``
-    shares with ``j``. When every frame in between keeps at least that much,
-    the vehicle stood still or crept (a station, a traffic light): a stop,
-    not a loop. Frames that share nothing are not one place.
-    """
-    o_b = _overlap(ptr, ind, b, j)
-    if o_b == 0:
-        return False
-    for k in range(b + 1, j):
-        if _overlap(ptr, ind, k, j) < ratio * o_b:
-            return False
-    return True
 
 
 def degenerate(x, duplicate_share: float = 0.1) -> str | None:

@@ -4,6 +4,13 @@ Every function returns **database x query** (rows of the first argument by
 rows of the second), higher = more similar. For a single stream pass one
 argument and get T x T (rows: earlier frame, columns: frame).
 
+Every overlap between SDRs is counted here: :func:`overlap_similarity` (batch x
+batch, normalised or not, dense or top-K), :func:`overlap_count` (two small
+batches), the blocked counts and single-frame candidates of SeqSLAM on SDRs
+(:func:`sdr_overlap_rows`, :func:`sdr_candidates`) and the stop check of a loop
+closure (:func:`stationary`); an SDR against the memory's minicolumns is
+:mod:`vpr.shosm.kernels.overlap`'s.
+
 Above :data:`DENSE_PAIRS_LIMIT` pairs a matrix is kept as top-K sparse
 (:func:`top_k_or_dense` says which, :func:`check_dense` refuses what has no
 sparse form); :func:`best_matches` reads the best database frame per query of
@@ -19,7 +26,8 @@ from numba.extending import intrinsic
 from vpr import sdr as _sdr
 from vpr.checks import check_top_k
 
-__all__ = ["overlap_similarity", "cosine", "neg_sad", "mean_abs_diff", "topk_sparse", "DENSE_PAIRS_LIMIT",
+__all__ = ["overlap_similarity", "overlap_count", "stationary", "sdr_overlap_rows", "sdr_candidates", "cosine",
+           "neg_sad", "mean_abs_diff", "topk_sparse", "DENSE_PAIRS_LIMIT",
            "best_matches", "mask_recent", "fits_dense", "top_k_or_dense", "check_dense", "pack_bits", "bitsets_pay",
            "TOP_K", "candidate_limit", "n_candidates"]
 
@@ -235,6 +243,120 @@ def _topk_overlap_kernel(pa, pb, na, nb, norm, out_idx, out_val):  # pragma: no 
             for i in range(k):
                 out_idx[q0 + j, i] = hi[j, i]
                 out_val[q0 + j, i] = hv[j, i]
+
+
+def overlap_count(a, b=None) -> np.ndarray:
+    """Overlap counts |a_i & b_j| between the rows of two SDR batches (dense int array).
+
+    For the normalised similarity matrix, and for large batches (``top_k``),
+    use :func:`overlap_similarity`.
+    """
+    A = _sdr.check_batch(a).astype(np.int32)
+    B = A if b is None else _sdr.check_batch(b, n_bits=A.shape[1]).astype(np.int32)
+    return np.asarray((A @ B.T).toarray(), dtype=np.int64)
+
+
+
+
+@njit(cache=True)
+def _overlap(ptr, ind, a, b):
+    i, j, c = ptr[a], ptr[b], 0
+    while i < ptr[a + 1] and j < ptr[b + 1]:
+        if ind[i] == ind[j]:
+            c += 1
+            i += 1
+            j += 1
+        elif ind[i] < ind[j]:
+            i += 1
+        else:
+            j += 1
+    return c
+
+
+@njit(cache=True)
+def stationary(ptr, ind, b, j, ratio):  # pragma: no cover - compiled
+    """Whether the camera never left place ``b`` before frame ``j`` (rows of a batch's sorted CSR ``ptr``, ``ind``).
+
+    A loop closure means the camera went elsewhere and came back: some frame
+    between ``b`` and ``j`` shares fewer than ``ratio`` times the bits ``b``
+    shares with ``j``. When every frame in between keeps at least that much,
+    the vehicle stood still or crept (a station, a traffic light): a stop,
+    not a loop. Frames that share nothing are not one place.
+    """
+    o_b = _overlap(ptr, ind, b, j)
+    if o_b == 0:
+        return False
+    for k in range(b + 1, j):
+        if _overlap(ptr, ind, k, j) < ratio * o_b:
+            return False
+    return True
+
+
+@njit(cache=True, nogil=True)
+def sdr_overlap_rows(indptr, indices, r0, r1, qptr, qcols, out):  # pragma: no cover - compiled
+    # overlap counts of database rows r0..r1 with the block's queries, through
+    # the block's inverted index (bit -> query columns): cost ~ active bits x postings
+    for r in range(r0, r1):
+        lr = r - r0
+        for p in range(indptr[r], indptr[r + 1]):
+            b = indices[p]
+            for t in range(qptr[b], qptr[b + 1]):
+                out[lr, qcols[t]] += 1
+
+
+@njit(cache=True, nogil=True)
+def sdr_candidates(post_ptr, post_rows, q_indptr, q_indices, k, counts, out):  # pragma: no cover - compiled
+    # Single-frame candidates: per query the k database rows of largest overlap,
+    # through the database's inverted index (bit -> rows). Rows reaching an
+    # overlap of 2 are listed as they do (random rows rarely do, so the list is
+    # short); a histogram of their counts gives the k-th largest without
+    # sorting. Only if fewer than k rows reach 2 are rows with overlap 1 added.
+    # ``counts`` (n_db, zeros) is uint16 when overlaps fit: half the cache footprint.
+    n_db = counts.shape[0]
+    listed = np.empty(n_db + 1, np.int64)
+    max_bits = 0
+    for q in range(q_indptr.shape[0] - 1):
+        max_bits = max(max_bits, q_indptr[q + 1] - q_indptr[q])
+    hist = np.zeros(max_bits + 2, np.int64)
+    for q in range(q_indptr.shape[0] - 1):
+        counts[:] = 0
+        nl = 0
+        for p in range(q_indptr[q], q_indptr[q + 1]):
+            b = q_indices[p]
+            for t in range(post_ptr[b], post_ptr[b + 1]):
+                r = post_rows[t]
+                c = counts[r] + 1
+                counts[r] = c
+                listed[nl] = r                   # branch-free: no unpredictable branch in the inner loop
+                nl += c == 2
+        for t in range(nl):
+            hist[counts[listed[t]]] += 1
+        thr = 2
+        cum = 0
+        for c in range(max_bits, 1, -1):
+            if cum + hist[c] >= k:
+                thr = c
+                break
+            cum += hist[c]
+        n_out = 0
+        for t in range(nl):                      # strictly above the threshold: all fit
+            if counts[listed[t]] > thr:
+                out[q, n_out] = listed[t]
+                n_out += 1
+        for t in range(nl):                      # at the threshold: in listing order until k
+            if n_out == k:
+                break
+            if counts[listed[t]] == thr:
+                out[q, n_out] = listed[t]
+                n_out += 1
+        if n_out < k:                            # few rows share 2 bits: fill with overlap 1, lowest rows first
+            for r in range(n_db):
+                if n_out == k:
+                    break
+                if counts[r] == 1:
+                    out[q, n_out] = r
+                    n_out += 1
+        hist[:] = 0
 
 
 def _check_top_k(top_k) -> int:

@@ -1,10 +1,10 @@
-"""Compiled kernels of the blocked top-K SeqSLAM (numba): contrast enhancement, trajectories, SDR candidates."""
+"""Compiled kernels of the blocked top-K SeqSLAM (numba): contrast enhancement, trajectories."""
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
-__all__ = ["enhance_rows", "trajectories", "sdr_overlap_rows", "sdr_candidates"]
+__all__ = ["enhance_rows", "trajectories"]
 
 
 @njit(cache=True, nogil=True)
@@ -103,70 +103,3 @@ def trajectories(Z, z0, o0, o1, n_db, rel, colvalid, S, P):  # pragma: no cover 
                     P[li, j] = pv
                 if cnt == nfr[j] and pv < S[li, j]:
                     S[li, j] = pv
-
-
-@njit(cache=True, nogil=True)
-def sdr_overlap_rows(indptr, indices, r0, r1, qptr, qcols, out):  # pragma: no cover - compiled
-    # overlap counts of database rows r0..r1 with the block's queries, through
-    # the block's inverted index (bit -> query columns): cost ~ active bits x postings
-    for r in range(r0, r1):
-        lr = r - r0
-        for p in range(indptr[r], indptr[r + 1]):
-            b = indices[p]
-            for t in range(qptr[b], qptr[b + 1]):
-                out[lr, qcols[t]] += 1
-
-
-@njit(cache=True, nogil=True)
-def sdr_candidates(post_ptr, post_rows, q_indptr, q_indices, k, counts, out):  # pragma: no cover - compiled
-    # Single-frame candidates: per query the k database rows of largest overlap,
-    # through the database's inverted index (bit -> rows). Rows reaching an
-    # overlap of 2 are listed as they do (random rows rarely do, so the list is
-    # short); a histogram of their counts gives the k-th largest without
-    # sorting. Only if fewer than k rows reach 2 are rows with overlap 1 added.
-    # ``counts`` (n_db, zeros) is uint16 when overlaps fit: half the cache footprint.
-    n_db = counts.shape[0]
-    listed = np.empty(n_db + 1, np.int64)
-    max_bits = 0
-    for q in range(q_indptr.shape[0] - 1):
-        max_bits = max(max_bits, q_indptr[q + 1] - q_indptr[q])
-    hist = np.zeros(max_bits + 2, np.int64)
-    for q in range(q_indptr.shape[0] - 1):
-        counts[:] = 0
-        nl = 0
-        for p in range(q_indptr[q], q_indptr[q + 1]):
-            b = q_indices[p]
-            for t in range(post_ptr[b], post_ptr[b + 1]):
-                r = post_rows[t]
-                c = counts[r] + 1
-                counts[r] = c
-                listed[nl] = r                   # branch-free: no unpredictable branch in the inner loop
-                nl += c == 2
-        for t in range(nl):
-            hist[counts[listed[t]]] += 1
-        thr = 2
-        cum = 0
-        for c in range(max_bits, 1, -1):
-            if cum + hist[c] >= k:
-                thr = c
-                break
-            cum += hist[c]
-        n_out = 0
-        for t in range(nl):                      # strictly above the threshold: all fit
-            if counts[listed[t]] > thr:
-                out[q, n_out] = listed[t]
-                n_out += 1
-        for t in range(nl):                      # at the threshold: in listing order until k
-            if n_out == k:
-                break
-            if counts[listed[t]] == thr:
-                out[q, n_out] = listed[t]
-                n_out += 1
-        if n_out < k:                            # few rows share 2 bits: fill with overlap 1, lowest rows first
-            for r in range(n_db):
-                if n_out == k:
-                    break
-                if counts[r] == 1:
-                    out[q, n_out] = r
-                    n_out += 1
-        hist[:] = 0

@@ -8,7 +8,7 @@ import scipy.sparse as sp
 
 from vpr import sdr as _sdr
 from vpr.checks import check_int, check_top_k
-from vpr.similarity import TOP_K, bitsets_pay, mean_abs_diff, overlap_similarity
+from vpr.similarity import TOP_K, bitsets_pay, mean_abs_diff, overlap_similarity, sdr_candidates, sdr_overlap_rows
 
 from . import kernels as K
 from .dense import check_sequence_params
@@ -99,7 +99,7 @@ class _Descriptors:
             self._qb = (qb.indptr.astype(np.int64), qb.indices.astype(np.int64))
             self._qb_cols = (c0, c1)
         ov = np.zeros((r1 - r0, c1 - c0), dtype=np.int64)
-        K.sdr_overlap_rows(self.a_indptr, self.a_indices, r0, r1, self._qb[0], self._qb[1], ov)
+        sdr_overlap_rows(self.a_indptr, self.a_indices, r0, r1, self._qb[0], self._qb[1], ov)
         na = self.na[r0:r1, None]
         nb = self.nb[None, c0:c1]
         if self.metric == "sad":
@@ -129,7 +129,7 @@ class _Descriptors:
             qs = self.b[sampled]
             out = np.full((len(sampled), k), -1, dtype=np.int64)
             counts = np.zeros(self.n_db, dtype=np.uint16 if self.nb.max(initial=0) < 2**16 - 1 else np.int64)
-            K.sdr_candidates(post.indptr.astype(np.int64), post.indices.astype(np.int32),
+            sdr_candidates(post.indptr.astype(np.int64), post.indices.astype(np.int32),
                             qs.indptr.astype(np.int64), qs.indices.astype(np.int64), k, counts, out)
         else:
             out = np.empty((len(sampled), k), dtype=np.int64)

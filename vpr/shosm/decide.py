@@ -17,7 +17,7 @@ import scipy.sparse as sp
 
 from vpr import sdr as _sdr
 from vpr.checks import check_exclude
-from vpr.similarity import n_candidates
+from vpr.similarity import n_candidates, stationary
 from vpr.types import Column, Decider, Decision
 
 from .conf import LoopConf, PathConf
@@ -305,7 +305,8 @@ def accept_path(S, conf: PathConf | None = None, sessions=None) -> Decision:
 
 
 def stationary_closures(sdr, best, accepted, ratio: float = 0.35) -> np.ndarray:
-    """Which accepted closures ``best[j] -> j`` are onto a place the camera never left (:func:`vpr.sdr.stationary`).
+    """Which accepted closures ``best[j] -> j`` are onto a place the camera never left
+    (:func:`vpr.similarity.stationary`).
 
     Returns
     -------
@@ -324,5 +325,5 @@ def stationary_closures(sdr, best, accepted, ratio: float = 0.35) -> np.ndarray:
     ptr, ind = x.indptr.astype(np.int64), x.indices.astype(np.int64)
     out = np.zeros(x.shape[0], bool)
     for j in np.flatnonzero(accepted & (best >= 0)):
-        out[j] = _sdr.stationary(ptr, ind, int(best[j]), int(j), ratio)
+        out[j] = stationary(ptr, ind, int(best[j]), int(j), ratio)
     return out

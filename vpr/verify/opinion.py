@@ -26,6 +26,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from vpr import sdr as _sdr
+from vpr.similarity import stationary
 from vpr.types import Column, Decider, Decision
 
 from .verifier import Verifier
@@ -149,7 +150,7 @@ class GeometricOpinion(Decider):
                 return d
             if self.stop_ratio > 0 and self._same_session(b, j):
                 ptr, ind = np.asarray(self._ptr, np.int64), np.asarray(self._ind, np.int64)
-                if _sdr.stationary(ptr, ind, b, j, self.stop_ratio):
+                if stationary(ptr, ind, b, j, self.stop_ratio):
                     return d
             self.accepted += 1
             # its score ranks it with the closures the decider accepts (the decision's curve, R@100P)

@@ -15,6 +15,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .overlap import count_overlaps
+
 # indices into the int64 state vector of beam_frames; the last two are counters (largest beam and
 # candidate set of any frame so far) that tests and benchmarks read to check the caps
 B_SIZE, B_OUT_POS, B_NEED, B_FRAMES, B_MAX_BEAM, B_MAX_CAND = range(6)
@@ -119,15 +121,7 @@ def beam_frames(q_ptr, q_ind, order, limits, bit_cols, bit_len, col_size, cpc,
         q = order[t]
         limit = limits[t]
         # ---- feed-forward: overlap of every touched minicolumn via the inverted index
-        n_tc = 0
-        for i in range(q_ptr[q], q_ptr[q + 1]):
-            b = q_ind[i]
-            for j in range(bit_len[b]):
-                col = bit_cols[b, j]
-                if counts[col] == 0.0:
-                    touched_cols[n_tc] = col
-                    n_tc += 1
-                counts[col] += 1.0
+        n_tc = count_overlaps(q_ind[q_ptr[q]:q_ptr[q + 1]], bit_cols, bit_len, counts, touched_cols)
         # counts become overlap fractions; they stay until the end of the frame so that every
         # candidate (also one that enters by prediction) gets its feed-forward term
         n_above = 0

@@ -19,7 +19,7 @@ by row; a candidate not stored has the z ``fill``). A frame's decision:
    boundary (``starts``: the first frame of every session, a robot's runs);
 5. accepted when the score reaches ``min_score``, the best place is not the
    one just left, and the camera left the place in between (SDR overlap of the
-   frames in between, :func:`vpr.sdr.stationary`); then the
+   frames in between, :func:`vpr.similarity.stationary`); then the
    frames of the path are linked to the places they matched.
 """
 from __future__ import annotations
@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from vpr.sdr import stationary
+from vpr.similarity import stationary
 
 #: The state a path decision carries between frames (one record): the path's score, its ``head`` (the
 #: furthest best frame of the path; -1: no path) and its ``start`` (the frame the path began at).

@@ -16,6 +16,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .overlap import count_overlaps
+
 
 @njit(cache=True)
 def evidence_frames(q_ptr, q_ind, order, bit_cols, bit_len, col_size, rel_col, e_src, e_dst,
@@ -40,22 +42,18 @@ def evidence_frames(q_ptr, q_ind, order, bit_cols, bit_len, col_size, rel_col, e
     n_db = db_ptr.shape[0] - 1
     n_e = e_src.shape[0]
     counts = np.zeros(n_cols, np.float64)
+    touched = np.empty(n_cols, np.int64)
     z = np.zeros(n_rel, np.float64)
     p1 = np.empty(n_rel, np.float64)
     p2 = np.empty(n_rel, np.float64)
     for t in range(order.shape[0]):
         q = order[t]
-        for i in range(q_ptr[q], q_ptr[q + 1]):
-            b = q_ind[i]
-            for j in range(bit_len[b]):
-                counts[bit_cols[b, j]] += 1.0
+        n_touch = count_overlaps(q_ind[q_ptr[q]:q_ptr[q + 1]], bit_cols, bit_len, counts, touched)
         for c in range(n_rel):
             col = rel_col[c]
             z[c] = counts[col] / col_size[col] if col_size[col] > 0 else 0.0
-        for i in range(q_ptr[q], q_ptr[q + 1]):
-            b = q_ind[i]
-            for j in range(bit_len[b]):
-                counts[bit_cols[b, j]] = 0.0
+        for i in range(n_touch):
+            counts[touched[i]] = 0.0
         if t == 0 and fresh:
             for c in range(n_rel):
                 e[c] = z[c]

@@ -24,6 +24,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .overlap import count_overlaps
+
 # indices into the int64 state vector
 N_COLS, N_ENTRIES, N_EDGES, N_PRED, N_PREV, TAPE_POS, TAPE_LEN, OUT_POS, NEED_KIND, NEED_SIZE, N_ACTIVE, N_KEYS = \
     range(12)
@@ -119,18 +121,9 @@ def match_columns(bits, learn, k_active, st, ff, scratch):
     """
     bit_cols, bit_len, col_thr = ff
     counts, touched, active, _ = scratch
-    n_touch = 0
     for i in range(bits.shape[0]):
-        b = bits[i]
-        row = bit_cols[b]
-        n_b = bit_len[b]
-        st[W_MATCH] += n_b
-        for j in range(n_b):
-            c = row[j]
-            if counts[c] == 0:
-                touched[n_touch] = c
-                n_touch += 1
-            counts[c] += 1
+        st[W_MATCH] += bit_len[bits[i]]
+    n_touch = count_overlaps(bits, bit_cols, bit_len, counts, touched)
     n_act = 0
     for i in range(n_touch):
         c = touched[i]
