@@ -261,12 +261,13 @@ class Beam:
         st[KB.B_OUT_POS] = 0
         st[KB.B_FRAMES] = 0
         while True:
-            done = KB.beam_frames(q_ptr, q_ind, order, limits, g.bit_cols, g.bit_len, g.col_size, g.cpc,
-                                  adj[0], adj[1], adj[2], grp, g.c_head, g.c_next, g.c_frame, g.relevant,
-                                  g.birth, g.db_norm, *params, st, self.beam, self.beam_e, self.e_cur,
-                                  self.counts, self.touched_cols, self.p1, self.p2, self.z, self.mark, self.cand,
-                                  self.e_new, self.gmax, self.gmark, self.gtouch, self.acc, self.db_mark,
-                                  self.db_touch, out_ptr, self.out_idx, self.out_val)
+            done = KB.beam_frames((q_ptr, q_ind, order, limits), (g.bit_cols, g.bit_len, g.col_size, g.cpc),
+                                  (adj[0], adj[1], adj[2], grp),
+                                  (g.c_head, g.c_next, g.c_frame, g.relevant, g.birth, g.db_norm), params,
+                                  (st, self.beam, self.beam_e, self.e_cur),
+                                  (self.counts, self.touched_cols, self.p1, self.p2, self.z, self.mark, self.cand,
+                                   self.e_new, self.gmax, self.gmark, self.gtouch, self.acc, self.db_mark,
+                                   self.db_touch), (out_ptr, self.out_idx, self.out_val))
             if done >= n:
                 break
             size = max(int(st[KB.B_NEED]), 2 * self.out_idx.size)
