@@ -176,21 +176,23 @@ class LoopsOnline(Online):
     def evaluate(self, result, names, indices, frames) -> dict:
         """Metrics over the frames answered in this run, against every frame of the stream before them (those
         from before a resume too: the state's names)."""
+        starts = list(self.det.stream.starts)
+        labels = [str(k + 1) for k in range(len(starts))]  # as the batch run's table, the sessions by their number
         if not self.gt.files:
-            return {}, None
+            return ({"sessions": evaluate.session_pairs(result.best, result.accepted, None, starts, names=labels,
+                                                        frames=frames)} if len(starts) > 1 else {}), None
         N = self.det.frames
         hard, soft = build_loop_gt(self.gt, self.det.names, list(range(N)), total=N)
         hard, soft = (None if g is None else g[:, frames] for g in (hard, soft))
         exclude = self.det.conf["exclude"]
-        starts = list(self.det.stream.starts)
         mask = groundtruth.loop_closure_mask(N, exclude=exclude, starts=starts)[:, frames]
         if not (hard & mask).any():
             no_revisit(self.gt, exclude)
         m, curve = evaluate.method_metrics(result, hard, soft, mask=mask, loops=True)
         self.ground_truth = (hard, soft, mask)
-        if len(starts) > 1:  # as the batch run's table, the sessions named by their number
-            m["sessions"] = evaluate.session_pairs(result.best, result.accepted, hard, starts, soft, mask,
-                                                   [str(k + 1) for k in range(len(starts))], frames=frames)
+        if len(starts) > 1:
+            m["sessions"] = evaluate.session_pairs(result.best, result.accepted, hard, starts, soft, mask, labels,
+                                                   frames=frames)
         m.pop("seconds", None)
         m.pop("n_accepted", None)
         return m, curve
@@ -273,7 +275,7 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
 
         def write(m: str, res: MatchResult, evaluated) -> dict:
             confs[m] = res.conf
-            if gt_hard is not None and len(srcs) > 1:
+            if len(srcs) > 1:  # the closures per pair of sessions (with ground truth: their precision and recall)
                 evaluated[0]["sessions"] = evaluate.session_pairs(res.best, res.accepted, gt_hard, starts,
                                                                   gt_soft, mask, [s.name for s in srcs])
             write_method(out / m, m, res, evaluated, features.names, features.names, gt_hard, gt_soft,

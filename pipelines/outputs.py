@@ -121,8 +121,12 @@ def write_method(folder: Path, m: str, res: MatchResult, evaluated: tuple, db_na
         verified = MatchResult(m + "+verify", S_v, vr.best_db, score_v, vr.accepted,
                                res.seconds + time.perf_counter() - t0, res.conf)
         extra = {"verified_db": vr.best_db.tolist(),
+                 "verified_name": [db_names[b] if b >= 0 else "" for b in vr.best_db],
                  "inliers": np.where(vr.best_db >= 0, vr.score, -1).astype(int).tolist(),
                  "verified": vr.accepted.astype(int).tolist()}
+        if gt_hard is not None:  # whether each verified match is right, as GT_COLUMNS say of the best match
+            right, _ = evaluate.outcomes(vr.best_db, gt_hard, gt_soft, mask)
+            extra["verified_right"] = ["" if r < 0 else int(r) for r in right]
         vm, vcurve = evaluate.method_metrics(verified, gt_hard, gt_soft)
         vm["seconds"] = round(verified.seconds, 4)
         vm["similarity_file"] = metrics["similarity_file"]

@@ -174,3 +174,19 @@ def test_without_ground_truth_a_strip_is_query_and_best_match_by_score(scene_on_
     assert "no ground truth" in page and "worst first</h2>" not in page
     strip = page[page.index('<div class="strip'):]
     assert strip[:strip.index("</div>")].count("<figure>") == 2  # query | best match
+
+
+@pytest.mark.slow
+def test_the_verified_variant_has_its_link_strips_and_filter(scene_on_disk, tmp_path, capsys):
+    s = scene_on_disk("two_seasons", (64, 48), 120)
+    out = tmp_path / "v"
+    code, _, err = _run(["compare", s["summer_day"], s["winter_night"], "--out", out, "--gt", s["gt"], "--radius", 5,
+                         "--preset", "fast", "--methods", "pairwise", "--verify", 2], capsys)
+    assert code == 0, err
+    with open(out / "pairwise" / "matches.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert {"verified_name", "verified_right"} <= set(rows[0])
+    page = (out / "report.html").read_text()
+    assert '<a href="#strips" data-method="pairwise+verify">' in page
+    assert 'class="strip' in page and 'data-method="pairwise+verify" data-outcome=' in page
+    assert 'data-filter="method" data-value="pairwise+verify"' in page

@@ -242,6 +242,14 @@ def test_a_byte_identical_copy_of_a_recording_is_refused_as_a_second_session(lap
     code, _, err = _run(["loops", root / "run1" / "img", root / "run2" / "img", "--out", tmp_path / "o", *LOOSE],
                         capsys)
     assert code == 0, err  # two recordings of one route are two sessions
+    # without ground truth the closures per pair of sessions are still counted, and shown
+    m = _metrics(tmp_path / "o")["methods"]["rshosm-seq"]
+    pairs = m["sessions"]
+    assert [(p["session"], p["onto"]) for p in pairs] == [("run1/img", "run1/img"), ("run2/img", "run1/img"),
+                                                          ("run2/img", "run2/img")]
+    assert all(p["frames"] is None and p["precision"] is None for p in pairs)
+    assert sum(p["accepted"] for p in pairs) == m["n_accepted"]
+    assert '<table class="sessions" data-method="rshosm-seq">' in (tmp_path / "o" / "report.html").read_text()
 
 
 def test_nan_in_a_traverse_positions_file_is_refused_with_its_line(two_runs, capsys):

@@ -310,7 +310,7 @@ def page(title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[s
                    "sessions</caption><tr><th>session</th><th>onto</th><th>frames with a loop</th><th>accepted</th>"
                    "<th>precision</th><th>recall</th></tr>")
         for p in pairs:
-            cells = [p["session"], p["onto"], p["frames"], p["accepted"],
+            cells = [p["session"], p["onto"], "-" if p["frames"] is None else p["frames"], p["accepted"],
                      *("-" if p[k] is None else f"{p[k]:.3f}" for k in ("precision", "recall"))]
             out.append("<tr>" + "".join(f"<td>{_esc(c)}</td>" for c in cells) + "</tr>")
         out.append("</table>")
@@ -376,15 +376,24 @@ def write(out, read_query, read_db, kind: str = "match", title: str | None = Non
     picked, counts, truth_known = {}, {}, False
     labels = ["database", "query"] if kind == "match" else ["earlier frame", "frame"]
     for m in methods:
-        folder = out / m
+        base, _, variant = m.partition("+")
+        folder = out / base
         if not (folder / "matches.csv").is_file():
-            continue  # a verified variant shares its method's folder
-        if (folder / "similarity.png").is_file():
+            continue
+        decisions = _rows(folder / "matches.csv")
+        if variant == "verify":  # a verified variant: its method's rows with the verified match and decision
+            if not decisions or "verified_db" not in decisions[0]:
+                continue
+            decisions = [{**{k: v for k, v in r.items() if k != "right"}, "best_db": r["verified_db"],
+                          "db_name": r["verified_name"], "accepted": r["verified"], "score": r["inliers"],
+                          **({"right": r["verified_right"]} if "verified_right" in r else {})} for r in decisions]
+        elif variant:
+            continue
+        if not variant and (folder / "similarity.png").is_file():
             png = (folder / "similarity.png").read_bytes()
             where = png_text(png).get("vpr-matrix")
             figures.append((f"{m}: similarity, the accepted matches on it", picture(png),
                             *([{"method": m, **json.loads(where), "labels": labels}] if where else [])))
-        decisions = _rows(folder / "matches.csv")
         has_gt = bool(decisions) and "right" in decisions[0]
         keys = [outcome(r["accepted"] == "1", int(r["right"]) if has_gt and r["right"] != "" else None,
                         (r["true_db"] != "-1") if has_gt else None,

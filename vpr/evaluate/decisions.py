@@ -140,7 +140,8 @@ def session_pairs(best, accepted, gt_hard, starts, gt_soft=None, mask=None, name
     Parameters
     ----------
     best, accepted : per frame of the stream, the best earlier frame (-1: none) and the decision.
-    gt_hard, gt_soft, mask : T x T (rows earlier frame), dense or sparse.
+    gt_hard, gt_soft, mask : T x T (rows earlier frame), dense or sparse; ``gt_hard`` None: the accepted
+        closures per pair alone (``frames``, ``precision``, ``recall`` None).
     starts : the first frame of each session.
     names : optional session names (the sources).
     frames : optional, the frame number of each column (default: column ``j`` is frame ``j``); a session without
@@ -149,6 +150,15 @@ def session_pairs(best, accepted, gt_hard, starts, gt_soft=None, mask=None, name
     best, accepted = np.asarray(best, np.int64), np.asarray(accepted, bool)
     T = best.size
     starts = np.asarray(sorted(starts), np.int64)
+    if gt_hard is None:  # without ground truth: the accepted closures alone
+        sess = np.searchsorted(starts, np.arange(T) if frames is None else np.asarray(frames, np.int64),
+                               side="right") - 1
+        onto = np.searchsorted(starts, best, side="right") - 1
+        label = (lambda k: names[k]) if names is not None else (lambda k: k)
+        return [{"session": label(s), "onto": label(r), "frames": None,
+                 "accepted": int((accepted & (best >= 0) & (sess == s) & (onto == r)).sum()), "precision": None,
+                 "recall": None}
+                for s in range(starts.size) if frames is None or (sess == s).any() for r in range(s + 1)]
     if mask is not None:
         gt_hard, gt_soft = (None if g is None else g.multiply(mask).tocsr() if sp.issparse(g) else
                             np.asarray(g) & mask for g in (gt_hard, gt_soft))

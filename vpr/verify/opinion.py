@@ -46,6 +46,10 @@ class OpinionConf:
     break_samples: int = 8
     #: out of sight: a frame between has fewer inliers with the earlier frame than this share of this frame's
     break_ratio: float = 0.25
+    #: the pair must also have this share of the inliers the earlier frame has with its own neighbour ``self_gap``
+    #: frames on (one place seen twice from almost the same pose): a bar in the stream's own units (0: none)
+    self_ratio: float = 0.0
+    self_gap: int = 2
     min_side: int = 120
     min_keypoints: int = 100
     n_features: int = 2000
@@ -142,7 +146,8 @@ class GeometricOpinion(Decider):
                 self.blind += 1
                 return d
             self.verified += 1
-            if self._verifier.pair_inliers(b, j) < c.min_inliers:
+            n = self._verifier.pair_inliers(b, j)
+            if n < c.min_inliers or (c.self_ratio > 0 and n < c.self_ratio * self._own(b, j)):
                 self._run = 0
                 return d
             self._run += 1
@@ -157,6 +162,15 @@ class GeometricOpinion(Decider):
             return replace(d, accepted=True, score=max(float(d.score), self.decider.accept_score))
         finally:
             self.seconds += time.perf_counter() - t
+
+    def _own(self, b: int, j: int) -> int:
+        """The inliers of frame ``b`` with its neighbour ``self_gap`` frames on (before ``j``, in ``b``'s session),
+        or back where there is none: what one place seen twice from almost the same pose gives here."""
+        gap = self.conf.self_gap
+        starts = self.decider.starts
+        first = int(starts[np.searchsorted(starts, b, side="right") - 1])
+        k = b + gap if b + gap < j and self._same_session(b + gap, b) else b - gap
+        return self._verifier.pair_inliers(b, k) if first <= k < j else 0
 
     def _out_of_sight(self, b: int, j: int, inliers: int) -> bool:
         """Whether some frame between ``b`` and ``j`` lost sight of ``b``: fewer inliers with it than ``break_ratio``
