@@ -133,6 +133,9 @@ def write_method(folder: Path, m: str, res: MatchResult, evaluated: tuple, db_na
         entries[m + "+verify"] = (vm, vcurve)
     write_matches(folder, res, db_names, q_names, {**extra, **(columns or {})},
                   gt=None if gt_hard is None else (gt_hard, gt_soft, mask), **names)
+    name_of = names.get("name_of")
+    rows = list(db_names) if db_names is not None else [name_of(i) for i in range(res.similarity.shape[0])]
+    io.save_json(folder / "frames.json", {"rows": rows, "columns": list(q_names)}, indent=None)
     plots.plot_similarity(res.similarity, folder / "similarity.png", best_db=res.best, accepted=res.accepted,
                           gt_hard=gt_hard, gt_soft=gt_soft, title=title or f"{m}: database x query",
                           value_label=methods.get_class(m).score_label if m in methods.available() else "similarity",

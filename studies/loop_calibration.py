@@ -30,6 +30,7 @@ from unittest import mock
 
 import numpy as np
 
+from studies import loop_streams
 from studies.loop_decisions import aliases, evidence
 from studies.loop_geometry import _images, _rtabmap, count
 from studies.loop_streams import load_stream
@@ -66,7 +67,7 @@ def far_pairs(name, stream, d, res, verifier, alias, n: int, seed: int = 0) -> N
           f"false {sorted(inl[~true & ~copy].tolist())}, copy {sorted(inl[copy].tolist())}", flush=True)
 
 
-def grid_counts(names, grid, cache: Path, data: Path, far: int = 0) -> dict:
+def grid_counts(names, grid, cache: Path, data: Path, far: int = 0, min_side: int = 120) -> dict:
     """{(min_inliers, self_ratio): {stream: count}} with one verifier per stream (its features and pairs computed
     once for every setting)."""
     conf = LoopConf()
@@ -89,7 +90,8 @@ def grid_counts(names, grid, cache: Path, data: Path, far: int = 0) -> dict:
         with mock.patch("vpr.verify.opinion.Verifier", one_verifier):
             for k, r in grid:
                 res, _ = second_opinion(d, image, stream.x, conf.back, conf.ahead, conf.stop_ratio,
-                                        OpinionConf(min_inliers=k, self_ratio=r), accept_score=conf.min_score)
+                                        OpinionConf(min_inliers=k, self_ratio=r, min_side=min_side),
+                                        accept_score=conf.min_score)
                 out.setdefault((k, r), {})[name] = count(stream, res.best, res.accepted, alias)
                 if (k, r) == grid[0] and far:
                     far_pairs(name, stream, d, res, one_verifier.__defaults__[0]["v"], alias, far)
@@ -126,13 +128,16 @@ def main(argv=None) -> int:
     ap.add_argument("--ratios", default="0,0.2,0.3,0.4,0.5")
     ap.add_argument("--streams", default=",".join((*REVISITS, *FORWARD)))
     ap.add_argument("--far", type=int, default=0, help="also print the inliers of this many random far pairs")
+    ap.add_argument("--size", default="160x120", help="the size rendered streams are rendered at")
+    ap.add_argument("--min-side", type=int, default=OpinionConf().min_side, help="frames smaller are blind")
     a = ap.parse_args(argv)
     cache = Path(a.cache)
     cache.mkdir(parents=True, exist_ok=True)
     data = Path(a.data or os.environ.get("VPR_DATASETS", "../shared/datasets"))
     grid = [(int(k), float(r)) for k in a.inliers.split(",") for r in a.ratios.split(",")]
     names = a.streams.split(",")
-    counts = grid_counts(names, grid, cache, data, a.far)
+    loop_streams.RENDER_SIZE = tuple(int(v) for v in a.size.lower().split("x"))
+    counts = grid_counts(names, grid, cache, data, a.far, a.min_side)
     print("\n| min_inliers | self_ratio | " + " | ".join(names) + " |")
     print("|---:|---:|" + "---|" * len(names))
     for k, r in grid:

@@ -49,10 +49,11 @@ def _images(stream: Stream):
     """``image(j)`` at the source's resolution (rendered streams are rendered again)."""
     if stream.frames is not None:
         return lambda j: cv2.imread(stream.frames[j])
+    from studies import loop_streams
     from vpr.render import render_scene
 
     scene, traverse = stream.name.split("/")
-    imgs = render_scene(scene, size=(160, 120), traverses=[traverse]).traverses[0].images
+    imgs = render_scene(scene, size=loop_streams.RENDER_SIZE, traverses=[traverse]).traverses[0].images
     return lambda j: imgs[j]
 
 

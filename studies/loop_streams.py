@@ -40,6 +40,8 @@ from vpr.sources import open_source
 __all__ = ["REAL_REVISITS", "RENDERED_REVISITS", "FORWARD", "Stream", "load_stream", "encoder_for"]
 
 REAL_REVISITS = ("gardens_point", "nordland_stream", "nordland_full")
+#: The size rendered streams are rendered at (a study may render them larger to give geometry more pixels).
+RENDER_SIZE = (160, 120)
 RENDERED_REVISITS = ("loop_revisits/laps",)
 FORWARD = ("nordland_summer", "nordland_winter", "two_seasons/summer_day", "two_seasons/winter_night",
            "speed_change/slow", "speed_change/fast", "aliased_corridor/lights_on")
@@ -105,7 +107,7 @@ def _build(name: str, preset: str, data: Path, seed):
     from vpr.render import render_scene
 
     scene, traverse = name.split("/")
-    t = render_scene(scene, size=(160, 120), traverses=[traverse], seed=seed).traverses[0]
+    t = render_scene(scene, size=RENDER_SIZE, traverses=[traverse], seed=seed).traverses[0]
     x = _encode(enc, list(t.images))
     if name in RENDERED_REVISITS:
         d = np.linalg.norm(t.xy[:, None] - t.xy[None], axis=-1)
@@ -120,7 +122,8 @@ def load_stream(name: str, preset: str = "default", cache: Path | str = "results
     import os
 
     data = Path(data or os.environ.get("VPR_DATASETS", "../shared/datasets"))
-    key = hashlib.sha1(json.dumps([name, preset, seed, 1]).encode()).hexdigest()[:10]
+    size = [] if RENDER_SIZE == (160, 120) or "/" not in name else [list(RENDER_SIZE)]
+    key = hashlib.sha1(json.dumps([name, preset, seed, 1, *size]).encode()).hexdigest()[:10]
     path = Path(cache) / f"{name.replace('/', '-')}-{preset}-{seed}-{key}.npz"
     if path.is_file():
         with np.load(path, allow_pickle=False) as z:

@@ -6,7 +6,9 @@ with one line saying how to install it.
 """
 import csv
 import json
+from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -91,37 +93,46 @@ def test_the_report_renders_in_a_real_browser(compared):
                                        ".map(td => [td.dataset.key, td.textContent]))")
         assert shown == dict(settings(params)) and {"preset", "encoder", "method_conf", "ground_truth"} <= set(shown)
         assert json.loads(shown["ground_truth"]) == params["ground_truth"]
-        _click_a_match_on_the_matrix(browser, "rshosm-seq")
+        _click_a_match_on_the_matrix(browser, "rshosm-seq", compared)
     finally:
         browser.quit()
 
 
-def _click_a_match_on_the_matrix(browser, method):
-    """A click on a strip's match on the method's similarity matrix scrolls to that strip, the others hidden."""
+def _click_a_match_on_the_matrix(browser, method, folder):
+    """A click on any cell of the method's similarity matrix shows that pair's frames: the database frame of the
+    row and the query frame of the column (as the method's frames.json names them), with their captions."""
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.by import By
 
+    frames = json.loads((folder / method / "frames.json").read_text())
     img = browser.find_element(By.CSS_SELECTOR, f'img.matrix[data-method="{method}"]')
     x0, y0, x1, y1 = json.loads(img.get_attribute("data-box"))
     rows, cols = json.loads(img.get_attribute("data-shape"))
-    strip = next(s for s in browser.find_elements(By.CSS_SELECTOR, f'.strip[data-method="{method}"]')
-                 if int(s.get_attribute("data-best")) >= 0)
-    q, b = int(strip.get_attribute("data-query")), int(strip.get_attribute("data-best"))
+    assert (rows, cols) == (len(frames["rows"]), len(frames["columns"]))
     browser.execute_script("arguments[0].scrollIntoView({block: 'center'})", img)
     w, h = img.size["width"], img.size["height"]
-    x = (x0 + (q + 0.5) / cols * (x1 - x0)) * w - w / 2  # from the picture's centre
-    y = (y0 + (b + 0.5) / rows * (y1 - y0)) * h - h / 2
-    ActionChains(browser).move_to_element_with_offset(img, round(x), round(y)).click().perform()
-    hit = browser.find_elements(By.CSS_SELECTOR, ".strip.hit")
-    assert len(hit) == 1 and hit[0].get_attribute("data-method") == method
-    # a cell of the picture is a few pixels: the strip hit is the one clicked or a neighbour on the matrix
-    near = int(hit[0].get_attribute("data-query")), int(hit[0].get_attribute("data-best"))
-    assert abs(near[0] - q) <= 2 and abs(near[1] - b) <= 2
-    shown = browser.execute_script("return [...document.querySelectorAll('.strip')]"
-                                   ".filter(s => s.offsetParent !== null).map(s => s.dataset.method)")
-    assert set(shown) == {method}
-    said = img.find_element(By.XPATH, "..").find_element(By.CSS_SELECTOR, ".at").text
-    assert said.startswith("database ") and "nearest shown" in said
+    for q, b in ((cols - 3, 2), (cols // 2, rows // 3)):  # any pair, not only the strips shown
+        x = (x0 + (q + 0.5) / cols * (x1 - x0)) * w - w / 2  # from the picture's centre
+        y = (y0 + (b + 0.5) / rows * (y1 - y0)) * h - h / 2
+        ActionChains(browser).move_to_element_with_offset(img, round(x), round(y)).click().perform()
+        box = img.find_element(By.XPATH, "..").find_element(By.CSS_SELECTOR, ".pair")
+        r, c = int(box.get_attribute("data-row")), int(box.get_attribute("data-column"))
+        assert abs(c - q) <= 1 and abs(r - b) <= 1  # a cell is a pixel or two: the one clicked or a neighbour
+        shown = [f.find_element(By.TAG_NAME, "img").get_attribute("title") for f in
+                 box.find_elements(By.TAG_NAME, "figure")]
+        assert shown == [frames["columns"][c], frames["rows"][r]]  # every frame of this small run is embedded
+        params = json.loads((folder / "metrics.json").read_text())["params"]
+        srcs = [box.find_elements(By.TAG_NAME, "img")[k].get_attribute("src") for k in (0, 1)]
+        for src, where, name in zip(srcs, (params["query"], params["db"]), shown, strict=True):
+            # the query's own frame, not the database frame of the same file name
+            assert src == report.thumbnail(cv2.imread(str(Path(where) / name)), 96, 60)
+        assert all(browser.execute_script("return arguments[0].complete && arguments[0].naturalWidth > 0", i)
+                   for i in box.find_elements(By.TAG_NAME, "img"))
+        caps = [f.text for f in box.find_elements(By.TAG_NAME, "figcaption")]
+        assert caps[0].startswith(f"query {c}: frame {c} · ") and caps[1].startswith(f"database {r}: frame {r} · ")
+    button = img.find_element(By.XPATH, "..").find_element(By.CSS_SELECTOR, "button.full-size")
+    button.click()
+    assert "full" in img.get_attribute("class").split()  # the matrix at its full size
 
 
 @pytest.mark.slow
@@ -173,7 +184,7 @@ def test_without_ground_truth_a_strip_is_query_and_best_match_by_score(scene_on_
     assert "true match" not in page and "not read" not in page
     assert "no ground truth" in page and "worst first</h2>" not in page
     strip = page[page.index('<div class="strip'):]
-    assert strip[:strip.index("</div>")].count("<figure>") == 2  # query | best match
+    assert strip[:strip.index("</div>")].count("<figure") == 2  # query | best match
 
 
 @pytest.mark.slow

@@ -5,6 +5,7 @@ frames); each case checks what is said and what is written.
 """
 import csv
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -294,6 +295,9 @@ def test_a_cut_mcap_and_an_active_ros1_bag_read_up_to_the_damage(seasons, tmp_pa
     assert 5 < len((tmp_path / "o" / "rshosm-seq" / "matches.csv").read_text().splitlines()) - 1 < 20
     salvaged = _metrics(tmp_path / "o")["params"]["salvaged"]["run.bag.active"]  # the run says what it read
     assert salvaged["messages_read"] > 5 and salvaged["damage"]
+    page = (tmp_path / "o" / "report.html").read_text()  # a bag's frames captioned by their time in the run
+    assert re.search(r"frame \d+ · \d+\.\d s<", page)
+    assert not [c for c in re.findall(r"<figcaption>([^<]*)<", page) if "@" in c]  # the full name is the tooltip
 
 
 # ------------------------------------------------------------------ time and sampling
@@ -422,6 +426,26 @@ def test_a_map_and_a_query_at_frame_rates_four_times_apart_keep_their_precision(
     with pytest.warns(UserWarning, match=r"full.bag comes at 5 frames per second and .*sparse.bag at 1.25: a "
                                          r"sequence of one moves 4 frames per frame of the other"):
         code, _, err = _run(["compare", full, sparse, "--out", tmp_path / "c", "--methods", "pairwise", *gt], capsys)
+    assert code == 0, err
+
+
+@pytest.mark.slow
+def test_a_map_at_4_hz_and_a_query_at_2_hz_are_said_and_made_to_agree(scene_on_disk, tmp_path, capsys):
+    s = scene_on_disk("speed_change", (64, 48), 240)
+    img, xy = read_folder(s["slow"]), positions_of(s["gt"], "slow")
+    gt = ["--gt-topic", "/gps/fix", "--radius", 5]
+    fast = write_bag(tmp_path / "map.bag", img, xy, dt=0.25, odom=False)  # 4 frames/s
+    slow = write_bag(tmp_path / "query.bag", img[1::2], xy[1::2], dt=0.5, odom=False)  # the same drive at 2
+    with pytest.warns(UserWarning, match=r"the map's frames came at 4 per second and the query's come at 2: the "
+                                         r"map is learned again from one frame in 2 \(120 of 240\)"):
+        code, _, err = _run(["localize", fast, slow, "--out", tmp_path / "a", *gt], capsys)
+    assert code == 0, err
+    a = _metrics(tmp_path / "a")["methods"]["rshosm-seq"]
+    assert a["frames"] == 120 and a["precision_accepted"] >= 0.99 and a["recall_accepted"] >= 0.9
+    with pytest.warns(UserWarning, match=r"map.bag comes at 4 frames per second and .*query.bag at 2: a sequence of "
+                                         r"one moves 2 frames per frame of the other"):
+        code, _, err = _run(["loops", fast, slow, "--out", tmp_path / "s", "--exclude", 12, "--preset", "fast"],
+                            capsys)
     assert code == 0, err
 
 

@@ -26,11 +26,13 @@ import numpy as np
 
 from vpr import io
 
-__all__ = ["OUTCOMES", "TABLE", "Strip", "table_cells", "metrics_table", "outcome", "choose", "thumbnail", "picture",
-           "png_text", "page", "settings", "write", "write_table"]
+__all__ = ["OUTCOMES", "TABLE", "Strip", "table_cells", "metrics_table", "outcome", "choose", "caption", "thumbnail",
+           "picture", "png_text", "page", "settings", "pair_frames", "write", "write_table"]
 
 #: Strips per method: the page of a 50,000-frame run stays a few MB.
 LIMIT = 120
+#: Frames per side embedded for the pair under a click on a matrix (every k-th of a longer run: the nearest shown).
+PAIR_LIMIT = 300
 
 #: Outcomes of a decision, worst first: (key, label). Without ground truth only ``accepted`` and ``rejected``.
 OUTCOMES = (("wrong", "accepted, wrong"), ("missed", "rejected, right"), ("lost", "rejected, wrong"),
@@ -125,7 +127,30 @@ def choose(keys, score, limit: int) -> tuple[np.ndarray, dict]:
     return (np.concatenate(out) if out else np.zeros(0, np.int64)), counts
 
 
-def thumbnail(img: np.ndarray | None, width: int = 128, quality: int = 75) -> str | None:
+def caption(name: str, index: int, t0: float | None = None) -> str:
+    """A frame's short caption: ``frame 120 · 12.5 s`` where its name holds a time (a bag's ``topic@stamp``;
+    ``t0``: the first frame's), else ``frame 120 · FILE`` (the file name, shortened)."""
+    stamp = _stamp(name)
+    if stamp is not None and t0 is not None:
+        return f"frame {index} · {stamp - t0:.1f} s"
+    base = str(name).replace("\\", "/").rsplit("/", 1)[-1]
+    return f"frame {index} · {base if len(base) <= 28 else base[:12] + '…' + base[-12:]}"
+
+
+def _stamp(name: str) -> float | None:
+    if "@" not in str(name):
+        return None
+    try:
+        return float(str(name).rsplit("@", 1)[1])
+    except ValueError:
+        return None
+
+
+def _first_stamp(names) -> float | None:
+    return next((t for t in (_stamp(n) for n in names) if t is not None), None)
+
+
+def thumbnail(img: np.ndarray | None, width: int = 160, quality: int = 75) -> str | None:
     """A JPEG ``data:`` URI of ``img`` (uint8 BGR) scaled down to ``width`` pixels (None for None)."""
     if img is None:
         return None
@@ -170,19 +195,24 @@ class Strip:
     true_name: str
     score: float
     images: tuple  # data URIs (or None) of the query, the best match and the true match
+    captions: tuple = ()  # short captions of the three frames (:func:`caption`)
 
 
 _CSS = """
-body{font:14px/1.4 system-ui,sans-serif;margin:1.5em;color:#222;max-width:1400px}
+body{font:14px/1.4 system-ui,sans-serif;margin:1.5em;color:#222}
 table{border-collapse:collapse;margin:.5em 0}td,th{padding:.2em .7em;text-align:right;border-bottom:1px solid #ddd}
 td:first-child,th:first-child{text-align:left}figure{display:inline-block;margin:.3em;vertical-align:top}
-figcaption{font-size:12px;color:#555;max-width:128px;overflow-wrap:anywhere}.figs figcaption{max-width:400px}
-.figs img{width:400px;border:1px solid #ccc}.figs a{display:inline-block}
+figcaption{font-size:12px;color:#555;overflow-wrap:anywhere}.figs figcaption{max-width:400px}
+.figs img{width:400px;border:1px solid #ccc}.figs a{display:inline-block}.figs img.full{width:auto;max-width:none}
+.figs figure.full{display:block}.figs figure.full figcaption{max-width:none}
+.pair figure{margin:.3em .6em .3em 0}.pair img{width:200px;border:1px solid #ccc}
 #settings td{text-align:left;font-family:monospace;font-size:12px;overflow-wrap:anywhere}#settings th{text-align:left}
-.strip{border-left:6px solid #999;padding:.3em .6em;margin:.4em;display:inline-block;vertical-align:top;width:430px}
+#strip-list{display:flex;flex-wrap:wrap}
+.strip{border-left:6px solid #999;padding:.3em .6em;margin:.4em;box-sizing:border-box;flex:1 1 480px;max-width:720px}
+.strip figure{width:31%;margin:.3em 1% .3em 0}
 .strip.wrong{border-color:#c0392b}.strip.missed{border-color:#e67e22}.strip.lost{border-color:#f1c40f}
-.strip.right{border-color:#27ae60}.strip.none,.strip.soft{border-color:#8e44ad}.strip img{width:128px;display:block}
-.strip .missing{width:128px;height:96px;background:#eee;color:#888;display:flex;align-items:center;
+.strip.right{border-color:#27ae60}.strip.none,.strip.soft{border-color:#8e44ad}.strip img{width:100%;display:block}
+.strip .missing{width:100%;height:96px;background:#eee;color:#888;display:flex;align-items:center;
 justify-content:center}button{margin:.15em;padding:.2em .6em}button.on{background:#333;color:#fff}
 caption{text-align:left;font-weight:600;padding:.3em 0}.note{color:#555}
 .strip.hit{outline:3px solid #2980b9}img.matrix{cursor:crosshair}
@@ -208,10 +238,23 @@ for (const b of document.querySelectorAll("button[data-filter]"))
   b.addEventListener("click", () => { state[b.dataset.filter] = b.dataset.value; apply(); });
 for (const a of document.querySelectorAll("a[data-method]"))
   a.addEventListener("click", () => { state.method = a.dataset.method; state.outcome = "all"; apply(); });
-// a similarity matrix: the pair under the pointer said, a click shows the strip of the nearest match shown
+// a similarity matrix: the pair under the pointer said, a click shows that pair's frames (the nearest embedded)
+const pairsEl = document.getElementById("pairs");
+const pairs = pairsEl ? JSON.parse(pairsEl.textContent) : null;
+for (const button of document.querySelectorAll("button.full-size"))
+  button.addEventListener("click", () => {
+    const fig = button.closest("figure");
+    fig.classList.toggle("full");
+    fig.querySelector("img.matrix").classList.toggle("full");
+  });
+function nearest(side, i) {
+  let k = Math.min(side.index.length - 1, Math.max(0, Math.round(i / side.step)));
+  return k;
+}
 for (const img of document.querySelectorAll("img.matrix")) {
   const [x0, y0, x1, y1] = JSON.parse(img.dataset.box), [rows, cols] = JSON.parse(img.dataset.shape);
-  const names = JSON.parse(img.dataset.labels), at = img.parentElement.querySelector(".at");
+  const names = JSON.parse(img.dataset.labels), fig = img.closest("figure"), at = fig.querySelector(".at");
+  const box = fig.querySelector(".pair");
   const pair = e => {
     const r = img.getBoundingClientRect();
     const fx = ((e.clientX - r.left) / r.width - x0) / (x1 - x0);
@@ -225,20 +268,31 @@ for (const img of document.querySelectorAll("img.matrix")) {
   });
   img.addEventListener("click", e => {
     const p = pair(e);
-    if (!p) return;
-    let near = null, dist = Infinity;
-    for (const s of document.querySelectorAll(".strip")) {
-      if (s.dataset.method !== img.dataset.method) continue;
-      const best = +s.dataset.best, d = Math.abs(+s.dataset.query - p[1]) / cols
-        + (best < 0 ? 1 : Math.abs(best - p[0]) / rows);
-      if (d < dist) { near = s; dist = d; }
+    if (!p || !pairs) return;
+    box.textContent = "";
+    const sides = [[pairs.columns || pairs.rows, p[1], names[1]], [pairs.rows, p[0], names[0]]];
+    for (const [side, asked, label] of sides) {
+      const k = nearest(side, asked), f = document.createElement("figure"), im = document.createElement("img");
+      if (side.pics[k]) im.src = side.pics[k];
+      im.title = side.names[k];
+      im.alt = `${label} ${side.index[k]}`;
+      const cap = document.createElement("figcaption");
+      cap.textContent = `${label} ${side.index[k]}: ${side.captions[k]}`
+        + (side.index[k] !== asked ? ` (the nearest embedded to ${asked})` : "");
+      f.append(im, cap);
+      box.append(f);
     }
-    if (!near) return;
-    state.method = img.dataset.method; state.outcome = "all"; apply();
-    for (const s of document.querySelectorAll(".strip.hit")) s.classList.remove("hit");
-    near.classList.add("hit");
-    near.scrollIntoView({block: "center"});
-    at.textContent = `${names[0]} ${p[0]}, ${names[1]} ${p[1]}: nearest shown, ${names[1]} ${near.dataset.query}`;
+    const strip = document.getElementById(`s-${img.dataset.method}-${p[1]}`);
+    if (strip) {
+      const a = document.createElement("a");
+      a.href = "#" + strip.id;
+      a.textContent = `${names[1]} ${p[1]}'s decision below`;
+      a.addEventListener("click", () => { state.method = img.dataset.method; state.outcome = "all"; apply(); });
+      box.append(a);
+    }
+    box.dataset.row = p[0];
+    box.dataset.column = p[1];
+    at.textContent = `${names[0]} ${p[0]}, ${names[1]} ${p[1]}`;
   });
 }
 apply();
@@ -249,7 +303,8 @@ def _esc(x) -> str:
     return html.escape(str(x), quote=True)
 
 
-def _figure(uri: str | None, caption: str, pics: dict | None = None, matrix: dict | None = None) -> str:
+def _figure(uri: str | None, caption: str, pics: dict | None = None, matrix: dict | None = None,
+            title: str = "") -> str:
     """A picture with its caption; with ``pics`` (data URI -> id) the picture is named and filled in by the page's
     script, so that a frame shown in many strips is in the file once. ``matrix``: a similarity matrix's
     ``method``, ``box``, ``shape`` and ``labels`` (rows, columns): a click on it shows the nearest strip."""
@@ -258,12 +313,14 @@ def _figure(uri: str | None, caption: str, pics: dict | None = None, matrix: dic
     elif matrix is not None:
         attrs = " ".join(f'data-{k}="{_esc(json.dumps(v) if k != "method" else v)}"' for k, v in matrix.items())
         return (f'<figure><img class="matrix" src="{uri}" alt="{_esc(caption)}" {attrs}><figcaption>{_esc(caption)}'
-                f' (click a match to see it below) <span class="at"></span></figcaption></figure>')
+                ' (click a pair to see its frames) <button class="full-size">full size</button> '
+                '<span class="at"></span></figcaption><div class="pair"></div></figure>')
     elif pics is None:
         pic = f'<a href="{uri}" target="_blank"><img src="{uri}" alt="{_esc(caption)}"></a>'
     else:
         pic = f'<img data-pic="{pics.setdefault(uri, f"p{len(pics)}")}" alt="{_esc(caption)}">'
-    return f"<figure>{pic}<figcaption>{_esc(caption)}</figcaption></figure>"
+    tip = f' title="{_esc(title)}"' if title else ""
+    return f"<figure{tip}>{pic}<figcaption>{_esc(caption)}</figcaption></figure>"
 
 
 #: ``params`` of ``metrics.json`` that are measurements or bookkeeping, not settings of the run
@@ -281,7 +338,7 @@ def settings(params: dict) -> list[tuple[str, str]]:
 
 def page(title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[str]]], figures: list[tuple],
          strips: list[Strip], counts: dict, notes: list[str], sides=("query", "best match", "true match"),
-         sessions: dict | None = None, params: dict | None = None) -> str:
+         sessions: dict | None = None, params: dict | None = None, pairs: dict | None = None) -> str:
     """The report's HTML.
 
     ``header``/``rows``: the metrics table: (metrics key, label) of its
@@ -291,7 +348,8 @@ def page(title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[s
     ``notes``: lines said under the title; ``sides``: what the three frames
     of a strip are; ``sessions``: per method, the closures per pair of
     sessions (:func:`vpr.evaluate.session_pairs`' rows); ``params``: the
-    run's ``metrics.json`` params, shown as its settings (:func:`settings`).
+    run's ``metrics.json`` params, shown as its settings (:func:`settings`); ``pairs``: the frames a click on a
+    matrix shows (:func:`pair_frames`).
     """
     out = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
            f"<title>{_esc(title)}</title><style>{_CSS}</style></head><body>", f"<h1>{_esc(title)}</h1>"]
@@ -331,22 +389,49 @@ def page(title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[s
                          for k, lab in OUTCOMES if any(k in c for c in counts.values()))
                + ' <span id="shown"></span></div>')
     pics: dict[str, str] = {}
+    out.append('<div id="strip-list">')
     for s in strips:
-        caps = (f"{sides[0]} {s.query}: {s.query_name}", f"{sides[1]}: {s.best_name or '(none)'}",
-                *([f"{sides[2]}: {s.true_name or '(none)'}"] if len(sides) > 2 else []))
+        short = s.captions or (s.query_name, s.best_name, s.true_name)
+        caps = (f"{sides[0]}: {short[0]}", f"{sides[1]}: {short[1] if s.best_name else '(none)'}",
+                *([f"{sides[2]}: {short[2] if s.true_name else '(none)'}"] if len(sides) > 2 else []))
+        full = (s.query_name, s.best_name, s.true_name)
         score = f"{s.score:.3f}" if np.isfinite(s.score) else "-"
         out.append(f'<div class="strip {s.outcome}" data-method="{_esc(s.method)}" data-outcome="{s.outcome}" '
                    f'data-query="{s.query}" data-best="{s.best}" id="s-{_esc(s.method)}-{s.query}">'
                    f'<b>{_esc(s.method)}</b> · {_esc(_LABEL[s.outcome])} · score '
-                   f"{score}<br>" + "".join(_figure(u, c, pics) for u, c in zip(s.images, caps, strict=False))
+                   f"{score}<br>" + "".join(_figure(u, c, pics, title=t)
+                                            for u, c, t in zip(s.images, caps, full, strict=False))
                    + "</div>")
+    out.append("</div>")
     # the pictures once, before the script that puts them in place
     out.append('<script type="application/json" id="pics">'
                + json.dumps({k: uri for uri, k in pics.items()}).replace("</", "<\\/") + "</script>")
+    if pairs:
+        out.append('<script type="application/json" id="pairs">' + json.dumps(pairs).replace("</", "<\\/")
+                   + "</script>")
     out.append(f"<script>{_JS}</script>")
     out.append('<script type="application/json" id="counts">' + json.dumps(counts).replace("</", "<\\/")
                + "</script></body></html>")
     return "\n".join(out)
+
+
+def pair_frames(frames: dict, read_query, read_db, same: bool) -> dict:
+    """What a click on a matrix shows: per side (``rows``: the database or earlier frames; ``columns``: the
+    queries, left out when ``same``, one stream) at most :data:`PAIR_LIMIT` frames, every ``step``-th, with their
+    index, name, short caption (:func:`caption`) and thumbnail. ``frames``: a method's ``frames.json``."""
+    def side(names, read) -> dict:
+        step = max(1, math.ceil(len(names) / PAIR_LIMIT))
+        index = list(range(0, len(names), step))
+        imgs = read([names[i] for i in index])
+        t0 = _first_stamp(names)
+        return {"step": step, "index": index, "names": [names[i] for i in index],
+                "captions": [caption(names[i], i, t0) for i in index],
+                "pics": [thumbnail(imgs.get(names[i]), 96, 60) for i in index]}
+
+    out = {"rows": side(frames["rows"], read_db)}
+    if not same:
+        out["columns"] = side(frames["columns"], read_query)
+    return out
 
 
 def _rows(path: Path) -> list[dict]:
@@ -406,11 +491,23 @@ def write(out, read_query, read_db, kind: str = "match", title: str | None = Non
     db_img = read_db([r[c] for rs in picked.values() for r, _, _ in rs for c in ("db_name", "true_name") if r.get(c)])
     thumbs = {("q", n): thumbnail(i) for n, i in q_img.items()}
     thumbs.update({("db", n): thumbnail(i) for n, i in db_img.items()})
+    frames = next((json.loads((out / m.partition("+")[0] / "frames.json").read_text()) for m in methods
+                   if (out / m.partition("+")[0] / "frames.json").is_file()), None)
+    t_q = _first_stamp(frames["columns"] if frames else [r["query_name"] for rs in picked.values() for r, _, _ in rs])
+    t_db = t_q if kind == "loops" else _first_stamp(frames["rows"]) if frames else None
+
+    def short(r) -> tuple:
+        return (caption(r["query_name"], int(r["query"]), t_q),
+                caption(r["db_name"], int(r["best_db"] or -1), t_db) if r["db_name"] else "",
+                caption(r.get("true_name", ""), int(r.get("true_db") or -1), t_db) if r.get("true_name") else "")
+
     strips = [Strip(m, key, int(r["query"]), r["query_name"], int(r["best_db"] or -1), r["db_name"],
                     r.get("true_name", ""), s,
                     (thumbs.get(("q", r["query_name"])), thumbs.get(("db", r["db_name"])),
-                     thumbs.get(("db", r.get("true_name", "")))))
+                     thumbs.get(("db", r.get("true_name", "")))), short(r))
               for m, rs in picked.items() for r, key, s in rs]
+    pairs = pair_frames(frames, read_query, read_db, kind == "loops" and frames["rows"] == frames["columns"]) \
+        if frames else None
     def source(v) -> str:
         return "image paths on stdin" if v == "-" else str(v)
 
@@ -434,7 +531,7 @@ def write(out, read_query, read_db, kind: str = "match", title: str | None = Non
     sides = sides if truth_known else sides[:2]
     sessions = {m: v["sessions"] for m, v in methods.items() if v.get("sessions")}
     return _save(out, page(title or f"vpr {params.get('command', '')}: {out.name}", TABLE[kind], rows, figures,
-                           strips, counts, notes, sides, sessions, params))
+                           strips, counts, notes, sides, sessions, params, pairs))
 
 
 def write_table(out, title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[str]]], figures=(),

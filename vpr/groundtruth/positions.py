@@ -243,8 +243,8 @@ def same_sampling(the_map, every: float | None, positions: bool, where: str, pro
 
 
 #: Frame rates this far apart (a ratio) make a sequence of one source move several frames per frame of the other
-#: and cost the decisions their precision (chosen on rendered drives: docs/localize.md, "Frame rates").
-RATE_RATIO = 2.5
+#: and can cost the decisions their recall or precision; made to agree from here (docs/localize.md, "Frame rates").
+RATE_RATIO = 1.5
 
 
 def same_rate(the_map, src, fps: float | None, where: str, progress: bool = False):
