@@ -266,12 +266,12 @@ class CausalStandardiser:
         first = hi - (len(self._s) - 1)  # frame of the oldest prefix sum kept
         return _window_stats(self._s[-1], self._s[lo - first], self._q[-1], self._q[lo - first], float(hi - lo))
 
-    def state(self) -> dict:
+    def state(self) -> tuple[dict, dict]:
         """The prefix sums kept, as arrays (:meth:`load_state` continues from them)."""
-        return {"frames": np.array(self.frames, np.int64), "s": np.stack(self._s) if self._s else np.zeros((0, 0)),
-                "q": np.stack(self._q) if self._q else np.zeros((0, 0))}
+        return {}, {"frames": np.array(self.frames, np.int64), "s": np.stack(self._s) if self._s else np.zeros((0, 0)),
+                    "q": np.stack(self._q) if self._q else np.zeros((0, 0))}
 
-    def load_state(self, state: dict) -> CausalStandardiser:
+    def load_state(self, header: dict, state: dict) -> CausalStandardiser:
         self.frames = int(state["frames"])
         self._s = deque(np.asarray(state["s"], np.float64), maxlen=CAUSAL_WINDOW + 1)
         self._q = deque(np.asarray(state["q"], np.float64), maxlen=CAUSAL_WINDOW + 1)
@@ -361,14 +361,14 @@ class RunningStandardiser:
         std = np.where(np.isfinite(self._prior_std) & (std >= 1e-6), std, np.inf)
         return mean.astype(np.float32), std.astype(np.float32)
 
-    def state(self) -> dict:
+    def state(self) -> tuple[dict, dict]:
         """The running sums as arrays (a restart continues them with :meth:`load_state`)."""
         out = {"n": np.array(self.n), "sum": self.sum, "sq": self.sq}
         if self.recent:
             out["recent"] = np.stack(self.recent)
-        return out
+        return {}, out
 
-    def load_state(self, state: dict) -> RunningStandardiser:
+    def load_state(self, header: dict, state: dict) -> RunningStandardiser:
         self.n = float(state["n"])
         self.sum, self.sq = np.asarray(state["sum"], np.float64), np.asarray(state["sq"], np.float64)
         self.recent = list(np.asarray(state["recent"], np.float64)) if "recent" in state else []

@@ -17,6 +17,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from vpr.types import FrameEncoder
+
 from .base import BaseEncoder, DescriptorEncoder
 from .projection import CAUSAL_MIN, CausalStandardiser, RunningStandardiser
 
@@ -32,7 +34,7 @@ PRIOR_FRAMES = 10.0
 WINDOW = 50
 
 
-class StreamEncoder:
+class StreamEncoder(FrameEncoder):
     """Encode one frame at a time with ``encoder`` (fitted on the database when it standardises).
 
     Parameters
@@ -135,26 +137,26 @@ class StreamEncoder:
         stats = [r.update(b[0]) for r, b in zip(self._running, self.encoder.blocks(desc), strict=True)]
         return sp.csr_matrix(self.encoder.encode_descriptors(desc, stats))
 
-    def state(self) -> dict:
+    def state(self) -> tuple[dict, dict]:
         """The running statistics as arrays (stored in ``--state-out`` files, so that a restart continues them)."""
         out = {}
         for i, c in enumerate(self._causal):
-            out.update({f"c{i}_{k}": v for k, v in c.state().items()})
+            out.update({f"c{i}_{k}": v for k, v in c.state()[1].items()})
         if self._waiting:
             out["c_waiting"] = np.stack(self._waiting)
         for i, r in enumerate(self._running):
-            st = r.state()
+            st = r.state()[1]
             out[f"q_sum_{i}"], out[f"q_sq_{i}"] = st["sum"], st["sq"]
             out["q_n"] = st["n"]
             if "recent" in st:
                 out[f"q_recent_{i}"] = st["recent"]
-        return out
+        return {}, out
 
-    def load_state(self, arrays: dict) -> StreamEncoder:
+    def load_state(self, header: dict, arrays: dict) -> StreamEncoder:
         """Continue the running statistics of :meth:`state` (no-op when ``arrays`` holds none)."""
         if self.causal and "c0_frames" in arrays:
             n = len({k.split("_")[0] for k in arrays if k.startswith("c") and k[1:].split("_")[0].isdigit()})
-            self._causal = [CausalStandardiser().load_state({k: arrays[f"c{i}_{k}"] for k in ("frames", "s", "q")})
+            self._causal = [CausalStandardiser().load_state({}, {k: arrays[f"c{i}_{k}"] for k in ("frames", "s", "q")})
                             for i in range(n)]
             self._waiting = list(np.asarray(arrays["c_waiting"], np.float32)) if "c_waiting" in arrays else []
         if not self._running or "q_n" not in arrays:
@@ -163,5 +165,5 @@ class StreamEncoder:
             st = {"n": arrays["q_n"], "sum": arrays[f"q_sum_{i}"], "sq": arrays[f"q_sq_{i}"]}
             if f"q_recent_{i}" in arrays:
                 st["recent"] = arrays[f"q_recent_{i}"]
-            r.load_state(st)
+            r.load_state({}, st)
         return self

@@ -102,7 +102,7 @@ class LocalizeOnline(Online):
         self.qenc.new_session()
 
     def save(self, path) -> None:
-        self.map.query_state = self.qenc.state()
+        self.map.query_state = self.qenc.state()[1]  # its header is empty: the arrays hold it
         self.map.save(path)
 
     def resume_hint(self, path) -> str:
@@ -182,7 +182,7 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
         the_map, q_fps = same_rate(the_map, q_src, fps, str(map_or_db), progress)
         q_src = open_source(query, fps=q_fps, step=step, max_frames=max_frames, topic=topic) if q_fps else q_src
     qenc = StreamEncoder(enc, query_standardise, **running)
-    qenc.load_state(the_map.query_state)  # a --state-out file continues its query's running statistics
+    qenc.load_state({}, the_map.query_state)  # a --state-out file continues its query's running statistics
     q_xy = None
     if gt.positional:
         if the_map.positions is None:

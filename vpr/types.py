@@ -14,6 +14,11 @@
   frame of a traverse (arrays, :meth:`Decision.stack`).
 * :class:`Decider`: the contract of everything that decides a stream one
   :class:`Column` at a time (a map's localisation, a loop rule, a second opinion).
+* :class:`FrameEncoder`: the contract of an encoder that turns a robot's images
+  into SDRs one at a time (what the online loop detector takes).
+
+Everything stateful keeps one convention: ``state() -> (header, arrays)`` (a
+JSON-able dict and a dict of arrays) and ``load_state(header, arrays)``.
 * :class:`MatchResult`: a database x query similarity (dense, or top-K
   sparse), the best database frame per query, its score and the decision.
 """
@@ -26,7 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["EncodedTraverse", "ImageInput", "Column", "Decision", "Decider", "MatchResult", "ENCODER_INPUTS"]
+__all__ = ["EncodedTraverse", "ImageInput", "Column", "Decision", "Decider", "FrameEncoder", "MatchResult",
+           "ENCODER_INPUTS"]
 
 #: Inputs that come from the encoder (every other input is an :class:`ImageInput` of a method).
 ENCODER_INPUTS = {"sdr": "SDRs", "desc": "dense descriptors"}
@@ -224,6 +230,41 @@ class Decider(ABC):
 
     @abstractmethod
     def load_state(self, header: dict, arrays: dict) -> Decider:
+        """Continue from a :meth:`state`; returns self."""
+
+
+class FrameEncoder(ABC):
+    """Encodes a stream's images one at a time into SDR rows, some frames possibly waiting for later ones (causal
+    standardisation), with a state a restart continues."""
+
+    @property
+    @abstractmethod
+    def delay(self) -> int:
+        """Frames a frame may wait for its SDR."""
+
+    @property
+    @abstractmethod
+    def waiting(self) -> int:
+        """Frames pushed whose SDRs have not been given yet."""
+
+    @abstractmethod
+    def push(self, image) -> sp.csr_matrix:
+        """The SDR rows of the frames now ready, in order (0 or more)."""
+
+    @abstractmethod
+    def flush(self) -> sp.csr_matrix:
+        """The SDR rows of the frames still waiting (a stream that ends)."""
+
+    @abstractmethod
+    def new_session(self) -> sp.csr_matrix:
+        """A new run starts: the rows of the frames still waiting; nothing of the last run's statistics goes on."""
+
+    @abstractmethod
+    def state(self) -> tuple[dict, dict]:
+        """(header, arrays) that :meth:`load_state` continues from."""
+
+    @abstractmethod
+    def load_state(self, header: dict, arrays: dict) -> FrameEncoder:
         """Continue from a :meth:`state`; returns self."""
 
 

@@ -9,9 +9,9 @@ optional encoder for images, and :meth:`LoopDetector.save` /
 answers it would have given without stopping.
 
 Encoding images is the caller's: ``vpr`` never imports ``encoders``. An
-``encoder`` is any object with ``push(image)`` returning the SDR rows of the
-frames now ready (and optionally ``delay``, ``waiting``, ``flush()``,
-``new_session()``, ``state()``, ``load_state(arrays)``), as
+``encoder`` is a :class:`vpr.types.FrameEncoder` (``push(image)`` returning
+the SDR rows of the frames now ready, ``delay``, ``waiting``, ``flush()``,
+``new_session()``, ``state()`` / ``load_state()``), as
 :class:`encoders.stream.StreamEncoder`.
 """
 from __future__ import annotations
@@ -22,7 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from vpr.checks import check_int
-from vpr.types import Decision
+from vpr.types import Decision, FrameEncoder
 
 from .conf import LOOP_EXCLUDE, RshosmSeqConf
 from .loops import LoopStream
@@ -63,10 +63,11 @@ class LoopDetector:
         Caller metadata stored by :meth:`save` (``vpr loops -`` keeps the encoder there).
     """
 
-    def __init__(self, encoder=None, conf: RshosmSeqConf | None = None, exclude: int = LOOP_EXCLUDE, **flat):
+    def __init__(self, encoder: FrameEncoder | None = None, conf: RshosmSeqConf | None = None,
+                 exclude: int = LOOP_EXCLUDE, **flat):
         self.seq = RshosmSeqConf.of(conf, **flat)
         exclude = check_int(exclude, "LoopDetector: exclude", 1)
-        delay = int(getattr(encoder, "delay", 0) or 0)
+        delay = int(encoder.delay) if encoder is not None else 0
         if exclude <= delay:
             raise ValueError(f"LoopDetector: exclude {exclude} must exceed the encoder's delay of {delay} frames "
                              "(its first frames wait for each other; they must not be candidates of each other)")
@@ -99,7 +100,7 @@ class LoopDetector:
         """
         label = str(name) if name is not None else f"frame {self.frames}"
         if _is_sdr(frame_or_sdr):
-            if getattr(self.encoder, "waiting", 0):
+            if self.encoder is not None and self.encoder.waiting:
                 raise ValueError(f"{label}: an SDR while the encoder holds frames waiting for their SDRs; give "
                                  "images or SDRs, not both")
             self.names.append(label)
@@ -126,7 +127,7 @@ class LoopDetector:
     def new_session(self) -> None:
         """The next frame starts a new run of the robot (:meth:`vpr.shosm.LoopStream.new_session`); frames still
         waiting in the encoder are decided first, and its causal window starts again."""
-        if self.encoder is not None and hasattr(self.encoder, "new_session"):
+        if self.encoder is not None:
             self._release(sp.csr_matrix(self.encoder.new_session()))
         self.stream.new_session()
 
@@ -137,7 +138,7 @@ class LoopDetector:
 
     def flush(self) -> None:
         """Learn the frames still waiting for their SDRs (a stream that ends before the encoder's delay)."""
-        if self.encoder is not None and hasattr(self.encoder, "flush"):
+        if self.encoder is not None:
             self._release(sp.csr_matrix(self.encoder.flush()))
 
     def _release(self, rows: sp.csr_matrix) -> None:
@@ -170,13 +171,13 @@ class LoopDetector:
     def save(self, path) -> Path:
         """Write the stream, the names and the encoder's state (one atomic ``.npz``)."""
         header, arrays = self.stream.state()
-        parts = {"s": arrays, "enc": self.encoder.state() if hasattr(self.encoder, "state") else {}}
+        enc_header, enc_arrays = self.encoder.state() if self.encoder is not None else ({}, {})
         return write_file(path, _FORMAT, _FORMAT_VERSION,
-                          {"conf": {**self.seq.flat(), "exclude": self.exclude}, "stream": header, "meta": self.meta},
-                          parts, names=self.names)
+                          {"conf": {**self.seq.flat(), "exclude": self.exclude}, "stream": header, "meta": self.meta,
+                           "enc": enc_header}, {"s": arrays, "enc": enc_arrays}, names=self.names)
 
     @classmethod
-    def load(cls, path, encoder=None) -> LoopDetector:
+    def load(cls, path, encoder: FrameEncoder | None = None) -> LoopDetector:
         """Read a file written by :meth:`save`; the detector continues where it was saved.
 
         ``encoder``: a fresh encoder of the kind used before the restart (its
@@ -197,8 +198,8 @@ class LoopDetector:
             det.names = names
             if len(det.names) < det.stream.frames:
                 raise ValueError(f"{len(det.names)} names for {det.stream.frames} frames")
-            if encoder is not None and parts["enc"] and hasattr(encoder, "load_state"):
-                encoder.load_state(parts["enc"])
+            if encoder is not None:
+                encoder.load_state(header.get("enc", {}), parts["enc"])
             det.meta = header.get("meta", {})
         return det
 
