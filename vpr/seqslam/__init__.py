@@ -40,7 +40,7 @@ from .dense import (
     trajectory_offsets,
 )
 from .difference import difference_matrix, enhance_contrast
-from .topk import SeqSLAMTopK, seqslam_topk
+from .topk import seqslam_topk
 
 __all__ = ["SeqSLAMResult", "difference_matrix", "enhance_contrast", "trajectory_offsets", "seqslam",
-           "match_images", "pixel_descriptors", "SeqSLAMTopK", "seqslam_topk", "check_sequence_params"]
+           "match_images", "pixel_descriptors", "seqslam_topk", "check_sequence_params"]

@@ -55,20 +55,19 @@ def trajectory_offsets(ds: int = 10, v_min: float = 0.8, v_max: float = 1.2,
 
 @dataclass(frozen=True)
 class SeqSLAMResult:
-    """Output of :func:`seqslam` (database x query layout).
+    """Output of :func:`seqslam` (dense) and :func:`vpr.seqslam.seqslam_topk` (top-K), database x query layout.
 
     Attributes
     ----------
-    similarity : numpy.ndarray, float32, (n_db, n_q)
+    similarity : numpy.ndarray, float32, (n_db, n_q), or scipy.sparse.csr_matrix
         Higher = better; finite everywhere. ``-score`` where ``score`` is
         finite; entries with no complete trajectory sit below every finite one
-        (see :func:`seqslam`, "Edges").
-    score : numpy.ndarray, float32, (n_db, n_q)
-        OpenSeqSLAM's sequence score (lower = better): the minimum over
-        velocities of the summed enhanced differences along the trajectory;
-        ``inf`` where no velocity keeps the trajectory inside the database.
+        (see :func:`seqslam`, "Edges"). Top-K: the ``top_k`` highest entries
+        per query column of the dense one (same values; explicit zeros kept),
+        among the cells searched.
     best_db : numpy.ndarray, int64, (n_q,)
-        Best database row per query (first one on ties, like MATLAB's ``min``).
+        Best database row per query (first one on ties, like MATLAB's ``min``;
+        -1 where nothing was searched).
     best_score : numpy.ndarray, float32, (n_q,)
         Score of the best row (the partial-trajectory score where ``complete``
         is False; ``inf`` only if no trajectory touches the database at all).
@@ -83,16 +82,29 @@ class SeqSLAMResult:
         database (always true for OpenSeqSLAM-definable cases).
     velocities : numpy.ndarray, float64
         The velocities searched.
+    exact : bool
+        Whether every database row was searched for every query (always for
+        the dense result; then the top-K fields equal the dense ones up to
+        float32 rounding).
+    cells : int
+        (database, query) cells whose trajectory score was computed.
+    score : numpy.ndarray, float32, (n_db, n_q), or None
+        OpenSeqSLAM's sequence score (lower = better): the minimum over
+        velocities of the summed enhanced differences along the trajectory;
+        ``inf`` where no velocity keeps the trajectory inside the database.
+        Dense only (None for top-K).
     """
 
     similarity: np.ndarray
-    score: np.ndarray
     best_db: np.ndarray
     best_score: np.ndarray
     ratio: np.ndarray
     accepted: np.ndarray
     complete: np.ndarray
     velocities: np.ndarray
+    exact: bool = True
+    cells: int = 0
+    score: np.ndarray | None = None
 
 
 def _trajectory_scores(DD: np.ndarray, offsets: np.ndarray, ds: int, causal: bool,
@@ -290,8 +302,8 @@ def seqslam(D, ds: int = 10, v_min: float = 0.8, v_max: float = 1.2, v_step: flo
     accepted = np.isfinite(best_val) & (ratio <= ratio_threshold)
 
     similarity = _similarity(S, P, feasible)
-    return SeqSLAMResult(similarity=similarity, score=S, best_db=best, best_score=best_val,
-                         ratio=ratio, accepted=accepted, complete=complete, velocities=velocities)
+    return SeqSLAMResult(similarity=similarity, best_db=best, best_score=best_val, ratio=ratio, accepted=accepted,
+                         complete=complete, velocities=velocities, exact=True, cells=int(S.size), score=S)
 
 
 def _similarity(S: np.ndarray, P: np.ndarray, feasible: np.ndarray) -> np.ndarray:

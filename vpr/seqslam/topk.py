@@ -1,8 +1,6 @@
 """SeqSLAM beyond a dense matrix: by blocks of queries, top-K per query, exact or around candidate matches."""
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import scipy.sparse as sp
 
@@ -11,42 +9,10 @@ from vpr.checks import check_int, check_top_k
 from vpr.similarity import TOP_K, bitsets_pay, mean_abs_diff, overlap_similarity, sdr_candidates, sdr_overlap_rows
 
 from . import kernels as K
-from .dense import check_sequence_params
+from .dense import SeqSLAMResult, check_sequence_params
 from .difference import as_descriptors, unit_rows
 
-__all__ = ["SeqSLAMTopK", "seqslam_topk"]
-
-
-@dataclass(frozen=True)
-class SeqSLAMTopK:
-    """Output of :func:`seqslam_topk`: :class:`SeqSLAMResult` without dense matrices.
-
-    Attributes
-    ----------
-    similarity : scipy.sparse.csr_matrix, float32, (n_db, n_q)
-        The ``top_k`` highest entries per query column of the dense
-        :attr:`SeqSLAMResult.similarity` (same values; explicit zeros kept),
-        among the cells searched.
-    best_db, best_score, ratio, accepted, complete, velocities
-        As in :class:`SeqSLAMResult`, over the cells searched. A query for
-        which nothing was searched (candidate mode, no candidate in its block)
-        has ``best_db = -1``, ``best_score = inf``, ``ratio = 1``, not accepted.
-    exact : bool
-        True when every database row was searched for every query: then every
-        field equals the dense :func:`seqslam` up to float32 rounding.
-    cells : int
-        Number of (database, query) cells whose trajectory score was computed.
-    """
-
-    similarity: sp.csr_matrix
-    best_db: np.ndarray
-    best_score: np.ndarray
-    ratio: np.ndarray
-    accepted: np.ndarray
-    complete: np.ndarray
-    velocities: np.ndarray
-    exact: bool
-    cells: int
+__all__ = ["seqslam_topk"]
 
 
 class _Descriptors:
@@ -203,7 +169,7 @@ def seqslam_topk(db_desc, q_desc, top_k: int = TOP_K, metric: str = "sad", block
                  ds: int = 10,
                  v_min: float = 0.8, v_max: float = 1.2, v_step: float = 0.1, R: int = 10,
                  rwindow: int = 10, ratio_threshold: float = 0.9, causal: bool = False,
-                 enhance: bool = True) -> SeqSLAMTopK:
+                 enhance: bool = True) -> SeqSLAMResult:
     """SeqSLAM from descriptors, by blocks of queries, keeping the top-K per query.
 
     Memory is ``O(searched rows x block)`` instead of the dense ``n_db x n_q``.
@@ -270,7 +236,7 @@ def seqslam_topk(db_desc, q_desc, top_k: int = TOP_K, metric: str = "sad", block
 
     Returns
     -------
-    SeqSLAMTopK
+    SeqSLAMResult
 
     Raises
     ------
@@ -413,6 +379,6 @@ def seqslam_topk(db_desc, q_desc, top_k: int = TOP_K, metric: str = "sad", block
     if any_nothing:
         sim[cls == 2] = floor - gap
     similarity = sp.coo_matrix((sim, (r, c)), shape=(n_db, n_q)).tocsr()
-    return SeqSLAMTopK(similarity=similarity, best_db=best, best_score=best_score, ratio=ratio,
-                       accepted=accepted, complete=complete, velocities=velocities, exact=bool(exact),
-                       cells=int(cells))
+    return SeqSLAMResult(similarity=similarity, best_db=best, best_score=best_score, ratio=ratio,
+                         accepted=accepted, complete=complete, velocities=velocities, exact=bool(exact),
+                         cells=int(cells))
