@@ -32,7 +32,7 @@ import numpy as np
 
 from studies import loop_streams
 from studies.loop_decisions import aliases, evidence
-from studies.loop_geometry import _images, _rtabmap, count
+from studies.loop_geometry import count, images_of, rtabmap_stream
 from studies.loop_streams import load_stream
 from vpr.shosm import LoopConf, accept_loops
 from vpr.verify import OpinionConf, Verifier, second_opinion
@@ -75,13 +75,13 @@ def grid_counts(names, grid, cache: Path, data: Path, far: int = 0, min_side: in
     for name in names:
         t = time.perf_counter()
         if name == "rtabmap_loop":
-            stream, ev = _rtabmap(data, cache)
+            stream, ev = rtabmap_stream(data, cache)
         else:
             stream = load_stream(name, preset="default", cache=cache, data=data)
             ev = evidence(stream, cache, "default")
         alias = aliases(name) if not stream.forward_only or "/" in name else None
         d = accept_loops(ev, conf, sdr=stream.x)
-        image = _images(stream)
+        image = images_of(stream)
         def one_verifier(a, b, shared={}, **kw):  # noqa: B006 - one verifier per stream, by design
             if "v" not in shared:
                 shared["v"] = Verifier(a, b, **kw)

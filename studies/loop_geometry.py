@@ -34,7 +34,7 @@ EXCLUDE = 30
 STREAMS = (*REAL_REVISITS, "rtabmap_loop", *RENDERED_REVISITS, *FORWARD)
 
 
-def _rtabmap(data: Path, cache: Path):
+def rtabmap_stream(data: Path, cache: Path):
     root = data / "rtabmap_loop"
     frames = [str(p) for p in sorted((root / "images").glob("*.jpg"))]
     enc = encoder_for("default")
@@ -45,7 +45,7 @@ def _rtabmap(data: Path, cache: Path):
     return stream, loop_evidence(stream.x, exclude=EXCLUDE)
 
 
-def _images(stream: Stream):
+def images_of(stream: Stream):
     """``image(j)`` at the source's resolution (rendered streams are rendered again)."""
     if stream.frames is not None:
         return lambda j: cv2.imread(stream.frames[j])
@@ -95,13 +95,13 @@ def main(argv=None) -> int:
     for name in a.streams.split(","):
         t = time.perf_counter()
         if name == "rtabmap_loop":
-            stream, ev = _rtabmap(data, cache)
+            stream, ev = rtabmap_stream(data, cache)
         else:
             stream = load_stream(name, preset="default", cache=cache, data=data)
             ev = evidence(stream, cache, "default")
         alias = aliases(name) if not stream.forward_only or "/" in name else None
         d = accept_loops(ev, conf, sdr=stream.x)
-        image = _images(stream)
+        image = images_of(stream)
         path_c = count(stream, d.best, d.accepted, alias)
         for k in grid:
             out, rep = second_opinion(d, image, stream.x, conf.back, conf.ahead, conf.stop_ratio,
