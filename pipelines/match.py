@@ -55,12 +55,13 @@ def run_command(args) -> int:
             print(f"vpr {args.command}: query {name} done ({done} of {total})", file=sys.stderr, flush=True)
 
         report = run_fleet(args.db, args.query, opts, args.command, progress=said)
-        truth = report["params"]["ground_truth"]
-        print("\n\n".join(f"query {name}:\n" + metrics_table(table, ground_truth=truth)
-                           for name, table in report["queries"].items()))
-        print(f"wrote {args.out}/metrics.json and a folder per query (each with its report.html)")
-        return 0
-    report = run_compare(args.db, args.query[0], opts, args.command)
-    print(metrics_table(report["methods"], "match", report["params"].get("ground_truth")))
-    print(f"wrote {args.out}/report.html (open it: the table, the plots and the frames side by side), metrics.json")
+        tables, wrote = report["queries"], "metrics.json and a folder per query (each with its report.html)"
+    else:
+        report = run_compare(args.db, args.query[0], opts, args.command)
+        tables, wrote = {None: report["methods"]}, "report.html (open it: the table, the plots and the frames side " \
+            "by side), metrics.json"
+    print("\n\n".join(("" if name is None else f"query {name}:\n")
+                       + metrics_table(table, "match", report["params"].get("ground_truth"))
+                       for name, table in tables.items()))
+    print(f"wrote {args.out}/{wrote}")
     return 0
