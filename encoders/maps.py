@@ -26,7 +26,8 @@ from .extract import extract
 __all__ = ["ONLINE_METHOD", "learn", "load_map", "map_path"]
 
 #: The method a map holds and online commands run.
-ONLINE_METHOD = "rshosm-seq"
+#: The method the online commands run (the one registered method that runs online).
+ONLINE_METHOD = methods.online()
 
 
 def map_path(out) -> Path:

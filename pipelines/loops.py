@@ -114,9 +114,9 @@ def make_detector(settings: dict, exclude: int = LOOP_EXCLUDE) -> LoopDetector:
     """The detector of ``vpr loops -`` for the run's ``settings`` (:func:`pipelines.args.settings_from_args`):
     the preset's loop encoder and the ``rshosm-seq`` method's conf, which hands out the detector."""
     method = settings["methods"][0]
-    if method != ONLINE_METHOD:
-        raise ValueError(f"vpr loops -: online loop closure is {ONLINE_METHOD}'s, not {method}'s "
-                         f"(--method {ONLINE_METHOD}, or a folder or video for {method})")
+    if not methods.get_class(method).runs_online:
+        raise ValueError(f"vpr loops -: {method} does not run online (one frame at a time as it comes); online loop "
+                         f"closure is {ONLINE_METHOD}'s (--method {ONLINE_METHOD}, or a folder or video for {method})")
     unused = sorted(set(settings["method_conf"]) - {ONLINE_METHOD})
     if unused:
         raise ValueError(f"vpr loops -: online loop closure is {ONLINE_METHOD}'s; --method-conf for "

@@ -150,7 +150,8 @@ def test_vpr_loops_stdin_equals_the_batch_and_resumes(laps, tmp_path, capsys, mo
 @pytest.mark.parametrize("extra, message", [
     (["--fps", "2"], "--fps apply to a folder or video"),
     (["--exclude", "3s"], "seconds need the frames' times, and image paths on stdin have none"),
-    (["--preset", "paper"], "online loop closure is rshosm-seq's, not rshosm's"),
+    (["--preset", "paper"], "rshosm does not run online (one frame at a time as it comes); online loop closure is "
+                               "rshosm-seq's"),
     (["--method-conf", "seqslam.ds=4"], "--method-conf for seqslam does not apply"),
     (["--exclude", "5"], "must exceed the encoder's delay"),
     (["--gt", "nope.csv"], "no such ground-truth file"),

@@ -44,7 +44,7 @@ from vpr.types import EncodedTraverse, ImageInput, MatchResult
 
 from .base import Fitted, Method
 
-__all__ = ["get", "build", "available", "get_class", "match", "loops", "image_inputs", "Method", "Fitted"]
+__all__ = ["online", "get", "build", "available", "get_class", "match", "loops", "image_inputs", "Method", "Fitted"]
 
 # name -> (module, class); imported on first use, so that e.g. the SeqSLAM kernels load only for seqslam
 _REGISTRY = {
@@ -73,6 +73,12 @@ def get_class(name: str) -> type[Method]:
         raise ValueError(f"unknown method {name!r}; available: {', '.join(available())}")
     module, cls = _REGISTRY[name]
     return getattr(import_module(module), cls)
+
+
+def online() -> str:
+    """The method that runs online (:attr:`Method.runs_online`): the online commands' (``vpr loops -``,
+    ``vpr learn`` / ``vpr localize``)."""
+    return next(m for m in available() if get_class(m).runs_online)
 
 
 def image_inputs() -> dict[str, ImageInput]:

@@ -87,6 +87,9 @@ class Method:
 
     #: whether loop closure is decided frame by frame (a second opinion can wrap the decider)
     decides_frames: bool = False
+    #: whether the method runs online, one frame at a time as it comes (``loop_detector(encoder, exclude)`` and
+    #: ``localizer(db_sdr, names, ...)``: ``vpr loops -``, ``vpr learn`` / ``vpr localize``)
+    runs_online: bool = False
 
     @property
     def supports_loops(self) -> bool:

@@ -65,6 +65,7 @@ class RshosmSeq(Method):
     nullable_conf = RshosmSeqConf.NULLABLE
     required_inputs = ("sdr",)
     decides_frames = True
+    runs_online = True
 
     def __init__(self, **conf):
         super().__init__(**conf)
