@@ -223,23 +223,13 @@ def _stopped(job: Online, taken: tuple | None, waiting: list[str], state_out) ->
 
 def _write(job: Online, out: Path, src, rows, skipped, seconds, state_out, waiting: list[str] | None) -> dict:
     """The outputs of the frames answered; ``waiting``: after a stop, the frames read and not yet answered."""
-    import scipy.sparse as sp
 
     names = [r[0] for r in rows]
     ds = [r[2] for r in rows]
     T = len(ds)
     frames = np.array([d.frame for d in ds], np.int64)
-    best = np.array([d.best for d in ds], np.int64)
-    score = np.array([d.score for d in ds], np.float64)
-    score = np.where(np.isfinite(score) & (best >= 0), score, -np.inf)  # no candidate: -inf, as a batch run
-    accepted = np.array([d.accepted for d in ds], bool)
-    cand = [d.column.top(job.top_k) if d.column is not None else (np.zeros(0, np.int64), np.zeros(0, np.float32))
-            for d in ds]
-    ptr = np.r_[0, np.cumsum([c.size for c, _ in cand])]
-    S = sp.csc_matrix((np.concatenate([z for _, z in cand]).astype(np.float32),
-                       np.concatenate([c for c, _ in cand]).astype(np.int64), ptr),
-                      shape=(job.n_candidates(), T)).tocsr()
-    res = MatchResult(job.method, S, best, score, accepted, seconds, {})
+    res = MatchResult.from_decisions(job.method, ds, job.n_candidates(), job.top_k, seconds)
+    best, accepted = res.best, res.accepted
     lat_all, lat_dec = [r[3] for r in rows], [r[4] for r in rows]
     m = {"frames": T, "seconds": round(seconds, 4), "n_accepted": int(accepted.sum()), "stopped": waiting is not None,
          "latency_ms": {"with_encoding": latency_summary(lat_all), "without_encoding": latency_summary(lat_dec)}}

@@ -85,13 +85,6 @@ def write_matches(folder: Path, res: MatchResult, db_names, q_names, extra: dict
                         *(v[j] for v in extra.values())])
 
 
-def _score_at(S, rows) -> np.ndarray:
-    """``S[rows[j], j]`` per column (rows >= 0), dense or sparse."""
-    cols = np.arange(len(rows))
-    rows = np.maximum(rows, 0)
-    return np.asarray(S[rows, cols], dtype=np.float64).ravel()
-
-
 def write_method(folder: Path, m: str, res: MatchResult, evaluated: tuple, db_names, q_names, gt_hard, gt_soft,
                  verifier=None, verify: int = 0, progress: bool = False, title: str = "", loops: bool = False,
                  mask=None, columns: dict | None = None, **names) -> dict:
@@ -113,13 +106,7 @@ def write_method(folder: Path, m: str, res: MatchResult, evaluated: tuple, db_na
     if verifier is not None:
         t0 = time.perf_counter()
         vr = verifier.verify(res.similarity, verify, progress=progress)
-        # the method's matrix with only each query's candidates re-ordered by inliers: its AP compares
-        # with the unverified one (vpr.verify.rerank); seconds: the method's plus verification
-        # (pairs shared with earlier methods are cached)
-        S_v = vr.reranked(res.similarity)
-        score_v = np.where(vr.best_db >= 0, _score_at(S_v, vr.best_db), -np.inf)
-        verified = MatchResult(m + "+verify", S_v, vr.best_db, score_v, vr.accepted,
-                               res.seconds + time.perf_counter() - t0, res.conf)
+        verified = vr.result(res, res.seconds + time.perf_counter() - t0)  # pairs verified before are cached
         extra = {"verified_db": vr.best_db.tolist(),
                  "verified_name": [db_names[b] if b >= 0 else "" for b in vr.best_db],
                  "inliers": np.where(vr.best_db >= 0, vr.score, -1).astype(int).tolist(),

@@ -283,3 +283,21 @@ class MatchResult:
     accepted: np.ndarray
     seconds: float
     conf: dict = field(default_factory=dict)
+
+    @classmethod
+    def from_decisions(cls, method: str, decisions, n_rows: int, top_k: int | None, seconds: float,
+                       conf: dict | None = None) -> MatchResult:
+        """The result of frames decided one at a time (online): each decision's column, its ``top_k`` candidates
+        (None: all with evidence), as a column of the top-K sparse similarity (``n_rows`` candidates x the
+        decisions, in the order given); its best (-1 and score ``-inf`` without a candidate) and acceptance."""
+        ds = list(decisions)
+        best = np.array([d.best for d in ds], np.int64)
+        score = np.array([d.score for d in ds], np.float64)
+        score = np.where(np.isfinite(score) & (best >= 0), score, -np.inf)
+        cand = [d.column.top(top_k) if d.column is not None else (np.zeros(0, np.int64), np.zeros(0, np.float32))
+                for d in ds]
+        ptr = np.r_[0, np.cumsum([c.size for c, _ in cand])]
+        S = sp.csc_matrix((np.concatenate([z for _, z in cand] + [np.zeros(0, np.float32)]).astype(np.float32),
+                           np.concatenate([c for c, _ in cand] + [np.zeros(0, np.int64)]).astype(np.int64), ptr),
+                          shape=(int(n_rows), len(ds))).tocsr()
+        return cls(method, S, best, score, np.array([d.accepted for d in ds], bool), seconds, dict(conf or {}))

@@ -10,6 +10,7 @@ from tqdm import tqdm
 
 from vpr.checks import check_choice, check_float, check_int, check_similarity
 from vpr.config import merge_conf
+from vpr.types import MatchResult
 
 from .features import Keypoints, extract_features, match_features
 from .rerank import rerank, top_candidates
@@ -54,6 +55,16 @@ class VerifyResult:
         The verified similarity to evaluate and compare with ``S``: see :func:`rerank`.
         """
         return rerank(S, self.candidates, self.inliers)
+
+    def result(self, res: MatchResult, seconds: float) -> MatchResult:
+        """The verified twin of a method's ``res`` (named ``METHOD+verify``): its matrix :meth:`reranked`, each
+        query's best match the candidate of most inliers (scored in that matrix), accepted with ``min_inliers``;
+        ``seconds``: the method's and the verification's."""
+        S = self.reranked(res.similarity)
+        cols = np.arange(self.best_db.size)
+        at = np.asarray(S[np.maximum(self.best_db, 0), cols], dtype=np.float64).ravel()
+        score = np.where(self.best_db >= 0, at, -np.inf)
+        return MatchResult(res.method + "+verify", S, self.best_db, score, self.accepted, seconds, res.conf)
 
     def similarity(self) -> sp.csc_matrix:
         """Inlier-only similarity, sparse n_db x n_q: the candidates and nothing else.
