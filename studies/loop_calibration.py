@@ -32,7 +32,7 @@ import numpy as np
 
 from studies import loop_streams
 from studies.loop_decisions import aliases, evidence
-from studies.loop_geometry import count, images_of, rtabmap_stream
+from studies.loop_geometry import cell, count, images_of, rtabmap_stream
 from studies.loop_streams import load_stream
 from vpr.shosm import LoopConf, accept_loops
 from vpr.verify import OpinionConf, Verifier, second_opinion
@@ -115,11 +115,6 @@ def choose(counts: dict, names) -> tuple:
     return max(counts, key=key)
 
 
-def _cell(c: dict) -> str:
-    out = f"{c['false']} false" + (f" (+{c['copy']} copy)" if c["copy"] else "")
-    return out if c["recall"] is None else f"{c['recall']:.2f}, {out}"
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cache", default="results/loop_streams")
@@ -141,14 +136,14 @@ def main(argv=None) -> int:
     print("\n| min_inliers | self_ratio | " + " | ".join(names) + " |")
     print("|---:|---:|" + "---|" * len(names))
     for k, r in grid:
-        print(f"| {k} | {r:g} | " + " | ".join(_cell(counts[(k, r)][n]) for n in names) + " |")
+        print(f"| {k} | {r:g} | " + " | ".join(cell(counts[(k, r)][n]) for n in names) + " |")
     best = choose(counts, names)
     print(f"\nchosen on every stream: min_inliers {best[0]}, self_ratio {best[1]:g}")
     print("\n| held out | chosen on the others | held-out stream with it |")
     print("|---|---|---|")
     for held in names:
         s = choose(counts, [n for n in names if n != held])
-        print(f"| {held} | min_inliers {s[0]}, self_ratio {s[1]:g} | {_cell(counts[s][held])} |")
+        print(f"| {held} | min_inliers {s[0]}, self_ratio {s[1]:g} | {cell(counts[s][held])} |")
     return 0
 
 

@@ -70,7 +70,8 @@ def count(stream: Stream, best, accepted, alias) -> dict:
             "recall": true.sum() / max(frames, 1)}
 
 
-def _cell(c: dict) -> str:
+def cell(c: dict) -> str:
+    """A stream's count as a table cell: recall and false closures (onto a copy counted apart)."""
     out = f"{c['false']} false" + (f" (+{c['copy']} copy)" if c["copy"] else "")
     return out if c["recall"] is None else f"{c['recall']:.2f}, {out}"
 
@@ -110,7 +111,7 @@ def main(argv=None) -> int:
             if k == OpinionConf().min_inliers:
                 both = per_grid[k][name]
                 rows.append((name, len(stream), path_c, both, rep))
-                print(f"| {name} | {len(stream):,} | {_cell(path_c)} | {_cell(both)} | {rep['accepted_by_geometry']} | "
+                print(f"| {name} | {len(stream):,} | {cell(path_c)} | {cell(both)} | {rep['accepted_by_geometry']} | "
                       f"{rep['frames_verified']} | {rep['frames_blind']} | {rep['ms_per_verified_frame']} |",
                       flush=True)
         print(f"  ({name}: {time.perf_counter() - t:.0f} s)", flush=True)
@@ -119,7 +120,7 @@ def main(argv=None) -> int:
     print("| min_inliers | " + " | ".join(names) + " |")
     print("|---|" + "---|" * len(names))
     for k in grid:
-        print(f"| {k} | " + " | ".join(_cell(per_grid[k][n]) for n in names) + " |")
+        print(f"| {k} | " + " | ".join(cell(per_grid[k][n]) for n in names) + " |")
     return 0
 
 
