@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from studies.loop_streams import FORWARD, REAL_REVISITS, RENDERED_REVISITS, load_stream
-from vpr.shosm import Evidence, LoopConf, accept_loops, loop_evidence
+from vpr.shosm import LoopConf, LoopEvidence, accept_loops, loop_evidence
 
 DRIFTS = (1.0, 1.25, 1.5, 1.75)
 SCORES = (16.0, 20.0, 24.0, 28.0, 32.0, 40.0)
@@ -37,14 +37,14 @@ REVISITS = (*REAL_REVISITS, *RENDERED_REVISITS)
 EXCLUDE = 30
 
 
-def evidence(stream, cache: Path, preset: str = "default", decay: float | None = None) -> Evidence:
+def evidence(stream, cache: Path, preset: str = "default", decay: float | None = None) -> LoopEvidence:
     """The stream's loop evidence (cached: it takes minutes on the whole Nordland rides); ``decay``: another
     than the conf's default."""
     path = cache / (f"evidence-{stream.name.replace('/', '-')}{'' if preset == 'default' else '-' + preset}"
                     f"{'' if decay is None else f'-decay{decay:g}'}.npz")
     if path.is_file():
         with np.load(path) as z:
-            return Evidence(z["S"], None, None, z["fill"], None, int(z["exclude"]))
+            return LoopEvidence(z["S"], None, None, z["fill"], int(z["exclude"]))
     ev = loop_evidence(stream.x, exclude=EXCLUDE, **({} if decay is None else {"decay": decay}))
     np.savez(path, S=ev.similarity, fill=ev.fill, exclude=ev.exclude)
     return ev

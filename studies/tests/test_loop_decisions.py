@@ -3,7 +3,7 @@ import numpy as np
 from studies.loop_decisions import choose, count
 from studies.loop_streams import Stream
 from vpr import sdr
-from vpr.shosm import Evidence, LoopConf
+from vpr.shosm import LoopConf, LoopEvidence
 
 
 def _stream(forward: bool):
@@ -20,7 +20,7 @@ def _stream(forward: bool):
     alias[10:13, 30:33] = True
     x = sdr.random_sdrs(T, 256, 20, seed=0)  # every frame unlike the others: no stop
     stream = Stream("toy", x, None if forward else hard, None if forward else hard.copy())
-    return stream, Evidence(S, None, None, np.zeros(T, np.float32), None, 5), alias
+    return stream, LoopEvidence(S, None, None, np.zeros(T, np.float32), 5), alias
 
 
 def test_count_splits_false_copy_and_true_closures():

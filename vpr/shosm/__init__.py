@@ -42,7 +42,7 @@ from .decide import (
     stationary_closures,
 )
 from .detector import LoopDetector
-from .evidence import Engine, Evidence, dense_evidence, query_evidence, sparse_evidence
+from .evidence import Engine, Evidence, LoopEvidence, dense_evidence, query_evidence, sparse_evidence
 from .graph import Graph
 from .localizer import Localizer
 from .loops import LOOP_DENSE_MAX, LOOP_UNCAPPED_MAX, LoopStream, loop_evidence
@@ -53,7 +53,8 @@ from .state import MemoryFileError
 __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pad_codes",
            "LEARN_THRESHOLD", "LOOP_EXCLUDE", "DENSE_EVIDENCE_PAIRS", "EvidenceConf", "BeamConf", "LoopConf",
            "PathConf", "RshosmSeqConf", "DECISION_KEYS", "memory_params", "Graph", "Engine", "Evidence",
-           "query_evidence", "dense_evidence", "sparse_evidence", "LoopDecider", "PathDecider", "decide_all",
+           "query_evidence", "dense_evidence", "sparse_evidence", "LoopEvidence", "LoopDecider", "PathDecider",
+           "decide_all",
            "LoopRule", "LOOP_RULES", "loop_rule",
            "accept_loops", "accept_path", "stationary_closures", "Localizer", "Map", "LoopStream", "loop_evidence",
            "LOOP_UNCAPPED_MAX", "LOOP_DENSE_MAX", "LoopDetector"]

@@ -21,6 +21,7 @@ from vpr.similarity import n_candidates, stationary
 from vpr.types import Column, Decider, Decision
 
 from .conf import LoopConf, PathConf
+from .evidence import LoopEvidence
 from .kernels import decide as KD
 from .state import joint_state, part_state
 
@@ -231,7 +232,7 @@ def accept_loops(evidence, conf: LoopConf | None = None, sdr=None, exclude: int 
 
     Parameters
     ----------
-    evidence : Evidence of :func:`vpr.shosm.loop_evidence`, or a dense T x T loop matrix
+    evidence : LoopEvidence of :func:`vpr.shosm.loop_evidence`, or a dense T x T loop matrix
     conf : LoopConf
     sdr : SDR batch (T rows), optional: without it stops are not checked.
     exclude : int, read from ``evidence`` when it is an Evidence (required otherwise).
@@ -240,7 +241,7 @@ def accept_loops(evidence, conf: LoopConf | None = None, sdr=None, exclude: int 
     """
     conf = conf or LoopConf()
     fill, starts = None, (0,)
-    if hasattr(evidence, "similarity"):
+    if isinstance(evidence, LoopEvidence):
         S, fill, exclude, starts = evidence.similarity, evidence.fill, evidence.exclude, tuple(evidence.starts)
     else:
         S = evidence

@@ -47,7 +47,7 @@ from .graph import BIG, Beam, Graph
 from .kernels import evidence as KE
 from .memory import SequenceMemory
 
-__all__ = ["Engine", "Evidence", "query_evidence", "dense_evidence", "sparse_evidence"]
+__all__ = ["Engine", "Evidence", "LoopEvidence", "query_evidence", "dense_evidence", "sparse_evidence"]
 
 #: Query frames per call of the beam kernel and per block of finished columns of a traverse.
 QUERY_CHUNK = 2048
@@ -62,19 +62,23 @@ _NO_PASS = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
 class Evidence:
     """The evidence of a traverse: the similarity (dense, or top-K csr), and per column its best frame and z-score.
 
-    ``best`` is -1 (``z`` -inf) for a column without evidence. Loop closure
-    (:func:`vpr.shosm.loop_evidence`) also gives ``fill`` (per frame, the
-    score of a candidate without evidence), the stream's winner ``codes``,
-    ``exclude``, the sessions' first frames ``starts`` and each frame's
-    ``decision``; it unpacks as ``similarity, codes``.
+    ``best`` is -1 (``z`` -inf) for a column without evidence.
     """
 
     similarity: np.ndarray | sp.csr_matrix
     best: np.ndarray
     z: np.ndarray
-    fill: np.ndarray | None = None
+
+
+@dataclass
+class LoopEvidence(Evidence):
+    """The evidence of one stream's loop closure (:func:`vpr.shosm.loop_evidence`): also ``fill`` (per frame, the
+    score of a candidate without evidence), ``exclude``, the stream's winner ``codes``, the sessions' first
+    frames ``starts`` and each frame's ``decision``; it unpacks as ``similarity, codes``."""
+
+    fill: np.ndarray
+    exclude: int
     codes: sp.csr_matrix | None = None
-    exclude: int | None = None
     starts: tuple = (0,)
     decision: Decision | None = None
 

@@ -21,7 +21,7 @@ from vpr.types import Decider, Decision
 
 from .conf import LOOP_EXCLUDE, RshosmSeqConf
 from .decide import loop_rule
-from .evidence import Engine, Evidence
+from .evidence import Engine, LoopEvidence
 from .graph import Graph
 from .memory import SequenceMemory
 from .state import joint_state, part_state
@@ -135,7 +135,7 @@ class LoopStream:
 
 def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf=None, top_k: int | None = None,
                   caps: str | bool = "auto", dense_max: int = LOOP_DENSE_MAX, stops: bool = True,
-                  progress: bool = False, sessions=None, opinion=None, **flat) -> Evidence:
+                  progress: bool = False, sessions=None, opinion=None, **flat) -> LoopEvidence:
     """Loop closure within one stream with graded forward sequence evidence, learned online.
 
     Frame ``j`` is learned with Algorithm 1 (as the paper, one memory over the
@@ -167,7 +167,7 @@ def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf=None, top_k: int 
 
     Returns
     -------
-    Evidence (unpacks as ``S, codes``), with each frame's decision.
+    LoopEvidence (unpacks as ``S, codes``), with each frame's decision.
     """
     top_k = check_top_k(top_k)
     seq = RshosmSeqConf.of(conf, **flat)
@@ -217,4 +217,4 @@ def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf=None, top_k: int 
                            np.concatenate(cols_i + [np.zeros(0, np.int64)]), np.r_[0, np.cumsum(counts)]),
                           shape=(T, T)).tocsr()
         S.sort_indices()
-    return Evidence(S, best, z, fill, codes, stream.exclude, tuple(stream.starts), decision)
+    return LoopEvidence(S, best, z, fill, stream.exclude, codes, tuple(stream.starts), decision)
