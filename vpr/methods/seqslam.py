@@ -14,7 +14,7 @@ import numpy as np
 
 from vpr import similarity
 from vpr.checks import check_choice, check_int
-from vpr.seqslam import check_sequence_params, difference_matrix, pixel_descriptors, seqslam, seqslam_topk
+from vpr.seqslam import SeqSlamConf, difference_matrix, pixel_descriptors, seqslam, seqslam_topk
 from vpr.similarity import TOP_K, best_matches, check_dense, mask_recent, top_k_or_dense
 from vpr.types import Decision, EncodedTraverse, ImageInput
 
@@ -22,7 +22,6 @@ from .base import Method
 
 __all__ = ["SeqSlam", "SeqSlamDesc", "PIXELS"]
 
-_SEQSLAM_ARGS = ("ds", "v_min", "v_max", "v_step", "R", "rwindow", "ratio_threshold", "causal")
 _DESCRIPTORS = {"pixel": "pixels", "encoder": "desc", "desc": "desc"}
 _LARGE = ("pairwise", "exact")
 
@@ -67,7 +66,8 @@ class SeqSlam(Method):
             if self.conf["ds"] == 0:
                 raise ValueError("ds: must be an integer >= 1, got 0 (sequences of one frame: that is the pairwise "
                                  "method)")
-            check_sequence_params(**{k: self.conf[k] for k in _SEQSLAM_ARGS})
+            #: the trajectory and enhancement parameters, checked once here
+            self.params = SeqSlamConf.from_conf(self.conf)
             for key in ("top_k", "n_candidates"):
                 check_int(self.conf[key], key, 1)
         except ValueError as e:
@@ -103,7 +103,7 @@ class SeqSlam(Method):
         return self.need(feat, self._attr, role)
 
     def _run(self, D):
-        return self._decided(seqslam(D, **{k: self.conf[k] for k in _SEQSLAM_ARGS}))
+        return self._decided(seqslam(D, **self.params.as_dict()))
 
     @staticmethod
     def _decided(res):
@@ -117,7 +117,7 @@ class SeqSlam(Method):
             res = seqslam_topk(a, b, top_k=self.conf["top_k"], metric=self.conf["metric"],
                                candidates=None if self.conf["large"] == "exact" else "pairwise",
                                n_candidates=self.conf["n_candidates"],
-                               **{k: self.conf[k] for k in _SEQSLAM_ARGS})
+                               **self.params.as_dict())
             # a query whose block had no candidate: best_db -1, best_score inf -> score -inf (never matched)
             return self._decided(res)
         return self._run(difference_matrix(a, b, metric=self.conf["metric"]))

@@ -32,6 +32,7 @@ queries, databases shorter than a trajectory) this module defines one; every
 such choice is listed in the docstring of :func:`seqslam`.
 """
 from .dense import (
+    SeqSlamConf,
     SeqSLAMResult,
     check_sequence_params,
     match_images,
@@ -42,5 +43,5 @@ from .dense import (
 from .difference import difference_matrix, enhance_contrast
 from .topk import seqslam_topk
 
-__all__ = ["SeqSLAMResult", "difference_matrix", "enhance_contrast", "trajectory_offsets", "seqslam",
+__all__ = ["SeqSLAMResult", "SeqSlamConf", "difference_matrix", "enhance_contrast", "trajectory_offsets", "seqslam",
            "match_images", "pixel_descriptors", "seqslam_topk", "check_sequence_params"]

@@ -10,7 +10,7 @@ from vpr.imageproc import seqslam_descriptors
 
 from .difference import check_difference, difference_matrix, enhance_contrast
 
-__all__ = ["SeqSLAMResult", "trajectory_offsets", "seqslam", "match_images", "pixel_descriptors",
+__all__ = ["SeqSLAMResult", "SeqSlamConf", "trajectory_offsets", "seqslam", "match_images", "pixel_descriptors",
            "check_sequence_params"]
 
 # Floor tolerance for k * v: 0.1-step velocities are not exact in binary, and
@@ -157,6 +157,38 @@ def _trajectory_scores(DD: np.ndarray, offsets: np.ndarray, ds: int, causal: boo
         S[:, q0:q0 + w] = s_blk
         P[:, q0:q0 + w] = p_blk
     return S, P
+
+
+@dataclass(frozen=True)
+class SeqSlamConf:
+    """SeqSLAM's trajectory and enhancement parameters (OpenSeqSLAM's defaults), checked once where built.
+
+    ``ds`` sequence length minus one (even unless ``causal``; 0: one frame, which the ``seqslam`` method
+    refuses), ``v_min``, ``v_max``, ``v_step`` the velocities searched (database rows per query frame),
+    ``R`` the contrast enhancement's window, ``rwindow`` the uniqueness test's, ``ratio_threshold`` its bar,
+    ``causal`` the trajectory ends at the query instead of being centred on it.
+    """
+
+    ds: int = 10
+    v_min: float = 0.8
+    v_max: float = 1.2
+    v_step: float = 0.1
+    R: int = 10
+    rwindow: int = 10
+    ratio_threshold: float = 0.9
+    causal: bool = False
+
+    def __post_init__(self):
+        check_sequence_params(**self.as_dict())
+
+    @classmethod
+    def from_conf(cls, conf) -> SeqSlamConf:
+        """The fields found in ``conf`` (a method's whole conf) over the defaults."""
+        return cls(**{f: conf[f] for f in cls.__dataclass_fields__ if f in conf})
+
+    def as_dict(self) -> dict:
+        """The parameters as :func:`seqslam` and :func:`vpr.seqslam.seqslam_topk` take them."""
+        return {f: getattr(self, f) for f in self.__dataclass_fields__}
 
 
 def check_sequence_params(ds, causal, v_min, v_max, v_step, R, rwindow, ratio_threshold):
