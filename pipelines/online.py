@@ -162,7 +162,7 @@ def _run(job: Online, src, out: Path, stdout, state_out, claim: contextlib.ExitS
                 if f is SESSION:
                     with deferred():
                         answered(job.new_session())
-                        taken = (getattr(src, "line", None), taken[1] if taken else None)
+                        taken = (src.line, taken[1] if taken else None)
                     print(f"vpr {job.command}: #session{_line(src)}: the frames that follow are a new run (nothing "
                           "carries over but what was learned)", file=sys.stderr, flush=True)
                     continue
@@ -176,7 +176,7 @@ def _run(job: Online, src, out: Path, stdout, state_out, claim: contextlib.ExitS
                     t2 = time.perf_counter()
                     waiting.append((f.name, f.index, (t2 - t0) * 1e3, (t2 - t1) * 1e3))
                     answered(got)
-                    taken = (getattr(src, "line", None), f.name)
+                    taken = (src.line, f.name)
             with deferred():
                 answered(job.finish())
     except KeyboardInterrupt as e:  # Ctrl-C, and SIGTERM (vpr.interrupts.Terminated)
@@ -199,8 +199,7 @@ def _run(job: Online, src, out: Path, stdout, state_out, claim: contextlib.ExitS
 
 
 def _line(src) -> str:
-    line = getattr(src, "line", None)
-    return f" (input line {line})" if line else ""
+    return f" (input line {src.line})" if src.line else ""
 
 
 def _stopped(job: Online, taken: tuple | None, waiting: list[str], state_out) -> str:

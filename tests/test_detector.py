@@ -113,6 +113,7 @@ def laps(scene_on_disk):
 LOOSE = ["--preset", "fast", "--exclude", "12", "--method-conf", "rshosm-seq.min_score=10"]
 
 
+@pytest.mark.slow  # the command line end to end
 def test_vpr_loops_stdin_equals_the_batch_and_resumes(laps, tmp_path, capsys, monkeypatch):
     import csv
     import json

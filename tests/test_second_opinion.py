@@ -1,6 +1,7 @@
 """The geometric second opinion on loop closures: a decider around the loop rule, where geometry can see."""
 import cv2
 import numpy as np
+import pytest
 
 from vpr import sdr
 from vpr.types import Decision
@@ -53,6 +54,7 @@ def test_a_stop_is_not_confirmed():
     assert not d.accepted.any() and rep["accepted_by_geometry"] == 0
 
 
+@pytest.mark.slow  # two-view geometry over a rendered drive
 def test_a_scene_never_out_of_sight_is_no_loop():
     # a forward drive: every frame shows the same road ahead a little further on; frame j's best earlier frame
     # j - 40 verifies, but so does every frame in between: the camera never lost sight of it

@@ -175,6 +175,8 @@ class Source:
     """
 
     kind = "source"
+    #: the input line last read, for sources read line by line (image paths on stdin); None for the others
+    line: int | None = None
     #: what the frames of this kind of source come with: ``"stamps"`` (times), ``"positions"``
     #: (:meth:`trajectory`), ``"paths"`` (image files, :meth:`frame_paths`)
     carries: frozenset = frozenset()
