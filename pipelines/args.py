@@ -16,15 +16,8 @@ from vpr.groundtruth import GroundTruthSpec
 from vpr.groundtruth.trajectories import parse_every
 
 __all__ = ["add_common_arguments", "add_source_arguments", "add_preset_argument", "add_gt_arguments",
-           "gt_spec_from_args", "method_confs", "add_method_conf_argument", "refuse_gone", "ONLINE_METHOD",
+           "gt_spec_from_args", "method_confs", "add_method_conf_argument", "ONLINE_METHOD",
            "add_run_arguments", "settings_from_args", "options_from_args"]
-
-def refuse_gone(args, gone: dict) -> None:
-    """Refuse a flag that went away, saying what replaces it: ``gone`` maps an ``args`` name to (flag, replacement)."""
-    for name, (flag, instead) in gone.items():
-        if getattr(args, name, None):
-            raise ValueError(f"{flag} is gone: use {instead}")
-
 
 def add_common_arguments(ap) -> None:
     """The flags every sub-command takes."""

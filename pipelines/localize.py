@@ -29,7 +29,6 @@ from pipelines.args import (
     add_source_arguments,
     gt_spec_from_args,
     method_confs,
-    refuse_gone,
     topic_arg,
 )
 from pipelines.online import Online, run_online, summary_line
@@ -206,8 +205,6 @@ def _add_learn_args(ap):
     add_preset_argument(ap)
     encoders.add_arguments(ap, default=None)
     add_method_conf_argument(ap)
-    # gone: refused with what replaces it (pipelines.args.refuse_gone)
-    ap.add_argument("--localizer-conf", action="append", default=[], help=argparse.SUPPRESS)
 
 
 def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
@@ -246,8 +243,6 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
 
 def _method_conf(args) -> dict:
     """The ``rshosm-seq`` conf given with ``--method-conf`` (the preset's under it); other methods' refused."""
-    refuse_gone(args, {"localizer_conf": ("--localizer-conf", "--method-conf rshosm-seq.KEY=VALUE (e.g. "
-                                                              "rshosm-seq.min_score=20)")})
     confs = method_confs(args.method_conf)
     other = sorted(set(confs) - {ONLINE_METHOD})
     if other:

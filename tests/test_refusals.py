@@ -57,7 +57,6 @@ def map_file(scene, tmp_path_factory):
     (["--method-conf", "rshosm-seq.min_score=abc"], "min_score"),
     (["--method-conf", "rshosm-seq.threshold=0.5"], "fixed by the map"),
     (["--method-conf", "seqslam.ds=4"], "--method-conf for seqslam does not apply"),
-    (["--localizer-conf", "min_score=20"], "--localizer-conf is gone: use --method-conf rshosm-seq.KEY=VALUE"),
 ])
 def test_localize_with_a_map_refuses_what_the_map_fixes(scene, map_file, tmp_path, capsys, extra, message):
     code, out, err = _run(["localize", map_file, scene["q"], "--out", tmp_path / "o", *extra], capsys)

@@ -80,7 +80,7 @@ class Map:
         Raises
         ------
         ValueError
-            The map holds no SDRs (written before they were kept): learn it again.
+            The map holds no SDRs: learn it again.
         """
         if self.sdr is None:
             raise ValueError("the map holds no SDRs of its frames to learn again at another sampling; learn it again "

@@ -7,8 +7,7 @@ cost per observation).
 
 All state lives in NumPy arrays owned by the Python object. The inverted index
 input bit -> minicolumns is a 2-D array with one contiguous row per bit (the
-matching loop reads it sequentially, which a linked list did not once it
-outgrew the cache); cell -> outgoing connections are singly linked lists threaded
+matching loop reads it sequentially); cell -> outgoing connections are singly linked lists threaded
 through append-only arrays; line 13's tests use two open-addressing hash sets,
 (source minicolumn, cell) and (source cell, cell). The space one step needs is known
 before the step mutates anything: when an array is too small the kernel stops

@@ -1,6 +1,6 @@
 """No input file runs code; inputs that would give wrong metrics are refused or warned about.
 
-Each case here failed before its fix. Tiny renders keep the command-line cases fast.
+Tiny renders keep the command-line cases fast.
 """
 import os
 import pickle
