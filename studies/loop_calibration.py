@@ -31,10 +31,8 @@ from unittest import mock
 import numpy as np
 
 from studies import loop_streams
-from studies.loop_decisions import aliases, evidence
-from studies.loop_geometry import cell, count, images_of, rtabmap_stream
-from studies.loop_streams import load_stream
-from vpr.shosm import LoopConf, accept_loops
+from studies.loop_geometry import cell, count, images_of, stream_decisions
+from vpr.shosm import LoopConf
 from vpr.verify import OpinionConf, Verifier, second_opinion
 
 REVISITS = ("gardens_point", "rtabmap_loop", "loop_revisits/laps")
@@ -74,13 +72,7 @@ def grid_counts(names, grid, cache: Path, data: Path, far: int = 0, min_side: in
     out: dict = {}
     for name in names:
         t = time.perf_counter()
-        if name == "rtabmap_loop":
-            stream, ev = rtabmap_stream(data, cache)
-        else:
-            stream = load_stream(name, preset="default", cache=cache, data=data)
-            ev = evidence(stream, cache, "default")
-        alias = aliases(name) if not stream.forward_only or "/" in name else None
-        d = accept_loops(ev, conf, sdr=stream.x)
+        stream, alias, d = stream_decisions(name, cache, data, conf)
         image = images_of(stream)
         def one_verifier(a, b, shared={}, **kw):  # noqa: B006 - one verifier per stream, by design
             if "v" not in shared:
@@ -102,7 +94,6 @@ def grid_counts(names, grid, cache: Path, data: Path, far: int = 0, min_side: in
 def choose(counts: dict, names) -> tuple:
     """The setting of the rule (module docstring) on the streams ``names``."""
     revisits = [n for n in names if n in REVISITS]
-    forward = [n for n in names if n in FORWARD]
 
     def key(setting):
         c = counts[setting]
@@ -111,7 +102,6 @@ def choose(counts: dict, names) -> tuple:
         # no false closure first (else the fewest), then the smallest recall, the mean recall, the larger bar
         return (-false, min(rec), sum(rec) / len(rec), setting[0] + 100 * setting[1])
 
-    del forward  # every stream counts its false closures; forward streams have nothing else
     return max(counts, key=key)
 
 

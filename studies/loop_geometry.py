@@ -70,6 +70,17 @@ def count(stream: Stream, best, accepted, alias) -> dict:
             "recall": true.sum() / max(frames, 1)}
 
 
+def stream_decisions(name: str, cache: Path, data: Path, conf: LoopConf):
+    """(stream, the copies' mask or None, the path rule's decisions) of the loop stream ``name``."""
+    if name == "rtabmap_loop":
+        stream, ev = rtabmap_stream(data, cache)
+    else:
+        stream = load_stream(name, preset="default", cache=cache, data=data)
+        ev = evidence(stream, cache, "default")
+    alias = aliases(name) if not stream.forward_only or "/" in name else None
+    return stream, alias, accept_loops(ev, conf, sdr=stream.x)
+
+
 def cell(c: dict) -> str:
     """A stream's count as a table cell: recall and false closures (onto a copy counted apart)."""
     out = f"{c['false']} false" + (f" (+{c['copy']} copy)" if c["copy"] else "")
@@ -95,13 +106,7 @@ def main(argv=None) -> int:
     per_grid = {}
     for name in a.streams.split(","):
         t = time.perf_counter()
-        if name == "rtabmap_loop":
-            stream, ev = rtabmap_stream(data, cache)
-        else:
-            stream = load_stream(name, preset="default", cache=cache, data=data)
-            ev = evidence(stream, cache, "default")
-        alias = aliases(name) if not stream.forward_only or "/" in name else None
-        d = accept_loops(ev, conf, sdr=stream.x)
+        stream, alias, d = stream_decisions(name, cache, data, conf)
         image = images_of(stream)
         path_c = count(stream, d.best, d.accepted, alias)
         for k in grid:

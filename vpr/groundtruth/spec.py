@@ -209,10 +209,14 @@ def sampling_step(indices) -> float:
     return float(np.median(np.diff(idx))) if idx.size > 1 else 1.0
 
 
+def _in_both_units(value: float, step: float) -> str:
+    return (f"{value:g} frame{'' if value == 1 else 's'} kept = {value * step:g} input "
+            f"frame{'' if value * step == 1 else 's'}")
+
+
 def tolerance_text(flag: str, value: float, step: float) -> str:
     """A tolerance in both units, e.g. ``--tolerance 1: 1 frame kept = 10 input frames``."""
-    kept = f"{value:g} frame{'' if value == 1 else 's'} kept"
-    return f"{flag} {value:g}: {kept} = {value * step:g} input frame{'' if value * step == 1 else 's'}"
+    return f"{flag} {value:g}: {_in_both_units(value, step)}"
 
 
 def check_tolerance(spec: GroundTruthSpec, db_indices, q_indices) -> bool:
@@ -236,7 +240,7 @@ def check_tolerance(spec: GroundTruthSpec, db_indices, q_indices) -> bool:
         meant = f"--tolerance {max(round(tol / step), 1)} ({tol} input frames)" if step > 1 else \
             f"--tolerance {max(n // 10, 1)} or less"
         warnings.warn(f"--tolerance {tol} counts frames kept and spans more than a tenth of the route ({n} frames "
-                      f"kept, {tolerance_text('', 1, step)[4:]}): {meant} was probably meant", UserWarning,
+                      f"kept, {_in_both_units(1, step)}): {meant} was probably meant", UserWarning,
                       stacklevel=3)
         return True
     return False

@@ -121,7 +121,7 @@ class LoopDecider(LoopRule):
         self.path_b = np.full(capacity, -1, np.int64)
         self.st = KD.path_state()
         self._stops = float(self.loop.stop_ratio) > 0
-        self._rule = self.loop.rule if self._stops else (*self.loop.rule[:-1], 0.0)
+        self._rule = self.loop.rule
         x = None if sdr is None else _sdr.check_batch(sdr, name="sdr")
         self._set_sdr(np.zeros(1, np.int64) if x is None else x.indptr, np.zeros(0, np.int64) if x is None else
                       x.indices)
