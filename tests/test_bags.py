@@ -222,6 +222,21 @@ def test_every_keeps_one_frame_per_distance_of_travel():
         tr.parse_every("2 miles")
 
 
+def test_every_keeps_frames_of_two_traverses_that_pair_one_to_one():
+    # one 400 m route at 1.7 m a frame, and again at steps of 1 to 3 m: the k-th frames kept stay together
+    slow = np.c_[np.arange(0, 400, 1.7), np.zeros(236)]
+    x = np.r_[0.0, np.cumsum(np.resize([1.0, 1.3, 2.9, 3.0, 2.2], 200))]
+    fast = np.c_[x[x < 400], np.zeros((x < 400).sum())]
+    a, b = tr.every(slow, 4.0), tr.every(fast, 4.0)
+    n = min(a.size, b.size)
+    assert abs(a.size - b.size) <= 1 and n >= 95
+    # within half a frame step of k * 4 m each, so within (1.7 + 3.0) / 2 m of each other
+    assert np.abs(slow[a[:n], 0] - 4.0 * np.arange(n)).max() <= 1.7 / 2 + 1e-9
+    assert np.abs(fast[b[:n], 0] - 4.0 * np.arange(n)).max() <= 3.0 / 2 + 1e-9
+    # a frame nearest two marks (steps longer than the distance) is kept once
+    assert tr.every(fast, 1.0).tolist() == list(range(len(fast)))
+
+
 # ------------------------------------------------------------------ through the commands
 @pytest.mark.slow
 def test_compare_of_two_bags_equals_the_folders_with_a_positions_file(seasons, tmp_path, capsys):

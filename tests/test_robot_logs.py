@@ -380,7 +380,9 @@ class _Lines(_Stopped):
 def test_a_query_every_4m_against_a_full_rate_map_keeps_its_precision(scene_on_disk, tmp_path, capsys):
     s = scene_on_disk("speed_change", (64, 48), 240)  # 400 m: a frame every 1.7 m
     gt = ["--gt", s["gt"], "--radius", 5]
-    code, _, err = _run(["learn", s["slow"], "--out", tmp_path / "map.npz", "--gt", s["gt"]], capsys)
+    # pixels alone (--preset fast): the frames kept must pair one to one, the encoder does not rescue a drift
+    code, _, err = _run(["learn", s["slow"], "--out", tmp_path / "map.npz", "--gt", s["gt"], "--preset", "fast"],
+                        capsys)
     assert code == 0, err
     with pytest.warns(UserWarning, match=r"the map was learned every 1.7 m of travel and the query comes every 4 m: "
                                          r"the map is learned again one frame per 4 m \(\d+ of 240 frames\)"):
@@ -388,17 +390,17 @@ def test_a_query_every_4m_against_a_full_rate_map_keeps_its_precision(scene_on_d
                              "--every", "4m"], capsys)
     assert code == 0, err
     m = _metrics(tmp_path / "q")["methods"]["rshosm-seq"]
-    assert m["frames"] < 120 and m["n_accepted"] > m["frames"] / 2 and m["precision_accepted"] >= 0.95
+    assert m["frames"] < 120 and m["n_accepted"] > 0.9 * m["frames"] and m["precision_accepted"] >= 0.99
     # a map learned every 4 m and a query with positions: the query is sampled alike
-    code, _, err = _run(["learn", s["slow"], "--out", tmp_path / "map4.npz", "--gt", s["gt"], "--every", "4m"],
-                        capsys)
+    code, _, err = _run(["learn", s["slow"], "--out", tmp_path / "map4.npz", "--gt", s["gt"], "--every", "4m",
+                         "--preset", "fast"], capsys)
     assert code == 0, err
     with pytest.warns(UserWarning, match=r"the map was learned one frame per 4 m of travel: the query is sampled so "
                                          r"too \(--every 4m\)"):
         code, _, err = _run(["localize", tmp_path / "map4.npz", s["fast"], "--out", tmp_path / "r", *gt], capsys)
     assert code == 0, err
     r = _metrics(tmp_path / "r")["methods"]["rshosm-seq"]
-    assert r["frames"] == m["frames"] and r["precision_accepted"] >= 0.95
+    assert r["frames"] == m["frames"] and r["n_accepted"] > 0.9 * r["frames"] and r["precision_accepted"] >= 0.99
 
 
 @pytest.mark.slow

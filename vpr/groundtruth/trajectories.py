@@ -224,22 +224,26 @@ def parse_every(text) -> float:
 
 
 def every(xy, metres: float) -> np.ndarray:
-    """Positions of the frames to keep: the first, then each frame at least ``metres`` of travel after the last kept.
+    """Positions of the frames to keep: the frame nearest each multiple of ``metres`` of travel.
 
     Travel is summed along the path (a stop adds nothing; a loop adds its
-    length), so a robot standing at a traffic light keeps one frame. Frames
-    without a position (NaN) are never kept; travel runs from one frame with a
-    position to the next.
+    length), so a robot standing at a traffic light keeps one frame. The k-th
+    frame kept lies within half a frame's travel of ``k * metres``, whatever
+    the frame rate and speed, so two traverses of one route sampled alike keep
+    frames that pair one to one. A frame nearest two marks is kept once.
+    Frames without a position (NaN) are never kept; travel runs from one frame
+    with a position to the next.
     """
     xy = np.asarray(xy, np.float64)
     known = np.flatnonzero(~np.isnan(xy).any(axis=1)) if xy.ndim == 2 else np.zeros(0, np.int64)
     if known.size == 0:
         return np.zeros(0, np.int64)
-    step = np.r_[0.0, np.linalg.norm(np.diff(xy[known], axis=0), axis=1)]
-    keep, since = [known[0]], 0.0
-    for k in range(1, known.size):
-        since += step[k]
-        if since >= metres:
-            keep.append(known[k])
-            since = 0.0
-    return np.asarray(keep, np.int64)
+    travel = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(xy[known], axis=0), axis=1))]
+    marks = np.arange(0.0, travel[-1] + metres / 2, metres)
+    after = np.minimum(np.searchsorted(travel, marks), travel.size - 1)
+    before = np.maximum(after - 1, 0)
+    # the first frame at a mark (searchsorted) or the one before it, whichever is nearer; ties to the earlier
+    nearer = np.where(marks - travel[before] <= travel[after] - marks, before, after)
+    # a stop: the first frame of a run at one travel
+    first = np.searchsorted(travel, travel[nearer])
+    return known[np.unique(first)]
