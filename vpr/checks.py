@@ -1,10 +1,4 @@
-"""Argument checks shared across :mod:`vpr` (one definition each, so that messages and rules agree).
-
-The similarity convention checked here is the one of :mod:`vpr.evaluate`:
-``S`` is database x query, higher = more similar, dense or :mod:`scipy.sparse`;
-``-inf`` (or, in a sparse matrix, an entry that is not stored) means "never
-matched"; NaN and ``+inf`` are errors.
-"""
+"""Argument checks shared across :mod:`vpr` (one definition each, so that messages and rules agree)."""
 from __future__ import annotations
 
 import numbers

@@ -1,18 +1,4 @@
-"""One configuration helper for encoders, methods, descriptors and the verifier.
-
-Every configurable class keeps a ``default_conf`` dict (as in hloc); the
-user's configuration is merged into it with :func:`merge_conf`, which rejects
-unknown keys (listing the valid ones) and coerces each value to the type of
-the default it replaces, so ``--encoder-conf k=40`` and ``k=40`` in Python
-mean the same. :func:`parse_key_values` reads the command line's
-``--x-conf key=value`` lists.
-
-``None`` as a value: a default of ``None`` gives no type, so a string given for
-it is parsed as a scalar (int, float, ``none``) and other values pass as they
-are. Keys listed in ``nullable`` accept ``None`` (or the string ``"none"``) in
-addition to the default's type; methods use that for "disabled" (e.g.
-rshosm-seq's ``stay=None``: no stay transition).
-"""
+"""One configuration helper for encoders, methods, descriptors and the verifier."""
 from __future__ import annotations
 
 import copy

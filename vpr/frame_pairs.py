@@ -1,9 +1,4 @@
-"""Brute-force pairwise comparison: every database frame against every query frame.
-
-The paper's baseline (section 5.2): similarity of the encoder's SDRs by
-normalised overlap, or of dense descriptors by cosine similarity or negative
-mean absolute difference. No sequence information is used.
-"""
+"""Brute-force pairwise comparison: every database frame against every query frame."""
 from __future__ import annotations
 
 import scipy.sparse as sp

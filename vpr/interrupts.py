@@ -1,12 +1,4 @@
-"""Ctrl-C and SIGTERM: how a run stops, and the few sections it must not stop inside.
-
-A run is stopped by raising an exception where it stands (``KeyboardInterrupt``
-for Ctrl-C, :class:`Terminated` for SIGTERM); the atomic writes drop what was
-being written and the ``with`` blocks put things back. A few sections cannot be
-left half done that way: a local Dask cluster stopped while its worker processes
-start or close leaves those processes and their semaphores behind.
-:func:`deferred` holds the signal until such a section ends and raises it then.
-"""
+"""Ctrl-C and SIGTERM: how a run stops, and the few sections it must not stop inside."""
 from __future__ import annotations
 
 import contextlib

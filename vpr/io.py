@@ -1,9 +1,4 @@
-"""Atomic output helpers: write to a temporary file beside the target, then rename.
-
-A crash mid-write therefore never leaves a half-written result under the final name. An
-``OSError`` while writing (read-only or full file system, no permission) names the result
-being written, not its temporary file.
-"""
+"""Atomic output helpers: write to a temporary file beside the target, then rename."""
 from __future__ import annotations
 
 import contextlib

@@ -1,10 +1,4 @@
-"""Figures for evaluation results: PR curves, similarity matrices, bar charts.
-
-Every function builds its own :class:`matplotlib.figure.Figure` on an Agg
-canvas (never pyplot's global figure manager, so they are safe in threads and
-batch jobs) and writes it atomically with :func:`vpr.io.save_figure`; the file
-format follows the suffix of ``path``.
-"""
+"""Figures for evaluation results: PR curves, similarity matrices, bar charts."""
 from __future__ import annotations
 
 import json

@@ -1,30 +1,4 @@
-"""Named settings of a run: encoder with its conf, methods with their confs.
-
-``vpr compare DB QUERY`` with no encoder or method flags runs :data:`PRESETS`
-``["default"]``; ``--preset NAME`` picks another one, and explicit flags override
-the preset (:func:`resolve`). The presets:
-
-- ``default``: the best the project knows across every dataset it has
-  (``docs/experiments.md``, "Default preset"): the joined ``pixel+cnn`` SDR
-  (1,536 + 512 bits, 150 + 50 active, each traverse standardised on its own
-  frames), rSHOSM-seq first, then SeqSLAM on pixels, SeqSLAM on the encoder's
-  dense descriptors and pairwise matching as baselines.
-- ``paper``: the paper's setting (Neubert, Ahmad and Protzel, KI 2018): 40 active
-  bits of 2,048 from pixels, binary rSHOSM with p_extra 0.05, against pairwise
-  and SeqSLAM. For reproducing the paper, not for real use.
-- ``fast``: no CNN: pixel SDRs (200 active bits of 2,048, standardised), the same
-  methods as ``default``; for long videos on a laptop.
-
-Each preset also names the ``loop_method`` of ``vpr loops`` and the
-``loop_encoder_conf`` merged over its encoder conf there: one stream may change
-condition part-way (summer then winter, day then night), so loops standardise
-causally, each frame by the frames just before it, instead of fitting the whole
-stream (``docs/localize.md`` has the figures).
-
-This module is plain data: encoder and method names are checked when a run
-builds them (``encoders.get``, :func:`vpr.methods.get`), so that ``vpr`` needs
-neither the encoders nor every method at import.
-"""
+"""Named settings of a run: encoder with its conf, methods with their confs."""
 from __future__ import annotations
 
 import copy

@@ -1,15 +1,4 @@
-"""A run's table and report page: the metrics as printed, the plots, and the frames side by side, worst first.
-
-:func:`metrics_table` is the table every command prints (:data:`TABLE`).
-:func:`write` makes ``DIR/report.html`` from what a run wrote there
-(``metrics.json``, ``pr.png``, each method's ``matches.csv`` and
-``similarity.png``) and the frames, read by name with a function the caller
-gives (``vpr`` does not open sources here): one self-contained HTML file
-(images embedded as ``data:`` URIs, a few lines of JavaScript for the filters;
-no server, no network) that a user opens from disk to see *why* a match is
-wrong. :func:`choose` picks the decisions shown for each method, by outcome,
-worst first, at most :data:`LIMIT` (the page says what was left out).
-"""
+"""A run's table and report page: the metrics as printed, the plots, and the frames side by side, worst first."""
 from __future__ import annotations
 
 import base64

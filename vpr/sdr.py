@@ -1,9 +1,4 @@
-"""Sparse distributed representations (SDRs).
-
-An SDR batch is a :class:`scipy.sparse.csr_matrix` of ``bool`` with one row per
-frame and one column per bit. The functions here build, check and perturb such
-batches; they never densify a whole batch.
-"""
+"""Sparse distributed representations (SDRs)."""
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence

@@ -1,21 +1,4 @@
-"""Similarity matrices between SDR batches or dense descriptors, and what every method does with them.
-
-Every function returns **database x query** (rows of the first argument by
-rows of the second), higher = more similar. For a single stream pass one
-argument and get T x T (rows: earlier frame, columns: frame).
-
-Every overlap between SDRs is counted here: :func:`overlap_similarity` (batch x
-batch, normalised or not, dense or top-K), :func:`overlap_count` (two small
-batches), the blocked counts and single-frame candidates of SeqSLAM on SDRs
-(:func:`sdr_overlap_rows`, :func:`sdr_candidates`) and the stop check of a loop
-closure (:func:`stationary`); an SDR against the memory's minicolumns is
-:mod:`vpr.shosm.kernels.overlap`'s.
-
-Above :data:`DENSE_PAIRS_LIMIT` pairs a matrix is kept as top-K sparse
-(:func:`top_k_or_dense` says which, :func:`check_dense` refuses what has no
-sparse form); :func:`best_matches` reads the best database frame per query of
-either, :func:`mask_recent` keeps the pairs a loop closure may use.
-"""
+"""Similarity matrices between SDR batches or dense descriptors, and what every method does with them."""
 from __future__ import annotations
 
 import numpy as np

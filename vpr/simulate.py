@@ -1,10 +1,4 @@
-"""The simulated world of the paper's section 5.
-
-Places are arranged on a grid; each place has a random SDR (2048 bits, 40 on).
-A robot moves along a trajectory of places and observes each place's SDR with
-noise (a fraction of the 1-bits moved, :func:`vpr.sdr.add_noise`). Aliasing
-``a`` makes ``a`` pairs of places share one SDR.
-"""
+"""The simulated world of the paper's section 5."""
 from __future__ import annotations
 
 from dataclasses import dataclass

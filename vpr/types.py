@@ -1,27 +1,4 @@
-"""The types every floor shares: an encoded traverse in, a match result out.
-
-* :class:`EncodedTraverse`: what a method reads, frame by frame: the names of
-  the frames and, by name, their encodings: ``"sdr"`` (an SDR batch, bool CSR
-  frames x bits), ``"desc"`` (the encoder's dense descriptor, float32 frames x
-  dims) and any input a method computes from the images itself
-  (:class:`ImageInput`, e.g. SeqSLAM's ``"pixels"``).
-* :class:`ImageInput`: an input that a method declares and computes from the
-  raw images rather than taking it from the encoder. The extraction stage
-  computes (and caches) it for every method that asks, so a method with a new
-  kind of input touches only its own module.
-* :class:`Column`: one frame's evidence over its candidate frames.
-* :class:`Decision`: what a decision says of a frame (scalars) or of every
-  frame of a traverse (arrays, :meth:`Decision.stack`).
-* :class:`Decider`: the contract of everything that decides a stream one
-  :class:`Column` at a time (a map's localisation, a loop rule, a second opinion).
-* :class:`FrameEncoder`: the contract of an encoder that turns a robot's images
-  into SDRs one at a time (what the online loop detector takes).
-
-Everything stateful keeps one convention: ``state() -> (header, arrays)`` (a
-JSON-able dict and a dict of arrays) and ``load_state(header, arrays)``.
-* :class:`MatchResult`: a database x query similarity (dense, or top-K
-  sparse), the best database frame per query, its score and the decision.
-"""
+"""The types every floor shares: an encoded traverse in, a match result out."""
 from __future__ import annotations
 
 from abc import ABC, abstractmethod

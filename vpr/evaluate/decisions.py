@@ -1,11 +1,4 @@
-"""Metrics of decisions, one per query (or per frame of a stream): what a robot acts on.
-
-Plain functions over the decisions (each query's best database frame and
-whether it is accepted, or its score) and ``gt_hard`` / ``gt_soft`` / ``mask``
-as :mod:`vpr.evaluate.ranking` takes them: the precision and recall of what
-was accepted, the decision curve of loop-closure papers, the best matches in
-the soft band, and the same per pair of sessions of a multi-session stream.
-"""
+"""Metrics of decisions, one per query (or per frame of a stream): what a robot acts on."""
 from __future__ import annotations
 
 import numpy as np

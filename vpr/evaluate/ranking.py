@@ -1,10 +1,4 @@
-"""Rankings: average precision, precision-recall curves, recall at 100 % precision, recall@K.
-
-Plain functions over ``S``, ``gt_hard``, ``gt_soft`` (and ``mask``); the
-conventions for all of them (sparse ``S``, never-matched entries, the soft
-band, ``"multi"`` and ``"single"`` matching) are written once, in
-:mod:`vpr.evaluate`.
-"""
+"""Rankings: average precision, precision-recall curves, recall at 100 % precision, recall@K."""
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -244,8 +238,8 @@ def pr_curve(S, gt_hard, gt_soft=None, matching="multi", mask=None):
     """Precision-recall curve at every distinct similarity threshold.
 
     A pair (or, for ``"single"`` matching, a query's best pair) is a predicted
-    match at threshold ``t`` if its similarity is ``>= t``. See the module
-    docstring for the conventions on ``S``, ``gt_soft`` and ``mask``.
+    match at threshold ``t`` if its similarity is ``>= t``. The conventions on
+    ``S``, ``gt_soft`` and ``mask``: ``docs/internals.md``, ``vpr/evaluate``.
 
     Parameters
     ----------

@@ -1,20 +1,4 @@
-"""Ground truth: which database frame shows the same place as which query frame.
-
-- :mod:`~vpr.groundtruth.matrices`: matrices from labels, frame numbers or
-  positions (``gt_from_labels``, ``gt_from_frames``, ``gt_from_tolerance``,
-  ``gt_from_positions``) and the pairs of a loop closure (``loop_closure_mask``,
-  ``loop_closure_gt``);
-- :mod:`~vpr.groundtruth.files`: ground truth read from CSV files (pairs,
-  positions); :mod:`~vpr.groundtruth.formats`: matrices as benchmarks ship
-  them (``GThard.npy``, VPR-Bench's ``ground_truth_new.npy``, loop matrices in
-  ``.npy``, ``.png``, ``.bmp``, ``.mat``);
-- :mod:`~vpr.groundtruth.spec`: a run's ground-truth options
-  (:class:`GroundTruthSpec`) and :func:`build_gt`, the choice ``vpr match`` makes;
-  :mod:`~vpr.groundtruth.positions`: where every frame of a source was
-  (:func:`prepare_positions`), for a radius and for ``--every``.
-
-The metrics over them are in :mod:`vpr.evaluate`.
-"""
+"""Ground truth: which database frame shows the same place as which query frame."""
 from .files import (
     gt_from_position_files,
     load_loop_pairs,

@@ -1,23 +1,4 @@
-"""Ground truth read from files: (query, db) pairs, per-frame positions, positions of rendered traverses.
-
-Every builder returns a ``bool`` array of shape (n_db, n_query) with
-``gt[i, j]`` true when database frame ``i`` shows the same place as query
-frame ``j``; rows and columns are the frames actually read, in order.
-
-File format
------------
-Comma-separated text (a line without commas is split on whitespace). Blank
-lines and lines starting with ``#`` are ignored; the first line may be a
-header. A frame is named either by its name (as produced by
-:mod:`vpr.sources`; the file name without folder or extension also matches
-when unambiguous) or by its integer frame number in the source: position in
-the naturally sorted folder or list file, or video frame number. Pass the
-frames' numbers as ``db_indices`` / ``q_indices`` (``Frame.index``) when a
-source was subsampled or frames were skipped; without them the frames read
-are taken to be numbered 0, 1, 2, ...
-
-Every malformed line raises ``ValueError("FILE:LINE: reason")``.
-"""
+"""Ground truth read from files: (query, db) pairs, per-frame positions, positions of rendered traverses."""
 from __future__ import annotations
 
 import csv

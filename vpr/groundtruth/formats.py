@@ -1,17 +1,4 @@
-"""Ground truth as the common benchmarks ship it: matrices in ``.npy``, images and Matlab files.
-
-- Database x query (``vpr match``): the VPR tutorial's ``GThard.npy`` /
-  ``GTsoft.npy`` (a bool or 0/1 matrix, n_db x n_query) and VPR-Bench's
-  ``ground_truth_new.npy`` (one row per query: ``[query, [db, db, ...]]``).
-- Loop closures in one stream (``vpr loops``): a T x T matrix in a ``.npy``,
-  an 8-bit image (``.png`` / ``.bmp``, nonzero = loop; RTAB-Map's sample
-  format) or a Matlab ``.mat`` variable (City Centre / New College style);
-  row = frame, column = earlier frame. Either triangle is read: a loop is a
-  pair of frames, whichever way round it is written.
-
-A ``.mat`` file with several matrices names the one to read after a colon:
-``truth.mat:GT``. Every refusal names the file and the reason.
-"""
+"""Ground truth as the common benchmarks ship it: matrices in ``.npy``, images and Matlab files."""
 from __future__ import annotations
 
 from pathlib import Path

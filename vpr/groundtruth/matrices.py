@@ -1,9 +1,4 @@
-"""Ground-truth matrices from labels, frame numbers or positions, and the pairs a loop closure evaluates.
-
-Every builder returns a ``bool`` matrix (dense, or ``scipy.sparse.csr_matrix``
-with ``sparse=True``), database x query (``T x T`` for one stream): ``gt[i, j]``
-is True when database frame ``i`` shows the same place as query frame ``j``.
-"""
+"""Ground-truth matrices from labels, frame numbers or positions, and the pairs a loop closure evaluates."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,24 +1,4 @@
-"""Where every frame was: positions for ground truth within a radius and for ``--every``, before any frame is read.
-
-A run with position ground truth (``--radius``) or ``--every`` gives every
-source's frames a position, from whichever of these the options name:
-
-- ``--gt-topic TOPIC``: a bag's NavSatFix, Odometry or PoseStamped topic,
-  interpolated at each frame's time (:meth:`vpr.sources.BagSource.trajectory`);
-- ``--gt FILE``: a TUM trajectory (by the frames' times), KITTI poses (by frame
-  number), or a ``frame,x,y`` / ``traverse,frame,x,y`` positions CSV;
-- ``--gt names`` (UTM in the file names) or ``--gt exif`` (GPS in the photos).
-
-Frames outside a trajectory's time span, or inside an outage of it (a GPS
-without a fix, :func:`vpr.groundtruth.trajectories.outages`), get no
-position (NaN), said with their count and the outages' spans, never
-extrapolated nor interpolated across the gap. Ground truth only scores: the
-method sees those frames as every other, and their pairs are left out of the
-metrics (:func:`vpr.groundtruth.build_gt` puts them in the soft band).
-``--every 2m`` keeps one frame per 2 m of travel, which only frames with a
-position have; it acts on the sources' selection
-(:meth:`vpr.sources.Source.restrict`), so the frames left out are not even read.
-"""
+"""Where every frame was: positions for ground truth within a radius and for ``--every``, before any frame is read."""
 from __future__ import annotations
 
 import warnings

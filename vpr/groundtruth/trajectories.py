@@ -1,24 +1,4 @@
-"""Positions of frames from where robots and datasets keep them: trajectories, file names, EXIF.
-
-Every reader returns positions in metres (``(n, 2)`` or ``(n, 3)``; the
-distances :func:`vpr.groundtruth.gt_from_positions` thresholds with
-``--radius`` are in the same unit):
-
-- :func:`load_tum`: a TUM trajectory (``timestamp tx ty tz qx qy qz qw`` per
-  line), associated with the frames by time (:func:`positions_at`).
-- :func:`load_kitti`: KITTI poses, one 3 x 4 matrix per line and frame
-  (row-major, the translation is the last column).
-- :func:`utm_from_names`: UTM east and north in the file names, as the common
-  VPR datasets name their images (``@0543256.96@4178906.85@10@S@...``).
-- :func:`exif_positions`: latitude and longitude in the EXIF of phone photos,
-  turned into local metres.
-
-:func:`positions_at` interpolates a trajectory at the frames' times and
-never extrapolates, nor interpolates across an outage (:func:`outages`):
-frames outside the trajectory's time span or inside an outage are reported,
-for the caller to leave out with a warning. :func:`every` keeps one frame
-per so many metres of travel, as a robot's loop-closure front end does.
-"""
+"""Positions of frames from where robots and datasets keep them: trajectories, file names, EXIF."""
 from __future__ import annotations
 
 import math

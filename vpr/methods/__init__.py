@@ -1,40 +1,4 @@
-"""Place-recognition methods behind one interface, found by name like the encoders.
-
-Registered methods (see each module for its conf keys):
-
-- ``rshosm``: the paper's memory; winner codes compared by overlap
-  (:class:`~vpr.methods.rshosm.Rshosm`).
-- ``rshosm-seq``: our extension for a query against a learned database; graded
-  sequence evidence (:class:`~vpr.methods.rshosm_seq.RshosmSeq`).
-- ``seqslam``: SeqSLAM on pixel or encoder descriptors (:class:`~vpr.methods.seqslam.SeqSlam`).
-- ``seqslam-desc``: SeqSLAM on the encoder's dense descriptors, cosine distance
-  (:class:`~vpr.methods.seqslam.SeqSlamDesc`).
-- ``pairwise``: single-frame comparison of SDRs or descriptors (:class:`~vpr.methods.pairwise.Pairwise`).
-
-::
-
-    from vpr import methods
-    m = methods.get("seqslam", ds=20)          # conf merged over SeqSlam.default_conf
-    res = m.match(db, query)                   # db, query: EncodedTraverse
-    res = methods.match("rshosm", db, query)   # the same in one call
-
-Each method takes encoded traverses (:class:`vpr.types.EncodedTraverse`: SDRs,
-dense descriptors, or inputs it computes from the images itself) and returns a
-:class:`vpr.types.MatchResult` with a database x query similarity matrix
-(dense, or a top-K sparse matrix above :data:`vpr.similarity.DENSE_PAIRS_LIMIT`
-pairs), the best database frame per query, its score and an accept flag.
-``match`` compares a query traverse with a database traverse; ``loops`` finds
-loop closures within one traverse (only earlier frames, at least ``exclude``
-frames back).
-
-A new method is one module in this package with a :class:`Method` subclass
-(its ``name``, ``default_conf``, ``required_inputs``, ``_match`` and, for loop
-closure, ``_loops``; an input it computes from the images is an
-:class:`vpr.types.ImageInput` in its ``image_inputs``) and one line in
-``_REGISTRY``: two files. The algorithm itself, when it is more than a few
-lines, is a subpackage of :mod:`vpr` beside :mod:`vpr.shosm` and
-:mod:`vpr.seqslam`, which this adapter imports.
-"""
+"""Place-recognition methods behind one interface, found by name like the encoders."""
 from __future__ import annotations
 
 import warnings

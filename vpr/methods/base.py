@@ -1,15 +1,4 @@
-"""The base class of the place-recognition methods.
-
-A method is a small class (:class:`Method`) with a ``name``, a ``default_conf``
-that user configuration is merged into (:func:`vpr.config.merge_conf`: unknown
-keys are an error, strings are coerced to the default's type), the inputs it
-reads (``required_inputs``, as hloc's models declare theirs; inputs it
-computes from the images itself are declared in ``image_inputs``), and two
-entry points: :meth:`Method.match` compares a query traverse with a database
-traverse, :meth:`Method.loops` finds loop closures within one traverse (only
-earlier frames, at least ``exclude`` frames back). Both take encoded traverses
-(:class:`vpr.types.EncodedTraverse`) and return a :class:`vpr.types.MatchResult`.
-"""
+"""The base class of the place-recognition methods."""
 from __future__ import annotations
 
 import time

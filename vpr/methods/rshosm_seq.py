@@ -1,10 +1,4 @@
-"""``rshosm-seq``: rSHOSM's learned memory, queried for graded sequence evidence (our extension).
-
-The algorithm is :mod:`vpr.shosm` (:func:`vpr.shosm.query_evidence` for a
-query against a database, :func:`vpr.shosm.loop_evidence` and
-:func:`vpr.shosm.accept_loops` within one stream); this adapter puts it behind
-the :class:`~vpr.methods.base.Method` interface.
-"""
+"""``rshosm-seq``: rSHOSM's learned memory, queried for graded sequence evidence (our extension)."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,13 +1,4 @@
-"""``seqslam`` and ``seqslam-desc``: SeqSLAM (Milford and Wyeth 2012) on pixel or encoder descriptors.
-
-``seqslam`` is OpenSeqSLAM on its own 64 x 32 patch-normalised thumbnails (or,
-with ``descriptor="encoder"``, on the encoder's dense descriptors).
-``seqslam-desc`` is the same enhancement and trajectory search on the
-encoder's dense descriptors with cosine distance, the literature's "SeqSLAM on
-NetVLAD": a sequence baseline that sees the same information as the SDR
-methods (CNN features, HOG, the pixel encoder's thumbnails, ORB's vote
-histogram, or a joined encoder's concatenated descriptor).
-"""
+"""``seqslam`` and ``seqslam-desc``: SeqSLAM (Milford and Wyeth 2012) on pixel or encoder descriptors."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,13 +1,4 @@
-"""Ray casting of the unrolled world, per-traverse lighting and camera effects.
-
-Per image size the ray directions are tabulated once (:class:`Camera`); per
-condition the world's albedo is lit, coloured and packed into one flat
-``uint32`` texture atlas with mip levels (:class:`ConditionAtlas`). A frame is
-then a handful of whole-image NumPy operations: per column the hit on the left
-or right wall, per row the hit on the ground/ceiling, one gather from the
-atlas, depth-sorted billboards for the objects, and fog, rain, vignetting,
-blur and sensor noise as vectorised colour operations.
-"""
+"""Ray casting of the unrolled world, per-traverse lighting and camera effects."""
 from __future__ import annotations
 
 import math

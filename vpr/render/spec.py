@@ -1,18 +1,4 @@
-"""Scene specifications for the procedural renderer: loading, validation, defaults.
-
-A specification is a JSON object::
-
-    {"name": ..., "description": ...,
-     "world":   {"kind", "seed", "length", "loop", "half_width", "density", "aliasing"},
-     "camera":  {"size", "hfov", "height", "fps", "max_depth"},
-     "traverses": [{"name", "seed", "laps", "start", "end",
-                    "speed": {"mean", "variation", "profile", "stops"},
-                    "conditions": {...}}, ...]}
-
-:func:`load_spec` checks every key and type, fills the defaults and returns
-the fully resolved dictionary (which is what ``scene.json`` records), so that a
-render can be reproduced from the resolved spec alone.
-"""
+"""Scene specifications for the procedural renderer: loading, validation, defaults."""
 from __future__ import annotations
 
 import copy

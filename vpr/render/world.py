@@ -1,17 +1,4 @@
-"""Procedural worlds for the renderer: a street or an indoor corridor, unrolled along the route.
-
-The world is laid out in "route coordinates": ``z`` is the position along the
-route in metres, ``x`` the lateral position (left wall at ``-half_width``,
-right wall at ``+half_width``), ``y`` the height above the ground. Appearance is
-a function of ``z`` only, so a closed loop revisits the same ``z`` (modulo its
-length) and shows the same place; the (x, y) ground truth in the world plane is
-taken separately from a route polyline at the same arc length
-(:func:`route_polyline`).
-
-Everything here is albedo (reflectance in [0, 1], BGR) plus "emissive rank"
-layers (which windows or lamps may light up at night); the lighting of a
-particular traverse is applied by :mod:`vpr.render.engine`.
-"""
+"""Procedural worlds for the renderer: a street or an indoor corridor, unrolled along the route."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -29,7 +16,7 @@ LANE_CENTRE = 1.75  # metres right of a street's centre line: where the camera d
 
 @dataclass
 class WorldRaster:
-    """Rasterised world at a given texture resolution (see module docstring).
+    """Rasterised world at a given texture resolution (``docs/internals.md``).
 
     Walls are indexed ``[side]`` with side 0 = left, 1 = right; wall rows start at
     the ground (row 0 = height 0). Wall column ``c`` covers

@@ -1,22 +1,4 @@
-"""rSHOSM: the sequence memory of Neubert, Ahmad and Protzel (KI 2018), and rSHOSM-seq, our graded evidence over it.
-
-- :class:`SequenceMemory`: Algorithm 1 of the paper (SHOSM; rSHOSM with
-  ``p_extra > 0``), in its own room (:mod:`vpr.shosm.memory`; ``step`` /
-  ``run``, ``reset``, read-only ``connections``).
-- :class:`Engine`: rSHOSM-seq's graded evidence over a :class:`Graph` of a
-  learned memory, one frame (``step``) or a traverse (``run``;
-  :func:`query_evidence`).
-- Deciders, ``decide(column) -> Decision``: :class:`PathDecider` against a
-  map, a loop rule (:class:`LoopRule`, by name in :data:`LOOP_RULES`; :class:`LoopDecider` by default) within
-  one stream; :func:`decide_all` over a traverse.
-- :class:`Localizer` (engine and path decider over a learned map, saved as a
-  :class:`Map`), :class:`LoopStream` (a stream learned and decided frame by
-  frame; :func:`loop_evidence`, :class:`LoopDetector`).
-- :mod:`vpr.shosm.conf`: the one frozen conf, :class:`RshosmSeqConf`.
-
-Every stateful object has ``state() -> (header, arrays)`` and
-``load_state(header, arrays)``; files are :mod:`vpr.shosm.state`'s.
-"""
+"""rSHOSM: the sequence memory of Neubert, Ahmad and Protzel (KI 2018), and rSHOSM-seq, our graded evidence over it."""
 from .conf import (
     DECISION_KEYS,
     DENSE_EVIDENCE_PAIRS,

@@ -1,24 +1,4 @@
-"""rSHOSM-seq's parameters, written once: the learning threshold, the evidence and the beam.
-
-Every user of the graded evidence (the ``rshosm-seq`` method, the streaming
-evidence, loop closure, the localizer) reads its defaults from here:
-
-* :data:`LEARN_THRESHOLD`: the minicolumn threshold rSHOSM-seq learns with
-  (the paper's memory uses 0.25; 0.75 keeps a database frame from reusing
-  minicolumns sampled from other frames, see ``docs/experiments.md``).
-* :class:`EvidenceConf`: how evidence is carried from one frame to the next
-  (``decay``, ``stay``, ``skip``) and how a frame's scores are standardised
-  (``normalise``).
-* :class:`BeamConf`: the floors and caps of the sparse evidence (the beam), and
-  :data:`DENSE_EVIDENCE_PAIRS`, the size above which the sparse evidence is used.
-* :class:`LoopConf`: when a loop closure is accepted (:func:`vpr.shosm.accept_loops`);
-  :class:`PathConf`: when a localisation against a map is.
-* :class:`RshosmSeqConf`: all of them as one frozen conf, built and checked
-  once (by ``methods.get("rshosm-seq", ...)`` or :meth:`RshosmSeqConf.build`),
-  which the method, loop closure, the :class:`vpr.shosm.LoopDetector` and the
-  :class:`vpr.shosm.Localizer` take whole. Its flat keys are the
-  ``--method-conf rshosm-seq.KEY=VALUE`` of every command.
-"""
+"""rSHOSM-seq's parameters, written once: the learning threshold, the evidence and the beam."""
 from __future__ import annotations
 
 from collections.abc import Mapping

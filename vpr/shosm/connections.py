@@ -1,10 +1,4 @@
-"""What a :class:`vpr.shosm.SequenceMemory` has learned, read-only.
-
-:class:`MemoryView` (``mem.view()``): views of the memory's own arrays, no copy,
-what compiled kernels read. :class:`Connections` (``mem.connections``): the
-learned synapses copied out as SciPy matrices, in the spirit of htm.core's
-``connections``. Neither can change the memory.
-"""
+"""What a :class:`vpr.shosm.SequenceMemory` has learned, read-only."""
 from __future__ import annotations
 
 from typing import NamedTuple

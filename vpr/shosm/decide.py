@@ -1,15 +1,5 @@
 """Deciders (:class:`vpr.types.Decider`): ``decide(column) -> Decision``, one frame at a time, with the state a
-stream carries.
-
-:class:`PathDecider` (a place of a map; :class:`vpr.shosm.PathConf`) and the
-loop rules (:class:`LoopRule`: a closure onto an earlier frame of the stream,
-or a new place), registered by name in :data:`LOOP_RULES`; the default,
-:class:`LoopDecider` (:class:`vpr.shosm.LoopConf`), shares the path score of
-:mod:`vpr.shosm.kernels.decide` and holds a :class:`PathDecider` for a later
-session against the earlier ones. :func:`decide_all` runs a decider over the
-columns of a whole traverse; :func:`accept_loops` and :func:`accept_path` are
-it on a stored matrix. :func:`stationary_closures` tells a stop from a loop.
-"""
+stream carries."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,19 +1,4 @@
-"""Online loop closure for a robot: one frame in, "I have been here before, at frame i" (or not) out.
-
-**Our extension, not the paper's** decision (the memory is the paper's
-Algorithm 1, learned as frames arrive). :class:`LoopDetector` runs the engine
-of the batch :func:`vpr.shosm.loop_evidence`, :class:`vpr.shosm.LoopStream`,
-so its answers are the batch's on the same frames; it adds frame names, an
-optional encoder for images, and :meth:`LoopDetector.save` /
-:meth:`LoopDetector.load`, so that a robot can stop and continue with the
-answers it would have given without stopping.
-
-Encoding images is the caller's: ``vpr`` never imports ``encoders``. An
-``encoder`` is a :class:`vpr.types.FrameEncoder` (``push(image)`` returning
-the SDR rows of the frames now ready, ``delay``, ``waiting``, ``flush()``,
-``new_session()``, ``state()`` / ``load_state()``), as
-:class:`encoders.stream.StreamEncoder`.
-"""
+"""Online loop closure for a robot: one frame in, "I have been here before, at frame i" (or not) out."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -47,7 +32,7 @@ class LoopDetector:
     Parameters
     ----------
     encoder : object, optional
-        Encodes images passed to :meth:`update` (see the module docstring).
+        Encodes images passed to :meth:`update` (``docs/internals.md``).
         Without it, :meth:`update` takes SDR rows.
     conf : RshosmSeqConf, optional
         rSHOSM-seq's conf (``method.seq`` of the ``rshosm-seq`` method; its

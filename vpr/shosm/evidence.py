@@ -1,31 +1,4 @@
-"""rSHOSM-seq's graded sequence evidence: one engine, one frame at a time or a whole traverse.
-
-**Our extension, not the paper's.** A database traverse is learned with
-Algorithm 1 (:class:`vpr.shosm.SequenceMemory`); a query frame is then scored
-with graded evidence instead of binary winner cells (whose overlap cannot rank
-a query that is only partly like its place). The memory is read, never changed:
-
-* feed-forward: a cell's input evidence ``z`` is the fraction of its
-  minicolumn's connections that are 1-bits of the query SDR (the quantity
-  Alg. 1 line 1 thresholds);
-* sequence: a cell's evidence is ``z + decay * p``, where ``p`` is the best
-  evidence of a cell that predicts it through a learned lateral connection at
-  the previous query frame (lines 7 and 10, graded instead of binary);
-  ``stay`` and ``skip`` admit a repeated or a skipped database frame at that
-  cost (:class:`vpr.shosm.EvidenceConf`);
-* ``direction="both"`` also runs the query backwards along the reversed
-  connections and adds the two (the input term counted once), so that
-  evidence comes from both sides of a frame, as OpenSeqSLAM's centred window;
-  ``"forward"`` is causal.
-
-The similarity of database frame ``j`` and query frame ``q`` is the mean
-evidence of ``j``'s winner cells at ``q``, standardised per query
-(:func:`vpr.shosm.kernels.evidence.moments`). :class:`Engine` carries it: the
-beam (only the cells above :class:`vpr.shosm.BeamConf`'s floors) or, with
-``exact``, every relevant cell (dense). The same engine serves a query
-traverse (:func:`query_evidence`), the :class:`vpr.shosm.Localizer`, and loop
-closure over a graph that grows with the stream (:class:`vpr.shosm.LoopStream`).
-"""
+"""rSHOSM-seq's graded sequence evidence: one engine, one frame at a time or a whole traverse."""
 from __future__ import annotations
 
 import threading

@@ -1,9 +1,4 @@
-"""What the evidence kernels read of a learned memory: :class:`Graph`, and :class:`Beam`, the scratch one pass writes.
-
-A graph is built once for a learned database (:meth:`Graph.of`), or grows
-frame by frame while one stream is learned (:meth:`Graph.growing`,
-:meth:`Graph.attach`: loop closure).
-"""
+"""The learned memory as the evidence kernels read it (:class:`Graph`), and one pass's scratch (:class:`Beam`)."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,18 +1,4 @@
-"""Online localisation against a learned database: one query frame in, one place out.
-
-**Our extension, not the paper's.** A robot learns its map once
-(:meth:`Localizer.from_database`: Algorithm 1 with rSHOSM-seq's learning
-threshold), then calls :meth:`Localizer.update` with the SDR of each new
-camera frame and gets a :class:`~vpr.types.Decision`: the best database
-frame, the path score of :class:`vpr.shosm.PathConf`, whether it is accepted,
-and the frame's evidence column. Only the past counts (the forward evidence of
-the :class:`~vpr.shosm.evidence.Engine`), and the cost per frame does not
-depend on how many frames came before. The memory is only read.
-
-A localizer and what made its SDRs are saved together as a
-:class:`vpr.shosm.Map`. Encoding images is the caller's (``vpr`` never
-imports ``encoders``).
-"""
+"""Online localisation against a learned database: one query frame in, one place out."""
 from __future__ import annotations
 
 import numpy as np

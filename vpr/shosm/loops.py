@@ -1,13 +1,4 @@
-"""Loop closure within one stream: learned online with Algorithm 1, scored by the forward evidence, decided.
-
-**Our extension, not the paper's** scoring (the paper compares winner codes;
-``rshosm`` does that). :class:`LoopStream` learns each frame, attaches it to a
-growing :class:`~vpr.shosm.graph.Graph`, scores the frames far enough back
-with the :class:`~vpr.shosm.evidence.Engine` and decides with a
-:class:`~vpr.shosm.decide.LoopRule` (``loop_rule``). :func:`loop_evidence` runs it over a
-whole stream; :class:`vpr.shosm.LoopDetector` one frame at a time for a
-robot: the same engine, the same answers.
-"""
+"""Loop closure within one stream: learned online with Algorithm 1, scored by the forward evidence, decided."""
 from __future__ import annotations
 
 import numpy as np

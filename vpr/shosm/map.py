@@ -1,14 +1,4 @@
-"""A learned map, one file: the :class:`~vpr.shosm.Localizer`, the encoder that made its SDRs, where its frames were.
-
-``vpr learn`` writes it, ``vpr localize`` reads it. The file is a versioned
-``.npz`` (:mod:`vpr.shosm.state`): the memory, the database's names, codes and
-sessions, rSHOSM-seq's conf, the query's state so far (evidence, decision,
-and the query encoder's running statistics), the encoder's name, conf and the
-statistics it fitted on the database, the frames' positions and SDRs (so that
-the map can be learned again at another sampling, :meth:`Map.subset`), and
-what the map was learned from. ``vpr`` does not import ``encoders``: the caller builds the
-encoder from :attr:`Map.encoder` and :attr:`Map.statistics`.
-"""
+"""A learned map, one file: the :class:`~vpr.shosm.Localizer`, the encoder that made its SDRs, where its frames were."""
 from __future__ import annotations
 
 from pathlib import Path

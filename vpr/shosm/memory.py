@@ -1,23 +1,5 @@
 """rSHOSM: the simplified HTM higher-order sequence memory of Neubert, Ahmad and
-Protzel, "A Sequence-Based Neuronal Model for Mobile Robot Localization", KI 2018.
-
-:class:`SequenceMemory` implements Algorithm 1 of the paper (SHOSM) with the
-randomised extra connections of section 4.3 (rSHOSM, ``p_extra > 0``). The
-output of every step is the set of winner cells; place recognition compares
-winner codes of different time steps by their overlap. The graded evidence of
-rSHOSM-seq (our extension, :mod:`vpr.shosm.evidence`) reads a learned memory
-and never changes it.
-
-Data layout (why it is fast): minicolumns are found through an inverted index
-*input bit -> minicolumns*, and lateral connections are kept as linked lists per
-source and per target cell in append-only arrays; the per-observation loop is
-compiled with numba (:mod:`vpr.shosm.kernels.memory`, one function per phase of
-Algorithm 1). ``benchmarks/bench_memory.py`` prints the cost per observation.
-What the memory has learned is read through :meth:`SequenceMemory.view`
-(read-only views of the arrays, for compiled kernels) or
-:attr:`SequenceMemory.connections` (the same as SciPy matrices, a copy), never
-through the private arrays.
-"""
+Protzel, "A Sequence-Based Neuronal Model for Mobile Robot Localization", KI 2018."""
 from __future__ import annotations
 
 import inspect

@@ -1,13 +1,4 @@
-"""The one file format of rSHOSM's saved states: a memory, a loop detector, a localizer (map).
-
-Each is a versioned ``.npz`` (:func:`vpr.io.save_versioned_npz`, written
-atomically, read without executing anything): a JSON header with ``format``
-and ``version``, and arrays in named parts (the memory's, the evidence's, the
-decision's, the caller's), stored under ``PART_key``. :func:`write_file` and
-:func:`read_file` are that format written once; a file that is missing,
-foreign, of another version or inconsistent is a :class:`MemoryFileError`
-naming the file.
-"""
+"""The one file format of rSHOSM's saved states: a memory, a loop detector, a localizer (map)."""
 from __future__ import annotations
 
 import contextlib

@@ -1,21 +1,4 @@
-"""Frame sources: image folders, video files, text files listing images, ROS bags, and image paths on stdin.
-
-Every source streams its frames: iterating over it decodes one image at a
-time, so a long traverse never has to fit in memory. A frame that cannot be
-read is skipped with a :class:`FrameSkippedWarning` and recorded in
-``source.skipped``; a run never stops half-way because of one bad file.
-
-Frame numbering
----------------
-``Frame.index`` is the frame's number *in the source*, independent of
-``step``, ``fps`` and ``max_frames``: the position in the naturally sorted
-folder listing, the line order of a list file, or the video frame number.
-Ground-truth files with integer frame columns use the same numbering (see
-:mod:`vpr.groundtruth`), so subsampling a traverse does not shift its ground
-truth. ``Source.indices()`` gives the numbers of the frames that will be
-attempted, parallel to ``Source.names()``; ``Source.iter_range(start, stop)``
-reads only the frames at those positions (the unit of parallel encoding).
-"""
+"""Frame sources: image folders, video files, text files listing images, ROS bags, and image paths on stdin."""
 from __future__ import annotations
 
 from collections.abc import Iterator

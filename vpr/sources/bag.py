@@ -1,31 +1,4 @@
-"""A ROS bag as a frame source: the images of one camera topic, and the positions of a GPS or odometry topic.
-
-Read with `rosbags <https://gitlab.com/ternaris/rosbags>`_ (pure Python, no ROS
-install): a ROS 1 ``.bag`` file, a ROS 2 bag folder (``metadata.yaml`` with
-``.db3`` or ``.mcap`` files) or a lone ``.db3`` / ``.mcap`` file.
-
-- Frames are the messages of one image topic (``sensor_msgs/Image`` in the
-  usual encodings, :data:`ENCODINGS`, or ``sensor_msgs/CompressedImage``):
-  ``topic`` names it, or the bag's only image topic is taken; several are
-  refused with the list and their message counts. Depth images (16UC1,
-  32FC1, compressedDepth) are not a camera's appearance: they are read only
-  when their topic is named. 16-bit images are scaled by the bits they use
-  (a 12-bit camera keeps its contrast).
-- A frame's time is the bag's record time of its message (the clock every
-  topic of the bag shares, so that positions are interpolated on the same
-  clock); ``fps`` samples by it (as for videos), ``step`` and ``max_frames``
-  as for every source. Frame names are ``TOPIC@SECONDS.NANOSECONDS``.
-- :meth:`BagSource.trajectory` reads positions: ``sensor_msgs/NavSatFix``
-  (latitude and longitude; fixes without a fix left out; turned into
-  metres by :func:`vpr.groundtruth.trajectories.latlon_to_metres`),
-  ``nav_msgs/Odometry``, ``geometry_msgs/PoseStamped`` and
-  ``PoseWithCovarianceStamped`` (x, y).
-- A recording killed or cut short (:mod:`vpr.sources.salvage`): a ROS 1 bag
-  without its index, a ``.bag.active`` file, an ``.mcap`` without its summary
-  or end, are read record by record up to the damage; a ROS 2 folder without
-  ``metadata.yaml`` from the storage files in it. Each with a warning saying
-  what was read. Any other unreadable bag is refused in one line naming it.
-"""
+"""A ROS bag as a frame source: the images of one camera topic, and the positions of a GPS or odometry topic."""
 from __future__ import annotations
 
 import hashlib
@@ -166,7 +139,7 @@ def decode_image_msg(msg, msgtype: str) -> tuple[np.ndarray | None, str]:
 
 
 class BagSource(Source):
-    """The images of one topic of a ROS bag (see the module docstring).
+    """The images of one topic of a ROS bag (``docs/internals.md``).
 
     Parameters
     ----------

@@ -48,7 +48,7 @@ class Frame(NamedTuple):
     Attributes
     ----------
     index : int
-        Frame number within the source (see the module docstring).
+        Frame number within the source (``docs/internals.md``).
     name : str
         File name (folder), entry as written (list file) or ``frame_000123``
         (video).

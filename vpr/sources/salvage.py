@@ -1,20 +1,4 @@
-"""What can be read of a recording that was killed or cut short: its complete messages, in time order.
-
-A recorder killed mid-way (power lost, ``kill -9``, a full disk) or a copy
-interrupted leaves a file without its index or summary, which readers that
-start from the end refuse. These scanners read such a file from its start,
-record by record, up to the damage:
-
-- :func:`scan_ros1`: a ROS 1 ``.bag`` (or ``.bag.active``, the name rosbag
-  records under) without its index.
-- :func:`scan_mcap`: an MCAP file (ROS 2's default storage) without its
-  summary or footer (`the MCAP format <https://mcap.dev/spec>`_).
-
-Both return ``(connections, messages)``: ``connections`` maps an id to
-(topic, message type as ``pkg/msg/Name``); ``messages`` is a list of
-(connection id, time ns, raw bytes) in time order. Compressed chunks are read
-whole or not at all; an uncompressed chunk up to its last complete record.
-"""
+"""What can be read of a recording that was killed or cut short: its complete messages, in time order."""
 from __future__ import annotations
 
 import bz2

@@ -1,12 +1,4 @@
-"""Image paths read from a stream (a robot's pipe into ``vpr localize -``), one per line, as they come.
-
-Blank lines and ``#`` comments are passed over; a line ``#session`` comes as
-:data:`SESSION` (the next frame starts a new run of the robot). A line that
-cannot be a path (a NUL byte, control characters, binary garbage) and an
-unreadable image are skipped (``skipped``, with the line number or the path
-and the reason). Binary data where the first path should be (an image piped
-in instead of its path) is refused, naming the stream.
-"""
+"""Image paths read from a stream (a robot's pipe into ``vpr localize -``), one per line, as they come."""
 from __future__ import annotations
 
 import os

@@ -63,7 +63,7 @@ def extract_features(image, n_features: int = 1000, min_side: int = 240, name: s
     min_side : int
         Images whose shorter side is smaller are upscaled (bilinear) so that
         it equals ``min_side`` before detection; keypoints are mapped back to
-        the original pixel coordinates (see the module docstring).
+        the original pixel coordinates (``docs/internals.md``).
     name : str
         Used in error messages, e.g. ``"query image 12"``.
 

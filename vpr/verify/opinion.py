@@ -1,23 +1,4 @@
-"""A geometric second opinion on loop closures: a decider over another, with two-view inliers where geometry can see.
-
-The path score of rSHOSM-seq (:class:`vpr.shosm.LoopConf`) needs a revisit to
-stand out for many frames: a short stream (an 84-frame indoor loop) never
-reaches it although its best matches are right. :class:`GeometricOpinion`
-wraps that decider: a frame the path has not accepted, whose best earlier frame
-moved on consistently with the frames before it (``back`` / ``ahead``, for
-``frames`` frames) and whose pair with it has at least ``min_inliers`` RANSAC
-inliers (ORB, :class:`vpr.verify.Verifier`, at the source's resolution) for
-``verified_frames`` frames in a row is accepted as well, but only where the
-camera lost sight of the earlier frame in between: some frame between the two
-has fewer inliers with it than ``break_ratio`` of the pair's own (ORB-SLAM's
-covisibility; a later session is out of sight by definition). On a forward drive the frame 30
-back shows the same road ahead: geometry confirms "the same scene", and every
-frame in between still sees it, so no loop is accepted.
-
-It is blind where the images are small (a shorter side under ``min_side``)
-or bare (fewer than ``min_keypoints`` ORB keypoints); there the path decides
-alone. Measured in ``docs/loops.md`` ("A geometric second opinion").
-"""
+"""A geometric second opinion on loop closures: a decider over another, with two-view inliers where geometry can see."""
 from __future__ import annotations
 
 import time
@@ -36,7 +17,7 @@ __all__ = ["OpinionConf", "GeometricOpinion", "second_opinion"]
 
 @dataclass(frozen=True)
 class OpinionConf:
-    """When geometry confirms a closure (see the module docstring)."""
+    """When geometry confirms a closure (``docs/internals.md``)."""
 
     min_inliers: int = 20
     frames: int = 3

@@ -79,8 +79,8 @@ def two_view_inliers(f1: Keypoints, f2: Keypoints, matches, model: str = "fundam
         planar or distant scenes, pure rotation; stricter, so unrelated image
         pairs get fewer chance inliers).
     max_error : float
-        RANSAC inlier threshold in pixels of the detection frame (see the
-        module docstring).
+        RANSAC inlier threshold in pixels of the detection frame
+        (``docs/internals.md``).
     seed : int or None
         RANSAC random seed; ``None`` for a non-deterministic one.
     max_trials : int

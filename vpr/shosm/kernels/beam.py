@@ -1,15 +1,4 @@
-"""Compiled kernels of the sparse graded evidence (numba): the beam, and lists that grow online.
-
-* :func:`beam_frames`: per frame only the cells whose evidence is above a floor
-  (the "beam") are carried; a cell enters through the inverted index input bit
-  -> minicolumns (feed-forward) or through a learned connection from a beam
-  cell (prediction). Evidence is never negative here: a cell outside the beam
-  has evidence 0, which is what makes the beam exact when its floors are 0
-  (tests compare it with ``evidence_frames(clamp=True)``). Output per frame is
-  the sparse column of database frames that a beam cell belongs to.
-* :func:`append_lists`, :func:`count_new_entries`: follow a memory that learns
-  while it is read (loop closure in one stream).
-"""
+"""Compiled kernels of the sparse graded evidence (numba): the beam, and lists that grow online."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,27 +1,4 @@
-"""Compiled kernel of the loop decision (numba): one frame at a time, with the state carried between frames.
-
-For frame ``j`` the candidates are the earlier frames ``0 .. n_j - 1``; the
-column holds the z-scored evidence of some of them (``rows``, ``vals``, sorted
-by row; a candidate not stored has the z ``fill``). A frame's decision:
-
-1. the best candidate and its *island*: the run of neighbouring stored
-   candidates whose z is at least ``island`` (one place seen over several
-   frames);
-2. the strongest *other* place: the best z outside the island, skipping the
-   islands of earlier visits of the same place (frames linked to it by
-   closures accepted before: a place seen on three laps is one place, not
-   three competitors);
-3. ``near``: the island reaches the newest candidate of the current session
-   (the best place is the one just left, not a revisit);
-4. the path score (a CUSUM): when the best candidate continues the path of the
-   previous frames, ``score = max(0, score + (z_best - z_other) - drift)``,
-   else the score restarts from 0; a path never continues across a session
-   boundary (``starts``: the first frame of every session, a robot's runs);
-5. accepted when the score reaches ``min_score``, the best place is not the
-   one just left, and the camera left the place in between (SDR overlap of the
-   frames in between, :func:`vpr.similarity.stationary`); then the
-   frames of the path are linked to the places they matched.
-"""
+"""Compiled kernel of the loop decision (numba): one frame at a time, with the state carried between frames."""
 from __future__ import annotations
 
 import numpy as np

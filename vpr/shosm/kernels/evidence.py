@@ -1,16 +1,4 @@
-"""Compiled kernels of the dense graded evidence (numba) and of the per-query finish.
-
-Not Algorithm 1 of the paper: our extension ``rshosm-seq`` scores query frames
-against a learned database with graded feed-forward and prediction evidence
-along the memory's learned lateral connections.
-
-* :func:`evidence_frames`: the dense version, every relevant cell every frame
-  (cost per frame linear in the number of connections; output n_db x n_q).
-  The sparse version is :func:`vpr.shosm.kernels.beam.beam_frames`.
-* :func:`moments`: the one z-score (mean and standard deviation over all
-  candidates, from a sparse column: absent ones are 0); :func:`zscore_dense`
-  and :func:`finish_columns` (summed passes, z-scores, top-K) apply it.
-"""
+"""Compiled kernels of the dense graded evidence (numba) and of the per-query finish."""
 from __future__ import annotations
 
 import numpy as np

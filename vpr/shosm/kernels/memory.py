@@ -1,23 +1,4 @@
-"""Compiled inner loop of :class:`vpr.shosm.SequenceMemory` (numba).
-
-A pure NumPy version of one Algorithm 1 step needs a few hundred small array
-operations per observation, too slow for the paper's regime of many thousands
-of observations, hence this kernel (``benchmarks/bench_memory.py`` prints the
-cost per observation).
-
-All state lives in NumPy arrays owned by the Python object. The inverted index
-input bit -> minicolumns is a 2-D array with one contiguous row per bit (the
-matching loop reads it sequentially); cell -> outgoing connections are singly linked lists threaded
-through append-only arrays; line 13's tests use two open-addressing hash sets,
-(source minicolumn, cell) and (source cell, cell). The space one step needs is known
-before the step mutates anything: when an array is too small the kernel stops
-*before* the step and reports which one, Python grows it and calls again from
-that frame.
-
-Randomness comes from a "tape" of uniform numbers drawn from the memory's
-``numpy.random.Generator`` and consumed strictly in order, so results depend
-only on the seed (and a slow reference implementation can replay them).
-"""
+"""Compiled inner loop of :class:`vpr.shosm.SequenceMemory` (numba)."""
 from __future__ import annotations
 
 import numpy as np

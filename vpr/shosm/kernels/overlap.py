@@ -1,10 +1,4 @@
-"""The one compiled overlap count of rSHOSM (numba): an SDR's active bits against every minicolumn.
-
-Learning (Algorithm 1 line 1, ``match``), the dense evidence and the beam all
-count a frame's feed-forward overlap the same way: through the memory's
-inverted index input bit -> minicolumns, so that the cost is the number of
-feed-forward connections of the active bits, not the number of minicolumns.
-"""
+"""The one compiled overlap count of rSHOSM (numba): an SDR's active bits against every minicolumn."""
 from __future__ import annotations
 
 from numba import njit
