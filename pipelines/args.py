@@ -14,6 +14,7 @@ from vpr import methods, presets
 from vpr.config import parse_key_values, parse_method_confs
 from vpr.groundtruth import GroundTruthSpec
 from vpr.groundtruth.trajectories import parse_every
+from vpr.similarity import parse_size
 
 __all__ = ["add_common_arguments", "add_source_arguments", "add_preset_argument", "add_gt_arguments",
            "gt_spec_from_args", "method_confs", "add_method_conf_argument", "ONLINE_METHOD",
@@ -108,6 +109,8 @@ def add_run_arguments(ap: argparse.ArgumentParser, method_help: str) -> None:
     add_source_arguments(ap)
     ap.add_argument("--cache", metavar="DIR", help="encoding cache folder, e.g. one filled by `vpr encode` "
                     "(default: OUT/cache)")
+    ap.add_argument("--memory-budget", metavar="SIZE", help="memory the run's dense matrices may take, e.g. 4GB; "
+                    "beyond it they are top-K (default: an eighth of this machine's memory)")
 
 
 def settings_from_args(args) -> dict:
@@ -143,4 +146,5 @@ def options_from_args(args):
         every=parse_every(args.every) if args.every else None,
         verify=getattr(args, "verify", 0), min_inliers=getattr(args, "min_inliers", 15),
         workers=getattr(args, "workers", None), scheduler=getattr(args, "scheduler", None),
-        progress=not args.no_progress, cache=Path(args.cache) if args.cache else None)
+        progress=not args.no_progress, cache=Path(args.cache) if args.cache else None,
+        memory_budget=None if args.memory_budget is None else parse_size(args.memory_budget))

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import contextlib
 import importlib
 import importlib.util
 import os
@@ -106,6 +107,15 @@ def _check_paths(args) -> None:
             raise ValueError(f"--{name.replace('_', '-')}: an empty path; name a folder or a file")
 
 
+def _memory_budget(size):
+    """``--memory-budget SIZE`` in force for the run (:func:`vpr.similarity.dense_budget`); none given: the default."""
+    if size is None:
+        return contextlib.nullcontext()
+    from vpr.similarity import dense_budget, parse_size  # numba's import only where the option is used
+
+    return dense_budget(parse_size(size))
+
+
 _NEGATIVE = re.compile(r"-\.?\d")
 
 
@@ -159,7 +169,8 @@ def main(argv=None) -> int:
             if getattr(args, "verify", 0) or getattr(args, "geometry", "off") == "on":
                 importlib.import_module("vpr.verify")  # its library's signal handlers replaced now, not mid-run
             _check_paths(args)
-            return int(importlib.import_module(table[args.command][0]).run_command(args) or 0)
+            with _memory_budget(getattr(args, "memory_budget", None)):
+                return int(importlib.import_module(table[args.command][0]).run_command(args) or 0)
         except ValueError as e:  # bad input, including vpr.shosm.MemoryFileError
             print(f"{command}: error: {' '.join(str(e).split())}", file=sys.stderr)
             return 2

@@ -33,6 +33,7 @@ from pipelines.runs import RunOptions, config, extract_run, prepare_run
 from vpr import evaluate, groundtruth, io, methods
 from vpr.groundtruth import GroundTruthSpec, any_true, build_loop_gt, build_stream_gt, check_loop_gt_files, frame_rows
 from vpr.shosm import LOOP_EXCLUDE, LoopDetector
+from vpr.similarity import budget_setting
 from vpr.sources import frame_reader
 from vpr.sources.base import frames_in
 from vpr.sources.stdin import StdinSource
@@ -305,7 +306,7 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
         report = {"methods": {k: e for k, (e, _) in done.items()},
                   "params": {"command": "loops", "seq": str(seq) if len(seqs) == 1 else [str(q) for q in seqs],
                              "exclude": exclude, "encoder": encoder.name, "encoder_conf": encoder.conf,
-                             "method_conf": confs, "n_frames": len(features),
+                             "method_conf": confs, "n_frames": len(features), "memory_budget": budget_setting(),
                              "sessions": [{"source": str(q), "first_frame": a, "frames": len(ex.features)}
                                           for q, a, ex in zip(seqs, starts, exs, strict=True)],
                              "encode_seconds": sum(ex.seconds for ex in exs),

@@ -18,9 +18,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from vpr import evaluate, io, methods, plots
+from vpr.similarity import TOP_K, topk_sparse
 from vpr.types import MatchResult
 
-__all__ = ["MATCH_COLUMNS", "GT_COLUMNS", "versions", "write_similarity", "write_matches",
+__all__ = ["MATCH_COLUMNS", "GT_COLUMNS", "DENSE_FILE_BYTES", "versions", "write_similarity", "write_matches",
            "write_method", "merge_metrics", "warn", "claim_methods"]
 
 
@@ -40,8 +41,18 @@ def versions() -> dict:
             "scipy": scipy.__version__, "opencv": cv2.__version__}
 
 
+#: A dense similarity larger than this (a 4,096 x 4,096 float32) is written as its top-K per query.
+DENSE_FILE_BYTES = 64 * 2**20
+
+
 def write_similarity(folder: Path, S) -> str:
-    """Write ``S`` as ``similarity.npy`` (dense) or ``similarity_topk.npz`` (sparse); returns the file name."""
+    """Write ``S`` as ``similarity.npy`` (dense, up to :data:`DENSE_FILE_BYTES`) or ``similarity_topk.npz`` (sparse,
+    or a larger dense ``S`` cut to its :data:`vpr.similarity.TOP_K` best per query); returns the file name."""
+    if not sp.issparse(S) and np.asarray(S).size * 4 > DENSE_FILE_BYTES:
+        A = np.asarray(S)
+        S = topk_sparse(lambda q0, q1: A[:, q0:q1], A.shape[0], A.shape[1], TOP_K).tocoo()
+        keep = np.isfinite(S.data)  # a loop matrix's excluded pairs (-inf) are never matched: not stored
+        S = sp.csr_matrix((S.data[keep], (S.row[keep], S.col[keep])), shape=S.shape)
     if sp.issparse(S):
         with io.atomic_path(folder / "similarity_topk.npz") as tmp:
             sp.save_npz(tmp, sp.csr_matrix(S, dtype=np.float32))

@@ -35,6 +35,7 @@ from vpr.groundtruth import (
 )
 from vpr.interrupts import deferred
 from vpr.report import TABLE, table_cells, write_table
+from vpr.similarity import budget_setting, dense_budget
 from vpr.sources import open_sources
 from vpr.types import MatchResult
 
@@ -80,6 +81,8 @@ class RunOptions:
     verify_conf: dict = field(default_factory=dict)
     progress: bool = True
     cache: Path | None = None
+    #: bytes the dense matrices may take (``--memory-budget``; None: :func:`vpr.similarity.default_dense_budget`)
+    memory_budget: int | None = None
 
     def __post_init__(self):
         if isinstance(self.verify, bool) or not isinstance(self.verify, (int, np.integer)) or self.verify < 0:
@@ -249,6 +252,7 @@ def run_fleet(db, queries, opts: RunOptions, command: str = "match", progress=No
                    "methods": list(runners), "n_db": len(db_ex.features),
                    "n_query": {n: reports[n]["params"]["n_query"] for n in jobs},
                    "workers": n_workers, "scheduler": opts.scheduler, "map_seconds": t_map,
+                   "memory_budget": budget_setting(),
                    "seconds": time.perf_counter() - t0, "shipped": shipped,
                    "ground_truth": opts.gt.describe(sampling_step(srcs[0].indices()))},
         "versions": versions(),
@@ -267,7 +271,7 @@ def _query_task(the_map: MatchMap, query: str, q_src, opts: RunOptions, command:
         for p in out.rglob(".*"):
             if p.is_file() and p.name != ".metrics.lock" and p.name.count(".") >= 3:
                 p.unlink(missing_ok=True)
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), dense_budget(opts.memory_budget):  # the run's budget, not the worker's default
         warnings.simplefilter("ignore")  # a worker has no terminal; what matters is in metrics.json
         return compare_query(the_map, query, q_src, opts, command, argv=argv, gt=gt)
 
@@ -345,7 +349,7 @@ def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, command: st
                    "cached": {"db": db_ex.cached, "query": q_ex.cached},
                    "skipped": {"db": db_ex.skipped, "query": q_ex.skipped},
                    "ignored_files": {"db": db_ex.ignored, "query": q_ex.ignored},
-                   "ground_truth": truth, "inputs": inputs,
+                   "ground_truth": truth, "inputs": inputs, "memory_budget": budget_setting(),
                    "salvaged": {r: s.salvaged for r, s in (("db", db_src), ("query", q_src)) if s.salvaged} or None,
                    **(extra or {})},
         "versions": versions(),

@@ -1,22 +1,77 @@
 """Similarity matrices between SDR batches or dense descriptors, and what every method does with them."""
 from __future__ import annotations
 
+import contextlib
+import contextvars
+import re
+
 import numpy as np
 import scipy.sparse as sp
 from numba import njit, types
 from numba.extending import intrinsic
 
 from vpr import sdr as _sdr
-from vpr.checks import check_top_k
+from vpr.checks import check_top_k, physical_memory
 
 __all__ = ["overlap_similarity", "overlap_count", "stationary", "sdr_overlap_rows", "sdr_candidates", "cosine",
-           "neg_sad", "mean_abs_diff", "topk_sparse", "DENSE_PAIRS_LIMIT",
+           "neg_sad", "mean_abs_diff", "topk_sparse", "DENSE_PAIRS_LIMIT", "DENSE_BYTES_PER_PAIR",
+           "dense_budget", "dense_pairs", "default_dense_budget", "parse_size", "budget_setting",
            "best_matches", "mask_recent", "fits_dense", "top_k_or_dense", "check_dense", "pack_bits", "bitsets_pay",
            "TOP_K", "candidate_limit", "n_candidates"]
 
-#: Above this many database x query pairs a dense similarity matrix is refused: use ``top_k``.
-#: The one size limit of the project (also used to choose dense or top-K output).
+#: Above this many database x query pairs a dense matrix is never built, whatever the memory budget.
 DENSE_PAIRS_LIMIT = 20_000 * 20_000
+#: Peak bytes per database x query pair of a run that holds its matrices dense (SeqSLAM's difference and
+#: enhanced matrices, the similarity, the ground truth; ``docs/benchmarks.md``, "Memory at the dense switch").
+DENSE_BYTES_PER_PAIR = 40
+_BUDGET: contextvars.ContextVar[int | None] = contextvars.ContextVar("dense_budget", default=None)
+_UNITS = {"": 2**30, "b": 1, "k": 2**10, "m": 2**20, "g": 2**30, "t": 2**40}
+
+
+def default_dense_budget() -> int:
+    """Bytes the dense matrices of a run may take by default: an eighth of this machine's memory (2 GiB where
+    the system does not say)."""
+    total = physical_memory()
+    return 2**31 if total is None else total // 8
+
+
+def parse_size(text, option: str = "--memory-budget") -> int:
+    """Bytes of a size such as ``4GB``, ``512MB``, ``2g``, ``100B`` or ``1.5`` (GiB without a unit; units are
+    powers of 1024). Raises ValueError naming ``option``."""
+    m = re.fullmatch(r"\s*(\d*\.?\d+)\s*([kmgt]?)(i?b)?\s*", str(text).lower())
+    if not m or float(m.group(1)) <= 0:
+        raise ValueError(f"{option}: a size such as 4GB or 512MB, got {text!r}")
+    unit = m.group(2) or ("b" if m.group(3) else "")
+    return int(float(m.group(1)) * _UNITS[unit])
+
+
+@contextlib.contextmanager
+def dense_budget(nbytes: int | None):
+    """Within the block, dense matrices take at most ``nbytes`` (None: :func:`default_dense_budget`)."""
+    token = _BUDGET.set(None if nbytes is None else int(nbytes))
+    try:
+        yield
+    finally:
+        _BUDGET.reset(token)
+
+
+def budget_setting() -> dict:
+    """The memory budget in force as a run records it: ``bytes``, ``given`` (by ``--memory-budget``, or the
+    default), ``dense_pairs`` and ``text``."""
+    given = _BUDGET.get()
+    budget = default_dense_budget() if given is None else given
+    n = dense_pairs()
+    return {"bytes": budget, "given": given is not None, "dense_pairs": n,
+            "text": f"{budget / 2**30:.2f} GiB: matrices dense up to {n:,} pairs ({int(n ** 0.5):,} x "
+                    f"{int(n ** 0.5):,} frames), top-K beyond"}
+
+
+def dense_pairs() -> int:
+    """Database x query pairs above which matrices are top-K: the memory budget over
+    :data:`DENSE_BYTES_PER_PAIR`, at most :data:`DENSE_PAIRS_LIMIT` (both read at call time)."""
+    budget = _BUDGET.get()
+    budget = default_dense_budget() if budget is None else budget
+    return min(DENSE_PAIRS_LIMIT, budget // DENSE_BYTES_PER_PAIR)
 
 # Pairs per dense block when assembling top-K output: the block, its negation and
 # argpartition's int64 indices take about 16 bytes per pair (64 MiB here).
@@ -44,7 +99,7 @@ def overlap_similarity(A, B=None, top_k: int | None = None, normalise: bool = Tr
     top_k : int, optional
         Keep only the ``top_k`` highest database entries per query and return a
         ``scipy.sparse.csr_matrix`` (n_db x n_q). Required when ``n_db * n_q``
-        exceeds :data:`DENSE_PAIRS_LIMIT`; with it there is no size limit
+        exceeds :func:`dense_pairs`; with it there is no size limit
         (memory grows with ``n_db * top_k``-sized blocks and ``n_q * top_k``).
     normalise : bool
         ``False`` returns raw overlap counts.
@@ -61,7 +116,7 @@ def overlap_similarity(A, B=None, top_k: int | None = None, normalise: bool = Tr
     ------
     ValueError
         On an invalid SDR batch, or when dense output (no ``top_k``) would
-        exceed :data:`DENSE_PAIRS_LIMIT` pairs; checked before any work.
+        exceed :func:`dense_pairs`; checked before any work.
     """
     A = _sdr.check_batch(A, name="database SDRs")
     B = A if B is None else _sdr.check_batch(B, n_bits=A.shape[1], name="query SDRs")
@@ -74,8 +129,8 @@ def overlap_similarity(A, B=None, top_k: int | None = None, normalise: bool = Tr
     if top_k is None:
         if not fits_dense(A.shape[0], B.shape[0]):
             raise ValueError(
-                f"{A.shape[0]} x {B.shape[0]} pairs exceed the dense limit of {DENSE_PAIRS_LIMIT} "
-                f"(DENSE_PAIRS_LIMIT); pass top_k")
+                f"{A.shape[0]} x {B.shape[0]} pairs exceed the dense limit of {dense_pairs()} (the memory "
+                f"budget); pass top_k")
         if na is None:
             return (Ai @ Bi.T).toarray().astype(np.float32)
         return _norm_overlap_block(Ai, Bi, na, nb)
@@ -447,8 +502,8 @@ def neg_sad(X, Y=None) -> np.ndarray:
 
 # ------------------------------------------------------------------ what methods do with S
 def fits_dense(n_db: int, n_q: int, limit: int | None = None) -> bool:
-    """Whether a dense ``n_db x n_q`` matrix is within :data:`DENSE_PAIRS_LIMIT` (read at call time) and ``limit``."""
-    return n_db * n_q <= (DENSE_PAIRS_LIMIT if limit is None else min(DENSE_PAIRS_LIMIT, limit))
+    """Whether a dense ``n_db x n_q`` matrix is within :func:`dense_pairs` and ``limit``."""
+    return n_db * n_q <= (dense_pairs() if limit is None else min(dense_pairs(), limit))
 
 
 #: Frames kept per query where a dense matrix would be too large (every method's ``top_k``, SeqSLAM's
@@ -457,7 +512,7 @@ TOP_K = 50
 
 
 def top_k_or_dense(n_db: int, n_q: int, top_k: int, dense_pairs: int | None = None) -> int | None:
-    """``top_k`` when a dense ``n_db x n_q`` matrix would exceed :data:`DENSE_PAIRS_LIMIT`, else None.
+    """``top_k`` when a dense ``n_db x n_q`` matrix would exceed :func:`dense_pairs`, else None.
 
     ``dense_pairs``: a method's own, lower switch (where its top-K path becomes the faster one).
     """
@@ -465,10 +520,11 @@ def top_k_or_dense(n_db: int, n_q: int, top_k: int, dense_pairs: int | None = No
 
 
 def check_dense(what: str, n_db: int, n_q: int, hint: str = "subsample the traverses (--step)") -> None:
-    """Refuse a dense ``n_db x n_q`` matrix above :data:`DENSE_PAIRS_LIMIT` (before any work is done)."""
+    """Refuse a dense ``n_db x n_q`` matrix above :func:`dense_pairs` (before any work is done)."""
     if not fits_dense(n_db, n_q):
-        raise ValueError(f"{what} needs a dense {n_db} x {n_q} matrix ({n_db * n_q * 4 / 2**30:.1f} GiB, above "
-                         f"the limit of {DENSE_PAIRS_LIMIT} pairs); {hint}")
+        need = n_db * n_q * DENSE_BYTES_PER_PAIR / 2**30
+        raise ValueError(f"{what} needs a dense {n_db} x {n_q} matrix (about {need:.1f} GiB, above the memory "
+                         f"budget: {dense_pairs()} pairs; --memory-budget); {hint}")
 
 
 def best_matches(S) -> tuple[np.ndarray, np.ndarray]:

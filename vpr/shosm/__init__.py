@@ -27,7 +27,7 @@ from .detector import LoopDetector
 from .evidence import Engine, Evidence, LoopEvidence, dense_evidence, query_evidence, sparse_evidence
 from .graph import Graph
 from .localizer import Localizer
-from .loops import LOOP_DENSE_MAX, LOOP_UNCAPPED_MAX, LoopStream, loop_evidence
+from .loops import LOOP_UNCAPPED_MAX, LoopStream, loop_evidence
 from .map import Map
 from .memory import SequenceMemory, pad_codes
 from .state import MemoryFileError
@@ -39,4 +39,4 @@ __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pa
            "decide_all",
            "LoopRule", "LOOP_RULES", "loop_rule",
            "accept_loops", "accept_path", "stationary_closures", "Localizer", "Map", "LoopStream", "loop_evidence",
-           "LOOP_UNCAPPED_MAX", "LOOP_DENSE_MAX", "LoopDetector"]
+           "LOOP_UNCAPPED_MAX", "LoopDetector"]

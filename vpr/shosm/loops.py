@@ -7,7 +7,7 @@ from tqdm import tqdm
 
 from vpr import sdr as _sdr
 from vpr.checks import check_exclude, check_top_k
-from vpr.similarity import n_candidates
+from vpr.similarity import fits_dense, n_candidates
 from vpr.types import Decider, Decision
 
 from .conf import LOOP_EXCLUDE, RshosmSeqConf
@@ -17,16 +17,13 @@ from .graph import Graph
 from .memory import SequenceMemory
 from .state import joint_state, part_state
 
-__all__ = ["LoopStream", "loop_evidence", "LOOP_UNCAPPED_MAX", "LOOP_DENSE_MAX"]
+__all__ = ["LoopStream", "loop_evidence", "LOOP_UNCAPPED_MAX"]
 
 #: The beam carries every cell until the stream has this many frames; from then on the caps of
 #: :class:`vpr.shosm.BeamConf` bound the cost per frame (``caps="auto"``). Uncapped, a long stream's time and
 #: memory grow too fast; capped from the start, the frames of the current condition fill the beam and the
 #: other condition's frames of the same place never enter it (``docs/loops.md``).
 LOOP_UNCAPPED_MAX = 10_000
-
-#: Streams up to this many frames get a dense T x T loop matrix; beyond, top-K sparse (the conf's ``top_k``).
-LOOP_DENSE_MAX = 20_000
 
 
 class LoopStream:
@@ -125,7 +122,7 @@ class LoopStream:
 
 
 def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf=None, top_k: int | None = None,
-                  caps: str | bool = "auto", dense_max: int = LOOP_DENSE_MAX, stops: bool = True,
+                  caps: str | bool = "auto", dense_max: int | None = None, stops: bool = True,
                   progress: bool = False, sessions=None, opinion=None, **flat) -> LoopEvidence:
     """Loop closure within one stream with graded forward sequence evidence, learned online.
 
@@ -145,8 +142,9 @@ def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf=None, top_k: int 
     conf : RshosmSeqConf, one of its parts, or a mapping of its flat keys
         ``**flat`` keys over it (:meth:`RshosmSeqConf.of`); ``caps`` says when the beam's caps apply.
     top_k : int or None
-        Earlier frames kept per frame in the matrix (None: dense T x T up to
-        ``dense_max`` frames, the conf's ``top_k`` beyond). The decisions do not depend on it.
+        Earlier frames kept per frame in the matrix (None: dense T x T where it
+        fits the memory budget, :func:`vpr.similarity.fits_dense`, or up to
+        ``dense_max`` frames; the conf's ``top_k`` beyond). The decisions do not depend on it.
     stops : bool
         False leaves out the decision's stop check.
     sessions : sequence of int, optional
@@ -170,10 +168,10 @@ def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf=None, top_k: int 
     starts = sorted({int(s) for s in (sessions or ())} - {0})
     if starts and (starts[0] < 0 or starts[-1] >= T):
         raise ValueError(f"sessions must start at frames 0 .. {T - 1}, got {sorted(sessions)}")
-    if top_k is None and T > int(dense_max):  # a dense T x T would not fit (the project's limit on dense matrices)
+    if top_k is None and not (fits_dense(T, T) if dense_max is None else T <= int(dense_max)):
         if seq.top_k is None:
-            raise ValueError(f"top_k none keeps every earlier frame, a dense {T} x {T} matrix: above the "
-                             f"{int(dense_max)} frames a loop matrix may have; give top_k")
+            raise ValueError(f"top_k none keeps every earlier frame, a dense {T} x {T} matrix: above the memory "
+                             "budget (--memory-budget); give top_k")
         top_k = seq.top_k
     dense = np.full((T, T), -np.inf, np.float32) if top_k is None else None
     cols_i, cols_v, counts = [], [], np.zeros(T, np.int64)
