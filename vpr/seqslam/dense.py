@@ -208,7 +208,8 @@ def check_sequence_params(ds, causal, v_min, v_max, v_step, R, rwindow, ratio_th
 def seqslam(D, ds: int = 10, v_min: float = 0.8, v_max: float = 1.2, v_step: float = 0.1,
             R: int = 10, rwindow: int = 10, ratio_threshold: float = 0.9, causal: bool = False,
             enhance: bool = True, chunk: int = 256) -> SeqSLAMResult:
-    """SeqSLAM trajectory search and uniqueness test on a difference matrix.
+    """SeqSLAM trajectory search and uniqueness test on a difference matrix (how its trajectories, edges and
+    uniqueness follow OpenSeqSLAM: ``docs/internals.md``).
 
     Parameters
     ----------
@@ -243,53 +244,6 @@ def seqslam(D, ds: int = 10, v_min: float = 0.8, v_max: float = 1.2, v_step: flo
     Returns
     -------
     SeqSLAMResult
-
-    Notes
-    -----
-    **Trajectories.** For velocity v the trajectory's point k (k = 0 .. ds)
-    pairs query frame ``q - a + k`` with database row ``start + floor(k * v)``
-    (OpenSeqSLAM's rounding). ``score[i, q]`` is the minimum over velocities of
-    the sum of the (enhanced) differences at those points. Rows are indexed as
-    OpenSeqSLAM reports its match:
-
-    * centred (``a = ds/2``): ``i = start + ds/2``, i.e. where a v = 1
-      trajectory is at the query, whatever v (OpenSeqSLAM's
-      ``min_idx + ds/2``);
-    * causal (``a = ds``): ``i`` is the trajectory's row at the current query,
-      ``start + floor(ds * v)``, so the estimate has no velocity-dependent lag.
-
-    With ``v = 1`` only, the interior of ``score`` is the (enhanced) difference
-    matrix convolved with a ``(ds+1) x (ds+1)`` identity kernel.
-
-    **Edges.** OpenSeqSLAM gives no match for the first and last ``ds/2``
-    queries and, through an appended row of ``inf``, an infinite score to any
-    trajectory that leaves the database. Here:
-
-    * query frames outside the query sequence are dropped and the sum over the
-      remaining frames is scaled by ``(ds + 1) / n_frames``, so edge columns are
-      on the scale of interior ones (interior columns are unscaled sums);
-    * a trajectory with any remaining point outside the database is infeasible
-      for that velocity; ``score`` is ``inf`` where every velocity is
-      infeasible, exactly as in OpenSeqSLAM (this includes rows
-      ``i < ds/2`` of interior columns, which OpenSeqSLAM cannot report);
-    * ``similarity`` is ``-score`` where that is finite. Infeasible entries are
-      ranked below every finite one: by their partial score (the in-database
-      points only, as a mean scaled to ``ds + 1`` frames) at
-      ``-(max finite score + gap + partial - min partial)``, and entries with
-      no point in the database lowest of all (``gap = max(1, 1e-3 |max|)``);
-    * a query column with no complete trajectory at all (a database shorter
-      than ``floor(ds * v_min) + 1`` rows) falls back to the partial scores for
-      ``best_db``, ``best_score`` and the ratio, and ``complete`` is False.
-
-    **Uniqueness.** As OpenSeqSLAM: ``ratio = best / second`` where ``second``
-    is the minimum score over the rows outside ``best +- rwindow//2`` (window
-    clipped to the database). Infeasible rows count as ``inf``, and no row
-    outside the window means ``second = inf`` (OpenSeqSLAM's extra ``inf`` row),
-    so ``ratio = 0``. ``0 / 0`` gives 1 (no evidence of distinctiveness).
-
-    OpenSeqSLAM cases this module cannot represent: with ``v_min < 0.5`` a
-    centred trajectory can start inside the database yet report a row past its
-    end; such candidates are dropped.
 
     Raises
     ------

@@ -49,11 +49,6 @@ class SequenceMemory:
         Seed of the generator used for sampling connections, breaking ties
         between cells when bursting, and the rSHOSM coin flips.
 
-    Notes
-    -----
-    Each call of :meth:`step` runs Algorithm 1 once. Winner codes are
-    comparable across time: cell ``i`` of minicolumn ``m`` has index
-    ``m * cells_per_column + i``; cell indices never change as the memory grows.
     """
 
     def __init__(self, n_inputs: int = 2048, cells_per_column: int = 32, new_columns: int = 10,

@@ -98,13 +98,6 @@ class VideoSource(Source):
     max_frames : int, optional
         Yield at most this many frames; decoding stops there.
 
-    Notes
-    -----
-    :meth:`names` relies on the container's frame count (one counting pass
-    when the container has none). If decoding ends before that count, the
-    stream ends with a warning and the first missing frame is recorded in
-    ``skipped``: OpenCV cannot tell a decode failure from a short file.
-
     Raises
     ------
     FileNotFoundError
