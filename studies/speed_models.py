@@ -20,6 +20,14 @@ query's own frame. Printed per stream and model: AP, accepted, P(acc),
 R(acc) of ``accept_path`` (the localisation decision, `vpr compare`'s) on
 the merged z-scores. Default preset, ``rshosm-seq``, one run (deterministic).
 
+Then the setting as users give it, ``--method-conf rshosm-seq.speeds=S``,
+through the commands on Gardens Point (right within 2 frames; accepted,
+P(acc), R(acc)): ``vpr loops`` of day_left then day_right (every frame, and
+every 2nd), ``vpr localize`` of day_right's every 2nd frame against a map of
+day_left; and :class:`vpr.shosm.Localizer` on
+:func:`vpr.simulate.aliased_traverses` (400 places, 40 appearances, a query
+at 2x; right within one place).
+
 Usage: python -m studies.speed_models [--data DIR] [--out DIR]
 """
 from __future__ import annotations
@@ -27,6 +35,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
+import json
 import tempfile
 import warnings
 from pathlib import Path
@@ -34,7 +43,9 @@ from pathlib import Path
 import numpy as np
 
 from pipelines.cli import main as vpr
+from vpr import simulate
 from vpr.evaluate import average_precision
+from vpr.shosm import Localizer, RshosmSeqConf
 from vpr.shosm.decide import accept_path
 
 #: model -> (stay, skip)
@@ -80,6 +91,64 @@ def _similarity(db: Path, query: Path, model: str, root: Path) -> np.ndarray:
     return np.load(out / "rshosm-seq" / "similarity.npy")
 
 
+SETTINGS = ("same", "faster", "same+faster", "same+faster+slower")
+
+
+def _positions(path: Path, x) -> Path:
+    path.write_text("frame,x,y\n" + "".join(f"{i},{v:g},0\n" for i, v in enumerate(x)))
+    return path
+
+
+def _command(argv: list) -> str | None:
+    with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings(action="ignore"):
+        if vpr([str(a) for a in argv] + ["--no-progress"]):
+            raise SystemExit(f"vpr {argv[0]} failed")
+    out = Path(argv[argv.index("--out") + 1])
+    if argv[0] == "learn":
+        return None
+    m = json.loads((out / "metrics.json").read_text())["methods"]["rshosm-seq"]
+    p = m["precision_accepted"]
+    return f"{m['n_accepted']}, {'-' if p is None else f'{p:.3f}'}, {m['recall_accepted']:.2f}"
+
+
+def _simulated(speeds: str) -> str:
+    db, q, _, q_place = simulate.aliased_traverses(400, 40, speed=(1.8, 2.2), seed=1)
+    loc = Localizer.from_database(db, [str(i) for i in range(db.shape[0])], conf=RshosmSeqConf.of(speeds=speeds))
+    acc = right = 0
+    for j in range(q.shape[0]):
+        d = loc.update(q[j])
+        acc += d.accepted
+        right += d.accepted and abs(d.best - q_place[j]) <= 1
+    return f"{acc}, {right / acc:.3f}, {right / q.shape[0]:.2f}" if acc else "0, -, 0.00"
+
+
+def commands(data: Path, root: Path) -> None:
+    """The second table: the setting through the commands."""
+    gp = data / "gardens_point_day"
+    left, right = gp / "day_left", gp / "day_right"
+    right2 = _folder(root, "gp_right2", sorted(right.iterdir())[::2], lambda f: 0)[0]
+    n = len(list(left.iterdir()))
+    p_left, p_right = _positions(root / "left.csv", range(n)), _positions(root / "right.csv", range(n))
+    p_right2 = _positions(root / "right2.csv", range(0, n, 2))
+    the_map = root / "gp_left_map.npz"
+    if not the_map.exists():
+        _command(["learn", left, "--out", the_map, "--gt", p_left])
+    print("\naccepted, P(acc), R(acc) with --method-conf rshosm-seq.speeds=S (Gardens Point: right within 2 frames)")
+    print(f"| run | {' | '.join(SETTINGS)} |")
+    print("|---|" + "---|" * len(SETTINGS))
+    runs = {"loops day_left day_right (1x)": ["loops", left, right, "--gt", p_left, p_right, "--radius", 2],
+            "loops day_left day_right every 2nd (2x)": ["loops", left, right2, "--gt", p_left, p_right2,
+                                                        "--radius", 2],
+            "localize map of day_left, day_right every 2nd (2x)": ["localize", the_map, right2, "--gt", p_right2,
+                                                                   "--radius", 2]}
+    for name, argv in runs.items():
+        cells = [_command([*argv, "--out", root / f"cmd-{k}-{s}", "--method-conf", f"rshosm-seq.speeds={s}"])
+                 for s in SETTINGS for k in [list(runs).index(name)]]
+        print(f"| {name} | {' | '.join(cells)} |", flush=True)
+    print(f"| Localizer, aliased_traverses 400 places, query 2x (within one place) | "
+          f"{' | '.join(_simulated(s) for s in SETTINGS)} |")
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "datasets",
@@ -106,6 +175,7 @@ def main(argv=None) -> None:
                 p = f"{tp / n:.3f}" if n else "-"
                 cells.append(f"{average_precision(S, gt):.3f}, {n}, {p}, {tp / best.size:.2f}")
             print(f"| {name} | {' | '.join(cells)} |", flush=True)
+        commands(args.data, root)
 
 
 if __name__ == "__main__":

@@ -258,16 +258,11 @@ def pr_curve(S, gt_hard, gt_soft=None, matching="multi", mask=None):
     Returns
     -------
     precision, recall, thresholds : ndarray of float, shape (n_thresholds + 1,)
-        Sorted by decreasing threshold. The first point is the start of the
-        curve, where nothing is predicted: ``thresholds[0] = +inf``,
-        ``recall[0] = 0`` and ``precision[0] = precision[1]``, the precision
-        of the first threshold (0 when no pair is ever predicted). Unlike
-        Schubert et al.'s ``createPR`` there is no invented precision 1 at
-        recall 0: with it, a first threshold that admits a large block of
-        tied pairs at low precision would still earn the area of the
-        trapezoid down from precision 1. Each further point belongs to one
-        distinct similarity of the evaluated decisions. Recall is
-        non-decreasing along the arrays.
+        Sorted by decreasing threshold, one point per distinct similarity of
+        the evaluated decisions after a start point where nothing is predicted:
+        ``thresholds[0] = +inf``, ``recall[0] = 0``, ``precision[0] =
+        precision[1]`` (0 when no pair is ever predicted; why not 1:
+        ``docs/internals.md``). Recall is non-decreasing.
 
     Raises
     ------
@@ -284,25 +279,13 @@ def pr_curve(S, gt_hard, gt_soft=None, matching="multi", mask=None):
 def average_precision(S, gt_hard, gt_soft=None, mask=None) -> float:
     """Non-interpolated average precision over all evaluated pairs (the headline metric).
 
-    ``AP = sum_n (R_n - R_{n-1}) P_n`` over the distinct similarity thresholds
-    ``t_n`` in decreasing order (``R_0 = 0``), where ``P_n`` and ``R_n`` are the
-    precision and recall of predicting every pair with ``S >= t_n``; this is
-    scikit-learn's ``average_precision_score`` of the evaluated pairs (scores
-    ``S``, labels ``gt_hard``). Because a threshold admits all pairs tied at
-    it together, ties cannot inflate the score: a constant ``S`` scores the
-    share of true pairs, and each step of recall is weighted by the precision
-    actually reached there, not by an interpolation towards an invented point.
-
-    Evaluated pairs are those inside ``mask`` that are not soft-only
-    (``gt_soft & ~gt_hard``). Never-matched pairs (not stored in a sparse
-    ``S``, or ``-inf``) are evaluated too: they rank last, all tied, i.e. one
-    final threshold that predicts every evaluated pair (precision = share of
-    true pairs, recall 1). A top-K ``S`` thus scores as the dense matrix with
-    its missing entries set below every stored value, and true matches that
-    retrieval dropped still cost AP. Only ``"multi"`` matching (every pair a
-    decision) is defined. Time and memory grow with the stored entries of a
-    sparse ``S`` and the nonzeros of sparse ``gt_hard`` / ``gt_soft`` / ``mask``,
-    never with ``n_db * n_q``.
+    ``AP = sum_n (R_n - R_{n-1}) P_n`` over the distinct thresholds in
+    decreasing order: scikit-learn's ``average_precision_score`` of the
+    evaluated pairs (inside ``mask``, not soft-only), ties admitted together.
+    Never-matched pairs (not stored, ``-inf``) rank last, all tied, so a
+    top-K ``S`` scores as the dense matrix with its missing entries lowest.
+    ``"multi"`` matching only; cost grows with the stored entries, never
+    with ``n_db * n_q``.
 
     Parameters
     ----------
@@ -355,16 +338,9 @@ def auc_from_pr(precision, recall) -> float:
 def auc_pr(S, gt_hard, gt_soft=None, matching="multi", mask=None) -> float:
     """Area under the precision-recall curve of :func:`pr_curve` (trapezoid over recall).
 
-    The curve starts at recall 0 with the precision of the first threshold,
-    so a perfect ranking scores 1 and a constant ``S`` scores the share of
-    true pairs (an invented start point of precision 1 would give it about
-    half the area for free). The trapezoid interpolates linearly between
-    thresholds, which is optimistic where precision drops over a large tie
-    block, and the curve ends at the last similarity that is not "never
-    matched": prefer :func:`average_precision`, the step-wise sum without
-    interpolation over every evaluated pair. ``auc_pr`` stays for comparison
-    with earlier results and also supports ``"single"`` matching. Arguments
-    and errors as for :func:`pr_curve`.
+    For comparison with earlier results and ``"single"`` matching; prefer
+    :func:`average_precision` (``docs/internals.md``). Arguments and errors
+    as for :func:`pr_curve`.
     """
     _check_matching(matching)
     precision, recall, _, _, _ = _curve(_prepare(S, gt_hard, gt_soft, mask), matching)

@@ -4,6 +4,7 @@ from .conf import (
     DENSE_EVIDENCE_PAIRS,
     LEARN_THRESHOLD,
     LOOP_EXCLUDE,
+    SPEEDS,
     BeamConf,
     EvidenceConf,
     LoopConf,
@@ -24,7 +25,16 @@ from .decide import (
     stationary_closures,
 )
 from .detector import LoopDetector
-from .evidence import Engine, Evidence, LoopEvidence, dense_evidence, query_evidence, sparse_evidence
+from .evidence import (
+    Engine,
+    Evidence,
+    LoopEvidence,
+    SpeedEngine,
+    dense_evidence,
+    make_engine,
+    query_evidence,
+    sparse_evidence,
+)
 from .graph import Graph
 from .localizer import Localizer
 from .loops import LOOP_UNCAPPED_MAX, LoopStream, loop_evidence
@@ -34,7 +44,8 @@ from .state import MemoryFileError
 
 __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pad_codes",
            "LEARN_THRESHOLD", "LOOP_EXCLUDE", "DENSE_EVIDENCE_PAIRS", "EvidenceConf", "BeamConf", "LoopConf",
-           "PathConf", "RshosmSeqConf", "DECISION_KEYS", "memory_params", "Graph", "Engine", "Evidence",
+           "PathConf", "RshosmSeqConf", "DECISION_KEYS", "SPEEDS", "memory_params", "Graph", "Engine", "SpeedEngine",
+           "make_engine", "Evidence",
            "query_evidence", "dense_evidence", "sparse_evidence", "LoopEvidence", "LoopDecider", "PathDecider",
            "decide_all",
            "LoopRule", "LOOP_RULES", "loop_rule",

@@ -13,7 +13,7 @@ from vpr.similarity import TOP_K
 
 from .memory import SequenceMemory
 
-__all__ = ["LEARN_THRESHOLD", "LOOP_EXCLUDE", "DENSE_EVIDENCE_PAIRS", "EvidenceConf", "BeamConf", "LoopConf",
+__all__ = ["LEARN_THRESHOLD", "LOOP_EXCLUDE", "DENSE_EVIDENCE_PAIRS", "SPEEDS", "EvidenceConf", "BeamConf", "LoopConf",
            "PathConf", "memory_params", "RshosmSeqConf", "DECISION_KEYS"]
 
 #: Minicolumn threshold of the memory that rSHOSM-seq learns (the paper's is 0.25).
@@ -29,6 +29,9 @@ LOOP_EXCLUDE = 30
 DENSE_EVIDENCE_PAIRS = 7_000 * 7_000
 
 _NORMALISE = ("query", "none")
+#: The speed models of the evidence: the query at the map's speed (``stay`` and ``skip`` as set), faster (a
+#: skipped map frame free) or slower (a repeated map frame free).
+SPEEDS = ("same", "faster", "slower")
 
 
 def memory_params(conf: Mapping | None = None) -> dict:
@@ -75,12 +78,18 @@ class EvidenceConf(_Conf):
     normalise : {"query", "none"}
         ``"query"``: each query frame's scores are z-scores over all database
         frames, so that one threshold means the same for every frame.
+    speeds : str
+        The speed models, ``+``-joined names of :data:`SPEEDS` (e.g.
+        ``"same+faster"``): each an evidence of its own, merged by the largest
+        score per pair (:meth:`split`; ``docs/localize.md``, "A query driven
+        faster or slower").
     """
 
     decay: float = 0.9
     stay: float | None = 0.05
     skip: float | None = 0.05
     normalise: str = "query"
+    speeds: str = "same"
 
     def __post_init__(self):
         if not 0.0 <= float(self.decay) < 1.0:
@@ -91,6 +100,14 @@ class EvidenceConf(_Conf):
                 raise ValueError(f"{name} must be >= 0 or None, got {v}")
         if self.normalise not in _NORMALISE:
             raise ValueError(f"normalise must be 'query' or 'none', got {self.normalise!r}")
+        models = str(self.speeds).split("+")
+        if not all(m in SPEEDS for m in models) or len(set(models)) < len(models):
+            raise ValueError(f"speeds must join distinct names of {', '.join(SPEEDS)} with '+', got {self.speeds!r}")
+
+    def split(self) -> tuple[EvidenceConf, ...]:
+        """One conf per speed model (``speeds`` ``"same"``): ``faster`` with ``skip`` 0, ``slower`` with ``stay`` 0."""
+        costs = {"same": {}, "faster": {"skip": 0.0}, "slower": {"stay": 0.0}}
+        return tuple(EvidenceConf(**{**self.as_dict(), "speeds": "same", **costs[m]}) for m in self.speeds.split("+"))
 
     @property
     def costs(self) -> tuple[float, float]:

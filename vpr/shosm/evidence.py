@@ -19,8 +19,10 @@ from .conf import BeamConf, EvidenceConf
 from .graph import BIG, Beam, Graph
 from .kernels import evidence as KE
 from .memory import SequenceMemory
+from .state import joint_state, part_state
 
-__all__ = ["Engine", "Evidence", "LoopEvidence", "query_evidence", "dense_evidence", "sparse_evidence"]
+__all__ = ["Engine", "SpeedEngine", "make_engine", "merge_columns", "merge_evidence", "Evidence", "LoopEvidence",
+           "query_evidence", "dense_evidence", "sparse_evidence"]
 
 #: Query frames per call of the beam kernel and per block of finished columns of a traverse.
 QUERY_CHUNK = 2048
@@ -181,6 +183,8 @@ class Engine:
 
     def load_state(self, header: dict, arrays: dict) -> Engine:
         """Continue from a :meth:`state` of an engine on the same graph and conf."""
+        if "lanes" in header:
+            raise ValueError(f"the state is of an engine of {header['lanes']} speed models, this one has one")
         if bool(header.get("exact")) != self.exact:
             raise ValueError(f"the state is of {'an exact' if header.get('exact') else 'a beam'} engine, "
                              f"this one is {'exact' if self.exact else 'a beam'}")
@@ -305,6 +309,109 @@ class Engine:
         return out
 
 
+def merge_columns(columns: list[Column]) -> Column:
+    """One frame's column of several speed models' columns: per candidate the largest score, a candidate a
+    column lacks scoring that column's ``fill``."""
+    if len(columns) == 1:
+        return columns[0]
+    rows = np.unique(np.concatenate([c.rows for c in columns]))
+    z = np.full(rows.size, -np.inf, np.float32)
+    for c in columns:
+        v = np.full(rows.size, c.fill, np.float32)
+        v[np.searchsorted(rows, c.rows)] = c.z
+        np.maximum(z, v, out=z)
+    first = columns[0]
+    return Column(rows, z, max(float(c.fill) for c in columns), first.n, first.frame)
+
+
+def merge_evidence(parts: list[Evidence], top_k: int | None) -> Evidence:
+    """One traverse's evidence of several speed models' top-K evidences: per pair the largest score (an entry a
+    part lacks counts as that part's lowest stored score of the column), cut to ``top_k`` per query."""
+    if len(parts) == 1:
+        return parts[0]
+    cols = [sp.csc_matrix(p.similarity) for p in parts]
+    n_db, n_q = cols[0].shape
+    keyed = []
+    for c in cols:
+        c.sort_indices()
+        lens = np.diff(c.indptr)
+        keyed.append(c.indices.astype(np.int64) + n_db * np.repeat(np.arange(n_q, dtype=np.int64), lens))
+    keys = np.unique(np.concatenate(keyed))
+    key_col, key_row = keys // n_db, keys % n_db
+    val = np.full(keys.size, -np.inf, np.float32)
+    for c, k in zip(cols, keyed, strict=True):
+        lowest = np.full(n_q, -np.inf, np.float32)
+        filled = np.diff(c.indptr) > 0
+        if filled.any():
+            lowest[filled] = np.minimum.reduceat(c.data.astype(np.float32), c.indptr[:-1][filled])
+        v = lowest[key_col]
+        v[np.searchsorted(keys, k)] = c.data
+        np.maximum(val, v, out=val)
+    order = np.lexsort((key_row, -val, key_col))
+    key_col, key_row, val = key_col[order], key_row[order], val[order]
+    rank = np.arange(keys.size) - np.searchsorted(key_col, key_col)
+    keep = np.isfinite(val) & (rank < (keys.size if top_k is None else int(top_k)))
+    S = sp.csr_matrix((val[keep], (key_row[keep], key_col[keep])), shape=(n_db, n_q))
+    S.sort_indices()
+    best, z = best_matches(S)
+    return Evidence(S, best, z)
+
+
+class SpeedEngine:
+    """:class:`Engine` for several speed models (:attr:`EvidenceConf.speeds`): one engine per model over one graph,
+    stepped together, each frame's column their :func:`merge_columns` (a traverse's: :func:`merge_evidence`)."""
+
+    def __init__(self, graph: Graph, evidence: EvidenceConf, beam: BeamConf | None = None, exact: bool = False,
+                 threads: int | None = None):
+        self.graph, self.evidence = graph, evidence
+        self.lanes = [Engine(graph, lane, beam, exact, threads) for lane in evidence.split()]
+
+    @property
+    def frames(self) -> int:
+        return self.lanes[0].frames
+
+    def step(self, bits, n: int | None = None, capped: bool = True, frame: int = -1) -> Column:
+        """As :meth:`Engine.step`, merged over the speed models."""
+        return merge_columns([e.step(bits, n, capped, frame) for e in self.lanes])
+
+    def grow(self) -> None:
+        for e in self.lanes:
+            e.grow()
+
+    def reset(self) -> None:
+        for e in self.lanes:
+            e.reset()
+
+    def state(self) -> tuple[dict, dict]:
+        """(header, arrays): every model's :meth:`Engine.state`."""
+        header, arrays = joint_state(**{f"lane{k}": e for k, e in enumerate(self.lanes)})
+        return {**header, "lanes": len(self.lanes)}, arrays
+
+    def load_state(self, header: dict, arrays: dict) -> SpeedEngine:
+        """Continue from a :meth:`state` of an engine with the same speed models."""
+        if header.get("lanes") != len(self.lanes):
+            raise ValueError(f"the state is of an engine of {header.get('lanes', 1)} speed models, this one has "
+                             f"{len(self.lanes)}")
+        for k, e in enumerate(self.lanes):
+            e.load_state(*part_state(header, arrays, f"lane{k}"))
+        return self
+
+    def run(self, query_batch, direction: str = "both", top_k: int | None = TOP_K, progress: bool = False,
+            stats: dict | None = None) -> Evidence:
+        """As :meth:`Engine.run`, merged over the speed models."""
+        return merge_evidence([e.run(query_batch, direction, top_k, progress, stats) for e in self.lanes], top_k)
+
+
+def make_engine(graph: Graph, evidence: EvidenceConf | None = None, beam: BeamConf | None = None,
+                exact: bool = False, threads: int | None = None) -> Engine | SpeedEngine:
+    """The evidence engine of ``evidence``'s speed models: an :class:`Engine` for one, a :class:`SpeedEngine`
+    for several."""
+    lanes = (evidence or EvidenceConf()).split()
+    if len(lanes) == 1:
+        return Engine(graph, lanes[0], beam, exact, threads)
+    return SpeedEngine(graph, evidence, beam, exact, threads)
+
+
 def query_evidence(mem: SequenceMemory, query_batch, db_codes, conf: EvidenceConf | None = None,
                    direction: str = "both", top_k: int | None = None, beam: BeamConf | None = None,
                    progress: bool = False) -> Evidence:
@@ -330,9 +437,12 @@ def query_evidence(mem: SequenceMemory, query_batch, db_codes, conf: EvidenceCon
     conf = conf or EvidenceConf()
     if check_top_k(top_k) is not None:
         return sparse_evidence(mem, query_batch, db_codes, conf, direction, top_k=top_k, beam=beam, progress=progress)
-    S = dense_evidence(mem, query_batch, db_codes, conf, direction, progress)
-    if conf.normalise == "query":
-        KE.zscore_dense(S)
+    S = None
+    for lane in conf.split():
+        M = dense_evidence(mem, query_batch, db_codes, lane, direction, progress)
+        if conf.normalise == "query":
+            KE.zscore_dense(M)
+        S = M if S is None else np.maximum(S, M, out=S)
     best, z = best_matches(S)
     return Evidence(S, best, z)
 
@@ -362,4 +472,4 @@ def sparse_evidence(mem: SequenceMemory, query_batch, db_codes, conf: EvidenceCo
     """
     check_choice(direction, "direction", _DIRECTIONS)
     g = Graph.of(mem, db_codes, backward=direction == "both")
-    return Engine(g, conf, beam).run(query_batch, direction, top_k, progress, stats)
+    return make_engine(g, conf, beam).run(query_batch, direction, top_k, progress, stats)

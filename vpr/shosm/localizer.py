@@ -9,7 +9,7 @@ from vpr.types import Decision
 
 from .conf import RshosmSeqConf, memory_params
 from .decide import PathDecider
-from .evidence import Engine
+from .evidence import make_engine
 from .graph import Graph
 from .memory import SequenceMemory, pad_codes
 from .state import joint_state, part_state
@@ -52,7 +52,7 @@ class Localizer:
         self.memory, self.names = memory, names
         self.db_codes = sp.csr_matrix(db_codes, dtype=bool)
         self.sessions = np.asarray(sorted({0, *(int(s) for s in (sessions or ()))}), np.int64)
-        self.engine = Engine(Graph.of(memory, self.db_codes), self.seq.evidence, self.seq.beam, self.seq.exact)
+        self.engine = make_engine(Graph.of(memory, self.db_codes), self.seq.evidence, self.seq.beam, self.seq.exact)
         self.decider = PathDecider(self.seq.path(), self.sessions)
 
     @classmethod
@@ -103,7 +103,8 @@ class Localizer:
                              f"{', '.join(f'{k}={mine[k]}' for k in fixed)}); learn a new map to change them")
         new = Localizer(self.memory, self.db_codes, self.names, self.seq.replace(**flat), sessions=self.sessions)
         header, arrays = self.state()
-        if new.seq.exact != self.seq.exact:  # the evidence of the other kind starts afresh
+        if new.seq.exact != self.seq.exact or new.seq.evidence.speeds != self.seq.evidence.speeds:
+            # the evidence of another kind or of other speed models starts afresh
             arrays = {k: v for k, v in arrays.items() if not k.startswith("engine_")}
             header = {**header, "engine": None}
         return new.load_state(header, arrays)

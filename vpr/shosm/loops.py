@@ -12,7 +12,7 @@ from vpr.types import Decider, Decision
 
 from .conf import LOOP_EXCLUDE, RshosmSeqConf
 from .decide import loop_rule
-from .evidence import Engine, LoopEvidence
+from .evidence import LoopEvidence, make_engine
 from .graph import Graph
 from .memory import SequenceMemory
 from .state import joint_state, part_state
@@ -51,7 +51,7 @@ class LoopStream:
         self.seq = conf if conf is not None else RshosmSeqConf.build()
         self.mem = SequenceMemory(**self.seq.memory_params)
         self.graph = Graph.growing(self.mem)
-        self.engine = Engine(self.graph, self.seq.evidence, self.seq.beam)
+        self.engine = make_engine(self.graph, self.seq.evidence, self.seq.beam)
         self.decider: Decider = loop_rule(self.seq.loop_rule)(self.seq.loop(), self.seq.path(between_sessions=True))
         if opinion is not None:
             self.decider = opinion(self.decider)
@@ -107,7 +107,7 @@ class LoopStream:
         """Continue from a :meth:`state` (raises ValueError on inconsistent arrays)."""
         self.mem.load_state(*part_state(header, arrays, "mem"))
         self.graph.load_state(*part_state(header, arrays, "graph"))
-        self.engine = Engine(self.graph, self.seq.evidence, self.seq.beam).load_state(
+        self.engine = make_engine(self.graph, self.seq.evidence, self.seq.beam).load_state(
             *part_state(header, arrays, "engine"))
         self.decider.load_state(*part_state(header, arrays, "dec"))
         self.frames, self.starts = int(header["frames"]), [int(v) for v in header["starts"]]
