@@ -28,6 +28,7 @@ from pathlib import Path
 from unittest import mock
 
 from pipelines.cli import main as vpr
+from studies.cells import decisions_cell
 from tests.bags import positions_of, read_folder, write_bag
 from vpr.groundtruth import RATE_RATIO
 from vpr.render import write_scene
@@ -82,9 +83,7 @@ def main(argv=None) -> None:
                     cells = []
                     for how in ("from 2.5", "default", "as is"):
                         r = _localize(m, q, run / how.replace(" ", "_"), how)
-                        p = r["precision_accepted"]
-                        cells.append(f"{r['frames']}, {r['n_accepted']}, {'-' if p is None else f'{p:.2f}'}, "
-                                     f"{r['recall_accepted']:.2f}")
+                        cells.append(decisions_cell(r, 2))
                     print(f"| {spec} {traverse} | {direction} | {k} | {' | '.join(cells)} |", flush=True)
 
 

@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from pipelines.cli import main as vpr
+from studies.cells import decisions_cell
 from vpr import simulate
 from vpr.evaluate import average_precision
 from vpr.shosm import Localizer, RshosmSeqConf
@@ -106,9 +107,7 @@ def _command(argv: list) -> str | None:
     out = Path(argv[argv.index("--out") + 1])
     if argv[0] == "learn":
         return None
-    m = json.loads((out / "metrics.json").read_text())["methods"]["rshosm-seq"]
-    p = m["precision_accepted"]
-    return f"{m['n_accepted']}, {'-' if p is None else f'{p:.3f}'}, {m['recall_accepted']:.2f}"
+    return decisions_cell(json.loads((out / "metrics.json").read_text())["methods"]["rshosm-seq"], frames=False)
 
 
 def _simulated(speeds: str) -> str:

@@ -35,6 +35,7 @@ from unittest import mock
 import numpy as np
 
 from pipelines.cli import main as vpr
+from studies.cells import decisions_cell
 from tests.bags import positions_of, read_folder, write_bag
 from vpr.render import write_scene
 
@@ -103,9 +104,7 @@ def main(argv=None) -> None:
                         _vpr(["localize", the_map, query_bag, "--out", out, "--gt-topic", "/gps/fix",
                               "--radius", 5, "--every", f"{d:g}m"])
                     r = json.loads((out / "metrics.json").read_text())["methods"]["rshosm-seq"]
-                    p = r["precision_accepted"]
-                    cells.append(f"{r['frames']}, {r['n_accepted']}, {'-' if p is None else f'{p:.3f}'}, "
-                                 f"{r['recall_accepted']:.2f}")
+                    cells.append(decisions_cell(r))
                 print(f"| {spec} {map_traverse} -> {query_traverse} | {d:g} | {' | '.join(cells)} |", flush=True)
 
 
