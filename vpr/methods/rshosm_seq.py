@@ -41,16 +41,9 @@ class RshosmSeq(Method):
     ``stop_ratio``: :class:`~vpr.shosm.LoopConf` in one stream,
     :class:`~vpr.shosm.PathConf` against a map, each with its own defaults).
 
-    The method hands out its online forms with the same conf:
-    :meth:`loop_detector` (loop closure frame by frame, the answers of
-    :meth:`loops`) and :meth:`localizer` (a learned map).
-
-    Up to :data:`~vpr.shosm.DENSE_EVIDENCE_PAIRS` pairs (where the sparse path
-    becomes the faster one) the evidence is dense (every cell, every frame); above
-    it, the sparse beam (:func:`vpr.shosm.sparse_evidence`, its floors and caps
-    :class:`~vpr.shosm.BeamConf`) keeps the top-``top_k`` database frames per
-    query, with the z-scores of the full column. How often the two agree on the
-    best match is measured in ``docs/benchmarks.md`` ("Large inputs").
+    Online forms with the same conf: :meth:`loop_detector`, :meth:`localizer`.
+    The evidence is dense up to :data:`~vpr.shosm.DENSE_EVIDENCE_PAIRS` pairs
+    (and the memory budget), the beam's top-``top_k`` beyond.
     """
 
     name = "rshosm-seq"

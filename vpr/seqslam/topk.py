@@ -173,39 +173,12 @@ def seqslam_topk(db_desc, q_desc, top_k: int = TOP_K, metric: str = "sad", block
     """SeqSLAM from descriptors, by blocks of queries, keeping the top-K per query.
 
     Memory is ``O(searched rows x block)`` instead of the dense ``n_db x n_q``.
-
-    **Exact mode** (``candidates=None``): every database row is searched for
-    every query. Per block of queries, the difference matrix on the block's
-    columns (plus the ``ds`` neighbouring query frames its trajectories
-    reach), its contrast enhancement and the trajectory search are computed as
-    :func:`difference_matrix` + :func:`seqslam` do. The result equals the dense
-    ``seqslam(difference_matrix(db, q, metric), ...)`` up to float32 rounding:
-    OpenSeqSLAM shifts the enhanced matrix by its global minimum before the
-    sums; here the shift (``(ds + 1) * min``, the same for every finite score)
-    is applied to the sums at the end, since the minimum is known only then.
-    Time is ``O(n_db * n_q)`` as for the dense version.
-
-    **Candidate mode** (approximate, for large inputs): only database rows
-    near candidate matches are searched. ``candidates`` gives candidate
-    (database, query) pairs: a db x query matrix (sparse stored entries or
-    nonzeros, e.g. the top-K of a pairwise search or of ``rshosm-seq``), or
-    ``"pairwise"`` for the ``n_candidates`` most similar database frames per
-    query by single-frame overlap (SDR, through an inverted index, frames
-    sharing no bit are never candidates) or by the metric (dense
-    descriptors). Per query block the candidates vote for sequence alignments
-    (:func:`_windows`); the ``n_windows`` best become database row windows in
-    which the difference, the enhancement and the trajectory scores are exact
-    (the enhancement and the trajectories read rows beyond the window edges as
-    needed). What is approximate: rows outside the windows are not scored (not
-    in ``similarity``, never ``best_db``), the uniqueness ratio's second best
-    and the global minimum of the enhanced matrix are taken over the searched
-    cells only. When the windows of every block cover the whole database the
-    result is the exact one (``exact`` is True).
-
-    Candidate mode grows about linearly with the frames, exact mode
-    quadratically; ``benchmarks/bench_seqslam_scale.py`` prints the time,
-    memory and how often the candidate mode's best match is the exact one
-    (figures in ``docs/benchmarks.md``).
+    ``candidates=None``: every row searched, the dense :func:`seqslam`'s
+    result up to float32 rounding. Otherwise (approximate) only row windows
+    around candidate (database, query) pairs are searched: a db x query
+    matrix, or ``"pairwise"`` (the ``n_candidates`` best single-frame
+    matches per query); ``exact`` says whether the windows covered every row.
+    How each mode works: ``docs/internals.md``.
 
     Parameters
     ----------
