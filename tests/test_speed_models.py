@@ -118,3 +118,19 @@ def test_a_map_localises_with_other_speed_models_afresh(learned):
     assert faster.update(q[5]).frame == 0
     assert isinstance(Localizer(mem, codes, list("x" * codes.shape[0]), RshosmSeqConf.of(speeds="faster")).engine,
                       type(loc.engine))
+
+
+def test_a_loop_detector_of_two_speed_models_continues_from_its_file(tmp_path):
+    from vpr.shosm import LoopDetector
+
+    db, q, _, _ = simulate.aliased_traverses(150, 30, n_bits=512, k=20, seed=2)
+    stream = sp.vstack([db, q]).tocsr()
+    d = LoopDetector(n_inputs=512, speeds="same+faster")
+    for j in range(100):
+        d.update(stream[j])
+    d.save(tmp_path / "s.npz")
+    e = LoopDetector.load(tmp_path / "s.npz")
+    assert isinstance(e.stream.engine, SpeedEngine)
+    for j in range(100, stream.shape[0]):
+        a, b = d.update(stream[j]), e.update(stream[j])
+        assert (a.best, a.accepted, a.score) == (b.best, b.accepted, b.score)
