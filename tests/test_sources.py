@@ -393,3 +393,16 @@ def test_exclude_in_seconds_uses_the_frames_rate(tmp_path):
     for bad in ("x", "0", "0.01s", "-3"):
         with pytest.raises(ValueError, match="--exclude"):
             src.frames_in(bad)
+
+
+def test_a_folder_read_frame_by_frame_follows_its_selection(tmp_path):
+    import pickle
+
+    for i in range(12):
+        _write(tmp_path / f"{i:03d}.png", _img(10 * i))
+    src = FolderSource(tmp_path, step=2)
+    assert [int(f.image[0, 0, 0]) for k in range(6) for f in src.iter_range(k, k + 1)] == [0, 20, 40, 60, 80, 100]
+    src.restrict([4, 8])  # one frame per so many metres: the selection changes, and what is read with it
+    assert src.indices() == [4, 8] and [int(f.image[0, 0, 0]) for f in src.iter_range(1, 2)] == [80]
+    shipped = pickle.loads(pickle.dumps(src))  # a worker's copy builds its own selection
+    assert "_selection" not in shipped.__dict__ and shipped.indices() == [4, 8]

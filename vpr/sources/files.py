@@ -51,9 +51,18 @@ class _FileListSource(Source):
         self._entries: list[tuple[str, Path]] = []
 
     def _selected(self) -> list[tuple[int, str, Path]]:
-        sel = [(i, n, p) for i, (n, p) in enumerate(self._entries)][::self.step]
-        sel = sel[:self.max_frames] if self.max_frames else sel
-        return [e for e in sel if self._allowed(e[0])]
+        """(number, name, path) of the frames selected, built once per selection (a report reads frames one by
+        one)."""
+        key = (len(self._entries), self.step, self.max_frames, getattr(self, "_only", None))
+        if self.__dict__.get("_selection_key") != key:
+            sel = [(i, n, p) for i, (n, p) in enumerate(self._entries)][::self.step]
+            sel = sel[:self.max_frames] if self.max_frames else sel
+            self._selection, self._selection_key = [e for e in sel if self._allowed(e[0])], key
+        return self._selection
+
+    def __getstate__(self) -> dict:
+        """Pickled without the selection built from the entries (a source shipped to a worker)."""
+        return {k: v for k, v in self.__dict__.items() if k not in ("_selection", "_selection_key")}
 
     carries = frozenset({"paths"})
 
