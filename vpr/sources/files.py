@@ -62,7 +62,7 @@ class _FileListSource(Source):
 
     def __getstate__(self) -> dict:
         """Pickled without the selection built from the entries (a source shipped to a worker)."""
-        return {k: v for k, v in self.__dict__.items() if k not in ("_selection", "_selection_key")}
+        return {k: v for k, v in self.__dict__.items() if k not in ("_selection", "_selection_key", "_key", "_key_of")}
 
     carries = frozenset({"paths"})
 
@@ -89,12 +89,17 @@ class _FileListSource(Source):
         return [i for i, _, _ in self._selected()]
 
     def key(self) -> str:
+        """A hash of the selected files' names, resolved paths, sizes and times (once per selection)."""
+        selected = self._selected()
+        if self.__dict__.get("_key_of") is selected:
+            return self._key
         h = hashlib.sha256()
         head = f"{self.kind}|{self._key_header()}|step={self.step}|max={self.max_frames}\n"
         h.update(head.encode("utf-8", "surrogateescape"))
-        for _, name, p in self._selected():
+        for _, name, p in selected:
             h.update(f"{name}|{stat_token(p.resolve())}\n".encode("utf-8", "surrogateescape"))
-        return f"{self.kind}:{h.hexdigest()}"
+        self._key, self._key_of = f"{self.kind}:{h.hexdigest()}", selected
+        return self._key
 
     def _key_header(self) -> str:
         return str(self.path.resolve())
