@@ -11,7 +11,7 @@ own; one thread: NUMBA / OMP / OPENBLAS / MKL threads = 1):
 
 * ``rshosm-seq``, ``rshosm``, ``pairwise``: ``vpr.methods.match`` with the
   default conf, the database learned inside the timing. ``vpr`` keeps the
-  similarity dense up to :data:`vpr.similarity.DENSE_PAIRS_LIMIT` (20,000 x
+  similarity dense up to :func:`vpr.similarity.dense_pairs` (at most 20,000 x
   20,000 pairs) and top-50 sparse per query above; here the sparse path runs
   at every size (the limit is set to 0 in the child) so that the exponent is
   that of the large-input path (``--dense-below-limit``: as ``vpr`` does);

@@ -12,7 +12,7 @@ standardised on their traverse) encodes both whole folders once (cached in
 For each preset and size, in a fresh child process (its peak RSS its own; one
 thread: NUMBA / OMP / OPENBLAS / MKL threads = 1), ``rshosm-seq`` with its
 default conf, sparse top-50 path at every size (``vpr`` switches to it above
-:data:`vpr.similarity.DENSE_PAIRS_LIMIT`): CPU seconds of learning the database
+:func:`vpr.similarity.dense_pairs`): CPU seconds of learning the database
 (``Method.fit``) and of matching the query (``Fitted.match``) apart, peak RSS,
 R@1 (best match within 2 frames, the folders' tolerance). At the ``--agree``
 sizes the child also runs the dense evidence on the same memory and prints the

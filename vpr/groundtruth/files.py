@@ -150,7 +150,7 @@ def load_pairs_csv(path, n_db: int, n_q: int, db_names: Sequence[str] | None = N
     Returns
     -------
     numpy.ndarray or scipy.sparse.csr_matrix
-        bool (n_db, n_q); sparse above :data:`~vpr.similarity.DENSE_PAIRS_LIMIT` pairs.
+        bool (n_db, n_q); sparse above :func:`~vpr.similarity.dense_pairs` pairs.
 
     Raises
     ------
@@ -386,7 +386,7 @@ def gt_from_position_files(db_csv, q_csv, radius: float, db_names: Sequence[str]
     Returns
     -------
     numpy.ndarray or scipy.sparse.csr_matrix
-        bool (n_db, n_q); sparse above :data:`~vpr.similarity.DENSE_PAIRS_LIMIT` pairs.
+        bool (n_db, n_q); sparse above :func:`~vpr.similarity.dense_pairs` pairs.
     """
     r = parse_float(str(radius)) if not isinstance(radius, bool) else None
     if r is None or not math.isfinite(r) or r < 0:

@@ -28,7 +28,7 @@ class SeqSlam(Method):
     ``"pixel"`` (the SeqSLAM thumbnails) or ``"encoder"`` (alias ``"desc"``:
     the encoder's dense descriptors).
 
-    Large inputs: above :data:`~vpr.similarity.DENSE_PAIRS_LIMIT` database x
+    Large inputs: above :func:`~vpr.similarity.dense_pairs` database x
     query pairs the dense difference matrix is not built;
     :func:`vpr.seqslam.seqslam_topk` runs by blocks of queries and
     keeps the ``top_k`` best entries per query (a sparse similarity). With
