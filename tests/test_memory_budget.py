@@ -70,7 +70,9 @@ def test_compare_keeps_to_the_budget_given_and_records_it(scene_on_disk, tmp_pat
         assert not (tmp_path / "a" / m / "similarity.npy").exists()
     budget = json.loads((tmp_path / "a" / "metrics.json").read_text())["params"]["memory_budget"]
     assert budget["bytes"] == 1024 and budget["given"] and budget["dense_pairs"] == 1024 // DENSE_BYTES_PER_PAIR
-    assert "memory_budget" in (tmp_path / "a" / "report.html").read_text()
+    page = (tmp_path / "a" / "report.html").read_text()
+    assert "memory_budget" in page and "(top-K, beyond the memory budget, 0.00 GiB" in page
+    assert "pairwise, seqslam" in page and "the others dense" not in page
     # a size that is not one: one line, nothing written
     argv[4] = tmp_path / "b"
     argv[argv.index("1KB")] = "lots"

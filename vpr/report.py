@@ -515,6 +515,12 @@ def write(out, read_query, read_db, kind: str = "match", title: str | None = Non
              f"at most {LIMIT} decisions per method are shown, chosen by outcome, worst first" if truth_known else
              f"no ground truth: at most {LIMIT} decisions per method are shown, the accepted and the rejected by "
              "score, highest first"]
+    top_k = [m for m, v in methods.items() if str(v.get("similarity_file", "")).endswith("_topk.npz")]
+    if top_k:
+        budget = params.get("memory_budget")
+        why = f"beyond the memory budget, {budget['text']}" if budget else "as an online run keeps it"
+        notes.append(f"similarity kept as each query's best frames (top-K, {why}): {', '.join(top_k)}"
+                     + ("; the others dense" if len(top_k) < len(methods) else ""))
     sides = ("query", "best match", "true match") if kind == "match" else \
         ("frame", "closes onto", "a true earlier frame")
     sides = sides if truth_known else sides[:2]
