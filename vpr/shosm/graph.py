@@ -204,8 +204,8 @@ class Beam:
     def __init__(self, graph: Graph):
         n_cells, n_cols, n_db = graph.n_cells, graph.n_cols, max(graph.db_norm.size, 1)
         self.st = np.zeros(KB.BEAM_STATE_SIZE, np.int64)
-        for name in ("beam", "cand"):
-            setattr(self, name, np.zeros(n_cells, np.int64))
+        for name in ("beam", "cand"):  # cell numbers: 32 bits (2**31 cells), half the bytes of 64
+            setattr(self, name, np.zeros(n_cells, np.int32))
         for name in ("beam_e", "e_cur", "p1", "p2", "z", "e_new"):
             setattr(self, name, np.zeros(n_cells, np.float64))
         self.mark = np.zeros(n_cells, bool)
@@ -234,7 +234,7 @@ class Beam:
     def cells(self) -> tuple[np.ndarray, np.ndarray]:
         """(cells, evidence) of the beam now (copies)."""
         n = int(self.st[KB.B_SIZE])
-        return self.beam[:n].copy(), self.beam_e[:n].copy()
+        return self.beam[:n].astype(np.int64), self.beam_e[:n].copy()
 
     def set_cells(self, cells, values) -> None:
         """Replace the beam (empty: a new start)."""
