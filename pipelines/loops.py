@@ -92,7 +92,8 @@ def _run_online(args, settings: dict) -> int:
     """``vpr loops -``: refuse what does not apply to a stream on stdin, then decide it frame by frame."""
     given = [f for f, v in (("--fps", args.fps), ("--step", args.step), ("--max-frames", args.max_frames),
                             ("--cache", args.cache), ("--topic", args.topic), ("--every", args.every),
-                            ("--gt-topic", args.gt_topic), ("--geometry", args.geometry)) if v is not None]
+                            ("--gt-topic", args.gt_topic), ("--geometry", args.geometry),
+                            ("--memory-budget", args.memory_budget)) if v is not None]
     if given:
         raise ValueError(f"vpr loops -: {', '.join(given)} apply to a folder or video, not to image paths on stdin")
     exclude = frames_in(LOOP_EXCLUDE if args.exclude is None else args.exclude, None, "image paths on stdin have none")

@@ -79,3 +79,9 @@ def test_compare_keeps_to_the_budget_given_and_records_it(scene_on_disk, tmp_pat
     assert main([str(a) for a in argv]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--memory-budget: a size such as 4GB" in err and not (tmp_path / "b").exists()
+
+def test_an_online_stream_refuses_a_memory_budget(tmp_path, capsys):
+    # frames decided one by one keep no matrix to budget: the option is refused, not ignored
+    assert main(["loops", "-", "--out", str(tmp_path / "o"), "--memory-budget", "1GB", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "--memory-budget" in err and err.count("\n") == 1 and not (tmp_path / "o").exists()

@@ -59,8 +59,7 @@ def budget_setting() -> dict:
     """The memory budget in force as a run records it: ``bytes``, ``given`` (by ``--memory-budget``, or the
     default), ``dense_pairs`` and ``text``."""
     given = _BUDGET.get()
-    budget = default_dense_budget() if given is None else given
-    n = dense_pairs()
+    budget, n = _budget(), dense_pairs()
     return {"bytes": budget, "given": given is not None, "dense_pairs": n,
             "text": f"{budget / 2**30:.2f} GiB: matrices dense up to {n:,} pairs ({int(n ** 0.5):,} x "
                     f"{int(n ** 0.5):,} frames), top-K beyond"}
@@ -69,9 +68,13 @@ def budget_setting() -> dict:
 def dense_pairs() -> int:
     """Database x query pairs above which matrices are top-K: the memory budget over
     :data:`DENSE_BYTES_PER_PAIR`, at most :data:`DENSE_PAIRS_LIMIT` (both read at call time)."""
-    budget = _BUDGET.get()
-    budget = default_dense_budget() if budget is None else budget
-    return min(DENSE_PAIRS_LIMIT, budget // DENSE_BYTES_PER_PAIR)
+    return min(DENSE_PAIRS_LIMIT, _budget() // DENSE_BYTES_PER_PAIR)
+
+
+def _budget() -> int:
+    """Bytes of the budget in force."""
+    given = _BUDGET.get()
+    return default_dense_budget() if given is None else given
 
 # Pairs per dense block when assembling top-K output: the block, its negation and
 # argpartition's int64 indices take about 16 bytes per pair (64 MiB here).

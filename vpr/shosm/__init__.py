@@ -28,6 +28,7 @@ from .detector import LoopDetector
 from .evidence import (
     Engine,
     Evidence,
+    EvidenceEngine,
     LoopEvidence,
     SpeedEngine,
     dense_evidence,
@@ -44,8 +45,8 @@ from .state import MemoryFileError
 
 __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pad_codes",
            "LEARN_THRESHOLD", "LOOP_EXCLUDE", "DENSE_EVIDENCE_PAIRS", "EvidenceConf", "BeamConf", "LoopConf",
-           "PathConf", "RshosmSeqConf", "DECISION_KEYS", "SPEEDS", "memory_params", "Graph", "Engine", "SpeedEngine",
-           "make_engine", "Evidence",
+           "PathConf", "RshosmSeqConf", "DECISION_KEYS", "SPEEDS", "memory_params", "Graph", "Engine",
+           "EvidenceEngine", "SpeedEngine", "make_engine", "Evidence",
            "query_evidence", "dense_evidence", "sparse_evidence", "LoopEvidence", "LoopDecider", "PathDecider",
            "decide_all",
            "LoopRule", "LOOP_RULES", "loop_rule",

@@ -4,6 +4,7 @@ from __future__ import annotations
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import Protocol
 
 import numba
 import numpy as np
@@ -21,8 +22,8 @@ from .kernels import evidence as KE
 from .memory import SequenceMemory
 from .state import joint_state, part_state
 
-__all__ = ["Engine", "SpeedEngine", "make_engine", "merge_columns", "merge_evidence", "Evidence", "LoopEvidence",
-           "query_evidence", "dense_evidence", "sparse_evidence"]
+__all__ = ["EvidenceEngine", "Engine", "SpeedEngine", "make_engine", "merge_columns", "merge_evidence", "Evidence",
+           "LoopEvidence", "query_evidence", "dense_evidence", "sparse_evidence"]
 
 #: Query frames per call of the beam kernel and per block of finished columns of a traverse.
 QUERY_CHUNK = 2048
@@ -89,6 +90,25 @@ def _reversed(ptr, idx, val):
     take = np.concatenate([np.arange(s, s + n) for s, n in zip(starts, lens, strict=True)]) if lens.sum() else \
         np.zeros(0, np.int64)
     return np.r_[0, np.cumsum(lens)].astype(np.int64), idx[take], val[take]
+
+
+class EvidenceEngine(Protocol):
+    """What the localizer and loop closure step: :class:`Engine` (one speed model) and :class:`SpeedEngine`."""
+
+    frames: int
+
+    def step(self, bits, n: int | None = None, capped: bool = True, frame: int = -1) -> Column: ...
+
+    def grow(self) -> None: ...
+
+    def reset(self) -> None: ...
+
+    def state(self) -> tuple[dict, dict]: ...
+
+    def load_state(self, header: dict, arrays: dict) -> EvidenceEngine: ...
+
+    def run(self, query_batch, direction: str = "both", top_k: int | None = TOP_K, progress: bool = False,
+            stats: dict | None = None) -> Evidence: ...
 
 
 class Engine:
@@ -403,7 +423,7 @@ class SpeedEngine:
 
 
 def make_engine(graph: Graph, evidence: EvidenceConf | None = None, beam: BeamConf | None = None,
-                exact: bool = False, threads: int | None = None) -> Engine | SpeedEngine:
+                exact: bool = False, threads: int | None = None) -> EvidenceEngine:
     """The evidence engine of ``evidence``'s speed models: an :class:`Engine` for one, a :class:`SpeedEngine`
     for several."""
     lanes = (evidence or EvidenceConf()).split()
