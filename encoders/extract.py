@@ -37,8 +37,9 @@ from vpr import sdr as _sdr
 from vpr.sources import FrameSkippedWarning, Source
 from vpr.types import ENCODER_INPUTS, EncodedTraverse
 
-__all__ = ["Extracted", "Chunk", "extract", "extract_all", "cache_key", "cache_path", "chunk_ranges", "encode_chunk",
-           "assemble", "load_cache", "save_cache", "available_inputs", "check_inputs", "DEFAULT_CHUNK_FRAMES"]
+__all__ = ["Extracted", "Chunk", "extract", "extract_all", "one_copy", "cache_key", "cache_path", "chunk_ranges",
+           "encode_chunk", "assemble", "load_cache", "save_cache", "available_inputs", "check_inputs",
+           "DEFAULT_CHUNK_FRAMES"]
 
 # v2: one file per source + encoder conf holding any subset of the inputs, no timings (byte-reproducible)
 CACHE_VERSION = 2
@@ -170,8 +171,24 @@ def encode_chunk(source: Source, encoder, start: int, stop: int, inputs=("sdr",)
     if batch:
         flush(batch)
     return Chunk(start, stop, names, indices, [tuple(s) for s in source.skipped],
-                 arrays={p: np.concatenate(b) for p, b in blocks.items() if b},
+                 arrays=one_copy({p: np.concatenate(b) for p, b in blocks.items() if b}),
                  sdr=sp.vstack(sdr_rows).tocsr() if sdr_rows else None, thumbs=small if thumbs else None)
+
+
+def one_copy(arrays: dict) -> dict:
+    """``arrays`` with every array equal to an earlier one replaced by that one (read-only: it is shared).
+
+    The ``pixel`` encoder's descriptor and SeqSLAM's pixels are the same
+    numbers: held and stored once, not twice.
+    """
+    out: dict = {}
+    for p, a in arrays.items():
+        twin = next((b for b in out.values() if b is a or (b.shape == a.shape and b.dtype == a.dtype
+                                                           and np.array_equal(b, a))), None)
+        if twin is not None:
+            twin.flags.writeable = False
+        out[p] = a if twin is None else twin
+    return out
 
 
 def assemble(source: Source, encoder, chunks, inputs=("sdr",)) -> Extracted:
@@ -197,7 +214,13 @@ def assemble(source: Source, encoder, chunks, inputs=("sdr",)) -> Extracted:
             msg += f" ({len(skipped)} skipped; first: {skipped[0][0]}: {skipped[0][1]})"
         raise ValueError(msg)
     full = [c for c in chunks if c.names]  # chunks with every frame skipped carry no arrays
-    arrays = {p: np.concatenate([c.arrays[p] for c in full]) for p in full[0].arrays}
+    joined, arrays = {}, {}  # inputs that are one array in every chunk are joined once
+    for p in full[0].arrays:
+        key = tuple(id(c.arrays[p]) for c in full)
+        if key not in joined:
+            joined[key] = np.concatenate([c.arrays[p] for c in full]) if len(full) > 1 else full[0].arrays[p]
+        arrays[p] = joined[key]
+    arrays = one_copy(arrays)
     sdr = None
     if "sdr" in inputs:
         if isinstance(encoder, DescriptorEncoder):
@@ -228,13 +251,22 @@ def save_cache(path, ex: Extracted, source: Source, encoder) -> Path:
             "source": str(source.path), "source_key": source.key(), "encoder": encoder.name, "conf": encoder.conf}
     arrays = {"names": np.array(f.names, dtype=str), "indices": np.array(ex.indices or [], dtype=np.int64),
               "meta": np.array(json.dumps(meta, sort_keys=True, default=str))}
+    same = {}  # an input equal to one stored before it is stored once (the pixel encoder's desc is its pixels)
     for p in held:
         if p == "sdr":
             s = sp.csr_matrix(f.sdr)
             arrays.update(sdr_indptr=s.indptr.astype(np.int64), sdr_indices=s.indices.astype(np.int32),
                           sdr_shape=np.array(s.shape, dtype=np.int64))
+            continue
+        a = np.asarray(f.inputs[p], np.float32)
+        twin = next((q for q in held if q in arrays and q != p and (arrays[q] is a or np.array_equal(arrays[q], a))),
+                    None)
+        if twin is None:
+            arrays[p] = a
         else:
-            arrays[p] = np.asarray(f.inputs[p], np.float32)
+            same[p] = twin
+    meta["same"] = same
+    arrays["meta"] = np.array(json.dumps(meta, sort_keys=True, default=str))
     with io.atomic_path(path, suffix=".npz") as tmp:
         with open(tmp, "wb") as fh:
             _write_npz(fh, arrays)
@@ -267,7 +299,10 @@ def load_cache(path, source: Source | None = None, encoder=None) -> Extracted | 
                 idx = d["sdr_indices"]
                 held[p] = sp.csr_matrix((np.ones(idx.size, bool), idx, d["sdr_indptr"]), shape=tuple(d["sdr_shape"]))
             else:
-                held[p] = d[p]
+                twin = meta.get("same", {}).get(p)
+                held[p] = d[p] if twin is None else d[twin]
+                if twin is not None:  # one array read as two inputs: never written in place
+                    d[twin].flags.writeable = False
         feats = EncodedTraverse(d["names"].tolist(), **held)
         return Extracted(feats, [tuple(s) for s in meta["skipped"]], meta["ignored"], 0.0, True,
                          indices=d["indices"].tolist())

@@ -144,7 +144,9 @@ def write_method(folder: Path, m: str, res: MatchResult, evaluated: tuple, db_na
             fname = "pr_curve_verify.npz" if name.endswith("+verify") else "pr_curve.npz"
             with io.atomic_path(folder / fname) as tmp:
                 with open(tmp, "wb") as fh:
-                    np.savez(fh, precision=np.asarray(c[0], np.float64), recall=np.asarray(c[1], np.float64))
+                    keep = evaluate.thin_pr(c[0], c[1])
+                    np.savez(fh, precision=np.asarray(c[0], np.float64)[keep],
+                             recall=np.asarray(c[1], np.float64)[keep])
             mm["pr_curve"] = f"{folder.name}/{fname}"
         out[name] = mm
     return out

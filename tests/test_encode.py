@@ -137,6 +137,23 @@ def test_missing_parts_are_added_and_other_encoders_work(data, tmp_path):
     assert extract(src, enc, inputs=("sdr", "desc"), cache_dir=tmp_path, progress=False).cached
 
 
+@pytest.mark.filterwarnings("ignore::UserWarning")
+def test_an_input_equal_to_another_is_stored_once(data, tmp_path):
+    src = open_source(data["day"])
+    ex = extract(src, encoders.get("pixel", **CONF), inputs=("sdr", "desc", "pixels"), cache_dir=tmp_path,
+                 progress=False)
+    path = cache_path(tmp_path, src, encoders.get("pixel", **CONF))
+    with np.load(path) as z:
+        stored = set(z.files)
+    got = load_cache(path).features
+    same = np.array_equal(ex.features.desc, ex.features.inputs["pixels"])
+    assert same  # the pixel encoder's descriptor is its pixels: the case this stores once
+    assert "desc" in stored and "pixels" not in stored
+    assert np.array_equal(got.desc, ex.features.desc) and np.array_equal(got.inputs["pixels"], got.desc)
+    with pytest.raises(ValueError, match="read-only"):
+        got.inputs["pixels"][0, 0] = 1.0
+
+
 def test_bad_arguments_raise(data, tmp_path):
     with pytest.raises(ValueError, match="either workers"):
         encode_sources([data["day"]], tmp_path, workers=2, scheduler="tcp://127.0.0.1:1")

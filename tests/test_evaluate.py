@@ -16,6 +16,7 @@ from vpr.evaluate import (
     pr_curve,
     recall_at_100p,
     recall_at_k,
+    thin_pr,
 )
 from vpr.groundtruth import gt_from_labels, gt_from_positions, gt_from_tolerance, loop_closure_gt, loop_closure_mask
 
@@ -234,6 +235,31 @@ def test_curve_invariants(problem):
     assert np.all(np.diff(R) >= 0)
     assert np.all((P >= 0) & (P <= 1)) and np.all((R >= 0) & (R <= 1))
     assert 0 <= auc_from_pr(P, R) <= 1
+
+
+@SETTINGS
+@given(problems())
+def test_thinned_curve_keeps_ap_area_and_r100p(problem):
+    S, hard, soft, mask = problem
+    try:
+        P, R, _ = pr_curve(S, hard, soft, mask=mask)
+    except ValueError:
+        return
+    keep = thin_pr(P, R)
+    p, r = P[keep], R[keep]
+    assert keep[0] == 0 and keep[-1] == P.size - 1 and np.all(np.diff(keep) > 0)
+    assert np.isclose(np.sum(np.diff(r) * p[1:]), np.sum(np.diff(R) * P[1:]))  # AP
+    assert np.isclose(auc_from_pr(p, r), auc_from_pr(P, R))
+    assert set(zip(R.tolist(), P.tolist(), strict=True)) >= set(zip(r.tolist(), p.tolist(), strict=True))
+
+
+def test_thinned_curve_of_a_long_run_of_false_pairs_is_short():
+    R = np.r_[0.0, 0.5, 0.5 * np.ones(10_000), 1.0]
+    P = np.r_[1.0, 1.0, 1 / np.arange(2, 10_002), 0.5]
+    keep = thin_pr(P, R)
+    assert keep.tolist() == [0, 1, 10_001, 10_002]
+    with pytest.raises(ValueError, match="equal length"):
+        thin_pr(P[:-1], R)
 
 
 # --------------------------------------------------------------------------- #

@@ -1,8 +1,17 @@
 """Place-recognition metrics: plain functions over ``S``, ``gt_hard`` and ``gt_soft``."""
 from .decisions import accepted_precision, best_in_soft_band, decision_curve, outcomes, session_pairs
 from .harness import method_metrics, peak_rss_mb, run_methods
-from .ranking import auc_from_pr, auc_pr, average_precision, evaluate, pr_curve, recall_at_100p, recall_at_k
+from .ranking import (
+    auc_from_pr,
+    auc_pr,
+    average_precision,
+    evaluate,
+    pr_curve,
+    recall_at_100p,
+    recall_at_k,
+    thin_pr,
+)
 
-__all__ = ["average_precision", "pr_curve", "auc_pr", "auc_from_pr", "recall_at_100p", "recall_at_k", "evaluate",
-           "accepted_precision", "best_in_soft_band", "decision_curve", "session_pairs", "outcomes", "method_metrics",
-           "run_methods", "peak_rss_mb"]
+__all__ = ["average_precision", "pr_curve", "thin_pr", "auc_pr", "auc_from_pr", "recall_at_100p", "recall_at_k",
+           "evaluate", "accepted_precision", "best_in_soft_band", "decision_curve", "session_pairs", "outcomes",
+           "method_metrics", "run_methods", "peak_rss_mb"]

@@ -8,7 +8,8 @@ import scipy.sparse as sp
 
 from vpr.checks import at, check_int, check_similarity
 
-__all__ = ["average_precision", "pr_curve", "auc_pr", "auc_from_pr", "recall_at_100p", "recall_at_k", "evaluate"]
+__all__ = ["average_precision", "pr_curve", "thin_pr", "auc_pr", "auc_from_pr", "recall_at_100p", "recall_at_k",
+           "evaluate"]
 
 _MATCHINGS = ("multi", "single")
 
@@ -307,6 +308,32 @@ def average_precision(S, gt_hard, gt_soft=None, mask=None) -> float:
     p = _prepare(S, gt_hard, gt_soft, mask)
     precision, recall, _, _, tp = _curve(p, "multi")
     return _average_precision(p, precision, recall, tp)
+
+
+def thin_pr(precision, recall) -> np.ndarray:
+    """The points of a precision-recall curve that its shape needs: indices, increasing.
+
+    Keeps the first and last point and every point whose recall differs from
+    its neighbour's on either side (the ends of each run of equal recall).
+    The thinned curve has the same average precision (``sum (R_n - R_{n-1})
+    P_n``), trapezoid area, recall at 100 % precision and drawing; it holds
+    at most two points per true positive where the full curve holds one per
+    distinct threshold.
+
+    Parameters
+    ----------
+    precision, recall : array_like of float, shape (n,)
+        Points in order of non-decreasing recall, as returned by :func:`pr_curve`.
+    """
+    recall = np.asarray(recall)
+    if np.shape(precision) != recall.shape or recall.ndim != 1:
+        raise ValueError(f"precision and recall must be 1-D of equal length, got shapes {np.shape(precision)} "
+                         f"and {recall.shape}")
+    if recall.size <= 2:
+        return np.arange(recall.size)
+    step = recall[1:] != recall[:-1]
+    keep = np.r_[True, step] | np.r_[step, True]
+    return np.flatnonzero(keep)
 
 
 def auc_from_pr(precision, recall) -> float:
