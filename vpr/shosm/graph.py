@@ -204,11 +204,12 @@ class Beam:
     def __init__(self, graph: Graph):
         n_cells, n_cols, n_db = graph.n_cells, graph.n_cols, max(graph.db_norm.size, 1)
         self.st = np.zeros(KB.BEAM_STATE_SIZE, np.int64)
-        for name in ("beam", "cand"):  # cell numbers: 32 bits (2**31 cells), half the bytes of 64
+        # per cell (32 bits: 2**31 cells): its place in the beam and its candidate number, plus one (0: none);
+        # per candidate or beam entry (at most one per cell; np.zeros leaves the pages no frame reached unmapped)
+        for name in ("in_beam", "slot", "beam", "cand"):
             setattr(self, name, np.zeros(n_cells, np.int32))
-        for name in ("beam_e", "e_cur", "p1", "p2", "z", "e_new"):
+        for name in ("beam_e", "p1", "p2", "z", "e_new"):
             setattr(self, name, np.zeros(n_cells, np.float64))
-        self.mark = np.zeros(n_cells, bool)
         self.counts, self.touched_cols = np.zeros(n_cols, np.float64), np.zeros(n_cols, np.int64)
         self.acc, self.db_mark, self.db_touch = np.zeros(n_db, np.float64), np.zeros(n_db, bool), np.zeros(n_db,
                                                                                                              np.int64)
@@ -225,7 +226,7 @@ class Beam:
         def g(a, n):
             return a if a.size >= n else _grown(a, max(n, 2 * a.size), 0)
 
-        for name in ("beam", "beam_e", "e_cur", "p1", "p2", "z", "mark", "cand", "e_new"):
+        for name in ("in_beam", "slot", "beam", "cand", "beam_e", "p1", "p2", "z", "e_new"):
             setattr(self, name, g(getattr(self, name), graph.n_cells))
         self.counts, self.touched_cols = g(self.counts, graph.n_cols), g(self.touched_cols, graph.n_cols)
         n_db = graph.db_norm.size
@@ -238,10 +239,10 @@ class Beam:
 
     def set_cells(self, cells, values) -> None:
         """Replace the beam (empty: a new start)."""
-        self.e_cur[self.beam[: int(self.st[KB.B_SIZE])]] = 0.0
+        self.in_beam[self.beam[: int(self.st[KB.B_SIZE])]] = 0
         n = len(cells)
         self.beam[:n], self.beam_e[:n] = cells, values
-        self.e_cur[cells] = values
+        self.in_beam[np.asarray(cells, np.int64)] = np.arange(1, n + 1, dtype=np.int32)
         self.st[KB.B_SIZE] = n
 
     def run(self, g: Graph, adj, q_ptr, q_ind, order, limits, params):
@@ -259,8 +260,8 @@ class Beam:
             done = KB.beam_frames((q_ptr, q_ind, order, limits), (g.bit_cols, g.bit_len, g.col_size, g.cpc),
                                   (adj[0], adj[1], adj[2], grp),
                                   (g.c_head, g.c_next, g.c_frame, g.relevant, g.birth, g.db_norm), params,
-                                  (st, self.beam, self.beam_e, self.e_cur),
-                                  (self.counts, self.touched_cols, self.p1, self.p2, self.z, self.mark, self.cand,
+                                  (st, self.beam, self.beam_e, self.in_beam),
+                                  (self.counts, self.touched_cols, self.p1, self.p2, self.z, self.slot, self.cand,
                                    self.e_new, self.gmax, self.gmark, self.gtouch, self.acc, self.db_mark,
                                    self.db_touch), (out_ptr, self.out_idx, self.out_val))
             if done >= n:

@@ -13,19 +13,30 @@ BEAM_STATE_SIZE = 6
 
 
 @njit(cache=True, inline="always")
-def _relax(s, v, a_head, a_dst, a_next, birth, limit, p, mark, cand, n_c):  # pragma: no cover - compiled
-    """Offer evidence ``v`` of cell ``s`` along its connections: ``p[d] = max(p[d], v)`` for every
-    target ``d`` learned by ``limit``; new targets join the candidates. Returns the candidate count."""
+def _join(c, slot, cand, p1, p2, n_c):  # pragma: no cover - compiled
+    """Cell ``c`` becomes candidate ``n_c`` (``slot[c] = n_c + 1``) with no offers yet. Returns the count."""
+    slot[c] = n_c + 1
+    cand[n_c] = c
+    p1[n_c] = 0.0
+    p2[n_c] = 0.0
+    return n_c + 1
+
+
+@njit(cache=True, inline="always")
+def _relax(s, v, a_head, a_dst, a_next, birth, limit, p, q, slot, cand, n_c):  # pragma: no cover - compiled
+    """Offer evidence ``v`` of cell ``s`` along its connections: ``p[k] = max(p[k], v)`` for every
+    target learned by ``limit`` (``k`` its candidate number; new targets join the candidates, ``q`` is the
+    other offer array). Returns the candidate count."""
     e = a_head[s]
     while e >= 0:
         d = a_dst[e]
         if birth[d] <= limit:
-            if v > p[d]:
-                p[d] = v
-            if not mark[d]:
-                mark[d] = True
-                cand[n_c] = d
-                n_c += 1
+            k = slot[d] - 1
+            if k < 0:
+                k = n_c
+                n_c = _join(d, slot, cand, p, q, n_c)
+            if v > p[k]:
+                p[k] = v
         e = a_next[e]
     return n_c
 
@@ -46,13 +57,13 @@ def _offer(s, v, grp, gmax, gmark, gtouch, n_g):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
-def _relax_groups(n_g, gtouch, gmax, gmark, a_head, a_dst, a_next, birth, limit, p, mark, cand,
+def _relax_groups(n_g, gtouch, gmax, gmark, a_head, a_dst, a_next, birth, limit, p, q, slot, cand,
                   n_c):  # pragma: no cover - compiled
     """Relax each touched group's largest offer along the group's one successor list."""
     for k in range(n_g):
         gi = gtouch[k]
         gmark[gi] = False
-        n_c = _relax(gi, gmax[gi], a_head, a_dst, a_next, birth, limit, p, mark, cand, n_c)
+        n_c = _relax(gi, gmax[gi], a_head, a_dst, a_next, birth, limit, p, q, slot, cand, n_c)
     return n_c
 
 
@@ -65,7 +76,7 @@ def _enter_by_overlap(bits, limit, ff, cells, conf, scratch):  # pragma: no cove
     bit_cols, bit_len, col_size, cpc = ff
     relevant, birth = cells[3], cells[4]
     z_floor, max_enter = conf[6], conf[8]
-    counts, touched_cols, mark, cand = scratch[0], scratch[1], scratch[5], scratch[6]
+    counts, touched_cols, p1, p2, slot, cand = scratch[0], scratch[1], scratch[2], scratch[3], scratch[5], scratch[6]
     n_tc = count_overlaps(bits, bit_cols, bit_len, counts, touched_cols)
     n_above = 0
     for i in range(n_tc):
@@ -93,11 +104,8 @@ def _enter_by_overlap(bits, limit, ff, cells, conf, scratch):  # pragma: no cove
         if zz > zf:
             for k in range(cpc):
                 c = col * cpc + k
-                if relevant[c] and birth[c] <= limit:
-                    if not mark[c]:
-                        mark[c] = True
-                        cand[n_c] = c
-                        n_c += 1
+                if relevant[c] and birth[c] <= limit and slot[c] == 0:
+                    n_c = _join(c, slot, cand, p1, p2, n_c)
     return n_tc, n_c
 
 
@@ -110,7 +118,7 @@ def _enter_by_prediction(n_c, limit, lateral, cells, conf, state, scratch):  # p
     birth = cells[4]
     stay, skip = conf[1], conf[2]
     st, beam, beam_e = state[0], state[1], state[2]
-    p1, p2, mark, cand = scratch[2], scratch[3], scratch[5], scratch[6]
+    p1, p2, slot, cand = scratch[2], scratch[3], scratch[5], scratch[6]
     gmax, gmark, gtouch = scratch[8], scratch[9], scratch[10]
     grouped = grp.shape[0] > 0
     n_g = 0
@@ -119,29 +127,28 @@ def _enter_by_prediction(n_c, limit, lateral, cells, conf, state, scratch):  # p
         v = beam_e[i]
         if birth[s] > limit:
             continue
-        if stay >= 0.0 and v > stay and not mark[s]:
-            mark[s] = True
-            cand[n_c] = s
-            n_c += 1
+        if stay >= 0.0 and v > stay and slot[s] == 0:
+            n_c = _join(s, slot, cand, p1, p2, n_c)
         if grouped:
             n_g = _offer(s, v, grp, gmax, gmark, gtouch, n_g)
         else:
-            n_c = _relax(s, v, a_head, a_dst, a_next, birth, limit, p1, mark, cand, n_c)
+            n_c = _relax(s, v, a_head, a_dst, a_next, birth, limit, p1, p2, slot, cand, n_c)
     if grouped:
-        n_c = _relax_groups(n_g, gtouch, gmax, gmark, a_head, a_dst, a_next, birth, limit, p1, mark, cand, n_c)
+        n_c = _relax_groups(n_g, gtouch, gmax, gmark, a_head, a_dst, a_next, birth, limit, p1, p2, slot, cand, n_c)
     if skip >= 0.0:  # only p1 > skip can win
         n1 = n_c
         n_g = 0
         for i in range(n1):
             s = cand[i]
-            v = p1[s]
+            v = p1[i]
             if v > skip:
                 if grouped:
                     n_g = _offer(s, v, grp, gmax, gmark, gtouch, n_g)
                 else:
-                    n_c = _relax(s, v, a_head, a_dst, a_next, birth, limit, p2, mark, cand, n_c)
+                    n_c = _relax(s, v, a_head, a_dst, a_next, birth, limit, p2, p1, slot, cand, n_c)
         if grouped:
-            n_c = _relax_groups(n_g, gtouch, gmax, gmark, a_head, a_dst, a_next, birth, limit, p2, mark, cand, n_c)
+            n_c = _relax_groups(n_g, gtouch, gmax, gmark, a_head, a_dst, a_next, birth, limit, p2, p1, slot, cand,
+                                n_c)
     return n_c
 
 
@@ -150,20 +157,20 @@ def _new_evidence(n_c, cpc, conf, state, scratch):  # pragma: no cover - compile
     """Each candidate's evidence (its feed-forward term plus ``decay`` times the best prediction, never below 0)
     into ``e_new``; returns the floor a cell must exceed to count this frame."""
     decay, stay, skip, _, floor, rel_floor = conf[0], conf[1], conf[2], conf[3], conf[4], conf[5]
-    e_cur = state[3]
+    beam_e, in_beam = state[2], state[3]
     counts, p1, p2, z, cand, e_new = scratch[0], scratch[2], scratch[3], scratch[4], scratch[6], scratch[7]
     emax = 0.0
     for i in range(n_c):
         c = cand[i]
-        z[c] = counts[c // cpc]
-        p = p1[c]
-        if skip >= 0.0 and p2[c] - skip > p:
-            p = p2[c] - skip
-        if stay >= 0.0 and e_cur[c] - stay > p:
-            p = e_cur[c] - stay
+        z[i] = counts[c // cpc]
+        p = p1[i]
+        if skip >= 0.0 and p2[i] - skip > p:
+            p = p2[i] - skip
+        if stay >= 0.0 and in_beam[c] > 0 and beam_e[in_beam[c] - 1] - stay > p:
+            p = beam_e[in_beam[c] - 1] - stay
         if p < 0.0:
             p = 0.0
-        en = z[c] + decay * p
+        en = z[i] + decay * p
         e_new[i] = en
         if en > emax:
             emax = en
@@ -187,15 +194,10 @@ def _output_size(n_c, thr, cells, scratch):  # pragma: no cover - compiled
 
 @njit(cache=True, inline="always")
 def _clear(n_c, n_tc, scratch):  # pragma: no cover - compiled
-    """Undo a frame that did not fit the output: the candidates' marks and terms, the overlaps."""
-    counts, touched_cols, p1, p2, z, mark, cand = scratch[0], scratch[1], scratch[2], scratch[3], scratch[4], \
-        scratch[5], scratch[6]
+    """Undo a frame that did not fit the output: the candidates' numbers, the overlaps."""
+    counts, touched_cols, slot, cand = scratch[0], scratch[1], scratch[5], scratch[6]
     for i in range(n_c):
-        c = cand[i]
-        mark[c] = False
-        p1[c] = 0.0
-        p2[c] = 0.0
-        z[c] = 0.0
+        slot[cand[i]] = 0
     for i in range(n_tc):
         counts[touched_cols[i]] = 0.0
 
@@ -228,29 +230,26 @@ def _carry_and_output(t, n_c, n_tc, thr, keep, limit, z_weight, cells, state, sc
     """The new beam (cells above ``keep``) and frame ``t``'s output column (database frames of the cells above
     ``thr``, each the mean of its cells' ``evidence - z_weight * z``); clears the frame's scratch."""
     c_head, c_next, c_frame, db_norm = cells[0], cells[1], cells[2], cells[5]
-    st, beam, beam_e, e_cur = state
-    counts, touched_cols, p1, p2, z, mark, cand, e_new = scratch[0], scratch[1], scratch[2], scratch[3], \
-        scratch[4], scratch[5], scratch[6], scratch[7]
+    st, beam, beam_e, in_beam = state
+    counts, touched_cols, z, slot, cand, e_new = scratch[0], scratch[1], scratch[4], scratch[5], scratch[6], \
+        scratch[7]
     acc, db_mark, db_touch = scratch[11], scratch[12], scratch[13]
     out_ptr, out_idx, out_val = out
     for i in range(st[B_SIZE]):
-        e_cur[beam[i]] = 0.0
+        in_beam[beam[i]] = 0
     nb2 = 0
     n_touch = 0
     for i in range(n_c):
         c = cand[i]
-        zc = z[c]
-        mark[c] = False
-        p1[c] = 0.0
-        p2[c] = 0.0
-        z[c] = 0.0
+        zc = z[i]
+        slot[c] = 0
         en = e_new[i]
         if en > thr:
             if en > keep:
                 beam[nb2] = c
                 beam_e[nb2] = en
-                e_cur[c] = en
                 nb2 += 1
+                in_beam[c] = nb2
             node = c_head[c]
             while node >= 0:
                 j = c_frame[node]
@@ -321,12 +320,19 @@ def beam_frames(query, ff, lateral, cells, conf, state, scratch, out):  # pragma
         largest overlap, the same way); <= 0: no cap. Together the two caps
         bound the candidates per frame by ``max_enter * cpc + max_beam *
         (out-degree)`` whatever the SDRs share.
-    state : (st, beam, beam_e, e_cur)
+    state : (st, beam, beam_e, in_beam)
         ``st``: int64 state: beam size, output position, need-flag, frames
         done, largest beam and largest candidate set so far; the beam (cells,
-        evidence) and every cell's evidence, carried from call to call.
-    scratch : (counts, touched_cols, p1, p2, z, mark, cand, e_new, gmax, gmark, gtouch, acc, db_mark, db_touch)
-        Work space, zero between frames (``gmax, gmark, gtouch``: per group, unused without groups).
+        evidence); per cell its place in the beam plus one (0: not in it);
+        carried from call to call.
+    scratch : (counts, touched_cols, p1, p2, z, slot, cand, e_new, gmax, gmark, gtouch, acc, db_mark, db_touch)
+        Work space: per minicolumn ``counts``; per cell ``slot``, its
+        candidate number plus one (0: not a candidate), zero between frames;
+        per candidate (by number) ``cand`` its cell, ``p1, p2, z, e_new`` its
+        offers, overlap and evidence; ``gmax, gmark, gtouch`` per group (unused
+        without groups); per database frame ``acc, db_mark``. Only two int32
+        arrays are indexed by cell, so a pass's memory grows by 8 bytes per
+        cell of the memory.
     out : (out_ptr, out_idx, out_val)
         Per processed frame the sparse column (database frame, evidence);
         ``out_ptr[t + 1]`` ends frame ``order[t]``.
