@@ -49,11 +49,11 @@ def _sdrs(n: int, folders: str | None, cache: str | None):
 def _profile(g, conf, q, warm: int, frames: int) -> dict:
     import numpy as np
 
-    from vpr.shosm.evidence import _params
+    from vpr.shosm.evidence import beam_params
     from vpr.shosm.graph import Beam
     from vpr.shosm.kernels import beam as KB
 
-    params = _params(conf.evidence, conf.beam, 0.5)
+    params = beam_params(conf.evidence, conf.beam, 0.5)
     q_ptr, q_ind = q.indptr.astype(np.int64), q.indices.astype(np.int64)
     order = np.arange(warm + frames, dtype=np.int64)
     limits = np.full(order.size, np.iinfo(np.int64).max // 4, np.int64)
@@ -66,7 +66,7 @@ def _profile(g, conf, q, warm: int, frames: int) -> dict:
     kernel_ms = (time.perf_counter() - t0) * 1e3 / frames
     b = beams[1]
     ff = (g.bit_cols, g.bit_len, g.col_size, g.cpc)
-    lateral = (g.fwd[0], g.fwd[1], g.fwd[2], g.fwd[3] if len(g.fwd) == 4 else np.zeros(0, np.int64))
+    lateral = (g.fwd[0], g.fwd[1], g.fwd[2], g.fwd[3] if len(g.fwd) == 4 else np.zeros(0, np.int32))
     if lateral[3].size and b.gmax.size < lateral[0].size:
         b.gmax, b.gmark, b.gtouch = (np.zeros(lateral[0].size), np.zeros(lateral[0].size, bool),
                                      np.zeros(lateral[0].size, np.int64))
@@ -79,21 +79,21 @@ def _profile(g, conf, q, warm: int, frames: int) -> dict:
                    b.acc, b.db_mark, b.db_touch)
         bits, limit = q_ind[q_ptr[t]:q_ptr[t + 1]], limits[0]
         c = [time.perf_counter()]
-        n_tc, n_c = KB._enter_by_overlap(bits, limit, ff, cells, params, scratch)
+        n_tc, n_c = KB.enter_by_overlap(bits, limit, ff, cells, params, scratch)
         c.append(time.perf_counter())
-        n_c = KB._enter_by_prediction(n_c, limit, lateral, cells, params, state, scratch)
+        n_c = KB.enter_by_prediction(n_c, limit, lateral, cells, params, state, scratch)
         c.append(time.perf_counter())
-        thr = KB._new_evidence(n_c, g.cpc, params, state, scratch)
+        thr = KB.new_evidence(n_c, ff, params, state, scratch)
         c.append(time.perf_counter())
-        need = KB._output_size(n_c, thr, cells, scratch)
+        need = KB.output_size(n_c, thr, cells, scratch)
         c.append(time.perf_counter())
-        keep = KB._carry_floor(n_c, thr, params[7], scratch)
+        keep = KB.carry_floor(n_c, thr, params[7], scratch)
         c.append(time.perf_counter())
         if need > b.out_idx.size:
             b.out_idx, b.out_val = np.zeros(2 * need, np.int64), np.zeros(2 * need)
         out_ptr = np.zeros(2, np.int64)
         b.st[KB.B_OUT_POS] = 0
-        KB._carry_and_output(0, n_c, n_tc, thr, keep, limit, params[3], cells, state, scratch,
+        KB.carry_and_output(0, n_c, n_tc, thr, keep, limit, params[3], cells, state, scratch,
                              (out_ptr, b.out_idx, b.out_val))
         c.append(time.perf_counter())
         times[k] = np.diff(c) * 1e3

@@ -22,8 +22,8 @@ from .kernels import evidence as KE
 from .memory import SequenceMemory
 from .state import joint_state, part_state
 
-__all__ = ["EvidenceEngine", "Engine", "SpeedEngine", "make_engine", "merge_columns", "merge_evidence", "Evidence",
-           "LoopEvidence", "query_evidence", "dense_evidence", "sparse_evidence"]
+__all__ = ["EvidenceEngine", "Engine", "beam_params", "SpeedEngine", "make_engine", "merge_columns", "merge_evidence",
+           "Evidence", "LoopEvidence", "query_evidence", "dense_evidence", "sparse_evidence"]
 
 #: Query frames per call of the beam kernel and per block of finished columns of a traverse.
 QUERY_CHUNK = 2048
@@ -62,7 +62,7 @@ class LoopEvidence(Evidence):
         return iter((self.similarity, self.codes))
 
 
-def _params(evidence: EvidenceConf, beam: BeamConf, z_weight: float) -> tuple:
+def beam_params(evidence: EvidenceConf, beam: BeamConf, z_weight: float) -> tuple:
     """The scalar arguments of the beam kernel (``z_weight``: 0.5 when two directions are added, else 0)."""
     stay, skip = evidence.costs
     return (float(evidence.decay), stay, skip, float(z_weight), float(beam.floor), float(beam.rel_floor),
@@ -141,7 +141,7 @@ class Engine:
         self.threads = min(2, numba.config.NUMBA_NUM_THREADS) if threads is None else int(threads)
         self.normalise = self.evidence.normalise == "query"
         self.frames = 0
-        self._params = {c: _params(self.evidence, self.beam_conf if c else self.beam_conf.uncapped(), 0.0)
+        self._params = {c: beam_params(self.evidence, self.beam_conf if c else self.beam_conf.uncapped(), 0.0)
                         for c in (True, False)}
         if self.exact:
             self._rel, self._dense = graph.dense()
@@ -237,7 +237,7 @@ class Engine:
         q = _sdr.check_batch(query_batch, n_bits=g.mem.n_inputs, name="query SDR batch")
         n_q, n_db = q.shape[0], g.n_db
         q_ptr, q_ind = q.indptr.astype(np.int64), q.indices.astype(np.int64)
-        params = _params(self.evidence, self.beam_conf, 0.5 if direction == "both" else 0.0)
+        params = beam_params(self.evidence, self.beam_conf, 0.5 if direction == "both" else 0.0)
         limits = np.full(n_q, BIG, np.int64)
         seen = {"max_beam": 0, "max_candidates": 0}
         passes = [("fwd", np.arange(n_q, dtype=np.int64))]

@@ -65,6 +65,11 @@ def grouped_lists(keys, vals, n_heads):
     return head, nxt, value, group
 
 
+def _narrow(lists) -> tuple:
+    """Linked lists as the kernels read them: 32-bit entries (half the memory traffic of 64)."""
+    return tuple(np.asarray(a, np.int32) for a in lists)
+
+
 def _grown(a, size, fill):
     out = np.full(size, fill, a.dtype)
     out[: a.size] = a
@@ -97,10 +102,10 @@ class Graph:
             cap = 1024 * self.cpc
             self.n_cells, self.n_cols, self.n_db = cap, 1024, 0
             self.col_size, self.relevant = np.zeros(1024), np.zeros(cap, bool)
-            self.birth, self.c_head = np.full(cap, BIG, np.int64), np.full(cap, -1, np.int64)
-            self.c_next, self.c_frame = np.zeros(4096, np.int64), np.zeros(4096, np.int64)
+            self.birth, self.c_head = np.full(cap, BIG, np.int64), np.full(cap, -1, np.int32)
+            self.c_next, self.c_frame = np.zeros(4096, np.int32), np.zeros(4096, np.int32)
             self.db_norm = np.ones(1024, np.float64)
-            self.fwd, self.bwd = (np.full(cap, -1, np.int64), np.zeros(4096, np.int64), np.zeros(4096, np.int64)), None
+            self.fwd, self.bwd = (np.full(cap, -1, np.int32), np.zeros(4096, np.int32), np.zeros(4096, np.int32)), None
             self.n_nodes = 0
             return
         n_cells = max(v.n_cells, codes.shape[1], 1)
@@ -111,12 +116,12 @@ class Graph:
         self.relevant[v.e_src] = True
         self.relevant[v.e_dst] = True
         coo = codes.tocoo()
-        self.c_head, self.c_next, self.c_frame = linked_lists(coo.col, coo.row, n_cells)
+        self.c_head, self.c_next, self.c_frame = _narrow(linked_lists(coo.col, coo.row, n_cells))
         self.n_nodes = self.c_frame.size
         self.birth = np.zeros(n_cells, np.int64)
         self.db_norm = np.maximum(np.diff(codes.indptr), 1).astype(np.float64)
-        self.fwd = grouped_lists(v.e_src, v.e_dst, n_cells)
-        self.bwd = grouped_lists(v.e_dst, v.e_src, n_cells) if backward else None
+        self.fwd = _narrow(grouped_lists(v.e_src, v.e_dst, n_cells))
+        self.bwd = _narrow(grouped_lists(v.e_dst, v.e_src, n_cells)) if backward else None
 
     @classmethod
     def of(cls, mem: SequenceMemory, db_codes, backward: bool = False) -> Graph:
@@ -187,12 +192,12 @@ class Graph:
     def load_state(self, header: dict, arrays: dict) -> Graph:
         self.n_cells, self.n_nodes = int(header["n_cells"]), int(header["n_nodes"])
         for k in self.ARRAYS:
-            setattr(self, k, np.array(arrays[k]))
+            setattr(self, k, np.array(arrays[k], np.int32 if k in ("c_head", "c_next", "c_frame") else None))
         self.n_cols = self.col_size.size
         self.n_db = int(header.get("n_db", self.db_norm.size))
         if self.relevant.size != self.n_cells or self.n_cols * self.cpc != self.n_cells:
             raise ValueError("the evidence graph does not match its size")
-        self.fwd = (np.array(arrays["a_head"]), np.array(arrays["a_next"]), np.array(arrays["a_dst"]))
+        self.fwd = _narrow((arrays["a_head"], arrays["a_next"], arrays["a_dst"]))
         v = self.mem.view()
         self.bit_cols, self.bit_len = v.bit_cols, v.bit_len
         return self
@@ -210,7 +215,7 @@ class Beam:
             setattr(self, name, np.zeros(n_cells, np.int32))
         for name in ("beam_e", "p1", "p2", "z", "e_new"):
             setattr(self, name, np.zeros(n_cells, np.float64))
-        self.counts, self.touched_cols = np.zeros(n_cols, np.float64), np.zeros(n_cols, np.int64)
+        self.counts, self.touched_cols = np.zeros(n_cols, np.int32), np.zeros(n_cols, np.int32)
         self.acc, self.db_mark, self.db_touch = np.zeros(n_db, np.float64), np.zeros(n_db, bool), np.zeros(n_db,
                                                                                                              np.int64)
         self.out_idx, self.out_val = np.zeros(4096, np.int64), np.zeros(4096, np.float64)
@@ -247,7 +252,7 @@ class Beam:
 
     def run(self, g: Graph, adj, q_ptr, q_ind, order, limits, params):
         """Run frames ``order`` along the successor lists ``adj``; return their sparse columns (ptr, idx, val)."""
-        grp = adj[3] if len(adj) == 4 else np.zeros(0, np.int64)
+        grp = adj[3] if len(adj) == 4 else np.zeros(0, np.int32)
         if grp.size and self.gmax.size < adj[0].size:
             self.gmax, self.gmark = np.zeros(adj[0].size), np.zeros(adj[0].size, bool)
             self.gtouch = np.zeros(adj[0].size, np.int64)

@@ -68,10 +68,16 @@ def _relax_groups(n_g, gtouch, gmax, gmark, a_head, a_dst, a_next, birth, limit,
 
 
 @njit(cache=True, inline="always")
-def _enter_by_overlap(bits, limit, ff, cells, conf, scratch):  # pragma: no cover - compiled
-    """Feed-forward: the overlap fraction of every minicolumn the frame's ``bits`` touch (kept in ``counts`` until
-    the frame ends, so that every candidate gets its feed-forward term), and the cells of the minicolumns above
-    the floor (at most ``max_enter`` minicolumns, those of largest overlap) as candidates.
+def _fraction(counts, col_size, col):  # pragma: no cover - compiled
+    """Minicolumn ``col``'s overlap fraction: its count over its feed-forward connections (0 without any)."""
+    return counts[col] / col_size[col] if col_size[col] > 0 else 0.0
+
+
+@njit(cache=True, inline="always")
+def enter_by_overlap(bits, limit, ff, cells, conf, scratch):  # pragma: no cover - compiled
+    """Feed-forward: the overlap count of every minicolumn the frame's ``bits`` touch (kept in ``counts`` until
+    the frame ends, so that every candidate gets its feed-forward term, :func:`_fraction`), and the cells of the
+    minicolumns above the floor (at most ``max_enter`` minicolumns, those of largest overlap) as candidates.
     Returns (minicolumns touched, candidates)."""
     bit_cols, bit_len, col_size, cpc = ff
     relevant, birth = cells[3], cells[4]
@@ -80,10 +86,7 @@ def _enter_by_overlap(bits, limit, ff, cells, conf, scratch):  # pragma: no cove
     n_tc = count_overlaps(bits, bit_cols, bit_len, counts, touched_cols)
     n_above = 0
     for i in range(n_tc):
-        col = touched_cols[i]
-        zz = counts[col] / col_size[col] if col_size[col] > 0 else 0.0
-        counts[col] = zz
-        if zz > z_floor:
+        if _fraction(counts, col_size, touched_cols[i]) > z_floor:
             n_above += 1
     zf = z_floor
     if max_enter > 0 and n_above > max_enter:
@@ -92,7 +95,7 @@ def _enter_by_overlap(bits, limit, ff, cells, conf, scratch):  # pragma: no cove
         vals = np.empty(n_above, np.float64)
         m = 0
         for i in range(n_tc):
-            zz = counts[touched_cols[i]]
+            zz = _fraction(counts, col_size, touched_cols[i])
             if zz > z_floor:
                 vals[m] = zz
                 m += 1
@@ -100,8 +103,7 @@ def _enter_by_overlap(bits, limit, ff, cells, conf, scratch):  # pragma: no cove
     n_c = 0
     for i in range(n_tc):
         col = touched_cols[i]
-        zz = counts[col]
-        if zz > zf:
+        if _fraction(counts, col_size, col) > zf:
             for k in range(cpc):
                 c = col * cpc + k
                 if relevant[c] and birth[c] <= limit and slot[c] == 0:
@@ -110,7 +112,7 @@ def _enter_by_overlap(bits, limit, ff, cells, conf, scratch):  # pragma: no cove
 
 
 @njit(cache=True, inline="always")
-def _enter_by_prediction(n_c, limit, lateral, cells, conf, state, scratch):  # pragma: no cover - compiled
+def enter_by_prediction(n_c, limit, lateral, cells, conf, state, scratch):  # pragma: no cover - compiled
     """Prediction: the offers of one connection from a beam cell (and of the beam cell itself: ``stay``) into
     ``p1``, and of two connections (a skipped database frame) into ``p2``; their targets join the candidates.
     Returns the candidates."""
@@ -153,16 +155,17 @@ def _enter_by_prediction(n_c, limit, lateral, cells, conf, state, scratch):  # p
 
 
 @njit(cache=True, inline="always")
-def _new_evidence(n_c, cpc, conf, state, scratch):  # pragma: no cover - compiled
+def new_evidence(n_c, ff, conf, state, scratch):  # pragma: no cover - compiled
     """Each candidate's evidence (its feed-forward term plus ``decay`` times the best prediction, never below 0)
     into ``e_new``; returns the floor a cell must exceed to count this frame."""
     decay, stay, skip, _, floor, rel_floor = conf[0], conf[1], conf[2], conf[3], conf[4], conf[5]
+    col_size, cpc = ff[2], ff[3]
     beam_e, in_beam = state[2], state[3]
     counts, p1, p2, z, cand, e_new = scratch[0], scratch[2], scratch[3], scratch[4], scratch[6], scratch[7]
     emax = 0.0
     for i in range(n_c):
         c = cand[i]
-        z[i] = counts[c // cpc]
+        z[i] = _fraction(counts, col_size, c // cpc)
         p = p1[i]
         if skip >= 0.0 and p2[i] - skip > p:
             p = p2[i] - skip
@@ -178,7 +181,7 @@ def _new_evidence(n_c, cpc, conf, state, scratch):  # pragma: no cover - compile
 
 
 @njit(cache=True, inline="always")
-def _output_size(n_c, thr, cells, scratch):  # pragma: no cover - compiled
+def output_size(n_c, thr, cells, scratch):  # pragma: no cover - compiled
     """The entries this frame's column needs (cells above ``thr`` x their database frames)."""
     c_head, c_next = cells[0], cells[1]
     cand, e_new = scratch[6], scratch[7]
@@ -199,11 +202,11 @@ def _clear(n_c, n_tc, scratch):  # pragma: no cover - compiled
     for i in range(n_c):
         slot[cand[i]] = 0
     for i in range(n_tc):
-        counts[touched_cols[i]] = 0.0
+        counts[touched_cols[i]] = 0
 
 
 @njit(cache=True, inline="always")
-def _carry_floor(n_c, thr, max_beam, scratch):  # pragma: no cover - compiled
+def carry_floor(n_c, thr, max_beam, scratch):  # pragma: no cover - compiled
     """The evidence a cell must exceed to be carried to the next frame: ``thr``, or above the ``max_beam + 1``-th
     largest when more cells than ``max_beam`` are above it (all above ``thr`` still go to this frame's column,
     so that the z-score's sums hold every cell with evidence this frame, as without the cap)."""
@@ -226,7 +229,7 @@ def _carry_floor(n_c, thr, max_beam, scratch):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
-def _carry_and_output(t, n_c, n_tc, thr, keep, limit, z_weight, cells, state, scratch, out):  # pragma: no cover
+def carry_and_output(t, n_c, n_tc, thr, keep, limit, z_weight, cells, state, scratch, out):  # pragma: no cover
     """The new beam (cells above ``keep``) and frame ``t``'s output column (database frames of the cells above
     ``thr``, each the mean of its cells' ``evidence - z_weight * z``); clears the frame's scratch."""
     c_head, c_next, c_frame, db_norm = cells[0], cells[1], cells[2], cells[5]
@@ -264,7 +267,7 @@ def _carry_and_output(t, n_c, n_tc, thr, keep, limit, z_weight, cells, state, sc
     if nb2 > st[B_MAX_BEAM]:
         st[B_MAX_BEAM] = nb2
     for i in range(n_tc):
-        counts[touched_cols[i]] = 0.0
+        counts[touched_cols[i]] = 0
     pos = st[B_OUT_POS]
     for i in range(n_touch):
         j = db_touch[i]
@@ -347,19 +350,19 @@ def beam_frames(query, ff, lateral, cells, conf, state, scratch, out):  # pragma
     for t in range(st[B_FRAMES], n):
         q = order[t]
         limit = limits[t]
-        n_tc, n_c = _enter_by_overlap(q_ind[q_ptr[q]:q_ptr[q + 1]], limit, ff, cells, conf, scratch)
-        n_c = _enter_by_prediction(n_c, limit, lateral, cells, conf, state, scratch)
-        thr = _new_evidence(n_c, ff[3], conf, state, scratch)
+        n_tc, n_c = enter_by_overlap(q_ind[q_ptr[q]:q_ptr[q + 1]], limit, ff, cells, conf, scratch)
+        n_c = enter_by_prediction(n_c, limit, lateral, cells, conf, state, scratch)
+        thr = new_evidence(n_c, ff, conf, state, scratch)
         if n_c > st[B_MAX_CAND]:
             st[B_MAX_CAND] = n_c
-        need = st[B_OUT_POS] + _output_size(n_c, thr, cells, scratch)
+        need = st[B_OUT_POS] + output_size(n_c, thr, cells, scratch)
         if need > out[1].shape[0]:
             _clear(n_c, n_tc, scratch)
             st[B_NEED] = need
             st[B_FRAMES] = t
             return t
-        keep = _carry_floor(n_c, thr, conf[7], scratch)
-        _carry_and_output(t, n_c, n_tc, thr, keep, limit, conf[3], cells, state, scratch, out)
+        keep = carry_floor(n_c, thr, conf[7], scratch)
+        carry_and_output(t, n_c, n_tc, thr, keep, limit, conf[3], cells, state, scratch, out)
     st[B_FRAMES] = n
     st[B_NEED] = 0
     return n
