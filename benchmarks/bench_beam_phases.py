@@ -9,7 +9,7 @@ runs the first ``--warm`` query frames as ``vpr`` runs it
 (:func:`vpr.shosm.kernels.beam.beam_frames`), and the next ``--frames``
 frames twice from that state: phase by phase (each phase of the kernel called
 alone from Python and timed: enter by overlap, enter by prediction, new
-evidence, output size, carry floor, carry and output) and by the kernel
+evidence, carry floor, carry and output) and by the kernel
 itself. Prints the median and 90th percentile ms per frame of each phase, its
 share of their sum, the kernel's own ms per frame over the same frames, and
 whether both gave the same columns.
@@ -22,8 +22,7 @@ import argparse
 import resource
 import time
 
-PHASES = ("enter by overlap", "enter by prediction", "new evidence", "output size", "carry floor",
-          "carry and output")
+PHASES = ("enter by overlap", "enter by prediction", "new evidence", "carry floor", "carry and output")
 
 
 def _sdrs(n: int, folders: str | None, cache: str | None):
@@ -85,12 +84,10 @@ def _profile(g, conf, q, warm: int, frames: int) -> dict:
         c.append(time.perf_counter())
         thr = KB.new_evidence(n_c, ff, params, state, scratch)
         c.append(time.perf_counter())
-        need = KB.output_size(n_c, thr, cells, scratch)
-        c.append(time.perf_counter())
         keep = KB.carry_floor(n_c, thr, params[7], scratch)
         c.append(time.perf_counter())
-        if need > b.out_idx.size:
-            b.out_idx, b.out_val = np.zeros(2 * need, np.int64), np.zeros(2 * need)
+        if g.n_db > b.out_idx.size:
+            b.out_idx, b.out_val = np.zeros(g.n_db, np.int64), np.zeros(g.n_db)
         out_ptr = np.zeros(2, np.int64)
         b.st[KB.B_OUT_POS] = 0
         KB.carry_and_output(0, n_c, n_tc, thr, keep, limit, params[3], cells, state, scratch,

@@ -181,31 +181,6 @@ def new_evidence(n_c, ff, conf, state, scratch):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
-def output_size(n_c, thr, cells, scratch):  # pragma: no cover - compiled
-    """The entries this frame's column needs (cells above ``thr`` x their database frames)."""
-    c_head, c_next = cells[0], cells[1]
-    cand, e_new = scratch[6], scratch[7]
-    need = 0
-    for i in range(n_c):
-        if e_new[i] > thr:
-            node = c_head[cand[i]]
-            while node >= 0:
-                need += 1
-                node = c_next[node]
-    return need
-
-
-@njit(cache=True, inline="always")
-def _clear(n_c, n_tc, scratch):  # pragma: no cover - compiled
-    """Undo a frame that did not fit the output: the candidates' numbers, the overlaps."""
-    counts, touched_cols, slot, cand = scratch[0], scratch[1], scratch[5], scratch[6]
-    for i in range(n_c):
-        slot[cand[i]] = 0
-    for i in range(n_tc):
-        counts[touched_cols[i]] = 0
-
-
-@njit(cache=True, inline="always")
 def carry_floor(n_c, thr, max_beam, scratch):  # pragma: no cover - compiled
     """The evidence a cell must exceed to be carried to the next frame: ``thr``, or above the ``max_beam + 1``-th
     largest when more cells than ``max_beam`` are above it (all above ``thr`` still go to this frame's column,
@@ -341,8 +316,9 @@ def beam_frames(query, ff, lateral, cells, conf, state, scratch, out):  # pragma
         ``out_ptr[t + 1]`` ends frame ``order[t]``.
 
     Returns the number of frames of ``order`` processed; fewer than all when
-    ``out_idx`` is too small for the next frame (``st[B_NEED]`` = size needed),
-    the caller grows it and calls again from there.
+    ``out_idx`` has less room than the database frames the next frame could
+    output (``st[B_NEED]`` = size needed), the caller grows it and calls again
+    from there.
     """
     q_ptr, q_ind, order, limits = query
     st = state[0]
@@ -350,17 +326,16 @@ def beam_frames(query, ff, lateral, cells, conf, state, scratch, out):  # pragma
     for t in range(st[B_FRAMES], n):
         q = order[t]
         limit = limits[t]
+        need = st[B_OUT_POS] + min(limit + 1, cells[5].shape[0])  # a column holds each database frame once at most
+        if need > out[1].shape[0]:
+            st[B_NEED] = need
+            st[B_FRAMES] = t
+            return t
         n_tc, n_c = enter_by_overlap(q_ind[q_ptr[q]:q_ptr[q + 1]], limit, ff, cells, conf, scratch)
         n_c = enter_by_prediction(n_c, limit, lateral, cells, conf, state, scratch)
         thr = new_evidence(n_c, ff, conf, state, scratch)
         if n_c > st[B_MAX_CAND]:
             st[B_MAX_CAND] = n_c
-        need = st[B_OUT_POS] + output_size(n_c, thr, cells, scratch)
-        if need > out[1].shape[0]:
-            _clear(n_c, n_tc, scratch)
-            st[B_NEED] = need
-            st[B_FRAMES] = t
-            return t
         keep = carry_floor(n_c, thr, conf[7], scratch)
         carry_and_output(t, n_c, n_tc, thr, keep, limit, conf[3], cells, state, scratch, out)
     st[B_FRAMES] = n
