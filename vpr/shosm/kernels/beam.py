@@ -258,8 +258,7 @@ def carry_and_output(t, n_c, n_tc, thr, keep, limit, z_weight, cells, state, scr
 @njit(cache=True, nogil=True)  # the forward and backward passes run on two threads at once
 def beam_frames(query, ff, lateral, cells, conf, state, scratch, out):  # pragma: no cover - compiled
     """Sparse graded evidence for the query frames ``order`` (one direction), frame by frame in phases:
-    enter by overlap, enter by prediction, new evidence, the output's size, the carry floor, the new beam and
-    the output column.
+    enter by overlap, enter by prediction, new evidence, the carry floor, the new beam and the output column.
 
     Parameters (tuples of arrays owned by the caller; cells are the memory's cell indices)
     ----------
@@ -304,13 +303,14 @@ def beam_frames(query, ff, lateral, cells, conf, state, scratch, out):  # pragma
         evidence); per cell its place in the beam plus one (0: not in it);
         carried from call to call.
     scratch : (counts, touched_cols, p1, p2, z, slot, cand, e_new, gmax, gmark, gtouch, acc, db_mark, db_touch)
-        Work space: per minicolumn ``counts``; per cell ``slot``, its
-        candidate number plus one (0: not a candidate), zero between frames;
-        per candidate (by number) ``cand`` its cell, ``p1, p2, z, e_new`` its
-        offers, overlap and evidence; ``gmax, gmark, gtouch`` per group (unused
-        without groups); per database frame ``acc, db_mark``. Only two int32
-        arrays are indexed by cell, so a pass's memory grows by 8 bytes per
-        cell of the memory.
+        Work space: per minicolumn ``counts`` (int32 overlap counts); per
+        cell ``slot``, its candidate number plus one (0: not a candidate),
+        zero between frames; per candidate (by number) ``cand`` its cell,
+        ``p1, p2, z, e_new`` its offers, overlap and evidence; ``gmax, gmark,
+        gtouch`` per group (unused without groups); per database frame ``acc,
+        db_mark``. Only ``slot`` and ``in_beam`` (int32) are written at
+        scattered cells; the per-candidate arrays fill from the start, up to
+        the largest candidate set.
     out : (out_ptr, out_idx, out_val)
         Per processed frame the sparse column (database frame, evidence);
         ``out_ptr[t + 1]`` ends frame ``order[t]``.
