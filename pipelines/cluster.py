@@ -114,8 +114,18 @@ def dask_client(workers: int | None, scheduler: str | None, scratch: Path | None
             client = stack.enter_context(Client(cluster))
         yield client
     finally:
-        with deferred():
-            stack.close()
+        # closing after a stop races the scheduler's last reports to the client, which it logs at CRITICAL:
+        # the run has already said in one line why it ended
+        quiet = [logging.getLogger(name) for name in ("distributed", "distributed.scheduler")]
+        levels = [q.level for q in quiet]
+        for q in quiet:
+            q.setLevel(logging.CRITICAL + 1)
+        try:
+            with deferred():
+                stack.close()
+        finally:
+            for q, level in zip(quiet, levels, strict=True):
+                q.setLevel(level)
         if scratch is not None:
             shutil.rmtree(scratch, ignore_errors=True)
 
