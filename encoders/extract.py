@@ -249,23 +249,19 @@ def save_cache(path, ex: Extracted, source: Source, encoder) -> Path:
     held = [p for p in available_inputs() if p in f.inputs]
     meta = {"version": CACHE_VERSION, "parts": held, "skipped": ex.skipped, "ignored": ex.ignored,
             "source": str(source.path), "source_key": source.key(), "encoder": encoder.name, "conf": encoder.conf}
-    arrays = {"names": np.array(f.names, dtype=str), "indices": np.array(ex.indices or [], dtype=np.int64),
-              "meta": np.array(json.dumps(meta, sort_keys=True, default=str))}
-    same = {}  # an input equal to one stored before it is stored once (the pixel encoder's desc is its pixels)
-    for p in held:
-        if p == "sdr":
-            s = sp.csr_matrix(f.sdr)
-            arrays.update(sdr_indptr=s.indptr.astype(np.int64), sdr_indices=s.indices.astype(np.int32),
-                          sdr_shape=np.array(s.shape, dtype=np.int64))
-            continue
-        a = np.asarray(f.inputs[p], np.float32)
-        twin = next((q for q in held if q in arrays and q != p and (arrays[q] is a or np.array_equal(arrays[q], a))),
-                    None)
-        if twin is None:
+    arrays = {"names": np.array(f.names, dtype=str), "indices": np.array(ex.indices or [], dtype=np.int64)}
+    if "sdr" in held:
+        s = sp.csr_matrix(f.sdr)
+        arrays.update(sdr_indptr=s.indptr.astype(np.int64), sdr_indices=s.indices.astype(np.int32),
+                      sdr_shape=np.array(s.shape, dtype=np.int64))
+    dense = one_copy({p: np.asarray(f.inputs[p], np.float32) for p in held if p != "sdr"})
+    meta["same"] = {}  # an input equal to one stored before it is stored once
+    for p, a in dense.items():
+        twin = next((q for q in dense if dense[q] is a), p)
+        if twin == p:
             arrays[p] = a
         else:
-            same[p] = twin
-    meta["same"] = same
+            meta["same"][p] = twin
     arrays["meta"] = np.array(json.dumps(meta, sort_keys=True, default=str))
     with io.atomic_path(path, suffix=".npz") as tmp:
         with open(tmp, "wb") as fh:
