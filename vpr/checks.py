@@ -29,17 +29,15 @@ def check_similarity(S, name: str = "S", allow_sparse: bool = True, sparse_forma
     Returns
     -------
     ndarray of float64 or scipy.sparse matrix of float64
-        Dense input: ``S`` as float64 (no copy if it already is). Sparse input:
-        always a copy (so canonicalising never touches the caller's matrix) in
-        ``sparse_format``, duplicates summed, explicit zeros kept (a stored 0
-        is a similarity, an unstored entry is "never matched").
+        Dense input: ``S`` as float64 (no copy if it already is). Sparse input: always a copy (so canonicalising never
+        touches the caller's matrix) in ``sparse_format``, duplicates summed, explicit zeros kept (a stored 0 is a
+        similarity, an unstored entry is "never matched").
 
     Raises
     ------
     ValueError
-        If ``S`` is not 2-D, is empty, is not real-valued, contains NaN or
-        ``+inf``, or is sparse while ``allow_sparse`` is False; the message
-        starts with ``name``.
+        If ``S`` is not 2-D, is empty, is not real-valued, contains NaN or ``+inf``, or is sparse while
+        ``allow_sparse`` is False; the message starts with ``name``.
     """
     if sparse_format not in _SPARSE_FORMATS:
         raise ValueError(f"sparse_format must be one of {_SPARSE_FORMATS}, got {sparse_format!r}")
@@ -133,8 +131,7 @@ def check_choice(value, name: str, choices) -> str:
 def at(G, rows, cols) -> np.ndarray:
     """Values of a dense or sparse boolean matrix at coordinates ``(rows[i], cols[i])`` as a bool array.
 
-    Sparse ``G`` is indexed without densifying; an entry counts as True when
-    it is stored and nonzero.
+    Sparse ``G`` is indexed without densifying; an entry counts as True when it is stored and nonzero.
     """
     rows = np.asarray(rows, dtype=np.intp)
     cols = np.asarray(cols, dtype=np.intp)
@@ -150,8 +147,8 @@ def at(G, rows, cols) -> np.ndarray:
 def physical_memory() -> int | None:
     """This machine's physical memory in bytes (None where the system does not say).
 
-    Sizes whose arrays could never fit are refused against it before any work,
-    rather than failing with a ``MemoryError`` after reading every image.
+    Sizes whose arrays could never fit are refused against it before any work, rather than failing with a
+    ``MemoryError`` after reading every image.
     """
     try:
         return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))

@@ -30,16 +30,14 @@ def _parse_scalar(text: str):
 def coerce_value(key: str, value: Any, default: Any) -> Any:
     """Coerce ``value`` to the type of ``default`` (used for CLI strings).
 
-    Non-string values are checked loosely (numbers for numbers, sequences for
-    tuples) and returned converted; strings are parsed: ``"true"``/``"0"`` for
-    booleans, ``"224,224"`` or ``"[224, 224]"`` for tuples, JSON for dicts and
+    Non-string values are checked loosely (numbers for numbers, sequences for tuples) and returned converted; strings
+    are parsed: ``"true"``/``"0"`` for booleans, ``"224,224"`` or ``"[224, 224]"`` for tuples, JSON for dicts and
     ``"none"`` for ``None``.
 
     Raises
     ------
     ValueError
-        If the value cannot be read as the default's type; the message names
-        ``key``.
+        If the value cannot be read as the default's type; the message names ``key``.
     """
     if default is None:
         return _parse_scalar(value) if isinstance(value, str) else value
@@ -104,11 +102,11 @@ def merge_conf(default_conf: Mapping, conf: Mapping | None, what: str, nullable:
     Parameters
     ----------
     default_conf : mapping
-        Every valid key with its default; the defaults are deep-copied, so a
-        default list or dict is never shared between results.
+        Every valid key with its default; the defaults are deep-copied, so a default list or dict is never shared
+        between results.
     conf : mapping or None
-        Overrides; strings (from the command line) are parsed as the
-        default's type, other values checked and converted loosely.
+        Overrides; strings (from the command line) are parsed as the default's type, other values checked and
+        converted loosely.
     what : str
         What is configured, for error messages (e.g. ``"rshosm-seq"``).
     nullable : iterable of str
@@ -117,8 +115,7 @@ def merge_conf(default_conf: Mapping, conf: Mapping | None, what: str, nullable:
     Raises
     ------
     ValueError
-        Unknown keys (the message lists the valid ones) or a value that
-        cannot be read as its default's type.
+        Unknown keys (the message lists the valid ones) or a value that cannot be read as its default's type.
     """
     conf = dict(conf or {})
     unknown = sorted(set(conf) - set(default_conf))

@@ -18,8 +18,8 @@ def pairwise(db, query=None, metric: str = "auto", top_k: int | None = None):
     db, query : SDR batch (csr bool) or dense descriptors (n, d)
         ``query=None`` compares ``db`` with itself (loop closure, T x T).
     metric : {"auto", "overlap", "cosine", "sad"}
-        "auto" picks "overlap" for SDR batches and "cosine" for dense arrays.
-        "sad" is the negative mean absolute difference (SeqSLAM's measure).
+        "auto" picks "overlap" for SDR batches and "cosine" for dense arrays. "sad" is the negative mean absolute
+        difference (SeqSLAM's measure).
     top_k : int, optional
         Sparse top-K result (SDR overlap only), for large inputs.
     """

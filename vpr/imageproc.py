@@ -1,7 +1,7 @@
 """Image normalisation shared by encoders, SeqSLAM and the renderer's checks.
 
-Images are NumPy arrays in OpenCV's layout: (H, W) grey or (H, W, 3) BGR or
-(H, W, 4) BGRA; uint8 or uint16 (scaled down to 8 bit) or float in [0, 1].
+Images are NumPy arrays in OpenCV's layout: (H, W) grey or (H, W, 3) BGR or (H, W, 4) BGRA; uint8 or uint16 (scaled
+down to 8 bit) or float in [0, 1].
 """
 from __future__ import annotations
 
@@ -22,15 +22,13 @@ def depth_bits(img) -> int:
 def to_uint8(img, name: str = "image", bits: int | None = None) -> np.ndarray:
     """Validate ``img`` and convert it to uint8 with 1, 3 or 4 channels (channel axis last).
 
-    A 16-bit image is scaled from ``bits`` bits (default :func:`depth_bits` of it;
-    a source passes the depth of its first frame, so that all its frames are
-    scaled alike).
+    A 16-bit image is scaled from ``bits`` bits (default :func:`depth_bits` of it; a source passes the depth of its
+    first frame, so that all its frames are scaled alike).
 
     Raises
     ------
     ValueError
-        Empty array, wrong rank, unsupported channel count or dtype, NaN; the
-        message starts with ``name``.
+        Empty array, wrong rank, unsupported channel count or dtype, NaN; the message starts with ``name``.
     """
     a = np.asarray(img)
     if a.size == 0:
@@ -89,9 +87,8 @@ def resize(img: np.ndarray, size: tuple[int, int]) -> np.ndarray:
 def patch_normalise(grey: np.ndarray, patch: int = 8) -> np.ndarray:
     """Normalise each non-overlapping ``patch`` x ``patch`` block to zero mean, unit std.
 
-    As in OpenSeqSLAM's patch normalisation; flat blocks become 0. Borders that
-    do not fill a whole block are normalised as a smaller block. ``grey`` is one
-    image (H, W) or a stack (N, H, W) of equal-size images, normalised
+    As in OpenSeqSLAM's patch normalisation; flat blocks become 0. Borders that do not fill a whole block are
+    normalised as a smaller block. ``grey`` is one image (H, W) or a stack (N, H, W) of equal-size images, normalised
     image by image in one vectorised pass. Returns float32 of the same shape.
     """
     g = np.asarray(grey, dtype=np.float32)
@@ -134,14 +131,13 @@ def seqslam_descriptors(images, size: tuple[int, int] = (64, 32), patch: int = 8
                         name: str = "images") -> np.ndarray:
     """The SeqSLAM pixel descriptor of every image: :func:`seqslam_preprocess` flattened row-major.
 
-    The one implementation behind the ``pixel`` encoder, SeqSLAM on images and
-    the SeqSLAM pixel descriptors (2,048 dims with the defaults).
+    The one implementation behind the ``pixel`` encoder, SeqSLAM on images and the SeqSLAM pixel descriptors (2,048
+    dims with the defaults).
 
     Parameters
     ----------
     images : sequence of images
-        Any layout accepted by :func:`to_grey`; sizes may differ (each is
-        resized to ``size``).
+        Any layout accepted by :func:`to_grey`; sizes may differ (each is resized to ``size``).
     size : (int, int)
         Thumbnail (width, height).
     patch : int

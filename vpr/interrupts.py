@@ -53,9 +53,8 @@ def _deliver(signum: int, handler) -> None:
 def deferred(signums=(signal.SIGINT, signal.SIGTERM)):
     """Hold ``signums`` while the block runs; the first one that came is raised when it ends.
 
-    A second signal of the same kind during the block is handled at once (the usual
-    "press Ctrl-C twice" for a section that hangs). Outside the main thread, where
-    Python delivers no signals, the block runs unchanged.
+    A second signal of the same kind during the block is handled at once (the usual "press Ctrl-C twice" for a section
+    that hangs). Outside the main thread, where Python delivers no signals, the block runs unchanged.
     """
     if threading.current_thread() is not threading.main_thread():
         yield

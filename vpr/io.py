@@ -20,8 +20,8 @@ __all__ = ["atomic_path", "atomic_open", "save_npy", "save_json", "save_figure",
 def atomic_path(path, suffix: str | None = None):
     """Yield a temporary path in the target's folder; rename it to ``path`` on success.
 
-    ``suffix`` defaults to the target's suffix so that libraries which pick a
-    format from the file name (matplotlib, OpenCV, NumPy) still work.
+    ``suffix`` defaults to the target's suffix so that libraries which pick a format from the file name (matplotlib,
+    OpenCV, NumPy) still work.
     """
     path = Path(path)
     try:
@@ -50,8 +50,8 @@ def atomic_path(path, suffix: str | None = None):
 def check_writable(path, what: str = "output") -> Path:
     """Refuse, before any work, a file that cannot be written: a folder there, or no write access to its folder.
 
-    Raises ValueError (a folder in the way) or OSError (EACCES / EROFS) naming
-    ``path`` and ``what`` it is for; returns ``path``.
+    Raises ValueError (a folder in the way) or OSError (EACCES / EROFS) naming ``path`` and ``what`` it is for;
+    returns ``path``.
     """
     path = Path(path)
     if path.is_dir() or str(path).endswith(("/", os.sep)):
@@ -81,9 +81,9 @@ def _flocked(path, wait: bool):
     """Hold ``fcntl.flock`` on ``path`` (created if missing); yields False where the lock is held elsewhere and
     ``wait`` is off. Advisory, released if the process dies; where ``fcntl`` does not exist (Windows), unlocked.
 
-    The lock file is removed when the lock is released (a run leaves no ``.lock`` behind), and so is its folder
-    when this lock made it and it is left empty: unlinked while held, so that a process that opened the old file
-    meanwhile sees it gone and locks a new one.
+    The lock file is removed when the lock is released (a run leaves no ``.lock`` behind), and so is its folder when
+    this lock made it and it is left empty: unlinked while held, so that a process that opened the old file meanwhile
+    sees it gone and locks a new one.
     """
     try:
         import fcntl  # POSIX only
@@ -136,9 +136,8 @@ def locked(path):
 def claimed(path, what: str):
     """Hold an exclusive lock on ``path`` (created if missing) for a whole run, or refuse at once.
 
-    A second run that would write the same results while the first still
-    runs gets a ValueError naming ``what``, instead of silently replacing the
-    first run's files. The lock goes with the process.
+    A second run that would write the same results while the first still runs gets a ValueError naming ``what``,
+    instead of silently replacing the first run's files. The lock goes with the process.
     """
     with _flocked(path, wait=False) as got:
         if not got:
@@ -210,9 +209,8 @@ def load_versioned_npz(path, fmt: str, version: int, what: str, error: type[Exce
                        hint: str = "") -> tuple[dict, dict]:
     """Read a file of :func:`save_versioned_npz`: ``(header, arrays)``.
 
-    Raises ``error`` naming ``path`` when the file is missing, unreadable, of
-    another format (``what`` names the expected one, ``hint`` says what writes
-    it) or of another version.
+    Raises ``error`` naming ``path`` when the file is missing, unreadable, of another format (``what`` names the
+    expected one, ``hint`` says what writes it) or of another version.
     """
     path = Path(path)
     if not path.is_file():
@@ -275,14 +273,11 @@ class _NumpyOnlyUnpickler(pickle.Unpickler):
 def load_npy(path, what: str = "file") -> np.ndarray:
     """Read a ``.npy`` file without ever executing code from it.
 
-    Numeric arrays are read as :func:`numpy.load` with ``allow_pickle=False``
-    does. An array of Python objects (VPR-Bench's ``ground_truth_new.npy``
-    holds lists per query) is unpickled by an unpickler that admits only
-    NumPy arrays, dtypes and scalars besides lists, tuples, numbers and
-    strings: ``numpy.load`` with pickles allowed would run whatever a crafted
-    file names. A file without the NumPy header (e.g. a bare pickle or text
-    under a ``.npy`` name) is refused. Every refusal is a ``ValueError``
-    naming ``path`` (``what`` says what the file is for).
+    Numeric arrays are read as :func:`numpy.load` with ``allow_pickle=False`` does. An array of Python objects
+    (VPR-Bench's ``ground_truth_new.npy`` holds lists per query) is unpickled by an unpickler that admits only NumPy
+    arrays, dtypes and scalars besides lists, tuples, numbers and strings: ``numpy.load`` with pickles allowed would
+    run whatever a crafted file names. A file without the NumPy header (e.g. a bare pickle or text under a ``.npy``
+    name) is refused. Every refusal is a ``ValueError`` naming ``path`` (``what`` says what the file is for).
     """
     path = Path(path)
     fmt = np.lib.format

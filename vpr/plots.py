@@ -36,16 +36,14 @@ def plot_pr(curves, path, title=None, dpi=150, ap=None) -> Path:
     Parameters
     ----------
     curves : dict[str, tuple]
-        Method name -> ``(precision, recall)``; a third element (the
-        thresholds returned by :func:`vpr.evaluate.pr_curve`) is accepted and
-        ignored. Points must be ordered by non-decreasing recall.
+        Method name -> ``(precision, recall)``; a third element (the thresholds returned by
+        :func:`vpr.evaluate.pr_curve`) is accepted and ignored. Points must be ordered by non-decreasing recall.
     ap : dict[str, float], optional
-        Method name -> AP to show, normally ``evaluate(...)["ap"]``. For a
-        method not in it, the legend shows the AP of the drawn points,
-        ``sum((recall[n] - recall[n-1]) * precision[n])``, which equals
+        Method name -> AP to show, normally ``evaluate(...)["ap"]``. For a method not in it, the legend shows the AP
+        of the drawn points, ``sum((recall[n] - recall[n-1]) * precision[n])``, which equals
         :func:`vpr.evaluate.average_precision` unless the curve stops short of
-        recall 1 because some pairs are never matched (those enter AP as one
-        final, low-precision block that the curve does not draw).
+        recall 1 because some pairs are never matched (those enter AP as one final, low-precision block that the curve
+        does not draw).
     path : str or Path
         Output file (format from the suffix, e.g. ``.png``).
     title : str, optional
@@ -59,9 +57,8 @@ def plot_pr(curves, path, title=None, dpi=150, ap=None) -> Path:
     Raises
     ------
     ValueError
-        If ``curves`` is empty or a curve is malformed (lengths differ, NaN,
-        values outside [0, 1], recall decreasing), or an ``ap`` value is not a
-        number in [0, 1]; the message names the curve.
+        If ``curves`` is empty or a curve is malformed (lengths differ, NaN, values outside [0, 1], recall
+        decreasing), or an ``ap`` value is not a number in [0, 1]; the message names the curve.
     """
     ap = {} if ap is None else ap
     if not isinstance(ap, Mapping):
@@ -95,8 +92,8 @@ def plot_pr(curves, path, title=None, dpi=150, ap=None) -> Path:
             score = float(np.sum(np.diff(recall) * precision[1:]))
         checked.append((str(name), precision, recall, score))
 
-    # a method and its twins ("m+verify") share a colour; a twin is dashed and drawn over it, so that equal
-    # curves stay visible as one dashed-over-solid line
+    # a method and its twins ("m+verify") share a colour; a twin is dashed and drawn over it, so that equal curves
+    # stay visible as one dashed-over-solid line
     bases = list(dict.fromkeys(name.split("+")[0] for name, *_ in checked))
     colour = {b: f"C{i % 10}" for i, b in enumerate(bases)}
     fig = _new_figure((8.5, 5))
@@ -123,8 +120,7 @@ def plot_pr(curves, path, title=None, dpi=150, ap=None) -> Path:
 def block_max(S, fr, fc):
     """Max-pool ``S`` in ``fr x fc`` blocks; never-matched entries become NaN.
 
-    Max pooling keeps a strong match visible however far the matrix is shrunk,
-    which mean pooling would wash out.
+    Max pooling keeps a strong match visible however far the matrix is shrunk, which mean pooling would wash out.
     """
     n_db, n_q = S.shape
     out_shape = (-(-n_db // fr), -(-n_q // fc))
@@ -160,12 +156,10 @@ def block_any(G, fr, fc):
 def _has_candidate(S, best_db):
     """Which queries' ``best_db`` entry is a real candidate worth a marker (bool, shape (n_q,)).
 
-    Not a candidate: a negative ``best_db``, a never-matched entry (``-inf`` or
-    not stored), or a column of ties, where the entry is no more similar than
-    the least similar one of its column (unstored entries count as least
-    similar). An all-zero column is such a tie: its argmax, row 0, would read
-    as a match to database frame 0. With one database entry there is nothing
-    to tie with.
+    Not a candidate: a negative ``best_db``, a never-matched entry (``-inf`` or not stored), or a column of ties,
+    where the entry is no more similar than the least similar one of its column (unstored entries count as least
+    similar). An all-zero column is such a tie: its argmax, row 0, would read as a match to database frame 0. With one
+    database entry there is nothing to tie with.
     """
     n_db, n_q = S.shape
     has = best_db >= 0
@@ -199,11 +193,9 @@ def plot_similarity(S, path, best_db=None, accepted=None, gt_hard=None, title=No
                     gt_soft=None, mask=None) -> Path:
     """Heatmap of a similarity matrix with best matches and ground truth.
 
-    Database entries run down the y axis, queries along the x axis. Larger
-    matrices are max-pooled to at most ``max_pixels`` cells per axis for
-    display (markers keep their exact positions). Sparse ``S`` is pooled from
-    its stored entries without densifying; unstored and ``-inf`` entries are
-    drawn blank.
+    Database entries run down the y axis, queries along the x axis. Larger matrices are max-pooled to at most
+    ``max_pixels`` cells per axis for display (markers keep their exact positions). Sparse ``S`` is pooled from its
+    stored entries without densifying; unstored and ``-inf`` entries are drawn blank.
 
     Parameters
     ----------
@@ -211,28 +203,23 @@ def plot_similarity(S, path, best_db=None, accepted=None, gt_hard=None, title=No
     path : str or Path
         Output file (format from the suffix).
     best_db : array_like of int, shape (n_q,), optional
-        Each query's best database index. No marker is drawn for a query
-        without a candidate: a negative value, an entry that is never matched
-        (``-inf`` / not stored), or a column of ties such as an all-zero one
-        (its "best" row is arbitrary, not a match).
+        Each query's best database index. No marker is drawn for a query without a candidate: a negative value, an
+        entry that is never matched (``-inf`` / not stored), or a column of ties such as an all-zero one (its "best"
+        row is arbitrary, not a match).
     accepted : array_like of bool, shape (n_q,), optional
-        Whether each best match was accepted (circle) or rejected (cross).
-        Requires ``best_db``. With ``gt_hard`` an accepted match is drawn
-        green when it is right, red when it is wrong (orange: neither, on
-        ``gt_soft`` only).
+        Whether each best match was accepted (circle) or rejected (cross). Requires ``best_db``. With ``gt_hard`` an
+        accepted match is drawn green when it is right, red when it is wrong (orange: neither, on ``gt_soft`` only).
     gt_hard : bool array or sparse bool matrix, shape (n_db, n_q), optional
         Drawn as a faint red overlay.
     value_label : str
-        What the matrix holds, for the colour bar (a method's scores:
-        ``"z-score"``, ``"-difference"``, ...).
+        What the matrix holds, for the colour bar (a method's scores: ``"z-score"``, ``"-difference"``, ...).
     axis_labels : (rows, columns)
         ``("earlier frame", "frame")`` for one stream's loop closures.
     gt_soft : like ``gt_hard``, optional
         Pairs neither right nor wrong (see ``accepted``).
     mask : bool array or sparse bool matrix, shape (n_db, n_q), optional
-        The pairs evaluated (a loop closure's earlier frames far enough back):
-        the ground truth is drawn only there, not in the "no score" region
-        (a frame always matches itself and the frames just before it).
+        The pairs evaluated (a loop closure's earlier frames far enough back): the ground truth is drawn only there,
+        not in the "no score" region (a frame always matches itself and the frames just before it).
     title : str, optional
     max_pixels : int
         Display resolution limit per axis.
@@ -246,9 +233,8 @@ def plot_similarity(S, path, best_db=None, accepted=None, gt_hard=None, title=No
     Raises
     ------
     ValueError
-        On NaN / +inf in ``S``, shape mismatches, non-bool ``gt_hard`` or
-        ``accepted``, out-of-range ``best_db``, or ``accepted`` without
-        ``best_db``.
+        On NaN / +inf in ``S``, shape mismatches, non-bool ``gt_hard`` or ``accepted``, out-of-range ``best_db``, or
+        ``accepted`` without ``best_db``.
     """
     S = check_similarity(S, sparse_format="csc")
     n_db, n_q = S.shape
@@ -384,8 +370,8 @@ def plot_bars(table, path, ylabel, title=None, dpi=150) -> Path:
     Parameters
     ----------
     table : dict[str, dict[str, float]]
-        Group -> (name -> value). A name missing from a group draws no bar
-        there; bar colours follow the order in which names first appear.
+        Group -> (name -> value). A name missing from a group draws no bar there; bar colours follow the order in
+        which names first appear.
     path : str or Path
         Output file (format from the suffix).
     ylabel : str
@@ -400,8 +386,8 @@ def plot_bars(table, path, ylabel, title=None, dpi=150) -> Path:
     Raises
     ------
     ValueError
-        If ``table`` or all of its groups are empty, or a value is not a finite
-        real number (the message names group and name).
+        If ``table`` or all of its groups are empty, or a value is not a finite real number (the message names group
+        and name).
     """
     if not isinstance(table, Mapping) or len(table) == 0:
         raise ValueError("table must be a non-empty dict of group -> dict of name -> value")

@@ -75,27 +75,26 @@ def resolve(name: str | None = DEFAULT, encoder: str | None = None, encoder_conf
     name : str or None
         Preset name (None: :data:`DEFAULT`).
     encoder : str, optional
-        Replaces the preset's encoder. The preset's encoder conf is then dropped
-        (its keys belong to the preset's encoder), so only ``encoder_conf`` applies.
+        Replaces the preset's encoder. The preset's encoder conf is then dropped (its keys belong to the preset's
+        encoder), so only ``encoder_conf`` applies.
     encoder_conf : dict, optional
-        Merged key by key over the preset's encoder conf when the encoder is the
-        preset's (not given, or the same name); otherwise the whole conf.
+        Merged key by key over the preset's encoder conf when the encoder is the preset's (not given, or the same
+        name); otherwise the whole conf.
     methods : list of str, optional
         Replaces the preset's methods (a non-empty list; order kept, first = headline).
     method_conf : dict, optional
-        method -> conf, merged key by key over the preset's conf of that method.
-        Always kept, even for a method the run does not use, so that the run can
-        reject a typo. The preset's conf of a method the run uses neither in
+        method -> conf, merged key by key over the preset's conf of that method. Always kept, even for a method the
+        run does not use, so that the run can reject a typo. The preset's conf of a method the run uses neither in
         ``methods`` nor as ``loop_method`` is dropped.
     loops : bool
-        Settings of a loop-closure run (``vpr loops``): the preset's
-        ``loop_encoder_conf`` goes over its encoder conf (under ``encoder_conf``).
+        Settings of a loop-closure run (``vpr loops``): the preset's ``loop_encoder_conf`` goes over its encoder conf
+        (under ``encoder_conf``).
 
     Returns
     -------
     dict
-        ``preset``, ``encoder``, ``encoder_conf``, ``methods``, ``method_conf``,
-        ``loop_method``: plain data (copies), e.g. for ``config.json``.
+        ``preset``, ``encoder``, ``encoder_conf``, ``methods``, ``method_conf``, ``loop_method``: plain data (copies),
+        e.g. for ``config.json``.
 
     Raises
     ------
@@ -110,8 +109,8 @@ def resolve(name: str | None = DEFAULT, encoder: str | None = None, encoder_conf
     if encoder is None or encoder == preset["encoder"]:
         loop_conf = preset["loop_encoder_conf"] if loops else {}
         base = {**preset["encoder_conf"], **loop_conf}
-        # a key given without a part prefix (k=100 on pixel+cnn) is meant for every part: it replaces the
-        # preset's per-part values of that key, which would otherwise win over it inside the joined encoder
+        # a key given without a part prefix (k=100 on pixel+cnn) is meant for every part: it replaces the preset's
+        # per-part values of that key, which would otherwise win over it inside the joined encoder
         given = {k for k in (encoder_conf or {}) if "." not in k}
         base = {k: v for k, v in base.items() if k.partition(".")[2] not in given or "." not in k}
         enc, enc_conf = preset["encoder"], {**base, **(encoder_conf or {})}

@@ -51,11 +51,10 @@ def table_cells(m: dict, kind: str = "match") -> list[str]:
 def metrics_table(table: dict, kind: str = "match", ground_truth: dict | None = None) -> str:
     """The printed table: one row per method of ``{method: metrics}`` (``kind``: ``"match"`` or ``"loops"``).
 
-    A metric that is not there (no ground truth) or undefined (the precision
-    of no accepted match) prints as ``-``. With a soft band (``--gt-soft``) a
-    legend says that R@1 and P(acc) ignore best matches there, and how many.
-    ``ground_truth``: ``params.ground_truth`` of ``metrics.json``; a tolerance
-    is said in both its units (frames kept, input frames).
+    A metric that is not there (no ground truth) or undefined (the precision of no accepted match) prints as ``-``.
+    With a soft band (``--gt-soft``) a legend says that R@1 and P(acc) ignore best matches there, and how many.
+    ``ground_truth``: ``params.ground_truth`` of ``metrics.json``; a tolerance is said in both its units (frames kept,
+    input frames).
     """
     keys = TABLE[kind]
     lines = [f"{'method':<22}" + "".join(f"{h:>10}" for _, h in keys)]
@@ -88,11 +87,10 @@ def outcome(accepted: bool, right: int | None, has_truth: bool | None, soft: boo
 def choose(keys, score, limit: int) -> tuple[np.ndarray, dict]:
     """The decisions to show, worst first, at most ``limit``: ``(positions, {outcome: (shown, of)})``.
 
-    Within an outcome: accepted and wrong, rejected ones and those without a
-    true match by score, highest first (the most confident mistakes, the
-    nearest misses); accepted and right by score, lowest first (the closest
-    calls). An outcome's share (:data:`_SHARE`) that it does not fill goes
-    to the outcomes after it; what is still left, to the worst outcomes first.
+    Within an outcome: accepted and wrong, rejected ones and those without a true match by score, highest first (the
+    most confident mistakes, the nearest misses); accepted and right by score, lowest first (the closest calls). An
+    outcome's share (:data:`_SHARE`) that it does not fill goes to the outcomes after it; what is still left, to the
+    worst outcomes first.
     """
     keys = np.asarray(keys)
     score = np.nan_to_num(np.asarray(score, np.float64), nan=-np.inf)
@@ -195,8 +193,8 @@ figcaption{font-size:12px;color:#555;overflow-wrap:anywhere}.figs figcaption{max
 .figs img{width:400px;border:1px solid #ccc}.figs a{display:inline-block}.figs img.full{width:auto;max-width:none}
 .figs figure.full{display:block}.figs figure.full figcaption{max-width:none}
 .pair figure{margin:.3em .6em .3em 0}.pair img{width:200px;border:1px solid #ccc}
-#settings td{text-align:left;font-family:monospace;font-size:12px;overflow-wrap:anywhere}#settings th{text-align:left}
-#strip-list{display:flex;flex-wrap:wrap}
+# settings td{text-align:left;font-family:monospace;font-size:12px;overflow-wrap:anywhere}#settings
+# th{text-align:left} strip-list{display:flex;flex-wrap:wrap}
 .strip{border-left:6px solid #999;padding:.3em .6em;margin:.4em;box-sizing:border-box;flex:1 1 480px;max-width:720px}
 .strip figure{width:31%;margin:.3em 1% .3em 0}
 .strip.wrong{border-color:#c0392b}.strip.missed{border-color:#e67e22}.strip.lost{border-color:#f1c40f}
@@ -330,15 +328,13 @@ def page(title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[s
          sessions: dict | None = None, params: dict | None = None, pairs: dict | None = None) -> str:
     """The report's HTML.
 
-    ``header``/``rows``: the metrics table: (metrics key, label) of its
-    columns, and per method its cells as printed; ``figures``: (caption, data URI) of the plots, or (caption,
-    data URI, matrix) of a similarity matrix (see :func:`_figure`); ``strips``: the
-    decisions shown; ``counts``: per method, {outcome: (shown, of)};
-    ``notes``: lines said under the title; ``sides``: what the three frames
-    of a strip are; ``sessions``: per method, the closures per pair of
-    sessions (:func:`vpr.evaluate.session_pairs`' rows); ``params``: the
-    run's ``metrics.json`` params, shown as its settings (:func:`settings`); ``pairs``: the frames a click on a
-    matrix shows (:func:`pair_frames`).
+    ``header``/``rows``: the metrics table: (metrics key, label) of its columns, and per method its cells as printed;
+    ``figures``: (caption, data URI) of the plots, or (caption, data URI, matrix) of a similarity matrix (see
+    :func:`_figure`); ``strips``: the decisions shown; ``counts``: per method, {outcome: (shown, of)}; ``notes``:
+    lines said under the title; ``sides``: what the three frames of a strip are; ``sessions``: per method, the
+    closures per pair of sessions (:func:`vpr.evaluate.session_pairs`' rows); ``params``: the run's ``metrics.json``
+    params, shown as its settings (:func:`settings`); ``pairs``: the frames a click on a matrix shows
+    (:func:`pair_frames`).
     """
     out = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
            f"<title>{_esc(title)}</title><style>{_CSS}</style></head><body>", f"<h1>{_esc(title)}</h1>"]
@@ -437,10 +433,9 @@ def _save(out: Path, text: str) -> Path:
 def write(out, read_query, read_db, kind: str = "match", title: str | None = None) -> Path:
     """Write ``out/report.html`` (atomic) from ``out/metrics.json``, the methods' files and their frames.
 
-    ``read_query(names)`` / ``read_db(names)``: ``{name: uint8 BGR image}`` of
-    the frames named in ``matches.csv`` (a frame left out is shown as not
-    read). ``kind``: ``"match"`` (database x query) or ``"loops"`` (one
-    stream: the frame, the earlier frame it closes onto, a true earlier frame).
+    ``read_query(names)`` / ``read_db(names)``: ``{name: uint8 BGR image}`` of the frames named in ``matches.csv`` (a
+    frame left out is shown as not read). ``kind``: ``"match"`` (database x query) or ``"loops"`` (one stream: the
+    frame, the earlier frame it closes onto, a true earlier frame).
     """
     out = Path(out)
     metrics = json.loads((out / "metrics.json").read_text())

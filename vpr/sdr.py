@@ -36,8 +36,8 @@ def from_indices(rows: Sequence[Iterable[int]], n_bits: int) -> sp.csr_matrix:
     Raises
     ------
     ValueError
-        If ``n_bits`` is not positive or an index is negative, out of range or
-        not an integer; the message names the row.
+        If ``n_bits`` is not positive or an index is negative, out of range or not an integer; the message names the
+        row.
     """
     n_bits = int(n_bits)
     if n_bits <= 0:
@@ -98,9 +98,8 @@ _SORT_BLOCK = 2**22
 def from_topk(values, k: int) -> sp.csr_matrix:
     """SDR with exactly ``k`` bits per row: the ``k`` largest entries of each row.
 
-    Ties are broken by the lower index so the result is deterministic. Rows are
-    sorted a block at a time: the float64 copy and the sort's indices of a whole
-    50,000-frame traverse would take several GB.
+    Ties are broken by the lower index so the result is deterministic. Rows are sorted a block at a time: the float64
+    copy and the sort's indices of a whole 50,000-frame traverse would take several GB.
     """
     values = np.asarray(values)
     if values.ndim == 1:
@@ -135,11 +134,10 @@ def to_indices(batch: sp.csr_matrix) -> list[np.ndarray]:
 def row_bits(row, n_bits: int, name: str = "SDR row") -> np.ndarray:
     """Sorted active-bit indices (int64) of one SDR row given as a 1-row batch, a dense row or bit indices.
 
-    A 1-D array of exactly ``n_bits`` values is a dense row: bool, or integer /
-    float 0/1 (anything else raises: it is ambiguous). Any other integer array
-    holds the indices of the active bits (so ``n_bits`` indices cannot be given
-    this way: pass a dense row). The one reading of "one SDR row" of every
-    frame-by-frame entry point (:meth:`vpr.shosm.SequenceMemory.step`,
+    A 1-D array of exactly ``n_bits`` values is a dense row: bool, or integer / float 0/1 (anything else raises: it is
+    ambiguous). Any other integer array holds the indices of the active bits (so ``n_bits`` indices cannot be given
+    this way: pass a dense row). The one reading of "one SDR row" of every frame-by-frame entry point
+    (:meth:`vpr.shosm.SequenceMemory.step`,
     :meth:`vpr.shosm.ForwardEvidence.update`, ...).
 
     Raises
@@ -225,9 +223,8 @@ def density(batch) -> np.ndarray:
 def add_noise(batch, fraction: float, seed=None) -> sp.csr_matrix:
     """Move ``fraction`` of each row's 1-bits to random previously inactive positions.
 
-    This is the paper's noise parameter n (section 5.2): with 40 active bits and
-    n = 0.5, 20 bits are moved. The number moved per row is ``round(fraction *
-    active)``; the row keeps its number of active bits.
+    This is the paper's noise parameter n (section 5.2): with 40 active bits and n = 0.5, 20 bits are moved. The
+    number moved per row is ``round(fraction * active)``; the row keeps its number of active bits.
     """
     if not 0.0 <= fraction <= 1.0 or not np.isfinite(fraction):
         raise ValueError(f"fraction must be in [0, 1], got {fraction}")
@@ -272,8 +269,8 @@ def random_sdrs(n: int, n_bits: int = 2048, n_active: int = 40, seed=None) -> sp
 def degenerate(x, duplicate_share: float = 0.1) -> str | None:
     """What is wrong with an SDR batch whose frames cannot be told apart: empty rows, or many identical rows.
 
-    None when nothing is: no empty row, and fewer than ``duplicate_share`` of
-    the frames repeat an earlier frame's SDR exactly (a stop repeats a few).
+    None when nothing is: no empty row, and fewer than ``duplicate_share`` of the frames repeat an earlier frame's SDR
+    exactly (a stop repeats a few).
     """
     x = sp.csr_matrix(x)
     n = x.shape[0]

@@ -76,8 +76,8 @@ def _budget() -> int:
     given = _BUDGET.get()
     return default_dense_budget() if given is None else given
 
-# Pairs per dense block when assembling top-K output: the block, its negation and
-# argpartition's int64 indices take about 16 bytes per pair (64 MiB here).
+# Pairs per dense block when assembling top-K output: the block, its negation and argpartition's int64 indices take
+# about 16 bytes per pair (64 MiB here).
 _BLOCK_PAIRS = 2**22
 
 
@@ -92,23 +92,22 @@ def _norm_overlap_block(A, B, na, nb):
 def overlap_similarity(A, B=None, top_k: int | None = None, normalise: bool = True, chunk: int = 2048):
     """Normalised overlap |a & b| / sqrt(|a| |b|) between the rows of SDR batches.
 
-    The similarity matrix used by the pairwise baselines; for the raw counts
-    of two small batches see :func:`vpr.sdr.overlap_count`.
+    The similarity matrix used by the pairwise baselines; for the raw counts of two small batches see
+    :func:`vpr.sdr.overlap_count`.
 
     Parameters
     ----------
     A : SDR batch (database), shape (n_db, n_bits)
     B : SDR batch (query), shape (n_q, n_bits); ``None`` compares ``A`` with itself.
     top_k : int, optional
-        Keep only the ``top_k`` highest database entries per query and return a
-        ``scipy.sparse.csr_matrix`` (n_db x n_q). Required when ``n_db * n_q``
-        exceeds :func:`dense_pairs`; with it there is no size limit
-        (memory grows with ``n_db * top_k``-sized blocks and ``n_q * top_k``).
+        Keep only the ``top_k`` highest database entries per query and return a ``scipy.sparse.csr_matrix`` (n_db x
+        n_q). Required when ``n_db * n_q`` exceeds :func:`dense_pairs`; with it there is no size limit (memory grows
+        with ``n_db * top_k``-sized blocks and ``n_q * top_k``).
     normalise : bool
         ``False`` returns raw overlap counts.
     chunk : int
-        Queries processed per block for top-K (fewer when ``n_db`` is large,
-        so that a block stays within a fixed memory budget).
+        Queries processed per block for top-K (fewer when ``n_db`` is large, so that a block stays within a fixed
+        memory budget).
 
     Returns
     -------
@@ -118,8 +117,8 @@ def overlap_similarity(A, B=None, top_k: int | None = None, normalise: bool = Tr
     Raises
     ------
     ValueError
-        On an invalid SDR batch, or when dense output (no ``top_k``) would
-        exceed :func:`dense_pairs`; checked before any work.
+        On an invalid SDR batch, or when dense output (no ``top_k``) would exceed :func:`dense_pairs`; checked before
+        any work.
     """
     A = _sdr.check_batch(A, name="database SDRs")
     B = A if B is None else _sdr.check_batch(B, n_bits=A.shape[1], name="query SDRs")
@@ -152,14 +151,12 @@ def overlap_similarity(A, B=None, top_k: int | None = None, normalise: bool = Tr
 def bitsets_pay(A, B, against: str = "product") -> bool:
     """Whether packed bit sets beat the other way to the top-K overlap of these batches.
 
-    A pair costs about one 64-bit word for the bit sets, whatever the rows share; the
-    other ways cost with the bits two rows are expected to share. ``against="product"``:
-    the sparse product of :func:`overlap_similarity` (which also densifies a block per
-    query chunk): bit sets win up to 64 words a row, and beyond when rows share many bits.
-    ``against="index"``: a lean count through an inverted index (SeqSLAM's single-frame
-    candidates), which wins until rows share about a quarter as many bits as a row has
-    words (40 of 2,048 bits: the index; 200 of 2,048: bit sets). Winner codes (millions
-    of cells, a few active) never take bit sets. Measured times: ``docs/benchmarks.md``
+    A pair costs about one 64-bit word for the bit sets, whatever the rows share; the other ways cost with the bits
+    two rows are expected to share. ``against="product"``: the sparse product of :func:`overlap_similarity` (which
+    also densifies a block per query chunk): bit sets win up to 64 words a row, and beyond when rows share many bits.
+    ``against="index"``: a lean count through an inverted index (SeqSLAM's single-frame candidates), which wins until
+    rows share about a quarter as many bits as a row has words (40 of 2,048 bits: the index; 200 of 2,048: bit sets).
+    Winner codes (millions of cells, a few active) never take bit sets. Measured times: ``docs/benchmarks.md``
     (``benchmarks/bench_overlap_topk.py``).
     """
     n_bits = A.shape[1]
@@ -185,9 +182,9 @@ def pack_bits(A: sp.csr_matrix) -> np.ndarray:
 def _overlap_topk_bitsets(A, B, na, nb, top_k: int) -> sp.csr_matrix:
     """:func:`overlap_similarity` with ``top_k`` by popcounts of packed rows: the same values, no dense block.
 
-    Of the frames tied at the K-th value, those of larger tie key are kept (a fixed pseudo-random
-    order of the frame numbers): on aliased SDRs, where one appearance ties many places, the kept
-    ones spread over the database instead of crowding its start (candidate windows need that).
+    Of the frames tied at the K-th value, those of larger tie key are kept (a fixed pseudo-random order of the frame
+    numbers): on aliased SDRs, where one appearance ties many places, the kept ones spread over the database instead
+    of crowding its start (candidate windows need that).
     """
     top_k = _check_top_k(top_k)
     n_db, n_q = A.shape[0], B.shape[0]
@@ -249,8 +246,8 @@ def _sift_down(hv, hi, i, k):  # pragma: no cover - compiled
 
 @njit(cache=True, nogil=True)
 def _topk_overlap_kernel(pa, pb, na, nb, norm, out_idx, out_val):  # pragma: no cover - compiled
-    # A block of queries stays in L1 while every database row streams past it once; per query a
-    # min-heap of its k best (value, frame): a database frame enters when it beats the heap's least.
+    # A block of queries stays in L1 while every database row streams past it once; per query a min-heap of its k best
+    # (value, frame): a database frame enters when it beats the heap's least.
     n_db, words = pa.shape
     n_q, k = out_idx.shape
     block = 32
@@ -289,8 +286,7 @@ def _topk_overlap_kernel(pa, pb, na, nb, norm, out_idx, out_val):  # pragma: no 
 def overlap_count(a, b=None) -> np.ndarray:
     """Overlap counts |a_i & b_j| between the rows of two SDR batches (dense int array).
 
-    For the normalised similarity matrix, and for large batches (``top_k``),
-    use :func:`overlap_similarity`.
+    For the normalised similarity matrix, and for large batches (``top_k``), use :func:`overlap_similarity`.
     """
     A = _sdr.check_batch(a).astype(np.int32)
     B = A if b is None else _sdr.check_batch(b, n_bits=A.shape[1]).astype(np.int32)
@@ -318,11 +314,10 @@ def _overlap(ptr, ind, a, b):
 def stationary(ptr, ind, b, j, ratio):  # pragma: no cover - compiled
     """Whether the camera never left place ``b`` before frame ``j`` (rows of a batch's sorted CSR ``ptr``, ``ind``).
 
-    A loop closure means the camera went elsewhere and came back: some frame
-    between ``b`` and ``j`` shares fewer than ``ratio`` times the bits ``b``
-    shares with ``j``. When every frame in between keeps at least that much,
-    the vehicle stood still or crept (a station, a traffic light): a stop,
-    not a loop. Frames that share nothing are not one place.
+    A loop closure means the camera went elsewhere and came back: some frame between ``b`` and ``j`` shares fewer than
+    ``ratio`` times the bits ``b`` shares with ``j``. When every frame in between keeps at least that much, the
+    vehicle stood still or crept (a station, a traffic light): a stop, not a loop. Frames that share nothing are not
+    one place.
     """
     o_b = _overlap(ptr, ind, b, j)
     if o_b == 0:
@@ -335,8 +330,8 @@ def stationary(ptr, ind, b, j, ratio):  # pragma: no cover - compiled
 
 @njit(cache=True, nogil=True)
 def sdr_overlap_rows(indptr, indices, r0, r1, qptr, qcols, out):  # pragma: no cover - compiled
-    # overlap counts of database rows r0..r1 with the block's queries, through
-    # the block's inverted index (bit -> query columns): cost ~ active bits x postings
+    # overlap counts of database rows r0..r1 with the block's queries, through the block's inverted index (bit ->
+    # query columns): cost ~ active bits x postings
     for r in range(r0, r1):
         lr = r - r0
         for p in range(indptr[r], indptr[r + 1]):
@@ -347,12 +342,10 @@ def sdr_overlap_rows(indptr, indices, r0, r1, qptr, qcols, out):  # pragma: no c
 
 @njit(cache=True, nogil=True)
 def sdr_candidates(post_ptr, post_rows, q_indptr, q_indices, k, counts, out):  # pragma: no cover - compiled
-    # Single-frame candidates: per query the k database rows of largest overlap,
-    # through the database's inverted index (bit -> rows). Rows reaching an
-    # overlap of 2 are listed as they do (random rows rarely do, so the list is
-    # short); a histogram of their counts gives the k-th largest without
-    # sorting. Only if fewer than k rows reach 2 are rows with overlap 1 added.
-    # ``counts`` (n_db, zeros) is uint16 when overlaps fit: half the cache footprint.
+    # Single-frame candidates: per query the k database rows of largest overlap, through the database's inverted index
+    # (bit -> rows). Rows reaching an overlap of 2 are listed as they do (random rows rarely do, so the list is
+    # short); a histogram of their counts gives the k-th largest without sorting. Only if fewer than k rows reach 2
+    # are rows with overlap 1 added. ``counts`` (n_db, zeros) is uint16 when overlaps fit: half the cache footprint.
     n_db = counts.shape[0]
     listed = np.empty(n_db + 1, np.int64)
     max_bits = 0
@@ -409,12 +402,10 @@ def _check_top_k(top_k) -> int:
 def topk_sparse(block_fn, n_db: int, n_q: int, top_k: int, chunk: int = 2048) -> sp.csr_matrix:
     """Assemble a sparse db x query matrix keeping the ``top_k`` db entries per query.
 
-    ``block_fn(q0, q1)`` returns the dense (n_db x (q1 - q0)) similarity block.
-    Entries that are exactly representable as 0 but kept are stored explicitly
-    so that "kept with score 0" and "not kept" stay distinguishable. Blocks
-    hold at most ``chunk`` queries and about 2**22 pairs, and only the kept
-    entries of each block are retained, so memory grows with
-    ``n_q * top_k``, not with ``n_db * n_q``.
+    ``block_fn(q0, q1)`` returns the dense (n_db x (q1 - q0)) similarity block. Entries that are exactly representable
+    as 0 but kept are stored explicitly so that "kept with score 0" and "not kept" stay distinguishable. Blocks hold
+    at most ``chunk`` queries and about 2**22 pairs, and only the kept entries of each block are retained, so memory
+    grows with ``n_q * top_k``, not with ``n_db * n_q``.
     """
     top_k = _check_top_k(top_k)
     k = min(top_k, n_db)
@@ -467,9 +458,8 @@ def cosine(X, Y=None) -> np.ndarray:
 
 @njit(cache=True, fastmath=True, nogil=True)
 def _sad_block(a, b, out):  # pragma: no cover - compiled
-    # Tiling over b keeps a few rows of b in L2 while every row of a streams
-    # past them (faster than untiled at 2,048 dims; NumPy broadcasting was far
-    # slower at Nordland size: benchmarks/bench_seqslam.py).
+    # Tiling over b keeps a few rows of b in L2 while every row of a streams past them (faster than untiled at 2,048
+    # dims; NumPy broadcasting was far slower at Nordland size: benchmarks/bench_seqslam.py).
     n, d = a.shape
     m = b.shape[0]
     tile = 64
@@ -497,8 +487,8 @@ def mean_abs_diff(X, Y=None) -> np.ndarray:
 def neg_sad(X, Y=None) -> np.ndarray:
     """Negative mean absolute difference between dense descriptor rows (db x query).
 
-    The similarity of SeqSLAM's difference matrix: 0 for identical rows, lower
-    (more negative) for more different ones.
+    The similarity of SeqSLAM's difference matrix: 0 for identical rows, lower (more negative) for more different
+    ones.
     """
     return -mean_abs_diff(X, Y)
 
@@ -533,8 +523,8 @@ def check_dense(what: str, n_db: int, n_q: int, hint: str = "subsample the trave
 def best_matches(S) -> tuple[np.ndarray, np.ndarray]:
     """Best database index and its score per query of a dense or sparse db x query matrix.
 
-    Ties go to the lowest database index. Queries without any stored entry
-    (sparse) get ``best_db = -1`` and score ``-inf``.
+    Ties go to the lowest database index. Queries without any stored entry (sparse) get ``best_db = -1`` and score
+    ``-inf``.
     """
     if sp.issparse(S):
         S = sp.csc_matrix(S)
@@ -563,8 +553,8 @@ def n_candidates(j: int, exclude: int, start: int = 0) -> int:
 def candidate_limit(T: int, exclude: int, starts=None) -> np.ndarray:
     """``n[j]``: earlier frames ``0 .. n[j] - 1`` are frame ``j``'s loop-closure candidates.
 
-    Those at least ``exclude`` back, and every frame of an earlier session
-    (``starts``: the first frame of each session; ``exclude`` holds within one).
+    Those at least ``exclude`` back, and every frame of an earlier session (``starts``: the first frame of each
+    session; ``exclude`` holds within one).
     """
     idx = np.arange(T)
     n = idx - max(int(exclude), 1) + 1

@@ -42,8 +42,8 @@ def make_world(rows: int, cols: int, n_bits: int = 2048, n_active: int = 40, ali
     aliasing : int
         Number of pairs of places that share one SDR (the paper's ``a``).
     alias_places : array of place indices, optional
-        Places the aliased pairs are drawn from (default: all places). The paper
-        aliases places the robot visits, so pass the trajectory's places.
+        Places the aliased pairs are drawn from (default: all places). The paper aliases places the robot visits, so
+        pass the trajectory's places.
     """
     if rows <= 0 or cols <= 0:
         raise ValueError(f"grid must have positive size, got {rows} x {cols}")
@@ -65,8 +65,8 @@ def make_world(rows: int, cols: int, n_bits: int = 2048, n_active: int = 40, ali
 def loop_trajectory(rows: int = 6, cols: int = 6, n_loops: int = 10) -> np.ndarray:
     """Places of ``n_loops`` laps around the border of a ``rows x cols`` grid.
 
-    With the defaults a lap has 20 places and the trajectory 200 observations,
-    as in the paper's experiments (each place visited 10 times).
+    With the defaults a lap has 20 places and the trajectory 200 observations, as in the paper's experiments (each
+    place visited 10 times).
     """
     if rows < 2 or cols < 2:
         raise ValueError("a loop needs a grid of at least 2 x 2")
@@ -117,13 +117,11 @@ def aliased_traverses(n_places: int, n_appearances: int, n_bits: int = 2048, k: 
                       speed=(0.8, 1.2), seed=0):
     """Two traverses of a long route whose places reuse a few appearances (scale benchmarks).
 
-    Every place shows one of ``n_appearances`` random SDRs (``k`` of ``n_bits``
-    bits), each reused about ``n_places / n_appearances`` times in random order,
-    so a single frame is ambiguous and only a sequence tells the places apart.
-    The database traverse visits every place once with the clean SDR; the query
-    traverse moves at a speed drawn from ``speed`` (places per frame, a new
-    value every 50 to 200 frames, so places are repeated or skipped) and sees
-    each SDR with ``move`` of its 1-bits moved (:func:`vpr.sdr.add_noise`).
+    Every place shows one of ``n_appearances`` random SDRs (``k`` of ``n_bits`` bits), each reused about ``n_places /
+    n_appearances`` times in random order, so a single frame is ambiguous and only a sequence tells the places apart.
+    The database traverse visits every place once with the clean SDR; the query traverse moves at a speed drawn from
+    ``speed`` (places per frame, a new value every 50 to 200 frames, so places are repeated or skipped) and sees each
+    SDR with ``move`` of its 1-bits moved (:func:`vpr.sdr.add_noise`).
 
     Returns
     -------

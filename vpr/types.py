@@ -26,9 +26,8 @@ class ImageInput:
     description : str
         What it is, for messages ("SeqSLAM pixel descriptors").
     compute : callable
-        ``compute(images, name)`` -> float32 array (frames x dims) for a list of
-        images; ``name`` prefixes error messages (``name[i]`` is image ``i``).
-        A module-level function, so that it can be shipped to Dask workers.
+        ``compute(images, name)`` -> float32 array (frames x dims) for a list of images; ``name`` prefixes error
+        messages (``name[i]`` is image ``i``). A module-level function, so that it can be shipped to Dask workers.
     """
 
     name: str
@@ -47,8 +46,7 @@ class EncodedTraverse:
     desc : float32 array (frames x dims), optional
         The encoder's dense descriptor.
     **inputs
-        Further inputs by name (e.g. ``pixels=...``, see :class:`ImageInput`).
-        ``None`` values are left out.
+        Further inputs by name (e.g. ``pixels=...``, see :class:`ImageInput`). ``None`` values are left out.
     """
 
     def __init__(self, names, sdr=None, desc=None, **inputs):
@@ -101,9 +99,8 @@ class EncodedTraverse:
 class Column:
     """One frame's evidence over its ``n`` candidate frames ``0 .. n - 1``.
 
-    ``rows``: the candidates with evidence (sorted), ``z`` their scores
-    (float32, as a similarity matrix keeps them); every other candidate scores
-    ``fill``. ``frame``: the frame the column belongs to (-1: not said).
+    ``rows``: the candidates with evidence (sorted), ``z`` their scores (float32, as a similarity matrix keeps them);
+    every other candidate scores ``fill``. ``frame``: the frame the column belongs to (-1: not said).
     """
 
     rows: np.ndarray
@@ -135,10 +132,9 @@ class Column:
 class Decision:
     """What a decision says of a frame (scalar fields) or of every frame of a traverse (arrays).
 
-    ``best``: the frame it matches (-1: none); ``score``: the decision's
-    statistic; ``accepted``; ``margin``: how far the best place stood out of
-    the others in this frame; ``frame``: the frame decided; ``column``: its
-    evidence, where one frame was decided online.
+    ``best``: the frame it matches (-1: none); ``score``: the decision's statistic; ``accepted``; ``margin``: how far
+    the best place stood out of the others in this frame; ``frame``: the frame decided; ``column``: its evidence,
+    where one frame was decided online.
     """
 
     best: int | np.ndarray
@@ -160,8 +156,8 @@ class Decision:
 class Decider(ABC):
     """Decides a stream one frame at a time, from the frame's :class:`Column`, with the state the stream carries.
 
-    Every decider (a localisation against a map, a loop rule, a second opinion
-    around one) implements the two hooks :meth:`_decide` and
+    Every decider (a localisation against a map, a loop rule, a second opinion around one) implements the two hooks
+    :meth:`_decide` and
     :meth:`new_session` and its state (:meth:`state`, :meth:`load_state`);
     :meth:`decide` checks the column and counts the frames. Deciders that read
     the frames' SDRs (a loop rule's stop check) override :meth:`add_sdr`.

@@ -19,22 +19,19 @@ def accepted_precision(best_db, accepted, gt_hard, gt_soft=None, mask=None) -> d
     accepted : array of bool, (n_q,)
         Whether each query's best match is accepted.
     gt_hard, gt_soft : bool (n_db, n_q), dense or sparse
-        Ground truth; a best match that is only a soft pair counts neither as
-        right nor as wrong.
+        Ground truth; a best match that is only a soft pair counts neither as right nor as wrong.
     mask : bool (n_db, n_q), optional
-        Pairs evaluated (e.g. :func:`loop_closure_mask`); ground truth outside
-        it counts as no match, for the recall's queries too.
+        Pairs evaluated (e.g. :func:`loop_closure_mask`); ground truth outside it counts as no match, for the recall's
+        queries too.
 
     Returns
     -------
     dict
-        ``n_accepted`` (accepted best matches), ``precision_accepted`` (over
-        those not onto a soft-only pair; None when there are none: a precision
-        of nothing is not 1.0), ``recall_accepted`` (correct accepted
-        matches over queries that have a true match; None when none has one),
-        ``n_false`` (accepted matches that are wrong) and ``false_per_1000``
-        (per 1,000 queries: the false-alarm rate of a drive without revisits,
-        where recall is undefined and every accepted match is false).
+        ``n_accepted`` (accepted best matches), ``precision_accepted`` (over those not onto a soft-only pair; None
+        when there are none: a precision of nothing is not 1.0), ``recall_accepted`` (correct accepted matches over
+        queries that have a true match; None when none has one), ``n_false`` (accepted matches that are wrong) and
+        ``false_per_1000`` (per 1,000 queries: the false-alarm rate of a drive without revisits, where recall is
+        undefined and every accepted match is false).
     """
     if mask is not None:
         gt_hard, gt_soft = (None if g is None else g.multiply(mask).tocsr() if sp.issparse(g) else np.asarray(g) & mask
@@ -56,9 +53,8 @@ def accepted_precision(best_db, accepted, gt_hard, gt_soft=None, mask=None) -> d
 def best_in_soft_band(best_db, gt_hard, gt_soft, mask=None) -> int:
     """How many queries' best match is a soft-only pair (``gt_soft & ~gt_hard``), which every metric ignores.
 
-    Such a best match is neither right nor wrong for R@1, AP or the accepted
-    precision; this count says how many there are, so that an R@1 of 1.000 is
-    not read as "every best match is within the true radius".
+    Such a best match is neither right nor wrong for R@1, AP or the accepted precision; this count says how many there
+    are, so that an R@1 of 1.000 is not read as "every best match is within the true radius".
     """
     if gt_soft is None:
         return 0
@@ -73,13 +69,10 @@ def best_in_soft_band(best_db, gt_hard, gt_soft, mask=None) -> int:
 def decision_curve(best, score, gt_hard, gt_soft=None, mask=None) -> tuple[dict, tuple]:
     """One decision per query (loop closure: per frame), with its own score: the metrics loop-closure users report.
 
-    Query ``j`` decides for its best database (earlier) frame ``best[j]`` with
-    ``score[j]``; thresholding the score accepts the decisions above it.
-    Precision is over the accepted decisions (one onto a soft-only pair counts
-    neither way), recall over the queries that have a true match inside
-    ``mask``. Sweeping the threshold over every distinct score gives the
-    precision-recall curve, its average precision and the recall at 100 %
-    precision.
+    Query ``j`` decides for its best database (earlier) frame ``best[j]`` with ``score[j]``; thresholding the score
+    accepts the decisions above it. Precision is over the accepted decisions (one onto a soft-only pair counts neither
+    way), recall over the queries that have a true match inside ``mask``. Sweeping the threshold over every distinct
+    score gives the precision-recall curve, its average precision and the recall at 100 % precision.
 
     Parameters
     ----------
@@ -123,12 +116,10 @@ def decision_curve(best, score, gt_hard, gt_soft=None, mask=None) -> tuple[dict,
 def session_pairs(best, accepted, gt_hard, starts, gt_soft=None, mask=None, names=None, frames=None) -> list[dict]:
     """Which session revisits which: the accepted closures of one multi-session stream, per pair of sessions.
 
-    For each session ``s`` and each session ``r <= s``: ``frames`` of ``s``
-    with a true loop onto ``r`` (inside ``mask``), ``accepted`` closures of
-    ``s``'s frames onto ``r``, their ``precision`` (None over none: a
-    precision of nothing is not 1.0; a closure onto a soft-only pair counts
-    neither way) and ``recall`` (correct accepted closures onto ``r`` over the
-    frames with a true loop onto ``r``).
+    For each session ``s`` and each session ``r <= s``: ``frames`` of ``s`` with a true loop onto ``r`` (inside
+    ``mask``), ``accepted`` closures of ``s``'s frames onto ``r``, their ``precision`` (None over none: a precision of
+    nothing is not 1.0; a closure onto a soft-only pair counts neither way) and ``recall`` (correct accepted closures
+    onto ``r`` over the frames with a true loop onto ``r``).
 
     Parameters
     ----------
@@ -183,11 +174,9 @@ def session_pairs(best, accepted, gt_hard, starts, gt_soft=None, mask=None, name
 def outcomes(best, gt_hard, gt_soft=None, mask=None) -> tuple[np.ndarray, np.ndarray]:
     """Per query: whether its best match is right, and one true database frame to show beside it.
 
-    Returns ``(right, truth)``: ``right`` 1 (a true pair), 0 (wrong) or -1
-    (no best match, or a soft-only pair, which counts neither way);
-    ``truth`` the middle one of the query's true database frames inside
-    ``mask`` (-1: it has none). What ``matches.csv`` and the report show
-    beside each decision.
+    Returns ``(right, truth)``: ``right`` 1 (a true pair), 0 (wrong) or -1 (no best match, or a soft-only pair, which
+    counts neither way); ``truth`` the middle one of the query's true database frames inside ``mask`` (-1: it has
+    none). What ``matches.csv`` and the report show beside each decision.
     """
     if mask is not None:
         gt_hard, gt_soft = (None if g is None else g.multiply(mask).tocsr() if sp.issparse(g) else np.asarray(g) & mask

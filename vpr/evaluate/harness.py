@@ -29,14 +29,11 @@ def _count(g, mask=None) -> int:
 def method_metrics(res, gt_hard, gt_soft, mask=None, loops: bool = False):
     """(metrics dict, (precision, recall) or None without ground truth) of a :class:`~vpr.types.MatchResult`.
 
-    Always the seconds and the number of accepted matches; with ground truth
-    the metrics of :func:`evaluate` over the evaluated pairs and the precision
-    and recall of the accepted matches. ``loops``: one stream's loop closures,
-    where the curve is that of the per-frame decisions (:func:`decision_curve`:
-    ``frame_ap``, ``frame_recall_at_100p``), what loop-closure detectors report;
-    a stream without a true loop (a drive without revisits) has no ranking or
-    recall to measure: ``revisits`` 0 and the accepted closures, all false
-    (``false_per_1000``).
+    Always the seconds and the number of accepted matches; with ground truth the metrics of :func:`evaluate` over the
+    evaluated pairs and the precision and recall of the accepted matches. ``loops``: one stream's loop closures, where
+    the curve is that of the per-frame decisions (:func:`decision_curve`: ``frame_ap``, ``frame_recall_at_100p``),
+    what loop-closure detectors report; a stream without a true loop (a drive without revisits) has no ranking or
+    recall to measure: ``revisits`` 0 and the accepted closures, all false (``false_per_1000``).
     """
     m = {"seconds": round(res.seconds, 4), "n_accepted": int(np.count_nonzero(res.accepted & (res.best >= 0)))}
     if gt_hard is None:
@@ -69,8 +66,8 @@ def run_methods(runners: dict, call: Callable, gt_hard=None, gt_soft=None, mask=
     gt_hard, gt_soft, mask
         Ground truth and evaluated pairs (None: no metrics but the seconds).
     on_result : callable, optional
-        ``on_result(label, result, (metrics, curve))``, e.g. writing the
-        method's files; may return further entries ``{label: (metrics, curve)}``.
+        ``on_result(label, result, (metrics, curve))``, e.g. writing the method's files; may return further entries
+        ``{label: (metrics, curve)}``.
     resources : bool
         Also record ``cpu_seconds`` and the process's ``peak_rss_mb`` after each method.
     loops : bool

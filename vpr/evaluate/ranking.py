@@ -20,9 +20,8 @@ _MATCHINGS = ("multi", "single")
 class _Problem(NamedTuple):
     """Validated inputs reduced to what the metrics need.
 
-    Dense problems keep full matrices; sparse problems keep only the candidate
-    entries (stored, inside the mask, not soft-only), sorted by query, then by
-    decreasing similarity, then by database index, i.e. in ranking order.
+    Dense problems keep full matrices; sparse problems keep only the candidate entries (stored, inside the mask, not
+    soft-only), sorted by query, then by decreasing similarity, then by database index, i.e. in ranking order.
     """
 
     shape: tuple
@@ -165,8 +164,8 @@ def _decisions(p: _Problem, matching: str):
 
 def _counts(vals, is_hard):
     """Thresholds (decreasing, with +inf first) and cumulative TP / FP counts."""
-    # A plain sort of the values plus a search among the (few) true ones is much
-    # faster than an argsort of all decisions with cumulative sums.
+    # A plain sort of the values plus a search among the (few) true ones is much faster than an argsort of all
+    # decisions with cumulative sums.
     v = np.sort(vals)
     first = np.flatnonzero(np.r_[True, v[1:] != v[:-1]]) if len(v) else np.zeros(0, np.intp)
     distinct = v[first]
@@ -183,9 +182,8 @@ def _curve(p: _Problem, matching: str):
     predicted = tp + fp
     precision = np.zeros(len(tp))
     precision[1:] = tp[1:] / predicted[1:]  # every real threshold predicts >= 1 pair
-    # The start point (recall 0) takes the precision of the first threshold: an
-    # invented precision 1 there would add area that no threshold achieves (a
-    # constant S would score (1 + share of true pairs) / 2 instead of the share).
+    # The start point (recall 0) takes the precision of the first threshold: an invented precision 1 there would add
+    # area that no threshold achieves (a constant S would score (1 + share of true pairs) / 2 instead of the share).
     if len(tp) > 1:
         precision[0] = precision[1]
     recall = tp / n_pos
@@ -195,8 +193,8 @@ def _curve(p: _Problem, matching: str):
 def _average_precision(p: _Problem, precision, recall, tp) -> float:
     """Non-interpolated AP of the multi-matching curve plus the final block of never-matched pairs."""
     ap = float(np.sum(np.diff(recall) * precision[1:]))
-    # Pairs that are never matched (unstored / -inf) rank last, tied: one final
-    # threshold that predicts every evaluated pair, at precision n_pos / n_pairs.
+    # Pairs that are never matched (unstored / -inf) rank last, tied: one final threshold that predicts every
+    # evaluated pair, at precision n_pos / n_pairs.
     missed = p.n_pos - int(tp[-1])
     if missed:
         ap += missed / p.n_pairs
@@ -220,8 +218,8 @@ def _recall_at_k(p: _Problem, k: int) -> float:
         hit[p.cols[p.is_hard & (rank < k)]] = True
         return float(np.count_nonzero(hit & p.pos_queries) / n_pos)
 
-    # Rank of each query's best true match under the order (similarity desc, db
-    # index asc): entries strictly more similar, plus ties with a lower index.
+    # Rank of each query's best true match under the order (similarity desc, db index asc): entries strictly more
+    # similar, plus ties with a lower index.
     hc = p.hard & p.cand
     v = np.where(hc, p.S, -np.inf).max(axis=0)
     r_best = np.argmax(hc & (p.S == v), axis=0)
@@ -238,9 +236,9 @@ def _recall_at_k(p: _Problem, k: int) -> float:
 def pr_curve(S, gt_hard, gt_soft=None, matching="multi", mask=None):
     """Precision-recall curve at every distinct similarity threshold.
 
-    A pair (or, for ``"single"`` matching, a query's best pair) is a predicted
-    match at threshold ``t`` if its similarity is ``>= t``. The conventions on
-    ``S``, ``gt_soft`` and ``mask``: ``docs/internals.md``, ``vpr/evaluate``.
+    A pair (or, for ``"single"`` matching, a query's best pair) is a predicted match at threshold ``t`` if its
+    similarity is ``>= t``. The conventions on ``S``, ``gt_soft`` and ``mask``: ``docs/internals.md``,
+    ``vpr/evaluate``.
 
     Parameters
     ----------
@@ -251,26 +249,23 @@ def pr_curve(S, gt_hard, gt_soft=None, matching="multi", mask=None):
     gt_soft : bool array or sparse bool matrix, shape (n_db, n_q), optional
         Pairs ``gt_soft & ~gt_hard`` are ignored.
     matching : {"multi", "single"}
-        ``"multi"``: every pair is a decision; ``"single"``: only each query's
-        best database entry (lowest index on ties) is a decision.
+        ``"multi"``: every pair is a decision; ``"single"``: only each query's best database entry (lowest index on
+        ties) is a decision.
     mask : bool array or sparse bool matrix, shape (n_db, n_q), optional
         Only pairs where ``mask`` is True are evaluated.
 
     Returns
     -------
     precision, recall, thresholds : ndarray of float, shape (n_thresholds + 1,)
-        Sorted by decreasing threshold, one point per distinct similarity of
-        the evaluated decisions after a start point where nothing is predicted:
-        ``thresholds[0] = +inf``, ``recall[0] = 0``, ``precision[0] =
-        precision[1]`` (0 when no pair is ever predicted; why not 1:
-        ``docs/internals.md``). Recall is non-decreasing.
+        Sorted by decreasing threshold, one point per distinct similarity of the evaluated decisions after a start
+        point where nothing is predicted: ``thresholds[0] = +inf``, ``recall[0] = 0``, ``precision[0] = precision[1]``
+        (0 when no pair is ever predicted; why not 1: ``docs/internals.md``). Recall is non-decreasing.
 
     Raises
     ------
     ValueError
-        On shape mismatch, NaN or +inf in ``S``, non-boolean ``gt_hard`` /
-        ``gt_soft`` / ``mask``, unknown ``matching``, or when there is no true
-        match to evaluate (recall undefined).
+        On shape mismatch, NaN or +inf in ``S``, non-boolean ``gt_hard`` / ``gt_soft`` / ``mask``, unknown
+        ``matching``, or when there is no true match to evaluate (recall undefined).
     """
     _check_matching(matching)
     precision, recall, thresholds, _, _ = _curve(_prepare(S, gt_hard, gt_soft, mask), matching)
@@ -280,13 +275,11 @@ def pr_curve(S, gt_hard, gt_soft=None, matching="multi", mask=None):
 def average_precision(S, gt_hard, gt_soft=None, mask=None) -> float:
     """Non-interpolated average precision over all evaluated pairs (the headline metric).
 
-    ``AP = sum_n (R_n - R_{n-1}) P_n`` over the distinct thresholds in
-    decreasing order: scikit-learn's ``average_precision_score`` of the
-    evaluated pairs (inside ``mask``, not soft-only), ties admitted together.
-    Never-matched pairs (not stored, ``-inf``) rank last, all tied, so a
-    top-K ``S`` scores as the dense matrix with its missing entries lowest.
-    ``"multi"`` matching only; cost grows with the stored entries, never
-    with ``n_db * n_q``.
+    ``AP = sum_n (R_n - R_{n-1}) P_n`` over the distinct thresholds in decreasing order: scikit-learn's
+    ``average_precision_score`` of the evaluated pairs (inside ``mask``, not soft-only), ties admitted together.
+    Never-matched pairs (not stored, ``-inf``) rank last, all tied, so a top-K ``S`` scores as the dense matrix with
+    its missing entries lowest. ``"multi"`` matching only; cost grows with the stored entries, never with ``n_db *
+    n_q``.
 
     Parameters
     ----------
@@ -296,14 +289,12 @@ def average_precision(S, gt_hard, gt_soft=None, mask=None) -> float:
     Returns
     -------
     float
-        AP in [0, 1]; 1 exactly when every true pair ranks strictly above every
-        false one.
+        AP in [0, 1]; 1 exactly when every true pair ranks strictly above every false one.
 
     Raises
     ------
     ValueError
-        As for :func:`pr_curve`, including when there is no true pair inside
-        ``mask`` (AP undefined).
+        As for :func:`pr_curve`, including when there is no true pair inside ``mask`` (AP undefined).
     """
     p = _prepare(S, gt_hard, gt_soft, mask)
     precision, recall, _, _, tp = _curve(p, "multi")
@@ -313,12 +304,10 @@ def average_precision(S, gt_hard, gt_soft=None, mask=None) -> float:
 def thin_pr(precision, recall) -> np.ndarray:
     """The points of a precision-recall curve that its shape needs: indices, increasing.
 
-    Keeps the first and last point and every point whose recall differs from
-    its neighbour's on either side (the ends of each run of equal recall).
-    The thinned curve has the same average precision (``sum (R_n - R_{n-1})
-    P_n``), trapezoid area, recall at 100 % precision and drawing; it holds
-    at most two points per true positive where the full curve holds one per
-    distinct threshold.
+    Keeps the first and last point and every point whose recall differs from its neighbour's on either side (the ends
+    of each run of equal recall). The thinned curve has the same average precision (``sum (R_n - R_{n-1}) P_n``),
+    trapezoid area, recall at 100 % precision and drawing; it holds at most two points per true positive where the
+    full curve holds one per distinct threshold.
 
     Parameters
     ----------
@@ -347,8 +336,7 @@ def auc_from_pr(precision, recall) -> float:
     Raises
     ------
     ValueError
-        If the arrays are not 1-D of equal length, contain NaN, or ``recall``
-        decreases somewhere.
+        If the arrays are not 1-D of equal length, contain NaN, or ``recall`` decreases somewhere.
     """
     precision = np.asarray(precision, dtype=np.float64)
     recall = np.asarray(recall, dtype=np.float64)
@@ -377,10 +365,9 @@ def auc_pr(S, gt_hard, gt_soft=None, matching="multi", mask=None) -> float:
 def recall_at_100p(S, gt_hard, gt_soft=None, matching="multi", mask=None) -> float:
     """Largest recall on the :func:`pr_curve` reached without any false positive.
 
-    Thresholds admit tied decisions together, so a block of tied pairs that
-    holds a false one ends the 100 % precision range before it. Returns 0
-    when the most similar decision (or tie block) is already wrong. Arguments and
-    errors as for :func:`pr_curve`.
+    Thresholds admit tied decisions together, so a block of tied pairs that holds a false one ends the 100 % precision
+    range before it. Returns 0 when the most similar decision (or tie block) is already wrong. Arguments and errors as
+    for :func:`pr_curve`.
     """
     _check_matching(matching)
     _, recall, _, fp, _ = _curve(_prepare(S, gt_hard, gt_soft, mask), matching)
@@ -391,12 +378,10 @@ def recall_at_100p(S, gt_hard, gt_soft=None, matching="multi", mask=None) -> flo
 def recall_at_k(S, gt_hard, gt_soft=None, k=1, mask=None) -> float:
     """Fraction of queries with a true match whose top-k database entries contain one.
 
-    Only queries with at least one ``gt_hard`` pair inside ``mask`` are
-    counted. Each query ranks its evaluated database entries by decreasing
-    similarity, ties broken by lower database index; soft-only pairs
-    (``gt_soft & ~gt_hard``), pairs outside ``mask`` and never-matched entries
-    (not stored / ``-inf``) are removed from the ranking, as in Schubert et
-    al.'s ``recallAtK``.
+    Only queries with at least one ``gt_hard`` pair inside ``mask`` are counted. Each query ranks its evaluated
+    database entries by decreasing similarity, ties broken by lower database index; soft-only pairs (``gt_soft &
+    ~gt_hard``), pairs outside ``mask`` and never-matched entries (not stored / ``-inf``) are removed from the
+    ranking, as in Schubert et al.'s ``recallAtK``.
 
     Parameters
     ----------
@@ -413,8 +398,7 @@ def recall_at_k(S, gt_hard, gt_soft=None, k=1, mask=None) -> float:
     Raises
     ------
     ValueError
-        As for :func:`pr_curve`; also if ``k`` is not a positive integer or no
-        query has a true match.
+        As for :func:`pr_curve`; also if ``k`` is not a positive integer or no query has a true match.
     """
     k = check_int(k, "k", minimum=1)
     return _recall_at_k(_prepare(S, gt_hard, gt_soft, mask), k)
@@ -426,10 +410,9 @@ def evaluate(S, gt_hard, gt_soft=None, mask=None, return_curve: bool = False):
     Returns
     -------
     dict
-        ``ap`` (:func:`average_precision`, the headline, first key), ``auc_pr``
-        and ``recall_at_100p`` (multi matching), ``recall_at_1``,
-        ``recall_at_5`` and ``auc_pr_single`` (single matching), all floats.
-        Arguments and errors as for :func:`pr_curve`.
+        ``ap`` (:func:`average_precision`, the headline, first key), ``auc_pr`` and ``recall_at_100p`` (multi
+        matching), ``recall_at_1``, ``recall_at_5`` and ``auc_pr_single`` (single matching), all floats. Arguments and
+        errors as for :func:`pr_curve`.
     (precision, recall, thresholds)
         Only with ``return_curve=True``: the multi-matching curve of
         :func:`pr_curve`, which the metrics were computed from (no second sort).

@@ -79,8 +79,7 @@ def _alias_keys(name: str) -> list[str]:
 class _NameIndex:
     """Map a token to a position in ``names``: exact name first, then folder-less, then stem.
 
-    An alias shared by several names matches none of them, so a token never
-    silently picks one of two frames.
+    An alias shared by several names matches none of them, so a token never silently picks one of two frames.
     """
 
     def __init__(self, names: Sequence[str]):
@@ -92,8 +91,7 @@ class _NameIndex:
     def find(self, name: str) -> tuple[int | None, bool]:
         """Return (position, ambiguous) of the entry matching ``name`` at the first level that has it.
 
-        ``name`` is reduced the same way at each level, so "0001.png" finds
-        "0001" and "a.png" finds "imgs/a.png".
+        ``name`` is reduced the same way at each level, so "0001.png" finds "0001" and "a.png" finds "imgs/a.png".
         """
         for level, key in zip(self._levels, _alias_keys(name), strict=False):
             if key in level:
@@ -126,26 +124,22 @@ def load_pairs_csv(path, n_db: int, n_q: int, db_names: Sequence[str] | None = N
                    q_indices: Sequence[int] | None = None, columns: tuple[str, str] = ("query", "db")):
     """Ground truth from a CSV of ``query,db`` pairs (header optional).
 
-    ``columns`` names the two columns (query first): ``("frame", "earlier")``
-    for the loop closures of one stream.
+    ``columns`` names the two columns (query first): ``("frame", "earlier")`` for the loop closures of one stream.
 
     Parameters
     ----------
     path : str or Path
-        CSV file; each line is one matching (query frame, database frame).
-        A header names the columns ``query`` and ``db`` (case-insensitive,
-        either order) and the columns are read by name; any other header is
-        refused. Without a header the first column is the query frame, the
-        second the database frame.
+        CSV file; each line is one matching (query frame, database frame). A header names the columns ``query`` and
+        ``db`` (case-insensitive, either order) and the columns are read by name; any other header is refused. Without
+        a header the first column is the query frame, the second the database frame.
     n_db, n_q : int
         Number of database and query frames read.
     db_names, q_names : sequence of str, optional
         Names of the frames read; a token matching a name is that frame.
     db_indices, q_indices : sequence of int, optional
-        Source frame numbers of the frames read. With them, an integer token
-        of a frame that was not read (skipped or not selected) drops the pair
-        with one warning; without them, frames are numbered 0..n-1 and a
-        larger number is an error.
+        Source frame numbers of the frames read. With them, an integer token of a frame that was not read (skipped or
+        not selected) drops the pair with one warning; without them, frames are numbered 0..n-1 and a larger number is
+        an error.
 
     Returns
     -------
@@ -157,8 +151,8 @@ def load_pairs_csv(path, n_db: int, n_q: int, db_names: Sequence[str] | None = N
     FileNotFoundError
         No such file.
     ValueError
-        Empty file, wrong column count, unknown name, non-integer or
-        out-of-range frame number: ``"FILE:LINE: reason"``.
+        Empty file, wrong column count, unknown name, non-integer or out-of-range frame number: ``"FILE:LINE:
+        reason"``.
     """
     n_db = check_count(n_db, "n_db", minimum=1)
     n_q = check_count(n_q, "n_q", minimum=1)
@@ -322,8 +316,7 @@ def load_positions_csv(path) -> tuple[list[str] | np.ndarray, np.ndarray]:
     FileNotFoundError
         No such file.
     ValueError
-        Empty file, wrong column count, non-numeric or non-finite
-        coordinate, negative frame number, duplicate frame:
+        Empty file, wrong column count, non-numeric or non-finite coordinate, negative frame number, duplicate frame:
         ``"FILE:LINE: reason"``.
     """
     frames, _, xy, _ = _load_positions(path)
@@ -370,18 +363,15 @@ def gt_from_position_files(db_csv, q_csv, radius: float, db_names: Sequence[str]
     Parameters
     ----------
     db_csv, q_csv : str or Path
-        ``frame,x,y`` files (see :func:`load_positions_csv`). Rows for frames
-        that were not read are ignored; a frame read without a row is an
-        error.
+        ``frame,x,y`` files (see :func:`load_positions_csv`). Rows for frames that were not read are ignored; a frame
+        read without a row is an error.
     radius : float
         Distance (same unit as x, y) up to which two frames match, inclusive.
     db_names, q_names : sequence of str, optional
-        Names of the frames read, matched against named rows (and against
-        integer-looking rows when every name matches one). Without names,
-        named rows are used in file order.
+        Names of the frames read, matched against named rows (and against integer-looking rows when every name matches
+        one). Without names, named rows are used in file order.
     db_indices, q_indices : sequence of int, optional
-        Source frame numbers of the frames read, matched against integer
-        rows; default 0, 1, 2, ...
+        Source frame numbers of the frames read, matched against integer rows; default 0, 1, 2, ...
 
     Returns
     -------
@@ -402,22 +392,19 @@ def gt_from_position_files(db_csv, q_csv, radius: float, db_names: Sequence[str]
 def load_traverse_positions(path, traverse: str | None) -> dict[int, tuple[float, float]]:
     """Rows ``traverse,frame,x,y[,...]`` (as written by ``vpr render``) of one traverse: frame -> (x, y).
 
-    ``traverse`` None: the file must hold one traverse (a stream read from
-    stdin has no name).
+    ``traverse`` None: the file must hold one traverse (a stream read from stdin has no name).
 
-    A source named like a file (``laps.mp4``, the video ``vpr render --video``
-    writes beside the folder ``laps``) also matches the rows of its name
-    without the extension (``laps``) when the file has none under the full
-    name. Sessions named alike are named by their paths' ends
-    (``run1/img``, :func:`vpr.sources.open_sources`): their rows carry those names.
+    A source named like a file (``laps.mp4``, the video ``vpr render --video`` writes beside the folder ``laps``) also
+    matches the rows of its name without the extension (``laps``) when the file has none under the full name. Sessions
+    named alike are named by their paths' ends (``run1/img``, :func:`vpr.sources.open_sources`): their rows carry
+    those names.
 
     Raises
     ------
     FileNotFoundError
         No such file.
     ValueError
-        No header with those columns, a malformed row (``FILE:LINE: reason``)
-        or no row for ``traverse``.
+        No header with those columns, a malformed row (``FILE:LINE: reason``) or no row for ``traverse``.
     """
     path = Path(path)
     if not path.is_file():
@@ -497,10 +484,9 @@ def is_loop_pairs_file(path) -> bool:
 def load_loop_pairs(path, traverse: str | None, indices: Sequence[int]) -> np.ndarray:
     """Loop ground truth (T x T bool, both triangles) of the frames read, from ``vpr render``'s ``loop_pairs.csv``.
 
-    Rows ``traverse,frame_a,frame_b,distance`` (source frame numbers); the
-    rows of ``traverse`` are read, or all rows when the file has one traverse
-    only (a stream read from stdin has no traverse name). Pairs with a frame
-    that was not read are left out.
+    Rows ``traverse,frame_a,frame_b,distance`` (source frame numbers); the rows of ``traverse`` are read, or all rows
+    when the file has one traverse only (a stream read from stdin has no traverse name). Pairs with a frame that was
+    not read are left out.
     """
     rows = read_rows(path, 4, ",".join(LOOP_PAIRS_HEADER))[1:]
     names = {r[0] for _, r in rows}

@@ -17,8 +17,8 @@ MATRIX_SUFFIXES = (".npy", ".png", ".bmp", ".mat")
 def split_variable(spec) -> tuple[Path, str | None]:
     """``"truth.mat:GT"`` -> (Path("truth.mat"), "GT"); other paths -> (path, None).
 
-    Any matrix file is split so that ``gt.npy:GT`` is refused by name (only a
-    ``.mat`` file has variables) rather than reported missing.
+    Any matrix file is split so that ``gt.npy:GT`` is refused by name (only a ``.mat`` file has variables) rather than
+    reported missing.
     """
     text = str(spec)
     head, sep, var = text.rpartition(":")
@@ -36,9 +36,8 @@ def is_matrix_file(spec) -> bool:
 def _as_bool(a, path, binary: bool = True) -> np.ndarray:
     """A matrix file's content as bool; ``binary``: only 0/1 (or bool) values are taken, anything else refused.
 
-    A matrix of 0.3 floats (a similarity, a distance, a probability) is not a
-    ground truth: binarising it silently would give metrics of nothing. Images
-    (``binary=False``) are read as nonzero = loop (RTAB-Map writes 0/255).
+    A matrix of 0.3 floats (a similarity, a distance, a probability) is not a ground truth: binarising it silently
+    would give metrics of nothing. Images (``binary=False``) are read as nonzero = loop (RTAB-Map writes 0/255).
     """
     a = np.asarray(a)
     if a.dtype == object:
@@ -125,12 +124,10 @@ def _vpr_bench(a, path, n_db: int, n_q: int) -> np.ndarray:
 def db_query_matrix(spec, n_db: int, n_q: int, db_indices=None, q_indices=None, totals=None) -> np.ndarray:
     """Database x query ground truth of the frames read, from a matrix file (``GThard.npy`` or VPR-Bench's).
 
-    The file is indexed by source frame number; ``db_indices`` / ``q_indices``
-    (the source numbers of the frames read; default 0, 1, ...) select its rows
-    and columns. A ``GThard``-style matrix must be n_db x n_query of the
-    source (its transpose is refused with a hint); ``totals`` (the number of
-    frames in each source, where it is known exactly) refuses one of another
-    size, which belongs to other traverses.
+    The file is indexed by source frame number; ``db_indices`` / ``q_indices`` (the source numbers of the frames read;
+    default 0, 1, ...) select its rows and columns. A ``GThard``-style matrix must be n_db x n_query of the source
+    (its transpose is refused with a hint); ``totals`` (the number of frames in each source, where it is known
+    exactly) refuses one of another size, which belongs to other traverses.
     """
     path, _ = split_variable(spec)
     raw = read_matrix(spec)
@@ -158,11 +155,9 @@ def db_query_matrix(spec, n_db: int, n_q: int, db_indices=None, q_indices=None, 
 def loop_matrix(spec, indices, total: int | None = None) -> np.ndarray:
     """Loop ground truth (T x T bool, rows earlier frame, columns frame) of the frames read, from a matrix file.
 
-    ``indices``: the source frame numbers of the frames read. The file is a
-    square matrix over the source's frames (row = frame, column = earlier
-    frame, or the transpose: both triangles are read). ``total``: the number
-    of frames in the stream, where it is known exactly; a matrix of another
-    size is refused (it belongs to another stream).
+    ``indices``: the source frame numbers of the frames read. The file is a square matrix over the source's frames
+    (row = frame, column = earlier frame, or the transpose: both triangles are read). ``total``: the number of frames
+    in the stream, where it is known exactly; a matrix of another size is refused (it belongs to another stream).
     """
     path, _ = split_variable(spec)
     raw = read_matrix(spec)

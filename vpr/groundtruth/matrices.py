@@ -73,9 +73,8 @@ def gt_from_labels(db_labels, q_labels, sparse=False):
 def gt_from_frames(db_frames, q_frames, tol, sparse=False):
     """Ground truth from frame numbers: ``gt[i, j] = |db_frames[i] - q_frames[j]| <= tol``.
 
-    For traverses aligned frame by frame (the same frame number is the same
-    place), with the frame numbers of the frames read (a subsampled or
-    partly unreadable source keeps its source numbering).
+    For traverses aligned frame by frame (the same frame number is the same place), with the frame numbers of the
+    frames read (a subsampled or partly unreadable source keeps its source numbering).
 
     Parameters
     ----------
@@ -134,8 +133,8 @@ def _check_positions(name, xy):
 def gt_from_positions(db_xy, q_xy, radius, sparse=False):
     """Ground truth from positions: ``gt[i, j] = ||db_xy[i] - q_xy[j]|| <= radius``.
 
-    Uses a KD-tree, so time and memory grow with the number of matching pairs
-    rather than with ``n_db * n_q`` (use ``sparse=True`` for large runs).
+    Uses a KD-tree, so time and memory grow with the number of matching pairs rather than with ``n_db * n_q`` (use
+    ``sparse=True`` for large runs).
 
     Parameters
     ----------
@@ -150,8 +149,8 @@ def gt_from_positions(db_xy, q_xy, radius, sparse=False):
     Raises
     ------
     ValueError
-        If the position arrays are not 2-D, differ in ``d`` or are not finite,
-        or ``radius`` is negative or not finite.
+        If the position arrays are not 2-D, differ in ``d`` or are not finite, or ``radius`` is negative or not
+        finite.
     """
     db = _check_positions("db_xy", db_xy)
     q = _check_positions("q_xy", q_xy)
@@ -174,15 +173,13 @@ def gt_from_positions(db_xy, q_xy, radius, sparse=False):
 def loop_closure_mask(T, exclude=0, starts=None):
     """Pairs evaluated for single-stream loop closure on a ``T x T`` matrix.
 
-    ``mask[i, j]`` is True exactly when ``i < j`` and ``j - i >= exclude``:
-    each query frame ``j`` (column) is compared only with earlier frames ``i``
-    (rows), and the ``exclude - 1`` frames just before it are skipped because
-    they are trivially similar. ``exclude`` of 0 or 1 keeps all ``i < j``.
-    This is ``np.triu(np.ones((T, T), bool), k=max(exclude, 1))``.
+    ``mask[i, j]`` is True exactly when ``i < j`` and ``j - i >= exclude``: each query frame ``j`` (column) is
+    compared only with earlier frames ``i`` (rows), and the ``exclude - 1`` frames just before it are skipped because
+    they are trivially similar. ``exclude`` of 0 or 1 keeps all ``i < j``. This is ``np.triu(np.ones((T, T), bool),
+    k=max(exclude, 1))``.
 
-    ``starts``: the first frame of each session of a stream that joins several
-    runs; ``exclude`` holds within a session, every frame of an earlier
-    session is a candidate (:func:`vpr.similarity.candidate_limit`).
+    ``starts``: the first frame of each session of a stream that joins several runs; ``exclude`` holds within a
+    session, every frame of an earlier session is a candidate (:func:`vpr.similarity.candidate_limit`).
 
     Raises
     ------
@@ -200,8 +197,7 @@ def loop_closure_gt(labels_or_xy, radius=None, exclude=0, sparse=False):
     Parameters
     ----------
     labels_or_xy : array_like, shape (T,) or (T, d)
-        Place labels per frame (when ``radius`` is None) or positions
-        (1-D positions are treated as ``(T, 1)``).
+        Place labels per frame (when ``radius`` is None) or positions (1-D positions are treated as ``(T, 1)``).
     radius : float, optional
         Match radius for positions; None means ``labels_or_xy`` are labels.
     exclude : int
@@ -212,11 +208,9 @@ def loop_closure_gt(labels_or_xy, radius=None, exclude=0, sparse=False):
     Returns
     -------
     gt : ndarray of bool or csr_matrix, shape (T, T)
-        True for revisits ``(i, j)`` with ``i < j`` and ``j - i >= exclude``.
-        With a dense ``S`` also pass ``mask=loop_closure_mask(T, exclude)`` to
-        the metrics so that pairs outside the mask are not false positives;
-        with a sparse ``S``, ``sp.triu(S, k=max(exclude, 1))`` has the same effect
-        without a dense mask.
+        True for revisits ``(i, j)`` with ``i < j`` and ``j - i >= exclude``. With a dense ``S`` also pass
+        ``mask=loop_closure_mask(T, exclude)`` to the metrics so that pairs outside the mask are not false positives;
+        with a sparse ``S``, ``sp.triu(S, k=max(exclude, 1))`` has the same effect without a dense mask.
 
     Raises
     ------

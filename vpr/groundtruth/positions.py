@@ -79,12 +79,10 @@ def frame_positions(src, spec: GroundTruthSpec, file: str | None, role: str, sin
                     topic: str | None = None) -> tuple[np.ndarray, str, str]:
     """(positions (n, d), kind, note) of ``src``'s frames to attempt; NaN rows: frames without a position.
 
-    ``kind`` ``"latlon"`` (degrees: GPS, to be put in metres about one origin
-    for every source of a run) or ``"metres"``. ``file``: this source's
-    ``--gt`` file or keyword (None with ``--gt-topic``); ``topic``: this
-    source's ``--gt-topic``; ``single``: the file holds this stream alone
-    (loop closure). ``note`` says why frames have no position ("" when it goes
-    without saying).
+    ``kind`` ``"latlon"`` (degrees: GPS, to be put in metres about one origin for every source of a run) or
+    ``"metres"``. ``file``: this source's ``--gt`` file or keyword (None with ``--gt-topic``); ``topic``: this
+    source's ``--gt-topic``; ``single``: the file holds this stream alone (loop closure). ``note`` says why frames
+    have no position ("" when it goes without saying).
     """
     what = f"{role} {src.path}"
     if topic is not None:
@@ -121,15 +119,12 @@ def prepare_positions(srcs, roles, spec: GroundTruthSpec, every: float | None = 
                       need: bool | None = None, origin: tuple | None = None) -> list | None:
     """Every source's frame positions (aligned with its ``indices()`` after this), or None when none are needed.
 
-    Frames without a position keep their place with NaN positions, said in a
-    warning; with ``every`` (metres), keeps one frame per ``every`` metres of
-    travel among the frames with a position (the others are left out, said).
-    Refuses a source none of whose frames has a position. ``need``: positions are wanted (default: for
-    position ground truth, ``--radius``); ``loops``: the options of one
-    stream's loop closure (default: one source). GPS positions of every
-    source are put in metres about one ``origin`` (latitude, longitude;
-    default: the first fix of the first source), which the result keeps
-    (:class:`Positions`), so that a map and its queries share it.
+    Frames without a position keep their place with NaN positions, said in a warning; with ``every`` (metres), keeps
+    one frame per ``every`` metres of travel among the frames with a position (the others are left out, said). Refuses
+    a source none of whose frames has a position. ``need``: positions are wanted (default: for position ground truth,
+    ``--radius``); ``loops``: the options of one stream's loop closure (default: one source). GPS positions of every
+    source are put in metres about one ``origin`` (latitude, longitude; default: the first fix of the first source),
+    which the result keeps (:class:`Positions`), so that a map and its queries share it.
     """
     need = spec.positional if need is None else need
     if not need:
@@ -185,13 +180,11 @@ def prepare_positions(srcs, roles, spec: GroundTruthSpec, every: float | None = 
 def same_sampling(the_map, every: float | None, positions: bool, where: str, progress: bool = False):
     """A map (:class:`vpr.shosm.Map`) and a query's ``--every`` made to agree; returns (map, query's every).
 
-    The sequence evidence follows a query that moves about one map frame per
-    query frame; a query sampled coarser than the map moves several, and its
-    decisions lose their precision. A query ``--every`` coarser than the map's
-    sampling: the map is learned again at it (``Map.subset``); a map learned
-    ``--every D`` and a query with ``positions``: the query is sampled so too.
-    Each is said (``where``: the map's path); where neither can be done, the
-    difference is said.
+    The sequence evidence follows a query that moves about one map frame per query frame; a query sampled coarser than
+    the map moves several, and its decisions lose their precision. A query ``--every`` coarser than the map's
+    sampling: the map is learned again at it (``Map.subset``); a map learned ``--every D`` and a query with
+    ``positions``: the query is sampled so too. Each is said (``where``: the map's path); where neither can be done,
+    the difference is said.
     """
     map_every, spacing = the_map.info.get("every"), the_map.spacing()
     said = None
@@ -230,16 +223,13 @@ RATE_RATIO = 1.5
 def same_rate(the_map, src, fps: float | None, where: str, progress: bool = False):
     """A map and a query taken at different frame rates made to agree; returns (map, fps to read the query at).
 
-    Where neither is sampled by travel (``--every``), a query (``src``) whose
-    frames come :data:`RATE_RATIO` or more times slower than the map's (both
-    known from the frames' times) moves several map frames per frame, as a
-    query sampled coarser does: the map is learned again at the query's rate
-    (every k-th frame of each session). A query that comes faster is read at
-    the map's rate where its source can be (a video or bag, ``fps``, the
-    query's ``--fps``, not given; that rate is returned, else None). Each is
-    said (``where``: the map's path); where neither can be done, the difference.
-    The same speed is assumed: a query driven twice as fast at the same rate is
-    not seen (``--every`` with positions is).
+    Where neither is sampled by travel (``--every``), a query (``src``) whose frames come :data:`RATE_RATIO` or more
+    times slower than the map's (both known from the frames' times) moves several map frames per frame, as a query
+    sampled coarser does: the map is learned again at the query's rate (every k-th frame of each session). A query
+    that comes faster is read at the map's rate where its source can be (a video or bag, ``fps``, the query's
+    ``--fps``, not given; that rate is returned, else None). Each is said (``where``: the map's path); where neither
+    can be done, the difference. The same speed is assumed: a query driven twice as fast at the same rate is not seen
+    (``--every`` with positions is).
     """
     map_rate, rate, can_resample = the_map.info.get("rate"), src.rate(), fps is None and "fps" in src.options
     if not map_rate or not rate or the_map.info.get("every") is not None:

@@ -36,17 +36,14 @@ class GroundTruthSpec:
     Attributes
     ----------
     tolerance : int, optional
-        Frame-aligned traverses: ``|i - j| <= tolerance`` in **frames kept**
-        (after ``--step`` / ``--fps`` / ``--every``): with ``--step 10``, 1
-        frame kept is 10 input frames (:func:`sampling_step`).
+        Frame-aligned traverses: ``|i - j| <= tolerance`` in **frames kept** (after ``--step`` / ``--fps`` /
+        ``--every``): with ``--step 10``, 1 frame kept is 10 input frames (:func:`sampling_step`).
     files : tuple of str
-        One CSV of ``query,db`` pairs (``frame,earlier`` for loops); one or two
-        matrix files (hard, then soft: ``GThard.npy GTsoft.npy``, VPR-Bench's
-        ``ground_truth_new.npy``; for loops a T x T ``.npy``, ``.png``,
-        ``.bmp`` or ``.mat[:VARIABLE]``, :mod:`vpr.groundtruth.formats`); or,
-        with ``radius``, one positions CSV per traverse (``frame,x,y``) or one
-        with ``traverse,frame,x,y`` rows for both.
-        With ``radius`` also a trajectory per traverse (TUM, KITTI:
+        One CSV of ``query,db`` pairs (``frame,earlier`` for loops); one or two matrix files (hard, then soft:
+        ``GThard.npy GTsoft.npy``, VPR-Bench's ``ground_truth_new.npy``; for loops a T x T ``.npy``, ``.png``,
+        ``.bmp`` or ``.mat[:VARIABLE]``, :mod:`vpr.groundtruth.formats`); or, with ``radius``, one positions CSV per
+        traverse (``frame,x,y``) or one with ``traverse,frame,x,y`` rows for both. With ``radius`` also a trajectory
+        per traverse (TUM, KITTI:
         :mod:`vpr.groundtruth.trajectories`), or a keyword: ``names`` (UTM
         coordinates in the file names), ``exif`` (GPS in the photos' EXIF).
     radius : float, optional
@@ -54,9 +51,8 @@ class GroundTruthSpec:
     soft : float, optional
         Larger radius (or tolerance) within which pairs are ignored.
     topic : str or tuple of str, optional
-        Positions from this topic of each bag (``--gt-topic``: NavSatFix,
-        Odometry, PoseStamped), with ``radius``; a tuple: one topic per input,
-        in order.
+        Positions from this topic of each bag (``--gt-topic``: NavSatFix, Odometry, PoseStamped), with ``radius``; a
+        tuple: one topic per input, in order.
     """
 
     tolerance: int | None = None
@@ -101,9 +97,9 @@ class GroundTruthSpec:
     def check(self, loops: bool = False, files: bool = True, sessions: int = 1) -> None:
         """Refuse contradictory, ignored or out-of-range options and missing files, before any work.
 
-        ``loops``: the ground truth of ``vpr loops`` (one positions file with ``--radius``).
-        ``files=False``: the options only (files written later, e.g. by a render).
-        ``sessions``: the sources of a multi-session stream (one positions file each, or one for all).
+        ``loops``: the ground truth of ``vpr loops`` (one positions file with ``--radius``). ``files=False``: the
+        options only (files written later, e.g. by a render). ``sessions``: the sources of a multi-session stream (one
+        positions file each, or one for all).
 
         Raises
         ------
@@ -202,8 +198,7 @@ class GroundTruthSpec:
 def sampling_step(indices) -> float:
     """Input frames per frame kept: the median step between a traverse's frame numbers (1 with fewer than two).
 
-    ``--step 10`` gives 10; ``--fps`` on a video the ratio of the rates; a few
-    unreadable frames do not change it.
+    ``--step 10`` gives 10; ``--fps`` on a video the ratio of the rates; a few unreadable frames do not change it.
     """
     idx = np.unique(np.asarray(indices, np.int64))
     return float(np.median(np.diff(idx))) if idx.size > 1 else 1.0
@@ -222,10 +217,9 @@ def tolerance_text(flag: str, value: float, step: float) -> str:
 def check_tolerance(spec: GroundTruthSpec, db_indices, q_indices) -> bool:
     """Say a ``--tolerance`` that probably means something else (one line, the run goes on); returns whether said.
 
-    A tolerance of 0 at a subsampling (``--step`` > 1) accepts only the exact
-    frame, where the neighbours kept are input frames apart; one wider than a
-    tenth of the route (the frames kept of the shorter traverse) makes most of
-    a route's pairs true: likely given in input frames.
+    A tolerance of 0 at a subsampling (``--step`` > 1) accepts only the exact frame, where the neighbours kept are
+    input frames apart; one wider than a tenth of the route (the frames kept of the shorter traverse) makes most of a
+    route's pairs true: likely given in input frames.
     """
     tol = spec.tolerance
     if tol is None:
@@ -266,13 +260,10 @@ def build_gt(spec: GroundTruthSpec, db_names: Sequence[str], q_names: Sequence[s
              positions=None):
     """(gt_hard, gt_soft) of the frames read, or (None, None) without ground truth.
 
-    ``db_traverse`` / ``q_traverse`` name the traverses in a combined
-    ``traverse,frame,x,y`` file; ``*_indices`` are the source frame numbers;
-    ``totals`` the number of frames in each source where it is known exactly
-    (a matrix file must then have that shape). ``positions``: (database,
-    query) positions of the frames, where the caller read them (bags,
-    trajectories, names, EXIF): matched within ``spec.radius``. Warns when
-    most pairs are true.
+    ``db_traverse`` / ``q_traverse`` name the traverses in a combined ``traverse,frame,x,y`` file; ``*_indices`` are
+    the source frame numbers; ``totals`` the number of frames in each source where it is known exactly (a matrix file
+    must then have that shape). ``positions``: (database, query) positions of the frames, where the caller read them
+    (bags, trajectories, names, EXIF): matched within ``spec.radius``. Warns when most pairs are true.
 
     Raises
     ------
@@ -352,15 +343,12 @@ def build_loop_gt(spec: GroundTruthSpec, names: Sequence[str], indices: Sequence
                   total: int | None = None, positions=None):
     """(gt_hard, gt_soft) of one stream's loop closures (T x T, rows earlier frame), or (None, None).
 
-    From a positions CSV (``frame,x,y`` or ``traverse,frame,x,y`` rows, with
-    ``radius`` and optionally ``soft``), a CSV of ``frame,earlier`` pairs,
-    ``vpr render``'s ``loop_pairs.csv``, or matrix files (hard, then soft). Both triangles are filled: a loop is a
-    pair of frames; which pairs are evaluated is the metrics' mask.
-    ``traverse``: the stream's name in a file of several traverses (None: the
-    file's only one). ``total``: the number of frames in the stream where it is
-    known exactly (a matrix file must be ``total`` x ``total``). ``positions``:
-    the frames' positions where the caller read them. Warns when most pairs
-    are true.
+    From a positions CSV (``frame,x,y`` or ``traverse,frame,x,y`` rows, with ``radius`` and optionally ``soft``), a
+    CSV of ``frame,earlier`` pairs, ``vpr render``'s ``loop_pairs.csv``, or matrix files (hard, then soft). Both
+    triangles are filled: a loop is a pair of frames; which pairs are evaluated is the metrics' mask. ``traverse``:
+    the stream's name in a file of several traverses (None: the file's only one). ``total``: the number of frames in
+    the stream where it is known exactly (a matrix file must be ``total`` x ``total``). ``positions``: the frames'
+    positions where the caller read them. Warns when most pairs are true.
     """
     if positions is not None:  # read by the caller from a checked spec
         check_radius(spec, positions)
@@ -398,10 +386,9 @@ def _loop_gt(spec, names, indices, traverse, total):
 def warn_if_mostly_true(spec: GroundTruthSpec, hard, loops: bool = False, share: float = 0.5) -> float:
     """Warn when more than ``share`` of all pairs are true matches; returns the share.
 
-    Ground truth that makes (nearly) every pair true (``--radius 1e308``, a
-    tolerance as long as the traverse, metres taken for kilometres) gives AP
-    1.000 whatever the method does. For loops the pairs are those of distinct
-    frames (a frame always matches itself).
+    Ground truth that makes (nearly) every pair true (``--radius 1e308``, a tolerance as long as the traverse, metres
+    taken for kilometres) gives AP 1.000 whatever the method does. For loops the pairs are those of distinct frames (a
+    frame always matches itself).
     """
     n = hard.shape[0] * hard.shape[1]
     true = int(hard.nnz if hasattr(hard, "nnz") else np.count_nonzero(hard))
@@ -422,9 +409,8 @@ def warn_if_mostly_true(spec: GroundTruthSpec, hard, loops: bool = False, share:
 def check_loop_gt_files(spec: GroundTruthSpec, traverse: str | None = None) -> None:
     """Read ``spec``'s loop ground-truth files enough to refuse a bad one before any work.
 
-    For a stream whose frames are not known yet (``vpr loops -``): the options,
-    the matrices (square, numbers), the pairs CSV's columns and the positions
-    file are checked; names in a pairs CSV can only be matched once the frames
+    For a stream whose frames are not known yet (``vpr loops -``): the options, the matrices (square, numbers), the
+    pairs CSV's columns and the positions file are checked; names in a pairs CSV can only be matched once the frames
     are read (:func:`build_loop_gt`).
     """
     spec.check(loops=True)

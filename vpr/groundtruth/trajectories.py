@@ -172,10 +172,9 @@ def short_gaps(traj_t) -> np.ndarray:
 def positions_at(times, traj_t, traj_xy) -> tuple[np.ndarray, np.ndarray]:
     """The trajectory's position at each of ``times``, linearly interpolated; and why a time has none.
 
-    Returns ``(xy, why)``: ``why`` 0 where the time has a position, 1 before
-    the first or after the last sample (never extrapolated), 2 inside an
-    outage (:func:`outages`; never interpolated across); ``xy`` is NaN where
-    ``why`` is not 0.
+    Returns ``(xy, why)``: ``why`` 0 where the time has a position, 1 before the first or after the last sample (never
+    extrapolated), 2 inside an outage (:func:`outages`; never interpolated across); ``xy`` is NaN where ``why`` is not
+    0.
     """
     times = np.asarray(times, np.float64)
     traj_t = np.asarray(traj_t, np.float64)
@@ -206,13 +205,11 @@ def parse_every(text) -> float:
 def every(xy, metres: float) -> np.ndarray:
     """Positions of the frames to keep: the frame nearest each multiple of ``metres`` of travel.
 
-    Travel is summed along the path (a stop adds nothing; a loop adds its
-    length), so a robot standing at a traffic light keeps one frame. The k-th
-    frame kept lies within half a frame's travel of ``k * metres``, whatever
-    the frame rate and speed, so two traverses of one route sampled alike keep
-    frames that pair one to one. A frame nearest two marks is kept once.
-    Frames without a position (NaN) are never kept; travel runs from one frame
-    with a position to the next.
+    Travel is summed along the path (a stop adds nothing; a loop adds its length), so a robot standing at a traffic
+    light keeps one frame. The k-th frame kept lies within half a frame's travel of ``k * metres``, whatever the frame
+    rate and speed, so two traverses of one route sampled alike keep frames that pair one to one. A frame nearest two
+    marks is kept once. Frames without a position (NaN) are never kept; travel runs from one frame with a position to
+    the next.
     """
     xy = np.asarray(xy, np.float64)
     known = np.flatnonzero(~np.isnan(xy).any(axis=1)) if xy.ndim == 2 else np.zeros(0, np.int64)

@@ -61,8 +61,8 @@ def get(name: str, **conf) -> Method:
 def build(names, confs: dict | None = None) -> dict[str, Method]:
     """The methods ``names`` with their ``confs`` (method -> conf), built and checked before any work.
 
-    A conf for a method not in ``names`` is still checked (a typo should not
-    pass silently), then ignored with a warning; a name given twice runs once.
+    A conf for a method not in ``names`` is still checked (a typo should not pass silently), then ignored with a
+    warning; a name given twice runs once.
     """
     names = list(names)
     if not names:

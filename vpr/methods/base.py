@@ -17,9 +17,8 @@ __all__ = ["Method", "Fitted"]
 class Method:
     """A place-recognition method, configured once, run on encoded traverses.
 
-    Subclasses set ``name``, ``default_conf`` (``nullable_conf``: keys that
-    also accept ``None``; ``no_loops_reason``: why loop closure is refused) and
-    ``required_inputs`` (a property where the conf decides), and implement
+    Subclasses set ``name``, ``default_conf`` (``nullable_conf``: keys that also accept ``None``; ``no_loops_reason``:
+    why loop closure is refused) and ``required_inputs`` (a property where the conf decides), and implement
     :meth:`_match` and, if they support loop closure, :meth:`_loops`;
     :meth:`check_size` refuses inputs too large for the method before any work
     is done and :meth:`warm_up` compiles its kernels outside the timed region.
@@ -70,8 +69,8 @@ class Method:
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the method's kernels.
 
-        The first run after an install otherwise spends seconds compiling,
-        which would be reported as the method's matching time.
+        The first run after an install otherwise spends seconds compiling, which would be reported as the method's
+        matching time.
         """
 
     #: whether loop closure is decided frame by frame (a second opinion can wrap the decider)
@@ -96,9 +95,8 @@ class Method:
     def decisions(self, S, best: np.ndarray, score: np.ndarray) -> Decision:
         """The decision over a traverse's similarity ``S`` whose best matches are ``best`` (scoring ``score``).
 
-        The one decision hook: by default a best match with a finite score is
-        accepted; methods override it with their own rule (which may run over
-        every query in order). A run that decides itself returns its
+        The one decision hook: by default a best match with a finite score is accepted; methods override it with their
+        own rule (which may run over every query in order). A run that decides itself returns its
         :class:`~vpr.types.Decision` instead (SeqSLAM's uniqueness ratio).
         """
         score = np.asarray(score, np.float64)
@@ -143,11 +141,11 @@ class Method:
     def fit(self, db: EncodedTraverse, progress: bool = False, once: bool = False) -> Fitted:
         """Learn the database once; the :class:`Fitted` result matches any number of query traverses.
 
-        A fleet of query traverses against one map learns the map once (and
-        ships it to workers once); each query's answers are those of
+        A fleet of query traverses against one map learns the map once (and ships it to workers once); each query's
+        answers are those of
         :meth:`match` on that query alone. ``once``: for one query, learned
-        when it is matched and not kept after (a run of several methods then
-        holds one method's learned database at a time, not all of them).
+        when it is matched and not kept after (a run of several methods then holds one method's learned database at a
+        time, not all of them).
         """
         if once:
             return Fitted(self, db, None, 0.0, once=True)
@@ -160,17 +158,14 @@ class Method:
               opinion=None) -> MatchResult:
         """Loop closures within one traverse: for each frame, the best earlier frame and the decision.
 
-        Only pairs ``i <= j - exclude`` are candidates (``exclude >= 1``); other
-        entries of the returned similarity are ``-inf`` (dense) or absent
-        (sparse). The result's ``score`` is what the decision thresholds (the
-        similarity of the best match, or a method's own per-frame score).
-        ``sessions``: the first frame of each session (a stream joining a
-        robot's runs): ``exclude`` holds within a session, every frame of an
-        earlier session is a candidate, and a method with a memory forgets its
-        context at each start (:meth:`vpr.shosm.LoopStream.new_session`).
-        ``opinion(decider)``: a second decider around a method's own per-frame
-        decision (:class:`vpr.verify.GeometricOpinion`; rshosm-seq).
-        Methods that cannot do this raise ValueError.
+        Only pairs ``i <= j - exclude`` are candidates (``exclude >= 1``); other entries of the returned similarity
+        are ``-inf`` (dense) or absent (sparse). The result's ``score`` is what the decision thresholds (the
+        similarity of the best match, or a method's own per-frame score). ``sessions``: the first frame of each
+        session (a stream joining a robot's runs): ``exclude`` holds within a session, every frame of an earlier
+        session is a candidate, and a method with a memory forgets its context at each start
+        (:meth:`vpr.shosm.LoopStream.new_session`). ``opinion(decider)``: a second decider around a method's own
+        per-frame decision (:class:`vpr.verify.GeometricOpinion`; rshosm-seq). Methods that cannot do this raise
+        ValueError.
         """
         exclude = check_exclude(exclude)
         sessions = tuple(sorted({0, *(int(s) for s in (sessions or ()))}))
@@ -192,10 +187,9 @@ class Method:
 class Fitted:
     """A method with its database learned (:meth:`Method.fit`): ``match(query)`` for any number of queries.
 
-    Picklable, so that a cluster receives it once and matches many query
-    traverses with it. ``seconds``: the learning time, counted in every
-    query's :attr:`MatchResult.seconds` (as :meth:`Method.match` counts it).
-    ``once``: learned at :meth:`match` and not kept (``Method.fit(once=True)``).
+    Picklable, so that a cluster receives it once and matches many query traverses with it. ``seconds``: the learning
+    time, counted in every query's :attr:`MatchResult.seconds` (as :meth:`Method.match` counts it). ``once``: learned
+    at :meth:`match` and not kept (``Method.fit(once=True)``).
     """
 
     def __init__(self, method: Method, db: EncodedTraverse, state, seconds: float, once: bool = False):

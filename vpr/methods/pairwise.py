@@ -17,9 +17,8 @@ __all__ = ["Pairwise"]
 class Pairwise(Method):
     """Pairwise comparison of SDRs (``on="sdr"``, overlap) or dense descriptors (``on="descriptor"``).
 
-    Conf: ``on``, ``metric`` (see :func:`vpr.frame_pairs.pairwise`) and
-    ``top_k`` (entries kept per query when the SDR similarity is too large to
-    be dense; dense descriptors have no sparse form and are refused then).
+    Conf: ``on``, ``metric`` (see :func:`vpr.frame_pairs.pairwise`) and ``top_k`` (entries kept per query when the SDR
+    similarity is too large to be dense; dense descriptors have no sparse form and are refused then).
     """
 
     name = "pairwise"

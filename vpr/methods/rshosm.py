@@ -24,9 +24,8 @@ def warm_up_memory() -> SequenceMemory:
 class Rshosm(Method):
     """rSHOSM (Neubert et al. 2018): learn the database, run the query without learning, compare winner codes.
 
-    Conf: the :class:`~vpr.shosm.SequenceMemory` parameters, and ``top_k``
-    (entries kept per query when the similarity matrix is too large to be dense).
-    In :meth:`loops` the memory learns while it runs, as in the paper.
+    Conf: the :class:`~vpr.shosm.SequenceMemory` parameters, and ``top_k`` (entries kept per query when the similarity
+    matrix is too large to be dense). In :meth:`loops` the memory learns while it runs, as in the paper.
     """
 
     name = "rshosm"

@@ -23,21 +23,18 @@ PIXELS = ImageInput("pixels", "SeqSLAM pixel descriptors (64 x 32 grey, patch-no
 class SeqSlam(Method):
     """SeqSLAM: difference matrix, local contrast enhancement, best constant-velocity trajectory.
 
-    Conf: the arguments of :func:`vpr.seqslam.seqslam`, ``metric``
-    of the difference matrix (``"sad"`` or ``"cosine"``) and ``descriptor``:
-    ``"pixel"`` (the SeqSLAM thumbnails) or ``"encoder"`` (alias ``"desc"``:
-    the encoder's dense descriptors).
+    Conf: the arguments of :func:`vpr.seqslam.seqslam`, ``metric`` of the difference matrix (``"sad"`` or
+    ``"cosine"``) and ``descriptor``: ``"pixel"`` (the SeqSLAM thumbnails) or ``"encoder"`` (alias ``"desc"``: the
+    encoder's dense descriptors).
 
-    Large inputs: above :func:`~vpr.similarity.dense_pairs` database x
-    query pairs the dense difference matrix is not built;
+    Large inputs: above :func:`~vpr.similarity.dense_pairs` database x query pairs the dense difference matrix is not
+    built;
     :func:`vpr.seqslam.seqslam_topk` runs by blocks of queries and
-    keeps the ``top_k`` best entries per query (a sparse similarity). With
-    ``large="pairwise"`` (default) it searches only database windows around
-    each query block's ``n_candidates`` best single-frame matches under the
-    same metric (approximate; how often its best match equals the exact one is
-    measured by ``benchmarks/bench_seqslam_scale.py``); ``large="exact"``
-    searches every cell (same result as the dense run, quadratic time). Loop
-    closure within one traverse has no sparse form and is refused above the limit.
+    keeps the ``top_k`` best entries per query (a sparse similarity). With ``large="pairwise"`` (default) it searches
+    only database windows around each query block's ``n_candidates`` best single-frame matches under the same metric
+    (approximate; how often its best match equals the exact one is measured by ``benchmarks/bench_seqslam_scale.py``);
+    ``large="exact"`` searches every cell (same result as the dense run, quadratic time). Loop closure within one
+    traverse has no sparse form and is refused above the limit.
     """
 
     name = "seqslam"
@@ -131,9 +128,8 @@ class SeqSlamDesc(SeqSlam):
 
     The same enhancement, trajectory search and large-input handling as
     :class:`SeqSlam` (conf: the same keys but ``descriptor``, which is always
-    the encoder's; ``metric`` defaults to ``"cosine"``, the usual distance for
-    CNN and HOG descriptors). Needs an encoder with a dense descriptor
-    (``describe``): the error names the encoder otherwise.
+    the encoder's; ``metric`` defaults to ``"cosine"``, the usual distance for CNN and HOG descriptors). Needs an
+    encoder with a dense descriptor (``describe``): the error names the encoder otherwise.
     """
 
     name = "seqslam-desc"

@@ -21,8 +21,8 @@ def texture_resolution(kind: str, size, hfov: float, extent: float = 700.0, wall
                        width: float = 16.0, budget: float = 6e6) -> tuple[float, float]:
     """Texels per metre (walls, ground) so that a texel is about a pixel at a typical viewing distance.
 
-    Long routes get coarser textures so that a wall (``extent`` x ``wall_height``
-    metres) or the ground (``extent`` x ``width``) stays within ``budget`` texels.
+    Long routes get coarser textures so that a wall (``extent`` x ``wall_height`` metres) or the ground (``extent`` x
+    ``width``) stays within ``budget`` texels.
     """
     f = size[0] / 2.0 / math.tan(math.radians(hfov) / 2.0)
     if kind == "street":
@@ -241,9 +241,8 @@ def plan_traverse(tspec: dict, world: dict, camera: dict, n_frames: int | None =
                   route_xy: np.ndarray | None = None, route_step: float = 0.5) -> TraversePlan:
     """Frame positions, lateral offsets, yaw and ground truth of one resolved traverse spec.
 
-    The speed profile is integrated over time at ``camera['fps']``; ``n_frames``
-    instead spreads exactly that many frames over the same path (same stops and
-    speed changes, coarser in time).
+    The speed profile is integrated over time at ``camera['fps']``; ``n_frames`` instead spreads exactly that many
+    frames over the same path (same stops and speed changes, coarser in time).
     """
     if n_frames is not None and (isinstance(n_frames, bool) or int(n_frames) != n_frames or n_frames < 1):
         raise ValueError(f"n_frames must be a positive integer, got {n_frames!r}")

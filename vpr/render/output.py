@@ -72,14 +72,13 @@ def write_scene(spec, out_dir, preview: bool = False, video: bool = False, trave
     Writes, atomically per file:
 
     - ``<traverse>/000000.png ...``: the frames of each traverse,
-    - ``ground_truth.csv``: one row per frame with ``frame, traverse, route_pos,
-      x, y`` (metres) and ``place_pos, lateral, yaw_deg, image``,
+    - ``ground_truth.csv``: one row per frame with ``frame, traverse, route_pos, x, y`` (metres) and ``place_pos,
+      lateral, yaw_deg, image``,
     - ``scene.json``: the resolved spec including any overrides,
-    - with ``preview``: ``contact_sheet.png``, sample frames of every traverse
-      at the same places,
+    - with ``preview``: ``contact_sheet.png``, sample frames of every traverse at the same places,
     - with ``video``: ``<traverse>.mp4`` (OpenCV, mp4v) at the spec's fps,
-    - for closed loops: ``loop_pairs.csv`` (``traverse, frame_a, frame_b,
-      distance``), the revisits within ``loop_radius`` metres as
+    - for closed loops: ``loop_pairs.csv`` (``traverse, frame_a, frame_b, distance``), the revisits within
+      ``loop_radius`` metres as
       :func:`vpr.render.loop_pairs` gives them (a < b).
 
     Parameters
@@ -102,9 +101,8 @@ def write_scene(spec, out_dir, preview: bool = False, video: bool = False, trave
     Returns
     -------
     dict
-        ``{"out_dir", "scene", "ground_truth", "preview", "loop_pairs",
-        "traverses": {name: {"frames", "folder", "video"}}}`` with paths as
-        strings (None for files not written).
+        ``{"out_dir", "scene", "ground_truth", "preview", "loop_pairs", "traverses": {name: {"frames", "folder",
+        "video"}}}`` with paths as strings (None for files not written).
     """
     from tqdm import tqdm
 

@@ -29,17 +29,15 @@ class Traverse:
     images : np.ndarray
         uint8 (N, H, W, 3) BGR frames.
     route_pos : np.ndarray
-        (N,) metres along the route: the start position plus the cumulative
-        distance travelled (keeps growing over the laps of a loop).
+        (N,) metres along the route: the start position plus the cumulative distance travelled (keeps growing over the
+        laps of a loop).
     xy : np.ndarray
-        (N, 2) camera position in metres in the world plane (includes the
-        lateral offset).
+        (N, 2) camera position in metres in the world plane (includes the lateral offset).
     conditions : dict
         The resolved conditions of this traverse.
     place_pos : np.ndarray
-        (N,) position on the route modulo the loop length (equal to
-        ``route_pos`` for open routes): frames with equal ``place_pos`` see the
-        same place.
+        (N,) position on the route modulo the loop length (equal to ``route_pos`` for open routes): frames with equal
+        ``place_pos`` see the same place.
     lateral : np.ndarray
         (N,) lateral offset of the camera from the lane centre line in metres.
     yaw_deg : np.ndarray
@@ -116,8 +114,8 @@ def apply_overrides(spec, size=None, n_frames=None, traverses=None, seed=None) -
 class SceneRenderer:
     """Builds the world of a resolved spec once and renders its traverses frame by frame.
 
-    Use :func:`render_scene` for the in-memory API; this class exists so that
-    ``vpr render`` can stream frames to disk without holding them all.
+    Use :func:`render_scene` for the in-memory API; this class exists so that ``vpr render`` can stream frames to disk
+    without holding them all.
     """
 
     def __init__(self, spec: dict, n_frames: int | None = None):
@@ -194,8 +192,8 @@ def render_scene(spec, size=None, n_frames=None, traverses=None, seed=None, prog
     size : (int, int), optional
         Override of the image size (width, height), at least 16 x 16.
     n_frames : int, optional
-        Override of the number of frames of every traverse: the same path
-        (laps, stops, speed changes) sampled with exactly this many frames.
+        Override of the number of frames of every traverse: the same path (laps, stops, speed changes) sampled with
+        exactly this many frames.
     traverses : list of str, optional
         Render only these traverses.
     seed : int, optional
@@ -237,12 +235,10 @@ def gt_matrix(db, query, radius: float) -> np.ndarray:
 def loop_pairs(traverse: Traverse, radius: float, exclude: float | None = None) -> np.ndarray:
     """Bool T x T matrix of frame pairs of one traverse that see the same place again.
 
-    A pair (i, j) is a revisit when the camera positions are within ``radius``
-    metres and the camera travelled at least ``exclude`` metres between the two
-    frames (so that neighbouring frames of the same pass and frames during a
-    stop are not counted). ``exclude`` defaults to half the loop length for
-    loops and to ``10 * radius`` for open routes. The matrix is symmetric with
-    a False diagonal.
+    A pair (i, j) is a revisit when the camera positions are within ``radius`` metres and the camera travelled at
+    least ``exclude`` metres between the two frames (so that neighbouring frames of the same pass and frames during a
+    stop are not counted). ``exclude`` defaults to half the loop length for loops and to ``10 * radius`` for open
+    routes. The matrix is symmetric with a False diagonal.
     """
     if not isinstance(traverse, Traverse):
         raise ValueError(f"traverse: expected a Traverse, got {type(traverse).__name__}")

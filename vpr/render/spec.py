@@ -16,8 +16,8 @@ SEASONS = ("spring", "summer", "autumn", "winter")
 WEATHERS = ("clear", "overcast", "fog", "rain")
 KINDS = ("street", "corridor")
 
-# Condition defaults that depend on the time of day / weather; any of them can
-# be overridden explicitly in a traverse's "conditions".
+# Condition defaults that depend on the time of day / weather; any of them can be overridden explicitly in a
+# traverse's "conditions".
 CONDITION_PRESETS = {
     "time": {
         "day": {"gain": 1.0, "gamma": 1.0, "noise": 2.0, "lit_windows": 0.0},
@@ -287,8 +287,7 @@ def builtin_spec_path(name: str) -> Path:
     Raises
     ------
     FileNotFoundError
-        No builtin scene of that name; the message lists the available ones
-        and the folders searched.
+        No builtin scene of that name; the message lists the available ones and the folders searched.
     """
     for d in _search_dirs():
         p = d / f"{name}.json"
@@ -313,22 +312,19 @@ def load_spec(spec) -> dict:
     Parameters
     ----------
     spec : str, Path or dict
-        A JSON file, the name of a builtin scene (see :func:`builtin_specs`) or
-        an already parsed dictionary.
+        A JSON file, the name of a builtin scene (see :func:`builtin_specs`) or an already parsed dictionary.
 
     Returns
     -------
     dict
-        The resolved specification: every key present, defaults filled,
-        condition presets expanded.
+        The resolved specification: every key present, defaults filled, condition presets expanded.
 
     Raises
     ------
     FileNotFoundError
         Neither a file nor a builtin scene.
     ValueError
-        Invalid JSON, unknown keys, wrong types or values out of range; the
-        message names the file and the key.
+        Invalid JSON, unknown keys, wrong types or values out of range; the message names the file and the key.
     """
     if isinstance(spec, dict):
         return resolve(spec, "<spec>")

@@ -18,11 +18,9 @@ LANE_CENTRE = 1.75  # metres right of a street's centre line: where the camera d
 class WorldRaster:
     """Rasterised world at a given texture resolution (``docs/internals.md``).
 
-    Walls are indexed ``[side]`` with side 0 = left, 1 = right; wall rows start at
-    the ground (row 0 = height 0). Wall column ``c`` covers
-    ``z = zlo + (c + 0.5) / ppm``; ground/ceiling row ``i`` covers
-    ``x = -half_width + (i + 0.5) / gppm`` and column ``j`` covers
-    ``z = zlo + (j + 0.5) / gppm``.
+    Walls are indexed ``[side]`` with side 0 = left, 1 = right; wall rows start at the ground (row 0 = height 0). Wall
+    column ``c`` covers ``z = zlo + (c + 0.5) / ppm``; ground/ceiling row ``i`` covers ``x = -half_width + (i + 0.5) /
+    gppm`` and column ``j`` covers ``z = zlo + (j + 0.5) / gppm``.
     """
 
     kind: str
@@ -56,9 +54,8 @@ class WorldRaster:
 def route_polyline(length: float, loop: bool, seed: int, step: float = 0.5) -> np.ndarray:
     """(x, y) in metres of the route at arc lengths ``0, step, 2 step, ... >= length``.
 
-    Open routes meander with a heading that never deviates more than ~70 degrees
-    from the mean direction, so they cannot cross themselves; loops are a
-    perturbed circle of perimeter ``length`` (star-shaped, hence simple).
+    Open routes meander with a heading that never deviates more than ~70 degrees from the mean direction, so they
+    cannot cross themselves; loops are a perturbed circle of perimeter ``length`` (star-shaped, hence simple).
     """
     rng = np.random.default_rng([seed, 7])
     n = int(np.ceil(length / step)) + 1
@@ -356,8 +353,8 @@ def _raster_ceiling(rng, xg, zg, alb, emit, a, b):
 def build_world(wspec: dict, ppm: float, gppm: float, max_depth: float, sprite_ppm: float = 24.0) -> WorldRaster:
     """Rasterise the world of a resolved ``world`` spec at ``ppm`` texels per metre (walls), ``gppm`` (ground).
 
-    The plan (buildings, doors, objects) depends only on ``wspec['seed']``; the
-    resolution only changes how finely it is sampled.
+    The plan (buildings, doors, objects) depends only on ``wspec['seed']``; the resolution only changes how finely it
+    is sampled.
     """
     kind, L, loop = wspec["kind"], float(wspec["length"]), bool(wspec["loop"])
     hw = float(wspec["half_width"])

@@ -13,8 +13,8 @@ from .difference import check_difference, difference_matrix, enhance_contrast
 __all__ = ["SeqSLAMResult", "SeqSlamConf", "trajectory_offsets", "seqslam", "match_images", "pixel_descriptors",
            "check_sequence_params"]
 
-# Floor tolerance for k * v: 0.1-step velocities are not exact in binary, and
-# without it k * v could land just below an integer it is meant to equal.
+# Floor tolerance for k * v: 0.1-step velocities are not exact in binary, and without it k * v could land just below
+# an integer it is meant to equal.
 _FLOOR_EPS = 1e-9
 
 
@@ -22,12 +22,10 @@ def trajectory_offsets(ds: int = 10, v_min: float = 0.8, v_max: float = 1.2,
                        v_step: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
     """Velocities searched and the distinct database offsets of their trajectories.
 
-    The database row of trajectory point k (k = 0 .. ds, one per query frame)
-    is ``start + floor(k * v)``, as in OpenSeqSLAM. Velocities are
-    ``v_min, v_min + v_step, ...`` up to ``v_max`` (inclusive, with a 1e-9
-    tolerance). OpenSeqSLAM ignores its ``vskip`` and uses steps of ``1 / ds``;
-    with the defaults (ds = 10, step 0.1) the two are the same. Velocities that
-    produce identical offset rows are searched once.
+    The database row of trajectory point k (k = 0 .. ds, one per query frame) is ``start + floor(k * v)``, as in
+    OpenSeqSLAM. Velocities are ``v_min, v_min + v_step, ...`` up to ``v_max`` (inclusive, with a 1e-9 tolerance).
+    OpenSeqSLAM ignores its ``vskip`` and uses steps of ``1 / ds``; with the defaults (ds = 10, step 0.1) the two are
+    the same. Velocities that produce identical offset rows are searched once.
 
     Returns
     -------
@@ -60,39 +58,33 @@ class SeqSLAMResult:
     Attributes
     ----------
     similarity : numpy.ndarray, float32, (n_db, n_q), or scipy.sparse.csr_matrix
-        Higher = better; finite everywhere. ``-score`` where ``score`` is
-        finite; entries with no complete trajectory sit below every finite one
-        (see :func:`seqslam`, "Edges"). Top-K: the ``top_k`` highest entries
-        per query column of the dense one (same values; explicit zeros kept),
-        among the cells searched.
+        Higher = better; finite everywhere. ``-score`` where ``score`` is finite; entries with no complete trajectory
+        sit below every finite one (see :func:`seqslam`, "Edges"). Top-K: the ``top_k`` highest entries per query
+        column of the dense one (same values; explicit zeros kept), among the cells searched.
     best_db : numpy.ndarray, int64, (n_q,)
-        Best database row per query (first one on ties, like MATLAB's ``min``;
-        -1 where nothing was searched).
+        Best database row per query (first one on ties, like MATLAB's ``min``; -1 where nothing was searched).
     best_score : numpy.ndarray, float32, (n_q,)
-        Score of the best row (the partial-trajectory score where ``complete``
-        is False; ``inf`` only if no trajectory touches the database at all).
+        Score of the best row (the partial-trajectory score where ``complete`` is False; ``inf`` only if no trajectory
+        touches the database at all).
     ratio : numpy.ndarray, float32, (n_q,)
-        Uniqueness ratio ``best / second best outside the window``; lower =
-        more distinctive; 0 when there is no finite competitor, 1 for ``0 / 0``
-        or when the column has no candidate at all.
+        Uniqueness ratio ``best / second best outside the window``; lower = more distinctive; 0 when there is no
+        finite competitor, 1 for ``0 / 0`` or when the column has no candidate at all.
     accepted : numpy.ndarray, bool, (n_q,)
         ``ratio <= ratio_threshold`` (and a finite ``best_score``).
     complete : numpy.ndarray, bool, (n_q,)
-        Whether the best match comes from a trajectory that stays inside the
-        database (always true for OpenSeqSLAM-definable cases).
+        Whether the best match comes from a trajectory that stays inside the database (always true for
+        OpenSeqSLAM-definable cases).
     velocities : numpy.ndarray, float64
         The velocities searched.
     exact : bool
-        Whether every database row was searched for every query (always for
-        the dense result; then the top-K fields equal the dense ones up to
-        float32 rounding).
+        Whether every database row was searched for every query (always for the dense result; then the top-K fields
+        equal the dense ones up to float32 rounding).
     cells : int
         (database, query) cells whose trajectory score was computed.
     score : numpy.ndarray, float32, (n_db, n_q), or None
-        OpenSeqSLAM's sequence score (lower = better): the minimum over
-        velocities of the summed enhanced differences along the trajectory;
-        ``inf`` where no velocity keeps the trajectory inside the database.
-        Dense only (None for top-K).
+        OpenSeqSLAM's sequence score (lower = better): the minimum over velocities of the summed enhanced differences
+        along the trajectory; ``inf`` where no velocity keeps the trajectory inside the database. Dense only (None for
+        top-K).
     """
 
     similarity: np.ndarray
@@ -111,9 +103,8 @@ def _trajectory_scores(DD: np.ndarray, offsets: np.ndarray, ds: int, causal: boo
                        chunk: int) -> tuple[np.ndarray, np.ndarray]:
     """Complete-trajectory scores ``S`` and partial-trajectory scores ``P``.
 
-    Both are rescaled to ``ds + 1`` frames: ``(ds + 1) * mean`` over the points
-    used. ``S`` is ``inf`` unless every point whose query frame exists lies in
-    the database; ``P`` uses the points inside the matrix (``inf`` if none).
+    Both are rescaled to ``ds + 1`` frames: ``(ds + 1) * mean`` over the points used. ``S`` is ``inf`` unless every
+    point whose query frame exists lies in the database; ``P`` uses the points inside the matrix (``inf`` if none).
     """
     n_db, n_q = DD.shape
     n_pts = ds + 1
@@ -122,8 +113,8 @@ def _trajectory_scores(DD: np.ndarray, offsets: np.ndarray, ds: int, causal: boo
     anchor = offsets[:, ds] if causal else np.full(len(offsets), ds // 2)
     rel = offsets - anchor[:, None]             # row of point k = anchor row + rel[v, k]
     pad = int(np.abs(rel).max()) if rel.size else 0
-    # Zero padding makes out-of-matrix points contribute nothing; the point
-    # counts below say which trajectories were cut.
+    # Zero padding makes out-of-matrix points contribute nothing; the point counts below say which trajectories were
+    # cut.
     zp = np.zeros((n_db + 2 * pad, n_q + 2 * ds), dtype=np.float32)
     zp[pad:pad + n_db, ds:ds + n_q] = DD
     cols = np.arange(n_q)[:, None] - a + k[None, :]
@@ -163,10 +154,10 @@ def _trajectory_scores(DD: np.ndarray, offsets: np.ndarray, ds: int, causal: boo
 class SeqSlamConf:
     """SeqSLAM's trajectory and enhancement parameters (OpenSeqSLAM's defaults), checked once where built.
 
-    ``ds`` sequence length minus one (even unless ``causal``; 0: one frame, which the ``seqslam`` method
-    refuses), ``v_min``, ``v_max``, ``v_step`` the velocities searched (database rows per query frame),
-    ``R`` the contrast enhancement's window, ``rwindow`` the uniqueness test's, ``ratio_threshold`` its bar,
-    ``causal`` the trajectory ends at the query instead of being centred on it.
+    ``ds`` sequence length minus one (even unless ``causal``; 0: one frame, which the ``seqslam`` method refuses),
+    ``v_min``, ``v_max``, ``v_step`` the velocities searched (database rows per query frame), ``R`` the contrast
+    enhancement's window, ``rwindow`` the uniqueness test's, ``ratio_threshold`` its bar, ``causal`` the trajectory
+    ends at the query instead of being centred on it.
     """
 
     ds: int = 10
@@ -214,30 +205,25 @@ def seqslam(D, ds: int = 10, v_min: float = 0.8, v_max: float = 1.2, v_step: flo
     Parameters
     ----------
     D : array_like, shape (n_db, n_q)
-        Difference matrix, database x query, lower = more similar, finite
-        (e.g. from :func:`difference_matrix`, any descriptor).
+        Difference matrix, database x query, lower = more similar, finite (e.g. from :func:`difference_matrix`, any
+        descriptor).
     ds : int
-        Sequence length minus one: each trajectory visits ``ds + 1`` query
-        frames. Must be even unless ``causal`` (OpenSeqSLAM silently rounds an
-        odd ``ds`` up; here that is an error).
+        Sequence length minus one: each trajectory visits ``ds + 1`` query frames. Must be even unless ``causal``
+        (OpenSeqSLAM silently rounds an odd ``ds`` up; here that is an error).
     v_min, v_max, v_step : float
-        Velocities searched, in database rows per query frame
-        (:func:`trajectory_offsets`).
+        Velocities searched, in database rows per query frame (:func:`trajectory_offsets`).
     R : int
         Contrast-enhancement window (:func:`enhance_contrast`).
     rwindow : int
-        Uniqueness window: the second best is searched outside rows
-        ``best - rwindow//2 .. best + rwindow//2``.
+        Uniqueness window: the second best is searched outside rows ``best - rwindow//2 .. best + rwindow//2``.
     ratio_threshold : float
-        Accept a match when ``ratio <= ratio_threshold`` (OpenSeqSLAM's demo
-        discards matches with ratio > 0.9).
+        Accept a match when ``ratio <= ratio_threshold`` (OpenSeqSLAM's demo discards matches with ratio > 0.9).
     causal : bool
-        False (OpenSeqSLAM): query frames ``q - ds/2 .. q + ds/2``. True
-        (online use, described in the paper, not in OpenSeqSLAM): frames
-        ``q - ds .. q``.
+        False (OpenSeqSLAM): query frames ``q - ds/2 .. q + ds/2``. True (online use, described in the paper, not in
+        OpenSeqSLAM): frames ``q - ds .. q``.
     enhance : bool
-        Apply :func:`enhance_contrast` first. Without it ``D`` must be
-        non-negative, since the uniqueness ratio assumes so.
+        Apply :func:`enhance_contrast` first. Without it ``D`` must be non-negative, since the uniqueness ratio
+        assumes so.
     chunk : int
         Query columns processed at once (memory / cache trade-off only).
 
@@ -248,9 +234,8 @@ def seqslam(D, ds: int = 10, v_min: float = 0.8, v_max: float = 1.2, v_step: flo
     Raises
     ------
     ValueError
-        Non-finite or non 2-D ``D``, negative ``D`` with ``enhance=False``,
-        odd ``ds`` in centred mode, or out-of-range parameters (the message
-        names the argument).
+        Non-finite or non 2-D ``D``, negative ``D`` with ``enhance=False``, odd ``ds`` in centred mode, or
+        out-of-range parameters (the message names the argument).
     """
     D = check_difference(D, "D")
     ds, velocities, offsets, R, rwindow, ratio_threshold = check_sequence_params(
@@ -312,8 +297,8 @@ def match_images(db_images, q_images, size: tuple[int, int] = (64, 32), patch: i
                  metric: str = "sad", **kw) -> SeqSLAMResult:
     """SeqSLAM end to end on two image sequences.
 
-    Each image goes through :func:`vpr.imageproc.seqslam_preprocess` (grey,
-    resize to ``size`` = (w, h), ``patch`` x ``patch`` normalisation), then
+    Each image goes through :func:`vpr.imageproc.seqslam_preprocess` (grey, resize to ``size`` = (w, h), ``patch`` x
+    ``patch`` normalisation), then
     :func:`difference_matrix` with ``metric`` and :func:`seqslam` with ``**kw``.
 
     Parameters
@@ -334,8 +319,8 @@ def match_images(db_images, q_images, size: tuple[int, int] = (64, 32), patch: i
 def pixel_descriptors(images, name: str = "images") -> np.ndarray:
     """OpenSeqSLAM's descriptor of every image with its defaults: 64 x 32 grey, 8 x 8 patch-normalised, flattened.
 
-    What the ``seqslam`` method reads as its ``"pixels"`` input
-    (:func:`vpr.imageproc.seqslam_descriptors`); float32, (n_images, 2048).
+    What the ``seqslam`` method reads as its ``"pixels"`` input (:func:`vpr.imageproc.seqslam_descriptors`); float32,
+    (n_images, 2048).
     """
     return seqslam_descriptors(images, name=name)
 

@@ -48,18 +48,16 @@ def difference_matrix(db_desc, q_desc, metric: str = "sad", chunk: int = 512) ->
     Parameters
     ----------
     db_desc, q_desc : array_like, shape (n_db, ...) and (n_q, ...)
-        One descriptor per row; trailing axes are flattened (so a stack of
-        preprocessed 32 x 64 images works directly). Same flattened length.
+        One descriptor per row; trailing axes are flattened (so a stack of preprocessed 32 x 64 images works
+        directly). Same flattened length.
     metric : {"sad", "cosine"}
-        ``"sad"``: mean absolute difference over the descriptor elements.
-        OpenSeqSLAM divides the sum by the number of database images instead of
-        the descriptor length; the two differ by a constant factor, which the
-        contrast enhancement and the uniqueness ratio are both invariant to.
-        ``"cosine"``: ``1 - cosine similarity``, clipped to [0, 2]; a zero
-        descriptor has cosine 0 with everything (difference 1).
+        ``"sad"``: mean absolute difference over the descriptor elements. OpenSeqSLAM divides the sum by the number of
+        database images instead of the descriptor length; the two differ by a constant factor, which the contrast
+        enhancement and the uniqueness ratio are both invariant to. ``"cosine"``: ``1 - cosine similarity``, clipped
+        to [0, 2]; a zero descriptor has cosine 0 with everything (difference 1).
     chunk : int
-        Database rows processed at once; bounds the temporary memory of the
-        cosine product to ``chunk * n_q`` floats. ``"sad"`` needs none.
+        Database rows processed at once; bounds the temporary memory of the cosine product to ``chunk * n_q`` floats.
+        ``"sad"`` needs none.
 
     Returns
     -------
@@ -99,15 +97,13 @@ def unit_rows(x: np.ndarray) -> np.ndarray:
 def enhance_contrast(D, R: int = 10, chunk: int = 256) -> np.ndarray:
     """OpenSeqSLAM's local contrast enhancement along the database axis.
 
-    Each entry ``D[i, q]`` is replaced by its z-score against the database rows
-    ``max(0, i - R//2) .. min(n_db - 1, i + R//2)`` of the same column (11 rows
-    for R = 10, clipped, not padded, at the ends of the database), using the
-    sample standard deviation (``ddof=1``, MATLAB's ``std``) and a mean that
-    includes the entry itself. The whole matrix is then shifted so that its
-    minimum is 0, as OpenSeqSLAM does.
+    Each entry ``D[i, q]`` is replaced by its z-score against the database rows ``max(0, i - R//2) .. min(n_db - 1, i
+    + R//2)`` of the same column (11 rows for R = 10, clipped, not padded, at the ends of the database), using the
+    sample standard deviation (``ddof=1``, MATLAB's ``std``) and a mean that includes the entry itself. The whole
+    matrix is then shifted so that its minimum is 0, as OpenSeqSLAM does.
 
-    OpenSeqSLAM divides by zero when a window is constant (or has one row); here
-    such entries get z = 0, so the output is always finite.
+    OpenSeqSLAM divides by zero when a window is constant (or has one row); here such entries get z = 0, so the output
+    is always finite.
 
     Parameters
     ----------
@@ -133,9 +129,8 @@ def enhance_contrast(D, R: int = 10, chunk: int = 256) -> np.ndarray:
     out = np.empty((n_db, n_q), dtype=np.float32)
     for c0 in range(0, n_q, chunk):
         x = D[:, c0:c0 + chunk].astype(np.float64)
-        # Two passes over shifted slices rather than cumulative sums: the
-        # variance then has no cancellation, so constant windows give exactly
-        # (or nearly) zero and the guard below is reliable.
+        # Two passes over shifted slices rather than cumulative sums: the variance then has no cancellation, so
+        # constant windows give exactly (or nearly) zero and the guard below is reliable.
         s = np.zeros_like(x)
         for d in range(-min(h, n_db - 1), min(h, n_db - 1) + 1):
             lo, hi = max(0, -d), n_db - max(0, d)
@@ -146,8 +141,7 @@ def enhance_contrast(D, R: int = 10, chunk: int = 256) -> np.ndarray:
             lo, hi = max(0, -d), n_db - max(0, d)
             ss[lo:hi] += (x[lo + d:hi + d] - mean[lo:hi]) ** 2
         std = np.sqrt(ss / np.maximum(count - 1.0, 1.0))
-        # relative guard: rounding in the mean leaves ~1e-16 * |mean| of
-        # spurious spread in a constant window
+        # relative guard: rounding in the mean leaves ~1e-16 * |mean| of spurious spread in a constant window
         flat = (std <= 1e-10 * np.abs(mean)) | (std == 0.0) | (count == 1.0)
         z = np.where(flat, 0.0, (x - mean) / np.where(flat, 1.0, std))
         out[:, c0:c0 + chunk] = z

@@ -9,9 +9,8 @@ __all__ = ["enhance_rows", "trajectories"]
 
 @njit(cache=True, nogil=True)
 def enhance_rows(D, d0, z0, z1, n_db, h, out):  # pragma: no cover - compiled
-    # Same arithmetic, in the same order, as enhance_contrast (float64 two-pass
-    # sums over the rows ascending), so each z equals the dense one bit for bit;
-    # the loops run over columns innermost so that they vectorise.
+    # Same arithmetic, in the same order, as enhance_contrast (float64 two-pass sums over the rows ascending), so each
+    # z equals the dense one bit for bit; the loops run over columns innermost so that they vectorise.
     C = D.shape[1]
     s = np.empty(C)
     ss = np.empty(C)
@@ -41,10 +40,9 @@ def enhance_rows(D, d0, z0, z1, n_db, h, out):  # pragma: no cover - compiled
 
 @njit(cache=True, nogil=True)
 def trajectories(Z, z0, o0, o1, n_db, rel, colvalid, S, P):  # pragma: no cover - compiled
-    # Z holds enhanced rows z0.. (global) and the block's query columns shifted so
-    # that point k of the trajectory of output column j is column j + k; columns
-    # outside the query sequence are zero, as in _trajectory_scores' padding, so
-    # sums are the same float32 sums in the same order.
+    # Z holds enhanced rows z0.. (global) and the block's query columns shifted so that point k of the trajectory of
+    # output column j is column j + k; columns outside the query sequence are zero, as in _trajectory_scores' padding,
+    # so sums are the same float32 sums in the same order.
     w = S.shape[1]
     n_v, n_pts = rel.shape
     interior = True

@@ -18,9 +18,8 @@ __all__ = ["seqslam_topk"]
 class _Descriptors:
     """Database and query descriptors with the block difference of :func:`difference_matrix`.
 
-    SDR batches (sparse bool) are never densified: ``|a - b|`` summed over 0/1
-    rows is ``|a| + |b| - 2 |a & b|``, an exact identity, so the SAD of a block
-    costs an overlap count through the queries' inverted index.
+    SDR batches (sparse bool) are never densified: ``|a - b|`` summed over 0/1 rows is ``|a| + |b| - 2 |a & b|``, an
+    exact identity, so the SAD of a block costs an overlap count through the queries' inverted index.
     """
 
     def __init__(self, db_desc, q_desc, metric: str):
@@ -82,8 +81,8 @@ class _Descriptors:
         k = min(k, self.n_db)
         sampled = np.arange(0, self.n_q, stride)
         if self.sdr and bitsets_pay(self.a, self.b, against="index"):
-            # the k largest overlaps by popcounts of packed rows, the cheaper way for SDRs that share many
-            # bits (ties: a fixed order spread over the database); a row sharing no bit is no candidate
+            # the k largest overlaps by popcounts of packed rows, the cheaper way for SDRs that share many bits (ties:
+            # a fixed order spread over the database); a row sharing no bit is no candidate
             T = overlap_similarity(self.a, self.b[sampled], top_k=k, normalise=False).tocsc()
             T.eliminate_zeros()
             T.sort_indices()
@@ -131,13 +130,11 @@ def _windows(ptr, rows, q0: int, q1: int, n_db: int, n_windows: int, v_min: floa
              margin: int) -> list[tuple[int, int]]:
     """Database row intervals searched for queries q0..q1, voted by the candidates.
 
-    Each candidate (row i, query q) votes for the anchor ``i - (q - q0)``: the
-    block's first query's row if the speed were 1. A sequence seen by the
-    block's queries piles its votes into one or two adjacent bins of width
-    ``(w - 1) * max speed deviation + 1``, single-frame aliases scatter. The
-    ``n_windows`` best bins (widened by one bin each side) become the rows every
-    trajectory anchored there can reach in the block, at any speed in
-    ``[v_min, v_max]``, plus ``margin``.
+    Each candidate (row i, query q) votes for the anchor ``i - (q - q0)``: the block's first query's row if the speed
+    were 1. A sequence seen by the block's queries piles its votes into one or two adjacent bins of width ``(w - 1) *
+    max speed deviation + 1``, single-frame aliases scatter. The ``n_windows`` best bins (widened by one bin each
+    side) become the rows every trajectory anchored there can reach in the block, at any speed in ``[v_min, v_max]``,
+    plus ``margin``.
     """
     w = q1 - q0
     lo, hi = ptr[q0], ptr[q1]
@@ -172,40 +169,36 @@ def seqslam_topk(db_desc, q_desc, top_k: int = TOP_K, metric: str = "sad", block
                  enhance: bool = True) -> SeqSLAMResult:
     """SeqSLAM from descriptors, by blocks of queries, keeping the top-K per query.
 
-    Memory is ``O(searched rows x block)`` instead of the dense ``n_db x n_q``.
-    ``candidates=None``: every row searched, the dense :func:`seqslam`'s
-    result up to float32 rounding. Otherwise (approximate) only row windows
-    around candidate (database, query) pairs are searched: a db x query
-    matrix, or ``"pairwise"`` (the ``n_candidates`` best single-frame
-    matches per query); ``exact`` says whether the windows covered every row.
-    How each mode works: ``docs/internals.md``.
+    Memory is ``O(searched rows x block)`` instead of the dense ``n_db x n_q``. ``candidates=None``: every row
+    searched, the dense :func:`seqslam`'s result up to float32 rounding. Otherwise (approximate) only row windows
+    around candidate (database, query) pairs are searched: a db x query matrix, or ``"pairwise"`` (the
+    ``n_candidates`` best single-frame matches per query); ``exact`` says whether the windows covered every row. How
+    each mode works: ``docs/internals.md``.
 
     Parameters
     ----------
     db_desc, q_desc : SDR batches (scipy.sparse, bool) or arrays (n, ...)
-        Both of one kind. SDRs are compared as dense 0/1 rows would be
-        (``"sad"``: mean absolute difference, ``"cosine"``), never densified.
+        Both of one kind. SDRs are compared as dense 0/1 rows would be (``"sad"``: mean absolute difference,
+        ``"cosine"``), never densified.
     top_k : int
         Database entries kept per query in ``similarity``.
     metric : {"sad", "cosine"}
         As :func:`difference_matrix`.
     block : int, optional
-        Queries per block: default 256 in exact mode (memory ``~16 * n_db *
-        block`` bytes), 64 in candidate mode (windows grow with the block).
+        Queries per block: default 256 in exact mode (memory ``~16 * n_db * block`` bytes), 64 in candidate mode
+        (windows grow with the block).
     candidates : None, "pairwise" or matrix (n_db, n_q)
         See above.
     n_candidates : int
         Candidates per query for ``candidates="pairwise"``.
     candidate_stride : int
-        ``candidates="pairwise"`` searches every ``candidate_stride``-th query
-        only: the single-frame search is the only part whose time grows with
-        ``n_db * n_q``, and a block's alignment needs a few of its queries'
-        votes, not all of them.
+        ``candidates="pairwise"`` searches every ``candidate_stride``-th query only: the single-frame search is the
+        only part whose time grows with ``n_db * n_q``, and a block's alignment needs a few of its queries' votes, not
+        all of them.
     n_windows : int
         Alignments (windows) searched per query block in candidate mode.
     ds, v_min, v_max, v_step, R, rwindow, ratio_threshold, causal, enhance
-        As :func:`seqslam` (``enhance=False`` uses the raw differences, which
-        are non-negative for both metrics).
+        As :func:`seqslam` (``enhance=False`` uses the raw differences, which are non-negative for both metrics).
 
     Returns
     -------

@@ -37,8 +37,7 @@ SPEEDS = ("same", "faster", "slower")
 def memory_params(conf: Mapping | None = None) -> dict:
     """:class:`SequenceMemory` parameters of rSHOSM-seq (threshold :data:`LEARN_THRESHOLD`), ``conf`` over them.
 
-    Keys of ``conf`` that are not memory parameters are ignored (a method's
-    conf holds both).
+    Keys of ``conf`` that are not memory parameters are ignored (a method's conf holds both).
     """
     params = {**SequenceMemory.default_params(), "threshold": LEARN_THRESHOLD}
     params.update({k: v for k, v in (conf or {}).items() if k in params})
@@ -68,21 +67,17 @@ class EvidenceConf(_Conf):
     Attributes
     ----------
     decay : float in [0, 1)
-        Weight of the predicted evidence: a cell's evidence is its feed-forward
-        overlap plus ``decay`` times the best evidence that predicts it
-        (``1 / (1 - decay)`` frames of memory).
+        Weight of the predicted evidence: a cell's evidence is its feed-forward overlap plus ``decay`` times the best
+        evidence that predicts it (``1 / (1 - decay)`` frames of memory).
     stay, skip : float >= 0 or None
-        Cost of a repeated (``stay``) or a skipped (``skip``) database frame
-        between two query frames (velocity tolerance, as SeqSLAM's velocity
-        search); ``None`` disables that transition.
+        Cost of a repeated (``stay``) or a skipped (``skip``) database frame between two query frames (velocity
+        tolerance, as SeqSLAM's velocity search); ``None`` disables that transition.
     normalise : {"query", "none"}
-        ``"query"``: each query frame's scores are z-scores over all database
-        frames, so that one threshold means the same for every frame.
+        ``"query"``: each query frame's scores are z-scores over all database frames, so that one threshold means the
+        same for every frame.
     speeds : str
-        The speed models, ``+``-joined names of :data:`SPEEDS` (e.g.
-        ``"same+faster"``): each an evidence of its own, merged by the largest
-        score per pair (:meth:`split`; ``docs/localize.md``, "A query driven
-        faster or slower").
+        The speed models, ``+``-joined names of :data:`SPEEDS` (e.g. ``"same+faster"``): each an evidence of its own,
+        merged by the largest score per pair (:meth:`split`; ``docs/localize.md``, "A query driven faster or slower").
     """
 
     decay: float = 0.9
@@ -122,16 +117,14 @@ class BeamConf(_Conf):
     Attributes
     ----------
     floor, rel_floor : float
-        A cell stays in the beam while its evidence is above
-        ``max(floor, rel_floor * largest)`` (``0 <= rel_floor < 1``).
+        A cell stays in the beam while its evidence is above ``max(floor, rel_floor * largest)`` (``0 <= rel_floor <
+        1``).
     z_floor : float
-        A minicolumn's cells enter by feed-forward only when its overlap
-        fraction with the query SDR is above this.
+        A minicolumn's cells enter by feed-forward only when its overlap fraction with the query SDR is above this.
     max_beam, max_enter : int or None
-        Caps that bound the cost per frame whatever the SDRs share: at most
-        ``max_beam`` cells carried (those of largest evidence) and at most
-        ``max_enter`` minicolumns entering by feed-forward (those of largest
-        overlap); None: no cap.
+        Caps that bound the cost per frame whatever the SDRs share: at most ``max_beam`` cells carried (those of
+        largest evidence) and at most ``max_enter`` minicolumns entering by feed-forward (those of largest overlap);
+        None: no cap.
     """
 
     floor: float = 0.0
@@ -178,21 +171,18 @@ def _check_path(c) -> None:
 class PathConf(_Conf):
     """When a localisation is accepted, query frame by query frame (:class:`vpr.shosm.Localizer`).
 
-    The rule of :class:`LoopConf` (which extends it) against a map: the best map frame's margin
-    over the strongest other place (``z_best - z_other``, outside the best's
-    *island*), minus ``drift``, accumulated while the best map frame moves on
-    consistently; accepted when the score reaches ``min_score``. A margin, not
-    a z-score against every map frame, because a z-score grows and shrinks with
-    the size and frame rate of the map. The defaults and how they were chosen:
-    ``docs/localize.md``.
+    The rule of :class:`LoopConf` (which extends it) against a map: the best map frame's margin over the strongest
+    other place (``z_best - z_other``, outside the best's *island*), minus ``drift``, accumulated while the best map
+    frame moves on consistently; accepted when the score reaches ``min_score``. A margin, not a z-score against every
+    map frame, because a z-score grows and shrinks with the size and frame rate of the map. The defaults and how they
+    were chosen: ``docs/localize.md``.
 
     Attributes
     ----------
     drift, min_score, back, ahead, island
-        As :class:`LoopConf`. Against a map the margins are smaller than within
-        one stream (a query frame competes with every map frame, not only with
-        the frames far enough back), so the defaults differ: a small drift, and
-        a path is accepted on the sum of its margins.
+        As :class:`LoopConf`. Against a map the margins are smaller than within one stream (a query frame competes
+        with every map frame, not only with the frames far enough back), so the defaults differ: a small drift, and a
+        path is accepted on the sum of its margins.
     """
 
     drift: float = 0.25
@@ -214,30 +204,26 @@ class PathConf(_Conf):
 class LoopConf(PathConf):
     """When a loop closure is accepted, frame by frame (:func:`vpr.shosm.accept_loops`).
 
-    A frame's best earlier frame stands out from every other place by
-    ``z_best - z_other`` (its z-score minus the best z-score outside the
-    *island* of neighbouring candidates around it whose z is at least
-    ``island``). Along a path of consistent best matches this margin minus
-    ``drift`` is accumulated (a CUSUM: never below 0); the path's score is the
-    decision statistic, and a closure is accepted when it reaches
-    ``min_score``. The defaults and how they were chosen: ``docs/loops.md``.
+    A frame's best earlier frame stands out from every other place by ``z_best - z_other`` (its z-score minus the best
+    z-score outside the *island* of neighbouring candidates around it whose z is at least ``island``). Along a path of
+    consistent best matches this margin minus ``drift`` is accumulated (a CUSUM: never below 0); the path's score is
+    the decision statistic, and a closure is accepted when it reaches ``min_score``. The defaults and how they were
+    chosen: ``docs/loops.md``.
 
     Attributes
     ----------
     drift : float > 0
-        Margin a frame must exceed on average for the score to grow (the "new
-        place" hypothesis wins below it).
+        Margin a frame must exceed on average for the score to grow (the "new place" hypothesis wins below it).
     min_score : float > 0
         Score at which a closure is accepted.
     back, ahead : int >= 0
-        A frame continues the path when its best earlier frame is at most
-        ``back`` frames behind and ``ahead`` frames beyond the path's furthest
-        best so far (tied neighbours, slower or faster revisits).
+        A frame continues the path when its best earlier frame is at most ``back`` frames behind and ``ahead`` frames
+        beyond the path's furthest best so far (tied neighbours, slower or faster revisits).
     island : float
         z-score down to which neighbouring candidates belong to the best place.
     stop_ratio : float in [0, 1)
-        A closure onto a place the camera never left is a stop, not a loop
-        (:func:`vpr.shosm.stationary_closures`; 0: not checked).
+        A closure onto a place the camera never left is a stop, not a loop (:func:`vpr.shosm.stationary_closures`; 0:
+        not checked).
     """
 
     drift: float = 1.5
@@ -273,14 +259,13 @@ _DIRECTIONS = ("both", "forward")
 class RshosmSeqConf:
     """rSHOSM-seq's whole conf, one frozen object: the memory, the evidence, the beam, the decision.
 
-    Built and checked once, by :meth:`build` (``methods.get("rshosm-seq",
-    **conf)`` does it); the batch method, loop closure (:func:`loop_evidence`,
+    Built and checked once, by :meth:`build` (``methods.get("rshosm-seq", **conf)`` does it); the batch method, loop
+    closure (:func:`loop_evidence`,
     :class:`LoopDetector`) and the :class:`Localizer` take it whole, so a
     setting means the same everywhere and its default is written once (in
     :class:`SequenceMemory`, :class:`EvidenceConf`, :class:`BeamConf`,
     :class:`LoopConf` / :class:`PathConf`, and :data:`_OWN` for
-    ``direction``, ``top_k``, ``exact``). :meth:`flat` gives the flat keys of
-    ``--method-conf rshosm-seq.KEY=VALUE``.
+    ``direction``, ``top_k``, ``exact``). :meth:`flat` gives the flat keys of ``--method-conf rshosm-seq.KEY=VALUE``.
 
     Attributes
     ----------
@@ -319,8 +304,8 @@ class RshosmSeqConf:
     def build(cls, conf: Mapping | None = None, what: str = "rshosm-seq") -> RshosmSeqConf:
         """The conf of the flat keys ``conf`` over the defaults, every value checked.
 
-        Strings (the command line's) are read as the default's type; unknown
-        keys and bad values raise ValueError naming ``what`` and the key.
+        Strings (the command line's) are read as the default's type; unknown keys and bad values raise ValueError
+        naming ``what`` and the key.
         """
         flat = merge_conf(cls.defaults(), conf, what, nullable=cls.NULLABLE)
         try:
@@ -347,9 +332,8 @@ class RshosmSeqConf:
         """One conf of ``confs`` (each an :class:`RshosmSeqConf`, one of its parts such as an
         :class:`EvidenceConf`, a mapping of flat keys, or None), later ones and the flat keys ``flat`` over earlier.
 
-        The library's entry points take their conf this way, so that
-        ``loop_evidence(x, conf=EvidenceConf(stay=None))``,
-        ``LoopDetector(decay=0.8)`` and ``Localizer.from_database(db, names,
+        The library's entry points take their conf this way, so that ``loop_evidence(x,
+        conf=EvidenceConf(stay=None))``, ``LoopDetector(decay=0.8)`` and ``Localizer.from_database(db, names,
         conf=method.seq)`` all end in one checked :class:`RshosmSeqConf`.
         """
         if len(confs) == 1 and isinstance(confs[0], RshosmSeqConf) and not flat:
@@ -390,8 +374,8 @@ class RshosmSeqConf:
     def path(self, between_sessions: bool = False) -> PathConf:
         """The decision against a map: the keys given over :class:`PathConf`'s defaults.
 
-        ``stop_ratio`` is loop closure's (a stop is not a revisit); against a map it is refused, unless the map
-        is a stream's earlier sessions (``between_sessions``), where the loop decision uses it.
+        ``stop_ratio`` is loop closure's (a stop is not a revisit); against a map it is refused, unless the map is a
+        stream's earlier sessions (``between_sessions``), where the loop decision uses it.
         """
         if self.decision.get("stop_ratio") is not None and not between_sessions:
             raise ValueError("rshosm-seq: stop_ratio applies to loop closure within one stream, not to localisation "

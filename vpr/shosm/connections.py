@@ -11,18 +11,18 @@ __all__ = ["MemoryView", "Connections", "readonly"]
 class MemoryView(NamedTuple):
     """Read-only views of what a :class:`SequenceMemory` has learned (``mem.view()``), for compiled kernels.
 
-    No copy is made: the views are valid until the memory learns again (growing
-    replaces the arrays), so take a new view after every learning step.
+    No copy is made: the views are valid until the memory learns again (growing replaces the arrays), so take a new
+    view after every learning step.
 
     Attributes
     ----------
     bit_cols : int32 array, n_inputs x width
-        The inverted index: row ``b`` holds the minicolumns connected to input
-        bit ``b`` in its first ``bit_len[b]`` entries (Alg. 1 line 3).
+        The inverted index: row ``b`` holds the minicolumns connected to input bit ``b`` in its first ``bit_len[b]``
+        entries (Alg. 1 line 3).
     bit_len : int32 array, n_inputs
     e_src, e_dst : int64 arrays, n_connections
-        The lateral connections ``e_src[k] -> e_dst[k]`` in the order they were
-        learned (append-only: a view taken later starts with the same entries).
+        The lateral connections ``e_src[k] -> e_dst[k]`` in the order they were learned (append-only: a view taken
+        later starts with the same entries).
     column_sizes : int64 array, n_columns
         Feed-forward connections (input bits) of every minicolumn.
     thresholds : int32 array, n_columns
@@ -53,8 +53,8 @@ def readonly(a: np.ndarray) -> np.ndarray:
 class Connections:
     """Read-only snapshot of what a :class:`SequenceMemory` has learned (``mem.connections``).
 
-    In the spirit of htm.core's ``connections``: the learned synapses as plain
-    SciPy matrices, copied out of the memory (changing them changes nothing).
+    In the spirit of htm.core's ``connections``: the learned synapses as plain SciPy matrices, copied out of the
+    memory (changing them changes nothing).
 
     Attributes
     ----------

@@ -22,8 +22,8 @@ __all__ = ["LoopRule", "LoopDecider", "PathDecider", "LOOP_RULES", "loop_rule", 
 class PathDecider(Decider):
     """The localisation decision against a map, query frame by query frame (:class:`vpr.shosm.PathConf`).
 
-    ``starts``: the first map frame of each session of the map (a path does
-    not move on across one). The state is the path's score, head and start.
+    ``starts``: the first map frame of each session of the map (a path does not move on across one). The state is the
+    path's score, head and start.
     """
 
     def __init__(self, conf: PathConf | None = None, starts=None):
@@ -96,11 +96,9 @@ class LoopDecider(LoopRule):
 
     The stop check reads the stream's SDRs, given frame by frame with
     :meth:`add_sdr` (or all at once with ``sdr``). :meth:`new_session` starts
-    a new run of the robot: the path restarts, and never moves on across the
-    boundary. A frame of a later session is also decided against the earlier
-    sessions by a :class:`PathDecider` (``path``), as ``vpr localize``
-    decides against a map: a robot's second run over its first is
-    localisation; either decision accepts.
+    a new run of the robot: the path restarts, and never moves on across the boundary. A frame of a later session is
+    also decided against the earlier sessions by a :class:`PathDecider` (``path``), as ``vpr localize`` decides
+    against a map: a robot's second run over its first is localisation; either decision accepts.
     """
 
     def __init__(self, loop: LoopConf | None = None, path: PathConf | None = None, sdr=None,
@@ -206,19 +204,16 @@ def accept_loops(evidence, conf: LoopConf | None = None, sdr=None, exclude: int 
                  path: PathConf | None = None, rule: str = "path") -> Decision:
     """The loop decision of every frame of a stored loop matrix (:class:`LoopDecider`).
 
-    For frame ``j`` the best earlier frame stands out from every other place by
-    ``margin = z_best - z_other``, where earlier visits of the same place
-    (linked by closures accepted before) are not other places. Along a path of
-    consistent best matches the margins minus ``drift`` add up to the
-    closure's score, which restarts at 0 when the path breaks or the "new
-    place" hypothesis wins; a closure is accepted when its score reaches
-    ``min_score``, its best place is not the one just left, and (with the
-    stream's SDRs) the camera left the place in between. Causal. Why a path
-    score and not a threshold per frame: ``docs/loops.md``.
+    For frame ``j`` the best earlier frame stands out from every other place by ``margin = z_best - z_other``, where
+    earlier visits of the same place (linked by closures accepted before) are not other places. Along a path of
+    consistent best matches the margins minus ``drift`` add up to the closure's score, which restarts at 0 when the
+    path breaks or the "new place" hypothesis wins; a closure is accepted when its score reaches ``min_score``, its
+    best place is not the one just left, and (with the stream's SDRs) the camera left the place in between. Causal.
+    Why a path score and not a threshold per frame: ``docs/loops.md``.
 
     :func:`vpr.shosm.loop_evidence` takes these decisions as it goes, on each
-    frame's full column; deciding again on a stored top-K matrix is an
-    approximation (an island may be cut where entries were dropped).
+    frame's full column; deciding again on a stored top-K matrix is an approximation (an island may be cut where
+    entries were dropped).
 
     Parameters
     ----------
@@ -275,10 +270,9 @@ def accept_loops(evidence, conf: LoopConf | None = None, sdr=None, exclude: int 
 def accept_path(S, conf: PathConf | None = None, sessions=None) -> Decision:
     """The decision against a map of every query of a traverse, in order (:class:`PathDecider`).
 
-    So that ``vpr match`` / ``compare`` accept what ``vpr localize`` would,
-    with the same score, on the batch evidence. ``S``: n_db x n_q z-scores,
-    dense or top-K sparse (a missing entry counts as the column's lowest
-    stored z); ``sessions``: the first database frame of each session of the map.
+    So that ``vpr match`` / ``compare`` accept what ``vpr localize`` would, with the same score, on the batch
+    evidence. ``S``: n_db x n_q z-scores, dense or top-K sparse (a missing entry counts as the column's lowest stored
+    z); ``sessions``: the first database frame of each session of the map.
     """
     decider = PathDecider(conf or PathConf(), sessions)
     n_db, n_q = S.shape

@@ -32,11 +32,10 @@ class LoopDetector:
     Parameters
     ----------
     encoder : object, optional
-        Encodes images passed to :meth:`update` (``docs/internals.md``).
-        Without it, :meth:`update` takes SDR rows.
+        Encodes images passed to :meth:`update` (``docs/internals.md``). Without it, :meth:`update` takes SDR rows.
     conf : RshosmSeqConf, optional
-        rSHOSM-seq's conf (``method.seq`` of the ``rshosm-seq`` method; its
-        ``top_k``: the earlier frames an answer lists); ``**flat`` keys over it.
+        rSHOSM-seq's conf (``method.seq`` of the ``rshosm-seq`` method; its ``top_k``: the earlier frames an answer
+        lists); ``**flat`` keys over it.
     exclude : int >= 1
         Frames closer than this are not candidates.
 
@@ -79,9 +78,8 @@ class LoopDetector:
     def update(self, frame_or_sdr, name: str | None = None) -> Decision | None:
         """Learn the next frame and decide it: a loop closure onto an earlier frame, or a new place.
 
-        ``frame_or_sdr``: an SDR row (1-row sparse matrix, bool vector or bit
-        indices) or, with an encoder, an image. The decision's ``column`` lists
-        the earlier frames with evidence.
+        ``frame_or_sdr``: an SDR row (1-row sparse matrix, bool vector or bit indices) or, with an encoder, an image.
+        The decision's ``column`` lists the earlier frames with evidence.
         """
         label = str(name) if name is not None else f"frame {self.frames}"
         if _is_sdr(frame_or_sdr):
@@ -98,12 +96,10 @@ class LoopDetector:
     def update_encoded(self, rows, name: str | None = None) -> Decision | None:
         """The next frame, given what the encoder's ``push`` returned for it (the SDR rows of the frames now ready).
 
-        Separate from :meth:`update`, so that a caller can time encoding and
-        deciding apart. None when the frame's answer is not known yet: the
-        first frames of a later session wait in a causal encoder for their
-        statistics, and every frame of the earlier sessions is their candidate;
-        their answers come with :meth:`take_late` once decided. (In the first
-        session a waiting frame has no candidate, so its answer is known at once.)
+        Separate from :meth:`update`, so that a caller can time encoding and deciding apart. None when the frame's
+        answer is not known yet: the first frames of a later session wait in a causal encoder for their statistics,
+        and every frame of the earlier sessions is their candidate; their answers come with :meth:`take_late` once
+        decided. (In the first session a waiting frame has no candidate, so its answer is known at once.)
         """
         j = self.frames
         self.names.append(str(name) if name is not None else f"frame {j}")
@@ -165,8 +161,8 @@ class LoopDetector:
     def load(cls, path, encoder: FrameEncoder | None = None) -> LoopDetector:
         """Read a file written by :meth:`save`; the detector continues where it was saved.
 
-        ``encoder``: a fresh encoder of the kind used before the restart (its
-        state is restored from the file); ``meta`` says which one it was.
+        ``encoder``: a fresh encoder of the kind used before the restart (its state is restored from the file);
+        ``meta`` says which one it was.
 
         Raises
         ------

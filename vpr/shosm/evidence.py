@@ -123,8 +123,7 @@ class Engine:
     beam : BeamConf
         The beam's floors and caps (not with ``exact``).
     exact : bool
-        Carry every relevant cell (dense; cost per frame linear in the
-        connections) instead of the beam.
+        Carry every relevant cell (dense; cost per frame linear in the connections) instead of the beam.
     threads : int, optional
         :meth:`run`'s two passes run on two threads at once when 2 or more
         (default: numba's thread count, capped at 2); the answers are the same.
@@ -160,8 +159,8 @@ class Engine:
     def step(self, bits, n: int | None = None, capped: bool = True, frame: int = -1) -> Column:
         """The evidence of the next frame (its active bits, sorted) over candidates ``0 .. n - 1`` (default: all).
 
-        Only cells learned by candidate ``n - 1`` take part (loop closure over a
-        growing graph); ``capped``: the beam's caps apply.
+        Only cells learned by candidate ``n - 1`` take part (loop closure over a growing graph); ``capped``: the
+        beam's caps apply.
         """
         g = self.graph
         n = g.n_db if n is None else int(n)
@@ -227,9 +226,8 @@ class Engine:
             stats: dict | None = None) -> Evidence:
         """The beam's evidence of every frame of ``query_batch``, the ``top_k`` best database frames per query.
 
-        With ``normalise == "query"`` the scores are z-scores over **all**
-        database frames, as the dense column would be (absent frames are 0).
-        ``stats`` gets the largest beam and candidate set of any frame.
+        With ``normalise == "query"`` the scores are z-scores over **all** database frames, as the dense column would
+        be (absent frames are 0). ``stats`` gets the largest beam and candidate set of any frame.
         """
         check_choice(direction, "direction", _DIRECTIONS)
         top_k = check_top_k(top_k)
@@ -243,10 +241,10 @@ class Engine:
         passes = [("fwd", np.arange(n_q, dtype=np.int64))]
         if direction == "both":
             passes.append(("bwd", np.arange(n_q, dtype=np.int64)[::-1].copy()))
-        # Columns are finished (summed over the passes, standardised, cut to top_k) a chunk of queries at a
-        # time as soon as every pass has given it, and the passes' columns of that chunk freed: the forward
-        # pass gives the chunks first to last and the backward pass last to first, so at most half of each
-        # pass's columns are held at once (float32 values, 32-bit frames), not both whole passes.
+        # Columns are finished (summed over the passes, standardised, cut to top_k) a chunk of queries at a time as
+        # soon as every pass has given it, and the passes' columns of that chunk freed: the forward pass gives the
+        # chunks first to last and the backward pass last to first, so at most half of each pass's columns are held at
+        # once (float32 values, 32-bit frames), not both whole passes.
         chunk = QUERY_CHUNK
         starts = list(range(0, n_q, chunk))
         done: dict[int, tuple] = {}
@@ -447,8 +445,8 @@ def query_evidence(mem: SequenceMemory, query_batch, db_codes, conf: EvidenceCon
     conf : EvidenceConf
     direction : {"both", "forward"}
     top_k : int or None
-        None: the dense evidence of every database frame (n_db x n_q ndarray);
-        an int: the beam, the ``top_k`` best database frames per query (csr).
+        None: the dense evidence of every database frame (n_db x n_q ndarray); an int: the beam, the ``top_k`` best
+        database frames per query (csr).
     beam : BeamConf
         Floors and caps of the beam (only with ``top_k``).
     progress : bool
@@ -482,13 +480,11 @@ def sparse_evidence(mem: SequenceMemory, query_batch, db_codes, conf: EvidenceCo
                     progress: bool = False, stats: dict | None = None) -> Evidence:
     """The beam's evidence (:meth:`Engine.run`): the top-K database frames per query.
 
-    Per query frame only the cells whose evidence is above
-    ``max(floor, rel_floor * largest)`` are carried, and a minicolumn's cells
-    enter by feed-forward only when its overlap fraction is above ``z_floor``
-    (found through the memory's inverted index, so the cost per frame follows
-    the beam, not the database); ``max_beam`` and ``max_enter`` cap both. A
-    cell outside the beam has evidence 0. With all floors 0 and no caps the
-    result equals ``dense_evidence(..., clamp=True)`` standardised.
+    Per query frame only the cells whose evidence is above ``max(floor, rel_floor * largest)`` are carried, and a
+    minicolumn's cells enter by feed-forward only when its overlap fraction is above ``z_floor`` (found through the
+    memory's inverted index, so the cost per frame follows the beam, not the database); ``max_beam`` and ``max_enter``
+    cap both. A cell outside the beam has evidence 0. With all floors 0 and no caps the result equals
+    ``dense_evidence(..., clamp=True)`` standardised.
     """
     check_choice(direction, "direction", _DIRECTIONS)
     g = Graph.of(mem, db_codes, backward=direction == "both")

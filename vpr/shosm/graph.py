@@ -40,9 +40,8 @@ def linked_lists(keys, vals, n_heads):
 def grouped_lists(keys, vals, n_heads):
     """Linked lists key -> values, one per group of keys with the same set of values: (head, next, value, group).
 
-    ``group[k]`` is key ``k``'s group (-1: no values). A frame's winner cells all
-    predict the next frame's, so the beam relaxes a group's largest evidence
-    once: the same maxima as key by key, fewer relaxations.
+    ``group[k]`` is key ``k``'s group (-1: no values). A frame's winner cells all predict the next frame's, so the
+    beam relaxes a group's largest evidence once: the same maxima as key by key, fewer relaxations.
     """
     keys, vals = np.asarray(keys, np.int64), np.asarray(vals, np.int64)
     order = np.lexsort((vals, keys))
@@ -169,10 +168,9 @@ class Graph:
     def dense(self) -> tuple:
         """The dense kernel's form (:func:`vpr.shosm.kernels.evidence.evidence_frames`), on the relevant cells only.
 
-        Only cells in database codes or on a connection can carry evidence to
-        the output; they are renumbered ``0 .. n_rel - 1``. Returns ``(rel,
-        (bit_cols, bit_len, col_size, rel_col, src, dst, db_ptr, db_ind,
-        db_norm))`` with ``rel`` the memory's cell index of each relevant cell.
+        Only cells in database codes or on a connection can carry evidence to the output; they are renumbered ``0 ..
+        n_rel - 1``. Returns ``(rel, (bit_cols, bit_len, col_size, rel_col, src, dst, db_ptr, db_ind, db_norm))`` with
+        ``rel`` the memory's cell index of each relevant cell.
         """
         v, db = self.mem.view(), self.codes
         rel = np.unique(np.concatenate([db.indices.astype(np.int64), v.e_src, v.e_dst]))
@@ -209,8 +207,8 @@ class Beam:
     def __init__(self, graph: Graph):
         n_cells, n_cols, n_db = graph.n_cells, graph.n_cols, max(graph.db_norm.size, 1)
         self.st = np.zeros(KB.BEAM_STATE_SIZE, np.int64)
-        # per cell (32 bits: 2**31 cells): its place in the beam and its candidate number, plus one (0: none);
-        # per candidate or beam entry (at most one per cell; np.zeros leaves the pages no frame reached unmapped)
+        # per cell (32 bits: 2**31 cells): its place in the beam and its candidate number, plus one (0: none); per
+        # candidate or beam entry (at most one per cell; np.zeros leaves the pages no frame reached unmapped)
         for name in ("in_beam", "slot", "beam", "cand"):
             setattr(self, name, np.zeros(n_cells, np.int32))
         for name in ("beam_e", "p1", "p2", "z", "e_new"):

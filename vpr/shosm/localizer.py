@@ -29,13 +29,12 @@ class Localizer:
     names : sequence of str
         Database frame names (one per row of ``db_codes``).
     conf : RshosmSeqConf, optional
-        rSHOSM-seq's conf (``method.seq`` of the ``rshosm-seq`` method): the
-        evidence (``exact``: dense instead of the beam) and the decision
-        (:meth:`RshosmSeqConf.path`); ``**flat`` keys over it. Its memory
-        parameters are ``memory``'s.
+        rSHOSM-seq's conf (``method.seq`` of the ``rshosm-seq`` method): the evidence (``exact``: dense instead of the
+        beam) and the decision (:meth:`RshosmSeqConf.path`); ``**flat`` keys over it. Its memory parameters are
+        ``memory``'s.
     sessions : sequence of int, optional
-        The first frame of each session of the map (a robot's runs learned one
-        after the other): a path never moves on across one.
+        The first frame of each session of the map (a robot's runs learned one after the other): a path never moves on
+        across one.
     """
 
     def __init__(self, memory: SequenceMemory, db_codes, names, conf: RshosmSeqConf | None = None, sessions=None,
@@ -60,9 +59,8 @@ class Localizer:
                       sessions=None, **flat) -> Localizer:
         """Learn the database traverse ``db_sdr`` (SDR batch, frames x bits) named ``names``.
 
-        ``sessions``: the first frame of each session of a multi-session map:
-        the memory forgets its context at each (no frame is the successor of
-        the last one of another run).
+        ``sessions``: the first frame of each session of a multi-session map: the memory forgets its context at each
+        (no frame is the successor of the last one of another run).
         """
         seq = RshosmSeqConf.of(conf, **flat)
         params = seq.memory_params
@@ -92,8 +90,8 @@ class Localizer:
     def reconfigure(self, **flat) -> Localizer:
         """This map with other query-time settings (evidence, beam, ``top_k``, the decision), continuing its state.
 
-        What the map's memory learned cannot change: its parameters are refused
-        (ValueError naming them) unless they are the map's own.
+        What the map's memory learned cannot change: its parameters are refused (ValueError naming them) unless they
+        are the map's own.
         """
         mine = self.memory.get_params()
         fixed = sorted(k for k in set(flat) & set(memory_params()) if RshosmSeqConf.build({k: flat[k]}).memory[k]

@@ -65,11 +65,9 @@ class LoopStream:
     def new_session(self) -> None:
         """The next frame starts a new run of the robot (a session).
 
-        What was learned stays, and later frames close loops onto every
-        earlier session; nothing of the last session's last moment carries
-        over: the memory's context (the first frame of this run is nobody's
-        successor), the evidence and the decision's path. ``exclude`` holds
-        within a session only.
+        What was learned stays, and later frames close loops onto every earlier session; nothing of the last session's
+        last moment carries over: the memory's context (the first frame of this run is nobody's successor), the
+        evidence and the decision's path. ``exclude`` holds within a session only.
         """
         if self.frames == self.starts[-1]:
             return
@@ -126,12 +124,10 @@ def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf=None, top_k: int 
                   progress: bool = False, sessions=None, opinion=None, **flat) -> LoopEvidence:
     """Loop closure within one stream with graded forward sequence evidence, learned online.
 
-    Frame ``j`` is learned with Algorithm 1 (as the paper, one memory over the
-    stream) and then scored against the frames ``i <= j - exclude`` with the
-    forward (causal) evidence: only the past counts. Cells first learned after
-    ``j - exclude`` take no part in the evidence at ``j`` at all: within one
-    traverse a frame's own evidence would otherwise linger, through the stay
-    transition, on the frames just before it and win there. Each frame is then
+    Frame ``j`` is learned with Algorithm 1 (as the paper, one memory over the stream) and then scored against the
+    frames ``i <= j - exclude`` with the forward (causal) evidence: only the past counts. Cells first learned after
+    ``j - exclude`` take no part in the evidence at ``j`` at all: within one traverse a frame's own evidence would
+    otherwise linger, through the stay transition, on the frames just before it and win there. Each frame is then
     decided (loop closure or new place, :class:`LoopConf`).
 
     Parameters
@@ -142,9 +138,9 @@ def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf=None, top_k: int 
     conf : RshosmSeqConf, one of its parts, or a mapping of its flat keys
         ``**flat`` keys over it (:meth:`RshosmSeqConf.of`); ``caps`` says when the beam's caps apply.
     top_k : int or None
-        Earlier frames kept per frame in the matrix (None: dense T x T where it
-        fits the memory budget, :func:`vpr.similarity.fits_dense`, or up to
-        ``dense_max`` frames; the conf's ``top_k`` beyond). The decisions do not depend on it.
+        Earlier frames kept per frame in the matrix (None: dense T x T where it fits the memory budget,
+        :func:`vpr.similarity.fits_dense`, or up to ``dense_max`` frames; the conf's ``top_k`` beyond). The decisions
+        do not depend on it.
     stops : bool
         False leaves out the decision's stop check.
     sessions : sequence of int, optional

@@ -29,13 +29,12 @@ class Map:
     statistics : list of (mean, std) arrays
         What that encoder fitted on the database (``standardise=fit``), per part.
     positions : (n_db, 2) array or None
-        Where each database frame was; ``origin``: the GPS origin (latitude,
-        longitude) they are metres from, or None.
+        Where each database frame was; ``origin``: the GPS origin (latitude, longitude) they are metres from, or None.
     query_state : dict of arrays
         The query encoder's state so far (its running statistics).
     info : dict
-        What the map was learned from (sources, frames, skipped frames, seconds, ``every``: the metres of
-        travel per frame it was sampled at, or None).
+        What the map was learned from (sources, frames, skipped frames, seconds, ``every``: the metres of travel per
+        frame it was sampled at, or None).
     sdr : csr matrix (n_db x bits) or None
         The database's SDRs, which :meth:`subset` learns again.
     """

@@ -34,20 +34,18 @@ class SequenceMemory:
     connectivity : float
         Fraction of the input's 1-bits each new minicolumn connects to (paper: 0.5).
     threshold : float
-        A minicolumn is active when its overlap with the input is at least this
-        fraction of its connections (paper: 0.25).
+        A minicolumn is active when its overlap with the input is at least this fraction of its connections (paper:
+        0.25).
     p_extra : float
-        rSHOSM: probability of creating a lateral connection even though the
-        previous winner's minicolumn already connects to the cell (section 4.3).
-        0.0 gives SHOSM; the paper uses 0.01 and 0.05.
+        rSHOSM: probability of creating a lateral connection even though the previous winner's minicolumn already
+        connects to the cell (section 4.3). 0.0 gives SHOSM; the paper uses 0.01 and 0.05.
     k_active : int
-        **Our extension, not the paper's:** with learning off, when no
-        minicolumn reaches the threshold, the ``k_active`` minicolumns with the
-        highest non-zero overlap are taken as active so that a query traverse
-        still produces winner cells.
+        **Our extension, not the paper's:** with learning off, when no minicolumn reaches the threshold, the
+        ``k_active`` minicolumns with the highest non-zero overlap are taken as active so that a query traverse still
+        produces winner cells.
     seed : int or None
-        Seed of the generator used for sampling connections, breaking ties
-        between cells when bursting, and the rSHOSM coin flips.
+        Seed of the generator used for sampling connections, breaking ties between cells when bursting, and the rSHOSM
+        coin flips.
 
     """
 
@@ -266,15 +264,13 @@ class SequenceMemory:
         Parameters
         ----------
         sdr_row : 1-row SDR batch (sparse), dense row or bit indices
-            As :func:`vpr.sdr.row_bits` reads them: a 1-D array of exactly
-            ``n_inputs`` values is a dense row (bool or 0/1), any other integer
-            array holds the indices of the active bits. :meth:`run` reads a
-            dense row the same way.
+            As :func:`vpr.sdr.row_bits` reads them: a 1-D array of exactly ``n_inputs`` values is a dense row (bool or
+            0/1), any other integer array holds the indices of the active bits. :meth:`run` reads a dense row the same
+            way.
         learn : bool
-            With learning off no minicolumns are created and no connections are
-            learned (a query traverse against a learned database), and no
-            random numbers are drawn: ties between bursting cells are broken by a
-            fixed per-cell key, so the same query on the same memory (after
+            With learning off no minicolumns are created and no connections are learned (a query traverse against a
+            learned database), and no random numbers are drawn: ties between bursting cells are broken by a fixed
+            per-cell key, so the same query on the same memory (after
             :meth:`reset`) gives the same winners, and a query leaves the memory
             exactly as it found it.
 
@@ -290,8 +286,8 @@ class SequenceMemory:
     def run(self, sdr_batch, learn: bool = True, reset: bool = False, progress: bool = False) -> sp.csr_matrix:
         """Process an SDR batch row by row; return the winner codes (frames x cells, csr bool).
 
-        The returned width is the number of cells after the last frame; codes of
-        different runs on one memory can be brought to one width with
+        The returned width is the number of cells after the last frame; codes of different runs on one memory can be
+        brought to one width with
         :func:`pad_codes`. ``reset=True`` clears the sequence context first.
         """
         batch = _sdr.check_batch(sdr_batch, n_bits=self.n_inputs, name="input SDR batch")
@@ -304,9 +300,8 @@ class SequenceMemory:
     def column_sizes(self) -> np.ndarray:
         """Number of feed-forward connections (input bits) of every minicolumn, int64 (a copy).
 
-        Kept up to date from the entries added since the last call (learning
-        only appends to the inverted index), so that reading it after every
-        frame of an online stream does not cost a pass over the whole index.
+        Kept up to date from the entries added since the last call (learning only appends to the inverted index), so
+        that reading it after every frame of an online stream does not cost a pass over the whole index.
         """
         nc = self.n_columns
         cache = getattr(self, "_col_sizes", None)
@@ -388,8 +383,8 @@ class SequenceMemory:
     def state(self) -> tuple[dict, dict]:
         """(header, arrays): what :meth:`load_state` needs to continue exactly as this memory would.
 
-        The header (parameters, the random generator's state) is JSON; the
-        arrays are the learned state and the sequence context.
+        The header (parameters, the random generator's state) is JSON; the arrays are the learned state and the
+        sequence context.
         """
         return {"params": self.get_params(), "rng": self._rng.bit_generator.state}, self._arrays()
 

@@ -56,9 +56,8 @@ def read_file(path, fmt: str, version: int, what: str, hint: str = "",
                prefixes: tuple[str, ...] | None = None) -> Iterator[tuple[dict, dict, list | None]]:
     """Read a file of :func:`write_file`: yields ``(header, parts, names)``; errors in the block name the file.
 
-    ``parts``: part name -> arrays, for the parts in ``prefixes`` (None: every
-    ``PART_key`` prefix); other arrays under ``""``. An exception in the
-    ``with`` block (inconsistent arrays, a bad conf) becomes a
+    ``parts``: part name -> arrays, for the parts in ``prefixes`` (None: every ``PART_key`` prefix); other arrays
+    under ``""``. An exception in the ``with`` block (inconsistent arrays, a bad conf) becomes a
     :class:`MemoryFileError` naming ``path`` and ``what`` it should have been.
     """
     header, data = _io.load_versioned_npz(path, fmt, version, what, MemoryFileError, hint=hint)

@@ -43,9 +43,8 @@ def open_source(path, fps=None, step=None, max_frames=None, topic: str | None = 
     Parameters
     ----------
     path : str or Path
-        A folder of images, a video (.mp4 .avi .mov .mkv .m4v .webm .mpg .mpeg
-        .wmv), a list file (.txt .lst), or a ROS bag (a ``.bag``, ``.mcap`` or
-        ``.db3`` file, or a ROS 2 bag folder with ``metadata.yaml``).
+        A folder of images, a video (.mp4 .avi .mov .mkv .m4v .webm .mpg .mpeg .wmv), a list file (.txt .lst), or a
+        ROS bag (a ``.bag``, ``.mcap`` or ``.db3`` file, or a ROS 2 bag folder with ``metadata.yaml``).
     fps : float, optional
         Videos and bags: resample to this frame rate, by the frames' timestamps.
     step : int, optional
@@ -60,8 +59,8 @@ def open_source(path, fps=None, step=None, max_frames=None, topic: str | None = 
     FileNotFoundError
         ``path`` does not exist.
     ValueError
-        Unknown kind of path, an option the kind does not take, or an error
-        from the source's constructor (empty folder, unreadable video or bag, ...).
+        Unknown kind of path, an option the kind does not take, or an error from the source's constructor (empty
+        folder, unreadable video or bag, ...).
     """
     p = Path(path)
     if not p.exists():
@@ -106,12 +105,10 @@ def fingerprint(path) -> str:
 def open_sources(paths, topic=None, distinct: bool = True, **options) -> list[Source]:
     """:func:`open_source` of each of ``paths``, with a ``topic`` each (:func:`per_input`), named apart.
 
-    Two inputs that are the same source (the same file or folder, the same
-    topic) are refused with ``distinct`` (sessions of one robot, a map's
-    sessions: a traverse learned twice closes perfect loops onto its own copy);
-    else warned. Inputs whose names coincide (``run1/img``, ``run2/img``) are
-    named by as much of their path as tells them apart (``run1/img``), so that
-    outputs, tables and a ``traverse,frame,x,y`` file never mix them up.
+    Two inputs that are the same source (the same file or folder, the same topic) are refused with ``distinct``
+    (sessions of one robot, a map's sessions: a traverse learned twice closes perfect loops onto its own copy); else
+    warned. Inputs whose names coincide (``run1/img``, ``run2/img``) are named by as much of their path as tells them
+    apart (``run1/img``), so that outputs, tables and a ``traverse,frame,x,y`` file never mix them up.
     """
     import warnings
 

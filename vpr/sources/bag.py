@@ -155,9 +155,8 @@ class BagSource(Source):
     FileNotFoundError
         No such file or folder.
     ValueError
-        Not a readable bag, no such topic (the message lists the image
-        topics with their message counts), a topic that is not an image
-        topic, or an image encoding that is not read (named).
+        Not a readable bag, no such topic (the message lists the image topics with their message counts), a topic that
+        is not an image topic, or an image encoding that is not read (named).
     """
 
     kind = "bag"
@@ -381,15 +380,13 @@ class BagSource(Source):
     def trajectory(self, topic: str) -> tuple[np.ndarray, np.ndarray, str]:
         """(times s, positions (n, 2), kind) of a position topic (see :data:`POSITION_TYPES`).
 
-        ``kind`` ``"latlon"``: NavSatFix latitude and longitude (messages
-        without a fix, status < 0, with NaN or zero coordinates left out);
-        ``"metres"``: x and y of an odometry or pose topic.
+        ``kind`` ``"latlon"``: NavSatFix latitude and longitude (messages without a fix, status < 0, with NaN or zero
+        coordinates left out); ``"metres"``: x and y of an odometry or pose topic.
 
         Raises
         ------
         ValueError
-            No such topic (the position topics are listed), a topic of another
-            type, or no usable position on it.
+            No such topic (the position topics are listed), a topic of another type, or no usable position on it.
         """
         topics = self._topics_cache() if self._scan is not None else self._topics()
         if topic not in topics or topics[topic][0] not in POSITION_TYPES:

@@ -29,8 +29,8 @@ OTHER_IMAGE_EXTENSIONS = frozenset({".gif", ".heic", ".heif", ".avif", ".jxl", "
 VIDEO_EXTENSIONS = frozenset({".mp4", ".avi", ".mov", ".mkv", ".m4v", ".webm", ".mpg", ".mpeg", ".wmv"})
 LIST_EXTENSIONS = frozenset({".txt", ".lst"})
 
-# ANYDEPTH|ANYCOLOR keeps 16-bit and grey images as they are (to_bgr converts
-# them) while still honouring EXIF orientation, which IMREAD_UNCHANGED ignores.
+# ANYDEPTH|ANYCOLOR keeps 16-bit and grey images as they are (to_bgr converts them) while still honouring EXIF
+# orientation, which IMREAD_UNCHANGED ignores.
 _IMREAD_FLAGS = cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR
 
 
@@ -50,8 +50,7 @@ class Frame(NamedTuple):
     index : int
         Frame number within the source (``docs/internals.md``).
     name : str
-        File name (folder), entry as written (list file) or ``frame_000123``
-        (video).
+        File name (folder), entry as written (list file) or ``frame_000123`` (video).
     image : numpy.ndarray
         uint8 BGR image, shape (H, W, 3).
     """
@@ -97,8 +96,8 @@ def stat_token(path: Path) -> str:
 def read_image(path: Path) -> tuple[np.ndarray | None, str]:
     """Read and decode one image file as it is stored (grey, colour, 16-bit); return (image, "") or (None, reason)."""
     try:
-        # imdecode on bytes rather than imread: works with non-ASCII paths on
-        # every platform and separates "cannot read" from "cannot decode"
+        # imdecode on bytes rather than imread: works with non-ASCII paths on every platform and separates "cannot
+        # read" from "cannot decode"
         buf = np.fromfile(str(path), dtype=np.uint8)
     except FileNotFoundError:
         return None, "dangling symbolic link" if path.is_symlink() else "file not found"
@@ -165,8 +164,7 @@ class Source:
     name : str
         Short human-readable name (the folder or file name).
     skipped : list of (str, str)
-        (frame name, reason) for every frame left out during the latest
-        iteration; reset when a new iteration starts.
+        (frame name, reason) for every frame left out during the latest iteration; reset when a new iteration starts.
     ignored : int
         Non-image files ignored in a folder (0 for other sources).
     salvaged : dict or None
@@ -211,9 +209,8 @@ class Source:
     def stamps(self):
         """The times (seconds) of the frames :meth:`indices` names, where the source has them (else None).
 
-        Bags: the bag's record times; videos: the container's presentation
-        times (from the first frame); folders and lists: file names that are
-        times (``1305031102.175304.png``, as the TUM RGB-D datasets name them).
+        Bags: the bag's record times; videos: the container's presentation times (from the first frame); folders and
+        lists: file names that are times (``1305031102.175304.png``, as the TUM RGB-D datasets name them).
         """
         return None
 
@@ -248,9 +245,8 @@ class Source:
     def exact_total(self) -> int | None:
         """The number of frames in the source before any selection, where it is known exactly (else None).
 
-        A ground-truth matrix over the source's frames must have this size.
-        A video's container count is not exact (it may count frames that do
-        not decode, or a nominal rate times the duration): None.
+        A ground-truth matrix over the source's frames must have this size. A video's container count is not exact (it
+        may count frames that do not decode, or a nominal rate times the duration): None.
         """
         return None
 
@@ -274,9 +270,8 @@ class Source:
     def iter_range(self, start: int, stop: int) -> Iterator[Frame]:
         """Frames at positions ``start:stop`` of :meth:`names` (as a slice; unreadable ones skipped).
 
-        The unit of parallel encoding: a worker reads only its range (a video
-        seeks to it). Unlike iteration, an empty result does not raise;
-        ``skipped`` holds the range's skipped frames.
+        The unit of parallel encoding: a worker reads only its range (a video seeks to it). Unlike iteration, an empty
+        result does not raise; ``skipped`` holds the range's skipped frames.
         """
         start, stop = check_range(start, stop)
         self.skipped = []

@@ -129,12 +129,10 @@ class FolderSource(_FileListSource):
     Parameters
     ----------
     path : str or Path
-        Folder of images (:data:`IMAGE_EXTENSIONS`, extension case ignored).
-        Files of other image formats (:data:`OTHER_IMAGE_EXTENSIONS`) and
-        dangling symbolic links keep their place in the frame numbering and
-        are skipped with a warning if they cannot be decoded. Hidden files are
-        ignored; other files are ignored with one warning and counted in
-        ``ignored``.
+        Folder of images (:data:`IMAGE_EXTENSIONS`, extension case ignored). Files of other image formats
+        (:data:`OTHER_IMAGE_EXTENSIONS`) and dangling symbolic links keep their place in the frame numbering and are
+        skipped with a warning if they cannot be decoded. Hidden files are ignored; other files are ignored with one
+        warning and counted in ``ignored``.
     step : int, optional
         Keep every ``step``-th image.
     max_frames : int, optional
@@ -169,8 +167,8 @@ class FolderSource(_FileListSource):
                 if entry.name.startswith("."):
                     continue
                 try:
-                    # a symbolic link is a frame whether or not its target exists: a dangling one is skipped
-                    # with a warning at reading time and keeps its frame number, like a corrupt image
+                    # a symbolic link is a frame whether or not its target exists: a dangling one is skipped with a
+                    # warning at reading time and keeps its frame number, like a corrupt image
                     is_file = entry.is_file() or entry.is_symlink() and not entry.is_dir()
                 except OSError:
                     is_file = False
@@ -194,10 +192,9 @@ class FolderSource(_FileListSource):
 class ListSource(_FileListSource):
     """Images named in a text file, one path per line.
 
-    Relative paths are relative to the list file's folder. Blank lines and
-    lines starting with ``#`` are ignored. A listed file that is missing or
-    cannot be decoded is skipped at iteration time, like a corrupt image in a
-    folder. Frame names are the paths as written in the list.
+    Relative paths are relative to the list file's folder. Blank lines and lines starting with ``#`` are ignored. A
+    listed file that is missing or cannot be decoded is skipped at iteration time, like a corrupt image in a folder.
+    Frame names are the paths as written in the list.
 
     Raises
     ------

@@ -23,9 +23,8 @@ def _fields(header: bytes) -> dict[str, bytes]:
 def _records(buf: bytes, start: int = 0):
     """(fields, data, complete) of the records of ``buf`` from ``start``.
 
-    The last record may be cut short: it comes with the data there is and
-    ``complete`` False (an uncompressed chunk is still read up to its last
-    complete record), and nothing follows it.
+    The last record may be cut short: it comes with the data there is and ``complete`` False (an uncompressed chunk is
+    still read up to its last complete record), and nothing follows it.
     """
     i = start
     while i + 4 <= len(buf):
@@ -44,9 +43,8 @@ def _records(buf: bytes, start: int = 0):
 def scan_ros1(path: Path):
     """Connections and messages of a ROS 1 bag read record by record (no index): (connections, messages).
 
-    ``connections``: id -> (topic, msgtype); ``messages``: (connection id, time ns, raw bytes), in file order.
-    Chunks compressed with bz2 or lz4 are read whole or not at all; an uncompressed chunk up to its last
-    complete record.
+    ``connections``: id -> (topic, msgtype); ``messages``: (connection id, time ns, raw bytes), in file order. Chunks
+    compressed with bz2 or lz4 are read whole or not at all; an uncompressed chunk up to its last complete record.
     """
     raw = path.read_bytes()
     magic = b"#ROSBAG V2.0\n"

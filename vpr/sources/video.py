@@ -19,8 +19,8 @@ __all__ = ["VideoSource", "sample_by_time", "frame_times"]
 def _resample_frames(native_fps: float, target_fps: float) -> Iterator[int]:
     """Video frame numbers to keep when resampling ``native_fps`` to ``target_fps``.
 
-    Sample k is at time k / target_fps; the kept frame is the first whose
-    timestamp i / native_fps is not earlier than that. Endless generator.
+    Sample k is at time k / target_fps; the kept frame is the first whose timestamp i / native_fps is not earlier than
+    that. Endless generator.
     """
     ratio = native_fps / target_fps
     last = -1
@@ -37,9 +37,8 @@ def _resample_frames(native_fps: float, target_fps: float) -> Iterator[int]:
 def sample_by_time(times: np.ndarray, target_fps: float) -> list[int]:
     """Frame numbers to keep from frames at ``times`` (seconds, increasing): the same rule by real timestamps.
 
-    Sample k is at ``times[0] + k / target_fps``; the kept frame is the first
-    whose timestamp is not earlier than that. A variable frame rate is
-    therefore sampled evenly in time, not in frame numbers.
+    Sample k is at ``times[0] + k / target_fps``; the kept frame is the first whose timestamp is not earlier than
+    that. A variable frame rate is therefore sampled evenly in time, not in frame numbers.
     """
     if times.size == 0:
         return []
@@ -52,9 +51,8 @@ def sample_by_time(times: np.ndarray, target_fps: float) -> list[int]:
 def frame_times(path) -> np.ndarray | None:
     """Presentation time (s) of every frame of a video's first video stream, in presentation order.
 
-    Read from the container's packets with PyAV, without decoding (fast even
-    for long videos); None when the container gives no timestamps. Frame
-    ``i`` as OpenCV decodes it is at ``frame_times(path)[i]``.
+    Read from the container's packets with PyAV, without decoding (fast even for long videos); None when the container
+    gives no timestamps. Frame ``i`` as OpenCV decodes it is at ``frame_times(path)[i]``.
     """
     import av  # PyAV: the container's real timestamps (OpenCV's frame rate is nominal)
 
@@ -87,12 +85,10 @@ class VideoSource(Source):
     path : str or Path
         Video file.
     fps : float, optional
-        Resample to this frame rate by the frames' timestamps (the
-        container's presentation times, :func:`frame_times`): sample k is at
-        ``k / fps`` seconds after the first frame, and the first frame not
-        earlier than that is kept, so a variable frame rate is sampled evenly
-        in time. Without timestamps the nominal rate is used (frame ``i`` at
-        ``i / video_fps``). Rates at or above the video's own keep every frame.
+        Resample to this frame rate by the frames' timestamps (the container's presentation times,
+        :func:`frame_times`): sample k is at ``k / fps`` seconds after the first frame, and the first frame not
+        earlier than that is kept, so a variable frame rate is sampled evenly in time. Without timestamps the nominal
+        rate is used (frame ``i`` at ``i / video_fps``). Rates at or above the video's own keep every frame.
     step : int, optional
         Keep every ``step``-th frame. Not together with ``fps``.
     max_frames : int, optional
@@ -103,9 +99,8 @@ class VideoSource(Source):
     FileNotFoundError
         ``path`` does not exist.
     ValueError
-        Both ``fps`` and ``step``; bad values; the file cannot be opened or
-        its first frame cannot be decoded; ``fps`` for a video without a
-        frame rate.
+        Both ``fps`` and ``step``; bad values; the file cannot be opened or its first frame cannot be decoded; ``fps``
+        for a video without a frame rate.
     """
 
     kind = "video"

@@ -21,13 +21,12 @@ class Keypoints:
     Attributes
     ----------
     xy : numpy.ndarray
-        float64 (K, 2) keypoint positions (x, y) in the original image's pixel
-        coordinates.
+        float64 (K, 2) keypoint positions (x, y) in the original image's pixel coordinates.
     descriptors : numpy.ndarray
         uint8 (K, 32) ORB descriptors, row ``k`` belongs to ``xy[k]``.
     scale : numpy.ndarray
-        float64 (2,) factors (sx, sy) from the original image to the frame the
-        keypoints were detected in (1 unless the image was upscaled).
+        float64 (2,) factors (sx, sy) from the original image to the frame the keypoints were detected in (1 unless
+        the image was upscaled).
     """
 
     xy: np.ndarray
@@ -56,14 +55,13 @@ def extract_features(image, n_features: int = 1000, min_side: int = 240, name: s
     Parameters
     ----------
     image : array_like
-        Grey (H, W) or BGR/BGRA (H, W, C) image of any size and of any dtype
-        accepted by :func:`vpr.imageproc.to_grey`.
+        Grey (H, W) or BGR/BGRA (H, W, C) image of any size and of any dtype accepted by
+        :func:`vpr.imageproc.to_grey`.
     n_features : int
         Maximum number of keypoints ORB keeps.
     min_side : int
-        Images whose shorter side is smaller are upscaled (bilinear) so that
-        it equals ``min_side`` before detection; keypoints are mapped back to
-        the original pixel coordinates (``docs/internals.md``).
+        Images whose shorter side is smaller are upscaled (bilinear) so that it equals ``min_side`` before detection;
+        keypoints are mapped back to the original pixel coordinates (``docs/internals.md``).
     name : str
         Used in error messages, e.g. ``"query image 12"``.
 
@@ -103,19 +101,16 @@ def match_features(f1: Keypoints, f2: Keypoints, ratio: float = 0.8, mutual: boo
     f1, f2 : Keypoints
         Keypoints of the two images.
     ratio : float
-        A match ``i -> j`` is kept if its distance is below ``ratio`` times
-        the distance to ``f1``'s second-nearest neighbour in ``f2``. When
-        ``f2`` has a single descriptor there is no second neighbour and the
-        test passes.
+        A match ``i -> j`` is kept if its distance is below ``ratio`` times the distance to ``f1``'s second-nearest
+        neighbour in ``f2``. When ``f2`` has a single descriptor there is no second neighbour and the test passes.
     mutual : bool
-        Also require ``i`` to be the nearest neighbour of ``j`` in ``f1``,
-        which removes many-to-one matches onto repetitive texture.
+        Also require ``i`` to be the nearest neighbour of ``j`` in ``f1``, which removes many-to-one matches onto
+        repetitive texture.
 
     Returns
     -------
     numpy.ndarray
-        intp (M, 2) index pairs ``(i, j)`` into ``f1`` and ``f2``, sorted by
-        ``i``; (0, 2) when nothing matches.
+        intp (M, 2) index pairs ``(i, j)`` into ``f1`` and ``f2``, sorted by ``i``; (0, 2) when nothing matches.
     """
     f1 = check_keypoints(f1, "f1")
     f2 = check_keypoints(f2, "f2")

@@ -15,8 +15,8 @@ def _rank(rows: np.ndarray, vals: np.ndarray, n: int) -> np.ndarray:
     keep = vals > -np.inf  # -inf means "never matched" (vpr.evaluate convention)
     rows, vals = rows[keep], vals[keep]
     if len(rows) > n:
-        # only entries at least as good as the n-th best can be chosen; keeping
-        # all ties of the n-th value lets lexsort break them by row
+        # only entries at least as good as the n-th best can be chosen; keeping all ties of the n-th value lets
+        # lexsort break them by row
         kth = -np.partition(-vals, n - 1)[n - 1]
         sel = vals >= kth
         rows, vals = rows[sel], vals[sel]
@@ -31,17 +31,16 @@ def top_candidates(S, n_candidates: int) -> np.ndarray:
     Parameters
     ----------
     S : array_like or scipy.sparse matrix
-        Similarity, database x query, higher = more similar. For a sparse
-        matrix only stored entries are candidates; entries equal to ``-inf``
-        are never candidates.
+        Similarity, database x query, higher = more similar. For a sparse matrix only stored entries are candidates;
+        entries equal to ``-inf`` are never candidates.
     n_candidates : int
         Candidates per query (>= 1).
 
     Returns
     -------
     numpy.ndarray
-        intp (n_q, n_candidates) database indices in decreasing similarity,
-        ties by lower index; padded with -1 when a query has fewer candidates.
+        intp (n_q, n_candidates) database indices in decreasing similarity, ties by lower index; padded with -1 when a
+        query has fewer candidates.
     """
     n = check_int(n_candidates, "n_candidates", 1)
     S = check_similarity(S, sparse_format="csc")
@@ -61,28 +60,24 @@ def top_candidates(S, n_candidates: int) -> np.ndarray:
 def rerank(S, candidates, inliers):
     """``S`` with each query's verified candidates re-ordered by inliers; every other entry unchanged.
 
-    For query ``j`` the values ``S[candidates[j], j]`` are sorted in
-    decreasing order and handed out again, the highest to the candidate with
-    the most inliers, the next to the second, and so on (equal inlier counts
-    keep the order under ``S``). So the column holds the same set of values as
-    before, its verified candidates still sit above all its other entries
-    (they were its ``N`` best), and the pairs that were not verified keep their
-    scores. Average precision with and without verification then measures the
-    same ranking, changed only where verification disagreed with ``S``; it is
-    identical when the inlier order equals the ``S`` order.
+    For query ``j`` the values ``S[candidates[j], j]`` are sorted in decreasing order and handed out again, the
+    highest to the candidate with the most inliers, the next to the second, and so on (equal inlier counts keep the
+    order under ``S``). So the column holds the same set of values as before, its verified candidates still sit above
+    all its other entries (they were its ``N`` best), and the pairs that were not verified keep their scores. Average
+    precision with and without verification then measures the same ranking, changed only where verification disagreed
+    with ``S``; it is identical when the inlier order equals the ``S`` order.
 
-    Why not scores made from inliers: inlier counts and similarities are on
-    unrelated scales, and giving only the candidates new scores drops every
-    other pair below them (or out of the matrix), which is what made the
-    verified AP incomparable before.
+    Why not scores made from inliers: inlier counts and similarities are on unrelated scales, and giving only the
+    candidates new scores drops every other pair below them (or out of the matrix), which is what made the verified AP
+    incomparable before.
 
     Parameters
     ----------
     S : array_like or scipy.sparse matrix
         Similarity, database x query (n_db x n_q), higher = more similar.
     candidates : array_like of int, (n_q, N)
-        Database rows per query (as from :func:`top_candidates`), -1 for padding.
-        For a sparse ``S`` every candidate must be a stored entry.
+        Database rows per query (as from :func:`top_candidates`), -1 for padding. For a sparse ``S`` every candidate
+        must be a stored entry.
     inliers : array_like of int, (n_q, N)
         Inlier count of each candidate; padding is ignored.
 
@@ -94,8 +89,8 @@ def rerank(S, candidates, inliers):
     Raises
     ------
     ValueError
-        Shapes disagree, a candidate is out of range, repeated within a query or
-        (sparse) not stored, or a candidate's ``S`` value is ``-inf``.
+        Shapes disagree, a candidate is out of range, repeated within a query or (sparse) not stored, or a candidate's
+        ``S`` value is ``-inf``.
     """
     S = check_similarity(S, sparse_format="csc")
     n_db, n_q = S.shape
@@ -131,8 +126,8 @@ def rerank(S, candidates, inliers):
     vals[q, r] = data[pos]
     if np.isneginf(vals[q, r]).any():
         raise ValueError("candidates: an entry with S = -inf (never matched) cannot be a candidate")
-    # candidate k of each query, ordered by inliers (more first), ties by S (higher first) then by the
-    # candidates' order, padding last
+    # candidate k of each query, ordered by inliers (more first), ties by S (higher first) then by the candidates'
+    # order, padding last
     neg_inl = np.where(valid, -inl.astype(np.int64), np.iinfo(np.int64).max)
     order = np.lexsort((np.broadcast_to(np.arange(cand.shape[1]), cand.shape), -vals, neg_inl), axis=-1)
     ranked_vals = -np.sort(-vals, axis=1)      # the same values, best first; padding (-inf) last

@@ -15,9 +15,8 @@ from .features import Keypoints, check_keypoints
 def _import_pycolmap():
     """pycolmap, without the SIGTERM / SIGINT handlers its logging library installs on import.
 
-    Those print a native stack trace on a plain ``kill`` and bypass Python's
-    own handlers (a command line's clean stop): Python's are put back after the
-    import, and a stop that comes before the library installs its own is held
+    Those print a native stack trace on a plain ``kill`` and bypass Python's own handlers (a command line's clean
+    stop): Python's are put back after the import, and a stop that comes before the library installs its own is held
     (:func:`vpr.interrupts.deferred`) and raised once the import is done.
     """
     if threading.current_thread() is not threading.main_thread():
@@ -53,9 +52,8 @@ def _ransac_options(max_error: float, seed: int, max_trials: int) -> pycolmap.RA
     opts = pycolmap.RANSACOptions()
     opts.max_error = max_error
     opts.random_seed = seed
-    # colmap's default (100000 trials) makes a wrong candidate, whose matches
-    # are nearly all outliers, expensive; a few thousand trials still find a
-    # true pair's model, which has a high inlier ratio.
+    # colmap's default (100000 trials) makes a wrong candidate, whose matches are nearly all outliers, expensive; a
+    # few thousand trials still find a true pair's model, which has a high inlier ratio.
     opts.max_num_trials = max_trials
     opts.min_num_trials = min(opts.min_num_trials, max_trials)
     opts.num_threads = 1  # determinism
@@ -74,13 +72,11 @@ def two_view_inliers(f1: Keypoints, f2: Keypoints, matches, model: str = "fundam
         (M, 2) integer index pairs into ``f1`` and ``f2``, e.g. from
         :func:`match_features`.
     model : {"fundamental", "homography"}
-        ``"fundamental"`` (pycolmap ``estimate_fundamental_matrix``, any
-        static 3-D scene) or ``"homography"`` (``estimate_homography_matrix``,
-        planar or distant scenes, pure rotation; stricter, so unrelated image
-        pairs get fewer chance inliers).
+        ``"fundamental"`` (pycolmap ``estimate_fundamental_matrix``, any static 3-D scene) or ``"homography"``
+        (``estimate_homography_matrix``, planar or distant scenes, pure rotation; stricter, so unrelated image pairs
+        get fewer chance inliers).
     max_error : float
-        RANSAC inlier threshold in pixels of the detection frame
-        (``docs/internals.md``).
+        RANSAC inlier threshold in pixels of the detection frame (``docs/internals.md``).
     seed : int or None
         RANSAC random seed; ``None`` for a non-deterministic one.
     max_trials : int
@@ -89,8 +85,7 @@ def two_view_inliers(f1: Keypoints, f2: Keypoints, matches, model: str = "fundam
     Returns
     -------
     int
-        Inlier count; 0 with fewer than 8 (fundamental) or 4 (homography)
-        matches, or when the estimation fails.
+        Inlier count; 0 with fewer than 8 (fundamental) or 4 (homography) matches, or when the estimation fails.
     """
     f1 = check_keypoints(f1, "f1")
     f2 = check_keypoints(f2, "f2")

@@ -26,18 +26,16 @@ class VerifyResult:
     Attributes
     ----------
     candidates : numpy.ndarray
-        intp (n_q, N) database indices ordered by ``S`` (best first); -1 pads
-        queries with fewer than N candidates.
+        intp (n_q, N) database indices ordered by ``S`` (best first); -1 pads queries with fewer than N candidates.
     inliers : numpy.ndarray
         int64 (n_q, N) RANSAC inlier counts, -1 at padding.
     best_db : numpy.ndarray
-        intp (n_q,) candidate with the most inliers, ties by ``S`` order; -1
-        for a query without candidates.
+        intp (n_q,) candidate with the most inliers, ties by ``S`` order; -1 for a query without candidates.
     accepted : numpy.ndarray
         bool (n_q,) ``best`` inlier count >= ``min_inliers``.
     score : numpy.ndarray
-        float64 (n_q,) inlier count of ``best_db``; -inf for a query without
-        candidates. Thresholding it sweeps ``min_inliers``.
+        float64 (n_q,) inlier count of ``best_db``; -inf for a query without candidates. Thresholding it sweeps
+        ``min_inliers``.
     n_db : int
         Number of database entries (rows of ``S``).
     """
@@ -69,14 +67,11 @@ class VerifyResult:
     def similarity(self) -> sp.csc_matrix:
         """Inlier-only similarity, sparse n_db x n_q: the candidates and nothing else.
 
-        Not comparable with the unverified matrix (every other pair is
-        missing); use :meth:`reranked` for that.
+        Not comparable with the unverified matrix (every other pair is missing); use :meth:`reranked` for that.
 
-        Each candidate's entry is its inlier count plus a bonus in (0, 1)
-        that decreases with its rank under ``S``, so the ordering of every
-        column -- and hence the best entry -- matches ``best_db``;
-        non-candidates are not stored. With ``matching="single"`` the
-        precision-recall curve then sweeps the inlier threshold.
+        Each candidate's entry is its inlier count plus a bonus in (0, 1) that decreases with its rank under ``S``, so
+        the ordering of every column -- and hence the best entry -- matches ``best_db``; non-candidates are not
+        stored. With ``matching="single"`` the precision-recall curve then sweeps the inlier threshold.
         """
         n_q, n = self.candidates.shape
         q, r = np.nonzero(self.candidates >= 0)
@@ -93,9 +88,8 @@ class Verifier:
     Parameters
     ----------
     db_images, q_images : callable or sequence
-        ``i -> image`` callables, or sequences (lists, stacked arrays) of
-        images; any layout accepted by :func:`extract_features`. Sequences
-        also let :meth:`verify` check the shape of ``S``.
+        ``i -> image`` callables, or sequences (lists, stacked arrays) of images; any layout accepted by
+        :func:`extract_features`. Sequences also let :meth:`verify` check the shape of ``S``.
     **conf
         Overrides of ``Verifier.default_conf``, merged by
         :func:`vpr.config.merge_conf` (unknown keys raise; strings are read as
@@ -109,10 +103,9 @@ class Verifier:
     min_inliers : int
         Inliers the best candidate needs for the query to be accepted.
     cache : bool
-        Keep every image's features after first use, so each image is
-        processed once even across several :meth:`verify` calls (about
-        48 kB per image at 1000 features). Without it, database features are
-        recomputed for every query that lists them.
+        Keep every image's features after first use, so each image is processed once even across several
+        :meth:`verify` calls (about 48 kB per image at 1000 features). Without it, database features are recomputed
+        for every query that lists them.
     max_error, seed, max_trials
         RANSAC settings, see :func:`two_view_inliers`.
     mutual : bool
@@ -194,9 +187,8 @@ class Verifier:
         Parameters
         ----------
         S : array_like or scipy.sparse matrix
-            Similarity, database x query (n_db x n_q), higher = more similar.
-            With a sparse (e.g. top-K) matrix only stored entries are
-            candidates; ``-inf`` entries never are.
+            Similarity, database x query (n_db x n_q), higher = more similar. With a sparse (e.g. top-K) matrix only
+            stored entries are candidates; ``-inf`` entries never are.
         n_candidates : int
             Candidates per query (>= 1).
         progress : bool
@@ -209,9 +201,8 @@ class Verifier:
         Raises
         ------
         ValueError
-            ``n_candidates < 1``, ``S`` not 2-D or containing NaN, ``S``'s
-            shape differs from the image sequences' lengths, or an image
-            cannot be read.
+            ``n_candidates < 1``, ``S`` not 2-D or containing NaN, ``S``'s shape differs from the image sequences'
+            lengths, or an image cannot be read.
         """
         n_candidates = check_int(n_candidates, "n_candidates", 1)
         S = check_similarity(S, sparse_format="csc")

@@ -12,18 +12,15 @@ def evidence_frames(q_ptr, q_ind, order, bit_cols, bit_len, col_size, rel_col, e
                     db_ptr, db_ind, db_norm, decay, stay, skip, z_weight, out, e, fresh, clamp=False):
     """Graded sequence evidence of a query traverse along the learned lateral connections.
 
-    Not Algorithm 1: an extension for database-vs-query matching
-    (:func:`vpr.shosm.dense_evidence`). Cells are the memory's "relevant" cells (those in
-    database codes or on a connection), renumbered ``0 .. n_rel-1``; ``rel_col``
-    is each one's minicolumn. For query frames in ``order``, a cell's evidence is
-    its minicolumn's feed-forward overlap fraction ``z`` plus ``decay`` times the
-    best evidence that predicts it: over its incoming connections (the learned
-    sequence), two connections back minus ``skip`` (a skipped frame) or itself
-    minus ``stay`` (a repeated frame); a negative ``stay``/``skip`` disables that
-    path. ``out[j, q] += mean over database code j of (evidence - z_weight * z)``.
-    ``e`` carries the evidence from one call to the next (chunks of ``order``);
-    ``fresh`` marks the first chunk. ``clamp`` floors the predicted term at 0
-    (the semantics of :func:`beam_frames`, whose absent cells are 0), for tests.
+    Not Algorithm 1: an extension for database-vs-query matching (:func:`vpr.shosm.dense_evidence`). Cells are the
+    memory's "relevant" cells (those in database codes or on a connection), renumbered ``0 .. n_rel-1``; ``rel_col``
+    is each one's minicolumn. For query frames in ``order``, a cell's evidence is its minicolumn's feed-forward
+    overlap fraction ``z`` plus ``decay`` times the best evidence that predicts it: over its incoming connections (the
+    learned sequence), two connections back minus ``skip`` (a skipped frame) or itself minus ``stay`` (a repeated
+    frame); a negative ``stay``/``skip`` disables that path. ``out[j, q] += mean over database code j of (evidence -
+    z_weight * z)``. ``e`` carries the evidence from one call to the next (chunks of ``order``); ``fresh`` marks the
+    first chunk. ``clamp`` floors the predicted term at 0 (the semantics of :func:`beam_frames`, whose absent cells
+    are 0), for tests.
     """
     n_rel = rel_col.shape[0]
     n_cols = col_size.shape[0]
@@ -78,9 +75,8 @@ def evidence_frames(q_ptr, q_ind, order, bit_cols, bit_len, col_size, rel_col, e
 def moments(vals, n):
     """Mean and standard deviation of ``n`` scores of which ``vals`` are stored and the others are 0.
 
-    The one z-score of rSHOSM-seq: every column, dense or sparse, batch or
-    online, is standardised as ``(v - mean) / sd`` with these (sd 1 where
-    the scores do not vary).
+    The one z-score of rSHOSM-seq: every column, dense or sparse, batch or online, is standardised as ``(v - mean) /
+    sd`` with these (sd 1 where the scores do not vary).
     """
     s = 0.0
     s2 = 0.0
@@ -112,9 +108,8 @@ def finish_columns(a_ptr, a_idx, a_val, b_ptr, b_idx, b_val, n_db, top_k, normal
     """Per query: sum the two passes' sparse columns (``b_ptr`` empty: one pass),
     standardise over all database frames (:func:`moments`) and keep the ``top_k`` largest (``top_k <= 0``: all).
 
-    ``n_db`` is an array (per query, the number of database frames it is scored
-    against). Returns (ptr, idx, val, best, score, mean, sd); ``best`` is -1 for
-    a query without any evidence. Ties go to the smaller database index, as
+    ``n_db`` is an array (per query, the number of database frames it is scored against). Returns (ptr, idx, val,
+    best, score, mean, sd); ``best`` is -1 for a query without any evidence. Ties go to the smaller database index, as
     ``argmax`` of the dense column.
     """
     n_q = a_ptr.shape[0] - 1

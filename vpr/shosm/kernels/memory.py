@@ -72,8 +72,8 @@ def rebuild_sets(table, e_src, e_dst, n_edges, cpc):
 def query_tie_key(cell):
     """A fixed pseudo-random number in [0, 1) for ``cell`` (splitmix64).
 
-    Breaks ties between bursting cells when learning is off, so that a query
-    reads no random numbers and leaves the memory exactly as it found it.
+    Breaks ties between bursting cells when learning is off, so that a query reads no random numbers and leaves the
+    memory exactly as it found it.
     """
     z = np.uint64(cell) + np.uint64(0x9E3779B97F4A7C15)
     z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
@@ -82,13 +82,11 @@ def query_tie_key(cell):
     return np.float64(z >> np.uint64(11)) * (1.0 / 9007199254740992.0)
 
 
-# The phases are inlined into run_frames (inline="always"): calls between them cost measurably in
-# bench_memory's random walk.
-# The phases below share the memory's arrays in four groups (tuples, unpacked by name):
-#   ff      feed-forward: (bit_cols, bit_len, col_thr), the inverted index input bit -> minicolumns
-#   lat     lateral: (out_head, outdeg, e_src, e_dst, e_onext, col_cell, edge_set)
-#   cells   per-cell flags and lists: (is_pred, is_next, pred_list, next_list, prev, cur)
-#   scratch per-step work space: (counts, touched, active, keys)
+# The phases are inlined into run_frames (inline="always"): calls between them cost measurably in bench_memory's
+# random walk. The phases below share the memory's arrays in four groups (tuples, unpacked by name):
+#   ff      feed-forward: (bit_cols, bit_len, col_thr), the inverted index input bit -> minicolumns lat     lateral:
+#   (out_head, outdeg, e_src, e_dst, e_onext, col_cell, edge_set) cells   per-cell flags and lists: (is_pred, is_next,
+#   pred_list, next_list, prev, cur) scratch per-step work space: (counts, touched, active, keys)
 # and the parameters ``params = (cpc, new_columns, k_active, connectivity, threshold, p_extra)``.
 
 
@@ -96,8 +94,8 @@ def query_tie_key(cell):
 def match_columns(bits, learn, k_active, st, ff, scratch):
     """Alg. 1 line 1, M_active = match(I, M): overlaps through the inverted index; return n_active.
 
-    With learning off and no minicolumn at its threshold, our extension takes the
-    ``k_active`` minicolumns with the highest non-zero overlap.
+    With learning off and no minicolumn at its threshold, our extension takes the ``k_active`` minicolumns with the
+    highest non-zero overlap.
     """
     bit_cols, bit_len, col_thr = ff
     counts, touched, active, _ = scratch
@@ -220,10 +218,9 @@ def _predict_from(cell, w_slot, st, lat, cells, n_next):
 def activate_cells(act, learn, cpc, st, lat, cells, tape, tp):
     """Alg. 1 lines 5-11 for the sorted active minicolumns ``act``; return (n_winners, n_predicted_next, tp).
 
-    Predicted cells of an active minicolumn win and predict their targets (lines
-    6-8); a minicolumn without one bursts (lines 9-11): all its cells predict and
-    the winner is the cell with the fewest outgoing connections, ties broken by
-    the tape (learning) or :func:`query_tie_key` (learning off).
+    Predicted cells of an active minicolumn win and predict their targets (lines 6-8); a minicolumn without one bursts
+    (lines 9-11): all its cells predict and the winner is the cell with the fewest outgoing connections, ties broken
+    by the tape (learning) or :func:`query_tie_key` (learning off).
     """
     _, outdeg, _, _, _, _, _ = lat
     is_pred, _, _, _, _, cur = cells
@@ -264,9 +261,8 @@ def activate_cells(act, learn, cpc, st, lat, cells, tape, tp):
 def learn_lateral(n_cur, cpc, p_extra, st, lat, cells, tape, tp):
     """Alg. 1 lines 12-13: connect every previous winner to every winner; return the tape position.
 
-    A connection is made unless a cell of the source's minicolumn already
-    connects to the target; rSHOSM (section 4.3) bypasses that with probability
-    ``p_extra``, unless this very cell already connects.
+    A connection is made unless a cell of the source's minicolumn already connects to the target; rSHOSM (section 4.3)
+    bypasses that with probability ``p_extra``, unless this very cell already connects.
     """
     out_head, outdeg, e_src, e_dst, e_onext, col_cell, edge_set = lat
     _, _, _, _, prev, cur = cells
@@ -337,9 +333,8 @@ def commit_step(n_cur, n_next, n_act, st, cells, out_idx):
 def run_frames(frames, f_start, f_stop, learn, params, st, ff, lat, cells, scratch, tape, out):
     """Run Algorithm 1 on frames ``f_start..f_stop-1``; return the first frame not processed.
 
-    ``frames = (indptr, indices)`` of the input batch, ``out = (out_idx, out_ptr)``
-    the winners; the other groups are described above. A frame for which an
-    array is too small is not started (see ``st[NEED_KIND]``).
+    ``frames = (indptr, indices)`` of the input batch, ``out = (out_idx, out_ptr)`` the winners; the other groups are
+    described above. A frame for which an array is too small is not started (see ``st[NEED_KIND]``).
     """
     ind_ptr, ind = frames
     out_idx, out_ptr = out
