@@ -16,28 +16,9 @@ _SPARSE_FORMATS = ("coo", "csr", "csc")
 def check_similarity(S, name: str = "S", allow_sparse: bool = True, sparse_format: str = "coo"):
     """Validate a similarity matrix (database x query) and return it as float64.
 
-    Parameters
-    ----------
-    S : array_like or scipy.sparse matrix, shape (n_db, n_q)
-    name : str
-        Used in error messages.
-    allow_sparse : bool
-        If False, a sparse ``S`` is an error (for callers that need every entry).
-    sparse_format : {"coo", "csr", "csc"}
-        Format of the returned matrix when ``S`` is sparse.
-
-    Returns
-    -------
-    ndarray of float64 or scipy.sparse matrix of float64
-        Dense input: ``S`` as float64 (no copy if it already is). Sparse input: always a copy (so canonicalising never
-        touches the caller's matrix) in ``sparse_format``, duplicates summed, explicit zeros kept (a stored 0 is a
-        similarity, an unstored entry is "never matched").
-
-    Raises
-    ------
-    ValueError
-        If ``S`` is not 2-D, is empty, is not real-valued, contains NaN or ``+inf``, or is sparse while
-        ``allow_sparse`` is False; the message starts with ``name``.
+    Dense: no copy if already float64. Sparse (refused unless ``allow_sparse``): a copy in ``sparse_format``,
+    duplicates summed, explicit zeros kept. Not 2-D, empty, not real, NaN or ``+inf`` raise ValueError starting with
+    ``name``.
     """
     if sparse_format not in _SPARSE_FORMATS:
         raise ValueError(f"sparse_format must be one of {_SPARSE_FORMATS}, got {sparse_format!r}")

@@ -28,16 +28,10 @@ def _parse_scalar(text: str):
 
 
 def coerce_value(key: str, value: Any, default: Any) -> Any:
-    """Coerce ``value`` to the type of ``default`` (used for CLI strings).
+    """Coerce ``value`` to the type of ``default``.
 
-    Non-string values are checked loosely (numbers for numbers, sequences for tuples) and returned converted; strings
-    are parsed: ``"true"``/``"0"`` for booleans, ``"224,224"`` or ``"[224, 224]"`` for tuples, JSON for dicts and
-    ``"none"`` for ``None``.
-
-    Raises
-    ------
-    ValueError
-        If the value cannot be read as the default's type; the message names ``key``.
+    Strings are parsed (``"true"``/``"0"``, ``"224,224"`` or ``"[224, 224]"`` for tuples, JSON for dicts, ``"none"``),
+    other values checked loosely and converted; ValueError naming ``key`` otherwise.
     """
     if default is None:
         return _parse_scalar(value) if isinstance(value, str) else value
@@ -97,25 +91,11 @@ def coerce_value(key: str, value: Any, default: Any) -> Any:
 
 
 def merge_conf(default_conf: Mapping, conf: Mapping | None, what: str, nullable: Iterable[str] = ()) -> dict:
-    """``default_conf`` updated with ``conf``, each value coerced to its default's type.
+    """``default_conf`` (deep-copied) updated with ``conf``, each value coerced to its default's type.
 
-    Parameters
-    ----------
-    default_conf : mapping
-        Every valid key with its default; the defaults are deep-copied, so a default list or dict is never shared
-        between results.
-    conf : mapping or None
-        Overrides; strings (from the command line) are parsed as the default's type, other values checked and
-        converted loosely.
-    what : str
-        What is configured, for error messages (e.g. ``"rshosm-seq"``).
-    nullable : iterable of str
-        Keys that also accept ``None`` (or the string ``"none"``).
-
-    Raises
-    ------
-    ValueError
-        Unknown keys (the message lists the valid ones) or a value that cannot be read as its default's type.
+    Strings are parsed as the default's type (:func:`coerce_value`); ``nullable`` keys also take None or ``"none"``;
+    ``what`` names the configured thing in errors. Unknown keys (the valid ones listed) or unreadable values raise
+    ValueError.
     """
     conf = dict(conf or {})
     unknown = sorted(set(conf) - set(default_conf))
@@ -157,12 +137,7 @@ def parse_method_confs(items: Iterable[str] | None, known) -> dict:
 def parse_key_values(items: Iterable[str] | None, flag: str) -> dict:
     """``["k=40", "standardise=fit"]`` (a repeatable ``--x-conf key=value``) -> dict of strings.
 
-    The strings are coerced later, by :func:`merge_conf`, to the defaults' types.
-
-    Raises
-    ------
-    ValueError
-        An item without ``=`` or with an empty key; the message names ``flag``.
+    An item without ``=`` or with an empty key raises ValueError naming ``flag``.
     """
     out = {}
     for item in items or ():

@@ -11,17 +11,10 @@ METRICS = ("auto", "overlap", "cosine", "sad")
 
 
 def pairwise(db, query=None, metric: str = "auto", top_k: int | None = None):
-    """Similarity of every database row to every query row (db x query).
+    """Similarity of every database row to every query row (db x query; ``query=None``: T x T).
 
-    Parameters
-    ----------
-    db, query : SDR batch (csr bool) or dense descriptors (n, d)
-        ``query=None`` compares ``db`` with itself (loop closure, T x T).
-    metric : {"auto", "overlap", "cosine", "sad"}
-        "auto" picks "overlap" for SDR batches and "cosine" for dense arrays. "sad" is the negative mean absolute
-        difference (SeqSLAM's measure).
-    top_k : int, optional
-        Sparse top-K result (SDR overlap only), for large inputs.
+    ``metric``: ``"auto"`` (``"overlap"`` for SDR batches, ``"cosine"`` for dense arrays), or ``"sad"`` (negative mean
+    absolute difference). ``top_k``: a sparse result (SDR overlap only).
     """
     if metric not in METRICS:
         raise ValueError(f"metric must be one of {METRICS}, got {metric!r}")

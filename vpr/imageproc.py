@@ -20,15 +20,10 @@ def depth_bits(img) -> int:
 
 
 def to_uint8(img, name: str = "image", bits: int | None = None) -> np.ndarray:
-    """Validate ``img`` and convert it to uint8 with 1, 3 or 4 channels (channel axis last).
+    """Validate ``img`` and convert it to uint8 with 1, 3 or 4 channels (last axis).
 
-    A 16-bit image is scaled from ``bits`` bits (default :func:`depth_bits` of it; a source passes the depth of its
-    first frame, so that all its frames are scaled alike).
-
-    Raises
-    ------
-    ValueError
-        Empty array, wrong rank, unsupported channel count or dtype, NaN; the message starts with ``name``.
+    16-bit images are scaled from ``bits`` bits (default :func:`depth_bits`). Empty, wrong rank, channels or dtype, or
+    NaN raise ValueError starting with ``name``.
     """
     a = np.asarray(img)
     if a.size == 0:
@@ -131,28 +126,9 @@ def seqslam_descriptors(images, size: tuple[int, int] = (64, 32), patch: int = 8
                         name: str = "images") -> np.ndarray:
     """The SeqSLAM pixel descriptor of every image: :func:`seqslam_preprocess` flattened row-major.
 
-    The one implementation behind the ``pixel`` encoder, SeqSLAM on images and the SeqSLAM pixel descriptors (2,048
-    dims with the defaults).
-
-    Parameters
-    ----------
-    images : sequence of images
-        Any layout accepted by :func:`to_grey`; sizes may differ (each is resized to ``size``).
-    size : (int, int)
-        Thumbnail (width, height).
-    patch : int
-        Side of the normalisation blocks.
-    name : str
-        Prefix of error messages, which name the image as ``name[i]``.
-
-    Returns
-    -------
-    ndarray of float32, shape (n_images, width * height)
-
-    Raises
-    ------
-    ValueError
-        If there are no images or an image is invalid (see :func:`to_uint8`).
+    The one implementation behind the ``pixel`` encoder and SeqSLAM on images. ``images``: any layout :func:`to_grey`
+    takes, each resized to ``size`` (width, height), normalised in ``patch`` blocks. Returns float32 (n_images, width
+    * height); no images or an invalid one raise ValueError naming ``name[i]``.
     """
     w, h = int(size[0]), int(size[1])
     thumbs = [resize(to_grey(im, f"{name}[{i}]"), (w, h)) for i, im in enumerate(images)]

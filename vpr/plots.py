@@ -27,38 +27,20 @@ def _new_figure(figsize):
     return fig
 
 
-# --------------------------------------------------------------------------- #
-# precision-recall curves
-# --------------------------------------------------------------------------- #
 def plot_pr(curves, path, title=None, dpi=150, ap=None) -> Path:
-    """Plot one precision-recall curve per method, with its average precision (AP) in the legend.
+    """One precision-recall curve per method, its average precision in the legend; returns ``path``.
 
     Parameters
     ----------
     curves : dict[str, tuple]
-        Method name -> ``(precision, recall)``; a third element (the thresholds returned by
-        :func:`vpr.evaluate.pr_curve`) is accepted and ignored. Points must be ordered by non-decreasing recall.
+        Method name -> ``(precision, recall[, thresholds])``, by non-decreasing recall.
     ap : dict[str, float], optional
-        Method name -> AP to show, normally ``evaluate(...)["ap"]``. For a method not in it, the legend shows the AP
-        of the drawn points, ``sum((recall[n] - recall[n-1]) * precision[n])``, which equals
-        :func:`vpr.evaluate.average_precision` unless the curve stops short of
-        recall 1 because some pairs are never matched (those enter AP as one final, low-precision block that the curve
-        does not draw).
+        Method name -> AP to show; otherwise the AP of the drawn points.
     path : str or Path
-        Output file (format from the suffix, e.g. ``.png``).
-    title : str, optional
-    dpi : int
+        Output file (format from the suffix).
+    title, dpi
 
-    Returns
-    -------
-    Path
-        ``path``.
-
-    Raises
-    ------
-    ValueError
-        If ``curves`` is empty or a curve is malformed (lengths differ, NaN, values outside [0, 1], recall
-        decreasing), or an ``ap`` value is not a number in [0, 1]; the message names the curve.
+    Raises ValueError naming the curve if ``curves`` is empty or a curve malformed, or an ``ap`` is not in [0, 1].
     """
     ap = {} if ap is None else ap
     if not isinstance(ap, Mapping):
@@ -114,9 +96,6 @@ def plot_pr(curves, path, title=None, dpi=150, ap=None) -> Path:
     return save_figure(fig, path, dpi=dpi, bbox_inches="tight")
 
 
-# --------------------------------------------------------------------------- #
-# similarity matrix
-# --------------------------------------------------------------------------- #
 def block_max(S, fr, fc):
     """Max-pool ``S`` in ``fr x fc`` blocks; never-matched entries become NaN.
 
@@ -191,11 +170,11 @@ def _has_candidate(S, best_db):
 def plot_similarity(S, path, best_db=None, accepted=None, gt_hard=None, title=None,
                     max_pixels=1000, dpi=150, value_label="similarity", axis_labels=("database", "query"),
                     gt_soft=None, mask=None) -> Path:
-    """Heatmap of a similarity matrix with best matches and ground truth.
+    """Heatmap of a similarity matrix with best matches and ground truth; returns ``path``.
 
-    Database entries run down the y axis, queries along the x axis. Larger matrices are max-pooled to at most
-    ``max_pixels`` cells per axis for display (markers keep their exact positions). Sparse ``S`` is pooled from its
-    stored entries without densifying; unstored and ``-inf`` entries are drawn blank.
+    Database entries down the y axis, queries along x, max-pooled to at most ``max_pixels`` per axis (markers exact);
+    unstored and ``-inf`` entries are blank. NaN / +inf, shape mismatches, non-bool masks, ``best_db`` out of range or
+    ``accepted`` without ``best_db`` raise ValueError.
 
     Parameters
     ----------
@@ -203,38 +182,19 @@ def plot_similarity(S, path, best_db=None, accepted=None, gt_hard=None, title=No
     path : str or Path
         Output file (format from the suffix).
     best_db : array_like of int, shape (n_q,), optional
-        Each query's best database index. No marker is drawn for a query without a candidate: a negative value, an
-        entry that is never matched (``-inf`` / not stored), or a column of ties such as an all-zero one (its "best"
-        row is arbitrary, not a match).
+        Each query's best database index; no marker where there is no candidate (negative, never matched, or a column
+        of ties).
     accepted : array_like of bool, shape (n_q,), optional
-        Whether each best match was accepted (circle) or rejected (cross). Requires ``best_db``. With ``gt_hard`` an
-        accepted match is drawn green when it is right, red when it is wrong (orange: neither, on ``gt_soft`` only).
-    gt_hard : bool array or sparse bool matrix, shape (n_db, n_q), optional
-        Drawn as a faint red overlay.
+        Accepted (circle) or rejected (cross); with ``gt_hard`` green when right, red when wrong, orange on
+        ``gt_soft`` only.
+    gt_hard, gt_soft : bool array or sparse bool matrix, shape (n_db, n_q), optional
+        Drawn as a faint red overlay (hard).
     value_label : str
-        What the matrix holds, for the colour bar (a method's scores: ``"z-score"``, ``"-difference"``, ...).
+        What the matrix holds, for the colour bar.
     axis_labels : (rows, columns)
-        ``("earlier frame", "frame")`` for one stream's loop closures.
-    gt_soft : like ``gt_hard``, optional
-        Pairs neither right nor wrong (see ``accepted``).
     mask : bool array or sparse bool matrix, shape (n_db, n_q), optional
-        The pairs evaluated (a loop closure's earlier frames far enough back): the ground truth is drawn only there,
-        not in the "no score" region (a frame always matches itself and the frames just before it).
-    title : str, optional
-    max_pixels : int
-        Display resolution limit per axis.
-    dpi : int
-
-    Returns
-    -------
-    Path
-        ``path``.
-
-    Raises
-    ------
-    ValueError
-        On NaN / +inf in ``S``, shape mismatches, non-bool ``gt_hard`` or ``accepted``, out-of-range ``best_db``, or
-        ``accepted`` without ``best_db``.
+        The pairs evaluated; the ground truth is drawn only there.
+    title, max_pixels, dpi
     """
     S = check_similarity(S, sparse_format="csc")
     n_db, n_q = S.shape
@@ -361,33 +321,11 @@ def _pairs_in(G, rows, cols) -> np.ndarray:
     return out
 
 
-# --------------------------------------------------------------------------- #
-# grouped bars
-# --------------------------------------------------------------------------- #
 def plot_bars(table, path, ylabel, title=None, dpi=150) -> Path:
-    """Grouped bar chart, e.g. one group per dataset and one bar per encoder.
+    """Grouped bar chart (e.g. a group per dataset, a bar per encoder); returns ``path``.
 
-    Parameters
-    ----------
-    table : dict[str, dict[str, float]]
-        Group -> (name -> value). A name missing from a group draws no bar there; bar colours follow the order in
-        which names first appear.
-    path : str or Path
-        Output file (format from the suffix).
-    ylabel : str
-    title : str, optional
-    dpi : int
-
-    Returns
-    -------
-    Path
-        ``path``.
-
-    Raises
-    ------
-    ValueError
-        If ``table`` or all of its groups are empty, or a value is not a finite real number (the message names group
-        and name).
+    ``table``: group -> (name -> value); a missing name draws no bar; colours follow the order names first appear.
+    Raises ValueError if ``table`` or all its groups are empty, or a value is not finite (naming group and name).
     """
     if not isinstance(table, Mapping) or len(table) == 0:
         raise ValueError("table must be a non-empty dict of group -> dict of name -> value")

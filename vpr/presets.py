@@ -68,38 +68,15 @@ def describe() -> str:
 
 def resolve(name: str | None = DEFAULT, encoder: str | None = None, encoder_conf: dict | None = None,
             methods: list[str] | None = None, method_conf: dict | None = None, loops: bool = False) -> dict:
-    """The settings of a run: preset ``name`` with the explicitly given settings over it.
+    """The settings of a run: preset ``name`` (None: :data:`DEFAULT`) with the given settings over it.
 
-    Parameters
-    ----------
-    name : str or None
-        Preset name (None: :data:`DEFAULT`).
-    encoder : str, optional
-        Replaces the preset's encoder. The preset's encoder conf is then dropped (its keys belong to the preset's
-        encoder), so only ``encoder_conf`` applies.
-    encoder_conf : dict, optional
-        Merged key by key over the preset's encoder conf when the encoder is the preset's (not given, or the same
-        name); otherwise the whole conf.
-    methods : list of str, optional
-        Replaces the preset's methods (a non-empty list; order kept, first = headline).
-    method_conf : dict, optional
-        method -> conf, merged key by key over the preset's conf of that method. Always kept, even for a method the
-        run does not use, so that the run can reject a typo. The preset's conf of a method the run uses neither in
-        ``methods`` nor as ``loop_method`` is dropped.
-    loops : bool
-        Settings of a loop-closure run (``vpr loops``): the preset's ``loop_encoder_conf`` goes over its encoder conf
-        (under ``encoder_conf``).
+    ``encoder`` replaces the preset's (its encoder conf then dropped); ``encoder_conf`` is merged key by key over the
+    preset's when the encoder is the preset's, else taken whole; ``methods`` replaces the preset's (first = headline);
+    ``method_conf`` (method -> conf) is merged key by key and always kept, so that a run can refuse a typo; ``loops``:
+    the preset's ``loop_encoder_conf`` goes over its encoder conf.
 
-    Returns
-    -------
-    dict
-        ``preset``, ``encoder``, ``encoder_conf``, ``methods``, ``method_conf``, ``loop_method``: plain data (copies),
-        e.g. for ``config.json``.
-
-    Raises
-    ------
-    ValueError
-        Unknown preset, an empty or non-string method list, or a conf that is not a dict.
+    Returns plain data (copies): ``preset``, ``encoder``, ``encoder_conf``, ``methods``, ``method_conf``,
+    ``loop_method``. An unknown preset, an empty or non-string method list or a conf not a dict raise ValueError.
     """
     name = DEFAULT if name is None else name
     preset = get(name)

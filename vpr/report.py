@@ -328,13 +328,12 @@ def page(title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[s
          sessions: dict | None = None, params: dict | None = None, pairs: dict | None = None) -> str:
     """The report's HTML.
 
-    ``header``/``rows``: the metrics table: (metrics key, label) of its columns, and per method its cells as printed;
-    ``figures``: (caption, data URI) of the plots, or (caption, data URI, matrix) of a similarity matrix (see
-    :func:`_figure`); ``strips``: the decisions shown; ``counts``: per method, {outcome: (shown, of)}; ``notes``:
-    lines said under the title; ``sides``: what the three frames of a strip are; ``sessions``: per method, the
-    closures per pair of sessions (:func:`vpr.evaluate.session_pairs`' rows); ``params``: the run's ``metrics.json``
-    params, shown as its settings (:func:`settings`); ``pairs``: the frames a click on a matrix shows
-    (:func:`pair_frames`).
+    ``header``/``rows``: the metrics table's (key, label) columns and each method's printed cells; ``figures``:
+    (caption, data URI[, matrix]) (:func:`_figure`); ``strips``: the decisions shown; ``counts``: per method {outcome:
+    (shown, of)}; ``notes``: lines under the title; ``sides``: what a strip's three frames are; ``sessions``: per
+    method
+    :func:`vpr.evaluate.session_pairs`' rows; ``params``: ``metrics.json``'s params (:func:`settings`); ``pairs``: the
+    frames a click on a matrix shows (:func:`pair_frames`).
     """
     out = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
            f"<title>{_esc(title)}</title><style>{_CSS}</style></head><body>", f"<h1>{_esc(title)}</h1>"]

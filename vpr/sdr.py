@@ -29,15 +29,9 @@ def _csr(indptr, indices, n_rows, n_bits) -> sp.csr_matrix:
 
 
 def from_indices(rows: Sequence[Iterable[int]], n_bits: int) -> sp.csr_matrix:
-    """Build an SDR batch from one array of active-bit indices per row.
+    """An SDR batch from one array of active-bit indices per row (duplicates merged).
 
-    Duplicate indices within a row are merged.
-
-    Raises
-    ------
-    ValueError
-        If ``n_bits`` is not positive or an index is negative, out of range or not an integer; the message names the
-        row.
+    A non-positive ``n_bits`` or a negative, out-of-range or non-integer index raise ValueError naming the row.
     """
     n_bits = int(n_bits)
     if n_bits <= 0:
@@ -132,18 +126,10 @@ def to_indices(batch: sp.csr_matrix) -> list[np.ndarray]:
 
 
 def row_bits(row, n_bits: int, name: str = "SDR row") -> np.ndarray:
-    """Sorted active-bit indices (int64) of one SDR row given as a 1-row batch, a dense row or bit indices.
+    """Sorted active-bit indices (int64) of one SDR row: a 1-row batch, a dense row or bit indices.
 
-    A 1-D array of exactly ``n_bits`` values is a dense row: bool, or integer / float 0/1 (anything else raises: it is
-    ambiguous). Any other integer array holds the indices of the active bits (so ``n_bits`` indices cannot be given
-    this way: pass a dense row). The one reading of "one SDR row" of every frame-by-frame entry point
-    (:meth:`vpr.shosm.SequenceMemory.step`,
-    :meth:`vpr.shosm.ForwardEvidence.update`, ...).
-
-    Raises
-    ------
-    ValueError
-        Several rows, a wrong width or an index out of range, naming ``name``.
+    A 1-D array of exactly ``n_bits`` values is a dense row (bool or 0/1, else refused); any other integer array holds
+    indices. Several rows, a wrong width or an index out of range raise ValueError naming ``name``.
     """
     n_bits = int(n_bits)
     if sp.issparse(row):
@@ -177,14 +163,9 @@ def row_bits(row, n_bits: int, name: str = "SDR row") -> np.ndarray:
 
 
 def check_batch(batch, n_bits: int | None = None, name: str = "SDR batch") -> sp.csr_matrix:
-    """Validate an SDR batch and return it as a canonical bool CSR matrix.
+    """An SDR batch (sparse or dense 0/1) as a canonical bool CSR matrix.
 
-    Accepts a CSR/CSC/COO matrix or a dense array of 0/1 values.
-
-    Raises
-    ------
-    ValueError
-        Wrong width, non-binary values or NaN (naming the first bad row).
+    Wrong width, non-binary values or NaN raise ValueError naming the first bad row.
     """
     if not sp.issparse(batch):
         b = from_dense(batch)

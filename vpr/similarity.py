@@ -90,35 +90,22 @@ def _norm_overlap_block(A, B, na, nb):
 
 
 def overlap_similarity(A, B=None, top_k: int | None = None, normalise: bool = True, chunk: int = 2048):
-    """Normalised overlap |a & b| / sqrt(|a| |b|) between the rows of SDR batches.
-
-    The similarity matrix used by the pairwise baselines; for the raw counts of two small batches see
-    :func:`vpr.sdr.overlap_count`.
+    """Normalised overlap |a & b| / sqrt(|a| |b|) between the rows of SDR batches (0 for an empty row).
 
     Parameters
     ----------
     A : SDR batch (database), shape (n_db, n_bits)
     B : SDR batch (query), shape (n_q, n_bits); ``None`` compares ``A`` with itself.
     top_k : int, optional
-        Keep only the ``top_k`` highest database entries per query and return a ``scipy.sparse.csr_matrix`` (n_db x
-        n_q). Required when ``n_db * n_q`` exceeds :func:`dense_pairs`; with it there is no size limit (memory grows
-        with ``n_db * top_k``-sized blocks and ``n_q * top_k``).
+        Keep each query's ``top_k`` highest database entries (a csr_matrix, no size limit); required above
+        :func:`dense_pairs`.
     normalise : bool
-        ``False`` returns raw overlap counts.
+        ``False``: raw overlap counts.
     chunk : int
-        Queries processed per block for top-K (fewer when ``n_db`` is large, so that a block stays within a fixed
-        memory budget).
+        Queries per top-K block (fewer for a large ``n_db``).
 
-    Returns
-    -------
-    ndarray (float32, n_db x n_q) or csr_matrix when ``top_k`` is given.
-    Rows with no active bits have similarity 0 to everything.
-
-    Raises
-    ------
-    ValueError
-        On an invalid SDR batch, or when dense output (no ``top_k``) would exceed :func:`dense_pairs`; checked before
-        any work.
+    Returns float32 (n_db, n_q), or a csr_matrix with ``top_k``. An invalid batch or a dense output above
+    :func:`dense_pairs` raise ValueError before any work.
     """
     A = _sdr.check_batch(A, name="database SDRs")
     B = A if B is None else _sdr.check_batch(B, n_bits=A.shape[1], name="query SDRs")
@@ -151,13 +138,9 @@ def overlap_similarity(A, B=None, top_k: int | None = None, normalise: bool = Tr
 def bitsets_pay(A, B, against: str = "product") -> bool:
     """Whether packed bit sets beat the other way to the top-K overlap of these batches.
 
-    A pair costs about one 64-bit word for the bit sets, whatever the rows share; the other ways cost with the bits
-    two rows are expected to share. ``against="product"``: the sparse product of :func:`overlap_similarity` (which
-    also densifies a block per query chunk): bit sets win up to 64 words a row, and beyond when rows share many bits.
-    ``against="index"``: a lean count through an inverted index (SeqSLAM's single-frame candidates), which wins until
-    rows share about a quarter as many bits as a row has words (40 of 2,048 bits: the index; 200 of 2,048: bit sets).
-    Winner codes (millions of cells, a few active) never take bit sets. Measured times: ``docs/benchmarks.md``
-    (``benchmarks/bench_overlap_topk.py``).
+    A pair costs about one 64-bit word with bit sets; the others cost with the bits two rows are expected to share.
+    ``against``: ``"product"`` (:func:`overlap_similarity`'s sparse product) or ``"index"`` (a count through an
+    inverted index). Winner codes never take bit sets. Figures: ``docs/benchmarks.md``.
     """
     n_bits = A.shape[1]
     words = -(-n_bits // 64)

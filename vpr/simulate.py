@@ -35,15 +35,8 @@ class World:
 
 def make_world(rows: int, cols: int, n_bits: int = 2048, n_active: int = 40, aliasing: int = 0,
                alias_places=None, seed=None) -> World:
-    """A grid world with one random SDR per place.
-
-    Parameters
-    ----------
-    aliasing : int
-        Number of pairs of places that share one SDR (the paper's ``a``).
-    alias_places : array of place indices, optional
-        Places the aliased pairs are drawn from (default: all places). The paper aliases places the robot visits, so
-        pass the trajectory's places.
+    """A grid world with one random SDR per place; ``aliasing`` pairs of places (from ``alias_places``, the
+    paper's visited places) share one.
     """
     if rows <= 0 or cols <= 0:
         raise ValueError(f"grid must have positive size, got {rows} x {cols}")
@@ -117,16 +110,9 @@ def aliased_traverses(n_places: int, n_appearances: int, n_bits: int = 2048, k: 
                       speed=(0.8, 1.2), seed=0):
     """Two traverses of a long route whose places reuse a few appearances (scale benchmarks).
 
-    Every place shows one of ``n_appearances`` random SDRs (``k`` of ``n_bits`` bits), each reused about ``n_places /
-    n_appearances`` times in random order, so a single frame is ambiguous and only a sequence tells the places apart.
-    The database traverse visits every place once with the clean SDR; the query traverse moves at a speed drawn from
-    ``speed`` (places per frame, a new value every 50 to 200 frames, so places are repeated or skipped) and sees each
-    SDR with ``move`` of its 1-bits moved (:func:`vpr.sdr.add_noise`).
-
-    Returns
-    -------
-    db_sdr, q_sdr : csr bool, (n_places x n_bits) and (about n_places x n_bits)
-    db_place, q_place : int64 place index of every frame
+    Each place shows one of ``n_appearances`` random SDRs (``k`` of ``n_bits``). The database visits every place once;
+    the query moves at speeds from ``speed`` (places per frame, changing every 50 to 200 frames) with ``move`` of each
+    SDR's bits moved. Returns ``db_sdr, q_sdr`` (csr bool) and ``db_place, q_place`` (int64).
     """
     if int(n_places) < 1 or int(n_appearances) < 1:
         raise ValueError(f"n_places and n_appearances must be >= 1, got {n_places}, {n_appearances}")

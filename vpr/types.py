@@ -17,17 +17,9 @@ ENCODER_INPUTS = {"sdr": "SDRs", "desc": "dense descriptors"}
 
 @dataclass(frozen=True)
 class ImageInput:
-    """An input a method computes from the images itself (not from the encoder).
-
-    Attributes
-    ----------
-    name : str
-        Key in :attr:`EncodedTraverse.inputs` and in the encoding cache.
-    description : str
-        What it is, for messages ("SeqSLAM pixel descriptors").
-    compute : callable
-        ``compute(images, name)`` -> float32 array (frames x dims) for a list of images; ``name`` prefixes error
-        messages (``name[i]`` is image ``i``). A module-level function, so that it can be shipped to Dask workers.
+    """An input a method computes from the images itself: ``name`` (its key in :attr:`EncodedTraverse.inputs` and
+    the cache), ``description``, and ``compute(images, name)`` -> float32 (frames x dims), a module-level function
+    (shipped to Dask workers) whose errors name ``name[i]``.
     """
 
     name: str
@@ -36,17 +28,10 @@ class ImageInput:
 
 
 class EncodedTraverse:
-    """An encoded traverse: frame names and, by name, what the methods read per frame.
+    """An encoded traverse: one name per frame and, by name, what the methods read per frame.
 
-    Parameters
-    ----------
-    names : sequence
-        One name per frame.
-    sdr : SDR batch (frames x bits), optional
-    desc : float32 array (frames x dims), optional
-        The encoder's dense descriptor.
-    **inputs
-        Further inputs by name (e.g. ``pixels=...``, see :class:`ImageInput`). ``None`` values are left out.
+    ``sdr``: an SDR batch; ``desc``: the encoder's float32 descriptors; ``**inputs``: further inputs
+    (:class:`ImageInput`), None left out.
     """
 
     def __init__(self, names, sdr=None, desc=None, **inputs):
@@ -156,18 +141,9 @@ class Decision:
 class Decider(ABC):
     """Decides a stream one frame at a time, from the frame's :class:`Column`, with the state the stream carries.
 
-    Every decider (a localisation against a map, a loop rule, a second opinion around one) implements the two hooks
-    :meth:`_decide` and
-    :meth:`new_session` and its state (:meth:`state`, :meth:`load_state`);
-    :meth:`decide` checks the column and counts the frames. Deciders that read
-    the frames' SDRs (a loop rule's stop check) override :meth:`add_sdr`.
-
-    Attributes
-    ----------
-    frames : int
-        Frames decided so far.
-    starts : ndarray of int
-        The first frame of each session (``[0]``: one), as the candidates are numbered.
+    Every decider implements :meth:`_decide`, :meth:`new_session`, :meth:`state` and :meth:`load_state`;
+    :meth:`decide` checks the column and counts the frames; deciders that read the frames' SDRs override
+    :meth:`add_sdr`. ``frames``: frames decided; ``starts``: each session's first frame.
     """
 
     frames: int = 0

@@ -12,26 +12,11 @@ __all__ = ["accepted_precision", "best_in_soft_band", "decision_curve", "session
 def accepted_precision(best_db, accepted, gt_hard, gt_soft=None, mask=None) -> dict:
     """Precision and recall of the accepted best matches (one decision per query).
 
-    Parameters
-    ----------
-    best_db : array of int, (n_q,)
-        Best database frame per query (-1: none).
-    accepted : array of bool, (n_q,)
-        Whether each query's best match is accepted.
-    gt_hard, gt_soft : bool (n_db, n_q), dense or sparse
-        Ground truth; a best match that is only a soft pair counts neither as right nor as wrong.
-    mask : bool (n_db, n_q), optional
-        Pairs evaluated (e.g. :func:`loop_closure_mask`); ground truth outside it counts as no match, for the recall's
-        queries too.
+    ``best_db`` (-1: none) and ``accepted`` per query; ``gt_hard``, ``gt_soft``, ``mask`` as :func:`evaluate` (a best
+    match on a soft-only pair counts neither way; ground truth outside ``mask`` is no match).
 
-    Returns
-    -------
-    dict
-        ``n_accepted`` (accepted best matches), ``precision_accepted`` (over those not onto a soft-only pair; None
-        when there are none: a precision of nothing is not 1.0), ``recall_accepted`` (correct accepted matches over
-        queries that have a true match; None when none has one), ``n_false`` (accepted matches that are wrong) and
-        ``false_per_1000`` (per 1,000 queries: the false-alarm rate of a drive without revisits, where recall is
-        undefined and every accepted match is false).
+    Returns ``n_accepted``; ``precision_accepted`` (None over none); ``recall_accepted`` (correct accepted over
+    queries with a true match; None when none has one); ``n_false``; ``false_per_1000`` (per 1,000 queries).
     """
     if mask is not None:
         gt_hard, gt_soft = (None if g is None else g.multiply(mask).tocsr() if sp.issparse(g) else np.asarray(g) & mask
@@ -67,23 +52,12 @@ def best_in_soft_band(best_db, gt_hard, gt_soft, mask=None) -> int:
 
 
 def decision_curve(best, score, gt_hard, gt_soft=None, mask=None) -> tuple[dict, tuple]:
-    """One decision per query (loop closure: per frame), with its own score: the metrics loop-closure users report.
+    """One decision per query with its own score: the metrics loop-closure users report.
 
-    Query ``j`` decides for its best database (earlier) frame ``best[j]`` with ``score[j]``; thresholding the score
-    accepts the decisions above it. Precision is over the accepted decisions (one onto a soft-only pair counts neither
-    way), recall over the queries that have a true match inside ``mask``. Sweeping the threshold over every distinct
-    score gives the precision-recall curve, its average precision and the recall at 100 % precision.
-
-    Parameters
-    ----------
-    best : int array (n_q,); -1: no decision.
-    score : float array (n_q,); higher = more confident.
-    gt_hard, gt_soft, mask : as :func:`evaluate` (n_db x n_q).
-
-    Returns
-    -------
-    (metrics, (precision, recall, thresholds)): metrics ``ap``,
-    ``recall_at_100p`` and ``n_with_match`` (queries with a true match).
+    Query ``j`` decides for ``best[j]`` (-1: none) with ``score[j]``; thresholds sweep every distinct score. Precision
+    is over the accepted decisions (soft-only counts neither way), recall over the queries with a true match in
+    ``mask``. Returns ``(metrics, (precision, recall, thresholds))``, metrics ``ap``, ``recall_at_100p``,
+    ``n_with_match``.
     """
     if mask is not None:
         gt_hard, gt_soft = (None if g is None else g.multiply(mask).tocsr() if sp.issparse(g) else np.asarray(g) & mask
@@ -114,22 +88,12 @@ def decision_curve(best, score, gt_hard, gt_soft=None, mask=None) -> tuple[dict,
 
 
 def session_pairs(best, accepted, gt_hard, starts, gt_soft=None, mask=None, names=None, frames=None) -> list[dict]:
-    """Which session revisits which: the accepted closures of one multi-session stream, per pair of sessions.
+    """The accepted closures of a multi-session stream per pair of sessions ``r <= s``.
 
-    For each session ``s`` and each session ``r <= s``: ``frames`` of ``s`` with a true loop onto ``r`` (inside
-    ``mask``), ``accepted`` closures of ``s``'s frames onto ``r``, their ``precision`` (None over none: a precision of
-    nothing is not 1.0; a closure onto a soft-only pair counts neither way) and ``recall`` (correct accepted closures
-    onto ``r`` over the frames with a true loop onto ``r``).
-
-    Parameters
-    ----------
-    best, accepted : per frame of the stream, the best earlier frame (-1: none) and the decision.
-    gt_hard, gt_soft, mask : T x T (rows earlier frame), dense or sparse; ``gt_hard`` None: the accepted
-        closures per pair alone (``frames``, ``precision``, ``recall`` None).
-    starts : the first frame of each session.
-    names : optional session names (the sources).
-    frames : optional, the frame number of each column (default: column ``j`` is frame ``j``); a session without
-        a column is left out.
+    Each pair gets ``frames`` (of ``s`` with a true loop onto ``r``), ``accepted``, ``precision`` (None over none) and
+    ``recall``. ``best``, ``accepted``: per frame; ``gt_hard`` (None: counts only), ``gt_soft``, ``mask``: T x T;
+    ``starts``: each session's first frame; ``names``: optional; ``frames``: each column's frame number (a session
+    without a column is left out).
     """
     best, accepted = np.asarray(best, np.int64), np.asarray(accepted, bool)
     T = best.size

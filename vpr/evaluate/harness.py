@@ -57,25 +57,10 @@ def run_methods(runners: dict, call: Callable, gt_hard=None, gt_soft=None, mask=
                 on_result: Callable | None = None, resources: bool = False, loops: bool = False) -> dict:
     """Run and evaluate every method, one at a time (one similarity matrix alive at once).
 
-    Parameters
-    ----------
-    runners : dict
-        Label -> configured :class:`vpr.methods.Method`.
-    call : callable
-        ``call(runner) -> MatchResult``: the run (``runner.match(db, q)`` or ``runner.loops(seq, exclude)``).
-    gt_hard, gt_soft, mask
-        Ground truth and evaluated pairs (None: no metrics but the seconds).
-    on_result : callable, optional
-        ``on_result(label, result, (metrics, curve))``, e.g. writing the method's files; may return further entries
-        ``{label: (metrics, curve)}``.
-    resources : bool
-        Also record ``cpu_seconds`` and the process's ``peak_rss_mb`` after each method.
-    loops : bool
-        Loop closures within one stream (:func:`method_metrics`).
-
-    Returns
-    -------
-    dict: label -> (metrics, curve or None), in the order run.
+    ``runners``: label -> :class:`vpr.methods.Method`; ``call(runner) -> MatchResult``; ground truth None: seconds
+    only; ``on_result(label, result, (metrics, curve))`` may return further ``{label: (metrics, curve)}``;
+    ``resources``: also ``cpu_seconds`` and ``peak_rss_mb``; ``loops``: one stream (:func:`method_metrics`). Returns
+    label -> (metrics, curve or None), in the order run.
     """
     out = {}
     for label, runner in runners.items():

@@ -14,15 +14,8 @@ __all__ = ["average_precision", "pr_curve", "thin_pr", "auc_pr", "auc_from_pr", 
 _MATCHINGS = ("multi", "single")
 
 
-# --------------------------------------------------------------------------- #
-# input handling
-# --------------------------------------------------------------------------- #
 class _Problem(NamedTuple):
-    """Validated inputs reduced to what the metrics need.
-
-    Dense problems keep full matrices; sparse problems keep only the candidate entries (stored, inside the mask, not
-    soft-only), sorted by query, then by decreasing similarity, then by database index, i.e. in ranking order.
-    """
+    """Validated inputs reduced to what the metrics need; sparse: the candidate entries in ranking order."""
 
     shape: tuple
     sparse: bool
@@ -132,9 +125,6 @@ def _check_matching(matching):
         raise ValueError(f"matching must be one of {_MATCHINGS}, got {matching!r}")
 
 
-# --------------------------------------------------------------------------- #
-# core computations on a prepared problem
-# --------------------------------------------------------------------------- #
 def _decisions(p: _Problem, matching: str):
     """Similarity and correctness of every decision, plus the recall denominator."""
     if matching == "multi":
@@ -230,42 +220,28 @@ def _recall_at_k(p: _Problem, k: int) -> float:
     return float(np.count_nonzero(hit & p.pos_queries) / n_pos)
 
 
-# --------------------------------------------------------------------------- #
-# public metrics
-# --------------------------------------------------------------------------- #
 def pr_curve(S, gt_hard, gt_soft=None, matching="multi", mask=None):
     """Precision-recall curve at every distinct similarity threshold.
 
-    A pair (or, for ``"single"`` matching, a query's best pair) is a predicted match at threshold ``t`` if its
-    similarity is ``>= t``. The conventions on ``S``, ``gt_soft`` and ``mask``: ``docs/internals.md``,
-    ``vpr/evaluate``.
+    A pair (``"single"`` matching: each query's best pair, lowest index on ties) is predicted at threshold ``t`` if
+    its similarity is ``>= t``. Conventions on ``S``, ``gt_soft`` and ``mask``: ``docs/internals.md``.
 
     Parameters
     ----------
     S : array_like or scipy.sparse matrix, shape (n_db, n_q)
-        Similarities, higher = more similar.
-    gt_hard : bool array or sparse bool matrix, shape (n_db, n_q)
-        True matches.
-    gt_soft : bool array or sparse bool matrix, shape (n_db, n_q), optional
-        Pairs ``gt_soft & ~gt_hard`` are ignored.
+        Higher = more similar.
+    gt_hard, gt_soft, mask : bool array or sparse bool matrix, shape (n_db, n_q)
+        True matches; pairs ``gt_soft & ~gt_hard`` are ignored; only pairs in ``mask`` are evaluated.
     matching : {"multi", "single"}
-        ``"multi"``: every pair is a decision; ``"single"``: only each query's best database entry (lowest index on
-        ties) is a decision.
-    mask : bool array or sparse bool matrix, shape (n_db, n_q), optional
-        Only pairs where ``mask`` is True are evaluated.
 
     Returns
     -------
     precision, recall, thresholds : ndarray of float, shape (n_thresholds + 1,)
-        Sorted by decreasing threshold, one point per distinct similarity of the evaluated decisions after a start
-        point where nothing is predicted: ``thresholds[0] = +inf``, ``recall[0] = 0``, ``precision[0] = precision[1]``
-        (0 when no pair is ever predicted; why not 1: ``docs/internals.md``). Recall is non-decreasing.
+        By decreasing threshold, after a start point ``thresholds[0] = +inf``, ``recall[0] = 0``, ``precision[0] =
+        precision[1]`` (0 when nothing is ever predicted).
 
-    Raises
-    ------
-    ValueError
-        On shape mismatch, NaN or +inf in ``S``, non-boolean ``gt_hard`` / ``gt_soft`` / ``mask``, unknown
-        ``matching``, or when there is no true match to evaluate (recall undefined).
+    Raises ValueError on shape mismatch, NaN or +inf in ``S``, non-boolean ground truth or mask, unknown ``matching``,
+    or no true match to evaluate.
     """
     _check_matching(matching)
     precision, recall, thresholds, _, _ = _curve(_prepare(S, gt_hard, gt_soft, mask), matching)
@@ -275,26 +251,10 @@ def pr_curve(S, gt_hard, gt_soft=None, matching="multi", mask=None):
 def average_precision(S, gt_hard, gt_soft=None, mask=None) -> float:
     """Non-interpolated average precision over all evaluated pairs (the headline metric).
 
-    ``AP = sum_n (R_n - R_{n-1}) P_n`` over the distinct thresholds in decreasing order: scikit-learn's
-    ``average_precision_score`` of the evaluated pairs (inside ``mask``, not soft-only), ties admitted together.
-    Never-matched pairs (not stored, ``-inf``) rank last, all tied, so a top-K ``S`` scores as the dense matrix with
-    its missing entries lowest. ``"multi"`` matching only; cost grows with the stored entries, never with ``n_db *
-    n_q``.
-
-    Parameters
-    ----------
-    S, gt_hard, gt_soft, mask
-        As for :func:`pr_curve`.
-
-    Returns
-    -------
-    float
-        AP in [0, 1]; 1 exactly when every true pair ranks strictly above every false one.
-
-    Raises
-    ------
-    ValueError
-        As for :func:`pr_curve`, including when there is no true pair inside ``mask`` (AP undefined).
+    ``AP = sum_n (R_n - R_{n-1}) P_n`` over the distinct thresholds, decreasing (scikit-learn's
+    ``average_precision_score`` of the evaluated pairs, ties together). Never-matched pairs rank last, tied, so a
+    top-K ``S`` scores as the dense one with its missing entries lowest; cost grows with the stored entries. Arguments
+    and errors as :func:`pr_curve` (``"multi"`` only).
     """
     p = _prepare(S, gt_hard, gt_soft, mask)
     precision, recall, _, _, tp = _curve(p, "multi")
@@ -302,17 +262,10 @@ def average_precision(S, gt_hard, gt_soft=None, mask=None) -> float:
 
 
 def thin_pr(precision, recall) -> np.ndarray:
-    """The points of a precision-recall curve that its shape needs: indices, increasing.
+    """Indices (increasing) of the points of a precision-recall curve its shape needs.
 
-    Keeps the first and last point and every point whose recall differs from its neighbour's on either side (the ends
-    of each run of equal recall). The thinned curve has the same average precision (``sum (R_n - R_{n-1}) P_n``),
-    trapezoid area, recall at 100 % precision and drawing; it holds at most two points per true positive where the
-    full curve holds one per distinct threshold.
-
-    Parameters
-    ----------
-    precision, recall : array_like of float, shape (n,)
-        Points in order of non-decreasing recall, as returned by :func:`pr_curve`.
+    The first, the last and the ends of each run of equal recall: the same AP, area, recall at 100 % precision and
+    drawing, at most two points per true positive.
     """
     recall = np.asarray(recall)
     if np.shape(precision) != recall.shape or recall.ndim != 1:
@@ -326,17 +279,9 @@ def thin_pr(precision, recall) -> np.ndarray:
 
 
 def auc_from_pr(precision, recall) -> float:
-    """Area under a precision-recall curve by the trapezoidal rule over recall.
+    """Area under a precision-recall curve (points by non-decreasing recall) by the trapezoidal rule.
 
-    Parameters
-    ----------
-    precision, recall : array_like of float, shape (n,)
-        Points in order of non-decreasing recall, as returned by :func:`pr_curve`.
-
-    Raises
-    ------
-    ValueError
-        If the arrays are not 1-D of equal length, contain NaN, or ``recall`` decreases somewhere.
+    Arrays not 1-D of equal length, NaN or a decreasing recall raise ValueError.
     """
     precision = np.asarray(precision, dtype=np.float64)
     recall = np.asarray(recall, dtype=np.float64)
@@ -376,46 +321,21 @@ def recall_at_100p(S, gt_hard, gt_soft=None, matching="multi", mask=None) -> flo
 
 
 def recall_at_k(S, gt_hard, gt_soft=None, k=1, mask=None) -> float:
-    """Fraction of queries with a true match whose top-k database entries contain one.
+    """Fraction of queries with a true match (inside ``mask``) whose top-``k`` database entries hold one.
 
-    Only queries with at least one ``gt_hard`` pair inside ``mask`` are counted. Each query ranks its evaluated
-    database entries by decreasing similarity, ties broken by lower database index; soft-only pairs (``gt_soft &
-    ~gt_hard``), pairs outside ``mask`` and never-matched entries (not stored / ``-inf``) are removed from the
-    ranking, as in Schubert et al.'s ``recallAtK``.
-
-    Parameters
-    ----------
-    S, gt_hard, gt_soft, mask
-        As for :func:`pr_curve`.
-    k : int
-        Number of retrieved database entries, ``>= 1``.
-
-    Returns
-    -------
-    float
-        Recall@k in [0, 1].
-
-    Raises
-    ------
-    ValueError
-        As for :func:`pr_curve`; also if ``k`` is not a positive integer or no query has a true match.
+    Each query ranks its evaluated entries by decreasing similarity, ties by lower index; soft-only, masked-out and
+    never-matched entries leave the ranking (Schubert et al.'s ``recallAtK``). Arguments and errors as
+    :func:`pr_curve`; ``k >= 1``.
     """
     k = check_int(k, "k", minimum=1)
     return _recall_at_k(_prepare(S, gt_hard, gt_soft, mask), k)
 
 
 def evaluate(S, gt_hard, gt_soft=None, mask=None, return_curve: bool = False):
-    """Standard metric set for one similarity matrix.
+    """Standard metric set for one similarity matrix, arguments and errors as :func:`pr_curve`.
 
-    Returns
-    -------
-    dict
-        ``ap`` (:func:`average_precision`, the headline, first key), ``auc_pr`` and ``recall_at_100p`` (multi
-        matching), ``recall_at_1``, ``recall_at_5`` and ``auc_pr_single`` (single matching), all floats. Arguments and
-        errors as for :func:`pr_curve`.
-    (precision, recall, thresholds)
-        Only with ``return_curve=True``: the multi-matching curve of
-        :func:`pr_curve`, which the metrics were computed from (no second sort).
+    Returns ``ap`` (first key), ``auc_pr``, ``recall_at_100p`` (multi matching), ``recall_at_1``, ``recall_at_5``,
+    ``auc_pr_single``; with ``return_curve`` also the multi-matching ``(precision, recall, thresholds)``.
     """
     p = _prepare(S, gt_hard, gt_soft, mask)
     precision, recall, thresholds, fp, tp = _curve(p, "multi")

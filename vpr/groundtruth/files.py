@@ -122,37 +122,16 @@ def _check_names(names, n: int, what: str):
 def load_pairs_csv(path, n_db: int, n_q: int, db_names: Sequence[str] | None = None,
                    q_names: Sequence[str] | None = None, *, db_indices: Sequence[int] | None = None,
                    q_indices: Sequence[int] | None = None, columns: tuple[str, str] = ("query", "db")):
-    """Ground truth from a CSV of ``query,db`` pairs (header optional).
+    """Ground truth from a CSV of ``query,db`` pairs, one matching per line.
 
-    ``columns`` names the two columns (query first): ``("frame", "earlier")`` for the loop closures of one stream.
+    A header names the columns ``query`` and ``db`` in either order (``columns``: other names, query first, e.g.
+    ``("frame", "earlier")`` for one stream's loops); any other header is refused; without one the query comes first.
+    A token matching a name in ``db_names`` / ``q_names`` is that frame. With ``db_indices`` / ``q_indices`` (source
+    frame numbers of the frames read) a frame that was not read drops the pair with one warning; without, frames are
+    0..n-1 and a larger number is an error.
 
-    Parameters
-    ----------
-    path : str or Path
-        CSV file; each line is one matching (query frame, database frame). A header names the columns ``query`` and
-        ``db`` (case-insensitive, either order) and the columns are read by name; any other header is refused. Without
-        a header the first column is the query frame, the second the database frame.
-    n_db, n_q : int
-        Number of database and query frames read.
-    db_names, q_names : sequence of str, optional
-        Names of the frames read; a token matching a name is that frame.
-    db_indices, q_indices : sequence of int, optional
-        Source frame numbers of the frames read. With them, an integer token of a frame that was not read (skipped or
-        not selected) drops the pair with one warning; without them, frames are numbered 0..n-1 and a larger number is
-        an error.
-
-    Returns
-    -------
-    numpy.ndarray or scipy.sparse.csr_matrix
-        bool (n_db, n_q); sparse above :func:`~vpr.similarity.dense_pairs` pairs.
-
-    Raises
-    ------
-    FileNotFoundError
-        No such file.
-    ValueError
-        Empty file, wrong column count, unknown name, non-integer or out-of-range frame number: ``"FILE:LINE:
-        reason"``.
+    Returns bool (n_db, n_q), sparse above :func:`~vpr.similarity.dense_pairs` pairs. A missing file raises
+    FileNotFoundError; a malformed one ValueError ``"FILE:LINE: reason"``.
     """
     n_db = check_count(n_db, "n_db", minimum=1)
     n_q = check_count(n_q, "n_q", minimum=1)
@@ -302,22 +281,11 @@ def _load_positions(path):
 
 
 def load_positions_csv(path) -> tuple[list[str] | np.ndarray, np.ndarray]:
-    """Read per-frame positions: lines of ``frame,x,y`` (header optional).
+    """Per-frame positions from lines of ``frame,x,y`` (header optional).
 
-    Returns
-    -------
-    frames : list of str or numpy.ndarray of int64
-        Frame numbers when every frame field is an integer, else names.
-    xy : numpy.ndarray
-        float64 (n, 2) positions, in file order.
-
-    Raises
-    ------
-    FileNotFoundError
-        No such file.
-    ValueError
-        Empty file, wrong column count, non-numeric or non-finite coordinate, negative frame number, duplicate frame:
-        ``"FILE:LINE: reason"``.
+    Returns ``(frames, xy)``: int64 frame numbers when every frame field is an integer, else names; float64 (n, 2)
+    positions in file order. A missing file raises FileNotFoundError; a malformed one (columns, coordinates, negative
+    or duplicate frame) ValueError ``"FILE:LINE: reason"``.
     """
     frames, _, xy, _ = _load_positions(path)
     if frames and isinstance(frames[0], int):
@@ -358,25 +326,12 @@ def positions_for_frames(path, names, indices, role: str) -> np.ndarray:
 def gt_from_position_files(db_csv, q_csv, radius: float, db_names: Sequence[str] | None = None,
                            q_names: Sequence[str] | None = None, *, db_indices: Sequence[int] | None = None,
                            q_indices: Sequence[int] | None = None) -> np.ndarray:
-    """Ground truth from per-frame positions of both traverses: match within ``radius``.
+    """Ground truth from per-frame ``frame,x,y`` files of both traverses: pairs within ``radius`` (inclusive).
 
-    Parameters
-    ----------
-    db_csv, q_csv : str or Path
-        ``frame,x,y`` files (see :func:`load_positions_csv`). Rows for frames that were not read are ignored; a frame
-        read without a row is an error.
-    radius : float
-        Distance (same unit as x, y) up to which two frames match, inclusive.
-    db_names, q_names : sequence of str, optional
-        Names of the frames read, matched against named rows (and against integer-looking rows when every name matches
-        one). Without names, named rows are used in file order.
-    db_indices, q_indices : sequence of int, optional
-        Source frame numbers of the frames read, matched against integer rows; default 0, 1, 2, ...
-
-    Returns
-    -------
-    numpy.ndarray or scipy.sparse.csr_matrix
-        bool (n_db, n_q); sparse above :func:`~vpr.similarity.dense_pairs` pairs.
+    Rows of frames not read are ignored; a frame read without a row is an error. Rows are matched to frames by
+    ``db_names`` / ``q_names`` (integer-looking rows too when every name matches one; without names, named rows in
+    file order) or by ``db_indices`` / ``q_indices`` (default 0, 1, 2, ...). Returns bool (n_db, n_q), sparse above
+    :func:`~vpr.similarity.dense_pairs` pairs.
     """
     r = parse_float(str(radius)) if not isinstance(radius, bool) else None
     if r is None or not math.isfinite(r) or r < 0:
@@ -390,21 +345,11 @@ def gt_from_position_files(db_csv, q_csv, radius: float, db_names: Sequence[str]
 # rows "traverse,frame,x,y" (as written by vpr render) and the match pipeline's choice
 # --------------------------------------------------------------------------- #
 def load_traverse_positions(path, traverse: str | None) -> dict[int, tuple[float, float]]:
-    """Rows ``traverse,frame,x,y[,...]`` (as written by ``vpr render``) of one traverse: frame -> (x, y).
+    """Rows ``traverse,frame,x,y[,...]`` (as ``vpr render`` writes) of one traverse: frame -> (x, y).
 
-    ``traverse`` None: the file must hold one traverse (a stream read from stdin has no name).
-
-    A source named like a file (``laps.mp4``, the video ``vpr render --video`` writes beside the folder ``laps``) also
-    matches the rows of its name without the extension (``laps``) when the file has none under the full name. Sessions
-    named alike are named by their paths' ends (``run1/img``, :func:`vpr.sources.open_sources`): their rows carry
-    those names.
-
-    Raises
-    ------
-    FileNotFoundError
-        No such file.
-    ValueError
-        No header with those columns, a malformed row (``FILE:LINE: reason``) or no row for ``traverse``.
+    ``traverse`` None: the file must hold one traverse. A source named like a file (``laps.mp4``) also matches the
+    rows of its stem. A missing file raises FileNotFoundError; no such header, a malformed row (``FILE:LINE: reason``)
+    or no row for ``traverse`` ValueError.
     """
     path = Path(path)
     if not path.is_file():

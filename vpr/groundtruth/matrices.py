@@ -36,24 +36,9 @@ def _check_labels(name, labels):
 
 
 def gt_from_labels(db_labels, q_labels, sparse=False):
-    """Ground truth from place labels: ``gt[i, j] = db_labels[i] == q_labels[j]``.
+    """Ground truth from 1-D place labels: ``gt[i, j] = db_labels[i] == q_labels[j]`` (``sparse``: a csr_matrix).
 
-    Parameters
-    ----------
-    db_labels : array_like, shape (n_db,)
-    q_labels : array_like, shape (n_q,)
-        Place identifiers (integers, strings, ...).
-    sparse : bool
-        Return a ``scipy.sparse.csr_matrix`` instead of a dense array.
-
-    Returns
-    -------
-    gt : ndarray of bool or csr_matrix, shape (n_db, n_q)
-
-    Raises
-    ------
-    ValueError
-        If a label array is not 1-D or contains NaN.
+    Labels not 1-D or holding NaN raise ValueError.
     """
     db = _check_labels("db_labels", db_labels)
     q = _check_labels("q_labels", q_labels)
@@ -73,16 +58,7 @@ def gt_from_labels(db_labels, q_labels, sparse=False):
 def gt_from_frames(db_frames, q_frames, tol, sparse=False):
     """Ground truth from frame numbers: ``gt[i, j] = |db_frames[i] - q_frames[j]| <= tol``.
 
-    For traverses aligned frame by frame (the same frame number is the same place), with the frame numbers of the
-    frames read (a subsampled or partly unreadable source keeps its source numbering).
-
-    Parameters
-    ----------
-    db_frames, q_frames : array_like of int, shape (n_db,) and (n_q,)
-    tol : int or float
-        Tolerance in frame numbers, ``>= 0``.
-    sparse : bool
-        Return a ``scipy.sparse.csr_matrix`` (a band, built without the dense matrix).
+    For traverses aligned frame by frame, with the source numbers of the frames read. ``sparse``: a csr_matrix band.
     """
     db_i = np.asarray(db_frames, np.int64).ravel()
     q_i = np.asarray(q_frames, np.int64).ravel()
@@ -98,19 +74,7 @@ def gt_from_frames(db_frames, q_frames, tol, sparse=False):
 def gt_from_tolerance(n_db, n_q, tol, sparse=False):
     """Ground truth for aligned traverses: ``gt[i, j] = |i - j| <= tol`` (:func:`gt_from_frames` of 0, 1, 2, ...).
 
-    Parameters
-    ----------
-    n_db, n_q : int
-        Number of database and query frames.
-    tol : int
-        Frame tolerance, ``>= 0``.
-    sparse : bool
-        Return a ``scipy.sparse.csr_matrix`` instead of a dense array.
-
-    Raises
-    ------
-    ValueError
-        If a size or ``tol`` is not a non-negative integer.
+    Sizes and ``tol`` are non-negative integers (else ValueError); ``sparse``: a csr_matrix.
     """
     n_db = check_count(n_db, "n_db")
     n_q = check_count(n_q, "n_q")
@@ -131,26 +95,10 @@ def _check_positions(name, xy):
 
 
 def gt_from_positions(db_xy, q_xy, radius, sparse=False):
-    """Ground truth from positions: ``gt[i, j] = ||db_xy[i] - q_xy[j]|| <= radius``.
+    """Ground truth from positions (n, d): ``gt[i, j] = ||db_xy[i] - q_xy[j]|| <= radius``.
 
-    Uses a KD-tree, so time and memory grow with the number of matching pairs rather than with ``n_db * n_q`` (use
-    ``sparse=True`` for large runs).
-
-    Parameters
-    ----------
-    db_xy : array_like, shape (n_db, d)
-    q_xy : array_like, shape (n_q, d)
-        Positions (any dimension ``d``, Euclidean distance).
-    radius : float
-        Inclusive match radius, ``>= 0``.
-    sparse : bool
-        Return a ``scipy.sparse.csr_matrix`` instead of a dense array.
-
-    Raises
-    ------
-    ValueError
-        If the position arrays are not 2-D, differ in ``d`` or are not finite, or ``radius`` is negative or not
-        finite.
+    Cost grows with the matching pairs (a KD-tree; ``sparse=True``: a csr_matrix). Positions not 2-D, of unequal ``d``
+    or not finite, or a negative or infinite ``radius`` raise ValueError.
     """
     db = _check_positions("db_xy", db_xy)
     q = _check_positions("q_xy", q_xy)
@@ -171,20 +119,11 @@ def gt_from_positions(db_xy, q_xy, radius, sparse=False):
 
 
 def loop_closure_mask(T, exclude=0, starts=None):
-    """Pairs evaluated for single-stream loop closure on a ``T x T`` matrix.
+    """Pairs evaluated for one stream's loop closure on a ``T x T`` matrix.
 
-    ``mask[i, j]`` is True exactly when ``i < j`` and ``j - i >= exclude``: each query frame ``j`` (column) is
-    compared only with earlier frames ``i`` (rows), and the ``exclude - 1`` frames just before it are skipped because
-    they are trivially similar. ``exclude`` of 0 or 1 keeps all ``i < j``. This is ``np.triu(np.ones((T, T), bool),
-    k=max(exclude, 1))``.
-
-    ``starts``: the first frame of each session of a stream that joins several runs; ``exclude`` holds within a
-    session, every frame of an earlier session is a candidate (:func:`vpr.similarity.candidate_limit`).
-
-    Raises
-    ------
-    ValueError
-        If ``T`` or ``exclude`` is not a non-negative integer.
+    ``mask[i, j]`` is True exactly when ``i < j`` and ``j - i >= exclude`` (``np.triu(np.ones((T, T), bool),
+    k=max(exclude, 1))``). ``starts``: each session's first frame; ``exclude`` holds within a session, every frame of
+    an earlier session is a candidate. ``T`` or ``exclude`` not a non-negative integer raise ValueError.
     """
     T = check_count(T, "T")
     exclude = check_count(exclude, "exclude")
@@ -192,30 +131,12 @@ def loop_closure_mask(T, exclude=0, starts=None):
 
 
 def loop_closure_gt(labels_or_xy, radius=None, exclude=0, sparse=False):
-    """Ground truth for single-stream loop closure, restricted to :func:`loop_closure_mask`.
+    """Ground truth for one stream's loop closure (T, T), restricted to :func:`loop_closure_mask`.
 
-    Parameters
-    ----------
-    labels_or_xy : array_like, shape (T,) or (T, d)
-        Place labels per frame (when ``radius`` is None) or positions (1-D positions are treated as ``(T, 1)``).
-    radius : float, optional
-        Match radius for positions; None means ``labels_or_xy`` are labels.
-    exclude : int
-        As for :func:`loop_closure_mask`.
-    sparse : bool
-        Return a ``scipy.sparse.csr_matrix`` instead of a dense array.
-
-    Returns
-    -------
-    gt : ndarray of bool or csr_matrix, shape (T, T)
-        True for revisits ``(i, j)`` with ``i < j`` and ``j - i >= exclude``. With a dense ``S`` also pass
-        ``mask=loop_closure_mask(T, exclude)`` to the metrics so that pairs outside the mask are not false positives;
-        with a sparse ``S``, ``sp.triu(S, k=max(exclude, 1))`` has the same effect without a dense mask.
-
-    Raises
-    ------
-    ValueError
-        As for the underlying builders; also if labels are given as 2-D.
+    ``labels_or_xy``: place labels (T,) when ``radius`` is None, else positions (T,) or (T, d) matched within
+    ``radius``. True for revisits ``(i, j)`` with ``i < j`` and ``j - i >= exclude``; score a dense ``S`` with
+    ``mask=loop_closure_mask(T, exclude)`` (a sparse one: ``sp.triu(S, k=max(exclude, 1))``). ``sparse``: a
+    csr_matrix. Bad input raises ValueError as the builders do (2-D labels too).
     """
     exclude = check_count(exclude, "exclude")
     a = np.asarray(labels_or_xy)

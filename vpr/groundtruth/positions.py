@@ -119,12 +119,10 @@ def prepare_positions(srcs, roles, spec: GroundTruthSpec, every: float | None = 
                       need: bool | None = None, origin: tuple | None = None) -> list | None:
     """Every source's frame positions (aligned with its ``indices()`` after this), or None when none are needed.
 
-    Frames without a position keep their place with NaN positions, said in a warning; with ``every`` (metres), keeps
-    one frame per ``every`` metres of travel among the frames with a position (the others are left out, said). Refuses
-    a source none of whose frames has a position. ``need``: positions are wanted (default: for position ground truth,
-    ``--radius``); ``loops``: the options of one stream's loop closure (default: one source). GPS positions of every
-    source are put in metres about one ``origin`` (latitude, longitude; default: the first fix of the first source),
-    which the result keeps (:class:`Positions`), so that a map and its queries share it.
+    Frames without a position keep NaN (warned); ``every`` (metres) keeps one frame per ``every`` metres of travel
+    (the rest left out, said); a source without any position is refused. ``need``: positions wanted (default:
+    ``--radius``); ``loops``: one stream's options. GPS positions go to metres about one ``origin`` (default: the
+    first fix), kept in the :class:`Positions` result.
     """
     need = spec.positional if need is None else need
     if not need:
@@ -221,15 +219,12 @@ RATE_RATIO = 1.5
 
 
 def same_rate(the_map, src, fps: float | None, where: str, progress: bool = False):
-    """A map and a query taken at different frame rates made to agree; returns (map, fps to read the query at).
+    """A map and a query at different frame rates made to agree; returns (map, fps to read the query at).
 
-    Where neither is sampled by travel (``--every``), a query (``src``) whose frames come :data:`RATE_RATIO` or more
-    times slower than the map's (both known from the frames' times) moves several map frames per frame, as a query
-    sampled coarser does: the map is learned again at the query's rate (every k-th frame of each session). A query
-    that comes faster is read at the map's rate where its source can be (a video or bag, ``fps``, the query's
-    ``--fps``, not given; that rate is returned, else None). Each is said (``where``: the map's path); where neither
-    can be done, the difference. The same speed is assumed: a query driven twice as fast at the same rate is not seen
-    (``--every`` with positions is).
+    Without ``--every``, a query whose frames come :data:`RATE_RATIO` or more times slower than the map's: the map is
+    learned again at the query's rate (every k-th frame of each session). A query that comes faster is read at the
+    map's rate where its source can be (that fps returned, else None). Each is said (``where``: the map's path). The
+    same speed is assumed.
     """
     map_rate, rate, can_resample = the_map.info.get("rate"), src.rate(), fps is None and "fps" in src.options
     if not map_rate or not rate or the_map.info.get("every") is not None:

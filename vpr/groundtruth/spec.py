@@ -36,23 +36,18 @@ class GroundTruthSpec:
     Attributes
     ----------
     tolerance : int, optional
-        Frame-aligned traverses: ``|i - j| <= tolerance`` in **frames kept** (after ``--step`` / ``--fps`` /
-        ``--every``): with ``--step 10``, 1 frame kept is 10 input frames (:func:`sampling_step`).
+        Frame-aligned traverses: ``|i - j| <= tolerance`` in frames kept (:func:`sampling_step`).
     files : tuple of str
-        One CSV of ``query,db`` pairs (``frame,earlier`` for loops); one or two matrix files (hard, then soft:
-        ``GThard.npy GTsoft.npy``, VPR-Bench's ``ground_truth_new.npy``; for loops a T x T ``.npy``, ``.png``,
-        ``.bmp`` or ``.mat[:VARIABLE]``, :mod:`vpr.groundtruth.formats`); or, with ``radius``, one positions CSV per
-        traverse (``frame,x,y``) or one with ``traverse,frame,x,y`` rows for both. With ``radius`` also a trajectory
-        per traverse (TUM, KITTI:
-        :mod:`vpr.groundtruth.trajectories`), or a keyword: ``names`` (UTM
-        coordinates in the file names), ``exif`` (GPS in the photos' EXIF).
+        A CSV of ``query,db`` pairs (``frame,earlier`` for loops); one or two matrix files, hard then soft
+        (:mod:`vpr.groundtruth.formats`); or, with ``radius``, positions CSVs (``frame,x,y`` per traverse, or one of
+        ``traverse,frame,x,y``), trajectories (:mod:`vpr.groundtruth.trajectories`), ``names`` (UTM in file names) or
+        ``exif``.
     radius : float, optional
-        Match radius for position ground truth.
+        Match radius for positions.
     soft : float, optional
         Larger radius (or tolerance) within which pairs are ignored.
     topic : str or tuple of str, optional
-        Positions from this topic of each bag (``--gt-topic``: NavSatFix, Odometry, PoseStamped), with ``radius``; a
-        tuple: one topic per input, in order.
+        Positions from this topic of each bag (or one per input), with ``radius``.
     """
 
     tolerance: int | None = None
@@ -97,16 +92,8 @@ class GroundTruthSpec:
     def check(self, loops: bool = False, files: bool = True, sessions: int = 1) -> None:
         """Refuse contradictory, ignored or out-of-range options and missing files, before any work.
 
-        ``loops``: the ground truth of ``vpr loops`` (one positions file with ``--radius``). ``files=False``: the
-        options only (files written later, e.g. by a render). ``sessions``: the sources of a multi-session stream (one
-        positions file each, or one for all).
-
-        Raises
-        ------
-        ValueError
-            The message names the options (``--tolerance``, ``--gt``, ``--radius``, ``--gt-soft``).
-        FileNotFoundError
-            A ``--gt`` file does not exist.
+        ``loops``: ``vpr loops``'s ground truth; ``files=False``: the options only; ``sessions``: a multi-session
+        stream's sources. Raises ValueError naming the options, FileNotFoundError for a missing ``--gt`` file.
         """
         check_files = files
         tol, files, radius, soft = self.tolerance, list(self.files), self.radius, self.soft
@@ -260,15 +247,10 @@ def build_gt(spec: GroundTruthSpec, db_names: Sequence[str], q_names: Sequence[s
              positions=None):
     """(gt_hard, gt_soft) of the frames read, or (None, None) without ground truth.
 
-    ``db_traverse`` / ``q_traverse`` name the traverses in a combined ``traverse,frame,x,y`` file; ``*_indices`` are
-    the source frame numbers; ``totals`` the number of frames in each source where it is known exactly (a matrix file
-    must then have that shape). ``positions``: (database, query) positions of the frames, where the caller read them
-    (bags, trajectories, names, EXIF): matched within ``spec.radius``. Warns when most pairs are true.
-
-    Raises
-    ------
-    ValueError
-        Contradictory or incomplete options (the message names them), or a bad file.
+    ``db_traverse`` / ``q_traverse``: names in a ``traverse,frame,x,y`` file; ``*_indices``: source frame numbers;
+    ``totals``: frames per source where known (a matrix file must match); ``positions``: (database, query) positions
+    the caller read, matched within ``spec.radius``. Warns when most pairs are true; bad options or files raise
+    ValueError.
     """
     if positions is not None:  # read by the caller from a checked spec
         check_radius(spec, positions[0])
@@ -343,12 +325,10 @@ def build_loop_gt(spec: GroundTruthSpec, names: Sequence[str], indices: Sequence
                   total: int | None = None, positions=None):
     """(gt_hard, gt_soft) of one stream's loop closures (T x T, rows earlier frame), or (None, None).
 
-    From a positions CSV (``frame,x,y`` or ``traverse,frame,x,y`` rows, with ``radius`` and optionally ``soft``), a
-    CSV of ``frame,earlier`` pairs, ``vpr render``'s ``loop_pairs.csv``, or matrix files (hard, then soft). Both
-    triangles are filled: a loop is a pair of frames; which pairs are evaluated is the metrics' mask. ``traverse``:
-    the stream's name in a file of several traverses (None: the file's only one). ``total``: the number of frames in
-    the stream where it is known exactly (a matrix file must be ``total`` x ``total``). ``positions``: the frames'
-    positions where the caller read them. Warns when most pairs are true.
+    From a positions CSV (with ``radius``, optionally ``soft``), a ``frame,earlier`` CSV, ``loop_pairs.csv`` or matrix
+    files; both triangles filled (the metrics' mask says what is evaluated). ``traverse``: the stream's name in a file
+    of several; ``total``: the stream's frames (a matrix must match); ``positions``: as read by the caller. Warns when
+    most pairs are true.
     """
     if positions is not None:  # read by the caller from a checked spec
         check_radius(spec, positions)

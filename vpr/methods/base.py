@@ -15,18 +15,11 @@ __all__ = ["Method", "Fitted"]
 
 
 class Method:
-    """A place-recognition method, configured once, run on encoded traverses.
+    """A place-recognition method, configured once (``**conf`` over ``default_conf``), run on encoded traverses.
 
-    Subclasses set ``name``, ``default_conf`` (``nullable_conf``: keys that also accept ``None``; ``no_loops_reason``:
-    why loop closure is refused) and ``required_inputs`` (a property where the conf decides), and implement
-    :meth:`_match` and, if they support loop closure, :meth:`_loops`;
-    :meth:`check_size` refuses inputs too large for the method before any work
-    is done and :meth:`warm_up` compiles its kernels outside the timed region.
-
-    Parameters
-    ----------
-    **conf
-        Overrides of ``default_conf``; strings are coerced to the default's type.
+    Subclasses set ``name``, ``default_conf``, ``nullable_conf``, ``no_loops_reason`` and ``required_inputs``, and
+    implement :meth:`_match` and, for loop closure, :meth:`_loops`. :meth:`check_size` refuses inputs too large before
+    any work; :meth:`warm_up` compiles outside the timed region.
     """
 
     name: str = "base"
@@ -158,14 +151,10 @@ class Method:
               opinion=None) -> MatchResult:
         """Loop closures within one traverse: for each frame, the best earlier frame and the decision.
 
-        Only pairs ``i <= j - exclude`` are candidates (``exclude >= 1``); other entries of the returned similarity
-        are ``-inf`` (dense) or absent (sparse). The result's ``score`` is what the decision thresholds (the
-        similarity of the best match, or a method's own per-frame score). ``sessions``: the first frame of each
-        session (a stream joining a robot's runs): ``exclude`` holds within a session, every frame of an earlier
-        session is a candidate, and a method with a memory forgets its context at each start
-        (:meth:`vpr.shosm.LoopStream.new_session`). ``opinion(decider)``: a second decider around a method's own
-        per-frame decision (:class:`vpr.verify.GeometricOpinion`; rshosm-seq). Methods that cannot do this raise
-        ValueError.
+        Candidates are pairs ``i <= j - exclude`` (others ``-inf`` or absent); ``score`` is what the decision
+        thresholds. ``sessions``: each session's first frame (``exclude`` within a session; a memory forgets its
+        context at each start). ``opinion(decider)``: a second decider around the method's own. Methods without loop
+        closure raise ValueError.
         """
         exclude = check_exclude(exclude)
         sessions = tuple(sorted({0, *(int(s) for s in (sessions or ()))}))

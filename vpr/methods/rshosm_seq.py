@@ -28,18 +28,10 @@ __all__ = ["RshosmSeq"]
 class RshosmSeq(Method):
     """Learn the database with rSHOSM, then score the query by graded sequence evidence.
 
-    Conf: the flat keys of :class:`vpr.shosm.RshosmSeqConf`, built and checked once here (``self.seq``): the
-    :class:`~vpr.shosm.SequenceMemory` parameters (rSHOSM-seq's learning threshold,
-    :data:`vpr.shosm.LEARN_THRESHOLD`), the :class:`~vpr.shosm.EvidenceConf`
-    (``decay``, ``stay``, ``skip`` -- a float >= 0, or ``None``, ``"none"`` on the command line, to disable that
-    transition -- and ``normalise``), the beam (:class:`~vpr.shosm.BeamConf`), ``direction`` (``"both"`` or the causal
-    ``"forward"``), ``top_k`` (frames kept per query when database x query exceeds
-    :data:`~vpr.shosm.DENSE_EVIDENCE_PAIRS`), ``exact`` and the decision (``drift``, ``min_score``, ``back``,
-    ``ahead``, ``island``, ``stop_ratio``: :class:`~vpr.shosm.LoopConf` in one stream,
-    :class:`~vpr.shosm.PathConf` against a map, each with its own defaults).
-
-    Online forms with the same conf: :meth:`loop_detector`, :meth:`localizer`. The evidence is dense up to
-    :data:`~vpr.shosm.DENSE_EVIDENCE_PAIRS` pairs (and the memory budget), the beam's top-``top_k`` beyond.
+    Conf: the flat keys of :class:`vpr.shosm.RshosmSeqConf`, built and checked once (``self.seq``). Dense evidence up
+    to
+    :data:`~vpr.shosm.DENSE_EVIDENCE_PAIRS` pairs (and the memory budget), the beam's top-``top_k`` beyond. Online
+    forms with the same conf: :meth:`loop_detector`, :meth:`localizer`.
     """
 
     name = "rshosm-seq"
@@ -109,14 +101,8 @@ class RshosmSeq(Method):
         return Decision(best, np.where(best >= 0, d.score, -np.inf), d.accepted & (best >= 0), d.margin)
 
     def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool, sessions=(0,), opinion=None):
-        """Loop closures within one stream, learned online, scored by forward sequence evidence.
-
-        :func:`vpr.shosm.loop_evidence`: the stream is learned frame by frame
-        with Algorithm 1; at frame ``j`` the frames ``i <= j - exclude`` are scored with causal (forward) evidence
-        over what the memory had learned by ``j - exclude`` (only the past counts; the backward pass of
-        :meth:`match` would see the future). Each frame's decision (loop
-        closure or new place) and its score are those of
-        :func:`vpr.shosm.accept_loops`.
+        """Loop closures within one stream (:func:`vpr.shosm.loop_evidence`): learned online, scored by causal
+        evidence, decided by :func:`vpr.shosm.accept_loops`.
         """
         x = self.need(seq, "sdr", "loop")
         ev = loop_evidence(x, exclude=int(exclude), conf=self.seq, progress=progress, sessions=sessions,

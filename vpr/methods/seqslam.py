@@ -23,18 +23,11 @@ PIXELS = ImageInput("pixels", "SeqSLAM pixel descriptors (64 x 32 grey, patch-no
 class SeqSlam(Method):
     """SeqSLAM: difference matrix, local contrast enhancement, best constant-velocity trajectory.
 
-    Conf: the arguments of :func:`vpr.seqslam.seqslam`, ``metric`` of the difference matrix (``"sad"`` or
-    ``"cosine"``) and ``descriptor``: ``"pixel"`` (the SeqSLAM thumbnails) or ``"encoder"`` (alias ``"desc"``: the
-    encoder's dense descriptors).
-
-    Large inputs: above :func:`~vpr.similarity.dense_pairs` database x query pairs the dense difference matrix is not
-    built;
-    :func:`vpr.seqslam.seqslam_topk` runs by blocks of queries and
-    keeps the ``top_k`` best entries per query (a sparse similarity). With ``large="pairwise"`` (default) it searches
-    only database windows around each query block's ``n_candidates`` best single-frame matches under the same metric
-    (approximate; how often its best match equals the exact one is measured by ``benchmarks/bench_seqslam_scale.py``);
-    ``large="exact"`` searches every cell (same result as the dense run, quadratic time). Loop closure within one
-    traverse has no sparse form and is refused above the limit.
+    Conf: :func:`vpr.seqslam.seqslam`'s arguments, ``metric`` (``"sad"`` or ``"cosine"``) and ``descriptor``
+    (``"pixel"`` thumbnails or ``"encoder"``/``"desc"``). Above :func:`~vpr.similarity.dense_pairs` pairs
+    :func:`vpr.seqslam.seqslam_topk` keeps the ``top_k`` best per query, searching around each block's
+    ``n_candidates`` best single-frame matches (``large="pairwise"``) or every cell (``"exact"``); loop closure is
+    refused there.
     """
 
     name = "seqslam"

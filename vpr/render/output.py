@@ -28,14 +28,8 @@ def _sample_indices(plan, n_cols: int, length: float, loop: bool) -> list[int]:
 
 
 def contact_sheet(rows: list[tuple[str, list[np.ndarray]]], tile_width: int = 240) -> np.ndarray:
-    """A grid image: one row of sample frames per traverse with its label above.
-
-    Parameters
-    ----------
-    rows : list of (label, frames)
-        Frames are uint8 BGR images of equal size.
-    tile_width : int
-        Width of each tile in pixels (frames are resized keeping their aspect).
+    """A grid image: a labelled row of sample frames (uint8 BGR, equal sizes) per traverse, tiles
+    ``tile_width`` wide.
     """
     if not rows:
         raise ValueError("contact_sheet: no rows")
@@ -67,42 +61,16 @@ def _label(t, kind: str) -> str:
 
 def write_scene(spec, out_dir, preview: bool = False, video: bool = False, traverses=None,
                 size=None, n_frames=None, seed=None, progress: bool = True, loop_radius: float = 5.0) -> dict:
-    """Render a scene to ``out_dir`` (what ``vpr render`` does).
+    """Render a scene to ``out_dir`` (what ``vpr render`` does), each file written atomically.
 
-    Writes, atomically per file:
+    Writes ``<traverse>/000000.png ...``; ``ground_truth.csv`` (``frame, traverse, route_pos, x, y, place_pos,
+    lateral, yaw_deg, image``, metres); ``scene.json`` (the resolved spec); with ``preview`` ``contact_sheet.png``;
+    with ``video`` ``<traverse>.mp4``; for closed loops ``loop_pairs.csv`` (``traverse, frame_a, frame_b, distance``,
+    the revisits within ``loop_radius`` metres, a < b).
 
-    - ``<traverse>/000000.png ...``: the frames of each traverse,
-    - ``ground_truth.csv``: one row per frame with ``frame, traverse, route_pos, x, y`` (metres) and ``place_pos,
-      lateral, yaw_deg, image``,
-    - ``scene.json``: the resolved spec including any overrides,
-    - with ``preview``: ``contact_sheet.png``, sample frames of every traverse at the same places,
-    - with ``video``: ``<traverse>.mp4`` (OpenCV, mp4v) at the spec's fps,
-    - for closed loops: ``loop_pairs.csv`` (``traverse, frame_a, frame_b, distance``), the revisits within
-      ``loop_radius`` metres as
-      :func:`vpr.render.loop_pairs` gives them (a < b).
-
-    Parameters
-    ----------
-    spec : str, Path or dict
-        Spec file, builtin scene name or dictionary.
-    out_dir : str or Path
-        Output folder (created).
-    preview, video : bool
-        Also write the contact sheet / one video per traverse.
-    traverses : list of str, optional
-        Only these traverses.
-    size, n_frames, seed
-        Overrides as for :func:`vpr.render.render_scene`.
-    progress : bool
-        tqdm progress bars.
-    loop_radius : float
-        Radius in metres of the revisits listed in ``loop_pairs.csv``.
-
-    Returns
-    -------
-    dict
-        ``{"out_dir", "scene", "ground_truth", "preview", "loop_pairs", "traverses": {name: {"frames", "folder",
-        "video"}}}`` with paths as strings (None for files not written).
+    ``spec``: a file, builtin scene name or dict; ``traverses``: only these; ``size``, ``n_frames``, ``seed``: as
+    :func:`vpr.render.render_scene`. Returns ``{"out_dir", "scene", "ground_truth", "preview", "loop_pairs",
+    "traverses": {name: {"frames", "folder", "video"}}}``, paths as strings (None: not written).
     """
     from tqdm import tqdm
 

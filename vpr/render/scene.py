@@ -21,7 +21,7 @@ MAX_FRAMES = 1_000_000
 
 @dataclass
 class Traverse:
-    """One rendered pass along the route.
+    """One rendered pass along the route; per-frame arrays have N rows.
 
     Attributes
     ----------
@@ -29,23 +29,19 @@ class Traverse:
     images : np.ndarray
         uint8 (N, H, W, 3) BGR frames.
     route_pos : np.ndarray
-        (N,) metres along the route: the start position plus the cumulative distance travelled (keeps growing over the
-        laps of a loop).
+        Metres along the route, growing over the laps of a loop.
     xy : np.ndarray
-        (N, 2) camera position in metres in the world plane (includes the lateral offset).
+        (N, 2) camera position in metres (lateral offset included).
     conditions : dict
-        The resolved conditions of this traverse.
+        The resolved conditions.
     place_pos : np.ndarray
-        (N,) position on the route modulo the loop length (equal to ``route_pos`` for open routes): frames with equal
-        ``place_pos`` see the same place.
-    lateral : np.ndarray
-        (N,) lateral offset of the camera from the lane centre line in metres.
-    yaw_deg : np.ndarray
-        (N,) yaw jitter of the camera relative to the route direction.
+        ``route_pos`` modulo the loop length: equal values see the same place.
+    lateral, yaw_deg : np.ndarray
+        The camera's offset from the lane centre (m) and yaw jitter (degrees).
     loop_length : float or None
-        Length of the closed loop, None for open routes.
+        None for open routes.
     fps : float
-        Nominal frame rate of the spec (the time between frames).
+        The spec's nominal frame rate.
     """
 
     name: str
@@ -183,27 +179,11 @@ class SceneRenderer:
 
 
 def render_scene(spec, size=None, n_frames=None, traverses=None, seed=None, progress: bool = False) -> Scene:
-    """Render every traverse of a scene in memory.
+    """Render every traverse of a scene in memory; returns a :class:`Scene`.
 
-    Parameters
-    ----------
-    spec : str, Path or dict
-        A spec file, builtin name or dictionary (see :func:`vpr.render.load_spec`).
-    size : (int, int), optional
-        Override of the image size (width, height), at least 16 x 16.
-    n_frames : int, optional
-        Override of the number of frames of every traverse: the same path (laps, stops, speed changes) sampled with
-        exactly this many frames.
-    traverses : list of str, optional
-        Render only these traverses.
-    seed : int, optional
-        Override of the world seed (another world with the same layout rules).
-    progress : bool
-        Show a tqdm bar per traverse.
-
-    Returns
-    -------
-    Scene
+    ``spec``: a file, builtin name or dict (:func:`vpr.render.load_spec`). Overrides: ``size`` (width, height >= 16),
+    ``n_frames`` (the same path sampled with this many frames), ``traverses`` (only these), ``seed`` (another world by
+    the same rules). ``progress``: a tqdm bar per traverse.
     """
     resolved = apply_overrides(load_spec(spec), size, n_frames, traverses, seed)
     r = SceneRenderer(resolved, n_frames)

@@ -279,15 +279,8 @@ def _search_dirs() -> list[Path]:
 
 
 def builtin_spec_path(name: str) -> Path:
-    """Path of the builtin scene ``name`` (``data/synthetic/NAME.json`` in the repository).
-
-    Looks in the installed package data (``vpr/render/scenes/``, found with
-    :mod:`importlib.resources`), then in the source checkout's ``data/synthetic/``.
-
-    Raises
-    ------
-    FileNotFoundError
-        No builtin scene of that name; the message lists the available ones and the folders searched.
+    """Path of the builtin scene ``name``: the package's ``vpr/render/scenes/``, else a checkout's
+    ``data/synthetic/``. An unknown name raises FileNotFoundError listing the scenes and folders.
     """
     for d in _search_dirs():
         p = d / f"{name}.json"
@@ -307,24 +300,10 @@ def builtin_specs() -> list[str]:
 
 
 def load_spec(spec) -> dict:
-    """Load, validate and resolve a scene specification.
+    """Load, validate and resolve a scene specification: every key present, defaults filled, presets expanded.
 
-    Parameters
-    ----------
-    spec : str, Path or dict
-        A JSON file, the name of a builtin scene (see :func:`builtin_specs`) or an already parsed dictionary.
-
-    Returns
-    -------
-    dict
-        The resolved specification: every key present, defaults filled, condition presets expanded.
-
-    Raises
-    ------
-    FileNotFoundError
-        Neither a file nor a builtin scene.
-    ValueError
-        Invalid JSON, unknown keys, wrong types or values out of range; the message names the file and the key.
+    ``spec``: a JSON file, a builtin scene name (:func:`builtin_specs`) or a dict. Neither file nor builtin raises
+    FileNotFoundError; invalid JSON, keys, types or values ValueError naming the file and key.
     """
     if isinstance(spec, dict):
         return resolve(spec, "<spec>")

@@ -22,15 +22,9 @@ def trajectory_offsets(ds: int = 10, v_min: float = 0.8, v_max: float = 1.2,
                        v_step: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
     """Velocities searched and the distinct database offsets of their trajectories.
 
-    The database row of trajectory point k (k = 0 .. ds, one per query frame) is ``start + floor(k * v)``, as in
-    OpenSeqSLAM. Velocities are ``v_min, v_min + v_step, ...`` up to ``v_max`` (inclusive, with a 1e-9 tolerance).
-    OpenSeqSLAM ignores its ``vskip`` and uses steps of ``1 / ds``; with the defaults (ds = 10, step 0.1) the two are
-    the same. Velocities that produce identical offset rows are searched once.
-
-    Returns
-    -------
-    velocities : numpy.ndarray, float64, shape (n_v,)
-    offsets : numpy.ndarray, int64, shape (n_distinct, ds + 1)
+    Point k (0 .. ds) of a trajectory is at row ``start + floor(k * v)``, as in OpenSeqSLAM, for ``v = v_min, v_min +
+    v_step, ...`` up to ``v_max`` (1e-9 tolerance); identical offset rows are searched once. Returns float64
+    velocities (n_v,) and int64 offsets (n_distinct, ds + 1).
     """
     ds = check_int(ds, "ds", 0)
     v_min = check_float(v_min, "v_min")
@@ -53,38 +47,30 @@ def trajectory_offsets(ds: int = 10, v_min: float = 0.8, v_max: float = 1.2,
 
 @dataclass(frozen=True)
 class SeqSLAMResult:
-    """Output of :func:`seqslam` (dense) and :func:`vpr.seqslam.seqslam_topk` (top-K), database x query layout.
+    """Output of :func:`seqslam` (dense) and :func:`vpr.seqslam.seqslam_topk` (top-K), database x query.
 
     Attributes
     ----------
-    similarity : numpy.ndarray, float32, (n_db, n_q), or scipy.sparse.csr_matrix
-        Higher = better; finite everywhere. ``-score`` where ``score`` is finite; entries with no complete trajectory
-        sit below every finite one (see :func:`seqslam`, "Edges"). Top-K: the ``top_k`` highest entries per query
-        column of the dense one (same values; explicit zeros kept), among the cells searched.
+    similarity : numpy.ndarray float32 (n_db, n_q) or scipy.sparse.csr_matrix
+        ``-score``, higher = better, finite; pairs without a complete trajectory below every other. Top-K: each
+        column's ``top_k`` highest among the cells searched.
     best_db : numpy.ndarray, int64, (n_q,)
-        Best database row per query (first one on ties, like MATLAB's ``min``; -1 where nothing was searched).
+        Best database row per query (first on ties; -1 where nothing was searched).
     best_score : numpy.ndarray, float32, (n_q,)
-        Score of the best row (the partial-trajectory score where ``complete`` is False; ``inf`` only if no trajectory
-        touches the database at all).
+        Score of the best row (partial where not ``complete``).
     ratio : numpy.ndarray, float32, (n_q,)
-        Uniqueness ratio ``best / second best outside the window``; lower = more distinctive; 0 when there is no
-        finite competitor, 1 for ``0 / 0`` or when the column has no candidate at all.
+        ``best / second best outside the window``, lower = more distinctive (0: no finite competitor, 1: ``0 / 0``).
     accepted : numpy.ndarray, bool, (n_q,)
-        ``ratio <= ratio_threshold`` (and a finite ``best_score``).
+        ``ratio <= ratio_threshold`` and a finite ``best_score``.
     complete : numpy.ndarray, bool, (n_q,)
-        Whether the best match comes from a trajectory that stays inside the database (always true for
-        OpenSeqSLAM-definable cases).
+        Whether the best trajectory stays inside the database.
     velocities : numpy.ndarray, float64
-        The velocities searched.
     exact : bool
-        Whether every database row was searched for every query (always for the dense result; then the top-K fields
-        equal the dense ones up to float32 rounding).
+        Whether every database row was searched for every query.
     cells : int
         (database, query) cells whose trajectory score was computed.
     score : numpy.ndarray, float32, (n_db, n_q), or None
-        OpenSeqSLAM's sequence score (lower = better): the minimum over velocities of the summed enhanced differences
-        along the trajectory; ``inf`` where no velocity keeps the trajectory inside the database. Dense only (None for
-        top-K).
+        OpenSeqSLAM's sequence score (lower = better, ``inf`` off the database); dense only.
     """
 
     similarity: np.ndarray
@@ -199,43 +185,33 @@ def check_sequence_params(ds, causal, v_min, v_max, v_step, R, rwindow, ratio_th
 def seqslam(D, ds: int = 10, v_min: float = 0.8, v_max: float = 1.2, v_step: float = 0.1,
             R: int = 10, rwindow: int = 10, ratio_threshold: float = 0.9, causal: bool = False,
             enhance: bool = True, chunk: int = 256) -> SeqSLAMResult:
-    """SeqSLAM trajectory search and uniqueness test on a difference matrix (how its trajectories, edges and
-    uniqueness follow OpenSeqSLAM: ``docs/internals.md``).
+    """SeqSLAM trajectory search and uniqueness test on a difference matrix, as OpenSeqSLAM (``docs/internals.md``).
 
     Parameters
     ----------
     D : array_like, shape (n_db, n_q)
-        Difference matrix, database x query, lower = more similar, finite (e.g. from :func:`difference_matrix`, any
-        descriptor).
+        Finite differences, database x query, lower = more similar (non-negative unless ``enhance``).
     ds : int
-        Sequence length minus one: each trajectory visits ``ds + 1`` query frames. Must be even unless ``causal``
-        (OpenSeqSLAM silently rounds an odd ``ds`` up; here that is an error).
+        Each trajectory visits ``ds + 1`` query frames; even unless ``causal`` (an odd one is refused).
     v_min, v_max, v_step : float
         Velocities searched, in database rows per query frame (:func:`trajectory_offsets`).
     R : int
-        Contrast-enhancement window (:func:`enhance_contrast`).
+        Contrast-enhancement window (:func:`enhance_contrast`), applied when ``enhance``.
     rwindow : int
-        Uniqueness window: the second best is searched outside rows ``best - rwindow//2 .. best + rwindow//2``.
+        The second best is searched outside rows ``best - rwindow//2 .. best + rwindow//2``.
     ratio_threshold : float
-        Accept a match when ``ratio <= ratio_threshold`` (OpenSeqSLAM's demo discards matches with ratio > 0.9).
+        A match is accepted when ``ratio <= ratio_threshold``.
     causal : bool
-        False (OpenSeqSLAM): query frames ``q - ds/2 .. q + ds/2``. True (online use, described in the paper, not in
-        OpenSeqSLAM): frames ``q - ds .. q``.
+        Query frames ``q - ds .. q`` (online) instead of OpenSeqSLAM's ``q - ds/2 .. q + ds/2``.
     enhance : bool
-        Apply :func:`enhance_contrast` first. Without it ``D`` must be non-negative, since the uniqueness ratio
-        assumes so.
     chunk : int
-        Query columns processed at once (memory / cache trade-off only).
+        Query columns processed at once (memory only).
 
     Returns
     -------
     SeqSLAMResult
 
-    Raises
-    ------
-    ValueError
-        Non-finite or non 2-D ``D``, negative ``D`` with ``enhance=False``, odd ``ds`` in centred mode, or
-        out-of-range parameters (the message names the argument).
+    Bad ``D`` or parameters raise ValueError naming the argument.
     """
     D = check_difference(D, "D")
     ds, velocities, offsets, R, rwindow, ratio_threshold = check_sequence_params(
@@ -295,21 +271,11 @@ def _similarity(S: np.ndarray, P: np.ndarray, feasible: np.ndarray) -> np.ndarra
 
 def match_images(db_images, q_images, size: tuple[int, int] = (64, 32), patch: int = 8,
                  metric: str = "sad", **kw) -> SeqSLAMResult:
-    """SeqSLAM end to end on two image sequences.
+    """SeqSLAM end to end on two image sequences (any images :func:`vpr.imageproc.to_grey` takes).
 
-    Each image goes through :func:`vpr.imageproc.seqslam_preprocess` (grey, resize to ``size`` = (w, h), ``patch`` x
-    ``patch`` normalisation), then
-    :func:`difference_matrix` with ``metric`` and :func:`seqslam` with ``**kw``.
-
-    Parameters
-    ----------
-    db_images, q_images : sequence of images
-        A list (or iterable, or an (n, H, W[, C]) array) of images accepted by
-        :func:`vpr.imageproc.to_grey`.
-
-    Returns
-    -------
-    SeqSLAMResult
+    Each image is preprocessed (:func:`vpr.imageproc.seqslam_preprocess`: grey, ``size`` = (w, h), ``patch``
+    normalisation), then :func:`difference_matrix` with ``metric`` and :func:`seqslam` with ``**kw``; returns a
+    :class:`SeqSLAMResult`.
     """
     db = seqslam_descriptors(db_images, size, patch, "db_images")
     q = seqslam_descriptors(q_images, size, patch, "q_images")

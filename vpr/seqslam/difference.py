@@ -43,31 +43,12 @@ def as_descriptors(desc, name: str) -> np.ndarray:
 
 
 def difference_matrix(db_desc, q_desc, metric: str = "sad", chunk: int = 512) -> np.ndarray:
-    """Difference matrix between database and query descriptors (lower = more similar).
+    """Difference matrix between database and query descriptors, float32 (n_db, n_q), lower = more similar.
 
-    Parameters
-    ----------
-    db_desc, q_desc : array_like, shape (n_db, ...) and (n_q, ...)
-        One descriptor per row; trailing axes are flattened (so a stack of preprocessed 32 x 64 images works
-        directly). Same flattened length.
-    metric : {"sad", "cosine"}
-        ``"sad"``: mean absolute difference over the descriptor elements. OpenSeqSLAM divides the sum by the number of
-        database images instead of the descriptor length; the two differ by a constant factor, which the contrast
-        enhancement and the uniqueness ratio are both invariant to. ``"cosine"``: ``1 - cosine similarity``, clipped
-        to [0, 2]; a zero descriptor has cosine 0 with everything (difference 1).
-    chunk : int
-        Database rows processed at once; bounds the temporary memory of the cosine product to ``chunk * n_q`` floats.
-        ``"sad"`` needs none.
-
-    Returns
-    -------
-    numpy.ndarray
-        float32, shape (n_db, n_q).
-
-    Raises
-    ------
-    ValueError
-        Empty, non-finite or mismatched descriptors, unknown metric, bad chunk.
+    Descriptors are rows (trailing axes flattened, equal lengths). ``metric``: ``"sad"`` the mean absolute difference
+    (OpenSeqSLAM's divisor differs by a constant, to which enhancement and ratio are invariant), ``"cosine"`` ``1 -
+    cosine`` in [0, 2] (a zero descriptor: 1). ``chunk``: database rows at once (cosine's temporary ``chunk * n_q``).
+    Empty, non-finite or mismatched descriptors, an unknown metric or a bad chunk raise ValueError.
     """
     if metric not in ("sad", "cosine"):
         raise ValueError(f"metric: expected 'sad' or 'cosine', got {metric!r}")
@@ -95,29 +76,11 @@ def unit_rows(x: np.ndarray) -> np.ndarray:
 
 
 def enhance_contrast(D, R: int = 10, chunk: int = 256) -> np.ndarray:
-    """OpenSeqSLAM's local contrast enhancement along the database axis.
+    """OpenSeqSLAM's local contrast enhancement along the database axis; float32 (n_db, n_q), minimum 0.
 
-    Each entry ``D[i, q]`` is replaced by its z-score against the database rows ``max(0, i - R//2) .. min(n_db - 1, i
-    + R//2)`` of the same column (11 rows for R = 10, clipped, not padded, at the ends of the database), using the
-    sample standard deviation (``ddof=1``, MATLAB's ``std``) and a mean that includes the entry itself. The whole
-    matrix is then shifted so that its minimum is 0, as OpenSeqSLAM does.
-
-    OpenSeqSLAM divides by zero when a window is constant (or has one row); here such entries get z = 0, so the output
-    is always finite.
-
-    Parameters
-    ----------
-    D : array_like, shape (n_db, n_q)
-        Difference matrix (finite).
-    R : int
-        Window length; ``R // 2`` rows on each side (OpenSeqSLAM needs R even).
-    chunk : int
-        Query columns processed at once (float64 temporaries of ``n_db * chunk``).
-
-    Returns
-    -------
-    numpy.ndarray
-        float32, shape (n_db, n_q), minimum 0.
+    Each ``D[i, q]`` becomes its z-score against rows ``i - R//2 .. i + R//2`` of its column (clipped at the ends,
+    ``ddof=1``, the entry included), then the matrix is shifted to a minimum of 0. A constant window gives z = 0
+    (OpenSeqSLAM divides by zero). ``chunk``: query columns at once.
     """
     D = check_difference(D, "D")
     R = check_int(R, "R", 2)

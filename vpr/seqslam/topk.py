@@ -169,45 +169,28 @@ def seqslam_topk(db_desc, q_desc, top_k: int = TOP_K, metric: str = "sad", block
                  enhance: bool = True) -> SeqSLAMResult:
     """SeqSLAM from descriptors, by blocks of queries, keeping the top-K per query.
 
-    Memory is ``O(searched rows x block)`` instead of the dense ``n_db x n_q``. ``candidates=None``: every row
-    searched, the dense :func:`seqslam`'s result up to float32 rounding. Otherwise (approximate) only row windows
-    around candidate (database, query) pairs are searched: a db x query matrix, or ``"pairwise"`` (the
-    ``n_candidates`` best single-frame matches per query); ``exact`` says whether the windows covered every row. How
-    each mode works: ``docs/internals.md``.
+    Memory is ``O(searched rows x block)``. ``candidates=None``: every row searched, :func:`seqslam`'s result up to
+    float32 rounding; otherwise only row windows around candidate pairs (a db x query matrix, or ``"pairwise"``: the
+    ``n_candidates`` best single-frame matches of every ``candidate_stride``-th query), ``n_windows`` alignments per
+    block, and ``exact`` says whether they covered every row (``docs/internals.md``). Bad descriptors or parameters
+    raise ValueError naming the argument.
 
     Parameters
     ----------
     db_desc, q_desc : SDR batches (scipy.sparse, bool) or arrays (n, ...)
-        Both of one kind. SDRs are compared as dense 0/1 rows would be (``"sad"``: mean absolute difference,
-        ``"cosine"``), never densified.
+        Both of one kind; SDRs are compared as dense 0/1 rows, never densified.
     top_k : int
-        Database entries kept per query in ``similarity``.
-    metric : {"sad", "cosine"}
-        As :func:`difference_matrix`.
+        Database entries kept per query.
     block : int, optional
-        Queries per block: default 256 in exact mode (memory ``~16 * n_db * block`` bytes), 64 in candidate mode
-        (windows grow with the block).
-    candidates : None, "pairwise" or matrix (n_db, n_q)
+        Queries per block: 256 exact, 64 with candidates.
+    candidates, n_candidates, candidate_stride, n_windows
         See above.
-    n_candidates : int
-        Candidates per query for ``candidates="pairwise"``.
-    candidate_stride : int
-        ``candidates="pairwise"`` searches every ``candidate_stride``-th query only: the single-frame search is the
-        only part whose time grows with ``n_db * n_q``, and a block's alignment needs a few of its queries' votes, not
-        all of them.
-    n_windows : int
-        Alignments (windows) searched per query block in candidate mode.
-    ds, v_min, v_max, v_step, R, rwindow, ratio_threshold, causal, enhance
-        As :func:`seqslam` (``enhance=False`` uses the raw differences, which are non-negative for both metrics).
+    metric, ds, v_min, v_max, v_step, R, rwindow, ratio_threshold, causal, enhance
+        As :func:`difference_matrix` and :func:`seqslam` (``enhance=False``: the raw differences).
 
     Returns
     -------
     SeqSLAMResult
-
-    Raises
-    ------
-    ValueError
-        Bad descriptors or parameters (the message names the argument).
     """
     desc = _Descriptors(db_desc, q_desc, metric)
     n_db, n_q = desc.n_db, desc.n_q

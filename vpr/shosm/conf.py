@@ -19,18 +19,14 @@ __all__ = ["LEARN_THRESHOLD", "LOOP_EXCLUDE", "DENSE_EVIDENCE_PAIRS", "SPEEDS", 
 #: Minicolumn threshold of the memory that rSHOSM-seq learns (the paper's is 0.25).
 LEARN_THRESHOLD = 0.75
 
-#: Frames closer than this are not loop-closure candidates, unless told otherwise (``vpr loops --exclude``):
-#: the frames just before are the same place seen again a moment later, not a revisit.
+#: Frames closer than this are not loop-closure candidates (``vpr loops --exclude``).
 LOOP_EXCLUDE = 30
 
-#: Above this many database x query pairs ``rshosm-seq`` runs the sparse evidence (top-K), below it the
-#: dense one (every pair ranked): where the sparse path becomes the faster one, measured on image and
-#: random SDRs (``benchmarks/bench_scale_images.py``, ``bench_scale.py --agree``; ``docs/benchmarks.md``).
+#: Above this many database x query pairs ``rshosm-seq`` runs the sparse evidence (top-K), below it the dense one.
 DENSE_EVIDENCE_PAIRS = 7_000 * 7_000
 
 _NORMALISE = ("query", "none")
-#: The speed models of the evidence: the query at the map's speed (``stay`` and ``skip`` as set), faster (a
-#: skipped map frame free) or slower (a repeated map frame free).
+#: The evidence's speed models: the map's speed, faster (a skipped map frame free), slower (a repeated one free).
 SPEEDS = ("same", "faster", "slower")
 
 
@@ -171,18 +167,8 @@ def _check_path(c) -> None:
 class PathConf(_Conf):
     """When a localisation is accepted, query frame by query frame (:class:`vpr.shosm.Localizer`).
 
-    The rule of :class:`LoopConf` (which extends it) against a map: the best map frame's margin over the strongest
-    other place (``z_best - z_other``, outside the best's *island*), minus ``drift``, accumulated while the best map
-    frame moves on consistently; accepted when the score reaches ``min_score``. A margin, not a z-score against every
-    map frame, because a z-score grows and shrinks with the size and frame rate of the map. The defaults and how they
-    were chosen: ``docs/localize.md``.
-
-    Attributes
-    ----------
-    drift, min_score, back, ahead, island
-        As :class:`LoopConf`. Against a map the margins are smaller than within one stream (a query frame competes
-        with every map frame, not only with the frames far enough back), so the defaults differ: a small drift, and a
-        path is accepted on the sum of its margins.
+    The rule of :class:`LoopConf` (which extends it, same attributes) against a map, with its own defaults
+    (``docs/localize.md``).
     """
 
     drift: float = 0.25
@@ -206,9 +192,8 @@ class LoopConf(PathConf):
 
     A frame's best earlier frame stands out from every other place by ``z_best - z_other`` (its z-score minus the best
     z-score outside the *island* of neighbouring candidates around it whose z is at least ``island``). Along a path of
-    consistent best matches this margin minus ``drift`` is accumulated (a CUSUM: never below 0); the path's score is
-    the decision statistic, and a closure is accepted when it reaches ``min_score``. The defaults and how they were
-    chosen: ``docs/loops.md``.
+    consistent best matches this margin minus ``drift`` is accumulated (never below 0); a closure is accepted when the
+    score reaches ``min_score``. Defaults: ``docs/loops.md``.
 
     Attributes
     ----------
@@ -241,16 +226,13 @@ class LoopConf(PathConf):
         return (*super().rule, float(self.stop_ratio))
 
 
-#: The decision's keys (:class:`LoopConf`'s, which extends :class:`PathConf` by ``stop_ratio``). In
-#: :class:`RshosmSeqConf` a decision key left None takes the default of the setting that decides:
-#: :class:`LoopConf` in one stream, :class:`PathConf` against a map (each written once, there).
+#: The decision's keys; left None in :class:`RshosmSeqConf`, a key takes the default of :class:`LoopConf` in one
+#: stream, of :class:`PathConf` against a map.
 DECISION_KEYS = LoopConf.keys()
 
-#: rSHOSM-seq's own keys besides the memory, the evidence, the beam and the decision: ``direction`` of the
-#: batch evidence (``"both"``, or the causal ``"forward"``), ``top_k`` (frames kept per query: database frames
-#: above :data:`DENSE_EVIDENCE_PAIRS`, earlier frames reported per frame in loop closure, the localizer's
-#: candidates; None: all), ``exact`` (the localizer's dense column instead of the beam), ``loop_rule`` (the
-#: loop closure decider, by its name in :data:`vpr.shosm.LOOP_RULES`).
+#: rSHOSM-seq's own keys: ``direction`` of the batch evidence (``"both"`` or the causal ``"forward"``), ``top_k``
+#: (frames kept per query; None: all), ``exact`` (the localizer's dense column instead of the beam), ``loop_rule``
+#: (a name in :data:`vpr.shosm.LOOP_RULES`).
 _OWN = MappingProxyType({"direction": "both", "top_k": TOP_K, "exact": False, "loop_rule": "path"})
 _DIRECTIONS = ("both", "forward")
 
@@ -259,13 +241,8 @@ _DIRECTIONS = ("both", "forward")
 class RshosmSeqConf:
     """rSHOSM-seq's whole conf, one frozen object: the memory, the evidence, the beam, the decision.
 
-    Built and checked once, by :meth:`build` (``methods.get("rshosm-seq", **conf)`` does it); the batch method, loop
-    closure (:func:`loop_evidence`,
-    :class:`LoopDetector`) and the :class:`Localizer` take it whole, so a
-    setting means the same everywhere and its default is written once (in
-    :class:`SequenceMemory`, :class:`EvidenceConf`, :class:`BeamConf`,
-    :class:`LoopConf` / :class:`PathConf`, and :data:`_OWN` for
-    ``direction``, ``top_k``, ``exact``). :meth:`flat` gives the flat keys of ``--method-conf rshosm-seq.KEY=VALUE``.
+    Built and checked once, by :meth:`build`; the batch method, loop closure and the :class:`Localizer` take it whole.
+    :meth:`flat` gives the flat keys of ``--method-conf rshosm-seq.KEY=VALUE``.
 
     Attributes
     ----------
@@ -304,8 +281,8 @@ class RshosmSeqConf:
     def build(cls, conf: Mapping | None = None, what: str = "rshosm-seq") -> RshosmSeqConf:
         """The conf of the flat keys ``conf`` over the defaults, every value checked.
 
-        Strings (the command line's) are read as the default's type; unknown keys and bad values raise ValueError
-        naming ``what`` and the key.
+        Strings are read as the default's type; unknown keys and bad values raise ValueError naming ``what`` and the
+        key.
         """
         flat = merge_conf(cls.defaults(), conf, what, nullable=cls.NULLABLE)
         try:
@@ -329,13 +306,8 @@ class RshosmSeqConf:
 
     @classmethod
     def of(cls, *confs, **flat) -> RshosmSeqConf:
-        """One conf of ``confs`` (each an :class:`RshosmSeqConf`, one of its parts such as an
-        :class:`EvidenceConf`, a mapping of flat keys, or None), later ones and the flat keys ``flat`` over earlier.
-
-        The library's entry points take their conf this way, so that ``loop_evidence(x,
-        conf=EvidenceConf(stay=None))``, ``LoopDetector(decay=0.8)`` and ``Localizer.from_database(db, names,
-        conf=method.seq)`` all end in one checked :class:`RshosmSeqConf`.
-        """
+        """One checked conf of ``confs`` (each an :class:`RshosmSeqConf`, one of its parts, a mapping of flat keys, or
+        None), later ones and the flat keys ``flat`` over earlier."""
         if len(confs) == 1 and isinstance(confs[0], RshosmSeqConf) and not flat:
             return confs[0]
         merged: dict = {}
@@ -374,8 +346,7 @@ class RshosmSeqConf:
     def path(self, between_sessions: bool = False) -> PathConf:
         """The decision against a map: the keys given over :class:`PathConf`'s defaults.
 
-        ``stop_ratio`` is loop closure's (a stop is not a revisit); against a map it is refused, unless the map is a
-        stream's earlier sessions (``between_sessions``), where the loop decision uses it.
+        ``stop_ratio`` is refused unless the map is a stream's earlier sessions (``between_sessions``).
         """
         if self.decision.get("stop_ratio") is not None and not between_sessions:
             raise ValueError("rshosm-seq: stop_ratio applies to loop closure within one stream, not to localisation "

@@ -11,20 +11,16 @@ __all__ = ["MemoryView", "Connections", "readonly"]
 class MemoryView(NamedTuple):
     """Read-only views of what a :class:`SequenceMemory` has learned (``mem.view()``), for compiled kernels.
 
-    No copy is made: the views are valid until the memory learns again (growing replaces the arrays), so take a new
-    view after every learning step.
+    Valid until the memory learns again (take a new view after each learning step).
 
     Attributes
     ----------
-    bit_cols : int32 array, n_inputs x width
-        The inverted index: row ``b`` holds the minicolumns connected to input bit ``b`` in its first ``bit_len[b]``
-        entries (Alg. 1 line 3).
-    bit_len : int32 array, n_inputs
+    bit_cols, bit_len : int32 arrays, n_inputs x width and n_inputs
+        Row ``b``: the minicolumns connected to input bit ``b`` in its first ``bit_len[b]`` entries (line 3).
     e_src, e_dst : int64 arrays, n_connections
-        The lateral connections ``e_src[k] -> e_dst[k]`` in the order they were learned (append-only: a view taken
-        later starts with the same entries).
+        Lateral connections ``e_src[k] -> e_dst[k]`` in the order learned (append-only).
     column_sizes : int64 array, n_columns
-        Feed-forward connections (input bits) of every minicolumn.
+        Input bits of every minicolumn.
     thresholds : int32 array, n_columns
         Overlap a minicolumn needs to be active.
     n_columns, cells_per_column : int
@@ -51,19 +47,16 @@ def readonly(a: np.ndarray) -> np.ndarray:
 
 
 class Connections:
-    """Read-only snapshot of what a :class:`SequenceMemory` has learned (``mem.connections``).
-
-    In the spirit of htm.core's ``connections``: the learned synapses as plain SciPy matrices, copied out of the
-    memory (changing them changes nothing).
+    """Read-only copy of what a :class:`SequenceMemory` has learned (``mem.connections``), as htm.core's.
 
     Attributes
     ----------
     feedforward : scipy.sparse.csr_matrix, bool, n_columns x n_inputs
-        Row ``m``: the input bits minicolumn ``m`` connects to (Alg. 1 line 3).
+        Row ``m``: the input bits minicolumn ``m`` connects to (line 3).
     lateral : scipy.sparse.csr_matrix, bool, n_cells x n_cells
-        ``lateral[s, d]``: cell ``s`` predicts cell ``d`` (learned at lines 12-13).
+        ``lateral[s, d]``: cell ``s`` predicts cell ``d`` (lines 12-13).
     thresholds : ndarray, int64, n_columns
-        Overlap a minicolumn needs to be active (``ceil(threshold * size)``).
+        ``ceil(threshold * size)``.
     cells_per_column, n_columns, n_cells, n_connections : int
     """
 

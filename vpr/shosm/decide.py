@@ -61,18 +61,10 @@ class PathDecider(Decider):
 
 
 class LoopRule(Decider):
-    """The contract of a loop-closure rule: decides frame ``column.frame`` of one stream (columns in order ``0, 1,
-    2, ...``) as a closure onto an earlier frame or a new place. Registered by name in :data:`LOOP_RULES`, it is
-    chosen with ``rshosm-seq.loop_rule`` and built as ``Rule(loop, path, sdr)``.
-
-    Parameters
-    ----------
-    loop : LoopConf
-        The decision within the stream (``accept_score``: its ``min_score``).
-    path : PathConf, optional
-        The decision of a later session's frame against the earlier sessions, as against a map.
-    sdr : SDR batch, optional
-        The stream's SDRs at once (else frame by frame with :meth:`add_sdr`), for rules that read them.
+    """The contract of a loop-closure rule: decides frame ``column.frame`` of one stream (columns in order) as a
+    closure onto an earlier frame or a new place. Registered by name in :data:`LOOP_RULES`, chosen with
+    ``rshosm-seq.loop_rule``, built as ``Rule(loop, path, sdr)``: the :class:`LoopConf`, the :class:`PathConf` of a
+    later session's frames against the earlier ones, and the stream's SDRs at once (else :meth:`add_sdr`).
     """
 
     def __init__(self, loop: LoopConf | None = None, path: PathConf | None = None, sdr=None):
@@ -202,27 +194,17 @@ def decide_all(decider: Decider, columns) -> Decision:
 
 def accept_loops(evidence, conf: LoopConf | None = None, sdr=None, exclude: int | None = None,
                  path: PathConf | None = None, rule: str = "path") -> Decision:
-    """The loop decision of every frame of a stored loop matrix (:class:`LoopDecider`).
+    """The loop decision of every frame of a stored loop matrix (:class:`LoopDecider`), causal.
 
-    For frame ``j`` the best earlier frame stands out from every other place by ``margin = z_best - z_other``, where
-    earlier visits of the same place (linked by closures accepted before) are not other places. Along a path of
-    consistent best matches the margins minus ``drift`` add up to the closure's score, which restarts at 0 when the
-    path breaks or the "new place" hypothesis wins; a closure is accepted when its score reaches ``min_score``, its
-    best place is not the one just left, and (with the stream's SDRs) the camera left the place in between. Causal.
-    Why a path score and not a threshold per frame: ``docs/loops.md``.
+    Frame ``j``'s best earlier frame stands out by ``z_best - z_other`` (earlier visits of the same place, linked by
+    accepted closures, are not other places); along a consistent path the margins minus ``drift`` add up, restarting
+    at 0 when the path breaks; a closure is accepted at ``min_score`` unless it is the place just left or (with the
+    SDRs) the camera never left it (``docs/loops.md``). On a stored top-K matrix an island may be cut where entries
+    were dropped: :func:`vpr.shosm.loop_evidence` decides on full columns.
 
-    :func:`vpr.shosm.loop_evidence` takes these decisions as it goes, on each
-    frame's full column; deciding again on a stored top-K matrix is an approximation (an island may be cut where
-    entries were dropped).
-
-    Parameters
-    ----------
-    evidence : LoopEvidence of :func:`vpr.shosm.loop_evidence`, or a dense T x T loop matrix
-    conf : LoopConf
-    sdr : SDR batch (T rows), optional: without it stops are not checked.
-    exclude : int, read from ``evidence`` when it is an Evidence (required otherwise).
-    path : PathConf, the decision of a later session's frames against the earlier ones (default: its defaults).
-    rule : the loop rule (:data:`LOOP_RULES`).
+    ``evidence``: a LoopEvidence or a dense T x T loop matrix; ``sdr`` (T rows): optional, for the stop check;
+    ``exclude``: read from an Evidence; ``path``: the decision of a later session's frames (default: its defaults);
+    ``rule``: a name in :data:`LOOP_RULES`.
     """
     conf = conf or LoopConf()
     fill, starts = None, (0,)

@@ -29,22 +29,9 @@ def _is_sdr(x) -> bool:
 class LoopDetector:
     """Loop closure within one stream, learned online, one frame at a time.
 
-    Parameters
-    ----------
-    encoder : object, optional
-        Encodes images passed to :meth:`update` (``docs/internals.md``). Without it, :meth:`update` takes SDR rows.
-    conf : RshosmSeqConf, optional
-        rSHOSM-seq's conf (``method.seq`` of the ``rshosm-seq`` method; its ``top_k``: the earlier frames an answer
-        lists); ``**flat`` keys over it.
-    exclude : int >= 1
-        Frames closer than this are not candidates.
-
-    Attributes
-    ----------
-    names : list of str
-        The frames' names (``frame <i>`` when none was given).
-    meta : dict
-        Caller metadata stored by :meth:`save` (``vpr loops -`` keeps the encoder there).
+    ``encoder``: encodes the images :meth:`update` takes (without it, SDR rows; ``docs/internals.md``); ``conf``:
+    rSHOSM-seq's conf, ``**flat`` keys over it (its ``top_k``: the earlier frames an answer lists); ``exclude``:
+    frames closer are not candidates. ``names``: the frames' names; ``meta``: caller metadata :meth:`save` stores.
     """
 
     def __init__(self, encoder: FrameEncoder | None = None, conf: RshosmSeqConf | None = None,
@@ -161,13 +148,8 @@ class LoopDetector:
     def load(cls, path, encoder: FrameEncoder | None = None) -> LoopDetector:
         """Read a file written by :meth:`save`; the detector continues where it was saved.
 
-        ``encoder``: a fresh encoder of the kind used before the restart (its state is restored from the file);
-        ``meta`` says which one it was.
-
-        Raises
-        ------
-        MemoryFileError
-            Missing, corrupt or foreign file, or an unsupported format version.
+        ``encoder``: a fresh one of the kind used before (``meta`` says which), its state restored. A missing,
+        corrupt, foreign or too new file raises MemoryFileError.
         """
         with read_file(path, _FORMAT, _FORMAT_VERSION, "loop detector",
                        " (written by LoopDetector.save / `vpr loops - --state-out`)", ("s", "enc")) as \

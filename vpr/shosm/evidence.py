@@ -114,23 +114,10 @@ class EvidenceEngine(Protocol):
 class Engine:
     """rSHOSM-seq's graded evidence over a :class:`~vpr.shosm.graph.Graph`: :meth:`step` one frame, :meth:`run` many.
 
-    Parameters
-    ----------
-    graph : Graph
-        The learned memory and its database frames.
-    evidence : EvidenceConf
-        Decay, transition costs and standardisation.
-    beam : BeamConf
-        The beam's floors and caps (not with ``exact``).
-    exact : bool
-        Carry every relevant cell (dense; cost per frame linear in the connections) instead of the beam.
-    threads : int, optional
-        :meth:`run`'s two passes run on two threads at once when 2 or more
-        (default: numba's thread count, capped at 2); the answers are the same.
-
-    The state between frames (:meth:`state`) is the evidence of the last
-    frame: the beam, or every relevant cell. :meth:`step` is causal;
-    :meth:`run` over a whole traverse starts afresh and may add a backward pass.
+    ``evidence``: an :class:`EvidenceConf`; ``beam``: a :class:`BeamConf` (not with ``exact``, which carries every
+    relevant cell); ``threads``: :meth:`run`'s two passes on two threads at once when 2 or more (default: numba's, at
+    most 2; same answers). The state between frames (:meth:`state`) is the last frame's evidence; :meth:`step` is
+    causal, :meth:`run` starts afresh and may add a backward pass.
     """
 
     def __init__(self, graph: Graph, evidence: EvidenceConf | None = None, beam: BeamConf | None = None,
@@ -435,22 +422,9 @@ def query_evidence(mem: SequenceMemory, query_batch, db_codes, conf: EvidenceCon
                    progress: bool = False) -> Evidence:
     """Graded evidence of every query frame for the database frames, standardised as ``conf.normalise`` says.
 
-    Parameters
-    ----------
-    mem : SequenceMemory
-        The memory that learned the database.
-    query_batch : SDR batch (n_q x n_inputs)
-    db_codes : csr matrix (n_db x cells)
-        Winner codes of the database traverse from ``mem.run``.
-    conf : EvidenceConf
-    direction : {"both", "forward"}
-    top_k : int or None
-        None: the dense evidence of every database frame (n_db x n_q ndarray); an int: the beam, the ``top_k`` best
-        database frames per query (csr).
-    beam : BeamConf
-        Floors and caps of the beam (only with ``top_k``).
-    progress : bool
-        tqdm progress bar.
+    ``mem``: the memory that learned the database; ``db_codes``: its winner codes (``mem.run``); ``conf``: an
+    :class:`EvidenceConf`; ``direction``: ``"both"`` or ``"forward"``; ``top_k`` None: dense (n_db x n_q ndarray),
+    an int: the beam's ``top_k`` best database frames per query (csr), with ``beam`` its :class:`BeamConf`.
     """
     conf = conf or EvidenceConf()
     if check_top_k(top_k) is not None:

@@ -78,16 +78,10 @@ def _grown(a, size, fill):
 class Graph:
     """A learned memory and the database frames it can answer with, as the kernels read them.
 
-    Attributes
-    ----------
-    bit_cols, bit_len : the memory's inverted index, input bit -> minicolumns.
-    col_size : float64 per minicolumn, its feed-forward connections.
-    cpc, n_cells, n_cols : cells per minicolumn, cells and minicolumns (with room to grow).
-    fwd, bwd : successor lists per cell, ``(head, next, target)``, or ``(head, next, target, group)`` per group
-        of cells with the same successors; ``bwd`` (the reversed connections, for a backward pass) or None.
-    c_head, c_next, c_frame : cell -> the database frames whose code holds it.
-    relevant : bool per cell, may carry evidence to a frame; birth : the first frame that learned a cell.
-    db_norm : float64 per frame, the size of its code; n_db : database frames.
+    ``bit_cols, bit_len``: input bit -> minicolumns; ``col_size``: connections per minicolumn; ``cpc, n_cells,
+    n_cols``; ``fwd, bwd``: successor lists ``(head, next, target[, group])`` per cell or group (``bwd`` reversed, or
+    None); ``c_head, c_next, c_frame``: cell -> database frames; ``relevant``, ``birth`` per cell; ``db_norm`` per
+    frame; ``n_db``.
     """
 
     ARRAYS = ("col_size", "relevant", "birth", "c_head", "c_next", "c_frame", "db_norm")

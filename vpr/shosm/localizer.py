@@ -20,21 +20,10 @@ __all__ = ["Localizer"]
 class Localizer:
     """Causal place recognition of a query stream against a learned database.
 
-    Parameters
-    ----------
-    memory : SequenceMemory
-        The memory that learned the database (not changed by queries).
-    db_codes : csr matrix (n_db x cells)
-        The database's winner codes from ``memory.run``.
-    names : sequence of str
-        Database frame names (one per row of ``db_codes``).
-    conf : RshosmSeqConf, optional
-        rSHOSM-seq's conf (``method.seq`` of the ``rshosm-seq`` method): the evidence (``exact``: dense instead of the
-        beam) and the decision (:meth:`RshosmSeqConf.path`); ``**flat`` keys over it. Its memory parameters are
-        ``memory``'s.
-    sessions : sequence of int, optional
-        The first frame of each session of the map (a robot's runs learned one after the other): a path never moves on
-        across one.
+    ``memory``: the memory that learned the database (queries do not change it); ``db_codes``: its winner codes
+    (``memory.run``), one row per name of ``names``; ``conf``: rSHOSM-seq's conf, ``**flat`` keys over it (the
+    evidence, ``exact``, and :meth:`RshosmSeqConf.path`); ``sessions``: each map session's first frame (a path never
+    moves on across one).
     """
 
     def __init__(self, memory: SequenceMemory, db_codes, names, conf: RshosmSeqConf | None = None, sessions=None,

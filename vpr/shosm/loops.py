@@ -29,17 +29,9 @@ LOOP_UNCAPPED_MAX = 10_000
 class LoopStream:
     """One stream's loop closure: the memory learned so far, the evidence engine over it, the decisions.
 
-    Parameters
-    ----------
-    exclude : int >= 1
-        Frames closer than this are not candidates.
-    conf : RshosmSeqConf
-        The memory, the evidence, the beam and the decision (:meth:`RshosmSeqConf.loop`).
-    caps : "auto" or bool
-        Whether the beam's caps apply: ``"auto"`` from frame :data:`LOOP_UNCAPPED_MAX` on.
-    opinion : callable, optional
-        ``opinion(decider)``: a decider around the loop rule's (a second opinion,
-        :class:`vpr.verify.GeometricOpinion`).
+    ``exclude``: frames closer are not candidates; ``conf``: the whole :class:`RshosmSeqConf`; ``caps``: whether the
+    beam's caps apply (``"auto"``: from frame :data:`LOOP_UNCAPPED_MAX` on); ``opinion(decider)``: a decider around
+    the loop rule's (:class:`vpr.verify.GeometricOpinion`).
     """
 
     def __init__(self, exclude: int = LOOP_EXCLUDE, conf: RshosmSeqConf | None = None, caps: str | bool = "auto",
@@ -124,11 +116,8 @@ def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf=None, top_k: int 
                   progress: bool = False, sessions=None, opinion=None, **flat) -> LoopEvidence:
     """Loop closure within one stream with graded forward sequence evidence, learned online.
 
-    Frame ``j`` is learned with Algorithm 1 (as the paper, one memory over the stream) and then scored against the
-    frames ``i <= j - exclude`` with the forward (causal) evidence: only the past counts. Cells first learned after
-    ``j - exclude`` take no part in the evidence at ``j`` at all: within one traverse a frame's own evidence would
-    otherwise linger, through the stay transition, on the frames just before it and win there. Each frame is then
-    decided (loop closure or new place, :class:`LoopConf`).
+    Frame ``j`` is learned with Algorithm 1 (one memory over the stream), scored against the frames ``i <= j -
+    exclude`` with the causal evidence of the cells learned by then, and decided (:class:`LoopConf`).
 
     Parameters
     ----------
@@ -136,19 +125,17 @@ def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf=None, top_k: int 
     exclude : int >= 1
         Frames closer than this are not candidates.
     conf : RshosmSeqConf, one of its parts, or a mapping of its flat keys
-        ``**flat`` keys over it (:meth:`RshosmSeqConf.of`); ``caps`` says when the beam's caps apply.
+        ``**flat`` keys over it (:meth:`RshosmSeqConf.of`); ``caps`` as :class:`LoopStream`.
     top_k : int or None
-        Earlier frames kept per frame in the matrix (None: dense T x T where it fits the memory budget,
-        :func:`vpr.similarity.fits_dense`, or up to ``dense_max`` frames; the conf's ``top_k`` beyond). The decisions
-        do not depend on it.
+        Earlier frames kept per frame (None: dense where it fits, :func:`vpr.similarity.fits_dense`, or up to
+        ``dense_max`` frames; the conf's ``top_k`` beyond). The decisions do not depend on it.
     stops : bool
         False leaves out the decision's stop check.
     sessions : sequence of int, optional
-        The first frame of each session (a stream that joins a robot's runs).
+        The first frame of each session.
     opinion : callable, optional
         A second opinion around the loop rule (:class:`LoopStream`).
     progress : bool
-        tqdm progress bar.
 
     Returns
     -------

@@ -25,16 +25,15 @@ class Map:
     ----------
     localizer : Localizer
     encoder : dict
-        ``{"name": ..., "conf": {...}}`` of the encoder that made the database's SDRs.
+        ``{"name", "conf"}`` of the encoder that made the database's SDRs.
     statistics : list of (mean, std) arrays
-        What that encoder fitted on the database (``standardise=fit``), per part.
-    positions : (n_db, 2) array or None
-        Where each database frame was; ``origin``: the GPS origin (latitude, longitude) they are metres from, or None.
+        What it fitted on the database, per part.
+    positions, origin
+        Each database frame's position (n_db, 2) and their GPS origin (latitude, longitude), or None.
     query_state : dict of arrays
-        The query encoder's state so far (its running statistics).
+        The query encoder's state so far.
     info : dict
-        What the map was learned from (sources, frames, skipped frames, seconds, ``every``: the metres of travel per
-        frame it was sampled at, or None).
+        What the map was learned from (sources, frames, skipped, seconds, ``every``).
     sdr : csr matrix (n_db x bits) or None
         The database's SDRs, which :meth:`subset` learns again.
     """

@@ -21,7 +21,7 @@ _FORMAT_VERSION = 1
 
 
 class SequenceMemory:
-    """Simplified higher-order sequence memory with randomised connections (rSHOSM).
+    """Simplified higher-order sequence memory with randomised connections (rSHOSM, Algorithm 1).
 
     Parameters
     ----------
@@ -30,23 +30,19 @@ class SequenceMemory:
     cells_per_column : int
         Cells per minicolumn (paper: 32).
     new_columns : int
-        Minicolumns created for an input that activates none (Alg. 1 line 3; paper: 10).
+        Minicolumns created for an input that activates none (line 3; paper: 10).
     connectivity : float
         Fraction of the input's 1-bits each new minicolumn connects to (paper: 0.5).
     threshold : float
-        A minicolumn is active when its overlap with the input is at least this fraction of its connections (paper:
-        0.25).
+        A minicolumn is active at an overlap of at least this fraction of its connections (paper: 0.25).
     p_extra : float
-        rSHOSM: probability of creating a lateral connection even though the previous winner's minicolumn already
-        connects to the cell (section 4.3). 0.0 gives SHOSM; the paper uses 0.01 and 0.05.
+        rSHOSM's probability of a lateral connection although the previous winner's minicolumn already connects to the
+        cell (section 4.3; 0.0: SHOSM; paper 0.01, 0.05).
     k_active : int
-        **Our extension, not the paper's:** with learning off, when no minicolumn reaches the threshold, the
-        ``k_active`` minicolumns with the highest non-zero overlap are taken as active so that a query traverse still
-        produces winner cells.
+        **Our extension:** with learning off and no minicolumn at the threshold, the ``k_active`` of highest non-zero
+        overlap are active, so that a query still has winner cells.
     seed : int or None
-        Seed of the generator used for sampling connections, breaking ties between cells when bursting, and the rSHOSM
-        coin flips.
-
+        For the connections, ties between bursting cells and the rSHOSM coin flips.
     """
 
     def __init__(self, n_inputs: int = 2048, cells_per_column: int = 32, new_columns: int = 10,
@@ -259,24 +255,11 @@ class SequenceMemory:
         return out_ptr, out_idx[: out_ptr[-1]]
 
     def step(self, sdr_row, learn: bool = True) -> np.ndarray:
-        """Process one input SDR (one pass of Algorithm 1) and return the winner cells.
+        """Process one input SDR (one pass of Algorithm 1); returns the sorted winner cells (int64).
 
-        Parameters
-        ----------
-        sdr_row : 1-row SDR batch (sparse), dense row or bit indices
-            As :func:`vpr.sdr.row_bits` reads them: a 1-D array of exactly ``n_inputs`` values is a dense row (bool or
-            0/1), any other integer array holds the indices of the active bits. :meth:`run` reads a dense row the same
-            way.
-        learn : bool
-            With learning off no minicolumns are created and no connections are learned (a query traverse against a
-            learned database), and no random numbers are drawn: ties between bursting cells are broken by a fixed
-            per-cell key, so the same query on the same memory (after
-            :meth:`reset`) gives the same winners, and a query leaves the memory
-            exactly as it found it.
-
-        Returns
-        -------
-        ndarray of int64: the sorted winner cell indices :math:`C^t_{winner}`.
+        ``sdr_row``: a 1-row SDR batch, a dense row of ``n_inputs`` values or active bit indices
+        (:func:`vpr.sdr.row_bits`). With ``learn`` off nothing is created or learned and no random numbers are drawn
+        (bursting ties by a fixed per-cell key): a query leaves the memory as it found it.
         """
         _, idx = self._run_batch(self._input_bits(sdr_row), learn)
         return idx.copy()

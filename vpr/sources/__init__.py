@@ -38,29 +38,11 @@ _WHERE = {"fps": "videos and bags (use --step for images)", "topic": "ROS bags (
 
 
 def open_source(path, fps=None, step=None, max_frames=None, topic: str | None = None) -> Source:
-    """Open a folder, video file, image-list file or ROS bag as a :class:`Source` (the first of :data:`KINDS`).
+    """Open a folder, video, image-list file (.txt .lst) or ROS bag as a :class:`Source` (the first of :data:`KINDS`).
 
-    Parameters
-    ----------
-    path : str or Path
-        A folder of images, a video (.mp4 .avi .mov .mkv .m4v .webm .mpg .mpeg .wmv), a list file (.txt .lst), or a
-        ROS bag (a ``.bag``, ``.mcap`` or ``.db3`` file, or a ROS 2 bag folder with ``metadata.yaml``).
-    fps : float, optional
-        Videos and bags: resample to this frame rate, by the frames' timestamps.
-    step : int, optional
-        Keep every ``step``-th frame.
-    max_frames : int, optional
-        Cap on the number of frames attempted.
-    topic : str, optional
-        Bags: the camera topic (default: the bag's only image topic).
-
-    Raises
-    ------
-    FileNotFoundError
-        ``path`` does not exist.
-    ValueError
-        Unknown kind of path, an option the kind does not take, or an error from the source's constructor (empty
-        folder, unreadable video or bag, ...).
+    ``fps``: videos and bags resampled by timestamps; ``step``: every ``step``-th frame; ``max_frames``: frames
+    attempted; ``topic``: a bag's camera topic (default its only image topic). A missing path raises
+    FileNotFoundError; an unknown kind, an option the kind does not take or a source that cannot be read ValueError.
     """
     p = Path(path)
     if not p.exists():
@@ -151,15 +133,7 @@ def _name_apart(srcs) -> None:
 
 
 def load_all(source: Source, progress: bool = True) -> tuple[list[np.ndarray], list[str]]:
-    """Read every frame of ``source`` into memory.
-
-    Returns
-    -------
-    images : list of numpy.ndarray
-        uint8 BGR images of the frames that could be read.
-    names : list of str
-        Their names; skipped frames are in ``source.skipped``.
-    """
+    """Every readable frame of ``source``: (uint8 BGR images, names); skipped frames are in ``source.skipped``."""
     from tqdm import tqdm
 
     images, names = [], []

@@ -139,24 +139,11 @@ def decode_image_msg(msg, msgtype: str) -> tuple[np.ndarray | None, str]:
 
 
 class BagSource(Source):
-    """The images of one topic of a ROS bag (``docs/internals.md``).
+    """The images of one topic of a ROS bag (``.bag``, ``.db3``, ``.mcap`` or a ROS 2 folder; ``docs/internals.md``).
 
-    Parameters
-    ----------
-    path : str or Path
-        A ``.bag`` file, a ROS 2 bag folder, or a ``.db3`` / ``.mcap`` file.
-    topic : str, optional
-        The camera topic; default: the bag's only image topic.
-    fps, step, max_frames
-        As for a video: ``fps`` samples by the messages' times.
-
-    Raises
-    ------
-    FileNotFoundError
-        No such file or folder.
-    ValueError
-        Not a readable bag, no such topic (the message lists the image topics with their message counts), a topic that
-        is not an image topic, or an image encoding that is not read (named).
+    ``topic``: default the bag's only image topic; ``fps``, ``step``, ``max_frames`` as for a video (``fps`` by the
+    messages' times). A missing path raises FileNotFoundError; an unreadable bag, an unknown or non-image topic (the
+    image topics listed) or an encoding not read ValueError.
     """
 
     kind = "bag"
@@ -378,15 +365,10 @@ class BagSource(Source):
 
     # ----------------------------------------------------------- positions
     def trajectory(self, topic: str) -> tuple[np.ndarray, np.ndarray, str]:
-        """(times s, positions (n, 2), kind) of a position topic (see :data:`POSITION_TYPES`).
+        """(times s, positions (n, 2), kind) of a position topic (:data:`POSITION_TYPES`).
 
-        ``kind`` ``"latlon"``: NavSatFix latitude and longitude (messages without a fix, status < 0, with NaN or zero
-        coordinates left out); ``"metres"``: x and y of an odometry or pose topic.
-
-        Raises
-        ------
-        ValueError
-            No such topic (the position topics are listed), a topic of another type, or no usable position on it.
+        ``kind`` ``"latlon"``: NavSatFix (messages without a fix left out); ``"metres"``: odometry or pose x, y. An
+        unknown topic (position topics listed), another type or no usable position raise ValueError.
         """
         topics = self._topics_cache() if self._scan is not None else self._topics()
         if topic not in topics or topics[topic][0] not in POSITION_TYPES:

@@ -43,16 +43,8 @@ class IgnoredFilesWarning(UserWarning):
 
 
 class Frame(NamedTuple):
-    """One decoded frame.
-
-    Attributes
-    ----------
-    index : int
-        Frame number within the source (``docs/internals.md``).
-    name : str
-        File name (folder), entry as written (list file) or ``frame_000123`` (video).
-    image : numpy.ndarray
-        uint8 BGR image, shape (H, W, 3).
+    """One decoded frame: ``index`` within the source (``docs/internals.md``), ``name`` (file name, list entry or
+    ``frame_000123``), ``image`` uint8 BGR (H, W, 3).
     """
 
     index: int
@@ -160,16 +152,14 @@ class Source:
     Attributes
     ----------
     path : pathlib.Path
-        The folder, video or list file.
     name : str
-        Short human-readable name (the folder or file name).
+        Short name (the folder or file name).
     skipped : list of (str, str)
-        (frame name, reason) for every frame left out during the latest iteration; reset when a new iteration starts.
+        (frame name, reason) of every frame left out in the latest iteration.
     ignored : int
-        Non-image files ignored in a folder (0 for other sources).
+        Non-image files ignored in a folder.
     salvaged : dict or None
-        A damaged or cut recording read up to the damage: ``{"damage": what the readers said, "messages_read": n}``
-        (None for a whole source); ``metrics.json`` records it.
+        A damaged recording read up to the damage: ``{"damage", "messages_read"}``.
     """
 
     kind = "source"

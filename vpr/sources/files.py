@@ -126,26 +126,10 @@ class _FileListSource(Source):
 class FolderSource(_FileListSource):
     """The images in one folder (not recursive), in natural order.
 
-    Parameters
-    ----------
-    path : str or Path
-        Folder of images (:data:`IMAGE_EXTENSIONS`, extension case ignored). Files of other image formats
-        (:data:`OTHER_IMAGE_EXTENSIONS`) and dangling symbolic links keep their place in the frame numbering and are
-        skipped with a warning if they cannot be decoded. Hidden files are ignored; other files are ignored with one
-        warning and counted in ``ignored``.
-    step : int, optional
-        Keep every ``step``-th image.
-    max_frames : int, optional
-        Attempt at most this many images (after ``step``).
-
-    Raises
-    ------
-    FileNotFoundError
-        ``path`` does not exist.
-    NotADirectoryError
-        ``path`` is not a folder.
-    ValueError
-        The folder holds no images.
+    Images are :data:`IMAGE_EXTENSIONS` (any case); other image formats and dangling links keep their frame number and
+    are skipped with a warning when they do not decode; hidden files are ignored, other files with one warning
+    (counted in ``ignored``). ``step``: every ``step``-th image; ``max_frames``: images attempted. Raises
+    FileNotFoundError, NotADirectoryError, or ValueError when the folder holds no images.
     """
 
     kind = "folder"
@@ -190,18 +174,10 @@ class FolderSource(_FileListSource):
 
 
 class ListSource(_FileListSource):
-    """Images named in a text file, one path per line.
+    """Images named in a text file, one path per line, relative to the list's folder; named as written.
 
-    Relative paths are relative to the list file's folder. Blank lines and lines starting with ``#`` are ignored. A
-    listed file that is missing or cannot be decoded is skipped at iteration time, like a corrupt image in a folder.
-    Frame names are the paths as written in the list.
-
-    Raises
-    ------
-    FileNotFoundError
-        The list file does not exist.
-    ValueError
-        The list is not UTF-8 text or names no images.
+    Blank and ``#`` lines are ignored; a missing or undecodable file is skipped as in a folder. A missing list raises
+    FileNotFoundError; one not UTF-8 or naming no images ValueError.
     """
 
     kind = "list"

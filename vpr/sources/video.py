@@ -80,27 +80,11 @@ def frame_times(path) -> np.ndarray | None:
 class VideoSource(Source):
     """Frames of a video file decoded with OpenCV.
 
-    Parameters
-    ----------
-    path : str or Path
-        Video file.
-    fps : float, optional
-        Resample to this frame rate by the frames' timestamps (the container's presentation times,
-        :func:`frame_times`): sample k is at ``k / fps`` seconds after the first frame, and the first frame not
-        earlier than that is kept, so a variable frame rate is sampled evenly in time. Without timestamps the nominal
-        rate is used (frame ``i`` at ``i / video_fps``). Rates at or above the video's own keep every frame.
-    step : int, optional
-        Keep every ``step``-th frame. Not together with ``fps``.
-    max_frames : int, optional
-        Yield at most this many frames; decoding stops there.
-
-    Raises
-    ------
-    FileNotFoundError
-        ``path`` does not exist.
-    ValueError
-        Both ``fps`` and ``step``; bad values; the file cannot be opened or its first frame cannot be decoded; ``fps``
-        for a video without a frame rate.
+    ``fps``: resample by the frames' timestamps (:func:`frame_times`; sample k at ``k / fps`` s, the first frame not
+    earlier kept; nominal rate without timestamps; at or above the video's own rate every frame). ``step``: every
+    ``step``-th frame (not with ``fps``). ``max_frames``: decoding stops there. A missing file raises
+    FileNotFoundError; bad values, a file that cannot be opened or decoded, or ``fps`` without a frame rate
+    ValueError.
     """
 
     kind = "video"

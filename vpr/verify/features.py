@@ -16,17 +16,8 @@ _DESCRIPTOR_BYTES = 32  # ORB descriptors are 256 bits
 
 @dataclass(frozen=True, eq=False)
 class Keypoints:
-    """ORB keypoints and descriptors of one image.
-
-    Attributes
-    ----------
-    xy : numpy.ndarray
-        float64 (K, 2) keypoint positions (x, y) in the original image's pixel coordinates.
-    descriptors : numpy.ndarray
-        uint8 (K, 32) ORB descriptors, row ``k`` belongs to ``xy[k]``.
-    scale : numpy.ndarray
-        float64 (2,) factors (sx, sy) from the original image to the frame the keypoints were detected in (1 unless
-        the image was upscaled).
+    """ORB keypoints of one image: ``xy`` float64 (K, 2) in the original image's pixels, ``descriptors`` uint8
+    (K, 32), ``scale`` float64 (sx, sy) from the original image to the detection frame.
     """
 
     xy: np.ndarray
@@ -50,30 +41,11 @@ def check_keypoints(f, name: str) -> Keypoints:
 
 
 def extract_features(image, n_features: int = 1000, min_side: int = 240, name: str = "image") -> Keypoints:
-    """Detect ORB keypoints and compute their descriptors.
+    """ORB keypoints and descriptors of a grey or BGR(A) image (:func:`vpr.imageproc.to_grey`).
 
-    Parameters
-    ----------
-    image : array_like
-        Grey (H, W) or BGR/BGRA (H, W, C) image of any size and of any dtype accepted by
-        :func:`vpr.imageproc.to_grey`.
-    n_features : int
-        Maximum number of keypoints ORB keeps.
-    min_side : int
-        Images whose shorter side is smaller are upscaled (bilinear) so that it equals ``min_side`` before detection;
-        keypoints are mapped back to the original pixel coordinates (``docs/internals.md``).
-    name : str
-        Used in error messages, e.g. ``"query image 12"``.
-
-    Returns
-    -------
-    Keypoints
-        Possibly empty: an image without texture (e.g. blank) gives K = 0.
-
-    Raises
-    ------
-    ValueError
-        Invalid image (message starts with ``name``) or parameters.
+    At most ``n_features`` keypoints; an image whose shorter side is below ``min_side`` is upscaled for detection and
+    its keypoints mapped back (``docs/internals.md``). Returns :class:`Keypoints`, empty for a blank image; an invalid
+    image raises ValueError starting with ``name``.
     """
     n_features = check_int(n_features, "n_features", 1)
     min_side = check_int(min_side, "min_side", 1)
@@ -96,21 +68,9 @@ def extract_features(image, n_features: int = 1000, min_side: int = 240, name: s
 def match_features(f1: Keypoints, f2: Keypoints, ratio: float = 0.8, mutual: bool = True) -> np.ndarray:
     """Match ORB descriptors by Hamming distance with Lowe's ratio test.
 
-    Parameters
-    ----------
-    f1, f2 : Keypoints
-        Keypoints of the two images.
-    ratio : float
-        A match ``i -> j`` is kept if its distance is below ``ratio`` times the distance to ``f1``'s second-nearest
-        neighbour in ``f2``. When ``f2`` has a single descriptor there is no second neighbour and the test passes.
-    mutual : bool
-        Also require ``i`` to be the nearest neighbour of ``j`` in ``f1``, which removes many-to-one matches onto
-        repetitive texture.
-
-    Returns
-    -------
-    numpy.ndarray
-        intp (M, 2) index pairs ``(i, j)`` into ``f1`` and ``f2``, sorted by ``i``; (0, 2) when nothing matches.
+    A match ``i -> j`` is kept below ``ratio`` times the distance to ``i``'s second neighbour in ``f2`` (none: kept);
+    ``mutual`` also requires ``i`` to be ``j``'s nearest in ``f1``. Returns intp (M, 2) pairs ``(i, j)`` sorted by
+    ``i``.
     """
     f1 = check_keypoints(f1, "f1")
     f2 = check_keypoints(f2, "f2")

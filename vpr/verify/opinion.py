@@ -40,14 +40,8 @@ class OpinionConf:
 class GeometricOpinion(Decider):
     """The wrapped decider's decision, and geometry's where the path has not accepted (a :class:`Decider`).
 
-    Parameters
-    ----------
-    decider : Decider
-        The loop rule it is a second opinion on, e.g. :class:`vpr.shosm.LoopDecider`.
-    image : callable
-        ``image(j)``: frame ``j`` of the stream at its source's resolution.
-    back, ahead, stop_ratio : the loop decision's (:class:`vpr.shosm.LoopConf`).
-    conf : OpinionConf
+    ``decider``: the loop rule (:class:`vpr.shosm.LoopDecider`); ``image(j)``: frame ``j`` at its source's resolution;
+    ``back``, ``ahead``, ``stop_ratio``: :class:`vpr.shosm.LoopConf`'s; ``conf``: an :class:`OpinionConf`.
     """
 
     def __init__(self, decider: Decider, image, back: int, ahead: int, stop_ratio: float,

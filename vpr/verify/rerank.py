@@ -26,21 +26,9 @@ def _rank(rows: np.ndarray, vals: np.ndarray, n: int) -> np.ndarray:
 
 
 def top_candidates(S, n_candidates: int) -> np.ndarray:
-    """Each query's ``n_candidates`` most similar database entries.
+    """Each query's ``n_candidates`` most similar database entries (stored, not ``-inf``).
 
-    Parameters
-    ----------
-    S : array_like or scipy.sparse matrix
-        Similarity, database x query, higher = more similar. For a sparse matrix only stored entries are candidates;
-        entries equal to ``-inf`` are never candidates.
-    n_candidates : int
-        Candidates per query (>= 1).
-
-    Returns
-    -------
-    numpy.ndarray
-        intp (n_q, n_candidates) database indices in decreasing similarity, ties by lower index; padded with -1 when a
-        query has fewer candidates.
+    Returns intp (n_q, n_candidates) database indices by decreasing similarity, ties by lower index, padded with -1.
     """
     n = check_int(n_candidates, "n_candidates", 1)
     S = check_similarity(S, sparse_format="csc")
@@ -60,37 +48,18 @@ def top_candidates(S, n_candidates: int) -> np.ndarray:
 def rerank(S, candidates, inliers):
     """``S`` with each query's verified candidates re-ordered by inliers; every other entry unchanged.
 
-    For query ``j`` the values ``S[candidates[j], j]`` are sorted in decreasing order and handed out again, the
-    highest to the candidate with the most inliers, the next to the second, and so on (equal inlier counts keep the
-    order under ``S``). So the column holds the same set of values as before, its verified candidates still sit above
-    all its other entries (they were its ``N`` best), and the pairs that were not verified keep their scores. Average
-    precision with and without verification then measures the same ranking, changed only where verification disagreed
-    with ``S``; it is identical when the inlier order equals the ``S`` order.
-
-    Why not scores made from inliers: inlier counts and similarities are on unrelated scales, and giving only the
-    candidates new scores drops every other pair below them (or out of the matrix), which is what made the verified AP
-    incomparable before.
+    The values ``S[candidates[j], j]`` are handed out again in decreasing order, the highest to the candidate with the
+    most inliers (ties keep the ``S`` order): each column keeps its values (``docs/internals.md``).
 
     Parameters
     ----------
-    S : array_like or scipy.sparse matrix
-        Similarity, database x query (n_db x n_q), higher = more similar.
+    S : array_like or scipy.sparse matrix, (n_db, n_q)
     candidates : array_like of int, (n_q, N)
-        Database rows per query (as from :func:`top_candidates`), -1 for padding. For a sparse ``S`` every candidate
-        must be a stored entry.
+        Database rows per query (:func:`top_candidates`), -1 for padding; stored entries of a sparse ``S``.
     inliers : array_like of int, (n_q, N)
-        Inlier count of each candidate; padding is ignored.
 
-    Returns
-    -------
-    numpy.ndarray (float64) or scipy.sparse.csc_matrix (float64)
-        A new matrix of ``S``'s kind and shape.
-
-    Raises
-    ------
-    ValueError
-        Shapes disagree, a candidate is out of range, repeated within a query or (sparse) not stored, or a candidate's
-        ``S`` value is ``-inf``.
+    Returns a new matrix of ``S``'s kind (float64; sparse: csc). Shapes that disagree, candidates out of range,
+    repeated, not stored or at ``-inf`` raise ValueError.
     """
     S = check_similarity(S, sparse_format="csc")
     n_db, n_q = S.shape

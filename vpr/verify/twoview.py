@@ -64,28 +64,10 @@ def two_view_inliers(f1: Keypoints, f2: Keypoints, matches, model: str = "fundam
                      max_error: float = 4.0, seed: int | None = 0, max_trials: int = 2000) -> int:
     """Number of matches consistent with one two-view model (pycolmap LO-RANSAC).
 
-    Parameters
-    ----------
-    f1, f2 : Keypoints
-        Keypoints of the two images.
-    matches : array_like
-        (M, 2) integer index pairs into ``f1`` and ``f2``, e.g. from
-        :func:`match_features`.
-    model : {"fundamental", "homography"}
-        ``"fundamental"`` (pycolmap ``estimate_fundamental_matrix``, any static 3-D scene) or ``"homography"``
-        (``estimate_homography_matrix``, planar or distant scenes, pure rotation; stricter, so unrelated image pairs
-        get fewer chance inliers).
-    max_error : float
-        RANSAC inlier threshold in pixels of the detection frame (``docs/internals.md``).
-    seed : int or None
-        RANSAC random seed; ``None`` for a non-deterministic one.
-    max_trials : int
-        Upper bound on RANSAC iterations.
-
-    Returns
-    -------
-    int
-        Inlier count; 0 with fewer than 8 (fundamental) or 4 (homography) matches, or when the estimation fails.
+    ``matches``: (M, 2) index pairs into ``f1`` and ``f2`` (:func:`match_features`). ``model``: ``"fundamental"`` (any
+    static scene) or ``"homography"`` (planar or distant; stricter). ``max_error``: inlier threshold in pixels of the
+    detection frame (``docs/internals.md``); ``seed`` None: not deterministic. Returns 0 with fewer than 8 / 4 matches
+    or when the estimation fails.
     """
     f1 = check_keypoints(f1, "f1")
     f2 = check_keypoints(f2, "f2")

@@ -21,23 +21,21 @@ __all__ = ["Verifier", "VerifyResult"]
 
 @dataclass(frozen=True, eq=False)
 class VerifyResult:
-    """Outcome of :meth:`Verifier.verify`.
+    """Outcome of :meth:`Verifier.verify`; -1 pads queries with fewer than N candidates.
 
     Attributes
     ----------
-    candidates : numpy.ndarray
-        intp (n_q, N) database indices ordered by ``S`` (best first); -1 pads queries with fewer than N candidates.
-    inliers : numpy.ndarray
-        int64 (n_q, N) RANSAC inlier counts, -1 at padding.
-    best_db : numpy.ndarray
-        intp (n_q,) candidate with the most inliers, ties by ``S`` order; -1 for a query without candidates.
-    accepted : numpy.ndarray
-        bool (n_q,) ``best`` inlier count >= ``min_inliers``.
-    score : numpy.ndarray
-        float64 (n_q,) inlier count of ``best_db``; -inf for a query without candidates. Thresholding it sweeps
-        ``min_inliers``.
+    candidates : numpy.ndarray, intp (n_q, N)
+        Database indices ordered by ``S``, best first.
+    inliers : numpy.ndarray, int64 (n_q, N)
+        RANSAC inlier counts.
+    best_db : numpy.ndarray, intp (n_q,)
+        The candidate with the most inliers, ties by ``S`` order.
+    accepted : numpy.ndarray, bool (n_q,)
+        Its inlier count >= ``min_inliers``.
+    score : numpy.ndarray, float64 (n_q,)
+        Its inlier count (-inf: no candidate).
     n_db : int
-        Number of database entries (rows of ``S``).
     """
 
     candidates: np.ndarray
@@ -88,30 +86,13 @@ class Verifier:
     Parameters
     ----------
     db_images, q_images : callable or sequence
-        ``i -> image`` callables, or sequences (lists, stacked arrays) of images; any layout accepted by
-        :func:`extract_features`. Sequences also let :meth:`verify` check the shape of ``S``.
+        ``i -> image`` callables or sequences of images (:func:`extract_features`); sequences let :meth:`verify` check
+        ``S``'s shape.
     **conf
-        Overrides of ``Verifier.default_conf``, merged by
-        :func:`vpr.config.merge_conf` (unknown keys raise; strings are read as
-        the default's type):
-    n_features : int
-        ORB keypoints per image.
-    model : {"fundamental", "homography"}
-        Two-view model, see :func:`two_view_inliers`.
-    ratio : float
-        Lowe ratio, see :func:`match_features`.
-    min_inliers : int
-        Inliers the best candidate needs for the query to be accepted.
-    cache : bool
-        Keep every image's features after first use, so each image is processed once even across several
-        :meth:`verify` calls (about 48 kB per image at 1000 features). Without it, database features are recomputed
-        for every query that lists them.
-    max_error, seed, max_trials
-        RANSAC settings, see :func:`two_view_inliers`.
-    mutual : bool
-        Mutual nearest-neighbour check, see :func:`match_features`.
-    min_side : int
-        Upscaling threshold, see :func:`extract_features`.
+        Over ``Verifier.default_conf`` (:func:`vpr.config.merge_conf`): ``n_features`` ORB keypoints per image;
+        ``model`` and ``max_error, seed, max_trials`` as :func:`two_view_inliers`; ``ratio`` and ``mutual`` as
+        :func:`match_features`; ``min_side`` as :func:`extract_features`; ``min_inliers`` the best candidate needs;
+        ``cache``: keep each image's features after first use (about 48 kB at 1000 features).
     """
 
     default_conf = {"n_features": 1000, "model": "fundamental", "ratio": 0.8, "min_inliers": 15, "cache": True,
@@ -182,27 +163,10 @@ class Verifier:
         return two_view_inliers(fq, fd, m, self.model, self.max_error, self.seed, self.max_trials)
 
     def verify(self, S, n_candidates: int, progress: bool = True) -> VerifyResult:
-        """Verify each query's ``n_candidates`` best database entries under ``S``.
+        """Verify each query's ``n_candidates`` best database entries under ``S`` (sparse: stored, not ``-inf``).
 
-        Parameters
-        ----------
-        S : array_like or scipy.sparse matrix
-            Similarity, database x query (n_db x n_q), higher = more similar. With a sparse (e.g. top-K) matrix only
-            stored entries are candidates; ``-inf`` entries never are.
-        n_candidates : int
-            Candidates per query (>= 1).
-        progress : bool
-            Show a tqdm progress bar over the queries.
-
-        Returns
-        -------
-        VerifyResult
-
-        Raises
-        ------
-        ValueError
-            ``n_candidates < 1``, ``S`` not 2-D or containing NaN, ``S``'s shape differs from the image sequences'
-            lengths, or an image cannot be read.
+        Returns a :class:`VerifyResult`; ``n_candidates < 1``, a bad ``S`` (not 2-D, NaN, shape unlike the image
+        sequences') or an unreadable image raise ValueError. ``progress``: a tqdm bar over the queries.
         """
         n_candidates = check_int(n_candidates, "n_candidates", 1)
         S = check_similarity(S, sparse_format="csc")

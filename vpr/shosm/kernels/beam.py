@@ -263,46 +263,30 @@ def beam_frames(query, ff, lateral, cells, conf, state, scratch, out):  # pragma
     Parameters (tuples of arrays owned by the caller; cells are the memory's cell indices)
     ----------
     query : (q_ptr, q_ind, order, limits)
-        CSR of the query SDR batch; ``order``: frames to run, in order; ``limits``: int64 per frame of ``order``: only
-        cells born at a database frame ``<= limit`` take part and only database frames ``<= limit`` are output (loop
-        closure over the past; a large value for database matching).
+        CSR of the query SDR batch; ``order``: frames to run; ``limits``: int64 per frame: only cells born at and
+        database frames output up to ``limit`` (loop closure over the past; a large value against a database).
     ff : (bit_cols, bit_len, col_size, cpc)
-        The memory's inverted index input bit -> minicolumns, feed-forward connections per minicolumn (float64), cells
-        per minicolumn.
+        Inverted index input bit -> minicolumns, connections per minicolumn (float64), cells per minicolumn.
     lateral : (a_head, a_next, a_dst, grp)
-        The lateral connections used for prediction, as linked lists per source cell (reversed connections for a
-        backward pass), or per group of source cells with the same targets (``grp``: int64 per cell, its group, -1: no
-        connection; empty: the lists are per cell). A frame's winner cells all predict the next frame's, so the cells
-        that relay evidence come in groups with one successor list; a group relaxes the largest evidence of its beam
-        cells once (the same maxima as cell by cell).
+        Prediction lists per source cell (reversed for a backward pass), or per group of cells with the same targets
+        (``grp``: int64 group per cell, -1: none; empty: per cell); a group relaxes its largest evidence once.
     cells : (c_head, c_next, c_frame, relevant, birth, db_norm)
-        cell -> database frames whose code holds the cell; whether a cell may carry evidence; the first database frame
-        of a cell; the code size per database frame (the mean over its cells).
+        cell -> database frames whose code holds it; whether it may carry evidence; its first database frame; the code
+        size per database frame.
     conf : (decay, stay, skip, z_weight, floor, rel_floor, z_floor, max_beam, max_enter)
-        ``decay, stay, skip, z_weight`` as :func:`evidence_frames` (stay/skip < 0: off). A cell stays in the beam when
-        its evidence is above ``max(floor, rel_floor * (largest evidence this frame))``; a minicolumn's cells enter by
-        feed-forward alone when its overlap fraction is above ``z_floor`` (a cell that enters by prediction gets its
-        feed-forward term whatever it is). At most ``max_beam`` cells are carried to the next frame (those of largest
-        evidence: above the ``max_beam + 1``-th largest; ties at it drop out together; every cell above the floors
-        still counts in this frame's column) and at most ``max_enter`` minicolumns enter by feed-forward per frame
-        (those of largest overlap, the same way); <= 0: no cap. Together the two caps bound the candidates per frame
-        by ``max_enter * cpc + max_beam * (out-degree)`` whatever the SDRs share.
+        As :class:`vpr.shosm.EvidenceConf` and :class:`vpr.shosm.BeamConf` (stay/skip < 0: off; caps <= 0: none); ties
+        at a cap drop out together.
     state : (st, beam, beam_e, in_beam)
-        ``st``: int64 state: beam size, output position, need-flag, frames done, largest beam and largest candidate
-        set so far; the beam (cells, evidence); per cell its place in the beam plus one (0: not in it); carried from
-        call to call.
+        ``st`` (int64, indices ``B_*``), the beam's cells and evidence, per cell its place in the beam plus one;
+        carried from call to call.
     scratch : (counts, touched_cols, p1, p2, z, slot, cand, e_new, gmax, gmark, gtouch, acc, db_mark, db_touch)
-        Work space: per minicolumn ``counts`` (int32 overlap counts); per cell ``slot``, its candidate number plus one
-        (0: not a candidate), zero between frames; per candidate (by number) ``cand`` its cell, ``p1, p2, z, e_new``
-        its offers, overlap and evidence; ``gmax, gmark, gtouch`` per group (unused without groups); per database
-        frame ``acc, db_mark``. Only ``slot`` and ``in_beam`` (int32) are written at scattered cells; the
-        per-candidate arrays fill from the start, up to the largest candidate set.
+        Work space: per minicolumn, per cell (``slot``: candidate number plus one, zero between frames), per
+        candidate, per group and per database frame.
     out : (out_ptr, out_idx, out_val)
         Per processed frame the sparse column (database frame, evidence); ``out_ptr[t + 1]`` ends frame ``order[t]``.
 
-    Returns the number of frames of ``order`` processed; fewer than all when ``out_idx`` has less room than the
-    database frames the next frame could output (``st[B_NEED]`` = size needed), the caller grows it and calls again
-    from there.
+    Returns the number of frames processed; fewer than all when ``out_idx`` lacks room for the next frame
+    (``st[B_NEED]``: the size needed), and the caller grows it and calls again.
     """
     q_ptr, q_ind, order, limits = query
     st = state[0]

@@ -88,13 +88,9 @@ def column_peaks(rows, vals, n, fill, island, place, link_w, newest):  # pragma:
 def decide_frame(j, column, rule, stream):  # pragma: no cover - compiled
     """The decision of frame ``j``; updates the stream's ``place``, ``path_b`` and ``st``.
 
-    ``column``: (rows, vals, n, fill), the frame's evidence (candidates ``0 .. n - 1``; rows sorted, a candidate not
-    stored has the z ``fill``); ``rule``: (drift, min_score, back, ahead, island, stop_ratio) of
-    :class:`vpr.shosm.LoopConf` (stop_ratio 0: stops are not checked);
-    ``stream``: (sdr_ptr, sdr_ind, place, path_b, st, starts): the stream's SDRs for the stop check (``sdr_ptr``
-    empty: not checked), ``place[f]`` the place frame ``f`` belongs to (itself until a closure links it),
-    ``path_b[f]`` the best candidate of frame ``f`` (the current path is ``st.start .. j``), ``st`` the path's
-    :data:`PATH_STATE`, ``starts`` the sessions' first frames (``[0]``: one session). Returns (best, score, accepted,
+    ``column``: (rows, vals, n, fill), candidates ``0 .. n - 1``, rows sorted, ``fill`` the z of one not stored;
+    ``rule``: :class:`vpr.shosm.LoopConf`'s; ``stream``: (sdr_ptr, sdr_ind (empty: no stop check), place (each frame's
+    place), path_b (each frame's best candidate), st (:data:`PATH_STATE`), starts). Returns (best, score, accepted,
     margin, near).
     """
     rows, vals, n, fill = column
@@ -140,13 +136,9 @@ def decide_frame(j, column, rule, stream):  # pragma: no cover - compiled
 def locate_frame(column, rule, place, st, starts):  # pragma: no cover - compiled
     """The localisation decision of one query frame against a map of ``n`` frames; updates ``st``.
 
-    The path score of :func:`decide_frame` without what only one stream has (no "just left" place, no links between
-    visits, no stops): the best map frame's margin over the strongest other place, accumulated while the best map
-    frame moves on consistently (``head - back .. head + ahead``). ``column``: (rows, vals, n, fill) as
-    :func:`decide_frame`'s; ``rule``: (drift, min_score, back, ahead, island) of :class:`vpr.shosm.PathConf`;
-    ``place``: ``arange(n)`` (every map frame its own place); ``st``: the path's :data:`PATH_STATE`; ``starts``: the
-    first frame of each session of the map (a path does not move on across one). Returns (best, score, accepted,
-    margin).
+    :func:`decide_frame`'s path score without what only one stream has (a place just left, links, stops). ``column`` as
+    there; ``rule``: :class:`vpr.shosm.PathConf`'s; ``place``: ``arange(n)``; ``starts``: the map's sessions. Returns
+    (best, score, accepted, margin).
     """
     rows, vals, n, fill = column
     drift, min_score, back, ahead, island = rule

@@ -10,17 +10,13 @@ from .overlap import count_overlaps
 @njit(cache=True)
 def evidence_frames(q_ptr, q_ind, order, bit_cols, bit_len, col_size, rel_col, e_src, e_dst,
                     db_ptr, db_ind, db_norm, decay, stay, skip, z_weight, out, e, fresh, clamp=False):
-    """Graded sequence evidence of a query traverse along the learned lateral connections.
+    """Graded sequence evidence of a query traverse along the learned lateral connections (dense).
 
-    Not Algorithm 1: an extension for database-vs-query matching (:func:`vpr.shosm.dense_evidence`). Cells are the
-    memory's "relevant" cells (those in database codes or on a connection), renumbered ``0 .. n_rel-1``; ``rel_col``
-    is each one's minicolumn. For query frames in ``order``, a cell's evidence is its minicolumn's feed-forward
-    overlap fraction ``z`` plus ``decay`` times the best evidence that predicts it: over its incoming connections (the
-    learned sequence), two connections back minus ``skip`` (a skipped frame) or itself minus ``stay`` (a repeated
-    frame); a negative ``stay``/``skip`` disables that path. ``out[j, q] += mean over database code j of (evidence -
-    z_weight * z)``. ``e`` carries the evidence from one call to the next (chunks of ``order``); ``fresh`` marks the
-    first chunk. ``clamp`` floors the predicted term at 0 (the semantics of :func:`beam_frames`, whose absent cells
-    are 0), for tests.
+    Cells are the memory's relevant cells renumbered ``0 .. n_rel-1`` (``rel_col``: each one's minicolumn). A cell's
+    evidence is its minicolumn's overlap fraction ``z`` plus ``decay`` times the best evidence that predicts it: its
+    incoming connections, two back minus ``skip``, or itself minus ``stay`` (negative: off). ``out[j, q] += mean over
+    database code j of (evidence - z_weight * z)``. ``e`` carries the evidence between calls (``fresh``: the first);
+    ``clamp`` floors the predicted term at 0 as :func:`beam_frames` does.
     """
     n_rel = rel_col.shape[0]
     n_cols = col_size.shape[0]
