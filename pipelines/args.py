@@ -6,6 +6,8 @@ same common flags work everywhere; the others are added where they apply.
 from __future__ import annotations
 
 import argparse
+import math
+import re
 from pathlib import Path
 
 import encoders
@@ -13,12 +15,12 @@ from encoders.maps import ONLINE_METHOD  # the method of the online commands
 from vpr import methods, presets
 from vpr.config import parse_key_values, parse_method_confs
 from vpr.groundtruth import GroundTruthSpec
-from vpr.groundtruth.trajectories import parse_every
-from vpr.similarity import parse_size
 
 __all__ = ["add_common_arguments", "add_source_arguments", "add_preset_argument", "add_gt_arguments",
            "gt_spec_from_args", "method_confs", "add_method_conf_argument", "ONLINE_METHOD",
-           "add_run_arguments", "settings_from_args", "options_from_args"]
+           "add_run_arguments", "settings_from_args", "options_from_args", "parse_every", "parse_size"]
+
+_UNITS = {"": 2**30, "b": 1, "k": 2**10, "m": 2**20, "g": 2**30, "t": 2**40}
 
 def add_common_arguments(ap) -> None:
     """The flags every sub-command takes."""
@@ -137,14 +139,39 @@ def options_from_args(args):
     the sources' frames, the ground truth and where the run goes."""
     from pipelines.runs import RunOptions  # the runs' module loads the methods: only once a run is under way
 
+    every = parse_every(args.every) if args.every else None
+    budget = None if args.memory_budget is None else parse_size(args.memory_budget)
     gt = gt_spec_from_args(args)
     s = settings_from_args(args)
     return RunOptions(
         out=Path(args.out), methods=tuple(s["methods"]), preset=s["preset"], encoder=s["encoder"],
         encoder_conf=s["encoder_conf"], method_conf=s["method_conf"], fps=args.fps, step=args.step,
         max_frames=args.max_frames, gt=gt, topic=topic_arg(args.topic),
-        every=parse_every(args.every) if args.every else None,
+        every=every,
         verify=getattr(args, "verify", 0), min_inliers=getattr(args, "min_inliers", 15),
         workers=getattr(args, "workers", None), scheduler=getattr(args, "scheduler", None),
         progress=not args.no_progress, cache=Path(args.cache) if args.cache else None,
-        memory_budget=None if args.memory_budget is None else parse_size(args.memory_budget))
+        memory_budget=budget)
+
+
+def parse_every(text) -> float:
+    """``--every 2m`` (or ``2``, metres) -> 2.0; ValueError naming the option otherwise."""
+    s = str(text).strip().lower()
+    s = s[:-1] if s.endswith("m") else s
+    try:
+        v = float(s)
+    except ValueError:
+        v = float("nan")
+    if not (math.isfinite(v) and v > 0):
+        raise ValueError(f"--every must be a distance in metres like 2m, got {text!r}")
+    return v
+
+
+def parse_size(text, option: str = "--memory-budget") -> int:
+    """Bytes of a size such as ``4GB``, ``512MB``, ``2g``, ``100B`` or ``1.5`` (GiB without a unit; units are
+    powers of 1024). Raises ValueError naming ``option``."""
+    m = re.fullmatch(r"\s*(\d*\.?\d+)\s*([kmgt]?)(i?b)?\s*", str(text).lower())
+    if not m or float(m.group(1)) <= 0:
+        raise ValueError(f"{option}: a size such as 4GB or 512MB, got {text!r}")
+    unit = m.group(2) or ("b" if m.group(3) else "")
+    return int(float(m.group(1)) * _UNITS[unit])

@@ -111,7 +111,8 @@ def _memory_budget(size):
     """``--memory-budget SIZE`` in force for the run (:func:`vpr.similarity.dense_budget`); none given: the default."""
     if size is None:
         return contextlib.nullcontext()
-    from vpr.similarity import dense_budget, parse_size  # numba's import only where the option is used
+    from pipelines.args import parse_size
+    from vpr.similarity import dense_budget  # numba's import only where the option is used
 
     return dense_budget(parse_size(size))
 

@@ -29,6 +29,7 @@ from pipelines.args import (
     add_source_arguments,
     gt_spec_from_args,
     method_confs,
+    parse_every,
     topic_arg,
 )
 from pipelines.online import Online, run_online, summary_line
@@ -36,7 +37,6 @@ from pipelines.outputs import warn
 from vpr import evaluate, io, presets
 from vpr.checks import per_input
 from vpr.groundtruth import GroundTruthSpec, build_gt, prepare_positions, same_rate, same_sampling, sampling_step
-from vpr.groundtruth.trajectories import parse_every
 from vpr.shosm import Map
 from vpr.sources import open_source
 from vpr.sources.stdin import StdinSource

@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
+from pipelines.args import parse_every
 from pipelines.cli import main
 from tests.bags import T0, metres_to_latlon, read_folder, write_bag
 from vpr.groundtruth import trajectories as tr
@@ -217,9 +218,9 @@ def test_every_keeps_one_frame_per_distance_of_travel():
     # 10 frames standing still at a traffic light, then 1 m a frame
     xy = np.r_[np.zeros((10, 2)), np.c_[np.arange(1, 11), np.zeros(10)]]
     assert tr.every(xy, 2.0).tolist() == [0, 11, 13, 15, 17, 19]
-    assert tr.parse_every("2m") == 2.0 and tr.parse_every("0.5") == 0.5
+    assert parse_every("2m") == 2.0 and parse_every("0.5") == 0.5
     with pytest.raises(ValueError, match="--every"):
-        tr.parse_every("2 miles")
+        parse_every("2 miles")
 
 
 def test_every_keeps_frames_of_two_traverses_that_pair_one_to_one():

@@ -6,10 +6,11 @@ import pytest
 import scipy.sparse as sp
 
 from pipelines import outputs
+from pipelines.args import parse_size
 from pipelines.cli import main
 from vpr import similarity
 from vpr.shosm import loop_evidence
-from vpr.similarity import DENSE_BYTES_PER_PAIR, dense_budget, dense_pairs, fits_dense, parse_size
+from vpr.similarity import DENSE_BYTES_PER_PAIR, dense_budget, dense_pairs, fits_dense
 
 
 def test_sizes_read_as_a_user_writes_them():

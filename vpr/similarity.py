@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
-import re
 
 import numpy as np
 import scipy.sparse as sp
@@ -15,7 +14,7 @@ from vpr.checks import check_top_k, physical_memory
 
 __all__ = ["overlap_similarity", "overlap_count", "stationary", "sdr_overlap_rows", "sdr_candidates", "cosine",
            "neg_sad", "mean_abs_diff", "topk_sparse", "DENSE_PAIRS_LIMIT", "DENSE_BYTES_PER_PAIR",
-           "dense_budget", "dense_pairs", "default_dense_budget", "parse_size", "budget_setting",
+           "dense_budget", "dense_pairs", "default_dense_budget", "budget_setting",
            "best_matches", "mask_recent", "fits_dense", "top_k_or_dense", "check_dense", "pack_bits", "bitsets_pay",
            "TOP_K", "candidate_limit", "n_candidates"]
 
@@ -25,7 +24,6 @@ DENSE_PAIRS_LIMIT = 20_000 * 20_000
 #: enhanced matrices, the similarity, the ground truth; ``docs/benchmarks.md``, "Memory at the dense switch").
 DENSE_BYTES_PER_PAIR = 40
 _BUDGET: contextvars.ContextVar[int | None] = contextvars.ContextVar("dense_budget", default=None)
-_UNITS = {"": 2**30, "b": 1, "k": 2**10, "m": 2**20, "g": 2**30, "t": 2**40}
 
 
 def default_dense_budget() -> int:
@@ -34,15 +32,6 @@ def default_dense_budget() -> int:
     total = physical_memory()
     return 2**31 if total is None else total // 8
 
-
-def parse_size(text, option: str = "--memory-budget") -> int:
-    """Bytes of a size such as ``4GB``, ``512MB``, ``2g``, ``100B`` or ``1.5`` (GiB without a unit; units are
-    powers of 1024). Raises ValueError naming ``option``."""
-    m = re.fullmatch(r"\s*(\d*\.?\d+)\s*([kmgt]?)(i?b)?\s*", str(text).lower())
-    if not m or float(m.group(1)) <= 0:
-        raise ValueError(f"{option}: a size such as 4GB or 512MB, got {text!r}")
-    unit = m.group(2) or ("b" if m.group(3) else "")
-    return int(float(m.group(1)) * _UNITS[unit])
 
 
 @contextlib.contextmanager

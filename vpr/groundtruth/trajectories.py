@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["trajectory_format", "load_tum", "load_kitti", "utm_from_names", "exif_positions", "positions_at",
-           "outages", "outage_limit", "short_gaps", "OUTAGE_S", "every", "latlon_to_metres", "parse_every",
+           "outages", "outage_limit", "short_gaps", "OUTAGE_S", "every", "latlon_to_metres",
            "EARTH_RADIUS"]
 
 #: Mean Earth radius, m: latitude and longitude to local metres (an equirectangular plane about the first
@@ -188,18 +188,6 @@ def positions_at(times, traj_t, traj_xy) -> tuple[np.ndarray, np.ndarray]:
         xy[ok] = np.stack([np.interp(times[ok], traj_t, traj_xy[:, d]) for d in range(traj_xy.shape[1])], axis=1)
     return xy, why
 
-
-def parse_every(text) -> float:
-    """``--every 2m`` (or ``2``, metres) -> 2.0; ValueError naming the option otherwise."""
-    s = str(text).strip().lower()
-    s = s[:-1] if s.endswith("m") else s
-    try:
-        v = float(s)
-    except ValueError:
-        v = float("nan")
-    if not (math.isfinite(v) and v > 0):
-        raise ValueError(f"--every must be a distance in metres like 2m, got {text!r}")
-    return v
 
 
 def every(xy, metres: float) -> np.ndarray:
