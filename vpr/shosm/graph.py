@@ -10,7 +10,7 @@ from .memory import SequenceMemory
 __all__ = ["BIG", "Graph", "Beam", "check_codes", "linked_lists", "grouped_lists"]
 
 #: "Never": a birth frame or a limit beyond any frame.
-BIG = np.iinfo(np.int64).max // 4
+BIG = KB.NO_LIMIT
 
 
 def check_codes(mem: SequenceMemory, db_codes) -> sp.csr_matrix:

@@ -10,6 +10,8 @@ from .overlap import count_overlaps
 # frame so far) that tests and benchmarks read to check the caps
 B_SIZE, B_OUT_POS, B_NEED, B_FRAMES, B_MAX_BEAM, B_MAX_CAND = range(6)
 BEAM_STATE_SIZE = 6
+#: A frame's limit that admits every cell: no cell's birth is read.
+NO_LIMIT = np.iinfo(np.int64).max // 4
 
 
 @njit(cache=True, inline="always")
@@ -30,7 +32,7 @@ def _relax(s, v, a_head, a_dst, a_next, birth, limit, p, q, slot, cand, n_c):  #
     e = a_head[s]
     while e >= 0:
         d = a_dst[e]
-        if birth[d] <= limit:
+        if limit >= NO_LIMIT or birth[d] <= limit:
             k = slot[d] - 1
             if k < 0:
                 k = n_c
@@ -106,7 +108,7 @@ def enter_by_overlap(bits, limit, ff, cells, conf, scratch):  # pragma: no cover
         if _fraction(counts, col_size, col) > zf:
             for k in range(cpc):
                 c = col * cpc + k
-                if relevant[c] and birth[c] <= limit and slot[c] == 0:
+                if relevant[c] and (limit >= NO_LIMIT or birth[c] <= limit) and slot[c] == 0:
                     n_c = _join(c, slot, cand, p1, p2, n_c)
     return n_tc, n_c
 
@@ -127,7 +129,7 @@ def enter_by_prediction(n_c, limit, lateral, cells, conf, state, scratch):  # pr
     for i in range(st[B_SIZE]):
         s = beam[i]
         v = beam_e[i]
-        if birth[s] > limit:
+        if limit < NO_LIMIT and birth[s] > limit:
             continue
         if stay >= 0.0 and v > stay and slot[s] == 0:
             n_c = _join(s, slot, cand, p1, p2, n_c)
