@@ -28,12 +28,16 @@ day_left; and :class:`vpr.shosm.Localizer` on
 :func:`vpr.simulate.aliased_traverses` (400 places, 40 appearances, a query
 at 2x; right within one place).
 
+Each table also prints the query's speed along the accepted paths, in map frames per query frame
+(:func:`path_speed`, no ground truth): a measure a run could say.
+
 Usage: python -m studies.speed_models [--data DIR] [--out DIR]
 """
 from __future__ import annotations
 
 import argparse
 import contextlib
+import csv
 import io
 import json
 import tempfile
@@ -52,6 +56,27 @@ from vpr.shosm.decide import accept_path
 #: model -> (stay, skip)
 MODELS = {"same": (0.05, 0.05), "faster": (0.05, 0.0), "slower": (0.0, 0.05), "free": (0.0, 0.0)}
 COMBOS = ("same", "free", "same+faster", "same+faster+slower")
+
+
+def path_speed(best, accepted, min_run: int = 10) -> tuple[float | None, int]:
+    """Map frames per query frame along the accepted paths: over every run of at least ``min_run`` accepted
+    frames whose best map frame moves on by 0 to 4 frames a frame, the map frames moved over the query frames.
+    Returns (speed or None without such a run, query frames counted)."""
+    best, accepted = np.asarray(best), np.asarray(accepted, bool) & (np.asarray(best) >= 0)
+    moved = steps = j = 0
+    while j < best.size:
+        k = j
+        while accepted[j] and k + 1 < best.size and accepted[k + 1] and 0 <= best[k + 1] - best[k] <= 4:
+            k += 1
+        if accepted[j] and k - j + 1 >= min_run:
+            moved, steps = moved + best[k] - best[j], steps + k - j
+        j = k + 1
+    return (moved / steps if steps else None), steps
+
+
+def _speed_cell(best, accepted) -> str:
+    v, n = path_speed(best, accepted)
+    return "-" if v is None else f"{v:.2f} ({n})"
 
 
 def _folder(root: Path, name: str, files: list[Path], number) -> tuple[Path, np.ndarray]:
@@ -107,7 +132,11 @@ def _command(argv: list) -> str | None:
     out = Path(argv[argv.index("--out") + 1])
     if argv[0] == "learn":
         return None
-    return decisions_cell(json.loads((out / "metrics.json").read_text())["methods"]["rshosm-seq"], frames=False)
+    with open(out / "rshosm-seq" / "matches.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    speed = _speed_cell([int(x["best_db"]) for x in rows], [x["accepted"] == "1" for x in rows])
+    return (decisions_cell(json.loads((out / "metrics.json").read_text())["methods"]["rshosm-seq"], frames=False)
+            + f"; speed {speed}")
 
 
 def _simulated(speeds: str) -> str:
@@ -156,7 +185,8 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         root = args.out or Path(tmp)
-        print("AP, accepted, P(acc), R(acc) of rshosm-seq (default preset), query frames as they come")
+        print("AP, accepted, P(acc), R(acc) of rshosm-seq (default preset), query frames as they come; speed along "
+              "the accepted paths, map frames per query frame (query frames counted)")
         print(f"| stream | {' | '.join(COMBOS)} |")
         print("|---|" + "---|" * len(COMBOS))
         for name, (db, x_db), (query, x_q), radius in _streams(args.data, root):
@@ -172,7 +202,8 @@ def main(argv=None) -> None:
                 right = gt[best, np.arange(best.size)] & (best >= 0)
                 n, tp = int(acc.sum()), int((acc & right).sum())
                 p = f"{tp / n:.3f}" if n else "-"
-                cells.append(f"{average_precision(S, gt):.3f}, {n}, {p}, {tp / best.size:.2f}")
+                cells.append(f"{average_precision(S, gt):.3f}, {n}, {p}, {tp / best.size:.2f}; speed "
+                             f"{_speed_cell(best, acc)}")
             print(f"| {name} | {' | '.join(cells)} |", flush=True)
         commands(args.data, root)
 
