@@ -299,6 +299,7 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
             return r.loops(features, exclude=exclude, progress=opts.progress, sessions=starts, opinion=opinion)
 
         done = evaluate.run_methods(runners, loops_of, gt_hard, gt_soft, mask, on_result=write, loops=True)
+        groundtruth.check_speeds({k: m.get("path_speed") for k, (m, _) in done.items()})
         for m, o in opinions.items():
             done[m][0]["geometry"] = o.report()
         inputs = {"kind": "loops", "seq": [s.key() for s in srcs] if len(srcs) > 1 else srcs[0].key(),

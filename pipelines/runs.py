@@ -29,6 +29,7 @@ from vpr.groundtruth import (
     any_true,
     build_gt,
     check_rates,
+    check_speeds,
     frame_rows,
     prepare_positions,
     sampling_step,
@@ -336,6 +337,7 @@ def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, command: st
 
     done = evaluate.run_methods(the_map.fitted, matcher or (lambda f: f.match(q_ex.features, progress=opts.progress)),
                                 gt_hard, gt_soft, on_result=write)
+    check_speeds({k: m.get("path_speed") for k, (m, _) in done.items()})
     # what makes two runs' metrics comparable: same frames (content keys), encoding and ground truth
     truth = opts.gt.describe(sampling_step(db_src.indices()))  # a tolerance in frames kept and in input frames
     inputs = {"kind": "match", "db": db_src.key(), "query": q_src.key(), "encoder": encoder.name,

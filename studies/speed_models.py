@@ -29,7 +29,7 @@ day_left; and :class:`vpr.shosm.Localizer` on
 at 2x; right within one place).
 
 Each table also prints the query's speed along the accepted paths, in map frames per query frame
-(:func:`path_speed`, no ground truth): a measure a run could say.
+(:func:`vpr.evaluate.path_speed`, no ground truth): a measure a run could say.
 
 Usage: python -m studies.speed_models [--data DIR] [--out DIR]
 """
@@ -49,29 +49,13 @@ import numpy as np
 from pipelines.cli import main as vpr
 from studies.cells import decisions_cell
 from vpr import simulate
-from vpr.evaluate import average_precision
+from vpr.evaluate import average_precision, path_speed
 from vpr.shosm import Localizer, RshosmSeqConf
 from vpr.shosm.decide import accept_path
 
 #: model -> (stay, skip)
 MODELS = {"same": (0.05, 0.05), "faster": (0.05, 0.0), "slower": (0.0, 0.05), "free": (0.0, 0.0)}
 COMBOS = ("same", "free", "same+faster", "same+faster+slower")
-
-
-def path_speed(best, accepted, min_run: int = 10) -> tuple[float | None, int]:
-    """Map frames per query frame along the accepted paths: over every run of at least ``min_run`` accepted
-    frames whose best map frame moves on by 0 to 4 frames a frame, the map frames moved over the query frames.
-    Returns (speed or None without such a run, query frames counted)."""
-    best, accepted = np.asarray(best), np.asarray(accepted, bool) & (np.asarray(best) >= 0)
-    moved = steps = j = 0
-    while j < best.size:
-        k = j
-        while accepted[j] and k + 1 < best.size and accepted[k + 1] and 0 <= best[k + 1] - best[k] <= 4:
-            k += 1
-        if accepted[j] and k - j + 1 >= min_run:
-            moved, steps = moved + best[k] - best[j], steps + k - j
-        j = k + 1
-    return (moved / steps if steps else None), steps
 
 
 def _speed_cell(best, accepted) -> str:

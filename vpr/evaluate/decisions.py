@@ -6,7 +6,7 @@ import scipy.sparse as sp
 
 from vpr.checks import at
 
-__all__ = ["accepted_precision", "best_in_soft_band", "decision_curve", "session_pairs", "outcomes"]
+__all__ = ["accepted_precision", "best_in_soft_band", "decision_curve", "session_pairs", "outcomes", "path_speed"]
 
 
 def accepted_precision(best_db, accepted, gt_hard, gt_soft=None, mask=None) -> dict:
@@ -158,3 +158,21 @@ def outcomes(best, gt_hard, gt_soft=None, mask=None) -> tuple[np.ndarray, np.nda
     truth = np.where(counts > 0, hard.indices[np.minimum(hard.indptr[:-1] + counts // 2, max(hard.nnz - 1, 0))]
                      if hard.nnz else -1, -1)
     return right, truth.astype(np.int64)
+
+
+def path_speed(best, accepted, min_run: int = 10) -> tuple[float | None, int]:
+    """Database (earlier) frames per query frame along the accepted paths, without ground truth.
+
+    Over every run of at least ``min_run`` accepted frames whose best frame moves on by 0 to 4 frames a frame: the
+    frames moved over the query frames. Returns (speed, or None without such a run; query frames counted).
+    """
+    best, accepted = np.asarray(best), np.asarray(accepted, bool) & (np.asarray(best) >= 0)
+    moved = steps = j = 0
+    while j < best.size:
+        k = j
+        while accepted[j] and k + 1 < best.size and accepted[k + 1] and 0 <= best[k + 1] - best[k] <= 4:
+            k += 1
+        if accepted[j] and k - j + 1 >= min_run:
+            moved, steps = moved + best[k] - best[j], steps + k - j
+        j = k + 1
+    return (moved / steps if steps else None), steps

@@ -8,7 +8,7 @@ from collections.abc import Callable
 import numpy as np
 import scipy.sparse as sp
 
-from .decisions import accepted_precision, best_in_soft_band, decision_curve
+from .decisions import accepted_precision, best_in_soft_band, decision_curve, path_speed
 from .ranking import evaluate
 
 __all__ = ["method_metrics", "run_methods", "peak_rss_mb"]
@@ -29,13 +29,17 @@ def _count(g, mask=None) -> int:
 def method_metrics(res, gt_hard, gt_soft, mask=None, loops: bool = False):
     """(metrics dict, (precision, recall) or None without ground truth) of a :class:`~vpr.types.MatchResult`.
 
-    Always the seconds and the number of accepted matches; with ground truth the metrics of :func:`evaluate` over the
-    evaluated pairs and the precision and recall of the accepted matches. ``loops``: one stream's loop closures, where
-    the curve is that of the per-frame decisions (:func:`decision_curve`: ``frame_ap``, ``frame_recall_at_100p``),
-    what loop-closure detectors report; a stream without a true loop (a drive without revisits) has no ranking or
-    recall to measure: ``revisits`` 0 and the accepted closures, all false (``false_per_1000``).
+    Always the seconds, the number of accepted matches and ``path_speed`` (:func:`path_speed`: database frames per
+    query frame along the accepted paths, None without a path); with ground truth the metrics of :func:`evaluate` over
+    the evaluated pairs and the precision and recall of the accepted matches. ``loops``: one stream's loop closures,
+    where the curve is that of the per-frame decisions (:func:`decision_curve`: ``frame_ap``,
+    ``frame_recall_at_100p``), what loop-closure detectors report; a stream without a true loop (a drive without
+    revisits) has no ranking or recall to measure: ``revisits`` 0 and the accepted closures, all false
+    (``false_per_1000``).
     """
-    m = {"seconds": round(res.seconds, 4), "n_accepted": int(np.count_nonzero(res.accepted & (res.best >= 0)))}
+    speed = path_speed(res.best, res.accepted)[0]
+    m = {"seconds": round(res.seconds, 4), "n_accepted": int(np.count_nonzero(res.accepted & (res.best >= 0))),
+         "path_speed": None if speed is None else round(float(speed), 3)}
     if gt_hard is None:
         return m, None
     if loops and not _count(gt_hard, mask):

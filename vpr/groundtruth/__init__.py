@@ -18,7 +18,16 @@ from .matrices import (
     loop_closure_gt,
     loop_closure_mask,
 )
-from .positions import RATE_RATIO, Positions, check_rates, frame_positions, prepare_positions, same_rate, same_sampling
+from .positions import (
+    RATE_RATIO,
+    Positions,
+    check_rates,
+    check_speeds,
+    frame_positions,
+    prepare_positions,
+    same_rate,
+    same_sampling,
+)
 from .spec import (
     GroundTruthSpec,
     build_gt,
@@ -35,5 +44,5 @@ __all__ = ["gt_from_labels", "gt_from_frames", "gt_from_tolerance", "gt_from_pos
            "loop_closure_gt", "load_pairs_csv", "load_loop_pairs", "load_positions_csv", "gt_from_position_files",
            "load_traverse_positions", "positions_of_frames", "db_query_matrix", "loop_matrix", "GroundTruthSpec",
            "build_gt", "build_loop_gt", "build_stream_gt", "check_loop_gt_files", "prepare_positions",
-           "frame_positions", "Positions", "same_sampling", "same_rate", "check_rates", "RATE_RATIO",
+           "frame_positions", "Positions", "same_sampling", "same_rate", "check_rates", "check_speeds", "RATE_RATIO",
            "any_true", "frame_rows", "sampling_step", "tolerance_text", "check_tolerance", "check_radius"]

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import warnings
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -253,6 +254,19 @@ def same_rate(the_map, src, fps: float | None, where: str, progress: bool = Fals
     if said:
         warnings.warn(f"{where}: {said}", UserWarning, stacklevel=2)
     return the_map, fps
+
+
+def check_speeds(speeds: Mapping[str, float | None]) -> None:
+    """Warn for each method (``speeds``: method -> :func:`vpr.evaluate.path_speed`, metrics.json's ``path_speed``)
+    whose accepted paths move :data:`RATE_RATIO` or more times faster or slower than one frame a frame: the query was
+    driven at another speed than the frames it is matched to, which the evidence does not expect."""
+    for label, v in speeds.items():
+        if v is not None and (v >= RATE_RATIO or v * RATE_RATIO <= 1):
+            models = "same+faster" if v > 1 else "same+faster+slower"
+            warnings.warn(f"{label}: along its accepted paths the query moves {v:.2g} of the frames it matches a "
+                          f"frame: driven {'faster' if v > 1 else 'slower'} than they were at the same frame rate, its "
+                          f"answers may trail the place; --method-conf rshosm-seq.speeds={models} follows such a query "
+                          f"(docs/localize.md)", UserWarning, stacklevel=2)
 
 
 def check_rates(srcs, every: float | None = None, against_first: bool = False) -> None:

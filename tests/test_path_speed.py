@@ -1,0 +1,61 @@
+"""The query's speed along accepted paths (vpr.evaluate.path_speed), and a run that says it."""
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+from tests.cli import run
+from vpr.evaluate import path_speed
+from vpr.groundtruth import check_speeds
+
+
+def test_speed_counts_only_long_consistent_accepted_runs():
+    fast = np.arange(0, 40, 2)                 # 20 frames moving 2 map frames a frame
+    slow = 100 + np.arange(30) // 2            # 30 frames moving half a frame a frame
+    short = np.array([500, 501, 502])          # too short to count
+    best = np.r_[fast, slow, short]
+    accepted = np.ones(best.size, bool)
+    v, n = path_speed(best, accepted)
+    assert n == 19 + 29
+    assert np.isclose(v, (38 + 14) / 48)
+    accepted[20:50] = False                    # only the fast run is left
+    assert path_speed(best, accepted) == (2.0, 19)
+
+
+def test_no_speed_without_a_run_of_min_run_frames():
+    best = np.arange(9)
+    assert path_speed(best, np.ones(9, bool)) == (None, 0)
+    assert path_speed(np.r_[best, -1, best], np.ones(19, bool)) == (None, 0)
+    jumpy = np.arange(0, 100, 5)               # 5 frames a frame: not one path
+    assert path_speed(jumpy, np.ones(jumpy.size, bool)) == (None, 0)
+
+
+@pytest.mark.parametrize("speed, said", [(1.9, "faster"), (0.55, "slower"), (1.07, None), (0.9, None), (None, None)])
+def test_a_query_at_another_speed_is_said(speed, said):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_speeds({"rshosm-seq": speed})
+    lines = [str(w.message) for w in caught]
+    if said is None:
+        assert lines == []
+    else:
+        assert len(lines) == 1 and f"driven {said}" in lines[0] and lines[0].startswith("rshosm-seq:")
+
+
+@pytest.mark.slow
+def test_compare_says_a_query_driven_twice_as_fast(scene_on_disk, tmp_path, capsys):
+    s = scene_on_disk("two_seasons", (64, 48), 120)
+    db, other = s[s["names"][0]], s[s["names"][1]]
+    q2 = tmp_path / "every_2nd"
+    q2.mkdir()
+    for f in sorted(db.iterdir())[::2]:
+        (q2 / f.name).symlink_to(f)
+    for query, out, said in ((q2, tmp_path / "o2", True), (other, tmp_path / "o1", False)):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            code, _, err = run(["compare", db, query, "--methods", "rshosm-seq", "--out", out], capsys)
+        assert code == 0, err
+        speed = json.loads((out / "metrics.json").read_text())["methods"]["rshosm-seq"]["path_speed"]
+        assert any("driven faster" in str(w.message) for w in caught) == said, [str(w.message) for w in caught]
+        assert (speed > 1.5) == said, speed
