@@ -159,6 +159,35 @@ def commands(data: Path, root: Path) -> None:
         print(f"| {name} | {' | '.join(cells)} |", flush=True)
     print(f"| Localizer, aliased_traverses 400 places, query 2x (within one place) | "
           f"{' | '.join(_simulated(s) for s in SETTINGS)} |")
+    sampled(data, root)
+
+
+def sampled(data: Path, root: Path) -> None:
+    """The third table: a 2x query localised against a map learned from one frame in two (what a run that reads
+    the speed says to do), against the map of every frame; default settings."""
+    gp, nl = data / "gardens_point_day", data / "nordland_trimmed"
+    left, right = gp / "day_left", gp / "day_right"
+    right2 = _folder(root, "gp_right2", sorted(right.iterdir())[::2], lambda f: 0)[0]
+    n = len(list(left.iterdir()))
+    p_left, p_right2 = _positions(root / "left.csv", range(n)), _positions(root / "right2.csv", range(0, n, 2))
+    nl_n = lambda f: int(f.stem.split("-")[-1]) // 10  # noqa: E731
+    s10, x10 = _folder(root, "nl_summer10", sorted((nl / "summer").iterdir())[::10], nl_n)
+    w20, x20 = _folder(root, "nl_winter20", sorted((nl / "winter").iterdir())[::20], nl_n)
+    p_s10, p_w20 = _positions(root / "s10.csv", x10), _positions(root / "w20.csv", x20)
+    print("\nlocalize, a query driven twice as fast: accepted, P(acc), R(acc); speed along the accepted paths")
+    print("| stream | map of every frame | map from one frame in 2 (vpr learn --step 2) |")
+    print("|---|---|---|")
+    for name, (db, p_db, q, p_q, radius) in {
+            "Gardens Point day_left -> day_right every 2nd (within 2 frames)": (left, p_left, right2, p_right2, 2),
+            "Nordland summer every 10th -> winter every 20th (within 10 files)": (s10, p_s10, w20, p_w20, 10)}.items():
+        cells = []
+        for step in (1, 2):
+            the_map = root / f"sampled-{db.name}-{step}.npz"
+            if not the_map.exists():
+                _command(["learn", db, "--out", the_map, "--gt", p_db, "--step", step])
+            cells.append(_command(["localize", the_map, q, "--gt", p_q, "--radius", radius,
+                                   "--out", root / f"sampled-{db.name}-{q.name}-{step}"]))
+        print(f"| {name} | {' | '.join(cells)} |", flush=True)
 
 
 def main(argv=None) -> None:

@@ -31,8 +31,10 @@ def test_no_speed_without_a_run_of_min_run_frames():
     assert path_speed(jumpy, np.ones(jumpy.size, bool)) == (None, 0)
 
 
-@pytest.mark.parametrize("speed, said", [(1.9, "faster"), (0.55, "slower"), (1.07, None), (0.9, None), (None, None)])
-def test_a_query_at_another_speed_is_said(speed, said):
+@pytest.mark.parametrize("speed, said, fix", [(1.9, "faster", "vpr learn DB --step 2"), (3.2, "faster", "--step 3"),
+                                             (0.55, "slower", "one query frame in 2"), (1.07, None, None),
+                                             (0.9, None, None), (None, None, None)])
+def test_a_query_at_another_speed_is_said(speed, said, fix):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         check_speeds({"rshosm-seq": speed})
@@ -41,6 +43,7 @@ def test_a_query_at_another_speed_is_said(speed, said):
         assert lines == []
     else:
         assert len(lines) == 1 and f"driven {said}" in lines[0] and lines[0].startswith("rshosm-seq:")
+        assert fix in lines[0], lines[0]
 
 
 @pytest.mark.slow

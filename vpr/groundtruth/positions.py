@@ -259,14 +259,16 @@ def same_rate(the_map, src, fps: float | None, where: str, progress: bool = Fals
 def check_speeds(speeds: Mapping[str, float | None]) -> None:
     """Warn for each method (``speeds``: method -> :func:`vpr.evaluate.path_speed`, metrics.json's ``path_speed``)
     whose accepted paths move :data:`RATE_RATIO` or more times faster or slower than one frame a frame: the query was
-    driven at another speed than the frames it is matched to, which the evidence does not expect."""
+    driven at another speed than the frames it is matched to, which the evidence does not expect; the warning names
+    the sampling that makes them agree."""
     for label, v in speeds.items():
         if v is not None and (v >= RATE_RATIO or v * RATE_RATIO <= 1):
-            models = "same+faster" if v > 1 else "same+faster+slower"
+            k = max(2, round(v if v > 1 else 1 / v))
+            fix = (f"learn the map from one frame in {k} (vpr learn DB --step {k}) and localise against it" if v > 1
+                   else f"localise one query frame in {k} against a learned map (--step {k})")
             warnings.warn(f"{label}: along its accepted paths the query moves {v:.2g} of the frames it matches a "
                           f"frame: driven {'faster' if v > 1 else 'slower'} than they were at the same frame rate, its "
-                          f"answers may trail the place; --method-conf rshosm-seq.speeds={models} follows such a query "
-                          f"(docs/localize.md)", UserWarning, stacklevel=2)
+                          f"answers may trail the place; {fix} (docs/localize.md)", UserWarning, stacklevel=2)
 
 
 def check_rates(srcs, every: float | None = None, against_first: bool = False) -> None:
