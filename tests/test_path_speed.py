@@ -33,7 +33,7 @@ def test_no_speed_without_a_run_of_min_run_frames():
 
 @pytest.mark.parametrize("speed, said, fix", [(1.9, "faster", "vpr learn DB --step 2"), (3.2, "faster", "--step 3"),
                                              (0.55, "slower", "one query frame in 2"), (1.07, None, None),
-                                             (0.9, None, None), (None, None, None)])
+                                             (0.9, None, None), (0.0, None, None), (None, None, None)])
 def test_a_query_at_another_speed_is_said(speed, said, fix):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

@@ -260,9 +260,9 @@ def check_speeds(speeds: Mapping[str, float | None]) -> None:
     """Warn for each method (``speeds``: method -> :func:`vpr.evaluate.path_speed`, metrics.json's ``path_speed``)
     whose accepted paths move :data:`RATE_RATIO` or more times faster or slower than one frame a frame: the query was
     driven at another speed than the frames it is matched to, which the evidence does not expect; the warning names
-    the sampling that makes them agree."""
+    the sampling that makes them agree. Paths that never move on (speed 0) are not a speed."""
     for label, v in speeds.items():
-        if v is not None and (v >= RATE_RATIO or v * RATE_RATIO <= 1):
+        if v is not None and v > 0 and (v >= RATE_RATIO or v * RATE_RATIO <= 1):
             k = max(2, round(v if v > 1 else 1 / v))
             fix = (f"learn the map from one frame in {k} (vpr learn DB --step {k}) and localise against it" if v > 1
                    else f"localise one query frame in {k} against a learned map (--step {k})")
