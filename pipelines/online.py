@@ -232,10 +232,10 @@ def _write(job: Online, out: Path, src, rows, skipped, seconds, state_out, waiti
     res = MatchResult.from_decisions(job.method, ds, job.n_candidates(), job.top_k, seconds)
     best, accepted = res.best, res.accepted
     lat_all, lat_dec = [r[3] for r in rows], [r[4] for r in rows]
-    speed = evaluate.path_speed(best, accepted)[0]
+    speed = evaluate.speed_metric(best, accepted)
     check_speeds({job.method: speed})
     m = {"frames": T, "seconds": round(seconds, 4), "n_accepted": int(accepted.sum()), "stopped": waiting is not None,
-         "path_speed": None if speed is None else round(float(speed), 3),
+         "path_speed": speed,
          "latency_ms": {"with_encoding": latency_summary(lat_all), "without_encoding": latency_summary(lat_dec)}}
     if waiting:
         m["waiting"] = waiting  # in the state (--state-out), answered after --resume

@@ -430,8 +430,7 @@ def cosine(X, Y=None) -> np.ndarray:
 
 @njit(cache=True, fastmath=True, nogil=True)
 def _sad_block(a, b, out):  # pragma: no cover - compiled
-    # Tiling over b keeps a few rows of b in L2 while every row of a streams past them (faster than untiled at 2,048
-    # dims; NumPy broadcasting was far slower at Nordland size: benchmarks/bench_seqslam.py).
+    # tiled over b: a few rows of b stay in cache while every row of a streams past them
     n, d = a.shape
     m = b.shape[0]
     tile = 64

@@ -166,13 +166,13 @@ def path_speed(best, accepted, min_run: int = 10) -> tuple[float | None, int]:
     Over every run of at least ``min_run`` accepted frames whose best frame moves on by 0 to 4 frames a frame: the
     frames moved over the query frames. Returns (speed, or None without such a run; query frames counted).
     """
-    best, accepted = np.asarray(best), np.asarray(accepted, bool) & (np.asarray(best) >= 0)
-    moved = steps = j = 0
-    while j < best.size:
-        k = j
-        while accepted[j] and k + 1 < best.size and accepted[k + 1] and 0 <= best[k + 1] - best[k] <= 4:
-            k += 1
-        if accepted[j] and k - j + 1 >= min_run:
-            moved, steps = moved + best[k] - best[j], steps + k - j
-        j = k + 1
+    best = np.asarray(best, np.int64)
+    acc = np.asarray(accepted, bool) & (best >= 0)
+    d = np.diff(best)
+    linked = acc[:-1] & acc[1:] & (d >= 0) & (d <= 4)  # step i joins frames i and i + 1 on one path
+    edges = np.diff(np.r_[0, linked.astype(np.int8), 0])
+    first, last = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)  # a run's frames: first .. last
+    long = last - first + 1 >= min_run
+    steps = int((last - first)[long].sum())
+    moved = int((best[last[long]] - best[first[long]]).sum())
     return (moved / steps if steps else None), steps

@@ -11,7 +11,7 @@ import scipy.sparse as sp
 from .decisions import accepted_precision, best_in_soft_band, decision_curve, path_speed
 from .ranking import evaluate
 
-__all__ = ["method_metrics", "run_methods", "peak_rss_mb"]
+__all__ = ["method_metrics", "speed_metric", "run_methods", "peak_rss_mb"]
 
 
 def peak_rss_mb() -> float:
@@ -26,6 +26,12 @@ def _count(g, mask=None) -> int:
     return int(g.count_nonzero() if sp.issparse(g) else np.count_nonzero(g))
 
 
+def speed_metric(best, accepted) -> float | None:
+    """metrics.json's ``path_speed``: :func:`path_speed`, rounded (None without a path)."""
+    speed = path_speed(best, accepted)[0]
+    return None if speed is None else round(float(speed), 3)
+
+
 def method_metrics(res, gt_hard, gt_soft, mask=None, loops: bool = False):
     """(metrics dict, (precision, recall) or None without ground truth) of a :class:`~vpr.types.MatchResult`.
 
@@ -37,9 +43,8 @@ def method_metrics(res, gt_hard, gt_soft, mask=None, loops: bool = False):
     revisits) has no ranking or recall to measure: ``revisits`` 0 and the accepted closures, all false
     (``false_per_1000``).
     """
-    speed = path_speed(res.best, res.accepted)[0]
     m = {"seconds": round(res.seconds, 4), "n_accepted": int(np.count_nonzero(res.accepted & (res.best >= 0))),
-         "path_speed": None if speed is None else round(float(speed), 3)}
+         "path_speed": speed_metric(res.best, res.accepted)}
     if gt_hard is None:
         return m, None
     if loops and not _count(gt_hard, mask):

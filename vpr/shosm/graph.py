@@ -184,7 +184,8 @@ class Graph:
     def load_state(self, header: dict, arrays: dict) -> Graph:
         self.n_cells, self.n_nodes = int(header["n_cells"]), int(header["n_nodes"])
         for k in self.ARRAYS:
-            setattr(self, k, np.array(arrays[k], np.int32 if k in ("c_head", "c_next", "c_frame") else None))
+            setattr(self, k, np.array(arrays[k]))
+        self.c_head, self.c_next, self.c_frame = _narrow((self.c_head, self.c_next, self.c_frame))
         self.n_cols = self.col_size.size
         self.n_db = int(header.get("n_db", self.db_norm.size))
         if self.relevant.size != self.n_cells or self.n_cols * self.cpc != self.n_cells:

@@ -15,6 +15,12 @@ NO_LIMIT = np.iinfo(np.int64).max // 4
 
 
 @njit(cache=True, inline="always")
+def _born(birth, c, limit):  # pragma: no cover - compiled
+    """Whether cell ``c`` was learned by ``limit`` (:data:`NO_LIMIT`: every cell, no birth read)."""
+    return limit >= NO_LIMIT or birth[c] <= limit
+
+
+@njit(cache=True, inline="always")
 def _join(c, slot, cand, p1, p2, n_c):  # pragma: no cover - compiled
     """Cell ``c`` becomes candidate ``n_c`` (``slot[c] = n_c + 1``) with no offers yet. Returns the count."""
     slot[c] = n_c + 1
@@ -32,7 +38,7 @@ def _relax(s, v, a_head, a_dst, a_next, birth, limit, p, q, slot, cand, n_c):  #
     e = a_head[s]
     while e >= 0:
         d = a_dst[e]
-        if limit >= NO_LIMIT or birth[d] <= limit:
+        if _born(birth, d, limit):
             k = slot[d] - 1
             if k < 0:
                 k = n_c
@@ -108,7 +114,7 @@ def enter_by_overlap(bits, limit, ff, cells, conf, scratch):  # pragma: no cover
         if _fraction(counts, col_size, col) > zf:
             for k in range(cpc):
                 c = col * cpc + k
-                if relevant[c] and (limit >= NO_LIMIT or birth[c] <= limit) and slot[c] == 0:
+                if relevant[c] and _born(birth, c, limit) and slot[c] == 0:
                     n_c = _join(c, slot, cand, p1, p2, n_c)
     return n_tc, n_c
 
@@ -129,7 +135,7 @@ def enter_by_prediction(n_c, limit, lateral, cells, conf, state, scratch):  # pr
     for i in range(st[B_SIZE]):
         s = beam[i]
         v = beam_e[i]
-        if limit < NO_LIMIT and birth[s] > limit:
+        if not _born(birth, s, limit):
             continue
         if stay >= 0.0 and v > stay and slot[s] == 0:
             n_c = _join(s, slot, cand, p1, p2, n_c)
