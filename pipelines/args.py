@@ -151,7 +151,7 @@ def options_from_args(args):
         verify=getattr(args, "verify", 0), min_inliers=getattr(args, "min_inliers", 15),
         workers=getattr(args, "workers", None), scheduler=getattr(args, "scheduler", None),
         progress=not args.no_progress, cache=Path(args.cache) if args.cache else None,
-        memory_budget=budget)
+        memory_budget=budget, follow_speed=getattr(args, "query_speed", "as-is") == "follow")
 
 
 def parse_every(text) -> float:

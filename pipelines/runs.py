@@ -78,6 +78,9 @@ class RunOptions:
     geometry: bool = False
     #: methods whose candidates are verified (None: all)
     verify_methods: tuple | None = None
+    #: a query driven at another speed than the database matched again at the sampling that makes them agree
+    #: (:func:`vpr.methods.match_at_speed`); False: its frames as they come
+    follow_speed: bool = True
     #: further :class:`vpr.verify.Verifier` conf (e.g. ``{"n_features": 500}``)
     verify_conf: dict = field(default_factory=dict)
     progress: bool = True
@@ -190,10 +193,10 @@ def run_compare(db, query, opts: RunOptions, command: str = "compare") -> dict:
             workers = opts.workers or len(client.scheduler_info().get("workers", {})) or 1
             extra["split"] = {}
 
-            def matcher(f):
+            def matcher(f, q):
                 if f.method.block_margin is None:
-                    return f.match(q_ex.features, progress=opts.progress)
-                return split_match(f, q_ex.features, client, workers, extra["split"].setdefault(f.name, {}))
+                    return f.match(q, progress=opts.progress)
+                return split_match(f, q, client, workers, extra["split"].setdefault(f.name, {}))
 
         return compare_query(the_map, query, q_src, opts, command, q_ex=q_ex, argv=sys.argv[1:], gt=gt,
                              encoder=encoder, matcher=matcher, extra=extra)
@@ -299,8 +302,8 @@ def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, command: st
 
     ``gt``: the ground truth of :func:`prepare_run`; ``encoder`` (the map's)
     is built here when not given (a fleet's worker gets the map alone);
-    ``matcher(fitted)``: how each method matches the query (default: in this
-    process); ``extra``: more ``params`` for ``metrics.json``.
+    ``matcher(fitted, query)``: how each method matches a query (default: in this
+    process; :func:`vpr.methods.match_at_speed` runs it); ``extra``: more ``params`` for ``metrics.json``.
     """
     out = Path(opts.out)
     db_src, db_ex = the_map.src, the_map.ex
@@ -335,9 +338,13 @@ def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, command: st
                                opts.progress)
         return {k: (e, None) for k, e in entries.items() if k != m}
 
-    done = evaluate.run_methods(the_map.fitted, matcher or (lambda f: f.match(q_ex.features, progress=opts.progress)),
-                                gt_hard, gt_soft, on_result=write)
-    check_speeds({k: m.get("path_speed") for k, (m, _) in done.items()})
+    def call(f):
+        if opts.follow_speed:
+            return methods.match_at_speed(f, q_ex.features, opts.progress, matcher)
+        return matcher(f, q_ex.features) if matcher else f.match(q_ex.features, progress=opts.progress)
+
+    done = evaluate.run_methods(the_map.fitted, call, gt_hard, gt_soft, on_result=write)
+    check_speeds({k: m.get("path_speed") for k, (m, _) in done.items() if not m.get("sampling")})
     # what makes two runs' metrics comparable: same frames (content keys), encoding and ground truth
     truth = opts.gt.describe(sampling_step(db_src.indices()))  # a tolerance in frames kept and in input frames
     inputs = {"kind": "match", "db": db_src.key(), "query": q_src.key(), "encoder": encoder.name,

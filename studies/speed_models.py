@@ -28,6 +28,12 @@ day_left; and :class:`vpr.shosm.Localizer` on
 :func:`vpr.simulate.aliased_traverses` (400 places, 40 appearances, a query
 at 2x; right within one place).
 
+Then ``vpr compare`` with its defaults on the first table's streams, the query's
+frames as they come (``--query-speed as-is``) and followed (the default,
+:func:`vpr.methods.match_at_speed`); and the phase of the sampling: a map
+from one frame in 2 starting at the query's first frame or one later, a
+slower query's answers copied from one frame in 2 or each frame its own.
+
 Each table also prints the query's speed along the accepted paths, in map frames per query frame
 (:func:`vpr.evaluate.path_speed`, no ground truth): a measure a run could say.
 
@@ -94,7 +100,7 @@ def _similarity(db: Path, query: Path, model: str, root: Path) -> np.ndarray:
         stay, skip = MODELS[model]
         argv = ["compare", db, query, "--out", out, "--cache", root / "cache", "--methods", "rshosm-seq",
                 "--method-conf", f"rshosm-seq.stay={stay}", "--method-conf", f"rshosm-seq.skip={skip}",
-                "--no-progress"]
+                "--query-speed", "as-is", "--no-progress"]
         with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings(action="ignore"):
             if vpr([str(a) for a in argv]):
                 raise SystemExit(f"vpr compare {db} {query} failed")
@@ -190,6 +196,91 @@ def sampled(data: Path, root: Path) -> None:
         print(f"| {name} | {' | '.join(cells)} |", flush=True)
 
 
+def followed(data: Path, root: Path) -> None:
+    """The fourth table: ``vpr compare`` with its defaults on every stream of the first, the query's frames as they
+    come (``--query-speed as-is``) and followed (the default: matched again at the sampling its speed asks for)."""
+    print("\nvpr compare, defaults: accepted, P(acc), R(acc); speed along the accepted paths; what was matched again")
+    print("| stream | method | --query-speed as-is | follow (default) |")
+    print("|---|---|---|---|")
+    for name, (db, x_db), (query, x_q), radius in _streams(data, root):
+        p_db, p_q = _positions(root / f"{db.name}.csv", x_db), _positions(root / f"{query.name}.csv", x_q)
+        reports = {}
+        for how in ("as-is", "follow"):
+            out = root / "followed" / f"{db.name}-{query.name}-{how}"
+            if not (out / "metrics.json").exists():
+                with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings(action="ignore"):
+                    if vpr([str(a) for a in ["compare", db, query, "--out", out, "--cache", root / "cache", "--gt",
+                                             p_db, p_q, "--radius", radius, "--query-speed", how, "--no-progress"]]):
+                        raise SystemExit(f"vpr compare {db} {query} failed")
+            reports[how] = json.loads((out / "metrics.json").read_text())["methods"]
+        for method in reports["as-is"]:
+            cells = []
+            for how in ("as-is", "follow"):
+                m = reports[how][method]
+                v, sampling = m["path_speed"], m.get("sampling")
+                again = (f"; one {'database' if 'db_step' in sampling else 'query'} frame in "
+                         f"{sampling.get('db_step') or sampling.get('query_step')}") if sampling else ""
+                cells.append(f"{decisions_cell(m, frames=False)}; speed {'-' if v is None else f'{v:.2f}'}{again}")
+            print(f"| {name} | {method} | {' | '.join(cells)} |", flush=True)
+
+
+def _as_is(db: Path, x_db, query: Path, x_q, radius, out: Path) -> tuple[dict, list]:
+    """``vpr compare --methods rshosm-seq --query-speed as-is``: its metrics and its (best_db, accepted) rows."""
+    if not (out / "metrics.json").exists():
+        p_db, p_q = _positions(out.parent / f"{db.name}.csv", x_db), _positions(out.parent / f"{query.name}.csv", x_q)
+        with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings(action="ignore"):
+            if vpr([str(a) for a in ["compare", db, query, "--out", out, "--cache", out.parent.parent / "cache",
+                                     "--gt", p_db, p_q, "--radius", radius, "--methods", "rshosm-seq",
+                                     "--query-speed", "as-is", "--no-progress"]]):
+                raise SystemExit(f"vpr compare {db} {query} failed")
+    with open(out / "rshosm-seq" / "matches.csv", newline="") as f:
+        rows = [(int(r["best_db"]), r["accepted"] == "1") for r in csv.DictReader(f)]
+    return json.loads((out / "metrics.json").read_text())["methods"]["rshosm-seq"], rows
+
+
+def phases(data: Path, root: Path) -> None:
+    """The fifth table: why ``follow`` matches every phase. A 2x query against a map from one frame in two that
+    starts at the query's first frame (phase 0) or one frame later (phase 1); a 0.5x query as one query of one frame
+    in two whose answers the frames between take (copied), or as two queries, every frame its own."""
+    gp, nl = data / "gardens_point_day", data / "nordland_trimmed"
+    gp_n = lambda f: int(f.stem.removeprefix("Image"))  # noqa: E731
+    nl_n = lambda f: int(f.stem.split("-")[-1]) // 10  # noqa: E731
+    left, right = sorted((gp / "day_left").iterdir()), sorted((gp / "day_right").iterdir())
+    summer, winter = sorted((nl / "summer").iterdir()), sorted((nl / "winter").iterdir())
+    work = root / "phases"
+    work.mkdir(parents=True, exist_ok=True)
+    print("\nthe phase of the sampling, rshosm-seq alone, --query-speed as-is: accepted, P(acc), R(acc)")
+    print("| stream | map from one frame in 2 starting at frame 0 | at frame 1 |")
+    print("|---|---|---|")
+    faster = {"Gardens Point 2x": (left, right[::2], gp_n, 2), "Nordland 2x": (summer[::10], winter[::20], nl_n, 10)}
+    for name, (db, query, number, radius) in faster.items():
+        q, x_q = _folder(work, f"{name}-q".replace(" ", "_"), query, number)
+        cells = []
+        for a in (0, 1):
+            d, x_d = _folder(work, f"{name}-map{a}".replace(" ", "_"), db[a::2], number)
+            cells.append(decisions_cell(_as_is(d, x_d, q, x_q, radius, work / f"{d.name}-run")[0], frames=False))
+        print(f"| {name} | {' | '.join(cells)} |")
+    print("\n| stream | a query of one frame in 2, its answers copied to the frames between | every frame its "
+          "own (two queries of one frame in 2) |")
+    print("|---|---|---|")
+    slower = {"Gardens Point 0.5x": (left[::2], right, gp_n, 2), "Nordland 0.5x": (summer[::10], winter[::5], nl_n, 10)}
+    for name, (db, query, number, radius) in slower.items():
+        d, x_d = _folder(work, f"{name}-map".replace(" ", "_"), db, number)
+        x_all = np.array([number(f) for f in query], np.float64)
+        rows = []
+        for a in (0, 1):
+            q, x_q = _folder(work, f"{name}-q{a}".replace(" ", "_"), query[a::2], number)
+            rows.append(_as_is(d, x_d, q, x_q, radius, work / f"{q.name}-run")[1])
+        cells = []
+        for how in ("copied", "own"):
+            answers = [rows[0][j // 2] if how == "copied" or j % 2 == 0 else rows[1][j // 2]
+                       for j in range(len(query))]
+            best, acc = np.array([b for b, _ in answers]), np.array([a for _, a in answers], bool)
+            right_ = acc & (best >= 0) & (np.abs(x_d[np.maximum(best, 0)] - x_all) <= radius)
+            cells.append(f"{acc.sum()}, {right_.sum() / max(acc.sum(), 1):.3f}, {right_.sum() / len(query):.2f}")
+        print(f"| {name} | {' | '.join(cells)} |", flush=True)
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "datasets",
@@ -219,6 +310,8 @@ def main(argv=None) -> None:
                              f"{_speed_cell(best, acc)}")
             print(f"| {name} | {' | '.join(cells)} |", flush=True)
         commands(args.data, root)
+        followed(args.data, root)
+        phases(args.data, root)
 
 
 if __name__ == "__main__":

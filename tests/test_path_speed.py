@@ -47,18 +47,25 @@ def test_a_query_at_another_speed_is_said(speed, said, fix):
 
 
 @pytest.mark.slow
-def test_compare_says_a_query_driven_twice_as_fast(scene_on_disk, tmp_path, capsys):
+def test_compare_follows_a_query_driven_twice_as_fast(scene_on_disk, tmp_path, capsys):
     s = scene_on_disk("two_seasons", (64, 48), 120)
     db, other = s[s["names"][0]], s[s["names"][1]]
     q2 = tmp_path / "every_2nd"
     q2.mkdir()
     for f in sorted(db.iterdir())[::2]:
         (q2 / f.name).symlink_to(f)
-    for query, out, said in ((q2, tmp_path / "o2", True), (other, tmp_path / "o1", False)):
+    for query, out, how, said in ((q2, "follow", [], "learned again as 2 maps of one frame in 2"),
+                                  (q2, "as_is", ["--query-speed", "as-is"], "driven faster"),
+                                  (other, "same", [], None)):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            code, _, err = run(["compare", db, query, "--methods", "rshosm-seq", "--out", out], capsys)
+            code, _, err = run(["compare", db, query, "--methods", "rshosm-seq", "--out", tmp_path / out, *how],
+                               capsys)
         assert code == 0, err
-        speed = json.loads((out / "metrics.json").read_text())["methods"]["rshosm-seq"]["path_speed"]
-        assert any("driven faster" in str(w.message) for w in caught) == said, [str(w.message) for w in caught]
-        assert (speed > 1.5) == said, speed
+        m = json.loads((tmp_path / out / "metrics.json").read_text())["methods"]["rshosm-seq"]
+        lines = [str(w.message) for w in caught if "the same frame rate" in str(w.message)]
+        assert (lines != []) == (said is not None) and all(said in x for x in lines), lines
+        assert (m["path_speed"] > 1.5) == (said is not None), m["path_speed"]
+        assert (m.get("sampling") or {}).get("db_step") == (2 if out == "follow" else None), m
+        cfg = json.loads((tmp_path / out / "rshosm-seq" / "config.json").read_text())
+        assert cfg["follow_speed"] == (out != "as_is")

@@ -60,6 +60,11 @@ class EncodedTraverse:
         """Frames ``start:stop`` with every input (a block of a long traverse)."""
         return EncodedTraverse(self.names[start:stop], **{k: v[start:stop] for k, v in self.inputs.items()})
 
+    def take(self, frames) -> EncodedTraverse:
+        """The frames at the indices ``frames``, in that order, with every input."""
+        frames = np.asarray(frames, np.int64)
+        return EncodedTraverse([self.names[i] for i in frames], **{k: v[frames] for k, v in self.inputs.items()})
+
     @classmethod
     def from_parts(cls, parts, prefixes) -> EncodedTraverse:
         """The traverses ``parts`` one after the other (a robot's sessions as one stream), frame names prefixed
@@ -232,6 +237,10 @@ class MatchResult:
     accepted: np.ndarray
     seconds: float
     conf: dict = field(default_factory=dict)
+    #: how the result was matched when the query was driven at another speed than the database
+    #: (:func:`vpr.methods.match_at_speed`): ``{"speed": first pass's path speed, "db_step" or "query_step": k}``;
+    #: None: every frame as it came
+    sampling: dict | None = None
 
     @classmethod
     def from_decisions(cls, method: str, decisions, n_rows: int, top_k: int | None, seconds: float,

@@ -36,7 +36,8 @@ def method_metrics(res, gt_hard, gt_soft, mask=None, loops: bool = False):
     """(metrics dict, (precision, recall) or None without ground truth) of a :class:`~vpr.types.MatchResult`.
 
     Always the seconds, the number of accepted matches and ``path_speed`` (:func:`path_speed`: database frames per
-    query frame along the accepted paths, None without a path); with ground truth the metrics of :func:`evaluate` over
+    query frame along the accepted paths, None without a path) and, for a result matched again at the query's speed,
+    its ``sampling`` (:attr:`~vpr.types.MatchResult.sampling`); with ground truth the metrics of :func:`evaluate` over
     the evaluated pairs and the precision and recall of the accepted matches. ``loops``: one stream's loop closures,
     where the curve is that of the per-frame decisions (:func:`decision_curve`: ``frame_ap``,
     ``frame_recall_at_100p``), what loop-closure detectors report; a stream without a true loop (a drive without
@@ -45,6 +46,8 @@ def method_metrics(res, gt_hard, gt_soft, mask=None, loops: bool = False):
     """
     m = {"seconds": round(res.seconds, 4), "n_accepted": int(np.count_nonzero(res.accepted & (res.best >= 0))),
          "path_speed": speed_metric(res.best, res.accepted)}
+    if res.sampling:
+        m["sampling"] = dict(res.sampling)
     if gt_hard is None:
         return m, None
     if loops and not _count(gt_hard, mask):

@@ -256,16 +256,25 @@ def same_rate(the_map, src, fps: float | None, where: str, progress: bool = Fals
     return the_map, fps
 
 
+def speed_step(speed: float | None) -> int:
+    """The sampling that makes a query moving ``speed`` frames a frame (:func:`vpr.evaluate.path_speed`) move one:
+    ``k`` >= 2 for one frame in k of what it is matched to (:data:`RATE_RATIO` or more times faster), ``-k`` for one
+    query frame in k (as many times slower), 0 otherwise (also without a speed, or paths that never move on)."""
+    if speed is None or speed <= 0 or RATE_RATIO > speed > 1 / RATE_RATIO:
+        return 0
+    return max(2, round(speed)) if speed > 1 else -max(2, round(1 / speed))
+
+
 def check_speeds(speeds: Mapping[str, float | None]) -> None:
     """Warn for each method (``speeds``: method -> :func:`vpr.evaluate.path_speed`, metrics.json's ``path_speed``)
-    whose accepted paths move :data:`RATE_RATIO` or more times faster or slower than one frame a frame: the query was
-    driven at another speed than the frames it is matched to, which the evidence does not expect; the warning names
-    the sampling that makes them agree. Paths that never move on (speed 0) are not a speed."""
+    whose accepted paths move :data:`RATE_RATIO` or more times faster or slower than one frame a frame
+    (:func:`speed_step`): the query was driven at another speed than the frames it is matched to, which the evidence
+    does not expect; the warning names the sampling that makes them agree."""
     for label, v in speeds.items():
-        if v is not None and v > 0 and (v >= RATE_RATIO or v * RATE_RATIO <= 1):
-            k = max(2, round(v if v > 1 else 1 / v))
-            fix = (f"learn the map from one frame in {k} (vpr learn DB --step {k}) and localise against it" if v > 1
-                   else f"localise one query frame in {k} against a learned map (--step {k})")
+        k = speed_step(v)
+        if k:
+            fix = (f"learn the map from one frame in {k} (vpr learn DB --step {k}) and localise against it" if k > 0
+                   else f"localise one query frame in {-k} against a learned map (--step {-k})")
             warnings.warn(f"{label}: along its accepted paths the query moves {v:.2g} of the frames it matches a "
                           f"frame: driven {'faster' if v > 1 else 'slower'} than they were at the same frame rate, its "
                           f"answers may trail the place; {fix} (docs/localize.md)", UserWarning, stacklevel=2)

@@ -68,6 +68,9 @@ class Method:
 
     #: whether loop closure is decided frame by frame (a second opinion can wrap the decider)
     decides_frames: bool = False
+    #: whether the method's sequences follow a query that moves one database frame a frame (a query driven at
+    #: another speed is matched again at the sampling that makes the two agree: :func:`vpr.methods.match_at_speed`)
+    follows_sequences: bool = False
     #: whether the method runs online, one frame at a time as it comes (``loop_detector(encoder, exclude)`` and
     #: ``localizer(db_sdr, names, ...)``: ``vpr loops -``, ``vpr learn`` / ``vpr localize``)
     runs_online: bool = False

@@ -33,6 +33,7 @@ class Rshosm(Method):
     default_conf = {**SequenceMemory.default_params(), "top_k": TOP_K}
     nullable_conf = frozenset({"seed"})
     required_inputs = ("sdr",)
+    follows_sequences = True
 
     def __init__(self, **conf):
         super().__init__(**conf)

@@ -39,6 +39,7 @@ class RshosmSeq(Method):
     default_conf = RshosmSeqConf.defaults()
     nullable_conf = RshosmSeqConf.NULLABLE
     required_inputs = ("sdr",)
+    follows_sequences = True
     decides_frames = True
     runs_online = True
 

@@ -37,6 +37,7 @@ class SeqSlam(Method):
                     "large": "pairwise", "top_k": TOP_K, "n_candidates": TOP_K}
 
     image_inputs = {"pixels": PIXELS}
+    follows_sequences = True
 
     def __init__(self, **conf):
         super().__init__(**conf)
