@@ -5,7 +5,10 @@ learned (``vpr.Localizer.from_database``: Algorithm 1, threshold 0.75); then
 the query traverse is fed one SDR at a time (encoding excluded). Prints the
 learning time and the latency of ``update`` (wall clock,
 ms: median / p95 / max over the frames), the causal R@1 within one place, and
-the same for ``exact=True`` (dense evidence per frame) up to ``--exact-max``.
+the same for ``exact=True`` (dense evidence per frame) up to ``--exact-max``, and for ``follow``: the
+:class:`vpr.methods.SpeedFollower` around the localizer that ``vpr localize`` runs by default (the query here moves
+0.8-1.2 places a frame, so its answers are the localizer's; the cost is that of its engines); ``beam2x`` and
+``follow2x``: the same with a query moving 1.8-2.2 places a frame (R@1 within one place).
 
 Target: median <= 5 ms at 10,000 database frames.
 
@@ -26,13 +29,16 @@ import time
 import numpy as np
 
 
-def latency(n, frames, exact, seed=0):
+def latency(n, frames, exact, seed=0, follow=False, speed=(0.8, 1.2)):
     from vpr import simulate
+    from vpr.methods import SpeedFollower
     from vpr.shosm import Localizer
 
-    db, q, dp, qp = simulate.aliased_traverses(n, max(n // 10, 1), seed=seed)
+    db, q, dp, qp = simulate.aliased_traverses(n, max(n // 10, 1), seed=seed, speed=speed)
     t = time.perf_counter()
     loc = Localizer.from_database(db, [str(i) for i in range(n)], exact=exact, seed=seed)
+    if follow:  # what `vpr localize` runs by default: the localizer and the engines that follow another speed
+        loc = SpeedFollower(loc, db)
     t_learn = time.perf_counter() - t
     rows = [q.indices[q.indptr[j]:q.indptr[j + 1]] for j in range(min(frames, q.shape[0]))]
     loc.warm_up()  # compile / load the kernels
@@ -104,13 +110,14 @@ def main(argv=None):
     ap.add_argument("--nordland", default=None)
     a = ap.parse_args(argv)
     print("Localizer.update latency per query frame (ms, encoding excluded), top-50")
-    print(f"{'n_db':>7} {'mode':>6} {'frames':>7} {'median':>8} {'p95':>8} {'max':>8} {'R@1':>7} {'learn s':>8}")
+    print(f"{'n_db':>7} {'mode':>8} {'frames':>7} {'median':>8} {'p95':>8} {'max':>8} {'R@1':>7} {'learn s':>8}")
     for n in (int(s) for s in a.sizes.split(",")):
-        for exact in (False, True):
-            if exact and n > a.exact_max:
+        for mode in ("beam", "follow", "beam2x", "follow2x", "exact"):
+            if mode == "exact" and n > a.exact_max:
                 continue
-            ms, r1, t_learn = latency(n, a.frames, exact)
-            print(f"{n:7d} {'exact' if exact else 'beam':>6} {ms.size:7d} {np.median(ms):8.3f} "
+            ms, r1, t_learn = latency(n, a.frames, mode == "exact", follow=mode.startswith("follow"),
+                                      speed=(1.8, 2.2) if mode.endswith("2x") else (0.8, 1.2))
+            print(f"{n:7d} {mode:>8} {ms.size:7d} {np.median(ms):8.3f} "
                   f"{np.percentile(ms, 95):8.3f} {ms.max():8.3f} {r1:7.3f} {t_learn:8.1f}", flush=True)
     if a.nordland:
         nordland(a.nordland)

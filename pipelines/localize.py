@@ -37,6 +37,7 @@ from pipelines.outputs import warn
 from vpr import evaluate, io, presets
 from vpr.checks import per_input
 from vpr.groundtruth import GroundTruthSpec, build_gt, prepare_positions, same_rate, same_sampling, sampling_step
+from vpr.methods import SpeedFollower
 from vpr.shosm import Map
 from vpr.sources import open_source
 from vpr.sources.stdin import StdinSource
@@ -57,20 +58,43 @@ class LocalizeOnline(Online):
     command = "localize"
     method = ONLINE_METHOD
 
-    def __init__(self, the_map: Map, qenc: StreamEncoder, gt: GroundTruthSpec, q_src, params: dict, q_xy=None):
+    def __init__(self, the_map: Map, qenc: StreamEncoder, gt: GroundTruthSpec, q_src, params: dict, q_xy=None,
+                 follow: bool = True):
         self.map, self.loc, self.qenc, self.gt, self.q_src = the_map, the_map.localizer, qenc, gt, q_src
         self._params, self.q_xy = params, q_xy  # the query frames' positions, by q_src.indices()
         self.top_k = self.loc.seq.top_k
+        self.follower = None
+        if follow:  # a query driven faster or slower than the map, followed (docs/localize.md)
+            self.follower = SpeedFollower(self.loc, the_map.sdr)
+            if the_map.follow_state is not None:
+                self.follower.load_state(*the_map.follow_state)
+        self._said = {0}
 
     def warm_up(self) -> None:
-        self.loc.warm_up()
+        (self.follower or self.loc).warm_up()
         self.qenc.warm_up()  # first calls (loading a CNN, the projection matrix) are not a frame's latency
 
     def encode(self, image):
         return self.qenc.encode(image)
 
     def answer(self, encoded, name: str) -> Decision:
-        return self.loc.update(encoded)
+        if self.follower is None:
+            return self.loc.update(encoded)
+        d = self.follower.update(encoded)
+        mode = self.follower.mode
+        if mode not in self._said and (mode < 0 or self.follower.follows_faster):
+            self._said.add(mode)
+            k = self.follower.step
+            how = (f"the map's {k} maps of one frame in {k}" if mode > 0 else
+                   f"the map, its frames taken as {k} queries of one frame in {k}")
+            print(f"vpr localize: from query frame {d.frame} ({name}) on, the map's best frames move "
+                  f"{'faster' if mode > 0 else 'slower'} than one a frame: the query was driven at another speed than "
+                  f"the map; frames are answered by {how} while it is so (docs/localize.md)", file=sys.stderr,
+                  flush=True)
+        return d
+
+    def sampling(self) -> dict | None:
+        return None if self.follower is None else self.follower.sampling()
 
     def name_of(self, frame: int) -> str | None:
         return self.loc.names[frame]
@@ -97,11 +121,12 @@ class LocalizeOnline(Online):
 
     def new_session(self) -> None:
         """A new query traverse: no evidence or path carries over, the query statistics start again."""
-        self.loc.reset()
+        (self.follower or self.loc).reset()
         self.qenc.new_session()
 
     def save(self, path) -> None:
         self.map.query_state = self.qenc.state()[1]  # its header is empty: the arrays hold it
+        self.map.follow_state = None if self.follower is None else self.follower.state()
         self.map.save(path)
 
     def resume_hint(self, path) -> str:
@@ -127,7 +152,8 @@ class LocalizeOnline(Online):
 def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: str = "running",
              prior_frames: float | None = None, window: int | None = None, gt: GroundTruthSpec | None = None,
              learn_options: dict | None = None, fps=None, step=None, max_frames=None, state_out=None,
-             progress: bool = False, topic: str | None = None, every: float | None = None) -> dict:
+             progress: bool = False, topic: str | None = None, every: float | None = None,
+             follow_speed: bool = True) -> dict:
     """Localise every frame of ``query`` against a map (or a database learned first); return metrics.json's content.
 
     Parameters
@@ -142,6 +168,9 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
     topic : bags' camera topic (a pair: the database's and the query's); every : one query frame per so many
         metres (with the query's positions).
     state_out : optional path: the map with the query's state after the last frame (a robot's restart file).
+    follow_speed : a query driven faster or slower than the map at the same frame rate answered by the maps of one
+        frame in k or as queries of one frame in k while it is so (:class:`vpr.methods.SpeedFollower`); False: the
+        frames as they come.
     progress : progress bar while learning a database (``map_or_db`` a traverse).
     """
     out = Path(out)
@@ -195,7 +224,8 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
         prepare_positions([q_src] if str(query) != "-" else [], ["query"], gt, every)
     job = LocalizeOnline(the_map, qenc, gt, q_src,
                          {"map_or_db": str(map_or_db), "query": str(query), "query_standardise": query_standardise,
-                          "prior_frames": prior_frames, "window": window}, q_xy)
+                          "prior_frames": prior_frames, "window": window, "follow_speed": follow_speed}, q_xy,
+                         follow=follow_speed)
     job.warm_up()
     return run_online(job, q_src, out, stdout, state_out)
 
@@ -234,6 +264,10 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     ap.add_argument("--window", type=int,
                     help=f"running: statistics over the last N query frames (default {WINDOW}; 0: all frames so far)")
     ap.add_argument("--state-out", metavar="FILE.npz", help="also write the localizer with its state at the end")
+    ap.add_argument("--query-speed", choices=("follow", "as-is"), default="follow",
+                    help="follow (default): while the map's best frames move 1.5 or more times faster or slower than "
+                         "one a frame, answer from the map's maps of one frame in k, or with the query's frames as k "
+                         "queries of one frame in k, and say it; as-is: the frames as they come (the speed is said)")
     learn_group = ap.add_argument_group("learning MAP_OR_DB when it is a database")
     _add_learn_args(learn_group)
     add_source_arguments(ap)
@@ -289,6 +323,6 @@ def run_command(args) -> int:
     report = localize(args.map, args.query, args.out, query_standardise=args.query_standardise,
                       prior_frames=args.prior_frames, window=args.window, state_out=args.state_out,
                       gt=gt_spec_from_args(args), learn_options=learn_opts, progress=not args.no_progress,
-                      **src_opts)
+                      follow_speed=args.query_speed == "follow", **src_opts)
     print(summary_line(report, ONLINE_METHOD, args.out), file=sys.stderr)
     return 0

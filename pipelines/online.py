@@ -88,6 +88,11 @@ class Online:
         """What ``metrics.json`` records under ``params`` (besides the command and the frames skipped)."""
         return {}
 
+    def sampling(self) -> dict | None:
+        """How frames were answered at another speed than they came (metrics.json's ``sampling``; None: as they
+        came)."""
+        return None
+
 
 def latency_summary(ms) -> dict:
     """Median, 95th percentile and maximum of latencies (None without any)."""
@@ -232,10 +237,11 @@ def _write(job: Online, out: Path, src, rows, skipped, seconds, state_out, waiti
     res = MatchResult.from_decisions(job.method, ds, job.n_candidates(), job.top_k, seconds)
     best, accepted = res.best, res.accepted
     lat_all, lat_dec = [r[3] for r in rows], [r[4] for r in rows]
-    speed = evaluate.speed_metric(best, accepted)
-    check_speeds({job.method: speed})
+    speed, sampling = evaluate.speed_metric(best, accepted), job.sampling()
+    if sampling is None:
+        check_speeds({job.method: speed})
     m = {"frames": T, "seconds": round(seconds, 4), "n_accepted": int(accepted.sum()), "stopped": waiting is not None,
-         "path_speed": speed,
+         "path_speed": speed, **({"sampling": sampling} if sampling else {}),
          "latency_ms": {"with_encoding": latency_summary(lat_all), "without_encoding": latency_summary(lat_dec)}}
     if waiting:
         m["waiting"] = waiting  # in the state (--state-out), answered after --resume

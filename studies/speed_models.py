@@ -14,7 +14,10 @@ at every frame; half as fast, it stays at every other. Compared, per stream:
 Streams (no stamps, no positions: the query's frames are taken as they come):
 Gardens Point day_left (map) against day_right, every frame (1x), every 2nd
 (2x) and the map every 2nd against every query frame (0.5x); Nordland summer
-every 10th file against winter every 10th (1x), 20th (2x) and 5th (0.5x).
+every 10th file against winter every 10th (1x), 20th (2x) and 5th (0.5x);
+and queries driven at a speed that changes every 10-40 frames, 1.5-2.5 map
+frames a frame (day_right, winter every 10th file taken so) and 0.4-0.6
+(day_right and winter at 0.8-1.25 against a map of every 2nd frame).
 Right: within 2 frames (Gardens Point) or one map frame (10 files) of the
 query's own frame. Printed per stream and model: AP, accepted, P(acc),
 R(acc) of ``accept_path`` (the localisation decision, `vpr compare`'s) on
@@ -28,9 +31,11 @@ day_left; and :class:`vpr.shosm.Localizer` on
 :func:`vpr.simulate.aliased_traverses` (400 places, 40 appearances, a query
 at 2x; right within one place).
 
-Then ``vpr compare`` with its defaults on the first table's streams, the query's
-frames as they come (``--query-speed as-is``) and followed (the default,
-:func:`vpr.methods.match_at_speed`); and the phase of the sampling: a map
+Then ``vpr compare`` and ``vpr localize`` (against a map of ``vpr learn``) with
+their defaults on the first table's streams, the query's frames as they come
+(``--query-speed as-is``) and followed (the default:
+:func:`vpr.methods.match_at_speed`, :class:`vpr.methods.SpeedFollower`); and
+the phase of the sampling: a map
 from one frame in 2 starting at the query's first frame or one later, a
 slower query's answers copied from one frame in 2 or each frame its own.
 
@@ -69,14 +74,29 @@ def _speed_cell(best, accepted) -> str:
     return "-" if v is None else f"{v:.2f} ({n})"
 
 
-def _folder(root: Path, name: str, files: list[Path], number) -> tuple[Path, np.ndarray]:
-    """A folder of links to ``files`` and each file's position along the route (``number(file)``)."""
+def _folder(root: Path, name: str, files: list[Path], number, numbered: bool = False) -> tuple[Path, np.ndarray]:
+    """A folder of links to ``files`` and each file's position along the route (``number(file)``); ``numbered``: each
+    link named by its place in the list (a file may come several times)."""
     out = root / name
     out.mkdir(parents=True, exist_ok=True)
-    for f in files:
-        if not (out / f.name).exists():
-            (out / f.name).symlink_to(f.resolve())
+    for k, f in enumerate(files):
+        link = out / (f"{k:05d}{f.suffix}" if numbered else f.name)
+        if not link.exists():
+            link.symlink_to(f.resolve())
     return out, np.array([number(f) for f in files], np.float64)
+
+
+def _varying(files: list[Path], lo: float, hi: float, seed: int, unit: int = 1) -> list[Path]:
+    """The frames a camera at the files' frame rate records driving ``lo`` to ``hi`` files a frame (a speed drawn for
+    every 10 to 40 frames), ``unit`` files making one step."""
+    rng, pos, out = np.random.default_rng(seed), 0.0, []
+    while True:
+        v = rng.uniform(lo, hi)
+        for _ in range(int(rng.integers(10, 41))):
+            if int(pos) * unit >= len(files):
+                return out
+            out.append(files[int(pos) * unit])
+            pos += v
 
 
 def _streams(data: Path, root: Path):
@@ -92,6 +112,15 @@ def _streams(data: Path, root: Path):
     yield "Nordland 1x", s10, _folder(root, "nl_winter10", winter[::10], nl_n), 10
     yield "Nordland 2x", s10, _folder(root, "nl_winter20", winter[::20], nl_n), 10
     yield "Nordland 0.5x", s10, _folder(root, "nl_winter5", winter[::5], nl_n), 10
+    # driven at a speed that changes every 10-40 frames: the sampled frames fall on the map's in every phase
+    yield ("Gardens Point 1.5-2.5x", _folder(root, "gp_left", left, gp_n),
+           _folder(root, "gp_right_1.5-2.5", _varying(right, 1.5, 2.5, 0), gp_n, True), 2)
+    yield ("Gardens Point 0.4-0.6x", _folder(root, "gp_left2", left[::2], gp_n),
+           _folder(root, "gp_right_0.8-1.25", _varying(right, 0.8, 1.25, 0), gp_n, True), 2)
+    yield ("Nordland 1.5-2.5x", s10,
+           _folder(root, "nl_winter_1.5-2.5", _varying(winter, 1.5, 2.5, 0, 10), nl_n, True), 10)
+    yield ("Nordland 0.4-0.6x", _folder(root, "nl_summer20", summer[::20], nl_n),
+           _folder(root, "nl_winter_0.8-1.25", _varying(winter, 0.8, 1.25, 0, 10), nl_n, True), 10)
 
 
 def _similarity(db: Path, query: Path, model: str, root: Path) -> np.ndarray:
@@ -116,7 +145,8 @@ def _positions(path: Path, x) -> Path:
 
 
 def _command(argv: list) -> str | None:
-    with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings(action="ignore"):
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()), \
+            warnings.catch_warnings(action="ignore"):
         if vpr([str(a) for a in argv] + ["--no-progress"]):
             raise SystemExit(f"vpr {argv[0]} failed")
     out = Path(argv[argv.index("--out") + 1])
@@ -158,7 +188,7 @@ def commands(data: Path, root: Path) -> None:
             "loops day_left day_right every 2nd (2x)": ["loops", left, right2, "--gt", p_left, p_right2,
                                                         "--radius", 2],
             "localize map of day_left, day_right every 2nd (2x)": ["localize", the_map, right2, "--gt", p_right2,
-                                                                   "--radius", 2]}
+                                                                   "--radius", 2, "--query-speed", "as-is"]}
     for name, argv in runs.items():
         cells = [_command([*argv, "--out", root / f"cmd-{k}-{s}", "--method-conf", f"rshosm-seq.speeds={s}"])
                  for s in SETTINGS for k in [list(runs).index(name)]]
@@ -181,18 +211,19 @@ def sampled(data: Path, root: Path) -> None:
     w20, x20 = _folder(root, "nl_winter20", sorted((nl / "winter").iterdir())[::20], nl_n)
     p_s10, p_w20 = _positions(root / "s10.csv", x10), _positions(root / "w20.csv", x20)
     print("\nlocalize, a query driven twice as fast: accepted, P(acc), R(acc); speed along the accepted paths")
-    print("| stream | map of every frame | map from one frame in 2 (vpr learn --step 2) |")
-    print("|---|---|---|")
+    print("| stream | map of every frame, --query-speed as-is | map of every frame, follow (default) | map from one "
+          "frame in 2 (vpr learn --step 2) |")
+    print("|---|---|---|---|")
     for name, (db, p_db, q, p_q, radius) in {
             "Gardens Point day_left -> day_right every 2nd (within 2 frames)": (left, p_left, right2, p_right2, 2),
             "Nordland summer every 10th -> winter every 20th (within 10 files)": (s10, p_s10, w20, p_w20, 10)}.items():
         cells = []
-        for step in (1, 2):
+        for step, how in ((1, "as-is"), (1, "follow"), (2, "as-is")):
             the_map = root / f"sampled-{db.name}-{step}.npz"
             if not the_map.exists():
                 _command(["learn", db, "--out", the_map, "--gt", p_db, "--step", step])
-            cells.append(_command(["localize", the_map, q, "--gt", p_q, "--radius", radius,
-                                   "--out", root / f"sampled-{db.name}-{q.name}-{step}"]))
+            cells.append(_command(["localize", the_map, q, "--gt", p_q, "--radius", radius, "--query-speed", how,
+                                   "--out", root / f"sampled-{db.name}-{q.name}-{step}-{how}"]))
         print(f"| {name} | {' | '.join(cells)} |", flush=True)
 
 
@@ -222,6 +253,25 @@ def followed(data: Path, root: Path) -> None:
                          f"{sampling.get('db_step') or sampling.get('query_step')}") if sampling else ""
                 cells.append(f"{decisions_cell(m, frames=False)}; speed {'-' if v is None else f'{v:.2f}'}{again}")
             print(f"| {name} | {method} | {' | '.join(cells)} |", flush=True)
+    print("\nvpr localize (learned map, defaults): accepted, P(acc), R(acc); speed along the accepted paths; the "
+          "frames answered at another sampling")
+    print("| stream | --query-speed as-is | follow (default) |")
+    print("|---|---|---|")
+    for name, (db, x_db), (query, x_q), radius in _streams(data, root):
+        p_db, p_q = _positions(root / f"{db.name}.csv", x_db), _positions(root / f"{query.name}.csv", x_q)
+        the_map = root / "followed" / f"{db.name}.npz"
+        if not the_map.exists():
+            _command(["learn", db, "--out", the_map, "--gt", p_db])
+        cells = []
+        for how in ("as-is", "follow"):
+            out = root / "followed" / f"localize-{db.name}-{query.name}-{how}"
+            cell = _command(["localize", the_map, query, "--gt", p_q, "--radius", radius, "--query-speed", how,
+                             "--out", out])
+            sampling = json.loads((out / "metrics.json").read_text())["methods"]["rshosm-seq"].get("sampling")
+            how_said = {"db_step": "by the maps of one frame in", "query_step": "as queries of one frame in"}
+            cells.append(cell + "".join(f"; {sampling[k + '_frames']} frames {said} {sampling[k]}"
+                                        for k, said in how_said.items() if sampling and k in sampling))
+        print(f"| {name} | {' | '.join(cells)} |", flush=True)
 
 
 def _as_is(db: Path, x_db, query: Path, x_q, radius, out: Path) -> tuple[dict, list]:

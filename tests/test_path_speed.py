@@ -69,3 +69,39 @@ def test_compare_follows_a_query_driven_twice_as_fast(scene_on_disk, tmp_path, c
         assert (m.get("sampling") or {}).get("db_step") == (2 if out == "follow" else None), m
         cfg = json.loads((tmp_path / out / "rshosm-seq" / "config.json").read_text())
         assert cfg["follow_speed"] == (out != "as_is")
+
+
+@pytest.mark.slow
+def test_localize_follows_a_query_driven_twice_as_fast_and_resumes(scene_on_disk, tmp_path, capsys):
+    s = scene_on_disk("two_seasons", (64, 48), 120)
+    db = s[s["names"][0]]
+    frames = sorted(db.iterdir())[::2]
+    for name, part in (("q2", frames), ("first", frames[:30]), ("rest", frames[30:])):
+        (tmp_path / name).mkdir()
+        for f in part:
+            (tmp_path / name / f.name).symlink_to(f)
+    code, _, err = run(["learn", db, "--out", tmp_path / "map.npz"], capsys)
+    assert code == 0, err
+    answers = {}
+    for how in ("follow", "as-is"):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            code, out, err = run(["localize", tmp_path / "map.npz", tmp_path / "q2", "--out", tmp_path / how,
+                                  "--query-speed", how], capsys)
+        assert code == 0, err
+        m = json.loads((tmp_path / how / "metrics.json").read_text())["methods"]["rshosm-seq"]
+        assert ("answered by the map's 2 maps of one frame in 2" in err) == (how == "follow"), err
+        assert any("driven faster" in str(w.message) for w in caught) == (how == "as-is")
+        assert (m.get("sampling") or {}).get("db_step") == (2 if how == "follow" else None), m
+        answers[how] = [json.loads(x) for x in out.splitlines()]
+    near = {h: np.mean([r["accepted"] and abs(r["best_db"] - 2 * r["query"]) <= 1 for r in a])
+            for h, a in answers.items()}
+    assert near["follow"] >= 0.9, near  # what following gains is measured in tests/test_query_speed.py
+    # stopped and continued from --state-out: the same answers as one run
+    code, first, err = run(["localize", tmp_path / "map.npz", tmp_path / "first", "--out", tmp_path / "a",
+                            "--state-out", tmp_path / "state.npz"], capsys)
+    assert code == 0, err
+    code, rest, err = run(["localize", tmp_path / "state.npz", tmp_path / "rest", "--out", tmp_path / "b"], capsys)
+    assert code == 0, err
+    key = lambda r: (r["best_db"], r["score"], r["accepted"])  # noqa: E731
+    assert [key(json.loads(x)) for x in (first + rest).splitlines()] == [key(r) for r in answers["follow"]]

@@ -1,5 +1,13 @@
 """Place-recognition metrics: plain functions over ``S``, ``gt_hard`` and ``gt_soft``."""
-from .decisions import accepted_precision, best_in_soft_band, decision_curve, outcomes, path_speed, session_pairs
+from .decisions import (
+    MIN_RUN,
+    accepted_precision,
+    best_in_soft_band,
+    decision_curve,
+    outcomes,
+    path_speed,
+    session_pairs,
+)
 from .harness import method_metrics, peak_rss_mb, run_methods, speed_metric
 from .ranking import (
     auc_from_pr,
@@ -14,4 +22,4 @@ from .ranking import (
 
 __all__ = ["average_precision", "pr_curve", "thin_pr", "auc_pr", "auc_from_pr", "recall_at_100p", "recall_at_k",
            "evaluate", "accepted_precision", "best_in_soft_band", "decision_curve", "session_pairs", "outcomes",
-           "path_speed", "speed_metric", "method_metrics", "run_methods", "peak_rss_mb"]
+           "path_speed", "MIN_RUN", "speed_metric", "method_metrics", "run_methods", "peak_rss_mb"]

@@ -6,7 +6,8 @@ import scipy.sparse as sp
 
 from vpr.checks import at
 
-__all__ = ["accepted_precision", "best_in_soft_band", "decision_curve", "session_pairs", "outcomes", "path_speed"]
+__all__ = ["accepted_precision", "best_in_soft_band", "decision_curve", "session_pairs", "outcomes", "path_speed",
+           "MIN_RUN"]
 
 
 def accepted_precision(best_db, accepted, gt_hard, gt_soft=None, mask=None) -> dict:
@@ -160,7 +161,11 @@ def outcomes(best, gt_hard, gt_soft=None, mask=None) -> tuple[np.ndarray, np.nda
     return right, truth.astype(np.int64)
 
 
-def path_speed(best, accepted, min_run: int = 10) -> tuple[float | None, int]:
+#: The frames of a path that read its speed (:func:`path_speed`, :class:`vpr.methods.SpeedFollower`).
+MIN_RUN = 10
+
+
+def path_speed(best, accepted, min_run: int = MIN_RUN) -> tuple[float | None, int]:
     """Database (earlier) frames per query frame along the accepted paths, without ground truth.
 
     Over every run of at least ``min_run`` accepted frames whose best frame moves on by 0 to 4 frames a frame: the

@@ -1,19 +1,22 @@
 """A query driven at another speed than the database, matched again at the sampling that makes the two agree."""
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from collections.abc import Callable
 
 import numpy as np
 import scipy.sparse as sp
 
-from vpr.evaluate import path_speed
-from vpr.groundtruth import speed_step
-from vpr.types import EncodedTraverse, MatchResult
+from vpr import sdr as _sdr
+from vpr.evaluate import MIN_RUN, path_speed
+from vpr.groundtruth import RATE_RATIO, speed_step
+from vpr.shosm import Localizer, PathConf
+from vpr.types import Column, Decision, EncodedTraverse, MatchResult
 
 from .base import Fitted
 
-__all__ = ["match_at_speed"]
+__all__ = ["match_at_speed", "SpeedFollower"]
 
 
 def match_at_speed(fitted: Fitted, query: EncodedTraverse, progress: bool = False,
@@ -23,10 +26,11 @@ def match_at_speed(fitted: Fitted, query: EncodedTraverse, progress: bool = Fals
     A method whose sequences follow one database frame a frame (:attr:`Method.follows_sequences`) and whose accepted
     paths move ``k`` >= :data:`~vpr.groundtruth.RATE_RATIO` database frames a query frame (:func:`vpr.evaluate.
     path_speed`, no ground truth; :func:`~vpr.groundtruth.speed_step`) is matched again against one database frame in
-    ``k`` (the ``k`` maps of frames ``a, a + k, ...``, learned again; each query frame answered by the map that scores
-    it highest) and, moving ``1 / k``, as ``k`` queries of one frame in ``k`` (each frame answered by its own); each
-    is said (a warning). The result keeps the traverses' frames and their similarity;
-    :attr:`MatchResult.sampling` records the first pass's speed and the step, ``seconds`` both passes.
+    ``k`` (the ``k`` maps of frames ``a, a + k, ...``, learned again; each query frame answered by the map that accepts
+    it on the longest consistent path of best frames, the path rule's ``back`` / ``ahead``) and, moving ``1 / k``, as
+    ``k`` queries of one frame in ``k`` (each frame answered by its own); each is said (a warning). The result keeps
+    the traverses' frames and their similarity; :attr:`MatchResult.sampling` records the first pass's speed and the
+    step, ``seconds`` both passes.
     ``match(fitted, query)``: how a match runs (default :meth:`Fitted.match`). Returns the first result where nothing
     is to be done or the sampled traverse is too short for the method.
     """
@@ -51,12 +55,14 @@ def match_at_speed(fitted: Fitted, query: EncodedTraverse, progress: bool = Fals
         return res
     order = np.argsort(np.concatenate(phases), kind="stable")  # the phases' frames back in the traverse's order
     sparse = sp.issparse(parts[0].similarity)
-    if k > 0:  # each database frame is in one phase's map; a query frame takes the phase that scores it highest
+    if k > 0:  # each database frame is in one phase's map; a query frame takes the phase accepted on the longest path
         S = (sp.vstack if sparse else np.vstack)([r.similarity for r in parts])[order]
         best = np.stack([np.where(r.best >= 0, f[np.maximum(r.best, 0)], -1) for r, f in zip(parts, phases,
                                                                                           strict=True)])
         score, accepted = np.stack([r.score for r in parts]), np.stack([r.accepted for r in parts])
-        pick = np.argmax(score, axis=0), np.arange(n_q)
+        bounds = PathConf(**{k: method.conf[k] for k in ("back", "ahead") if method.conf.get(k) is not None})
+        lengths = np.stack([_path_lengths(r.best, bounds.back, bounds.ahead) for r in parts])
+        pick = np.argmax(accepted * (n_q + 1) + lengths, axis=0), np.arange(n_q)
         best, score, accepted = best[pick], score[pick], accepted[pick]
         said = f"the database was learned again as {step} maps of one frame in {step}"
     else:  # each query frame is in one phase's query
@@ -70,3 +76,195 @@ def match_at_speed(fitted: Fitted, query: EncodedTraverse, progress: bool = Fals
                   "that its sequences follow the query's (docs/localize.md)", UserWarning, stacklevel=2)
     return MatchResult(res.method, S, best, score, accepted, res.seconds + sum(r.seconds for r in parts), res.conf,
                        {"speed": round(float(speed), 3), "db_step" if k > 0 else "query_step": abs(k)})
+
+
+class _Path:
+    """A consistent path of best frames (each within ``back`` behind and ``ahead`` beyond the last): its first frame
+    and best, its last best and its length."""
+
+    def __init__(self, back: int, ahead: int):
+        self.back, self.ahead = back, ahead
+        self.start, self.first, self.last, self.length = -1, -1, -1, 0
+
+    def step(self, frame: int, best: int) -> None:
+        if best >= 0 and self.length and -self.back <= best - self.last <= self.ahead:
+            self.last, self.length = best, self.length + 1
+        else:
+            self.start, self.first, self.last, self.length = frame, best, best, int(best >= 0)
+
+    def speed(self, frame: int) -> float | None:
+        """Best frames per frame since the path started, once it is :data:`~vpr.evaluate.MIN_RUN` frames long."""
+        return (self.last - self.first) / (frame - self.start) if self.length >= MIN_RUN else None
+
+    def state(self) -> list[int]:
+        return [self.start, self.first, self.last, self.length]
+
+    def load(self, values) -> None:
+        self.start, self.first, self.last, self.length = (int(v) for v in values)
+
+
+class SpeedFollower:
+    """Online localisation that follows a query driven at another speed than the map at the same frame rate.
+
+    Steps the map's ``localizer`` on every frame and reads the speed of its consistent path of best frames (the
+    path rule's ``back`` / ``ahead``, over at least :data:`~vpr.evaluate.MIN_RUN` frames). While it is
+    :data:`~vpr.groundtruth.RATE_RATIO` or more map frames a frame, the frames are answered by the ``step`` maps of
+    one frame in ``step`` (learned again from ``sdr``, the map's SDRs, when first needed; each frame by the map whose
+    path is accepted and longest); while it is ``1 / RATE_RATIO`` or less, by the map with the frames taken as
+    ``step`` queries of one frame in ``step`` (each frame by its own); otherwise by ``localizer``. The engines of a
+    speed start when it is read, from the last ``replay`` frames (kept for that), so that they answer with their
+    evidence built; at the map's speed only ``localizer`` runs. Without ``sdr`` a faster query is answered by
+    ``localizer``. :meth:`update` returns the map's :class:`~vpr.types.Decision` with the frame's number.
+    """
+
+    def __init__(self, localizer: Localizer, sdr=None, step: int = 2, replay: int = 2 * MIN_RUN):
+        self.base, self.sdr, self.step, self.replay = localizer, sdr, int(step), int(replay)
+        path = localizer.seq.path()
+        self._bounds = path.back, path.ahead
+        self.path = _Path(*self._bounds)
+        self.phases: list[Localizer] = []
+        self.keeps: list[np.ndarray] = []
+        self.phase_paths: list[_Path] = []
+        self.queries: list[Localizer] = []
+        self.mode, self.frame = 0, 0
+        self.recent: list[tuple[int, np.ndarray]] = []  # (frame, active bits) of the last ``replay`` frames
+        #: frames this object answered as they came / by the maps of one frame in ``step`` / as queries of one frame
+        #: in ``step`` (not part of the state: a follower loaded from one counts its own)
+        self.frames = {"as_is": 0, "db_step": 0, "query_step": 0}
+
+    @property
+    def follows_faster(self) -> bool:
+        """Whether a faster query can be followed (the map's SDRs are there to learn its maps of one frame in k)."""
+        return self.sdr is not None and self.base.n_db >= 2 * self.step
+
+    def _learn_phases(self) -> None:
+        loc = self.base
+        starts = [*loc.sessions.tolist(), loc.n_db]
+        for a in range(self.step):
+            keep = np.concatenate([np.arange(s + a, e, self.step) for s, e in zip(starts[:-1], starts[1:],
+                                                                                   strict=True)])
+            sessions = sorted({int(np.searchsorted(keep, s)) for s in loc.sessions} - {keep.size})
+            self.keeps.append(keep)
+            self.phases.append(Localizer.from_database(self.sdr[keep], [loc.names[k] for k in keep], conf=loc.seq,
+                                                       sessions=sessions))
+
+    def _engines(self, mode: int) -> list[Localizer]:
+        """The engines that answer at ``mode`` (+1 faster, -1 slower), built the first time."""
+        if mode > 0:
+            if not self.phases and self.follows_faster:
+                self._learn_phases()
+            return self.phases
+        if mode < 0 and not self.queries:
+            loc = self.base
+            self.queries = [Localizer(loc.memory, loc.db_codes, loc.names, loc.seq, sessions=loc.sessions)
+                            for _ in range(self.step)]
+        return self.queries if mode < 0 else []
+
+    def _start(self, mode: int) -> None:
+        """Start the engines of ``mode`` afresh and give them the frames kept (those before this one)."""
+        for loc in self._engines(mode):
+            loc.reset()
+        self.phase_paths = [_Path(*self._bounds) for _ in self.phases]
+        for j, bits in self.recent[:-1]:
+            self._feed(mode, j, bits)
+
+    def _feed(self, mode: int, j: int, bits) -> list[Decision]:
+        if mode > 0:
+            out = [p.update(bits) for p in self.phases]
+            for path, d in zip(self.phase_paths, out, strict=True):
+                path.step(j, d.best)
+            return out
+        return [self.queries[j % self.step].update(bits)] if mode < 0 else []
+
+    def reset(self) -> None:
+        """A new query traverse: the evidence and the paths start again."""
+        self.base.reset()
+        for loc in [*self.phases, *self.queries]:
+            loc.reset()
+        self.path.step(-1, -1)
+        self.mode, self.frame, self.recent = 0, 0, []
+
+    def warm_up(self) -> None:
+        self.base.warm_up()
+
+    def update(self, sdr_row) -> Decision:
+        """Localise one query frame (as :meth:`vpr.shosm.Localizer.update`)."""
+        j = self.frame
+        bits = _sdr.row_bits(sdr_row, self.base.memory.n_inputs, name="query SDR")
+        self.recent = [*self.recent[-(self.replay - 1):], (j, bits)] if self.replay > 0 else []
+        d = self.base.update(bits)
+        self.path.step(j, d.best)
+        v = self.path.speed(j)
+        mode = self.mode if v is None else 1 if v >= RATE_RATIO else -1 if v * RATE_RATIO <= 1 else 0
+        if mode != self.mode:
+            self.mode = mode
+            self._start(mode)
+        self.frame += 1
+        answers = self._feed(mode, j, bits)
+        if mode > 0 and answers:
+            i = max(range(self.step), key=lambda i: (bool(answers[i].accepted), self.phase_paths[i].length))
+            self.frames["db_step"] += 1
+            return _on_map(answers[i], self.keeps[i], self.base.n_db, d.frame)
+        if mode < 0:
+            self.frames["query_step"] += 1
+            return dataclasses.replace(answers[0], frame=d.frame)
+        self.frames["as_is"] += 1
+        return d
+
+    def sampling(self) -> dict | None:
+        """metrics.json's ``sampling`` of the frames so far: the step and the frames answered at it (None: every
+        frame as it came)."""
+        used = {k: v for k, v in self.frames.items() if k != "as_is" and v}
+        return {**{k: self.step for k in used}, **{f"{k}_frames": v for k, v in used.items()}} or None
+
+    def state(self) -> tuple[dict, dict]:
+        """(header, arrays) of what the follower carries besides the map's localizer (:meth:`load_state`)."""
+        frames = np.array([j for j, _ in self.recent], np.int64)
+        sizes = np.array([b.size for _, b in self.recent], np.int64)
+        header = {"step": self.step, "replay": self.replay, "mode": self.mode, "frame": self.frame,
+                  "path": self.path.state(), "phase_paths": [p.state() for p in self.phase_paths]}
+        arrays = {"recent_frames": frames, "recent_sizes": sizes,
+                  "recent_bits": np.concatenate([b for _, b in self.recent] or [np.zeros(0, np.int64)])}
+        for name, loc in self._named(self.mode):
+            h, a = loc.state()
+            header[name] = h
+            arrays.update({f"{name}_{k}": v for k, v in a.items()})
+        return header, arrays
+
+    def _named(self, mode: int) -> list[tuple[str, Localizer]]:
+        return [(f"{'phase' if mode > 0 else 'query'}{i}", loc) for i, loc in enumerate(self._engines(mode))]
+
+    def load_state(self, header: dict, arrays: dict) -> SpeedFollower:
+        """Continue from :meth:`state` (of a follower of the same map, step and replay)."""
+        if int(header["step"]) != self.step or int(header["replay"]) != self.replay:
+            raise ValueError(f"a speed follower's state of step {header['step']}, replay {header['replay']} cannot "
+                             f"continue one of step {self.step}, replay {self.replay}")
+        self.mode, self.frame = int(header["mode"]), int(header["frame"])
+        self.path.load(header["path"])
+        bits = np.split(np.asarray(arrays["recent_bits"], np.int64), np.cumsum(arrays["recent_sizes"])[:-1])
+        self.recent = [(int(j), b) for j, b in zip(arrays["recent_frames"], bits, strict=True)] \
+            if len(arrays["recent_frames"]) else []
+        for name, loc in self._named(self.mode):
+            loc.load_state(header[name], {k[len(name) + 1:]: v for k, v in arrays.items() if k.startswith(name + "_")})
+        self.phase_paths = [_Path(*self._bounds) for _ in self.phases]
+        for p, v in zip(self.phase_paths, header["phase_paths"], strict=False):
+            p.load(v)
+        return self
+
+
+def _path_lengths(best, back: int, ahead: int) -> np.ndarray:
+    """Each frame's length of the consistent path of best frames it ends (:class:`_Path`)."""
+    path, out = _Path(back, ahead), np.zeros(len(best), np.int64)
+    for j, b in enumerate(np.asarray(best, np.int64)):
+        path.step(j, int(b))
+        out[j] = path.length
+    return out
+
+
+def _on_map(d: Decision, keep: np.ndarray, n: int, frame: int) -> Decision:
+    """A decision of the map of the frames ``keep`` on the whole map of ``n`` frames."""
+    c = d.column
+    column = None if c is None else Column(keep[c.rows], c.z, c.fill, n, c.frame)
+    return dataclasses.replace(d, best=int(keep[d.best]) if d.best >= 0 else -1, frame=frame, column=column)
+
+

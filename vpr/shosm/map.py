@@ -36,6 +36,8 @@ class Map:
         What the map was learned from (sources, frames, skipped, seconds, ``every``).
     sdr : csr matrix (n_db x bits) or None
         The database's SDRs, which :meth:`subset` learns again.
+    follow_state : (header, arrays) or None
+        The state of what follows the query's speed over the localizer (:class:`vpr.methods.SpeedFollower`).
     """
 
     def __init__(self, localizer: Localizer, encoder: dict, statistics=(), positions=None, origin=None,
@@ -47,6 +49,7 @@ class Map:
             raise ValueError(f"{self.positions.shape[0]} positions for a map of {localizer.n_db} frames")
         self.origin = None if origin is None else tuple(float(v) for v in origin)
         self.query_state: dict = {}
+        self.follow_state: tuple[dict, dict] | None = None
         self.info = dict(info or {})
         self.sdr = None if sdr is None else sp.csr_matrix(sdr, dtype=bool)
         if self.sdr is not None and self.sdr.shape[0] != localizer.n_db:
@@ -106,6 +109,8 @@ class Map:
             db["sdr_indptr"], db["sdr_indices"] = self.sdr.indptr.astype(np.int64), self.sdr.indices.astype(np.int64)
             header["sdr_width"] = int(self.sdr.shape[1])
         parts = {"mem": mem_arrays, "query": q_arrays, "enc": stats, "qenc": self.query_state, "db": db}
+        if self.follow_state is not None:
+            header["follow"], parts["follow"] = self.follow_state
         return write_file(path, _FORMAT, _FORMAT_VERSION, header, parts, names=loc.names)
 
     @classmethod
@@ -118,7 +123,7 @@ class Map:
             Missing, corrupt or foreign file (a map is written by ``vpr learn``), or another format version.
         """
         with read_file(path, _FORMAT, _FORMAT_VERSION, "map", " (written by `vpr learn` / Map.save)",
-                       ("mem", "query", "enc", "qenc", "db")) as (header, parts, names):
+                       ("mem", "query", "enc", "qenc", "db", "follow")) as (header, parts, names):
             mem_h = header["memory"]
             mem = SequenceMemory(**mem_h["params"]).load_state(mem_h, parts["mem"])
             n_db, width = header["db_shape"]
@@ -135,6 +140,8 @@ class Map:
                                     shape=(n_db, int(header["sdr_width"])))
             out = cls(loc, header["encoder"], stats, db.get("xy"), header.get("origin"), header["info"], sdr)
             out.query_state = parts["qenc"]
+            if header.get("follow") is not None:
+                out.follow_state = (header["follow"], parts["follow"])
         return out
 
     def __repr__(self) -> str:
