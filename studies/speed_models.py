@@ -42,7 +42,10 @@ slower query's answers copied from one frame in 2 or each frame its own.
 Each table also prints the query's speed along the accepted paths, in map frames per query frame
 (:func:`vpr.evaluate.path_speed`, no ground truth): a measure a run could say.
 
-Usage: python -m studies.speed_models [--data DIR] [--out DIR]
+With ``--cases``: only the cases the localisation rule was chosen on
+(:mod:`studies.localize_decisions`), answered as they come and followed.
+
+Usage: python -m studies.speed_models [--data DIR] [--out DIR] [--cases]
 """
 from __future__ import annotations
 
@@ -331,14 +334,55 @@ def phases(data: Path, root: Path) -> None:
         print(f"| {name} | {' | '.join(cells)} |", flush=True)
 
 
+def cases(data: Path, root: Path) -> None:
+    """The cases the localisation rule was chosen on (:mod:`studies.localize_decisions`), each query frame encoded as
+    ``vpr localize`` does and answered by the map's localizer and by the :class:`vpr.methods.SpeedFollower` around
+    it: what following costs where the query is not driven at another speed (and the rendered ``speed_change``,
+    where it is)."""
+    import encoders
+    from encoders.extract import extract
+    from encoders.stream import StreamEncoder
+    from studies.localize_decisions import CASES, case_sources
+    from vpr import presets
+    from vpr.evaluate import accepted_precision
+    from vpr.methods import SpeedFollower
+
+    s = presets.resolve(None)
+    print("\nthe localisation cases (studies.localize_decisions, default preset): accepted, P(acc), R(acc); frames "
+          "answered at another sampling")
+    print("| case | map | query | as they come | followed |")
+    print("|---|---|---|---|---|")
+    for case in CASES:
+        m, q, hard, soft = case_sources(case, data, root)
+        enc = encoders.get(s["encoder"], **s["encoder_conf"])
+        ex = extract(m, enc, ("sdr",), progress=False)  # fitted on the map, as `vpr learn`
+        qenc = StreamEncoder(enc)
+        rows = [qenc.encode(f.image) for f in q]
+        cells = []
+        for follow in (False, True):
+            loc = Localizer.from_database(ex.features.sdr, ex.features.names)
+            run = SpeedFollower(loc, ex.features.sdr) if follow else loc
+            ds = [run.update(r) for r in rows]
+            a = accepted_precision(np.array([d.best for d in ds]), np.array([d.accepted for d in ds]), hard, soft)
+            p = "-" if a["precision_accepted"] is None else f"{a['precision_accepted']:.3f}"
+            cells.append(f"{a['n_accepted']}, {p}, {a['recall_accepted']:.2f}"
+                         + (f"; {run.sampling()}" if follow and run.sampling() else ""))
+        print(f"| {case} | {hard.shape[0]} | {hard.shape[1]} | {' | '.join(cells)} |", flush=True)
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "datasets",
                     help="the folder holding gardens_point_day/ and nordland_trimmed/")
     ap.add_argument("--out", type=Path, default=None, help="work folder (default: a temporary one)")
+    ap.add_argument("--cases", action="store_true", help="only the localisation cases (several minutes: Nordland "
+                    "at every file)")
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         root = args.out or Path(tmp)
+        if args.cases:
+            cases(args.data, root)
+            return
         print("AP, accepted, P(acc), R(acc) of rshosm-seq (default preset), query frames as they come; speed along "
               "the accepted paths, map frames per query frame (query frames counted)")
         print(f"| stream | {' | '.join(COMBOS)} |")
