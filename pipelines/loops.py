@@ -280,6 +280,8 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
             if len(srcs) > 1:  # the closures per pair of sessions (with ground truth: their precision and recall)
                 evaluated[0]["sessions"] = evaluate.session_pairs(res.best, res.accepted, gt_hard, starts,
                                                                   gt_soft, mask, [s.name for s in srcs])
+                evaluated[0]["session_speeds"] = [None if v is None else round(v, 3)
+                                                  for v in evaluate.session_speeds(res.best, starts)]
             write_method(out / m, m, res, evaluated, features.names, features.names, gt_hard, gt_soft,
                          title=f"{m}: loop closures", loops=True, mask=mask)
             io.save_json(out / m / "config.json", config(opts, command="loops", seq=[str(q) for q in seqs],
@@ -300,6 +302,11 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
 
         done = evaluate.run_methods(runners, loops_of, gt_hard, gt_soft, mask, on_result=write, loops=True)
         groundtruth.check_speeds({k: m.get("path_speed") for k, (m, _) in done.items()})
+        groundtruth.check_speeds({f"{k}: session {s + 2} ({srcs[s + 1].path}) against the earlier ones": v
+                                  for k, (m, _) in done.items() for s, v in enumerate(m.get("session_speeds") or [])},
+                                 paths="paths of best earlier frames",
+                                 fix="localise it against a map of the earlier sessions (vpr learn EARLIER --out "
+                                     "map.npz; vpr localize map.npz SESSION), which follows its speed")
         for m, o in opinions.items():
             done[m][0]["geometry"] = o.report()
         inputs = {"kind": "loops", "seq": [s.key() for s in srcs] if len(srcs) > 1 else srcs[0].key(),

@@ -158,8 +158,9 @@ def _command(argv: list) -> str | None:
     with open(out / "rshosm-seq" / "matches.csv", newline="") as f:
         rows = list(csv.DictReader(f))
     speed = _speed_cell([int(x["best_db"]) for x in rows], [x["accepted"] == "1" for x in rows])
-    return (decisions_cell(json.loads((out / "metrics.json").read_text())["methods"]["rshosm-seq"], frames=False)
-            + f"; speed {speed}")
+    m = json.loads((out / "metrics.json").read_text())["methods"]["rshosm-seq"]
+    later = "".join(f"; session 2 read {v:.2f}" for v in m.get("session_speeds") or [] if v is not None)
+    return decisions_cell(m, frames=False) + f"; speed {speed}{later}"
 
 
 def _simulated(speeds: str) -> str:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from tests.cli import run
-from vpr.evaluate import path_speed
+from vpr.evaluate import path_speed, session_speeds
 from vpr.groundtruth import check_speeds
 
 
@@ -44,6 +44,27 @@ def test_a_query_at_another_speed_is_said(speed, said, fix):
     else:
         assert len(lines) == 1 and f"driven {said}" in lines[0] and lines[0].startswith("rshosm-seq:")
         assert fix in lines[0], lines[0]
+
+
+def test_a_later_session_is_read_against_the_earlier_ones_accepted_or_not():
+    first = np.r_[-1, -1, np.arange(30) - 40]          # session 1 (frames 0..31): onto itself, never read
+    second = np.arange(0, 60, 2)                       # session 2 (32..61): 2 frames of session 1 a frame
+    third = np.r_[np.arange(40, 55), 70 + np.arange(15)]  # session 3 (62..91): on session 1, then on itself
+    best = np.r_[np.maximum(first, -1), second, third]
+    assert session_speeds(best, [0, 32, 62]) == [2.0, 1.0]
+    assert session_speeds(best, [0]) == []
+    assert session_speeds(np.r_[best[:32], np.full(30, -1)], [0, 32]) == [None]
+
+
+def test_a_speed_is_said_with_the_fix_given():
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_speeds({"a": 2.0, "b": 0.5, "c": 3.1}, paths="best paths", fix=None)
+        check_speeds({"d": 1.9}, paths="best paths", fix="do this")
+    lines = [str(w.message) for w in caught]
+    assert len(lines) == 4 and all("along its best paths" in x for x in lines)
+    assert "--step 2" in lines[0] and "one query frame in 2" in lines[1] and "--step 3" in lines[2]
+    assert lines[3].endswith("do this (docs/localize.md)")
 
 
 @pytest.mark.slow

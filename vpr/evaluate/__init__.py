@@ -7,6 +7,7 @@ from .decisions import (
     outcomes,
     path_speed,
     session_pairs,
+    session_speeds,
 )
 from .harness import method_metrics, peak_rss_mb, run_methods, speed_metric
 from .ranking import (
@@ -22,4 +23,4 @@ from .ranking import (
 
 __all__ = ["average_precision", "pr_curve", "thin_pr", "auc_pr", "auc_from_pr", "recall_at_100p", "recall_at_k",
            "evaluate", "accepted_precision", "best_in_soft_band", "decision_curve", "session_pairs", "outcomes",
-           "path_speed", "MIN_RUN", "speed_metric", "method_metrics", "run_methods", "peak_rss_mb"]
+           "path_speed", "session_speeds", "MIN_RUN", "speed_metric", "method_metrics", "run_methods", "peak_rss_mb"]

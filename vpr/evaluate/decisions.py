@@ -7,7 +7,7 @@ import scipy.sparse as sp
 from vpr.checks import at
 
 __all__ = ["accepted_precision", "best_in_soft_band", "decision_curve", "session_pairs", "outcomes", "path_speed",
-           "MIN_RUN"]
+           "session_speeds", "MIN_RUN"]
 
 
 def accepted_precision(best_db, accepted, gt_hard, gt_soft=None, mask=None) -> dict:
@@ -181,3 +181,17 @@ def path_speed(best, accepted, min_run: int = MIN_RUN) -> tuple[float | None, in
     steps = int((last - first)[long].sum())
     moved = int((best[last[long]] - best[first[long]]).sum())
     return (moved / steps if steps else None), steps
+
+
+def session_speeds(best, starts, min_run: int = MIN_RUN) -> list[float | None]:
+    """Each later session's speed against the earlier ones, without ground truth: :func:`path_speed` over the frames
+    of session ``s`` whose best frame lies in an earlier session, accepted or not (a session driven at another speed
+    may accept none). ``starts``: each session's first frame; returns one reading per session after the first
+    (None: no path of ``min_run`` frames)."""
+    best = np.asarray(best, np.int64)
+    bounds = [*(int(a) for a in sorted(starts)), best.size]
+    out = []
+    for a, b in zip(bounds[1:-1], bounds[2:], strict=True):
+        part = best[a:b]
+        out.append(path_speed(part, (part >= 0) & (part < a), min_run)[0])
+    return out

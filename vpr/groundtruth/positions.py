@@ -265,19 +265,19 @@ def speed_step(speed: float | None) -> int:
     return max(2, round(speed)) if speed > 1 else -max(2, round(1 / speed))
 
 
-def check_speeds(speeds: Mapping[str, float | None]) -> None:
+def check_speeds(speeds: Mapping[str, float | None], paths: str = "accepted paths", fix: str | None = None) -> None:
     """Warn for each method (``speeds``: method -> :func:`vpr.evaluate.path_speed`, metrics.json's ``path_speed``)
-    whose accepted paths move :data:`RATE_RATIO` or more times faster or slower than one frame a frame
+    whose ``paths`` move :data:`RATE_RATIO` or more times faster or slower than one frame a frame
     (:func:`speed_step`): the query was driven at another speed than the frames it is matched to, which the evidence
-    does not expect; the warning names the sampling that makes them agree."""
+    does not expect; the warning names ``fix``, by default the sampling that makes them agree."""
     for label, v in speeds.items():
         k = speed_step(v)
         if k:
-            fix = (f"learn the map from one frame in {k} (vpr learn DB --step {k}) and localise against it" if k > 0
-                   else f"localise one query frame in {-k} against a learned map (--step {-k})")
-            warnings.warn(f"{label}: along its accepted paths the query moves {v:.2g} of the frames it matches a "
+            then = fix or (f"learn the map from one frame in {k} (vpr learn DB --step {k}) and localise against it"
+                           if k > 0 else f"localise one query frame in {-k} against a learned map (--step {-k})")
+            warnings.warn(f"{label}: along its {paths} the query moves {v:.2g} of the frames it matches a "
                           f"frame: driven {'faster' if v > 1 else 'slower'} than they were at the same frame rate, its "
-                          f"answers may trail the place; {fix} (docs/localize.md)", UserWarning, stacklevel=2)
+                          f"answers may trail the place; {then} (docs/localize.md)", UserWarning, stacklevel=2)
 
 
 def check_rates(srcs, every: float | None = None, against_first: bool = False) -> None:
