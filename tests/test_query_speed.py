@@ -4,6 +4,7 @@ import warnings
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 from vpr import methods, simulate
 from vpr.methods import SpeedFollower
@@ -145,3 +146,17 @@ def test_a_follower_continues_from_its_state():
         [(d.best, d.score, d.accepted, d.frame) for d in expected]
     with pytest.raises(ValueError, match="step 2"):
         _follower(db, step=3)[1].load_state(*state)
+
+
+@pytest.mark.parametrize("speed, key", [((1.8, 2.2), "db_step"), ((0.45, 0.55), "query_step")])
+def test_a_top_k_similarity_is_matched_again_in_the_same_form(speed, key):
+    from vpr.similarity import dense_budget
+
+    db, q, _ = _traverses(speed)
+    with dense_budget(1000):  # every similarity top-K sparse
+        fitted = methods.get("rshosm-seq", top_k=5).fit(db)
+        res, _ = _match(fitted, q)
+    assert sp.issparse(res.similarity) and res.similarity.shape == (len(db), len(q)) and res.sampling[key] == 2
+    assert res.similarity.format == "csr"
+    # every column keeps at most top_k entries of each phase it was matched in
+    assert np.diff(res.similarity.tocsc().indptr).max() <= 5 * 2
