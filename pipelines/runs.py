@@ -193,10 +193,10 @@ def run_compare(db, query, opts: RunOptions, command: str = "compare") -> dict:
             workers = opts.workers or len(client.scheduler_info().get("workers", {})) or 1
             extra["split"] = {}
 
-            def matcher(f, q):
+            def matcher(f):
                 if f.method.block_margin is None:
-                    return f.match(q, progress=opts.progress)
-                return split_match(f, q, client, workers, extra["split"].setdefault(f.name, {}))
+                    return f.match(q_ex.features, progress=opts.progress)
+                return split_match(f, q_ex.features, client, workers, extra["split"].setdefault(f.name, {}))
 
         return compare_query(the_map, query, q_src, opts, command, q_ex=q_ex, argv=sys.argv[1:], gt=gt,
                              encoder=encoder, matcher=matcher, extra=extra)
@@ -302,8 +302,8 @@ def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, command: st
 
     ``gt``: the ground truth of :func:`prepare_run`; ``encoder`` (the map's)
     is built here when not given (a fleet's worker gets the map alone);
-    ``matcher(fitted, query)``: how each method matches a query (default: in this
-    process; :func:`vpr.methods.match_at_speed` runs it); ``extra``: more ``params`` for ``metrics.json``.
+    ``matcher(fitted)``: how each method matches the query (default: in this
+    process; a query matched again at its speed is matched here); ``extra``: more ``params`` for ``metrics.json``.
     """
     out = Path(opts.out)
     db_src, db_ex = the_map.src, the_map.ex
@@ -339,9 +339,8 @@ def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, command: st
         return {k: (e, None) for k, e in entries.items() if k != m}
 
     def call(f):
-        if opts.follow_speed:
-            return methods.match_at_speed(f, q_ex.features, opts.progress, matcher)
-        return matcher(f, q_ex.features) if matcher else f.match(q_ex.features, progress=opts.progress)
+        res = matcher(f) if matcher else f.match(q_ex.features, progress=opts.progress)
+        return methods.match_at_speed(f, q_ex.features, opts.progress, first=res) if opts.follow_speed else res
 
     done = evaluate.run_methods(the_map.fitted, call, gt_hard, gt_soft, on_result=write)
     check_speeds({k: m.get("path_speed") for k, (m, _) in done.items() if not m.get("sampling")})

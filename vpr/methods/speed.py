@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
-from collections.abc import Callable
 
 import numpy as np
 import scipy.sparse as sp
@@ -20,7 +19,7 @@ __all__ = ["match_at_speed", "SpeedFollower"]
 
 
 def match_at_speed(fitted: Fitted, query: EncodedTraverse, progress: bool = False,
-                   match: Callable[[Fitted, EncodedTraverse], MatchResult] | None = None) -> MatchResult:
+                   first: MatchResult | None = None) -> MatchResult:
     """Match ``query`` against the learned database; match again where the query was driven at another speed.
 
     A method whose sequences follow one database frame a frame (:attr:`Method.follows_sequences`) and whose accepted
@@ -31,11 +30,10 @@ def match_at_speed(fitted: Fitted, query: EncodedTraverse, progress: bool = Fals
     ``k`` queries of one frame in ``k`` (each frame answered by its own); each is said (a warning). The result keeps
     the traverses' frames and their similarity; :attr:`MatchResult.sampling` records the first pass's speed and the
     step, ``seconds`` both passes.
-    ``match(fitted, query)``: how a match runs (default :meth:`Fitted.match`). Returns the first result where nothing
-    is to be done or the sampled traverse is too short for the method.
+    ``first``: the query's result as already matched (by default matched here, :meth:`Fitted.match`). Returns the
+    first result where nothing is to be done or the sampled traverse is too short for the method.
     """
-    match = match or (lambda f, q: f.match(q, progress))
-    res = match(fitted, query)
+    res = fitted.match(query, progress) if first is None else first
     speed = path_speed(res.best, res.accepted)[0]
     k = speed_step(speed) if fitted.method.follows_sequences else 0
     n_db, n_q, method = len(fitted.db), len(query), fitted.method
@@ -45,9 +43,9 @@ def match_at_speed(fitted: Fitted, query: EncodedTraverse, progress: bool = Fals
     phases = [np.arange(a, n, step) for a in range(step)]
     try:
         if k > 0:
-            parts = [match(method.fit(fitted.db.take(f), progress, once=fitted.once), query) for f in phases]
+            parts = [method.fit(fitted.db.take(f), progress, once=fitted.once).match(query, progress) for f in phases]
         else:
-            parts = [match(fitted, query.take(f)) for f in phases]
+            parts = [fitted.match(query.take(f), progress) for f in phases]
     except ValueError as e:  # the sampled traverse is too short for the method (SeqSLAM's ``ds``)
         warnings.warn(f"{method.name}: the query moves {speed:.2g} database frames a frame, and one "
                       f"{'database' if k > 0 else 'query'} frame in {step} cannot be matched: {e}", UserWarning,
@@ -99,7 +97,7 @@ class _Path:
     def state(self) -> list[int]:
         return [self.start, self.first, self.last, self.length]
 
-    def load(self, values) -> None:
+    def restore(self, values) -> None:
         self.start, self.first, self.last, self.length = (int(v) for v in values)
 
 
@@ -240,7 +238,7 @@ class SpeedFollower:
             raise ValueError(f"a speed follower's state of step {header['step']}, replay {header['replay']} cannot "
                              f"continue one of step {self.step}, replay {self.replay}")
         self.mode, self.frame = int(header["mode"]), int(header["frame"])
-        self.path.load(header["path"])
+        self.path.restore(header["path"])
         bits = np.split(np.asarray(arrays["recent_bits"], np.int64), np.cumsum(arrays["recent_sizes"])[:-1])
         self.recent = [(int(j), b) for j, b in zip(arrays["recent_frames"], bits, strict=True)] \
             if len(arrays["recent_frames"]) else []
@@ -248,7 +246,7 @@ class SpeedFollower:
             loc.load_state(header[name], {k[len(name) + 1:]: v for k, v in arrays.items() if k.startswith(name + "_")})
         self.phase_paths = [_Path(*self._bounds) for _ in self.phases]
         for p, v in zip(self.phase_paths, header["phase_paths"], strict=False):
-            p.load(v)
+            p.restore(v)
         return self
 
 
