@@ -338,9 +338,16 @@ def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, command: st
                                opts.progress)
         return {k: (e, None) for k, e in entries.items() if k != m}
 
+    read: dict = {}  # the query's speed as the first method to read it read it, for those that read none
+
     def call(f):
         res = matcher(f) if matcher else f.match(q_ex.features, progress=opts.progress)
-        return methods.match_at_speed(f, q_ex.features, opts.progress, first=res) if opts.follow_speed else res
+        if not opts.follow_speed:
+            return res
+        res = methods.match_at_speed(f, q_ex.features, opts.progress, first=res, speed=read.get("speed"))
+        if res.sampling:
+            read.setdefault("speed", res.sampling["speed"])
+        return res
 
     done = evaluate.run_methods(the_map.fitted, call, gt_hard, gt_soft, on_result=write)
     check_speeds({k: m.get("path_speed") for k, (m, _) in done.items() if not m.get("sampling")})

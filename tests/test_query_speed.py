@@ -160,3 +160,17 @@ def test_a_top_k_similarity_is_matched_again_in_the_same_form(speed, key):
     assert res.similarity.format == "csr"
     # every column keeps at most top_k entries of each phase it was matched in
     assert np.diff(res.similarity.tocsc().indptr).max() <= 5 * 2
+
+
+def test_a_method_whose_answers_read_no_speed_takes_the_speed_another_read():
+    db, q, q_place = _traverses((1.8, 2.2))
+    dense = lambda t: EncodedTraverse(t.names, sdr=t.sdr, desc=t.sdr.toarray().astype(np.float32))  # noqa: E731
+    fitted = methods.get("seqslam-desc").fit(dense(db))
+    first = fitted.match(dense(q))
+    assert methods.match_at_speed(fitted, dense(q), first=first) is first  # its own answers form no path
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = methods.match_at_speed(fitted, dense(q), first=first, speed=2.0)
+    assert res.sampling == {"speed": 2.0, "db_step": 2}
+    (p0, r0), (p1, r1) = _decisions(first, q_place), _decisions(res, q_place)
+    assert p1 > p0 + 0.5 and r1 > r0 + 0.3, (p0, r0, p1, r1)

@@ -19,7 +19,7 @@ __all__ = ["match_at_speed", "SpeedFollower"]
 
 
 def match_at_speed(fitted: Fitted, query: EncodedTraverse, progress: bool = False,
-                   first: MatchResult | None = None) -> MatchResult:
+                   first: MatchResult | None = None, speed: float | None = None) -> MatchResult:
     """Match ``query`` against the learned database; match again where the query was driven at another speed.
 
     A method whose sequences follow one database frame a frame (:attr:`Method.follows_sequences`) and whose accepted
@@ -30,11 +30,14 @@ def match_at_speed(fitted: Fitted, query: EncodedTraverse, progress: bool = Fals
     ``k`` queries of one frame in ``k`` (each frame answered by its own); each is said (a warning). The result keeps
     the traverses' frames and their similarity; :attr:`MatchResult.sampling` records the first pass's speed and the
     step, ``seconds`` both passes.
-    ``first``: the query's result as already matched (by default matched here, :meth:`Fitted.match`). Returns the
-    first result where nothing is to be done or the sampled traverse is too short for the method.
+    ``first``: the query's result as already matched (by default matched here, :meth:`Fitted.match`); ``speed``:
+    the query's speed read by another method of the same run, used where this method's accepted paths read none
+    (a method whose answers off the database's speed form no path). Returns the first result where nothing is to be
+    done or the sampled traverse is too short for the method.
     """
     res = fitted.match(query, progress) if first is None else first
-    speed = path_speed(res.best, res.accepted)[0]
+    own = path_speed(res.best, res.accepted)[0]
+    speed = speed if own is None else own
     k = speed_step(speed) if fitted.method.follows_sequences else 0
     n_db, n_q, method = len(fitted.db), len(query), fitted.method
     if not k or (n_db if k > 0 else n_q) < 2 * abs(k):
