@@ -38,7 +38,7 @@ from vpr import evaluate, io, presets
 from vpr.checks import per_input
 from vpr.groundtruth import GroundTruthSpec, build_gt, prepare_positions, same_rate, same_sampling, sampling_step
 from vpr.methods import SpeedFollower
-from vpr.shosm import Map
+from vpr.shosm import Map, MemoryFileError
 from vpr.sources import open_source
 from vpr.sources.stdin import StdinSource
 from vpr.types import Decision
@@ -59,15 +59,11 @@ class LocalizeOnline(Online):
     method = ONLINE_METHOD
 
     def __init__(self, the_map: Map, qenc: StreamEncoder, gt: GroundTruthSpec, q_src, params: dict, q_xy=None,
-                 follow: bool = True):
+                 follower: SpeedFollower | None = None):
         self.map, self.loc, self.qenc, self.gt, self.q_src = the_map, the_map.localizer, qenc, gt, q_src
         self._params, self.q_xy = params, q_xy  # the query frames' positions, by q_src.indices()
         self.top_k = self.loc.seq.top_k
-        self.follower = None
-        if follow:  # a query driven faster or slower than the map, followed (docs/localize.md)
-            self.follower = SpeedFollower(self.loc, the_map.sdr)
-            if the_map.follow_state is not None:
-                self.follower.load_state(*the_map.follow_state)
+        self.follower = follower  # a query driven faster or slower than the map, followed (docs/localize.md)
         self._said = {0}
 
     def warm_up(self) -> None:
@@ -222,10 +218,19 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
         q_xy = prepare_positions([q_src], ["query"], gt, every, loops=False, origin=the_map.origin)[0]
     elif every is not None:
         prepare_positions([q_src] if str(query) != "-" else [], ["query"], gt, every)
+    follower = None
+    if follow_speed:
+        follower = SpeedFollower(the_map.localizer, the_map.sdr)
+        if the_map.follow_state is not None:  # a --state-out file continues its follower too
+            try:
+                follower.load_state(*the_map.follow_state)
+            except (KeyError, ValueError, TypeError, IndexError) as e:
+                raise MemoryFileError(f"{map_or_db}: corrupt map file (the state of its speed follower: "
+                                      f"{type(e).__name__}: {e})") from e
     job = LocalizeOnline(the_map, qenc, gt, q_src,
                          {"map_or_db": str(map_or_db), "query": str(query), "query_standardise": query_standardise,
                           "prior_frames": prior_frames, "window": window, "follow_speed": follow_speed}, q_xy,
-                         follow=follow_speed)
+                         follower)
     job.warm_up()
     return run_online(job, q_src, out, stdout, state_out)
 

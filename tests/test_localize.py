@@ -200,3 +200,20 @@ def test_localize_stdin_answers_each_path_before_the_next_arrives(scene, tmp_pat
         assert p.wait(timeout=60) == 0, p.stderr.read()
     finally:
         p.kill()
+
+
+def test_a_corrupt_speed_follower_state_is_refused_naming_the_map(scene, tmp_path, capsys):
+    from vpr.shosm import Map
+
+    code, _, err = _cli(["learn", scene["summer_day"], "--out", tmp_path / "map.npz", "--no-progress",
+                         "--encoder-conf", "k=100"], capsys)
+    assert code == 0, err
+    the_map = Map.load(tmp_path / "map.npz")
+    the_map.follow_state = ({"step": 2}, {})  # what a damaged --state-out file could hold
+    the_map.save(tmp_path / "bad.npz")
+    code, out, err = _cli(["localize", tmp_path / "bad.npz", scene["summer_day"], "--out", tmp_path / "o"], capsys)
+    assert code == 2 and "bad.npz" in err and "speed follower" in err and len(err.strip().splitlines()) == 1
+    assert out == "" and not (tmp_path / "o").exists()
+    code, _, err = _cli(["localize", tmp_path / "bad.npz", scene["summer_day"], "--out", tmp_path / "o2",
+                         "--query-speed", "as-is"], capsys)  # the localizer alone does not read it
+    assert code == 0, err

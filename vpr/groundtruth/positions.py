@@ -238,8 +238,7 @@ def same_rate(the_map, src, fps: float | None, where: str, progress: bool = Fals
             said = (f"{head}, but the map holds no SDRs to learn it again so: learn it again with --fps {rate:.3g}, "
                     "or its decisions lose their precision")
         else:
-            starts = [*the_map.localizer.sessions.tolist(), the_map.localizer.n_db]
-            keep = np.concatenate([np.arange(a, b, k) for a, b in zip(starts[:-1], starts[1:], strict=True)])
+            keep = the_map.localizer.every(k)
             said = (f"{head}: the map is learned again from one frame in {k} ({keep.size} of "
                     f"{the_map.localizer.n_db}), so that its sequences follow the query's")
             the_map = the_map.subset(keep, progress)

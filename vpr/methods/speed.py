@@ -11,6 +11,7 @@ from vpr import sdr as _sdr
 from vpr.evaluate import MIN_RUN, path_speed
 from vpr.groundtruth import RATE_RATIO, speed_step
 from vpr.shosm import Localizer, PathConf
+from vpr.shosm.state import joint_state, part_state
 from vpr.types import Column, Decision, EncodedTraverse, MatchResult
 
 from .base import Fitted
@@ -139,15 +140,8 @@ class SpeedFollower:
         return self.sdr is not None and self.base.n_db >= 2 * self.step
 
     def _learn_phases(self) -> None:
-        loc = self.base
-        starts = [*loc.sessions.tolist(), loc.n_db]
-        for a in range(self.step):
-            keep = np.concatenate([np.arange(s + a, e, self.step) for s, e in zip(starts[:-1], starts[1:],
-                                                                                   strict=True)])
-            sessions = sorted({int(np.searchsorted(keep, s)) for s in loc.sessions} - {keep.size})
-            self.keeps.append(keep)
-            self.phases.append(Localizer.from_database(self.sdr[keep], [loc.names[k] for k in keep], conf=loc.seq,
-                                                       sessions=sessions))
+        self.keeps = [self.base.every(self.step, a) for a in range(self.step)]
+        self.phases = [self.base.relearned(self.sdr, keep) for keep in self.keeps]
 
     def _engines(self, mode: int) -> list[Localizer]:
         """The engines that answer at ``mode`` (+1 faster, -1 slower), built the first time."""
@@ -226,14 +220,11 @@ class SpeedFollower:
                   "path": self.path.state(), "phase_paths": [p.state() for p in self.phase_paths]}
         arrays = {"recent_frames": frames, "recent_sizes": sizes,
                   "recent_bits": np.concatenate([b for _, b in self.recent] or [np.zeros(0, np.int64)])}
-        for name, loc in self._named(self.mode):
-            h, a = loc.state()
-            header[name] = h
-            arrays.update({f"{name}_{k}": v for k, v in a.items()})
-        return header, arrays
+        engines, engine_arrays = joint_state(**self._named(self.mode))
+        return {**header, "engines": engines}, {**arrays, **engine_arrays}
 
-    def _named(self, mode: int) -> list[tuple[str, Localizer]]:
-        return [(f"{'phase' if mode > 0 else 'query'}{i}", loc) for i, loc in enumerate(self._engines(mode))]
+    def _named(self, mode: int) -> dict[str, Localizer]:
+        return {f"{'phase' if mode > 0 else 'query'}{i}": loc for i, loc in enumerate(self._engines(mode))}
 
     def load_state(self, header: dict, arrays: dict) -> SpeedFollower:
         """Continue from :meth:`state` (of a follower of the same map, step and replay)."""
@@ -245,8 +236,8 @@ class SpeedFollower:
         bits = np.split(np.asarray(arrays["recent_bits"], np.int64), np.cumsum(arrays["recent_sizes"])[:-1])
         self.recent = [(int(j), b) for j, b in zip(arrays["recent_frames"], bits, strict=True)] \
             if len(arrays["recent_frames"]) else []
-        for name, loc in self._named(self.mode):
-            loc.load_state(header[name], {k[len(name) + 1:]: v for k, v in arrays.items() if k.startswith(name + "_")})
+        for name, loc in self._named(self.mode).items():
+            loc.load_state(*part_state(header["engines"], arrays, name))
         self.phase_paths = [_Path(*self._bounds) for _ in self.phases]
         for p, v in zip(self.phase_paths, header["phase_paths"], strict=False):
             p.restore(v)
@@ -254,12 +245,13 @@ class SpeedFollower:
 
 
 def _path_lengths(best, back: int, ahead: int) -> np.ndarray:
-    """Each frame's length of the consistent path of best frames it ends (:class:`_Path`)."""
-    path, out = _Path(back, ahead), np.zeros(len(best), np.int64)
-    for j, b in enumerate(np.asarray(best, np.int64)):
-        path.step(j, int(b))
-        out[j] = path.length
-    return out
+    """Each frame's length of the consistent path of best frames it ends (:class:`_Path`'s, over a whole traverse)."""
+    best = np.asarray(best, np.int64)
+    found, step = best >= 0, np.diff(best, prepend=-1)
+    linked = found & np.r_[False, found[:-1]] & (step >= -back) & (step <= ahead)
+    frame = np.arange(best.size)
+    start = np.maximum.accumulate(np.where(linked, 0, frame))  # the frame each path started at
+    return np.where(found, frame - start + 1, 0)
 
 
 def _on_map(d: Decision, keep: np.ndarray, n: int, frame: int) -> Decision:

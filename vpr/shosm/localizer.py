@@ -96,6 +96,19 @@ class Localizer:
             header = {**header, "engine": None}
         return new.load_state(header, arrays)
 
+    def every(self, k: int, phase: int = 0) -> np.ndarray:
+        """The frame numbers of one map frame in ``k`` of each session, from the session's frame ``phase`` on."""
+        bounds = [*self.sessions.tolist(), self.n_db]
+        return np.concatenate([np.arange(a + phase, b, k) for a, b in zip(bounds[:-1], bounds[1:], strict=True)])
+
+    def relearned(self, db_sdr, keep, progress: bool = False) -> Localizer:
+        """A localizer of the same conf learned from the map frames numbered ``keep`` (sorted) alone, their SDRs
+        ``db_sdr[keep]`` (each kept frame learned as the successor of the one kept before, within a session)."""
+        keep = np.asarray(keep, np.int64)
+        sessions = sorted({int(np.searchsorted(keep, s)) for s in self.sessions} - {keep.size})
+        return Localizer.from_database(db_sdr[keep], [self.names[k] for k in keep], progress, self.seq,
+                                       sessions=sessions)
+
     def reset(self) -> None:
         """Start a new query traverse: forget the evidence carried from earlier frames and the decision's path."""
         self.engine.reset()

@@ -77,12 +77,9 @@ class Map:
             raise ValueError("the map holds no SDRs of its frames to learn again at another sampling; learn it again "
                              "with vpr learn")
         keep = np.asarray(sorted(set(int(k) for k in keep)), np.int64)
-        loc = self.localizer
-        sessions = sorted({int(np.searchsorted(keep, s)) for s in loc.sessions} - {keep.size})
-        new = Localizer.from_database(self.sdr[keep], [loc.names[k] for k in keep], progress, loc.seq,
-                                      sessions=sessions)
+        new = self.localizer.relearned(self.sdr, keep, progress)
         out = Map(new, self.encoder, self.statistics, None if self.positions is None else self.positions[keep],
-                  self.origin, {**self.info, "subset_of": loc.n_db}, self.sdr[keep])
+                  self.origin, {**self.info, "subset_of": self.localizer.n_db}, self.sdr[keep])
         out.query_state = self.query_state
         return out
 
