@@ -37,7 +37,9 @@ their defaults on the first table's streams, the query's frames as they come
 :func:`vpr.methods.match_at_speed`, :class:`vpr.methods.SpeedFollower`); and
 the phase of the sampling: a map
 from one frame in 2 starting at the query's first frame or one later, a
-slower query's answers copied from one frame in 2 or each frame its own.
+slower query's answers copied from one frame in 2 or each frame its own; and
+the two ways a frame picks one of the maps of one frame in 2, chosen with
+each dataset held out in turn.
 
 Each table also prints the query's speed along the accepted paths, in map frames per query frame
 (:func:`vpr.evaluate.path_speed`, no ground truth): a measure a run could say.
@@ -371,6 +373,61 @@ def cases(data: Path, root: Path) -> None:
         print(f"| {case} | {hard.shape[0]} | {hard.shape[1]} | {' | '.join(cells)} |", flush=True)
 
 
+def picks(data: Path, root: Path) -> None:
+    """How a frame picks one of the maps of one frame in 2 (:data:`vpr.methods.PICKS`), batch and online, on every
+    stream off the map's speed, and the choice made with each dataset held out in turn: the pick with the larger mean
+    precision (then recall) on the other dataset's streams, reported on the held-out one. SDRs as ``vpr compare``
+    encodes (each traverse standardised on its own frames), the same for both picks."""
+    import encoders
+    from encoders.extract import extract_all
+    from vpr import methods, presets
+    from vpr.methods import PICKS, SpeedFollower
+    from vpr.sources import open_sources
+    from vpr.types import EncodedTraverse
+
+    s = presets.resolve(None)
+    enc = encoders.get(s["encoder"], **s["encoder_conf"])
+    rows: dict = {}
+    print("\nthe map of one frame in 2 a frame is answered by: accepted, P(acc), R(acc), batch (match_at_speed) and "
+          "online (SpeedFollower)")
+    print(f"| stream | {' | '.join(f'batch, {k}' for k in PICKS)} | {' | '.join(f'online, {k}' for k in PICKS)} |")
+    print("|---|" + "---|" * (2 * len(PICKS)))
+    for name, (db, x_db), (query, x_q), radius in _streams(data, root):
+        if name.endswith(" 1x"):
+            continue
+        with warnings.catch_warnings(action="ignore"):
+            D, Q = (e.features for e in extract_all(open_sources([db, query]), ["database", "query"], enc, {"sdr"},
+                                                    root / "cache", False, False))
+            cells = []
+            for online in (False, True):
+                for pick in PICKS:
+                    if online:
+                        follower = SpeedFollower(Localizer.from_database(D.sdr, D.names), D.sdr, pick=pick)
+                        ds = [follower.update(Q.sdr[j]) for j in range(len(Q))]
+                        best, acc = np.array([d.best for d in ds]), np.array([d.accepted for d in ds], bool)
+                    else:
+                        r = methods.match_at_speed(methods.get("rshosm-seq").fit(EncodedTraverse(D.names, sdr=D.sdr)),
+                                                   EncodedTraverse(Q.names, sdr=Q.sdr), pick=pick)
+                        best, acc = r.best, r.accepted
+                    right = acc & (best >= 0) & (np.abs(x_db[np.maximum(best, 0)] - x_q) <= radius)
+                    n, tp = int(acc.sum()), int(right.sum())
+                    rows[name, online, pick] = (tp / n if n else 0.0, tp / len(x_q))
+                    cells.append(f"{n}, {'-' if not n else f'{tp / n:.3f}'}, {tp / len(x_q):.2f}")
+        print(f"| {name} | {' | '.join(cells)} |", flush=True)
+    print("\n| held out | pick chosen on the other dataset | on the held-out streams: mean P, mean R (batch; online) |")
+    print("|---|---|---|")
+    def mean(pick: str, online: bool, held: str, inside: bool) -> tuple[float, float]:
+        """Mean precision and recall of ``pick`` over the streams of dataset ``held`` (``inside``) or the others."""
+        vals = [v for (n, o, k), v in rows.items() if k == pick and o == online and n.startswith(held) == inside]
+        return float(np.mean([p for p, _ in vals])), float(np.mean([r for _, r in vals]))
+
+    for held in ("Gardens Point", "Nordland"):
+        chosen = max(PICKS, key=lambda k: tuple(a + b for a, b in zip(mean(k, False, held, False),  # noqa: B023
+                                                                     mean(k, True, held, False), strict=True)))
+        (pb, rb), (po, ro) = mean(chosen, False, held, True), mean(chosen, True, held, True)
+        print(f"| {held} | {chosen} | {pb:.3f}, {rb:.2f}; {po:.3f}, {ro:.2f} |", flush=True)
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "datasets",
@@ -407,6 +464,7 @@ def main(argv=None) -> None:
         commands(args.data, root)
         followed(args.data, root)
         phases(args.data, root)
+        picks(args.data, root)
 
 
 if __name__ == "__main__":

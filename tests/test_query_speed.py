@@ -174,3 +174,17 @@ def test_a_method_whose_answers_read_no_speed_takes_the_speed_another_read():
     assert res.sampling == {"speed": 2.0, "db_step": 2}
     (p0, r0), (p1, r1) = _decisions(first, q_place), _decisions(res, q_place)
     assert p1 > p0 + 0.5 and r1 > r0 + 0.3, (p0, r0, p1, r1)
+
+
+def test_the_map_of_the_largest_score_and_a_pick_refused():
+    db, q, _ = _traverses((1.8, 2.2))
+    fitted = methods.get("rshosm-seq").fit(db)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = methods.match_at_speed(fitted, q, pick="score")
+    even, odd = (methods.get("rshosm-seq").fit(db.take(np.arange(a, len(db), 2))).match(q) for a in (0, 1))
+    np.testing.assert_array_equal(res.best, np.where(odd.score > even.score, 2 * odd.best + 1, 2 * even.best))
+    with pytest.raises(ValueError, match="pick must be one of path, score"):
+        methods.match_at_speed(fitted, q, pick="nope")
+    with pytest.raises(ValueError, match="pick must be one of"):
+        SpeedFollower(Localizer.from_database(db.sdr, db.names), db.sdr, pick="longest")

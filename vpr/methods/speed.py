@@ -16,26 +16,37 @@ from vpr.types import Column, Decision, EncodedTraverse, MatchResult
 
 from .base import Fitted
 
-__all__ = ["match_at_speed", "SpeedFollower"]
+__all__ = ["match_at_speed", "SpeedFollower", "PICKS"]
+
+
+#: How a frame is answered by one of the ``k`` maps of one frame in ``k``: ``"path"``, the map that accepts it on the
+#: longest consistent path of best frames; ``"score"``, the map of the largest path score (docs/localize.md).
+PICKS = ("path", "score")
+
+
+def _check_pick(pick: str) -> str:
+    if pick not in PICKS:
+        raise ValueError(f"pick must be one of {', '.join(PICKS)}, got {pick!r}")
+    return pick
 
 
 def match_at_speed(fitted: Fitted, query: EncodedTraverse, progress: bool = False,
-                   first: MatchResult | None = None, speed: float | None = None) -> MatchResult:
+                   first: MatchResult | None = None, speed: float | None = None, pick: str = "path") -> MatchResult:
     """Match ``query`` against the learned database; match again where the query was driven at another speed.
 
     A method whose sequences follow one database frame a frame (:attr:`Method.follows_sequences`) and whose accepted
     paths move ``k`` >= :data:`~vpr.groundtruth.RATE_RATIO` database frames a query frame (:func:`vpr.evaluate.
     path_speed`, no ground truth; :func:`~vpr.groundtruth.speed_step`) is matched again against one database frame in
-    ``k`` (the ``k`` maps of frames ``a, a + k, ...``, learned again; each query frame answered by the map that accepts
-    it on the longest consistent path of best frames, the path rule's ``back`` / ``ahead``) and, moving ``1 / k``, as
-    ``k`` queries of one frame in ``k`` (each frame answered by its own); each is said (a warning). The result keeps
-    the traverses' frames and their similarity; :attr:`MatchResult.sampling` records the first pass's speed and the
-    step, ``seconds`` both passes.
+    ``k`` (the ``k`` maps of frames ``a, a + k, ...``, learned again; each query frame answered by the map ``pick``
+    chooses) and, moving ``1 / k``, as ``k`` queries of one frame in ``k`` (each frame answered by its own); each is
+    said (a warning). The result keeps the traverses' frames and their similarity; :attr:`MatchResult.sampling`
+    records the first pass's speed and the step, ``seconds`` both passes.
     ``first``: the query's result as already matched (by default matched here, :meth:`Fitted.match`); ``speed``:
     the query's speed read by another method of the same run, used where this method's accepted paths read none
-    (a method whose answers off the database's speed form no path). Returns the first result where nothing is to be
-    done or the sampled traverse is too short for the method.
+    (a method whose answers off the database's speed form no path); ``pick``: one of :data:`PICKS`. Returns the
+    first result where nothing is to be done or the sampled traverse is too short for the method.
     """
+    _check_pick(pick)
     res = fitted.match(query, progress) if first is None else first
     own = path_speed(res.best, res.accepted)[0]
     speed = speed if own is None else own
@@ -62,10 +73,13 @@ def match_at_speed(fitted: Fitted, query: EncodedTraverse, progress: bool = Fals
         best = np.stack([np.where(r.best >= 0, f[np.maximum(r.best, 0)], -1) for r, f in zip(parts, phases,
                                                                                           strict=True)])
         score, accepted = np.stack([r.score for r in parts]), np.stack([r.accepted for r in parts])
-        bounds = PathConf(**{k: method.conf[k] for k in ("back", "ahead") if method.conf.get(k) is not None})
-        lengths = np.stack([_path_lengths(r.best, bounds.back, bounds.ahead) for r in parts])
-        pick = np.argmax(accepted * (n_q + 1) + lengths, axis=0), np.arange(n_q)
-        best, score, accepted = best[pick], score[pick], accepted[pick]
+        if pick == "path":
+            bounds = PathConf(**{k: method.conf[k] for k in ("back", "ahead") if method.conf.get(k) is not None})
+            lengths = np.stack([_path_lengths(r.best, bounds.back, bounds.ahead) for r in parts])
+            chosen = np.argmax(accepted * (n_q + 1) + lengths, axis=0), np.arange(n_q)
+        else:
+            chosen = np.argmax(score, axis=0), np.arange(n_q)
+        best, score, accepted = best[chosen], score[chosen], accepted[chosen]
         said = f"the database was learned again as {step} maps of one frame in {step}"
     else:  # each query frame is in one phase's query
         S = (sp.hstack if sparse else np.hstack)([r.similarity for r in parts])[:, order]
@@ -116,11 +130,13 @@ class SpeedFollower:
     ``step`` queries of one frame in ``step`` (each frame by its own); otherwise by ``localizer``. The engines of a
     speed start when it is read, from the last ``replay`` frames (kept for that), so that they answer with their
     evidence built; at the map's speed only ``localizer`` runs. Without ``sdr`` a faster query is answered by
-    ``localizer``. :meth:`update` returns the map's :class:`~vpr.types.Decision` with the frame's number.
+    ``localizer``; ``pick``: how the map of one frame in ``step`` is chosen (:data:`PICKS`). :meth:`update` returns the
+    map's :class:`~vpr.types.Decision` with the frame's number.
     """
 
-    def __init__(self, localizer: Localizer, sdr=None, step: int = 2, replay: int = 2 * MIN_RUN):
+    def __init__(self, localizer: Localizer, sdr=None, step: int = 2, replay: int = 2 * MIN_RUN, pick: str = "path"):
         self.base, self.sdr, self.step, self.replay = localizer, sdr, int(step), int(replay)
+        self.pick = _check_pick(pick)
         path = localizer.seq.path()
         self._bounds = path.back, path.ahead
         self.path = _Path(*self._bounds)
@@ -197,7 +213,8 @@ class SpeedFollower:
         self.frame += 1
         answers = self._feed(mode, j, bits)
         if mode > 0 and answers:
-            i = max(range(self.step), key=lambda i: (bool(answers[i].accepted), self.phase_paths[i].length))
+            i = max(range(self.step), key=lambda i: (bool(answers[i].accepted), self.phase_paths[i].length)
+                    if self.pick == "path" else answers[i].score)
             self.frames["db_step"] += 1
             return _on_map(answers[i], self.keeps[i], self.base.n_db, d.frame)
         if mode < 0:
