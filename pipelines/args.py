@@ -18,7 +18,8 @@ from vpr.groundtruth import GroundTruthSpec
 
 __all__ = ["add_common_arguments", "add_source_arguments", "add_preset_argument", "add_gt_arguments",
            "gt_spec_from_args", "method_confs", "add_method_conf_argument", "ONLINE_METHOD",
-           "add_run_arguments", "settings_from_args", "options_from_args", "parse_every", "parse_size"]
+           "add_run_arguments", "settings_from_args", "options_from_args", "parse_every", "parse_size",
+           "add_query_speed_argument", "follows_speed"]
 
 _UNITS = {"": 2**30, "b": 1, "k": 2**10, "m": 2**20, "g": 2**30, "t": 2**40}
 
@@ -89,6 +90,21 @@ def method_confs(items) -> dict:
     return parse_method_confs(items, methods.available())
 
 
+def add_query_speed_argument(ap: argparse.ArgumentParser) -> None:
+    """``--query-speed follow|as-is``: whether a query driven at another speed than its database or map at the same
+    frame rate is followed (:func:`follows_speed`)."""
+    ap.add_argument("--query-speed", choices=("follow", "as-is"), default="follow",
+                    help="follow (default): while the query's best frames move 1.5 or more times faster or slower "
+                         "than one of the database a frame, match it against the database's maps of one frame in k, "
+                         "or as k queries of one frame in k, and say it; as-is: its frames as they come (the speed is "
+                         "said)")
+
+
+def follows_speed(args) -> bool:
+    """Whether the command's ``--query-speed`` follows the query's speed (commands without the option: no)."""
+    return getattr(args, "query_speed", "as-is") == "follow"
+
+
 def add_method_conf_argument(ap: argparse.ArgumentParser) -> None:
     """``--method-conf METHOD.KEY=VALUE`` (repeatable)."""
     ap.add_argument("--method-conf", action="append", default=[], metavar="METHOD.KEY=VALUE",
@@ -151,7 +167,7 @@ def options_from_args(args):
         verify=getattr(args, "verify", 0), min_inliers=getattr(args, "min_inliers", 15),
         workers=getattr(args, "workers", None), scheduler=getattr(args, "scheduler", None),
         progress=not args.no_progress, cache=Path(args.cache) if args.cache else None,
-        memory_budget=budget, follow_speed=getattr(args, "query_speed", "as-is") == "follow")
+        memory_budget=budget, follow_speed=follows_speed(args))
 
 
 def parse_every(text) -> float:

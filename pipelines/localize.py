@@ -26,7 +26,9 @@ from pipelines.args import (
     add_gt_arguments,
     add_method_conf_argument,
     add_preset_argument,
+    add_query_speed_argument,
     add_source_arguments,
+    follows_speed,
     gt_spec_from_args,
     method_confs,
     parse_every,
@@ -269,10 +271,7 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     ap.add_argument("--window", type=int,
                     help=f"running: statistics over the last N query frames (default {WINDOW}; 0: all frames so far)")
     ap.add_argument("--state-out", metavar="FILE.npz", help="also write the localizer with its state at the end")
-    ap.add_argument("--query-speed", choices=("follow", "as-is"), default="follow",
-                    help="follow (default): while the map's best frames move 1.5 or more times faster or slower than "
-                         "one a frame, answer from the map's maps of one frame in k, or with the query's frames as k "
-                         "queries of one frame in k, and say it; as-is: the frames as they come (the speed is said)")
+    add_query_speed_argument(ap)
     learn_group = ap.add_argument_group("learning MAP_OR_DB when it is a database")
     _add_learn_args(learn_group)
     add_source_arguments(ap)
@@ -328,6 +327,6 @@ def run_command(args) -> int:
     report = localize(args.map, args.query, args.out, query_standardise=args.query_standardise,
                       prior_frames=args.prior_frames, window=args.window, state_out=args.state_out,
                       gt=gt_spec_from_args(args), learn_options=learn_opts, progress=not args.no_progress,
-                      follow_speed=args.query_speed == "follow", **src_opts)
+                      follow_speed=follows_speed(args), **src_opts)
     print(summary_line(report, ONLINE_METHOD, args.out), file=sys.stderr)
     return 0

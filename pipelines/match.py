@@ -12,6 +12,7 @@ import sys
 from pipelines.args import (
     add_common_arguments,
     add_gt_arguments,
+    add_query_speed_argument,
     add_run_arguments,
     options_from_args,
 )
@@ -42,11 +43,7 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     ap.add_argument("--verify", type=int, default=0, metavar="N",
                     help="geometric verification of each query's N best candidates (ORB + pycolmap)")
     ap.add_argument("--min-inliers", type=int, default=15, help="inliers needed to accept a verified match")
-    ap.add_argument("--query-speed", choices=("follow", "as-is"), default="follow",
-                    help="follow (default): a query whose accepted paths move 1.5 or more times faster or slower "
-                         "than the database at the same frame rate is matched again at the sampling that makes them "
-                         "agree (one database frame in k, or one query frame in k), and said; as-is: its frames as "
-                         "they come (the speed is said)")
+    add_query_speed_argument(ap)
     add_common_arguments(ap)
 
 
