@@ -146,9 +146,9 @@ class SpeedFollower:
         self.queries: list[Localizer] = []
         self.mode, self.frame = 0, 0
         self.recent: list[tuple[int, np.ndarray]] = []  # (frame, active bits) of the last ``replay`` frames
-        #: frames this object answered as they came / by the maps of one frame in ``step`` / as queries of one frame
-        #: in ``step`` (not part of the state: a follower loaded from one counts its own)
-        self.frames = {"as_is": 0, "db_step": 0, "query_step": 0}
+        #: frames this object answered by the maps of one frame in ``step`` / as queries of one frame in ``step``
+        #: (not part of the state: a follower loaded from one counts its own)
+        self.frames = {"db_step": 0, "query_step": 0}
 
     @property
     def follows_faster(self) -> bool:
@@ -220,13 +220,12 @@ class SpeedFollower:
         if mode < 0:
             self.frames["query_step"] += 1
             return dataclasses.replace(answers[0], frame=d.frame)
-        self.frames["as_is"] += 1
         return d
 
     def sampling(self) -> dict | None:
         """metrics.json's ``sampling`` of the frames so far: the step and the frames answered at it (None: every
         frame as it came)."""
-        used = {k: v for k, v in self.frames.items() if k != "as_is" and v}
+        used = {k: v for k, v in self.frames.items() if v}
         return {**{k: self.step for k in used}, **{f"{k}_frames": v for k, v in used.items()}} or None
 
     def state(self) -> tuple[dict, dict]:
