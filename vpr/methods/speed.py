@@ -9,7 +9,7 @@ import scipy.sparse as sp
 
 from vpr import sdr as _sdr
 from vpr.evaluate import MIN_RUN, path_speed
-from vpr.groundtruth import RATE_RATIO, speed_step
+from vpr.groundtruth import speed_step
 from vpr.shosm import Localizer, PathConf
 from vpr.shosm.state import joint_state, part_state
 from vpr.types import Column, Decision, EncodedTraverse, MatchResult
@@ -126,10 +126,11 @@ class SpeedFollower:
     path rule's ``back`` / ``ahead``, over at least :data:`~vpr.evaluate.MIN_RUN` frames). While it is
     :data:`~vpr.groundtruth.RATE_RATIO` or more map frames a frame, the frames are answered by the ``step`` maps of
     one frame in ``step`` (learned again from ``sdr``, the map's SDRs, when first needed; each frame by the map whose
-    path is accepted and longest); while it is ``1 / RATE_RATIO`` or less, by the map with the frames taken as
-    ``step`` queries of one frame in ``step`` (each frame by its own); otherwise by ``localizer``. The engines of a
-    speed start when it is read, from the last ``replay`` frames (kept for that), so that they answer with their
-    evidence built; at the map's speed only ``localizer`` runs. Without ``sdr`` a faster query is answered by
+    path is accepted and longest); while it is ``1 / RATE_RATIO`` or less (:func:`~vpr.groundtruth.speed_step`: a
+    path that stays on one map frame is no speed), by the map with the frames taken as ``step`` queries of one frame
+    in ``step`` (each frame by its own); otherwise by ``localizer``. The engines of a speed start when it is read,
+    from the last ``replay`` frames (kept for that), so that they answer with their evidence built; at the map's
+    speed only ``localizer`` runs. Without ``sdr`` a faster query is answered by
     ``localizer``; ``pick``: how the map of one frame in ``step`` is chosen (:data:`PICKS`). :meth:`update` returns the
     map's :class:`~vpr.types.Decision` with the frame's number.
     """
@@ -206,7 +207,7 @@ class SpeedFollower:
         d = self.base.update(bits)
         self.path.step(j, d.best)
         v = self.path.speed(j)
-        mode = self.mode if v is None else 1 if v >= RATE_RATIO else -1 if v * RATE_RATIO <= 1 else 0
+        mode = self.mode if v is None else int(np.sign(speed_step(v)))
         if mode != self.mode:
             self.mode = mode
             self._start(mode)
