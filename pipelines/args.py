@@ -93,7 +93,7 @@ def method_confs(items) -> dict:
 def add_query_speed_argument(ap: argparse.ArgumentParser) -> None:
     """``--query-speed follow|as-is``: whether a query driven at another speed than its database or map at the same
     frame rate is followed (:func:`follows_speed`)."""
-    ap.add_argument("--query-speed", choices=("follow", "as-is"), default="follow",
+    ap.add_argument("--query-speed", choices=("follow", "as-is"), default=None,
                     help="follow (default): while the query's best frames move 1.5 or more times faster or slower "
                          "than one of the database a frame, match it against the database's maps of one frame in k, "
                          "or as k queries of one frame in k, and say it; as-is: its frames as they come (the speed is "
@@ -102,7 +102,7 @@ def add_query_speed_argument(ap: argparse.ArgumentParser) -> None:
 
 def follows_speed(args) -> bool:
     """Whether the command's ``--query-speed`` follows the query's speed (commands without the option: no)."""
-    return getattr(args, "query_speed", "as-is") == "follow"
+    return getattr(args, "query_speed", "as-is") in (None, "follow")
 
 
 def add_method_conf_argument(ap: argparse.ArgumentParser) -> None:

@@ -21,6 +21,7 @@ from pipelines.args import (
     ONLINE_METHOD,
     add_common_arguments,
     add_gt_arguments,
+    add_query_speed_argument,
     add_run_arguments,
     gt_spec_from_args,
     options_from_args,
@@ -59,6 +60,7 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
                          "frame, where the images are large enough) accepts closures the path score has not reached "
                          "yet: short indoor loops, revisits the path is slow to trust; off by default, since on "
                          "forward drives it confirms the same road ahead (docs/loops.md)")
+    add_query_speed_argument(ap)
     add_gt_arguments(ap, loops=True)
     online = ap.add_argument_group("online (SEQ is -)")
     online.add_argument("--state-out", metavar="FILE.npz", help="save the loop detector after the last frame")
@@ -93,7 +95,8 @@ def _run_online(args, settings: dict) -> int:
     given = [f for f, v in (("--fps", args.fps), ("--step", args.step), ("--max-frames", args.max_frames),
                             ("--cache", args.cache), ("--topic", args.topic), ("--every", args.every),
                             ("--gt-topic", args.gt_topic), ("--geometry", args.geometry),
-                            ("--memory-budget", args.memory_budget)) if v is not None]
+                            ("--memory-budget", args.memory_budget), ("--query-speed", args.query_speed))
+             if v is not None]
     if given:
         raise ValueError(f"vpr loops -: {', '.join(given)} apply to a folder or video, not to image paths on stdin")
     exclude = frames_in(LOOP_EXCLUDE if args.exclude is None else args.exclude, None, "image paths on stdin have none")
@@ -180,10 +183,17 @@ class LoopsOnline(Online):
         from before a resume too: the state's names)."""
         starts = list(self.det.stream.starts)
         labels = [str(k + 1) for k in range(len(starts))]  # as the batch run's table, the sessions by their number
+        N = self.det.frames
+        speeds = {}
+        if len(starts) > 1:  # said, not followed: an online detector answers each frame as it comes (docs/loops.md)
+            best = np.full(N, -1, np.int64)
+            best[frames] = result.best
+            speeds = {"session_speeds": [None if v is None else round(v, 3)
+                                         for v in evaluate.session_speeds(best, starts)]}
+            say_session_speeds(self.method, speeds["session_speeds"])
         if not self.gt.files:
             return ({"sessions": evaluate.session_pairs(result.best, result.accepted, None, starts, names=labels,
-                                                        frames=frames)} if len(starts) > 1 else {}), None
-        N = self.det.frames
+                                                        frames=frames), **speeds} if len(starts) > 1 else {}), None
         hard, soft = build_loop_gt(self.gt, self.det.names, list(range(N)), total=N)
         hard, soft = (None if g is None else g[:, frames] for g in (hard, soft))
         exclude = self.det.conf["exclude"]
@@ -195,6 +205,7 @@ class LoopsOnline(Online):
         if len(starts) > 1:
             m["sessions"] = evaluate.session_pairs(result.best, result.accepted, hard, starts, soft, mask, labels,
                                                    frames=frames)
+        m.update(speeds)
         m.pop("seconds", None)
         m.pop("n_accepted", None)
         return m, curve
@@ -229,6 +240,17 @@ def no_revisit(gt: GroundTruthSpec, exclude: int) -> None:
     """Say that the ground truth holds no loop to close: a drive without revisits, whose closures are all false."""
     warn(f"{gt.no_match_error(exclude=exclude)}: every closure accepted is false (metrics.json: n_false, "
          "false_per_1000 frames)")
+
+
+def say_session_speeds(method: str, speeds, names=None, followed=()) -> None:
+    """Warn for each later session (``speeds``: metrics.json's ``session_speeds``; ``names``: every session's source)
+    driven at another speed than the earlier ones, but those ``followed`` (numbered from 1, the first session)."""
+    src = lambda s: f" ({names[s + 1]})" if names else ""  # noqa: E731
+    groundtruth.check_speeds({f"{method}: session {s + 2}{src(s)} against the earlier ones": v
+                              for s, v in enumerate(speeds or []) if s + 2 not in followed},
+                             paths="paths of best earlier frames",
+                             fix="localise it against a map of the earlier sessions (vpr learn EARLIER --out map.npz; "
+                                 "vpr localize map.npz SESSION), which follows its speed")
 
 
 def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCLUDE) -> dict:
@@ -273,15 +295,14 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
             gt_hard = gt_hard[np.ix_(rows, rows)]
             gt_soft = gt_soft[np.ix_(rows, rows)] if gt_soft is not None else None
             mask = groundtruth.loop_closure_mask(len(features), exclude=exclude, starts=starts)
-        confs, opinions = {}, {}
+        confs, opinions, speeds = {}, {}, {}
 
         def write(m: str, res: MatchResult, evaluated) -> dict:
             confs[m] = res.conf
             if len(srcs) > 1:  # the closures per pair of sessions (with ground truth: their precision and recall)
                 evaluated[0]["sessions"] = evaluate.session_pairs(res.best, res.accepted, gt_hard, starts,
                                                                   gt_soft, mask, [s.name for s in srcs])
-                evaluated[0]["session_speeds"] = [None if v is None else round(v, 3)
-                                                  for v in evaluate.session_speeds(res.best, starts)]
+                evaluated[0]["session_speeds"] = [None if v is None else round(v, 3) for v in speeds[m]]
             write_method(out / m, m, res, evaluated, features.names, features.names, gt_hard, gt_soft,
                          title=f"{m}: loop closures", loops=True, mask=mask)
             io.save_json(out / m / "config.json", config(opts, command="loops", seq=[str(q) for q in seqs],
@@ -298,15 +319,15 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
                     loop = rule.loop  # the loop rule's own settings say what a consistent path is
                     opinions[r.name] = GeometricOpinion(rule, image, loop.back, loop.ahead, loop.stop_ratio)
                     return opinions[r.name]
-            return r.loops(features, exclude=exclude, progress=opts.progress, sessions=starts, opinion=opinion)
+            res = r.loops(features, exclude=exclude, progress=opts.progress, sessions=starts, opinion=opinion)
+            speeds[r.name] = evaluate.session_speeds(res.best, starts)  # as the sessions came, before any is followed
+            return methods.loops_at_speed(r, features, res, starts, opts.progress) if opts.follow_speed else res
 
         done = evaluate.run_methods(runners, loops_of, gt_hard, gt_soft, mask, on_result=write, loops=True)
-        groundtruth.check_speeds({k: m.get("path_speed") for k, (m, _) in done.items()})
-        groundtruth.check_speeds({f"{k}: session {s + 2} ({srcs[s + 1].path}) against the earlier ones": v
-                                  for k, (m, _) in done.items() for s, v in enumerate(m.get("session_speeds") or [])},
-                                 paths="paths of best earlier frames",
-                                 fix="localise it against a map of the earlier sessions (vpr learn EARLIER --out "
-                                     "map.npz; vpr localize map.npz SESSION), which follows its speed")
+        groundtruth.check_speeds({k: m.get("path_speed") for k, (m, _) in done.items() if not m.get("sampling")})
+        for k, (m, _) in done.items():
+            say_session_speeds(k, m.get("session_speeds"), [str(src.path) for src in srcs],
+                               {f["session"] for f in (m.get("sampling") or {}).get("sessions", [])})
         for m, o in opinions.items():
             done[m][0]["geometry"] = o.report()
         inputs = {"kind": "loops", "seq": [s.key() for s in srcs] if len(srcs) > 1 else srcs[0].key(),

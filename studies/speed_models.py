@@ -44,10 +44,13 @@ each dataset held out in turn.
 Each table also prints the query's speed along the accepted paths, in map frames per query frame
 (:func:`vpr.evaluate.path_speed`, no ground truth): a measure a run could say.
 
-With ``--cases``: only the cases the localisation rule was chosen on
+Then ``vpr loops`` of each stream's map and query as two sessions of one
+stream, as they come and followed (:func:`vpr.methods.loops_at_speed`).
+
+With ``--loops``: only that table. With ``--cases``: only the cases the localisation rule was chosen on
 (:mod:`studies.localize_decisions`), answered as they come and followed.
 
-Usage: python -m studies.speed_models [--data DIR] [--out DIR] [--cases]
+Usage: python -m studies.speed_models [--data DIR] [--out DIR] [--cases | --loops]
 """
 from __future__ import annotations
 
@@ -233,6 +236,29 @@ def sampled(data: Path, root: Path) -> None:
         print(f"| {name} | {' | '.join(cells)} |", flush=True)
 
 
+def _as_is_or_followed(data: Path, root: Path, title: str):
+    """Print ``title`` and the head of a table of the streams as they come and followed; yield each stream's
+    (name, db, query, radius, db positions, query positions)."""
+    print(f"\n{title}")
+    print("| stream | --query-speed as-is | follow (default) |")
+    print("|---|---|---|")
+    for name, (db, x_db), (query, x_q), radius in _streams(data, root):
+        yield (name, db, query, radius, _positions(root / f"{db.name}.csv", x_db),
+               _positions(root / f"{query.name}.csv", x_q))
+
+
+def _pair(command: str, db: Path, query: Path, root: Path, p_db: Path, p_q: Path, radius, how: str) -> dict:
+    """``vpr COMMAND DB QUERY`` with the defaults and ``--query-speed how`` (run once into ``root``): its methods'
+    metrics."""
+    out = root / ("followed" if command == "compare" else command) / f"{db.name}-{query.name}-{how}"
+    if not (out / "metrics.json").exists():
+        with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings(action="ignore"):
+            if vpr([str(a) for a in [command, db, query, "--out", out, "--cache", root / "cache", "--gt", p_db, p_q,
+                                     "--radius", radius, "--query-speed", how, "--no-progress"]]):
+                raise SystemExit(f"vpr {command} {db} {query} failed")
+    return json.loads((out / "metrics.json").read_text())["methods"]
+
+
 def followed(data: Path, root: Path) -> None:
     """The fourth table: ``vpr compare`` with its defaults on every stream of the first, the query's frames as they
     come (``--query-speed as-is``) and followed (the default: matched again at the sampling its speed asks for)."""
@@ -241,15 +267,7 @@ def followed(data: Path, root: Path) -> None:
     print("|---|---|---|---|")
     for name, (db, x_db), (query, x_q), radius in _streams(data, root):
         p_db, p_q = _positions(root / f"{db.name}.csv", x_db), _positions(root / f"{query.name}.csv", x_q)
-        reports = {}
-        for how in ("as-is", "follow"):
-            out = root / "followed" / f"{db.name}-{query.name}-{how}"
-            if not (out / "metrics.json").exists():
-                with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings(action="ignore"):
-                    if vpr([str(a) for a in ["compare", db, query, "--out", out, "--cache", root / "cache", "--gt",
-                                             p_db, p_q, "--radius", radius, "--query-speed", how, "--no-progress"]]):
-                        raise SystemExit(f"vpr compare {db} {query} failed")
-            reports[how] = json.loads((out / "metrics.json").read_text())["methods"]
+        reports = {how: _pair("compare", db, query, root, p_db, p_q, radius, how) for how in ("as-is", "follow")}
         for method in reports["as-is"]:
             cells = []
             for how in ("as-is", "follow"):
@@ -259,12 +277,9 @@ def followed(data: Path, root: Path) -> None:
                          f"{sampling.get('db_step') or sampling.get('query_step')}") if sampling else ""
                 cells.append(f"{decisions_cell(m, frames=False)}; speed {'-' if v is None else f'{v:.2f}'}{again}")
             print(f"| {name} | {method} | {' | '.join(cells)} |", flush=True)
-    print("\nvpr localize (learned map, defaults): accepted, P(acc), R(acc); speed along the accepted paths; the "
-          "frames answered at another sampling")
-    print("| stream | --query-speed as-is | follow (default) |")
-    print("|---|---|---|")
-    for name, (db, x_db), (query, x_q), radius in _streams(data, root):
-        p_db, p_q = _positions(root / f"{db.name}.csv", x_db), _positions(root / f"{query.name}.csv", x_q)
+    for name, db, query, radius, p_db, p_q in _as_is_or_followed(
+            data, root, "vpr localize (learned map, defaults): accepted, P(acc), R(acc); speed along the accepted "
+            "paths; the frames answered at another sampling"):
         the_map = root / "followed" / f"{db.name}.npz"
         if not the_map.exists():
             _command(["learn", db, "--out", the_map, "--gt", p_db])
@@ -277,6 +292,24 @@ def followed(data: Path, root: Path) -> None:
             how_said = {"db_step": "by the maps of one frame in", "query_step": "as queries of one frame in"}
             cells.append(cell + "".join(f"; {sampling[k + '_frames']} frames {said} {sampling[k]}"
                                         for k, said in how_said.items() if sampling and k in sampling))
+        print(f"| {name} | {' | '.join(cells)} |", flush=True)
+
+
+def loops(data: Path, root: Path) -> None:
+    """The loops table: ``vpr loops MAP QUERY`` (two sessions of one stream) with its defaults on every stream of the
+    first table, the later session's frames as they come (``--query-speed as-is``) and followed (the default:
+    :func:`vpr.methods.loops_at_speed`)."""
+    for name, db, query, radius, p_db, p_q in _as_is_or_followed(
+            data, root, "vpr loops DB QUERY (two sessions), defaults: accepted, P(acc), R(acc); the later session's "
+            "speed onto the earlier one; what was matched again"):
+        cells = []
+        for how in ("as-is", "follow"):
+            m = _pair("loops", db, query, root, p_db, p_q, radius, how)["rshosm-seq"]
+            v = (m.get("session_speeds") or [None])[0]
+            again = "".join(f"; one {'earlier' if 'db_step' in f else 'later'} frame in "
+                            f"{f.get('db_step') or f.get('query_step')}"
+                            for f in (m.get("sampling") or {}).get("sessions", []))
+            cells.append(f"{decisions_cell(m, frames=False)}; speed {'-' if v is None else f'{v:.2f}'}{again}")
         print(f"| {name} | {' | '.join(cells)} |", flush=True)
 
 
@@ -435,11 +468,15 @@ def main(argv=None) -> None:
     ap.add_argument("--out", type=Path, default=None, help="work folder (default: a temporary one)")
     ap.add_argument("--cases", action="store_true", help="only the localisation cases (several minutes: Nordland "
                     "at every file)")
+    ap.add_argument("--loops", action="store_true", help="only the loops table (vpr loops MAP QUERY)")
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         root = args.out or Path(tmp)
         if args.cases:
             cases(args.data, root)
+            return
+        if args.loops:
+            loops(args.data, root)
             return
         print("AP, accepted, P(acc), R(acc) of rshosm-seq (default preset), query frames as they come; speed along "
               "the accepted paths, map frames per query frame (query frames counted)")
@@ -463,6 +500,7 @@ def main(argv=None) -> None:
             print(f"| {name} | {' | '.join(cells)} |", flush=True)
         commands(args.data, root)
         followed(args.data, root)
+        loops(args.data, root)
         phases(args.data, root)
         picks(args.data, root)
 

@@ -1,4 +1,6 @@
 """The query's speed along accepted paths (vpr.evaluate.path_speed), and a run that says it."""
+import csv
+import io
 import json
 import warnings
 
@@ -90,6 +92,44 @@ def test_compare_follows_a_query_driven_twice_as_fast(scene_on_disk, tmp_path, c
         assert (m.get("sampling") or {}).get("db_step") == (2 if out == "follow" else None), m
         cfg = json.loads((tmp_path / out / "rshosm-seq" / "config.json").read_text())
         assert cfg["follow_speed"] == (out != "as_is")
+
+
+@pytest.mark.slow
+def test_loops_follow_a_later_session_driven_twice_as_fast(scene_on_disk, tmp_path, capsys, monkeypatch):
+    s = scene_on_disk("two_seasons", (64, 48), 120)
+    db = s[s["names"][0]]
+    q2 = tmp_path / "every_2nd"
+    q2.mkdir()
+    for f in sorted(db.iterdir())[::2]:
+        (q2 / f.name).symlink_to(f)
+    near = {}
+    for how, said in (("follow", "learned again as 2 maps of one frame in 2"), ("as-is", "vpr learn EARLIER")):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            code, _, err = run(["loops", db, q2, "--out", tmp_path / how, "--query-speed", how], capsys)
+        assert code == 0, err
+        lines = [str(w.message) for w in caught if "session 2" in str(w.message)]
+        assert len(lines) == 1 and said in lines[0], lines
+        m = json.loads((tmp_path / how / "metrics.json").read_text())["methods"]["rshosm-seq"]
+        assert m["session_speeds"][0] > 1.5
+        assert (m.get("sampling") or {}).get("sessions", [{}])[0].get("db_step") == (2 if how == "follow" else None)
+        with open(tmp_path / how / "rshosm-seq" / "matches.csv", newline="") as f:
+            rows = list(csv.DictReader(f))[len(list(db.iterdir())):]
+        near[how] = np.mean([r["accepted"] == "1" and abs(int(r["best_db"]) - 2 * j) <= 1 for j, r in enumerate(rows)])
+    assert near["follow"] >= 0.9, near  # what following gains is measured in tests/test_query_speed.py
+    code, _, err = run(["loops", "-", "--query-speed", "follow", "--out", tmp_path / "online"], capsys)
+    assert code == 2 and "--query-speed" in err
+    # online, the later session (after a line #session) is said with what follows it, not followed
+    lines = [str(f) for f in sorted(db.iterdir())] + ["#session"] + [str(f) for f in sorted(q2.iterdir())]
+    monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(lines) + "\n"))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        code, _, err = run(["loops", "-", "--out", tmp_path / "online"], capsys)
+    assert code == 0, err
+    said = [str(w.message) for w in caught if "session 2 against the earlier ones" in str(w.message)]
+    assert len(said) == 1 and "vpr localize map.npz SESSION" in said[0], said
+    m = json.loads((tmp_path / "online" / "metrics.json").read_text())["methods"]["rshosm-seq"]
+    assert m["session_speeds"][0] > 1.5 and "sampling" not in m
 
 
 @pytest.mark.slow

@@ -1,5 +1,6 @@
 """A query driven at another speed than the database is matched again at the sampling that makes them agree
 (vpr.methods.match_at_speed)."""
+import dataclasses
 import warnings
 
 import numpy as np
@@ -188,3 +189,77 @@ def test_the_map_of_the_largest_score_and_a_pick_refused():
         methods.match_at_speed(fitted, q, pick="nope")
     with pytest.raises(ValueError, match="pick must be one of"):
         SpeedFollower(Localizer.from_database(db.sdr, db.names), db.sdr, pick="longest")
+
+
+def _stream(speed, seed=3):
+    """Two sessions of one stream: the database traverse, then the query traverse driven at ``speed``."""
+    db, q, q_place = _traverses(speed, seed)
+    stream = EncodedTraverse.from_parts([db, q], ["a", "b"])
+    method = methods.get("rshosm-seq")
+    return method, stream, db, q, q_place, method.loops(stream, exclude=5, sessions=[len(db)])
+
+
+def _loops(method, stream, res, a):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = methods.loops_at_speed(method, stream, res, [0, a])
+    return out, [str(w.message) for w in caught]
+
+
+@pytest.mark.parametrize("speed, key, said, gain", [
+    ((1.8, 2.2), "db_step", "learned again as 2 maps of one frame in 2", 0.05),
+    ((0.45, 0.55), "query_step", "as 2 queries of one frame in 2", 0.0)])
+def test_a_later_session_at_another_speed_is_decided_again_onto_the_earlier_ones(speed, key, said, gain):
+    method, stream, db, q, q_place, res = _stream(speed)
+    a = len(db)
+    out, lines = _loops(method, stream, res, a)
+    (f,) = out.sampling["sessions"]
+    assert f["session"] == 2 and f[key] == 2 and len(lines) == 1 and said in lines[0] and "session 2" in lines[0]
+    # the oracle: the session's frames take the match against the earlier session at that sampling, except where
+    # the loop's best lies in its own session and the match does not accept
+    with warnings.catch_warnings(action="ignore"):
+        m = methods.match_at_speed(method.fit(db), q)
+    assert m.sampling[key] == 2
+    own = res.best[a:] >= a
+    take = m.accepted | ~own
+    np.testing.assert_array_equal(out.best[a:], np.where(take, m.best, res.best[a:]))
+    np.testing.assert_array_equal(out.accepted[a:], np.where(take, m.accepted, res.accepted[a:]))
+    np.testing.assert_array_equal(out.similarity[:a, a:], m.similarity)
+    np.testing.assert_array_equal(out.similarity[:, :a], res.similarity[:, :a])  # the first session as it was
+    np.testing.assert_array_equal(out.similarity[a:], res.similarity[a:])
+    right = lambda r: r.accepted[a:] & (np.abs(r.best[a:] - q_place) <= 1)  # noqa: E731
+    p0, p1 = (right(r).sum() / max(r.accepted[a:].sum(), 1) for r in (res, out))
+    assert p1 >= p0 and right(out).mean() >= right(res).mean() + gain, (p0, p1)
+
+
+def test_loops_at_the_same_speed_or_without_sequences_are_left_as_they_are():
+    method, stream, db, *_, res = _stream((0.9, 1.1))
+    out, lines = _loops(method, stream, res, len(db))
+    assert out is res and lines == []
+    pairwise = methods.get("pairwise")
+    fast = _stream((1.8, 2.2))[1]
+    res = pairwise.loops(fast, exclude=5, sessions=[len(db)])
+    assert _loops(pairwise, fast, res, len(db))[0] is res
+
+
+def test_a_top_k_loop_similarity_keeps_its_form_when_a_session_is_decided_again():
+    method, stream, db, q, _, res = _stream((1.8, 2.2))
+    a, k = len(db), 7
+    S = res.similarity.copy()
+    S[~np.isfinite(S)] = -np.inf
+    top = np.argsort(-S, axis=0, kind="stable")[:k]
+    cols = np.broadcast_to(np.arange(S.shape[1]), top.shape)
+    keep = np.isfinite(S[top, cols])
+    sparse = sp.csr_matrix((S[top, cols][keep], (top[keep], cols[keep])), shape=S.shape)
+    out = _loops(method, stream, dataclasses.replace(res, similarity=sparse), a)[0]
+    dense = _loops(method, stream, res, a)[0]
+    assert sp.issparse(out.similarity) and np.diff(out.similarity.tocsc().indptr).max() <= k
+    np.testing.assert_array_equal(out.best, dense.best)
+    # each column of the session keeps the k largest of the match's values and its own session's
+    full = np.where(np.isfinite(dense.similarity), dense.similarity, np.nan)
+    full[a:, a:] = np.where(sparse[a:, a:].toarray() != 0, sparse[a:, a:].toarray(), np.nan)
+    got = out.similarity.toarray()
+    for j in range(a, a + len(q)):
+        x = full[:, j][np.isfinite(full[:, j])]
+        np.testing.assert_array_equal(np.sort(got[:, j][got[:, j] != 0]), np.sort(x)[-k:])
+    np.testing.assert_array_equal(out.similarity[:, :a].toarray(), sparse[:, :a].toarray())

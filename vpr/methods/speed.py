@@ -8,15 +8,15 @@ import numpy as np
 import scipy.sparse as sp
 
 from vpr import sdr as _sdr
-from vpr.evaluate import MIN_RUN, path_speed
+from vpr.evaluate import MIN_RUN, path_speed, session_speeds
 from vpr.groundtruth import speed_step
 from vpr.shosm import Localizer, PathConf
 from vpr.shosm.state import joint_state, part_state
 from vpr.types import Column, Decision, EncodedTraverse, MatchResult
 
-from .base import Fitted
+from .base import Fitted, Method
 
-__all__ = ["match_at_speed", "SpeedFollower", "PICKS"]
+__all__ = ["match_at_speed", "loops_at_speed", "SpeedFollower", "PICKS"]
 
 
 #: How a frame is answered by one of the ``k`` maps of one frame in ``k``: ``"path"``, the map that accepts it on the
@@ -51,9 +51,21 @@ def match_at_speed(fitted: Fitted, query: EncodedTraverse, progress: bool = Fals
     own = path_speed(res.best, res.accepted)[0]
     speed = speed if own is None else own
     k = speed_step(speed) if fitted.method.follows_sequences else 0
-    n_db, n_q, method = len(fitted.db), len(query), fitted.method
-    if not k or (n_db if k > 0 else n_q) < 2 * abs(k):
+    again = _resampled(fitted, query, k, speed, pick, progress)
+    if again is None:
         return res
+    return dataclasses.replace(again, method=res.method, seconds=res.seconds + again.seconds, conf=res.conf)
+
+
+def _resampled(fitted: Fitted, query: EncodedTraverse, k: int, speed: float, pick: str, progress: bool,
+               who: str | None = None, along: str = "accepted paths") -> MatchResult | None:
+    """``query`` matched at the step ``k`` of :func:`~vpr.groundtruth.speed_step` (:func:`match_at_speed`), said
+    (of ``who``, by default the method, whose ``along`` read ``speed``); ``seconds``: those matches'. None where
+    ``k`` is 0 or a sampled traverse is too short for the method."""
+    n_db, n_q, method = len(fitted.db), len(query), fitted.method
+    who = who or method.name
+    if not k or (n_db if k > 0 else n_q) < 2 * abs(k):
+        return None
     n, step = (n_db, k) if k > 0 else (n_q, -k)
     phases = [np.arange(a, n, step) for a in range(step)]
     try:
@@ -62,10 +74,10 @@ def match_at_speed(fitted: Fitted, query: EncodedTraverse, progress: bool = Fals
         else:
             parts = [fitted.match(query.take(f), progress) for f in phases]
     except ValueError as e:  # the sampled traverse is too short for the method (SeqSLAM's ``ds``)
-        warnings.warn(f"{method.name}: the query moves {speed:.2g} database frames a frame, and one "
+        warnings.warn(f"{who}: the query moves {speed:.2g} database frames a frame, and one "
                       f"{'database' if k > 0 else 'query'} frame in {step} cannot be matched: {e}", UserWarning,
-                      stacklevel=2)
-        return res
+                      stacklevel=3)
+        return None
     order = np.argsort(np.concatenate(phases), kind="stable")  # the phases' frames back in the traverse's order
     sparse = sp.issparse(parts[0].similarity)
     if k > 0:  # each database frame is in one phase's map; a query frame takes the phase accepted on the longest path
@@ -87,11 +99,84 @@ def match_at_speed(fitted: Fitted, query: EncodedTraverse, progress: bool = Fals
                                  for f in ("best", "score", "accepted"))
         said = f"its frames were matched as {step} queries of one frame in {step}"
     S = S.tocsr() if sparse else S
-    warnings.warn(f"{method.name}: along its accepted paths the query moved {speed:.2g} database frames a frame, "
+    warnings.warn(f"{who}: along its {along} the query moved {speed:.2g} database frames a frame, "
                   f"driven {'faster' if k > 0 else 'slower'} than the database at the same frame rate: {said}, so "
-                  "that its sequences follow the query's (docs/localize.md)", UserWarning, stacklevel=2)
-    return MatchResult(res.method, S, best, score, accepted, res.seconds + sum(r.seconds for r in parts), res.conf,
+                  "that its sequences follow the query's (docs/localize.md)", UserWarning, stacklevel=3)
+    return MatchResult(method.name, S, best, score, accepted, sum(r.seconds for r in parts), dict(method.conf),
                        {"speed": round(float(speed), 3), "db_step" if k > 0 else "query_step": abs(k)})
+
+
+def loops_at_speed(method: Method, seq: EncodedTraverse, res: MatchResult, sessions, progress: bool = False,
+                   pick: str = "path") -> MatchResult:
+    """Loop closures of a stream of sessions, decided again for each later session driven at another speed.
+
+    ``res``: ``method``'s :meth:`~Method.loops` of ``seq`` with ``sessions`` (each session's first frame). A later
+    session whose paths of best frames onto the earlier sessions move ``k`` >= :data:`~vpr.groundtruth.RATE_RATIO`
+    of their frames a frame, or ``1 / k`` (:func:`vpr.evaluate.session_speeds`, no ground truth;
+    :func:`~vpr.groundtruth.speed_step`), is matched against the earlier sessions as :func:`match_at_speed` matches
+    a query against a database at ``k`` (said). Each of its frames then takes that match's answer onto the earlier
+    sessions, unless the loop's best frame lies in its own session and that match does not accept: its
+    similarity onto the earlier sessions is that match's (in ``res``'s form: dense, or as many candidates a frame
+    as its column holds), the rest of the stream's is ``res``'s. :attr:`MatchResult.sampling`: ``{"sessions":
+    [{"session": s (1 = the first), "speed", "db_step" or "query_step"}]}``; ``seconds`` counts the matches.
+    Returns ``res`` where no session is to be followed (also for a method that does not follow sequences).
+    """
+    _check_pick(pick)
+    if not method.follows_sequences:
+        return res
+    bounds = [*sorted({0, *(int(a) for a in sessions)}), len(seq)]
+    S, best, score, accepted = res.similarity, res.best.copy(), res.score.copy(), res.accepted.copy()
+    followed, seconds = [], res.seconds
+    for s, v in enumerate(session_speeds(res.best, bounds[:-1]), start=1):
+        a, b = bounds[s], bounds[s + 1]
+        k = speed_step(v)
+        if not k or (a if k > 0 else b - a) < 2 * abs(k):
+            continue
+        again = _resampled(method.fit(seq.slice(0, a), progress), seq.slice(a, b), k, v, pick, progress,
+                           f"{method.name}: session {s + 1}", "paths of best frames onto the earlier sessions")
+        if again is None:
+            continue
+        take = again.accepted | ~(best[a:b] >= a)  # its own session's loop stands unless the match accepts
+        for mine, theirs in ((best, again.best), (score, again.score), (accepted, again.accepted)):
+            mine[a:b] = np.where(take, theirs, mine[a:b])
+        S = _with_block(S, again.similarity, a, b)
+        followed.append({"session": s + 1, **again.sampling})
+        seconds += again.seconds
+    if not followed:
+        return res
+    return dataclasses.replace(res, similarity=S, best=best, score=score, accepted=accepted, seconds=seconds,
+                               sampling={"sessions": followed})
+
+
+def _with_block(S, block, a: int, b: int):
+    """The loop similarity ``S`` (T x T, dense or top-K sparse) with rows ``:a`` of columns ``a:b`` from ``block``
+    (in a sparse ``S``, each of those columns keeps its largest values, as many as ``S``'s fullest column holds)."""
+    if not sp.issparse(S):
+        S = S.copy()
+        S[:a, a:b] = block.toarray() if sp.issparse(block) else block
+        return S
+    csc, blk = S.tocsc(), sp.csc_matrix(block) if sp.issparse(block) else None
+    per_column = max(int(np.diff(csc.indptr).max(initial=0)), 1)
+    rows, cols, vals = [], [], []
+    for j in range(S.shape[1]):
+        r, x = csc.indices[csc.indptr[j]:csc.indptr[j + 1]], csc.data[csc.indptr[j]:csc.indptr[j + 1]]
+        if a <= j < b:
+            c = j - a
+            if blk is not None:
+                r_b, x_b = blk.indices[blk.indptr[c]:blk.indptr[c + 1]], blk.data[blk.indptr[c]:blk.indptr[c + 1]]
+            else:
+                r_b = np.flatnonzero(np.isfinite(block[:, c]))
+                x_b = block[r_b, c]
+            own = r >= a
+            r, x = np.r_[r_b, r[own]], np.r_[x_b.astype(S.dtype), x[own]]
+            top = np.argsort(-x, kind="stable")[:per_column]
+            r, x = r[top], x[top]
+        rows.append(r)
+        cols.append(np.full(r.size, j))
+        vals.append(x)
+    out = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=S.shape)
+    out.sort_indices()
+    return out
 
 
 class _Path:
