@@ -8,7 +8,8 @@ ms: median / p95 / max over the frames), the causal R@1 within one place, and
 the same for ``exact=True`` (dense evidence per frame) up to ``--exact-max``, and for ``follow``: the
 :class:`vpr.methods.SpeedFollower` around the localizer that ``vpr localize`` runs by default (the query here moves
 0.8-1.2 places a frame, so its answers are the localizer's; the cost is that of its engines); ``beam2x`` and
-``follow2x``: the same with a query moving 1.8-2.2 places a frame (R@1 within one place).
+``follow2x``: the same with a query moving 1.8-2.2 places a frame (R@1 within one place). ``held MB``: the arrays
+the localizer (or the follower, with the engines it built) holds after the query (:func:`held_mb`).
 
 Target: median <= 5 ms at 10,000 database frames.
 
@@ -27,6 +28,31 @@ import argparse
 import time
 
 import numpy as np
+
+
+def held_mb(obj) -> float:
+    """MB of the NumPy arrays and SciPy sparse matrices reachable from ``obj`` (its attributes, lists, tuples and
+    dicts; each array counted once): what a localizer or a follower holds."""
+    import scipy.sparse as sp
+
+    seen, todo, total = set(), [obj], 0
+    while todo:
+        o = todo.pop()
+        if id(o) in seen or o is None or isinstance(o, (str, bytes, int, float, bool)):
+            continue
+        seen.add(id(o))
+        if isinstance(o, np.ndarray):
+            total += o.nbytes if o.base is None or id(o.base) not in seen else 0
+        elif sp.issparse(o):
+            todo += [getattr(o, k) for k in ("data", "indices", "indptr", "row", "col") if hasattr(o, k)]
+        elif isinstance(o, dict):
+            todo += list(o.values())
+        elif isinstance(o, (list, tuple, set)):
+            todo += list(o)
+        elif hasattr(o, "__dict__") or hasattr(o, "__slots__"):
+            todo += list(getattr(o, "__dict__", {}).values())
+            todo += [getattr(o, k) for k in getattr(o, "__slots__", ()) if hasattr(o, k)]
+    return total / 2**20
 
 
 def latency(n, frames, exact, seed=0, follow=False, speed=(0.8, 1.2)):
@@ -50,7 +76,7 @@ def latency(n, frames, exact, seed=0, follow=False, speed=(0.8, 1.2)):
         best.append(o.best)
     ms = np.array(ms)
     r1 = np.mean(np.abs(dp[np.maximum(best, 0)] - qp[: len(rows)]) <= 1)
-    return ms, r1, t_learn
+    return ms, r1, t_learn, held_mb(loc)
 
 
 def nordland(path):
@@ -110,15 +136,16 @@ def main(argv=None):
     ap.add_argument("--nordland", default=None)
     a = ap.parse_args(argv)
     print("Localizer.update latency per query frame (ms, encoding excluded), top-50")
-    print(f"{'n_db':>7} {'mode':>8} {'frames':>7} {'median':>8} {'p95':>8} {'max':>8} {'R@1':>7} {'learn s':>8}")
+    print(f"{'n_db':>7} {'mode':>8} {'frames':>7} {'median':>8} {'p95':>8} {'max':>8} {'R@1':>7} {'learn s':>8} "
+          f"{'held MB':>8}")
     for n in (int(s) for s in a.sizes.split(",")):
         for mode in ("beam", "follow", "beam2x", "follow2x", "exact"):
             if mode == "exact" and n > a.exact_max:
                 continue
-            ms, r1, t_learn = latency(n, a.frames, mode == "exact", follow=mode.startswith("follow"),
-                                      speed=(1.8, 2.2) if mode.endswith("2x") else (0.8, 1.2))
+            ms, r1, t_learn, mb = latency(n, a.frames, mode == "exact", follow=mode.startswith("follow"),
+                                          speed=(1.8, 2.2) if mode.endswith("2x") else (0.8, 1.2))
             print(f"{n:7d} {mode:>8} {ms.size:7d} {np.median(ms):8.3f} "
-                  f"{np.percentile(ms, 95):8.3f} {ms.max():8.3f} {r1:7.3f} {t_learn:8.1f}", flush=True)
+                  f"{np.percentile(ms, 95):8.3f} {ms.max():8.3f} {r1:7.3f} {t_learn:8.1f} {mb:8.1f}", flush=True)
     if a.nordland:
         nordland(a.nordland)
 

@@ -193,9 +193,10 @@ def commands(data: Path, root: Path) -> None:
     print("\naccepted, P(acc), R(acc) with --method-conf rshosm-seq.speeds=S (Gardens Point: right within 2 frames)")
     print(f"| run | {' | '.join(SETTINGS)} |")
     print("|---|" + "---|" * len(SETTINGS))
-    runs = {"loops day_left day_right (1x)": ["loops", left, right, "--gt", p_left, p_right, "--radius", 2],
+    runs = {"loops day_left day_right (1x)": ["loops", left, right, "--gt", p_left, p_right, "--radius", 2,
+                                              "--query-speed", "as-is"],
             "loops day_left day_right every 2nd (2x)": ["loops", left, right2, "--gt", p_left, p_right2,
-                                                        "--radius", 2],
+                                                        "--radius", 2, "--query-speed", "as-is"],
             "localize map of day_left, day_right every 2nd (2x)": ["localize", the_map, right2, "--gt", p_right2,
                                                                    "--radius", 2, "--query-speed", "as-is"]}
     for name, argv in runs.items():

@@ -115,6 +115,23 @@ def test_online_a_faster_query_is_answered_by_the_maps_of_one_frame_in_two():
         assert d.column.n == db.shape[0] and (d.best < 0 or d.column.rows.max() < db.shape[0])
 
 
+@pytest.mark.parametrize("speed", [(1.8, 2.2), (0.45, 0.55)])
+def test_online_the_speed_is_read_on_the_answers_given(speed):
+    """The path of the map's own answers reads the speed; while a faster query is followed, the path of the answers
+    the follower gives (on the whole map)."""
+    db, q, _, _ = simulate.aliased_traverses(300, 100, speed=speed, seed=3)
+    plain, follower = _follower(db)
+    followed = 0
+    for j in range(q.shape[0]):
+        mode = follower.mode
+        own, d = plain.update(q[j]), follower.update(q[j])
+        read = d.best if mode > 0 else own.best
+        if read >= 0:
+            assert follower.path.last == read and follower.path.start <= j, (j, mode)
+        followed += bool(mode)
+    assert followed > q.shape[0] // 2
+
+
 def test_online_a_slower_query_is_answered_as_queries_of_one_frame_in_two():
     db, q, _, q_place = simulate.aliased_traverses(300, 100, speed=(0.45, 0.55), seed=3)
     _, follower = _follower(db)

@@ -207,8 +207,10 @@ class _Path:
 class SpeedFollower:
     """Online localisation that follows a query driven at another speed than the map at the same frame rate.
 
-    Steps the map's ``localizer`` on every frame and reads the speed of its consistent path of best frames (the
-    path rule's ``back`` / ``ahead``, over at least :data:`~vpr.evaluate.MIN_RUN` frames). While it is
+    Steps the map's ``localizer`` on every frame and reads the speed of the consistent path of best frames (the
+    path rule's ``back`` / ``ahead``, over at least :data:`~vpr.evaluate.MIN_RUN` frames) of the answers: the
+    localizer's, and while a faster query is followed, those given (the localizer's evidence lags a faster
+    query). While it is
     :data:`~vpr.groundtruth.RATE_RATIO` or more map frames a frame, the frames are answered by the ``step`` maps of
     one frame in ``step`` (learned again from ``sdr``, the map's SDRs, when first needed; each frame by the map whose
     path is accepted and longest); while it is ``1 / RATE_RATIO`` or less (:func:`~vpr.groundtruth.speed_step`: a
@@ -290,20 +292,36 @@ class SpeedFollower:
         bits = _sdr.row_bits(sdr_row, self.base.memory.n_inputs, name="query SDR")
         self.recent = [*self.recent[-(self.replay - 1):], (j, bits)] if self.replay > 0 else []
         d = self.base.update(bits)
-        self.path.step(j, d.best)
+        self.frame += 1
+        faster = self.mode > 0 and self.follows_faster
+        if not faster:  # the map's own answers read the speed
+            self._read(j, d.best)
+        out = self._answer(j, bits, d)
+        if faster:  # while a faster query is followed, the answers given read it
+            self._read(j, out.best)
+            if self.mode < 0:  # from the faster speed to the slower: this frame too
+                self._feed(self.mode, j, bits)
+        return out
+
+    def _read(self, j: int, best: int) -> None:
+        """Step the path with frame ``j``'s answer and switch to the speed it reads (its engines started from the
+        frames kept before ``j``)."""
+        self.path.step(j, best)
         v = self.path.speed(j)
         mode = self.mode if v is None else int(np.sign(speed_step(v)))
         if mode != self.mode:
             self.mode = mode
             self._start(mode)
-        self.frame += 1
-        answers = self._feed(mode, j, bits)
-        if mode > 0 and answers:
+
+    def _answer(self, j: int, bits, d: Decision) -> Decision:
+        """Frame ``j``'s answer at the current speed (``d``: the map's own)."""
+        answers = self._feed(self.mode, j, bits)
+        if self.mode > 0 and answers:
             i = max(range(self.step), key=lambda i: (bool(answers[i].accepted), self.phase_paths[i].length)
                     if self.pick == "path" else answers[i].score)
             self.frames["db_step"] += 1
             return _on_map(answers[i], self.keeps[i], self.base.n_db, d.frame)
-        if mode < 0:
+        if self.mode < 0:
             self.frames["query_step"] += 1
             return dataclasses.replace(answers[0], frame=d.frame)
         return d
