@@ -242,12 +242,13 @@ def no_revisit(gt: GroundTruthSpec, exclude: int) -> None:
          "false_per_1000 frames)")
 
 
-def say_session_speeds(method: str, speeds, names=None, followed=()) -> None:
+def say_session_speeds(method: str, speeds, names=None, read=()) -> None:
     """Warn for each later session (``speeds``: metrics.json's ``session_speeds``; ``names``: every session's source)
-    driven at another speed than the earlier ones, but those ``followed`` (numbered from 1, the first session)."""
+    driven at another speed than the earlier ones, but those ``read`` and followed where they needed it
+    (:func:`vpr.methods.loops_at_speed`; numbered from 1, the first session)."""
     src = lambda s: f" ({names[s + 1]})" if names else ""  # noqa: E731
     groundtruth.check_speeds({f"{method}: session {s + 2}{src(s)} against the earlier ones": v
-                              for s, v in enumerate(speeds or []) if s + 2 not in followed},
+                              for s, v in enumerate(speeds or []) if s + 2 not in read},
                              paths="paths of best earlier frames",
                              fix="localise it against a map of the earlier sessions (vpr learn EARLIER --out map.npz; "
                                  "vpr localize map.npz SESSION), which follows its speed")

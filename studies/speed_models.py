@@ -302,14 +302,17 @@ def loops(data: Path, root: Path) -> None:
     :func:`vpr.methods.loops_at_speed`)."""
     for name, db, query, radius, p_db, p_q in _as_is_or_followed(
             data, root, "vpr loops DB QUERY (two sessions), defaults: accepted, P(acc), R(acc); the later session's "
-            "speed onto the earlier one; what was matched again"):
+            "speed onto the earlier one along the loop's paths, and along the match's (follow); what was matched "
+            "again"):
         cells = []
         for how in ("as-is", "follow"):
             m = _pair("loops", db, query, root, p_db, p_q, radius, how)["rshosm-seq"]
             v = (m.get("session_speeds") or [None])[0]
-            again = "".join(f"; one {'earlier' if 'db_step' in f else 'later'} frame in "
-                            f"{f.get('db_step') or f.get('query_step')}"
-                            for f in (m.get("sampling") or {}).get("sessions", []))
+            again = ""
+            for f in (m.get("sampling") or {}).get("sessions", []):
+                step = f.get("db_step") or f.get("query_step")
+                again += f"; matched {f['speed']:.2f}" + (
+                    f"; one {'earlier' if 'db_step' in f else 'later'} frame in {step}" if step else "")
             cells.append(f"{decisions_cell(m, frames=False)}; speed {'-' if v is None else f'{v:.2f}'}{again}")
         print(f"| {name} | {' | '.join(cells)} |", flush=True)
 

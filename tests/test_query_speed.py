@@ -247,12 +247,21 @@ def test_a_later_session_at_another_speed_is_decided_again_onto_the_earlier_ones
     right = lambda r: r.accepted[a:] & (np.abs(r.best[a:] - q_place) <= 1)  # noqa: E731
     p0, p1 = (right(r).sum() / max(r.accepted[a:].sum(), 1) for r in (res, out))
     assert p1 >= p0 and right(out).mean() >= right(res).mean() + gain, (p0, p1)
+    # the speed is read on the match against the earlier session, also where the loop's own paths read none
+    blind = dataclasses.replace(res, best=np.where(np.arange(len(res.best)) >= a, -1, res.best))
+    again = _loops(method, stream, blind, a)[0]
+    assert again.sampling["sessions"][0][key] == 2
+    np.testing.assert_array_equal(again.best[a:], m.best)
 
 
-def test_loops_at_the_same_speed_or_without_sequences_are_left_as_they_are():
+def test_loops_at_the_same_speed_are_read_and_left_as_they_are_and_without_sequences_not_read():
     method, stream, db, *_, res = _stream((0.9, 1.1))
     out, lines = _loops(method, stream, res, len(db))
-    assert out is res and lines == []
+    (f,) = out.sampling["sessions"]
+    assert f.keys() == {"session", "speed"} and 0.9 <= f["speed"] <= 1.1 and lines == []
+    for key in ("best", "score", "accepted", "similarity"):
+        np.testing.assert_array_equal(getattr(out, key), getattr(res, key))
+    assert methods.loops_at_speed(method, stream, res, [0]) is res  # one session: nothing to read
     pairwise = methods.get("pairwise")
     fast = _stream((1.8, 2.2))[1]
     res = pairwise.loops(fast, exclude=5, sessions=[len(db)])

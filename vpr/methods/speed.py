@@ -108,44 +108,48 @@ def _resampled(fitted: Fitted, query: EncodedTraverse, k: int, speed: float, pic
 
 def loops_at_speed(method: Method, seq: EncodedTraverse, res: MatchResult, sessions, progress: bool = False,
                    pick: str = "path") -> MatchResult:
-    """Loop closures of a stream of sessions, decided again for each later session driven at another speed.
+    """Loop closures of a stream of sessions, each later session read for its speed and decided again where it was
+    driven at another speed than the earlier sessions.
 
-    ``res``: ``method``'s :meth:`~Method.loops` of ``seq`` with ``sessions`` (each session's first frame). A later
-    session whose paths of best frames onto the earlier sessions move ``k`` >= :data:`~vpr.groundtruth.RATE_RATIO`
-    of their frames a frame, or ``1 / k`` (:func:`vpr.evaluate.session_speeds`, no ground truth;
-    :func:`~vpr.groundtruth.speed_step`), is matched against the earlier sessions as :func:`match_at_speed` matches
-    a query against a database at ``k`` (said). Each of its frames then takes that match's answer onto the earlier
-    sessions, unless the loop's best frame lies in its own session and that match does not accept: its
-    similarity onto the earlier sessions is that match's (in ``res``'s form: dense, or as many candidates a frame
-    as its column holds), the rest of the stream's is ``res``'s. :attr:`MatchResult.sampling`: ``{"sessions":
-    [{"session": s (1 = the first), "speed", "db_step" or "query_step"}]}``; ``seconds`` counts the matches.
-    Returns ``res`` where no session is to be followed (also for a method that does not follow sequences).
+    ``res``: ``method``'s :meth:`~Method.loops` of ``seq`` with ``sessions`` (each session's first frame). Each
+    later session is matched against the earlier sessions (:meth:`Method.fit`, :meth:`Fitted.match`) and its speed
+    read along that match's accepted paths (:func:`vpr.evaluate.path_speed`, no ground truth), or where they read
+    none along its paths of best frames in ``res`` (:func:`vpr.evaluate.session_speeds`). Moving ``k`` >=
+    :data:`~vpr.groundtruth.RATE_RATIO` of their frames a frame, or ``1 / k`` (:func:`~vpr.groundtruth.speed_step`),
+    it is matched again as :func:`match_at_speed` matches a query at ``k`` (said), and each of its frames takes that
+    answer onto the earlier sessions unless the loop's best frame lies in its own session and that match does not
+    accept; its similarity onto the earlier sessions is that match's (in ``res``'s form: dense, or as many
+    candidates a frame as its column holds), the rest of the stream's is ``res``'s. :attr:`MatchResult.sampling`:
+    ``{"sessions": [{"session": s (1 = the first), "speed", and "db_step" or "query_step" where followed}]}``, every
+    later session; ``seconds`` counts the matches. Returns ``res`` for a stream of one session or a method whose
+    sequences do not follow one frame a frame.
     """
     _check_pick(pick)
-    if not method.follows_sequences:
-        return res
     bounds = [*sorted({0, *(int(a) for a in sessions)}), len(seq)]
+    if not method.follows_sequences or len(bounds) < 3:
+        return res
     S, best, score, accepted = res.similarity, res.best.copy(), res.score.copy(), res.accepted.copy()
-    followed, seconds = [], res.seconds
-    for s, v in enumerate(session_speeds(res.best, bounds[:-1]), start=1):
+    read, seconds = [], res.seconds
+    for s, own in enumerate(session_speeds(res.best, bounds[:-1]), start=1):
         a, b = bounds[s], bounds[s + 1]
-        k = speed_step(v)
-        if not k or (a if k > 0 else b - a) < 2 * abs(k):
-            continue
-        again = _resampled(method.fit(seq.slice(0, a), progress), seq.slice(a, b), k, v, pick, progress,
-                           f"{method.name}: session {s + 1}", "paths of best frames onto the earlier sessions")
+        fitted, query = method.fit(seq.slice(0, a), progress), seq.slice(a, b)
+        first = fitted.match(query, progress)
+        v = path_speed(first.best, first.accepted)[0]
+        v = own if v is None else v
+        read.append({"session": s + 1, "speed": None if v is None else round(float(v), 3)})
+        seconds += first.seconds
+        again = _resampled(fitted, query, speed_step(v), v, pick, progress, f"{method.name}: session {s + 1}",
+                           "accepted paths onto the earlier sessions")
         if again is None:
             continue
         take = again.accepted | ~(best[a:b] >= a)  # its own session's loop stands unless the match accepts
         for mine, theirs in ((best, again.best), (score, again.score), (accepted, again.accepted)):
             mine[a:b] = np.where(take, theirs, mine[a:b])
         S = _with_block(S, again.similarity, a, b)
-        followed.append({"session": s + 1, **again.sampling})
+        read[-1] = {**read[-1], **{k: v for k, v in again.sampling.items() if k != "speed"}}
         seconds += again.seconds
-    if not followed:
-        return res
     return dataclasses.replace(res, similarity=S, best=best, score=score, accepted=accepted, seconds=seconds,
-                               sampling={"sessions": followed})
+                               sampling={"sessions": read})
 
 
 def _with_block(S, block, a: int, b: int):
