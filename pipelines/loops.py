@@ -152,6 +152,8 @@ class LoopsOnline(Online):
     def __init__(self, det: LoopDetector, gt: GroundTruthSpec):
         self.det, self.gt = det, gt
         self.top_k = det.seq.top_k
+        self._session: list[int] = []  # the best frames of the current later session's frames decided so far
+        self._said: set[int] = set()  # the later sessions whose speed was said (numbered from 1, the first)
 
     def warm_up(self) -> None:
         self.det.warm_up()
@@ -162,7 +164,29 @@ class LoopsOnline(Online):
 
     def answer(self, encoded, name: str):
         d = self.det.update_encoded(encoded, name)
-        return sorted([*self.det.take_late(), *([d] if d is not None else [])], key=lambda d: d.frame)
+        return self._watch(sorted([*self.det.take_late(), *([d] if d is not None else [])], key=lambda d: d.frame))
+
+    def _watch(self, ds: list) -> list:
+        """Say, from the frame it is read, a later session driven at another speed than the earlier ones (its paths
+        of best earlier frames, as :func:`vpr.evaluate.session_speeds` reads them); returns ``ds``."""
+        starts = self.det.stream.starts
+        a, n = starts[-1], len(starts)
+        if not a or n in self._said:
+            return ds
+        for d in ds:
+            if d.frame >= a:
+                self._session.append(d.best)
+                if len(self._session) % evaluate.MIN_RUN == 0:
+                    v = evaluate.session_speeds(np.r_[np.full(a, -1), self._session], [0, a])[0]
+                    if groundtruth.speed_step(v):
+                        self._said.add(n)
+                        print(f"vpr loops: from frame {d.frame} on, session {n}'s best frames in the earlier sessions "
+                              f"move {v:.2g} of theirs a frame: driven {'faster' if v > 1 else 'slower'} than they "
+                              "were at the same frame rate; its closures onto them are not followed online (vpr learn "
+                              "EARLIER --out map.npz; vpr localize map.npz SESSION follows it; so does vpr loops S1 "
+                              "S2) (docs/loops.md)", file=sys.stderr, flush=True)
+                        break
+        return ds
 
     def name_of(self, frame: int) -> str | None:
         return self.det.names[frame]
@@ -172,11 +196,12 @@ class LoopsOnline(Online):
 
     def finish(self):
         self.det.flush()
-        return self.det.take_late()
+        return self._watch(self.det.take_late())
 
     def new_session(self):
         self.det.new_session()
-        return self.det.take_late()
+        self._session = []
+        return self._watch(self.det.take_late())
 
     def evaluate(self, result, names, indices, frames) -> dict:
         """Metrics over the frames answered in this run, against every frame of the stream before them (those
@@ -190,7 +215,7 @@ class LoopsOnline(Online):
             best[frames] = result.best
             speeds = {"session_speeds": [None if v is None else round(v, 3)
                                          for v in evaluate.session_speeds(best, starts)]}
-            say_session_speeds(self.method, speeds["session_speeds"])
+            say_session_speeds(self.method, speeds["session_speeds"], read=self._said)
         if not self.gt.files:
             return ({"sessions": evaluate.session_pairs(result.best, result.accepted, None, starts, names=labels,
                                                         frames=frames), **speeds} if len(starts) > 1 else {}), None
