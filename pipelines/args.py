@@ -90,14 +90,14 @@ def method_confs(items) -> dict:
     return parse_method_confs(items, methods.available())
 
 
-def add_query_speed_argument(ap: argparse.ArgumentParser) -> None:
+def add_query_speed_argument(ap: argparse.ArgumentParser, sessions: bool = False) -> None:
     """``--query-speed follow|as-is``: whether a query driven at another speed than its database or map at the same
-    frame rate is followed (:func:`follows_speed`)."""
+    frame rate (``sessions``: a later session than the earlier ones) is followed (:func:`follows_speed`)."""
+    query, db = ("a later session's", "the earlier sessions'") if sessions else ("the query's", "the database's")
     ap.add_argument("--query-speed", choices=("follow", "as-is"), default=None,
-                    help="follow (default): while the query's best frames move 1.5 or more times faster or slower "
-                         "than one of the database a frame, match it against the database's maps of one frame in k, "
-                         "or as k queries of one frame in k, and say it; as-is: its frames as they come (the speed is "
-                         "said)")
+                    help=f"follow (default): while {query} best frames move 1.5 or more times faster or slower than "
+                         f"one of {db} a frame, match it against {db} maps of one frame in k, or as k queries of one "
+                         "frame in k, and say it; as-is: its frames as they come (the speed is said)")
 
 
 def follows_speed(args) -> bool:

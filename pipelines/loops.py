@@ -60,7 +60,7 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
                          "frame, where the images are large enough) accepts closures the path score has not reached "
                          "yet: short indoor loops, revisits the path is slow to trust; off by default, since on "
                          "forward drives it confirms the same road ahead (docs/loops.md)")
-    add_query_speed_argument(ap)
+    add_query_speed_argument(ap, sessions=True)
     add_gt_arguments(ap, loops=True)
     online = ap.add_argument_group("online (SEQ is -)")
     online.add_argument("--state-out", metavar="FILE.npz", help="save the loop detector after the last frame")

@@ -216,10 +216,11 @@ def _stream(speed, seed=3):
     return method, stream, db, q, q_place, method.loops(stream, exclude=5, sessions=[len(db)])
 
 
-def _loops(method, stream, res, a):
+def _loops(method, stream, res, *later):
+    """``loops_at_speed`` with the sessions starting at 0 and ``later``: (result, the warnings said)."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        out = methods.loops_at_speed(method, stream, res, [0, a])
+        out = methods.loops_at_speed(method, stream, res, [0, *later])
     return out, [str(w.message) for w in caught]
 
 
@@ -289,3 +290,20 @@ def test_a_top_k_loop_similarity_keeps_its_form_when_a_session_is_decided_again(
         x = full[:, j][np.isfinite(full[:, j])]
         np.testing.assert_array_equal(np.sort(got[:, j][got[:, j] != 0]), np.sort(x)[-k:])
     np.testing.assert_array_equal(out.similarity[:, :a].toarray(), sparse[:, :a].toarray())
+
+
+def test_each_later_session_is_read_against_all_earlier_ones_and_only_the_one_off_speed_is_followed():
+    db, fast, _ = _traverses((1.8, 2.2))
+    same = _traverses((0.9, 1.1))[1]
+    stream = EncodedTraverse.from_parts([db, fast, same], ["a", "b", "c"])
+    method = methods.get("rshosm-seq")
+    a, b = len(db), len(db) + len(fast)
+    res = method.loops(stream, exclude=5, sessions=[a, b])
+    out = _loops(method, stream, res, a, b)[0]
+    second, third = out.sampling["sessions"]
+    assert second["session"] == 2 and second["db_step"] == 2
+    assert third["session"] == 3 and third.keys() == {"session", "speed"} and 0.9 <= third["speed"] <= 1.1
+    for key in ("best", "accepted"):  # the first and the third session as the loops decided them
+        np.testing.assert_array_equal(getattr(out, key)[:a], getattr(res, key)[:a])
+        np.testing.assert_array_equal(getattr(out, key)[b:], getattr(res, key)[b:])
+    assert not np.array_equal(out.best[a:b], res.best[a:b])
