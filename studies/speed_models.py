@@ -47,7 +47,10 @@ Each table also prints the query's speed along the accepted paths, in map frames
 Then ``vpr loops`` of each stream's map and query as two sessions of one
 stream, as they come and followed (:func:`vpr.methods.loops_at_speed`).
 
-With ``--loops``: only that table. With ``--cases``: only the cases the localisation rule was chosen on
+Then both, ``vpr loops`` and ``vpr localize``, as the goal measures them: the
+best matches in the datasets' usual soft bands neither right nor wrong.
+
+With ``--loops``: only those two tables. With ``--cases``: only the cases the localisation rule was chosen on
 (:mod:`studies.localize_decisions`), answered as they come and followed.
 
 Usage: python -m studies.speed_models [--data DIR] [--out DIR] [--cases | --loops]
@@ -317,6 +320,36 @@ def loops(data: Path, root: Path) -> None:
         print(f"| {name} | {' | '.join(cells)} |", flush=True)
 
 
+#: the datasets' usual soft bands, by the hard radius of their streams (Gardens Point: 2 frames, 8 ignored;
+#: Nordland: one map frame of 10 files, three ignored)
+SOFT = {2: 8, 10: 30}
+
+
+def soft(data: Path, root: Path) -> None:
+    """The goal's measure: ``vpr loops MAP QUERY`` and ``vpr localize`` with the defaults, as they come and followed,
+    the best matches in the datasets' usual soft bands neither right nor wrong (:data:`SOFT`)."""
+    print("\nwith the soft bands (Gardens Point hard 2 frames, soft 8; Nordland hard 1 map frame, soft 3): accepted, "
+          "P(acc), R(acc)")
+    print("| stream | loops as-is | loops follow (default) | localize as-is | localize follow (default) |")
+    print("|---|---|---|---|---|")
+    for name, (db, x_db), (query, x_q), radius in _streams(data, root):
+        p_db, p_q = _positions(root / f"{db.name}.csv", x_db), _positions(root / f"{query.name}.csv", x_q)
+        the_map = root / "followed" / f"{db.name}.npz"
+        if not the_map.exists():
+            _command(["learn", db, "--out", the_map, "--gt", p_db])
+        cells = []
+        for command in ("loops", "localize"):
+            for how in ("as-is", "follow"):
+                out = root / "soft" / f"{command}-{db.name}-{query.name}-{how}"
+                if not (out / "metrics.json").exists():
+                    _command([command, *([db, query, "--gt", p_db, p_q] if command == "loops" else
+                                         [the_map, query, "--gt", p_q]),
+                              "--radius", radius, "--gt-soft", SOFT[radius], "--query-speed", how, "--out", out])
+                m = json.loads((out / "metrics.json").read_text())["methods"]["rshosm-seq"]
+                cells.append(decisions_cell(m, frames=False))
+        print(f"| {name} | {' | '.join(cells)} |", flush=True)
+
+
 def _as_is(db: Path, x_db, query: Path, x_q, radius, out: Path) -> tuple[dict, list]:
     """``vpr compare --methods rshosm-seq --query-speed as-is``: its metrics and its (best_db, accepted) rows."""
     if not (out / "metrics.json").exists():
@@ -472,7 +505,8 @@ def main(argv=None) -> None:
     ap.add_argument("--out", type=Path, default=None, help="work folder (default: a temporary one)")
     ap.add_argument("--cases", action="store_true", help="only the localisation cases (several minutes: Nordland "
                     "at every file)")
-    ap.add_argument("--loops", action="store_true", help="only the loops table (vpr loops MAP QUERY)")
+    ap.add_argument("--loops", action="store_true", help="only the loops table (vpr loops MAP QUERY) and the table of "
+                    "the goal's measure (soft bands)")
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         root = args.out or Path(tmp)
@@ -481,6 +515,7 @@ def main(argv=None) -> None:
             return
         if args.loops:
             loops(args.data, root)
+            soft(args.data, root)
             return
         print("AP, accepted, P(acc), R(acc) of rshosm-seq (default preset), query frames as they come; speed along "
               "the accepted paths, map frames per query frame (query frames counted)")
@@ -505,6 +540,7 @@ def main(argv=None) -> None:
         commands(args.data, root)
         followed(args.data, root)
         loops(args.data, root)
+        soft(args.data, root)
         phases(args.data, root)
         picks(args.data, root)
 
