@@ -50,10 +50,13 @@ stream, as they come and followed (:func:`vpr.methods.loops_at_speed`).
 Then both, ``vpr loops`` and ``vpr localize``, as the goal measures them: the
 best matches in the datasets' usual soft bands neither right nor wrong.
 
-With ``--loops``: only those two tables. With ``--cases``: only the cases the localisation rule was chosen on
-(:mod:`studies.localize_decisions`), answered as they come and followed.
+With ``--loops``: only those two tables. With ``--one-run``: only ``vpr loops`` of one
+folder holding a revisit at 2x (Gardens Point) and of forward-only renders, and the
+runs of best earlier frames in each that read another speed. With ``--cases``: only
+the cases the localisation rule was chosen on (:mod:`studies.localize_decisions`),
+answered as they come and followed.
 
-Usage: python -m studies.speed_models [--data DIR] [--out DIR] [--cases | --loops]
+Usage: python -m studies.speed_models [--data DIR] [--out DIR] [--cases | --loops | --one-run]
 """
 from __future__ import annotations
 
@@ -155,12 +158,17 @@ def _positions(path: Path, x) -> Path:
     return path
 
 
-def _command(argv: list) -> str | None:
+def _quiet(argv: list) -> Path:
+    """Run ``vpr ARGV`` without its output; returns its ``--out``."""
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()), \
             warnings.catch_warnings(action="ignore"):
         if vpr([str(a) for a in argv] + ["--no-progress"]):
             raise SystemExit(f"vpr {argv[0]} failed")
-    out = Path(argv[argv.index("--out") + 1])
+    return Path(argv[argv.index("--out") + 1])
+
+
+def _command(argv: list) -> str | None:
+    out = _quiet(argv)
     if argv[0] == "learn":
         return None
     with open(out / "rshosm-seq" / "matches.csv", newline="") as f:
@@ -318,6 +326,56 @@ def loops(data: Path, root: Path) -> None:
                     f"; one {'earlier' if 'db_step' in f else 'later'} frame in {step}" if step else "")
             cells.append(f"{decisions_cell(m, frames=False)}; speed {'-' if v is None else f'{v:.2f}'}{again}")
         print(f"| {name} | {' | '.join(cells)} |", flush=True)
+
+
+def _runs(best, min_run: int = 10) -> list[tuple[int, int, float]]:
+    """Every run of at least ``min_run`` frames whose best frame moves on by 0 to 4 frames a frame (the runs
+    :func:`vpr.evaluate.path_speed` reads, accepted or not): (first frame, last frame, speed)."""
+    best = np.asarray(best, np.int64)
+    d = np.diff(best)
+    linked = (best[:-1] >= 0) & (best[1:] >= 0) & (d >= 0) & (d <= 4)
+    edges = np.diff(np.r_[0, linked.astype(np.int8), 0])
+    first, last = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    return [(int(a), int(b), (best[b] - best[a]) / (b - a)) for a, b in zip(first, last, strict=True)
+            if b - a + 1 >= min_run]
+
+
+def one_run(data: Path, root: Path) -> None:
+    """Why a loop within one run is not followed: ``vpr loops`` of one folder (defaults) on a revisit at 2x and on
+    forward-only drives, and the runs of best earlier frames that read another speed (what would start a re-match)."""
+    from vpr.groundtruth import speed_step
+
+    gp = data / "gardens_point_day"
+    left, right = sorted((gp / "day_left").iterdir()), sorted((gp / "day_right").iterdir())
+    streams = {"gp_1x": ("Gardens Point day_left + day_right, one folder (1x)", left + right),
+               "gp_2x": ("Gardens Point day_left + day_right every 2nd, one folder (2x)", left + right[::2])}
+    for scene, names in (("two_seasons", ("summer_day", "winter_night")), ("aliased_corridor", ("lights_on", "night")),
+                         ("speed_change", ("slow", "fast"))):
+        rendered = root / "renders" / scene
+        if not (rendered / "scene.json").exists():
+            _quiet(["render", scene, "--out", rendered, "--size", "160x120"])
+        for t in names:
+            streams[f"{scene}_{t}"] = (f"rendered {scene} {t} (forward only)", sorted((rendered / t).glob("*.png")))
+    print("\nvpr loops of one folder (defaults): frames, accepted; runs of 10 or more best earlier frames; those "
+          "reading 1.5 or more, or 1/1.5 or less, their frames and speed")
+    print("| stream | frames | accepted | runs | off speed |")
+    print("|---|---|---|---|---|")
+    for key, (name, files) in streams.items():
+        folder = root / "one_run" / key
+        if not folder.exists():
+            folder.mkdir(parents=True)
+            for i, f in enumerate(files):
+                (folder / f"{i:05d}{f.suffix}").symlink_to(f.resolve())
+        out = root / "one_run" / f"{key}-out"
+        if not (out / "metrics.json").exists():
+            _quiet(["loops", folder, "--out", out])
+        with open(out / "rshosm-seq" / "matches.csv", newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        best = [int(r["best_db"]) for r in rows]
+        runs = _runs(best)
+        off = [f"{a}-{b} ({v:.2f})" for a, b, v in runs if speed_step(v)]
+        print(f"| {name} | {len(rows)} | {sum(r['accepted'] == '1' for r in rows)} | {len(runs)} | "
+              f"{', '.join(off) or '-'} |", flush=True)
 
 
 #: the datasets' usual soft bands, by the hard radius of their streams (Gardens Point: 2 frames, 8 ignored;
@@ -505,6 +563,7 @@ def main(argv=None) -> None:
     ap.add_argument("--out", type=Path, default=None, help="work folder (default: a temporary one)")
     ap.add_argument("--cases", action="store_true", help="only the localisation cases (several minutes: Nordland "
                     "at every file)")
+    ap.add_argument("--one-run", action="store_true", help="only the table of loops within one folder")
     ap.add_argument("--loops", action="store_true", help="only the loops table (vpr loops MAP QUERY) and the table of "
                     "the goal's measure (soft bands)")
     args = ap.parse_args(argv)
@@ -512,6 +571,9 @@ def main(argv=None) -> None:
         root = args.out or Path(tmp)
         if args.cases:
             cases(args.data, root)
+            return
+        if args.one_run:
+            one_run(args.data, root)
             return
         if args.loops:
             loops(args.data, root)
