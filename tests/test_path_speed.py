@@ -92,6 +92,8 @@ def test_compare_follows_a_query_driven_twice_as_fast(scene_on_disk, tmp_path, c
         assert (m.get("sampling") or {}).get("db_step") == (2 if out == "follow" else None), m
         cfg = json.loads((tmp_path / out / "rshosm-seq" / "config.json").read_text())
         assert cfg["follow_speed"] == (out != "as_is")
+        page = (tmp_path / out / "report.html").read_text()
+        assert ("matched again against the database&#x27;s 2 maps" in page) == (out == "follow"), out
 
 
 @pytest.mark.slow
@@ -113,6 +115,8 @@ def test_loops_follow_a_later_session_driven_twice_as_fast(scene_on_disk, tmp_pa
         m = json.loads((tmp_path / how / "metrics.json").read_text())["methods"]["rshosm-seq"]
         assert m["session_speeds"][0] > 1.5
         assert (m.get("sampling") or {}).get("sessions", [{}])[0].get("db_step") == (2 if how == "follow" else None)
+        page = (tmp_path / how / "report.html").read_text()
+        assert ("session 2 moved" in page) == (how == "follow"), how
         with open(tmp_path / how / "rshosm-seq" / "matches.csv", newline="") as f:
             rows = list(csv.DictReader(f))[len(list(db.iterdir())):]
         near[how] = np.mean([r["accepted"] == "1" and abs(int(r["best_db"]) - 2 * j) <= 1 for j, r in enumerate(rows)])
@@ -155,6 +159,8 @@ def test_localize_follows_a_query_driven_twice_as_fast_and_resumes(scene_on_disk
         assert ("answered by the map's 2 maps of one frame in 2" in err) == (how == "follow"), err
         assert any("driven faster" in str(w.message) for w in caught) == (how == "as-is")
         assert (m.get("sampling") or {}).get("db_step") == (2 if how == "follow" else None), m
+        page = (tmp_path / how / "report.html").read_text()
+        assert ("frames answered by the map&#x27;s 2 maps of one frame in 2" in page) == (how == "follow"), how
         answers[how] = [json.loads(x) for x in out.splitlines()]
     near = {h: np.mean([r["accepted"] and abs(r["best_db"] - 2 * r["query"]) <= 1 for r in a])
             for h, a in answers.items()}

@@ -45,6 +45,24 @@ def test_choose_shows_the_worst_first_within_the_limit():
     assert report.outcome(True, None, None) == "accepted" and report.outcome(True, None, True) == "soft"
 
 
+@pytest.mark.parametrize("sampling, said", [
+    ({"speed": 1.87, "db_step": 2}, "moved 1.87 database frames a frame along the run's accepted paths, matched again "
+                                    "against the database's 2 maps of one frame in 2"),
+    ({"speed": 0.56, "query_step": 2}, "its frames matched as 2 queries of one frame in 2"),
+    ({"db_step": 2, "db_step_frames": 91, "query_step": 2, "query_step_frames": 5},
+     "91 frames answered by the map's 2 maps of one frame in 2; 5 frames answered as 2 queries of one frame in 2"),
+    ({"sessions": [{"session": 2, "speed": 1.88, "db_step": 2}, {"session": 3, "speed": 1.0}]},
+     "session 2 moved 1.88 of the earlier sessions' frames a frame, matched again against the earlier sessions' 2 "
+     "maps of one frame in 2 (--query-speed follow)"),
+    ({"sessions": [{"session": 2, "speed": 1.0}]}, None),
+    (None, None)])
+def test_a_query_followed_at_another_speed_is_said_on_the_page(sampling, said):
+    note = report.sampling_note("m", {"sampling": sampling} if sampling else {})
+    assert (note is None) == (said is None) and (said is None or said in note), note
+    if note and "sessions" in sampling:
+        assert "session 3" not in note  # read at the earlier sessions' speed: nothing done, nothing said
+
+
 def test_compare_writes_a_report_with_a_strip_per_decision_shown(compared):
     page = (compared / "report.html").read_text()
     metrics = json.loads((compared / "metrics.json").read_text())["methods"]

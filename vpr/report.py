@@ -16,7 +16,7 @@ import numpy as np
 from vpr import io
 
 __all__ = ["OUTCOMES", "TABLE", "Strip", "table_cells", "metrics_table", "outcome", "choose", "caption", "thumbnail",
-           "picture", "png_text", "page", "settings", "pair_frames", "write", "write_table"]
+           "picture", "png_text", "page", "settings", "pair_frames", "write", "write_table", "sampling_note"]
 
 #: Strips per method: the page of a 50,000-frame run stays a few MB.
 LIMIT = 120
@@ -286,6 +286,32 @@ apply();
 """
 
 
+def sampling_note(method: str, m: dict) -> str | None:
+    """The line a report says of a method whose query was driven at another speed and followed (``m``: its
+    ``metrics.json`` entry, ``sampling``); None where every frame was answered as it came."""
+    s = m.get("sampling")
+    if not s:
+        return None
+
+    def how(k: dict, whose: str) -> str:
+        if k.get("db_step"):
+            return f"matched again against {whose} {k['db_step']} maps of one frame in {k['db_step']}"
+        return f"its frames matched as {k['query_step']} queries of one frame in {k['query_step']}"
+
+    if "sessions" in s:  # loops: every later session read, those off speed followed
+        said = [f"session {f['session']} moved {f['speed']:.2f} of the earlier sessions' frames a frame, "
+                + how(f, "the earlier sessions'") for f in s["sessions"] if f.get("db_step") or f.get("query_step")]
+        return f"{method}: {'; '.join(said)} (--query-speed follow)" if said else None
+    if "db_step_frames" in s or "query_step_frames" in s:  # localize: frames answered so while the speed lasted
+        said = [f"{s[k + '_frames']} frames answered by the map's {s[k]} maps of one frame in {s[k]}" if k == "db_step"
+                else f"{s[k + '_frames']} frames answered as {s[k]} queries of one frame in {s[k]}"
+                for k in ("db_step", "query_step") if s.get(k + "_frames")]
+        return f"{method}: the query was driven at another speed than the map: {'; '.join(said)} (--query-speed follow)"
+    whose = "the database's"
+    return (f"{method}: the query moved {s['speed']:.2f} database frames a frame along the run's accepted paths, "
+            f"{how(s, whose)} (--query-speed follow)")
+
+
 def _esc(x) -> str:
     return html.escape(str(x), quote=True)
 
@@ -509,6 +535,7 @@ def write(out, read_query, read_db, kind: str = "match", title: str | None = Non
              f"at most {LIMIT} decisions per method are shown, chosen by outcome, worst first" if truth_known else
              f"no ground truth: at most {LIMIT} decisions per method are shown, the accepted and the rejected by "
              "score, highest first"]
+    notes += [n for n in (sampling_note(m, v) for m, v in methods.items()) if n]
     top_k = [m for m, v in methods.items() if str(v.get("similarity_file", "")).endswith("_topk.npz")]
     if top_k:
         budget = params.get("memory_budget")
