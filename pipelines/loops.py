@@ -350,7 +350,10 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
             return methods.loops_at_speed(r, features, res, starts, opts.progress) if opts.follow_speed else res
 
         done = evaluate.run_methods(runners, loops_of, gt_hard, gt_soft, mask, on_result=write, loops=True)
-        groundtruth.check_speeds({k: m.get("path_speed") for k, (m, _) in done.items() if not m.get("sampling")})
+        if len(srcs) == 1:  # the sessions of a stream are read one by one (below)
+            groundtruth.check_speeds({k: m.get("path_speed") for k, (m, _) in done.items()},
+                                     fix="within one run a revisit driven at another speed is decided as it comes; "
+                                         "given as sessions (vpr loops RUN1 RUN2), a later run is followed")
         for k, (m, _) in done.items():
             say_session_speeds(k, m.get("session_speeds"), [str(src.path) for src in srcs],
                                {f["session"] for f in (m.get("sampling") or {}).get("sessions", [])})
