@@ -43,7 +43,7 @@ from vpr.methods import SpeedFollower
 from vpr.shosm import Map, MemoryFileError
 from vpr.sources import open_source
 from vpr.sources.stdin import StdinSource
-from vpr.types import Decision
+from vpr.types import Decision, QueryLocalizer
 
 __all__ = ["COMMANDS", "add_arguments", "run_command", "learn", "load_map", "localize"]
 
@@ -66,19 +66,20 @@ class LocalizeOnline(Online):
         self._params, self.q_xy = params, q_xy  # the query frames' positions, by q_src.indices()
         self.top_k = self.loc.seq.top_k
         self.follower = follower  # a query driven faster or slower than the map, followed (docs/localize.md)
+        self.answering: QueryLocalizer = follower or self.loc
         self._said = {0}
 
     def warm_up(self) -> None:
-        (self.follower or self.loc).warm_up()
+        self.answering.warm_up()
         self.qenc.warm_up()  # first calls (loading a CNN, the projection matrix) are not a frame's latency
 
     def encode(self, image):
         return self.qenc.encode(image)
 
     def answer(self, encoded, name: str) -> Decision:
+        d = self.answering.update(encoded)
         if self.follower is None:
-            return self.loc.update(encoded)
-        d = self.follower.update(encoded)
+            return d
         mode = self.follower.mode
         if mode not in self._said and (mode < 0 or self.follower.follows_faster):
             self._said.add(mode)
@@ -119,7 +120,7 @@ class LocalizeOnline(Online):
 
     def new_session(self) -> None:
         """A new query traverse: no evidence or path carries over, the query statistics start again."""
-        (self.follower or self.loc).reset()
+        self.answering.reset()
         self.qenc.new_session()
 
     def save(self, path) -> None:

@@ -152,7 +152,7 @@ class LoopsOnline(Online):
     def __init__(self, det: LoopDetector, gt: GroundTruthSpec):
         self.det, self.gt = det, gt
         self.top_k = det.seq.top_k
-        self._session: list[int] = []  # the best frames of the current later session's frames decided so far
+        self._reader = evaluate.SpeedReader()  # the current later session's speed onto the earlier ones
         self._said: set[int] = set()  # the later sessions whose speed was said (numbered from 1, the first)
 
     def warm_up(self) -> None:
@@ -173,19 +173,17 @@ class LoopsOnline(Online):
         a, n = starts[-1], len(starts)
         if not a or n in self._said:
             return ds
-        for d in ds:
-            if d.frame >= a:
-                self._session.append(d.best)
-                if len(self._session) % evaluate.MIN_RUN == 0:
-                    v = evaluate.session_speeds(np.r_[np.full(a, -1), self._session], [0, a])[0]
-                    if groundtruth.speed_step(v):
-                        self._said.add(n)
-                        print(f"vpr loops: from frame {d.frame} on, session {n}'s best frames in the earlier sessions "
-                              f"move {v:.2g} of theirs a frame: driven {'faster' if v > 1 else 'slower'} than they "
-                              "were at the same frame rate; its closures onto them are not followed online (vpr learn "
-                              "EARLIER --out map.npz; vpr localize map.npz SESSION follows it; so does vpr loops S1 "
-                              "S2) (docs/loops.md)", file=sys.stderr, flush=True)
-                        break
+        for d in (d for d in ds if d.frame >= a):
+            self._reader.step(d.best, d.best < a)
+            v = self._reader.speed
+            if groundtruth.speed_step(v):
+                self._said.add(n)
+                print(f"vpr loops: from frame {d.frame} on, session {n}'s best frames in the earlier sessions move "
+                      f"{v:.2g} of theirs a frame: driven {'faster' if v > 1 else 'slower'} than they were at the "
+                      "same frame rate; its closures onto them are not followed online (vpr learn EARLIER --out "
+                      "map.npz; vpr localize map.npz SESSION follows it; so does vpr loops S1 S2) (docs/loops.md)",
+                      file=sys.stderr, flush=True)
+                break
         return ds
 
     def name_of(self, frame: int) -> str | None:
@@ -200,7 +198,7 @@ class LoopsOnline(Online):
 
     def new_session(self):
         self.det.new_session()
-        self._session = []
+        self._reader = evaluate.SpeedReader()
         return self._watch(self.det.take_late())
 
     def evaluate(self, result, names, indices, frames) -> dict:

@@ -74,7 +74,7 @@ import numpy as np
 from pipelines.cli import main as vpr
 from studies.cells import decisions_cell
 from vpr import simulate
-from vpr.evaluate import average_precision, path_speed
+from vpr.evaluate import average_precision, path_runs, path_speed
 from vpr.shosm import Localizer, RshosmSeqConf
 from vpr.shosm.decide import accept_path
 
@@ -328,16 +328,12 @@ def loops(data: Path, root: Path) -> None:
         print(f"| {name} | {' | '.join(cells)} |", flush=True)
 
 
-def _runs(best, min_run: int = 10) -> list[tuple[int, int, float]]:
-    """Every run of at least ``min_run`` frames whose best frame moves on by 0 to 4 frames a frame (the runs
-    :func:`vpr.evaluate.path_speed` reads, accepted or not): (first frame, last frame, speed)."""
+def _runs(best) -> list[tuple[int, int, float]]:
+    """Every run of best earlier frames :func:`vpr.evaluate.path_runs` reads, accepted or not: (first frame, last
+    frame, speed)."""
     best = np.asarray(best, np.int64)
-    d = np.diff(best)
-    linked = (best[:-1] >= 0) & (best[1:] >= 0) & (d >= 0) & (d <= 4)
-    edges = np.diff(np.r_[0, linked.astype(np.int8), 0])
-    first, last = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-    return [(int(a), int(b), (best[b] - best[a]) / (b - a)) for a, b in zip(first, last, strict=True)
-            if b - a + 1 >= min_run]
+    first, last = path_runs(best, best >= 0)
+    return [(int(a), int(b), (best[b] - best[a]) / (b - a)) for a, b in zip(first, last, strict=True)]
 
 
 def one_run(data: Path, root: Path) -> None:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from tests.cli import run
-from vpr.evaluate import path_speed, session_speeds
+from vpr.evaluate import SpeedReader, path_runs, path_speed, session_speeds
 from vpr.groundtruth import check_speeds
 
 
@@ -46,6 +46,20 @@ def test_a_query_at_another_speed_is_said(speed, said, fix):
     else:
         assert len(lines) == 1 and f"driven {said}" in lines[0] and lines[0].startswith("rshosm-seq:")
         assert fix in lines[0], lines[0]
+
+
+def test_the_speed_read_as_frames_come_is_path_speed_of_the_frames_so_far():
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        n = int(rng.integers(1, 120))
+        best = np.where(rng.random(n) < 0.05, -1, np.cumsum(rng.integers(-1, 4, n)))
+        accepted = rng.random(n) > 0.1
+        reader = SpeedReader(int(rng.integers(2, 12)))
+        for j in range(n):
+            reader.step(best[j], accepted[j])
+            assert reader.speed == pytest.approx(path_speed(best[:j + 1], accepted[:j + 1], reader.min_run)[0])
+        first, last = path_runs(best, accepted, reader.min_run)
+        assert (last - first).sum() == path_speed(best, accepted, reader.min_run)[1]
 
 
 def test_a_later_session_is_read_against_the_earlier_ones_accepted_or_not():

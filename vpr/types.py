@@ -4,12 +4,13 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["EncodedTraverse", "ImageInput", "Column", "Decision", "Decider", "FrameEncoder", "MatchResult",
-           "ENCODER_INPUTS"]
+__all__ = ["EncodedTraverse", "ImageInput", "Column", "Decision", "Decider", "QueryLocalizer", "FrameEncoder",
+           "MatchResult", "ENCODER_INPUTS"]
 
 #: Inputs that come from the encoder (every other input is an :class:`ImageInput` of a method).
 ENCODER_INPUTS = {"sdr": "SDRs", "desc": "dense descriptors"}
@@ -185,6 +186,20 @@ class Decider(ABC):
     @abstractmethod
     def load_state(self, header: dict, arrays: dict) -> Decider:
         """Continue from a :meth:`state`; returns self."""
+
+
+class QueryLocalizer(Protocol):
+    """Answers a query stream frame by frame against a learned map (:class:`vpr.shosm.Localizer`,
+    :class:`vpr.methods.SpeedFollower`)."""
+
+    def update(self, sdr_row) -> Decision:
+        """The next query frame's decision (an SDR row: 1-row batch, dense row or bit indices)."""
+
+    def reset(self) -> None:
+        """A new query traverse: nothing of the last frames carries over."""
+
+    def warm_up(self) -> None:
+        """Compile (or load) the kernels now, so that the first frame's latency is its own."""
 
 
 class FrameEncoder(ABC):

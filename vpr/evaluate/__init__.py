@@ -1,10 +1,12 @@
 """Place-recognition metrics: plain functions over ``S``, ``gt_hard`` and ``gt_soft``."""
 from .decisions import (
     MIN_RUN,
+    SpeedReader,
     accepted_precision,
     best_in_soft_band,
     decision_curve,
     outcomes,
+    path_runs,
     path_speed,
     session_pairs,
     session_speeds,
@@ -23,4 +25,5 @@ from .ranking import (
 
 __all__ = ["average_precision", "pr_curve", "thin_pr", "auc_pr", "auc_from_pr", "recall_at_100p", "recall_at_k",
            "evaluate", "accepted_precision", "best_in_soft_band", "decision_curve", "session_pairs", "outcomes",
-           "path_speed", "session_speeds", "MIN_RUN", "speed_metric", "method_metrics", "run_methods", "peak_rss_mb"]
+           "path_speed", "path_runs", "SpeedReader", "session_speeds", "MIN_RUN", "speed_metric", "method_metrics",
+           "run_methods", "peak_rss_mb"]

@@ -7,7 +7,7 @@ import scipy.sparse as sp
 from vpr.checks import at
 
 __all__ = ["accepted_precision", "best_in_soft_band", "decision_curve", "session_pairs", "outcomes", "path_speed",
-           "session_speeds", "MIN_RUN"]
+           "path_runs", "SpeedReader", "session_speeds", "MIN_RUN"]
 
 
 def accepted_precision(best_db, accepted, gt_hard, gt_soft=None, mask=None) -> dict:
@@ -165,12 +165,9 @@ def outcomes(best, gt_hard, gt_soft=None, mask=None) -> tuple[np.ndarray, np.nda
 MIN_RUN = 10
 
 
-def path_speed(best, accepted, min_run: int = MIN_RUN) -> tuple[float | None, int]:
-    """Database (earlier) frames per query frame along the accepted paths, without ground truth.
-
-    Over every run of at least ``min_run`` accepted frames whose best frame moves on by 0 to 4 frames a frame: the
-    frames moved over the query frames. Returns (speed, or None without such a run; query frames counted).
-    """
+def path_runs(best, accepted, min_run: int = MIN_RUN) -> tuple[np.ndarray, np.ndarray]:
+    """The runs :func:`path_speed` reads: every run of at least ``min_run`` accepted frames whose best frame moves on
+    by 0 to 4 frames a frame. Returns (first frames, last frames) of the runs."""
     best = np.asarray(best, np.int64)
     acc = np.asarray(accepted, bool) & (best >= 0)
     d = np.diff(best)
@@ -178,9 +175,56 @@ def path_speed(best, accepted, min_run: int = MIN_RUN) -> tuple[float | None, in
     edges = np.diff(np.r_[0, linked.astype(np.int8), 0])
     first, last = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)  # a run's frames: first .. last
     long = last - first + 1 >= min_run
-    steps = int((last - first)[long].sum())
-    moved = int((best[last[long]] - best[first[long]]).sum())
+    return first[long], last[long]
+
+
+def path_speed(best, accepted, min_run: int = MIN_RUN) -> tuple[float | None, int]:
+    """Database (earlier) frames per query frame along the accepted paths, without ground truth.
+
+    Over every run of :func:`path_runs`: the frames moved over the query frames. Returns (speed, or None without
+    such a run; query frames counted).
+    """
+    best = np.asarray(best, np.int64)
+    first, last = path_runs(best, accepted, min_run)
+    steps = int((last - first).sum())
+    moved = int((best[last] - best[first]).sum())
     return (moved / steps if steps else None), steps
+
+
+class SpeedReader:
+    """:func:`path_speed` read as the frames come: :meth:`step` each frame's best frame and whether it counts;
+    :attr:`speed` is what :func:`path_speed` returns over the frames so far (O(1) a frame)."""
+
+    def __init__(self, min_run: int = MIN_RUN):
+        self.min_run = int(min_run)
+        self.moved = self.steps = 0  # over the finished runs of min_run frames or more
+        self.first = self.last = -1  # the best frames of the current run (-1: none)
+        self.length = 0
+
+    def step(self, best: int, counts: bool = True) -> None:
+        best = int(best)
+        if not counts or best < 0:
+            self._close()
+        elif self.length and 0 <= best - self.last <= 4:
+            self.last, self.length = best, self.length + 1
+        else:
+            self._close()
+            self.first = self.last = best
+            self.length = 1
+
+    def _close(self) -> None:
+        if self.length >= self.min_run:
+            self.moved += self.last - self.first
+            self.steps += self.length - 1
+        self.first = self.last = -1
+        self.length = 0
+
+    @property
+    def speed(self) -> float | None:
+        open_run = self.length >= self.min_run
+        steps = self.steps + (self.length - 1 if open_run else 0)
+        moved = self.moved + (self.last - self.first if open_run else 0)
+        return moved / steps if steps else None
 
 
 def session_speeds(best, starts, min_run: int = MIN_RUN) -> list[float | None]:

@@ -12,7 +12,7 @@ from vpr.evaluate import MIN_RUN, path_speed, session_speeds
 from vpr.groundtruth import speed_step
 from vpr.shosm import Localizer, PathConf
 from vpr.shosm.state import joint_state, part_state
-from vpr.types import Column, Decision, EncodedTraverse, MatchResult
+from vpr.types import Column, Decision, EncodedTraverse, MatchResult, QueryLocalizer
 
 from .base import Fitted, Method
 
@@ -159,25 +159,25 @@ def _with_block(S, block, a: int, b: int):
         S = S.copy()
         S[:a, a:b] = block.toarray() if sp.issparse(block) else block
         return S
-    csc, blk = S.tocsc(), sp.csc_matrix(block) if sp.issparse(block) else None
+    coo, csc = S.tocoo(), S.tocsc()
+    blk = sp.csc_matrix(block) if sp.issparse(block) else None
     per_column = max(int(np.diff(csc.indptr).max(initial=0)), 1)
-    rows, cols, vals = [], [], []
-    for j in range(S.shape[1]):
+    kept = (coo.col < a) | (coo.col >= b)  # the other columns stay as they are
+    rows, cols, vals = [coo.row[kept]], [coo.col[kept]], [coo.data[kept]]
+    for j in range(a, b):
         r, x = csc.indices[csc.indptr[j]:csc.indptr[j + 1]], csc.data[csc.indptr[j]:csc.indptr[j + 1]]
-        if a <= j < b:
-            c = j - a
-            if blk is not None:
-                r_b, x_b = blk.indices[blk.indptr[c]:blk.indptr[c + 1]], blk.data[blk.indptr[c]:blk.indptr[c + 1]]
-            else:
-                r_b = np.flatnonzero(np.isfinite(block[:, c]))
-                x_b = block[r_b, c]
-            own = r >= a
-            r, x = np.r_[r_b, r[own]], np.r_[x_b.astype(S.dtype), x[own]]
-            top = np.argsort(-x, kind="stable")[:per_column]
-            r, x = r[top], x[top]
-        rows.append(r)
-        cols.append(np.full(r.size, j))
-        vals.append(x)
+        c = j - a
+        if blk is not None:
+            r_b, x_b = blk.indices[blk.indptr[c]:blk.indptr[c + 1]], blk.data[blk.indptr[c]:blk.indptr[c + 1]]
+        else:
+            r_b = np.flatnonzero(np.isfinite(block[:, c]))
+            x_b = block[r_b, c]
+        own = r >= a
+        r, x = np.r_[r_b, r[own]], np.r_[x_b.astype(S.dtype), x[own]]
+        top = np.argsort(-x, kind="stable")[:per_column]
+        rows.append(r[top])
+        cols.append(np.full(top.size, j))
+        vals.append(x[top])
     out = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=S.shape)
     out.sort_indices()
     return out
@@ -208,7 +208,7 @@ class _Path:
         self.start, self.first, self.last, self.length = (int(v) for v in values)
 
 
-class SpeedFollower:
+class SpeedFollower(QueryLocalizer):
     """Online localisation that follows a query driven at another speed than the map at the same frame rate.
 
     Steps the map's ``localizer`` on every frame and reads the speed of the consistent path of best frames (the

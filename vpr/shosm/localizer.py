@@ -5,7 +5,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from vpr import sdr as _sdr
-from vpr.types import Decision
+from vpr.types import Decision, QueryLocalizer
 
 from .conf import RshosmSeqConf, memory_params
 from .decide import PathDecider
@@ -17,7 +17,7 @@ from .state import joint_state, part_state
 __all__ = ["Localizer"]
 
 
-class Localizer:
+class Localizer(QueryLocalizer):
     """Causal place recognition of a query stream against a learned database.
 
     ``memory``: the memory that learned the database (queries do not change it); ``db_codes``: its winner codes
