@@ -45,6 +45,10 @@ __all__ = ["COMMANDS", "add_arguments", "run_command", "detect_loops", "make_det
 
 COMMANDS = {"loops": "loop closures within one traverse (the paper's setting)"}
 
+#: what follows a later session's speed where this command does not
+_LOCALIZE_SESSION = ("localise it against a map of the earlier sessions (vpr learn EARLIER --out map.npz; vpr localize "
+                     "map.npz SESSION)")
+
 
 def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     ap.add_argument("seq", metavar="SEQ", nargs="+",
@@ -180,8 +184,8 @@ class LoopsOnline(Online):
                 self._said.add(n)
                 print(f"vpr loops: from frame {d.frame} on, session {n}'s best frames in the earlier sessions move "
                       f"{v:.2g} of theirs a frame: driven {'faster' if v > 1 else 'slower'} than they were at the "
-                      "same frame rate; its closures onto them are not followed online (vpr learn EARLIER --out "
-                      "map.npz; vpr localize map.npz SESSION follows it; so does vpr loops S1 S2) (docs/loops.md)",
+                      f"same frame rate; its closures onto them are not followed online: {_LOCALIZE_SESSION}, or "
+                      "vpr loops S1 S2, follows it (docs/loops.md)",
                       file=sys.stderr, flush=True)
                 break
         return ds
@@ -273,8 +277,7 @@ def say_session_speeds(method: str, speeds, names=None, read=()) -> None:
     groundtruth.check_speeds({f"{method}: session {s + 2}{src(s)} against the earlier ones": v
                               for s, v in enumerate(speeds or []) if s + 2 not in read},
                              paths="paths of best earlier frames",
-                             fix="localise it against a map of the earlier sessions (vpr learn EARLIER --out map.npz; "
-                                 "vpr localize map.npz SESSION), which follows its speed")
+                             fix=f"{_LOCALIZE_SESSION}, which follows its speed")
 
 
 def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCLUDE) -> dict:
