@@ -51,7 +51,8 @@ def evidence(stream, cache: Path, preset: str = "default", decay: float | None =
 
 
 def aliases(name: str) -> np.ndarray | None:
-    """(T x T bool) pairs of a rendered stream that are an identical copy of each other, or None."""
+    """(T x T bool) pairs of a rendered stream that see an identical copy of each other, or None: both frames have
+    the copied stretch ahead in view (or just passed it) and lie at the copy's offset, within 10 m."""
     if "/" not in name:
         return None
     from vpr.render import render_scene
@@ -61,13 +62,15 @@ def aliases(name: str) -> np.ndarray | None:
     pos = sc.traverses[0].route_pos
     out = np.zeros((len(pos), len(pos)), bool)
     regions: dict = {}
+    view = float(sc.spec["camera"]["max_depth"])  # the camera sees a stretch from this far ahead
     for a in sc.spec["world"].get("aliasing", []):
         regions.setdefault((a["source"], a["length"]), [a["source"]]).append(a["target"])
     for (_, length), starts in regions.items():
         for s1, s2 in itertools.permutations(starts, 2):
-            # the copy and the evidence's tail after it (decay 0.9: about 10 frames, 20 m here)
-            r1 = (pos >= s1 - 5) & (pos <= s1 + length + 20)
-            r2 = (pos >= s2 - 5) & (pos <= s2 + length + 20)
+            # the copy in view (ahead of the camera, up to what it sees) and the evidence's tail after it (decay
+            # 0.9: about 10 frames, 20 m here); the pair at the copy's offset (the same view of it)
+            r1 = (pos >= s1 - view) & (pos <= s1 + length + 20)
+            r2 = (pos >= s2 - view) & (pos <= s2 + length + 20)
             out |= r1[:, None] & r2[None] & (np.abs(pos[None] - pos[:, None] - (s2 - s1)) <= 10)
     return out
 
