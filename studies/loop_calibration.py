@@ -66,41 +66,47 @@ def far_pairs(name, stream, d, res, verifier, alias, n: int, seed: int = 0) -> N
 
 
 def grid_counts(names, grid, cache: Path, data: Path, far: int = 0, min_side: int = 120) -> dict:
-    """{(min_inliers, self_ratio): {stream: count}} with one verifier per stream (its features and pairs computed
-    once for every setting)."""
+    """{(min_inliers, self_ratio, distinct, verified_within): {stream: count}} with one verifier per stream and
+    matching (its features and pairs computed once for every setting)."""
     conf = LoopConf()
     out: dict = {}
     for name in names:
         t = time.perf_counter()
         stream, alias, d = stream_decisions(name, cache, data, conf)
         image = images_of(stream)
-        def one_verifier(a, b, shared={}, **kw):  # noqa: B006 - one verifier per stream, by design
-            if "v" not in shared:
-                shared["v"] = Verifier(a, b, **kw)
-            return shared["v"]
+        def one_verifier(a, b, shared={}, **kw):  # noqa: B006 - one verifier per stream and matching, by design
+            if kw["distinct"] not in shared:
+                shared[kw["distinct"]] = Verifier(a, b, **kw)
+            return shared[kw["distinct"]]
 
         with mock.patch("vpr.verify.opinion.Verifier", one_verifier):
-            for k, r in grid:
+            for k, r, u, w in grid:
                 res, _ = second_opinion(d, image, stream.x, conf.back, conf.ahead, conf.stop_ratio,
-                                        OpinionConf(min_inliers=k, self_ratio=r, min_side=min_side),
+                                        OpinionConf(min_inliers=k, self_ratio=r, distinct=u, verified_within=w,
+                                                    min_side=min_side),
                                         accept_score=conf.min_score)
-                out.setdefault((k, r), {})[name] = count(stream, res.best, res.accepted, alias)
-                if (k, r) == grid[0] and far:
-                    far_pairs(name, stream, d, res, one_verifier.__defaults__[0]["v"], alias, far)
+                out.setdefault((k, r, u, w), {})[name] = count(stream, res.best, res.accepted, alias)
+                if (k, r, u, w) == grid[0] and far:
+                    far_pairs(name, stream, d, res, one_verifier.__defaults__[0][u], alias, far)
         print(f"  ({name}: {len(stream)} frames, {time.perf_counter() - t:.0f} s)", flush=True)
     return out
+
+
+def setting(s: tuple) -> str:
+    """A grid setting as the tables name it."""
+    return f"min_inliers {s[0]}, self_ratio {s[1]:g}, distinct {'yes' if s[2] else 'no'}, within {s[3]}"
 
 
 def choose(counts: dict, names) -> tuple:
     """The setting of the rule (module docstring) on the streams ``names``."""
     revisits = [n for n in names if n in REVISITS]
 
-    def key(setting):
-        c = counts[setting]
+    def key(s):
+        c = counts[s]
         false = sum(c[n]["false"] for n in names)
         rec = [c[n]["recall"] for n in revisits] or [0.0]
         # no false closure first (else the fewest), then the smallest recall, the mean recall, the larger bar
-        return (-false, min(rec), sum(rec) / len(rec), setting[0] + 100 * setting[1])
+        return (-false, min(rec), sum(rec) / len(rec), s[0] + 100 * s[1] + 1000 * s[2] - 0.1 * s[3])
 
     return max(counts, key=key)
 
@@ -111,6 +117,8 @@ def main(argv=None) -> int:
     ap.add_argument("--data", default=None)
     ap.add_argument("--inliers", default="12,15,20")
     ap.add_argument("--ratios", default="0,0.2,0.3,0.4,0.5")
+    ap.add_argument("--distinct", default="0,1", help="0: every match; 1: only matches distinct in their own image")
+    ap.add_argument("--within", default="2,3", help="verified_within: the 2 verified frames among the last this many")
     ap.add_argument("--streams", default=",".join((*REVISITS, *FORWARD)))
     ap.add_argument("--far", type=int, default=0, help="also print the inliers of this many random far pairs")
     ap.add_argument("--size", default="160x120", help="the size rendered streams are rendered at")
@@ -119,21 +127,23 @@ def main(argv=None) -> int:
     cache = Path(a.cache)
     cache.mkdir(parents=True, exist_ok=True)
     data = Path(a.data or os.environ.get("VPR_DATASETS", "../shared/datasets"))
-    grid = [(int(k), float(r)) for k in a.inliers.split(",") for r in a.ratios.split(",")]
+    grid = [(int(k), float(r), bool(int(u)), int(w)) for u in a.distinct.split(",") for w in a.within.split(",")
+            for k in a.inliers.split(",") for r in a.ratios.split(",")]
     names = a.streams.split(",")
     loop_streams.RENDER_SIZE = tuple(int(v) for v in a.size.lower().split("x"))
     counts = grid_counts(names, grid, cache, data, a.far, a.min_side)
-    print("\n| min_inliers | self_ratio | " + " | ".join(names) + " |")
-    print("|---:|---:|" + "---|" * len(names))
-    for k, r in grid:
-        print(f"| {k} | {r:g} | " + " | ".join(cell(counts[(k, r)][n]) for n in names) + " |")
+    print("\n| distinct | within | min_inliers | self_ratio | " + " | ".join(names) + " |")
+    print("|---|---:|---:|---:|" + "---|" * len(names))
+    for k, r, u, w in grid:
+        print(f"| {'yes' if u else 'no'} | {w} | {k} | {r:g} | "
+              + " | ".join(cell(counts[(k, r, u, w)][n]) for n in names) + " |")
     best = choose(counts, names)
-    print(f"\nchosen on every stream: min_inliers {best[0]}, self_ratio {best[1]:g}")
+    print(f"\nchosen on every stream: {setting(best)}")
     print("\n| held out | chosen on the others | held-out stream with it |")
     print("|---|---|---|")
     for held in names:
         s = choose(counts, [n for n in names if n != held])
-        print(f"| {held} | min_inliers {s[0]}, self_ratio {s[1]:g} | {cell(counts[s][held])} |")
+        print(f"| {held} | {setting(s)} | {cell(counts[s][held])} |")
     return 0
 
 

@@ -13,6 +13,7 @@ from vpr.verify import (
     Verifier,
     extract_features,
     match_features,
+    own_distances,
     rerank,
     top_candidates,
     two_view_inliers,
@@ -138,11 +139,51 @@ def test_true_matches_follow_the_homography(feats):
     assert np.mean(err < 3.0) > 0.8
 
 
+def test_own_distances_are_each_keypoints_nearest_other_descriptor(feats):
+    f = feats["a"]
+    d = hamming(f.descriptors, f.descriptors).astype(float)
+    np.fill_diagonal(d, np.inf)
+    assert np.array_equal(own_distances(f), d.min(axis=1))
+    one = Keypoints(f.xy[:1], f.descriptors[:1], f.scale)
+    assert np.isinf(own_distances(one)).all() and own_distances(one).shape == (1,)
+
+
+def crossing(seed):
+    """Scene ``seed`` with a crossing painted over its lower part: one stripe repeated across the frame."""
+    img = scene(seed).copy()
+    img[150:230] = 90
+    for x in range(5, W - 20, 26):
+        cv2.rectangle(img, (x, 160), (x + 13, 220), 235, -1)
+    return img
+
+
+@pytest.mark.parametrize("seeds", [(1, 2), (3, 4), (5, 6)])
+def test_distinct_matches_do_not_verify_a_pattern_repeated_within_the_image(seeds):
+    # two places with the same crossing: its stripes verify them, unless a match must be distinct in its own image
+    a, b = (extract_features(crossing(s)) for s in seeds)
+    every = two_view_inliers(a, b, match_features(a, b))
+    distinct = two_view_inliers(a, b, match_features(a, b, own=(own_distances(a), own_distances(b))))
+    assert every >= 20 and distinct <= every // 2
+
+
+def test_distinct_matches_keep_a_scene_without_repeats(feats):
+    f1, f2 = feats["a"], feats["a_warp"]
+    own = (own_distances(f1), own_distances(f2))
+    kept, m = match_features(f1, f2, own=own), match_features(f1, f2)
+    assert len(kept) >= 0.6 * len(m)
+    assert two_view_inliers(f1, f2, kept) >= 0.6 * two_view_inliers(f1, f2, m)
+    # exactly the matches below the ratio times both keypoints' own distances
+    d = hamming(f1.descriptors, f2.descriptors)[m[:, 0], m[:, 1]]
+    assert np.array_equal(kept, m[(d < 0.8 * own[0][m[:, 0]]) & (d < 0.8 * own[1][m[:, 1]])])
+
+
 def test_match_features_bad_args(feats):
     with pytest.raises(ValueError, match="ratio"):
         match_features(feats["a"], feats["b"], ratio=0)
     with pytest.raises(ValueError, match="f2"):
         match_features(feats["a"], np.zeros((3, 32), np.uint8))
+    with pytest.raises(ValueError, match="own"):
+        match_features(feats["a"], feats["b"], own=(np.zeros(2), np.zeros(3)))
 
 
 # --------------------------------------------------------------------------- #
@@ -319,6 +360,14 @@ def test_features_cached_once_per_image(imgs):
     calls = {"db": [], "q": []}
     Verifier(db, q, cache=False).verify(S, 3, progress=False)
     assert len(calls["db"]) == 6
+    # at most 2 images a side: the third database image pushes out the least recently used
+    calls = {"db": [], "q": []}
+    v = Verifier(db, q, max_cached=2)
+    v.pair_inliers(0, 0), v.pair_inliers(1, 0), v.pair_inliers(0, 1), v.pair_inliers(2, 1)
+    assert calls["db"] == [0, 1, 2] and calls["q"] == [0, 1]
+    v.pair_inliers(0, 0)  # 0 was used after 1: kept
+    v.pair_inliers(1, 1)  # 1 was dropped for 2
+    assert calls["db"] == [0, 1, 2, 1]
 
 
 def test_verifier_bad_args(place):

@@ -9,7 +9,7 @@ import numpy as np
 from vpr.checks import check_float, check_int
 from vpr.imageproc import to_grey
 
-__all__ = ["Keypoints", "extract_features", "match_features", "check_keypoints"]
+__all__ = ["Keypoints", "extract_features", "match_features", "check_keypoints", "own_distances"]
 
 _DESCRIPTOR_BYTES = 32  # ORB descriptors are 256 bits
 
@@ -65,12 +65,32 @@ def extract_features(image, n_features: int = 1000, min_side: int = 240, name: s
     return Keypoints(xy, np.ascontiguousarray(desc, dtype=np.uint8), scale)
 
 
-def match_features(f1: Keypoints, f2: Keypoints, ratio: float = 0.8, mutual: bool = True) -> np.ndarray:
+def own_distances(f: Keypoints) -> np.ndarray:
+    """Each keypoint's Hamming distance to the nearest other descriptor of its own image, float64 (K,) (inf: none).
+
+    Small where a pattern repeats within the image (crossing stripes, tiles, a row of windows): such a keypoint matches
+    wherever the pattern is, in any image.
+    """
+    f = check_keypoints(f, "f")
+    out = np.full(len(f), np.inf)
+    if len(f) < 2:
+        return out
+    for knn in cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(f.descriptors, f.descriptors, k=2):
+        other = [m for m in knn if m.trainIdx != m.queryIdx]
+        if other:
+            out[knn[0].queryIdx] = other[0].distance
+    return out
+
+
+def match_features(f1: Keypoints, f2: Keypoints, ratio: float = 0.8, mutual: bool = True,
+                   own: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Match ORB descriptors by Hamming distance with Lowe's ratio test.
 
     A match ``i -> j`` is kept below ``ratio`` times the distance to ``i``'s second neighbour in ``f2`` (none: kept);
-    ``mutual`` also requires ``i`` to be ``j``'s nearest in ``f1``. Returns intp (M, 2) pairs ``(i, j)`` sorted by
-    ``i``.
+    ``mutual`` also requires ``i`` to be ``j``'s nearest in ``f1``. ``own``: the two images' :func:`own_distances`;
+    given, a match is also kept only below ``ratio`` times both keypoints' own distances (the ratio test against each
+    keypoint's own image: a pattern repeated within an image matches nothing). Returns intp (M, 2) pairs ``(i, j)``
+    sorted by ``i``.
     """
     f1 = check_keypoints(f1, "f1")
     f2 = check_keypoints(f2, "f2")
@@ -78,6 +98,11 @@ def match_features(f1: Keypoints, f2: Keypoints, ratio: float = 0.8, mutual: boo
     empty = np.zeros((0, 2), dtype=np.intp)
     if len(f1) == 0 or len(f2) == 0:
         return empty
+    if own is not None:
+        own1, own2 = (np.asarray(o, np.float64) for o in own)
+        if own1.shape != (len(f1),) or own2.shape != (len(f2),):
+            raise ValueError(f"own must hold one distance per keypoint ({len(f1)}, {len(f2)}), "
+                             f"got shapes {own1.shape}, {own2.shape}")
     matcher = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=False)
     pairs = []
     for knn in matcher.knnMatch(f1.descriptors, f2.descriptors, k=2):
@@ -85,6 +110,9 @@ def match_features(f1: Keypoints, f2: Keypoints, ratio: float = 0.8, mutual: boo
             continue
         best = knn[0]
         if len(knn) > 1 and not best.distance < ratio * knn[1].distance:
+            continue
+        if own is not None and not (best.distance < ratio * own1[best.queryIdx]
+                                    and best.distance < ratio * own2[best.trainIdx]):
             continue
         pairs.append((best.queryIdx, best.trainIdx))
     if not pairs:

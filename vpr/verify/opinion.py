@@ -19,10 +19,12 @@ __all__ = ["OpinionConf", "GeometricOpinion", "second_opinion"]
 class OpinionConf:
     """When geometry confirms a closure (``docs/internals.md``)."""
 
-    min_inliers: int = 20
+    min_inliers: int = 30
     frames: int = 3
-    #: consecutive frames that must verify before geometry accepts (the first of a run is not enough)
+    #: frames that must verify before geometry accepts (the first of a run is not enough) ...
     verified_frames: int = 2
+    #: ... among the last this many frames checked (blind ones skipped; equal to ``verified_frames``: in a row)
+    verified_within: int = 2
     #: frames between the earlier frame and this one checked for a break of view (spread, the middle first)
     break_samples: int = 8
     #: out of sight: a frame between has fewer inliers with the earlier frame than this share of this frame's
@@ -31,10 +33,15 @@ class OpinionConf:
     #: frames on (one place seen twice from almost the same pose): a bar in the stream's own units (0: none)
     self_ratio: float = 0.0
     self_gap: int = 2
+    #: matches also pass the ratio test against each keypoint's own image (a pattern repeated within a frame, such as
+    #: a crossing's stripes, confirms nothing: :func:`vpr.verify.own_distances`)
+    distinct: bool = True
     min_side: int = 120
     min_keypoints: int = 100
     n_features: int = 2000
     max_error: float = 2.0
+    #: frames whose features are kept (the least recently used dropped): memory bounded on a long stream
+    max_cached: int = 512
 
 
 class GeometricOpinion(Decider):
@@ -49,9 +56,9 @@ class GeometricOpinion(Decider):
         self.decider, self.image, self.conf = decider, image, conf or OpinionConf()
         self.back, self.ahead, self.stop_ratio = int(back), int(ahead), float(stop_ratio)
         self._verifier = Verifier(image, image, n_features=self.conf.n_features, max_error=self.conf.max_error,
-                                  min_side=1)
+                                  min_side=1, distinct=self.conf.distinct, max_cached=self.conf.max_cached)
         self._recent: list[tuple[int, int]] = []  # (best, session) of the last frames
-        self._run = 0  # consecutive frames geometry verified
+        self._checked: list[bool] = []  # whether each frame geometry checked along the path verified, the last first
         self._ptr, self._ind = [0], []
         self._session = 0
         self.verified = self.blind = self.accepted = 0
@@ -79,7 +86,7 @@ class GeometricOpinion(Decider):
         """The wrapped decider's state and the opinion's own (its recent best frames, its run, its counts); the
         features and inliers it computed are not kept (computed again as needed)."""
         header, arrays = self.decider.state()
-        own = {"recent": [list(r) for r in self._recent], "run": self._run, "session": self._session,
+        own = {"recent": [list(r) for r in self._recent], "checked": self._checked, "session": self._session,
                "verified": self.verified, "blind": self.blind, "accepted": self.accepted, "frames": self.frames}
         return {"rule": header, "opinion": own}, {**{f"rule_{k}": v for k, v in arrays.items()},
                                                   "opinion_ptr": np.asarray(self._ptr, np.int64),
@@ -89,7 +96,8 @@ class GeometricOpinion(Decider):
         self.decider.load_state(header["rule"], {k[5:]: v for k, v in arrays.items() if k.startswith("rule_")})
         own = header["opinion"]
         self._recent = [tuple(r) for r in own["recent"]]
-        self._run, self._session, self.frames = int(own["run"]), int(own["session"]), int(own["frames"])
+        self._checked = [bool(v) for v in own["checked"]]
+        self._session, self.frames = int(own["session"]), int(own["frames"])
         self.verified, self.blind, self.accepted = int(own["verified"]), int(own["blind"]), int(own["accepted"])
         self._ptr, self._ind = arrays["opinion_ptr"].tolist(), arrays["opinion_ind"].tolist()
         return self
@@ -108,7 +116,7 @@ class GeometricOpinion(Decider):
         consistent = self._consistent(b)
         self._recent = (self._recent + [(b, self._session)])[-max(self.conf.frames, 1):]
         if d.accepted or not consistent:
-            self._run = 0
+            self._checked = []
             return d
         t = time.perf_counter()
         c = self.conf
@@ -122,11 +130,9 @@ class GeometricOpinion(Decider):
                 return d
             self.verified += 1
             n = self._verifier.pair_inliers(b, j)
-            if n < c.min_inliers or (c.self_ratio > 0 and n < c.self_ratio * self._own(b, j)):
-                self._run = 0
-                return d
-            self._run += 1
-            if self._run < c.verified_frames or not self._out_of_sight(b, j, self._verifier.pair_inliers(b, j)):
+            ok = n >= c.min_inliers and not (c.self_ratio > 0 and n < c.self_ratio * self._own(b, j))
+            self._checked = ([ok] + self._checked)[:max(c.verified_within, c.verified_frames)]
+            if not ok or sum(self._checked) < c.verified_frames or not self._out_of_sight(b, j, n):
                 return d
             if self.stop_ratio > 0 and self._same_session(b, j):
                 ptr, ind = np.asarray(self._ptr, np.int64), np.asarray(self._ind, np.int64)
@@ -153,12 +159,13 @@ class GeometricOpinion(Decider):
         if not self._same_session(b, j):
             return True
         between = np.arange(b + 1, j)
+        bar = self.conf.break_ratio * inliers
         if not between.size:
             return False
         # the middle first, then spread: a loop is out of sight there at once, a road ahead nowhere
         picks = np.unique(np.round(np.linspace(0, between.size - 1, self.conf.break_samples + 2)[1:-1]).astype(int))
         for k in between[picks[np.argsort(np.abs(picks - between.size // 2), kind="stable")]]:
-            if self._verifier.pair_inliers(b, int(k)) < self.conf.break_ratio * inliers:
+            if self._verifier.pair_inliers(b, int(k)) < bar:
                 return True
         return False
 

@@ -1,6 +1,7 @@
 """The verifier: the top candidates of a similarity matrix, checked by ORB matches and two-view RANSAC."""
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -12,7 +13,7 @@ from vpr.checks import check_choice, check_float, check_int, check_similarity
 from vpr.config import merge_conf
 from vpr.types import MatchResult
 
-from .features import Keypoints, extract_features, match_features
+from .features import Keypoints, extract_features, match_features, own_distances
 from .rerank import rerank, top_candidates
 from .twoview import MODELS, check_seed, two_view_inliers
 
@@ -91,12 +92,16 @@ class Verifier:
     **conf
         Over ``Verifier.default_conf`` (:func:`vpr.config.merge_conf`): ``n_features`` ORB keypoints per image;
         ``model`` and ``max_error, seed, max_trials`` as :func:`two_view_inliers`; ``ratio`` and ``mutual`` as
-        :func:`match_features`; ``min_side`` as :func:`extract_features`; ``min_inliers`` the best candidate needs;
-        ``cache``: keep each image's features after first use (about 48 kB at 1000 features).
+        :func:`match_features`; ``distinct``: matches also pass the ratio test against each keypoint's own image
+        (:func:`own_distances`: a pattern repeated within an image, such as a crossing's stripes, matches nothing);
+        ``min_side`` as :func:`extract_features`; ``min_inliers`` the best candidate needs;
+        ``cache``: keep each image's features after first use (about 48 kB at 1000 features); ``max_cached``: at most
+        this many images' per side, the least recently used dropped (0: every image).
     """
 
     default_conf = {"n_features": 1000, "model": "fundamental", "ratio": 0.8, "min_inliers": 15, "cache": True,
-                    "max_error": 4.0, "seed": 0, "max_trials": 2000, "mutual": True, "min_side": 240}
+                    "max_error": 4.0, "seed": 0, "max_trials": 2000, "mutual": True, "min_side": 240,
+                    "distinct": False, "max_cached": 0}
 
     def __init__(self, db_images: ImageSource, q_images: ImageSource, **conf):
         self._db = self._check_images(db_images, "db_images")
@@ -113,8 +118,11 @@ class Verifier:
         self.seed = c["seed"]
         self.max_trials = check_int(c["max_trials"], "max_trials", 1)
         self.mutual = c["mutual"]
+        self.distinct = bool(c["distinct"])
         self.min_side = check_int(c["min_side"], "min_side", 1)
-        self._cache = {"database": {}, "query": {}}
+        self.max_cached = check_int(c["max_cached"], "max_cached", 0)
+        self._cache = {"database": OrderedDict(), "query": OrderedDict()}
+        self._own: dict = {"database": OrderedDict(), "query": OrderedDict()}
         # (db, query) -> inliers: several methods often propose the same candidates
         self._pairs: dict[tuple[int, int], int] = {}
 
@@ -136,9 +144,18 @@ class Verifier:
             if img is None:
                 raise ValueError(f"{name}: could not be loaded (got None)")
             f = extract_features(img, self.n_features, self.min_side, name=name)
-            if self.cache:
-                store[i] = f
+            self._keep(store, i, f)
+        else:
+            store.move_to_end(i)
         return f
+
+    def _keep(self, store: OrderedDict, i: int, value) -> None:
+        """``value`` of image ``i`` kept in ``store`` (as caching allows, the least recently used dropped)."""
+        if not self.cache:
+            return
+        store[i] = value
+        if self.max_cached and len(store) > self.max_cached:
+            store.popitem(last=False)
 
     def db_features(self, i: int) -> Keypoints:
         """Keypoints of database image ``i`` (computed on first use when caching)."""
@@ -153,14 +170,24 @@ class Verifier:
         key = (int(db_index), int(q_index))
         n = self._pairs.get(key)
         if n is None:
-            n = self._inliers(self.db_features(db_index), self.query_features(q_index))
+            fd, fq = self.db_features(db_index), self.query_features(q_index)
+            own = (self._own_distances("query", q_index, fq), self._own_distances("database", db_index, fd)) \
+                if self.distinct else None
+            m = match_features(fq, fd, self.ratio, self.mutual, own)
+            n = two_view_inliers(fq, fd, m, self.model, self.max_error, self.seed, self.max_trials)
             if self.cache:
                 self._pairs[key] = n
         return n
 
-    def _inliers(self, fd: Keypoints, fq: Keypoints) -> int:
-        m = match_features(fq, fd, self.ratio, self.mutual)
-        return two_view_inliers(fq, fd, m, self.model, self.max_error, self.seed, self.max_trials)
+    def _own_distances(self, which: str, i: int, f: Keypoints) -> np.ndarray:
+        store = self._own[which]
+        d = store.get(i)
+        if d is None:
+            d = own_distances(f)
+            self._keep(store, i, d)
+        else:
+            store.move_to_end(i)
+        return d
 
     def verify(self, S, n_candidates: int, progress: bool = True) -> VerifyResult:
         """Verify each query's ``n_candidates`` best database entries under ``S`` (sparse: stored, not ``-inf``).
