@@ -167,7 +167,7 @@ def main(argv=None) -> int:
         if hasattr(args, "no_progress") and not sys.stderr.isatty():
             args.no_progress = True  # bars redrawn into a log file are noise
         try:
-            if getattr(args, "verify", 0) or getattr(args, "geometry", "off") == "on":
+            if getattr(args, "verify", 0) or getattr(args, "geometry", "off") != "off":
                 importlib.import_module("vpr.verify")  # its library's signal handlers replaced now, not mid-run
             _check_paths(args)
             with _memory_budget(getattr(args, "memory_budget", None)):

@@ -37,7 +37,7 @@ from vpr.shosm import LOOP_EXCLUDE, LoopDetector
 from vpr.similarity import budget_setting
 from vpr.sources import frame_reader
 from vpr.sources.base import frames_in
-from vpr.sources.stdin import StdinSource
+from vpr.sources.stdin import StdinSource, read_again
 from vpr.types import EncodedTraverse, MatchResult
 
 __all__ = ["COMMANDS", "add_arguments", "run_command", "detect_loops", "make_detector", "resume_detector",
@@ -62,8 +62,8 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     ap.add_argument("--geometry", choices=("on", "off"),
                     help="rshosm-seq: a geometric second opinion (ORB + two-view RANSAC inliers of the best earlier "
                          "frame, where the images are large enough) accepts closures the path score has not reached "
-                         "yet: short indoor loops, revisits the path is slow to trust; off by default, since on "
-                         "forward drives it confirms the same road ahead (docs/loops.md)")
+                         "yet: short loops, revisits the path is slow to trust; on by default for rshosm-seq "
+                         "(docs/loops.md), off: the path alone decides")
     add_query_speed_argument(ap, sessions=True)
     add_gt_arguments(ap, loops=True)
     online = ap.add_argument_group("online (SEQ is -)")
@@ -86,7 +86,7 @@ def run_command(args) -> int:
     if args.geometry == "on" and method != "rshosm-seq":
         raise ValueError(f"--geometry on: a second opinion on rshosm-seq's loop closures, not on {method}'s")
     opts = options_from_args(args)
-    opts.geometry = args.geometry == "on"
+    opts.geometry = method == "rshosm-seq" and args.geometry != "off"
     report = run_loops(args.seq[0] if len(args.seq) == 1 else args.seq, method, opts,
                        exclude=LOOP_EXCLUDE if args.exclude is None else args.exclude)
     print(metrics_table(report["methods"], "loops"))
@@ -98,7 +98,7 @@ def _run_online(args, settings: dict) -> int:
     """``vpr loops -``: refuse what does not apply to a stream on stdin, then decide it frame by frame."""
     given = [f for f, v in (("--fps", args.fps), ("--step", args.step), ("--max-frames", args.max_frames),
                             ("--cache", args.cache), ("--topic", args.topic), ("--every", args.every),
-                            ("--gt-topic", args.gt_topic), ("--geometry", args.geometry),
+                            ("--gt-topic", args.gt_topic),
                             ("--memory-budget", args.memory_budget), ("--query-speed", args.query_speed))
              if v is not None]
     if given:
@@ -107,21 +107,34 @@ def _run_online(args, settings: dict) -> int:
     if args.resume is not None:
         given = [f for f, v in (("--preset", args.preset), ("--method", args.method), ("--encoder", args.encoder),
                                 ("--encoder-conf", args.encoder_conf), ("--method-conf", args.method_conf),
-                                ("--exclude", args.exclude)) if v]
+                                ("--exclude", args.exclude), ("--geometry", args.geometry)) if v]
         if given:
-            raise ValueError(f"--resume {args.resume}: the encoder, the conf and --exclude are the saved detector's; "
-                             f"{', '.join(given)} cannot change them")
+            raise ValueError(f"--resume {args.resume}: the encoder, the conf, --exclude and --geometry are the saved "
+                             f"detector's; {', '.join(given)} cannot change them")
         det = resume_detector(args.resume)
     else:
-        det = make_detector(settings, exclude)
+        det = make_detector(settings, exclude, geometry=args.geometry != "off")
     report = detect_loops(det, args.out, gt=gt_spec_from_args(args), state_out=args.state_out)
     print(summary_line(report, ONLINE_METHOD, args.out, "loop closures accepted"), file=sys.stderr)
     return 0
 
 
-def make_detector(settings: dict, exclude: int = LOOP_EXCLUDE) -> LoopDetector:
+def geometry_opinion(image, opinions: dict, key: str):
+    """``opinion(rule)``: the geometric second opinion around a loop rule (:class:`vpr.verify.GeometricOpinion`) over
+    ``image(j)``, frame ``j`` at its source's resolution; the opinion made is kept in ``opinions[key]``."""
+    from vpr.verify import GeometricOpinion  # pycolmap: loaded only when verifying
+
+    def opinion(rule):
+        loop = rule.loop  # the loop rule's own settings say what a consistent path is
+        opinions[key] = GeometricOpinion(rule, image, loop.back, loop.ahead, loop.stop_ratio)
+        return opinions[key]
+    return opinion
+
+
+def make_detector(settings: dict, exclude: int = LOOP_EXCLUDE, geometry: bool = True) -> LoopDetector:
     """The detector of ``vpr loops -`` for the run's ``settings`` (:func:`pipelines.args.settings_from_args`):
-    the preset's loop encoder and the ``rshosm-seq`` method's conf, which hands out the detector."""
+    the preset's loop encoder and the ``rshosm-seq`` method's conf, which hands out the detector; ``geometry``: with
+    the geometric second opinion (its frames read again from their paths)."""
     method = settings["methods"][0]
     if not methods.get_class(method).runs_online:
         raise ValueError(f"vpr loops -: {method} does not run online (one frame at a time as it comes); online loop "
@@ -133,18 +146,26 @@ def make_detector(settings: dict, exclude: int = LOOP_EXCLUDE) -> LoopDetector:
     runner = methods.get(ONLINE_METHOD, **settings["method_conf"].get(ONLINE_METHOD, {}))
     enc = encoders.get(settings["encoder"], **settings["encoder_conf"])
     enc.check_memory(1)  # frames come one at a time
-    det = runner.loop_detector(StreamEncoder(enc), exclude=exclude)
+    opinion = _paths_opinion(lambda: det) if geometry else None
+    det = runner.loop_detector(StreamEncoder(enc), exclude=exclude, opinion=opinion)
     det.meta = {"encoder": enc.name, "encoder_conf": enc.conf, "preset": settings["preset"]}
     return det
 
 
+def _paths_opinion(detector):
+    """The geometric second opinion of ``vpr loops -``: ``detector()``'s frames read again from their paths."""
+    return geometry_opinion(lambda j: read_again(detector().names[j]), {}, "")
+
+
 def resume_detector(path) -> LoopDetector:
-    """A detector saved by ``vpr loops - --state-out``, with the encoder it was saved with."""
-    det = LoopDetector.load(path)
-    enc = det.meta.get("encoder")
+    """A detector saved by ``vpr loops - --state-out``, with the encoder and the opinion it was saved with."""
+    meta = LoopDetector.saved_meta(path)
+    enc = meta.get("encoder")
     if not enc:
         raise ValueError(f"{path}: a loop detector saved without its encoder (not by `vpr loops -`)")
-    return LoopDetector.load(path, encoder=StreamEncoder(encoders.get(enc, **det.meta["encoder_conf"])))
+    det = LoopDetector.load(path, encoder=StreamEncoder(encoders.get(enc, **meta["encoder_conf"])),
+                            opinion=_paths_opinion(lambda: det) if meta["opinion"] else None)
+    return det
 
 
 class LoopsOnline(Online):
@@ -220,7 +241,8 @@ class LoopsOnline(Online):
             say_session_speeds(self.method, speeds["session_speeds"], read=self._said)
         if not self.gt.files:
             return ({"sessions": evaluate.session_pairs(result.best, result.accepted, None, starts, names=labels,
-                                                        frames=frames), **speeds} if len(starts) > 1 else {}), None
+                                                        frames=frames), **speeds} if len(starts) > 1 else {}) \
+                | self._geometry(), None
         hard, soft = build_loop_gt(self.gt, self.det.names, list(range(N)), total=N)
         hard, soft = (None if g is None else g[:, frames] for g in (hard, soft))
         exclude = self.det.conf["exclude"]
@@ -233,9 +255,14 @@ class LoopsOnline(Online):
             m["sessions"] = evaluate.session_pairs(result.best, result.accepted, hard, starts, soft, mask, labels,
                                                    frames=frames)
         m.update(speeds)
+        m.update(self._geometry())
         m.pop("seconds", None)
         m.pop("n_accepted", None)
         return m, curve
+
+    def _geometry(self) -> dict:
+        """metrics.json's ``geometry``: the second opinion's report (frames verified, blind, accepted), if any."""
+        return {"geometry": self.det.stream.decider.report()} if self.det.opinion is not None else {}
 
     def save(self, path) -> None:
         self.det.save(path)
@@ -336,16 +363,7 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
                                                           method=m, exclude=exclude))
 
         def loops_of(r):
-            opinion = None
-            if opts.geometry:
-                from vpr.verify import GeometricOpinion  # pycolmap: loaded only when verifying
-
-                image = frame_reader(srcs, read)
-
-                def opinion(rule):
-                    loop = rule.loop  # the loop rule's own settings say what a consistent path is
-                    opinions[r.name] = GeometricOpinion(rule, image, loop.back, loop.ahead, loop.stop_ratio)
-                    return opinions[r.name]
+            opinion = geometry_opinion(frame_reader(srcs, read), opinions, r.name) if opts.geometry else None
             res = r.loops(features, exclude=exclude, progress=opts.progress, sessions=starts, opinion=opinion)
             speeds[r.name] = evaluate.session_speeds(res.best, starts)  # as the sessions came, before any is followed
             return methods.loops_at_speed(r, features, res, starts, opts.progress) if opts.follow_speed else res

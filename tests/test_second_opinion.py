@@ -83,3 +83,78 @@ def test_geometry_is_refused_for_a_method_it_does_not_apply_to(tmp_path, capsys)
     code = main(["loops", str(seq), "--out", str(out), "--method", "seqslam", "--geometry", "on"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "--geometry on" in err[0] and not out.exists()
+
+
+def crossing_at(img):
+    """``img`` with a crossing painted over its lower part (one stripe repeated across the frame)."""
+    out = img.copy()
+    out[150:230] = 90
+    for x in range(5, out.shape[1] - 20, 26):
+        cv2.rectangle(out, (x, 160), (x + 13, 220), (235, 235, 235), -1)
+    return out
+
+
+def test_a_crossing_seen_at_another_place_is_not_confirmed():
+    # the "revisits" are other places with the same crossing as the first 20 frames (none between): its repeated
+    # stripes verify them when every match counts, not when a match must be distinct within its own frame (default)
+    imgs, best, x = _stream()
+    other = _textures(60, seed=9)
+    crossed = [crossing_at(im) for im in imgs[:20]] + imgs[20:40] + [crossing_at(im) for im in other[40:]]
+    d, _ = _run(crossed, best, x, OpinionConf(min_inliers=12, distinct=False))
+    assert d.accepted.any()  # the crossing alone verifies them
+    d, _ = _run(crossed, best, x, OpinionConf(min_inliers=12))
+    assert not d.accepted.any()
+
+
+@pytest.mark.slow  # the command line three times over a short loop
+def test_vpr_loops_decides_short_loops_with_geometry_by_default_and_online_alike(tmp_path, capsys, monkeypatch):
+    import csv
+    import io
+    import json
+
+    from pipelines.cli import main
+    from vpr.shosm import LoopDetector, MemoryFileError
+
+    imgs, _, _ = _stream()
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    for j, img in enumerate(imgs):
+        cv2.imwrite(str(seq / f"{j:03d}.png"), img)
+    paths = sorted(str(p) for p in seq.glob("*.png"))
+    loose = ["--preset", "fast", "--exclude", "12", "--no-progress"]
+
+    def batch(*extra):
+        out = tmp_path / f"batch{len(extra)}"
+        assert main(["loops", str(seq), "--out", str(out), *loose, *extra]) == 0
+        capsys.readouterr()
+        with open(out / "rshosm-seq" / "matches.csv") as fh:
+            rows = [(int(r["best_db"]), r["accepted"] == "1") for r in csv.DictReader(fh)]
+        return rows, json.loads((out / "metrics.json").read_text())["methods"]["rshosm-seq"]
+
+    def online(lines, *extra):
+        monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(lines) + "\n"))
+        code = main(["loops", "-", "--out", str(tmp_path / f"online{len(lines)}{len(extra)}"), *extra])
+        out, err = capsys.readouterr()
+        assert code == 0, err
+        return [(r["best_db"] if r["best_db"] is not None else -1, r["accepted"])
+                for r in map(json.loads, out.splitlines())]
+
+    rows, m = batch()
+    path_only, m_off = batch("--geometry", "off")
+    # the path alone accepts none of this short revisit; geometry confirms most of it (the first frames are its run)
+    assert not any(a for _, a in path_only) and "geometry" not in m_off
+    by_geometry = m["geometry"]["accepted_by_geometry"]
+    assert by_geometry >= 12 and sum(a for _, a in rows) == by_geometry
+    assert all(b == j - 40 for j, (b, a) in enumerate(rows) if a)
+    # online, one frame at a time: the same answers; stopped after 45 frames and resumed: the same again
+    assert online(paths, *loose[:-1]) == rows
+    state = tmp_path / "state.npz"
+    first = online(paths[:45], *loose[:-1], "--state-out", str(state))
+    assert first + online(paths[45:], "--resume", str(state)) == rows
+    assert LoopDetector.saved_meta(state)["opinion"]
+    with pytest.raises(MemoryFileError, match="saved with a second opinion"):
+        LoopDetector.load(state)
+    # the opinion is the saved detector's: --geometry cannot change it
+    monkeypatch.setattr("sys.stdin", io.StringIO(""))
+    assert main(["loops", "-", "--out", str(tmp_path / "x"), "--resume", str(state), "--geometry", "off"]) == 2
+    assert "--geometry" in capsys.readouterr().err

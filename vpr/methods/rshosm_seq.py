@@ -49,9 +49,10 @@ class RshosmSeq(Method):
         self.seq = RshosmSeqConf.build(self.conf, self.name)
         loop_rule(self.seq.loop_rule)  # a rule not registered is refused now
 
-    def loop_detector(self, encoder=None, exclude: int = LOOP_EXCLUDE) -> LoopDetector:
-        """Loop closure one frame at a time with this conf (``vpr loops -``): the answers of :meth:`loops`."""
-        return LoopDetector(encoder, self.seq, exclude=exclude)
+    def loop_detector(self, encoder=None, exclude: int = LOOP_EXCLUDE, opinion=None) -> LoopDetector:
+        """Loop closure one frame at a time with this conf (``vpr loops -``): the answers of :meth:`loops` (with the
+        same ``opinion`` around the loop rule)."""
+        return LoopDetector(encoder, self.seq, exclude=exclude, opinion=opinion)
 
     def localizer(self, db_sdr, names, progress: bool = False, sessions=None) -> Localizer:
         """Learn the database ``db_sdr`` (named ``names``; ``sessions``: the first frame of each run of a

@@ -11,7 +11,7 @@ from vpr.types import Decision, FrameEncoder
 
 from .conf import LOOP_EXCLUDE, RshosmSeqConf
 from .loops import LoopStream
-from .state import read_file, write_file
+from .state import MemoryFileError, read_file, write_file
 
 __all__ = ["LoopDetector"]
 
@@ -31,11 +31,13 @@ class LoopDetector:
 
     ``encoder``: encodes the images :meth:`update` takes (without it, SDR rows; ``docs/internals.md``); ``conf``:
     rSHOSM-seq's conf, ``**flat`` keys over it (its ``top_k``: the earlier frames an answer lists); ``exclude``:
-    frames closer are not candidates. ``names``: the frames' names; ``meta``: caller metadata :meth:`save` stores.
+    frames closer are not candidates; ``opinion(decider)``: a second decider around the loop rule, as
+    :class:`LoopStream` takes it (``vpr loops -``: geometry). ``names``: the frames' names; ``meta``: caller metadata
+    :meth:`save` stores.
     """
 
     def __init__(self, encoder: FrameEncoder | None = None, conf: RshosmSeqConf | None = None,
-                 exclude: int = LOOP_EXCLUDE, **flat):
+                 exclude: int = LOOP_EXCLUDE, opinion=None, **flat):
         self.seq = RshosmSeqConf.of(conf, **flat)
         exclude = check_int(exclude, "LoopDetector: exclude", 1)
         delay = int(encoder.delay) if encoder is not None else 0
@@ -46,7 +48,8 @@ class LoopDetector:
         #: the whole conf, the decision's defaults filled in, and ``exclude`` (recorded in metrics.json)
         self.conf = {**self.seq.resolved("loops"), "exclude": exclude}
         self.encoder = encoder
-        self.stream = LoopStream(exclude, self.seq)
+        self.opinion = opinion
+        self.stream = LoopStream(exclude, self.seq, opinion=opinion)
         self.names: list[str] = []
         self.meta: dict = {}
         self._late: list[Decision] = []
@@ -142,21 +145,34 @@ class LoopDetector:
         enc_header, enc_arrays = self.encoder.state() if self.encoder is not None else ({}, {})
         return write_file(path, _FORMAT, _FORMAT_VERSION,
                           {"conf": {**self.seq.flat(), "exclude": self.exclude}, "stream": header, "meta": self.meta,
-                           "enc": enc_header}, {"s": arrays, "enc": enc_arrays}, names=self.names)
+                           "enc": enc_header, "opinion": self.opinion is not None},
+                          {"s": arrays, "enc": enc_arrays}, names=self.names)
 
     @classmethod
-    def load(cls, path, encoder: FrameEncoder | None = None) -> LoopDetector:
+    def saved_meta(cls, path) -> dict:
+        """The caller metadata of a file written by :meth:`save`, and ``"opinion"``: whether it decided with one."""
+        with read_file(path, _FORMAT, _FORMAT_VERSION, "loop detector",
+                       " (written by LoopDetector.save / `vpr loops - --state-out`)", ()) as (header, _, _):
+            return {**header.get("meta", {}), "opinion": bool(header.get("opinion", False))}
+
+    @classmethod
+    def load(cls, path, encoder: FrameEncoder | None = None, opinion=None) -> LoopDetector:
         """Read a file written by :meth:`save`; the detector continues where it was saved.
 
-        ``encoder``: a fresh one of the kind used before (``meta`` says which), its state restored. A missing,
-        corrupt, foreign or too new file raises MemoryFileError.
+        ``encoder``: a fresh one of the kind used before (``meta`` says which), its state restored; ``opinion``: as
+        the detector was made with (:meth:`saved_meta` says whether). A missing, corrupt, foreign or too new file,
+        or one saved with an opinion loaded without (or the reverse), raises MemoryFileError.
         """
         with read_file(path, _FORMAT, _FORMAT_VERSION, "loop detector",
                        " (written by LoopDetector.save / `vpr loops - --state-out`)", ("s", "enc")) as \
                 (header, parts, names):
+            saved = bool(header.get("opinion", False))
+            if saved != (opinion is not None):
+                raise MemoryFileError(f"{path}: a loop detector saved {'with' if saved else 'without'} a second "
+                                      f"opinion on its closures, loaded {'without' if saved else 'with'} one")
             conf = dict(header["conf"])
             exclude = conf.pop("exclude")
-            det = cls(encoder, exclude=exclude, **conf)
+            det = cls(encoder, exclude=exclude, opinion=opinion, **conf)
             det.stream.load_state(header["stream"], parts["s"])
             det.names = names
             if len(det.names) < det.stream.frames:

@@ -5,9 +5,13 @@ import os
 from collections.abc import Iterator
 from pathlib import Path
 
-from .base import Frame, Source
+import numpy as np
 
-__all__ = ["StdinSource", "SESSION"]
+from vpr.imageproc import to_bgr
+
+from .base import Frame, Source, read_image
+
+__all__ = ["StdinSource", "SESSION", "read_again"]
 
 #: What :class:`StdinSource` yields for a line ``#session``.
 SESSION = Frame(-2, "#session", None)
@@ -30,6 +34,15 @@ def _garbage(raw: bytes) -> str | None:
         if not os.path.exists(os.fsdecode(raw)):  # a real file may have a name that is not UTF-8
             return "not a path (not UTF-8 text, and no such file)"
     return None
+
+
+def read_again(name: str) -> np.ndarray:
+    """The frame of an image path named on a stream, read again (BGR uint8; ValueError naming it where it is gone or
+    not an image)."""
+    img, reason = read_image(Path(name))
+    if img is None:
+        raise ValueError(f"{name}: read again, {reason}")
+    return to_bgr(img, name)
 
 
 class StdinSource(Source):
