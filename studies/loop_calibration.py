@@ -1,24 +1,26 @@
-"""A geometric bar in the stream's own units: absolute inliers against the pair's share of the earlier frame's own.
+"""The geometric second opinion's settings, on every stream where geometry can see, the renders at several sizes.
 
 The geometric second opinion (:class:`vpr.verify.GeometricOpinion`) accepts a
 closure the path has not reached when the pair has enough two-view inliers. A
-fixed count has the units of the camera and the scene: 160 x 120 renders verify
-look-alike stretches at 21-27 inliers, an indoor loop's revisits at 20-60. Here
-the bar is also relative: the pair must have ``self_ratio`` of the inliers the
-earlier frame has with its own neighbour ``self_gap`` frames on (one place seen
-twice from almost the same pose). For every ``min_inliers`` x ``self_ratio`` of a
-grid, on every stream where geometry can see (Nordland's 64 x 32 frames are
-blind), printed: recall and false closures (onto an identical copy of a
-rendered stretch counted apart, as they are no error of the detector); then
-the setting chosen by a rule stated here, on all streams and with each stream
-held out in turn.
+fixed count has the units of the camera and the scene, so the rendered forward
+drives are rendered at every size of ``--sizes`` (a stream ``NAME@WxH``; the
+first size unnamed), the real streams at their own. The grid: ``min_inliers``;
+``self_ratio`` (the pair must have that share of the inliers the earlier frame
+has with its own neighbour ``self_gap`` frames on: a bar in the stream's own
+units); ``distinct`` (only matches distinct within their own image count: a
+pattern repeated within a frame, a crossing's stripes, verifies nothing); and
+``verified_within`` (the 2 verified frames among the last that many checked).
+Printed for each setting: recall and false closures (onto an identical copy
+of a rendered stretch counted apart, as they are no error of the detector;
+Nordland's 64 x 32 frames are blind); then the setting chosen by a rule
+stated here, on all streams and with each stream held out in turn.
 
 The rule: the setting with the fewest false closures over the streams (none,
 where one has none), then the largest smallest recall over the revisit
 streams, then the largest mean recall, then the larger bar (the more careful).
 
 Usage: VPR_DATASETS=../shared/datasets python -m studies.loop_calibration [--cache DIR]
-[--inliers 12,15,20] [--ratios 0,0.2,0.3,0.4,0.5]
+[--inliers 20,30,40] [--ratios 0,0.5] [--distinct 0,1] [--within 2,3] [--sizes 160x120,320x240,640x480]
 """
 from __future__ import annotations
 
@@ -99,7 +101,7 @@ def setting(s: tuple) -> str:
 
 def choose(counts: dict, names) -> tuple:
     """The setting of the rule (module docstring) on the streams ``names``."""
-    revisits = [n for n in names if n in REVISITS]
+    revisits = [n for n in names if n.split("@")[0] in REVISITS]
 
     def key(s):
         c = counts[s]
@@ -115,13 +117,14 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cache", default="results/loop_streams")
     ap.add_argument("--data", default=None)
-    ap.add_argument("--inliers", default="12,15,20")
-    ap.add_argument("--ratios", default="0,0.2,0.3,0.4,0.5")
+    ap.add_argument("--inliers", default="20,30,40")
+    ap.add_argument("--ratios", default="0")
     ap.add_argument("--distinct", default="0,1", help="0: every match; 1: only matches distinct in their own image")
     ap.add_argument("--within", default="2,3", help="verified_within: the 2 verified frames among the last this many")
     ap.add_argument("--streams", default=",".join((*REVISITS, *FORWARD)))
     ap.add_argument("--far", type=int, default=0, help="also print the inliers of this many random far pairs")
-    ap.add_argument("--size", default="160x120", help="the size rendered streams are rendered at")
+    ap.add_argument("--sizes", default="160x120,320x240,640x480",
+                    help="the sizes rendered streams are rendered at (each a stream of its own)")
     ap.add_argument("--min-side", type=int, default=OpinionConf().min_side, help="frames smaller are blind")
     a = ap.parse_args(argv)
     cache = Path(a.cache)
@@ -129,9 +132,16 @@ def main(argv=None) -> int:
     data = Path(a.data or os.environ.get("VPR_DATASETS", "../shared/datasets"))
     grid = [(int(k), float(r), bool(int(u)), int(w)) for u in a.distinct.split(",") for w in a.within.split(",")
             for k in a.inliers.split(",") for r in a.ratios.split(",")]
-    names = a.streams.split(",")
-    loop_streams.RENDER_SIZE = tuple(int(v) for v in a.size.lower().split("x"))
-    counts = grid_counts(names, grid, cache, data, a.far, a.min_side)
+    counts, names = {}, []
+    for k, size in enumerate(a.sizes.lower().split(",")):
+        loop_streams.RENDER_SIZE = tuple(int(v) for v in size.split("x"))
+        these = [n for n in a.streams.split(",") if k == 0 or n in FORWARD]  # the real streams have one size
+        at = grid_counts(these, grid, cache if k == 0 else cache.with_name(f"{cache.name}_{size}"), data, a.far,
+                         a.min_side)
+        tag = "" if k == 0 else f"@{size}"
+        for setting_, c in at.items():
+            counts.setdefault(setting_, {}).update({n + tag: v for n, v in c.items()})
+        names += [n + tag for n in these]
     print("\n| distinct | within | min_inliers | self_ratio | " + " | ".join(names) + " |")
     print("|---|---:|---:|---:|" + "---|" * len(names))
     for k, r, u, w in grid:

@@ -28,7 +28,7 @@ from studies.loop_decisions import aliases, evidence
 from studies.loop_streams import FORWARD, REAL_REVISITS, RENDERED_REVISITS, Stream, encoder_for, load_stream
 from vpr.groundtruth.formats import loop_matrix
 from vpr.shosm import LoopConf, accept_loops, loop_evidence
-from vpr.verify import OpinionConf, second_opinion
+from vpr.verify import OpinionConf, Verifier, second_opinion
 
 EXCLUDE = 30
 STREAMS = (*REAL_REVISITS, "rtabmap_loop", *RENDERED_REVISITS, *FORWARD)
@@ -68,6 +68,30 @@ def count(stream: Stream, best, accepted, alias) -> dict:
     frames = int(np.triu(stream.hard, EXCLUDE).any(axis=0).sum())
     return {"true": int(true.sum()), "false": int((~true & ~soft).sum()), "copy": 0,
             "recall": true.sum() / max(frames, 1)}
+
+
+def why_not(stream: Stream, out, image, conf: OpinionConf) -> dict:
+    """The revisit frames of ``stream`` by what became of them under the defaults' decisions ``out``: accepted, their
+    best earlier frame wrong, blind, fewer than ``min_inliers`` inliers, or the rest (the verified run, the path's
+    consistency, the camera never out of sight)."""
+    v = Verifier(image, image, n_features=conf.n_features, max_error=conf.max_error, min_side=1,
+                 distinct=conf.distinct)
+    reasons: dict = {}
+    for j in np.flatnonzero(np.triu(stream.hard, EXCLUDE).any(axis=0)):
+        b = int(out.best[j])
+        if out.accepted[j]:
+            why = "accepted"
+        elif b < 0 or not stream.hard[b, j]:
+            why = "best frame wrong"
+        elif min(image(j).shape[:2]) < conf.min_side or \
+                min(len(v.query_features(j)), len(v.db_features(b))) < conf.min_keypoints:
+            why = "blind"
+        elif v.pair_inliers(b, j) < conf.min_inliers:
+            why = f"fewer than {conf.min_inliers} inliers"
+        else:
+            why = "the run, the path or the view"
+        reasons[why] = reasons.get(why, 0) + 1
+    return reasons
 
 
 def stream_decisions(name: str, cache: Path, data: Path, conf: LoopConf):
@@ -119,6 +143,9 @@ def main(argv=None) -> int:
                 print(f"| {name} | {len(stream):,} | {cell(path_c)} | {cell(both)} | {rep['accepted_by_geometry']} | "
                       f"{rep['frames_verified']} | {rep['frames_blind']} | {rep['ms_per_verified_frame']} |",
                       flush=True)
+                if not stream.forward_only and rep["frames_verified"]:
+                    reasons = why_not(stream, out, image, OpinionConf())
+                    print(f"  ({name}'s revisit frames: " + ", ".join(f"{k} {n}" for k, n in reasons.items()) + ")")
         print(f"  ({name}: {time.perf_counter() - t:.0f} s)", flush=True)
     print("\nEvery min_inliers (recall, false closures; + copy: onto an identical copy of a rendered stretch):\n")
     names = [r[0] for r in rows]
