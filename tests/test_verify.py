@@ -72,6 +72,7 @@ def test_features_layout_and_grey_bgr_agree(imgs, feats):
     assert f.xy.dtype == np.float64 and f.xy.shape == (len(f), 2)
     assert f.descriptors.dtype == np.uint8 and f.descriptors.shape == (len(f), 32)
     np.testing.assert_array_equal(f.scale, [1.0, 1.0])
+    assert f.size == (H, W)
     assert (f.xy >= 0).all() and (f.xy[:, 0] < W).all() and (f.xy[:, 1] < H).all()
     fb = extract_features(cv2.cvtColor(imgs["a"], cv2.COLOR_GRAY2BGR))
     np.testing.assert_array_equal(fb.xy, f.xy)
@@ -84,6 +85,7 @@ def test_tiny_image_is_upscaled_and_keypoints_mapped_back(imgs):
     f = extract_features(tiny)
     assert len(f) > 20
     np.testing.assert_allclose(f.scale, [7.5, 7.5])
+    assert f.size == (32, 64)  # the original's, not the detection frame's
     assert (f.xy > -0.5).all() and (f.xy[:, 0] < 63.5).all() and (f.xy[:, 1] < 31.5).all()
     # detecting on the same upscaled image directly must give the same keypoints
     big = cv2.resize(tiny, (480, 240), interpolation=cv2.INTER_LINEAR)
@@ -96,7 +98,7 @@ def test_tiny_image_is_upscaled_and_keypoints_mapped_back(imgs):
                                  np.zeros((1, 1), np.uint8)])
 def test_blank_image_gives_no_features_and_no_inliers(img, feats):
     f = extract_features(img)
-    assert len(f) == 0 and f.xy.shape == (0, 2) and f.descriptors.shape == (0, 32)
+    assert len(f) == 0 and f.xy.shape == (0, 2) and f.descriptors.shape == (0, 32) and f.size == img.shape[:2]
     m = match_features(f, feats["a"])
     assert m.shape == (0, 2)
     assert match_features(feats["a"], f).shape == (0, 2)
@@ -146,6 +148,8 @@ def test_own_distances_are_each_keypoints_nearest_other_descriptor(feats):
     assert np.array_equal(own_distances(f), d.min(axis=1))
     one = Keypoints(f.xy[:1], f.descriptors[:1], f.scale)
     assert np.isinf(own_distances(one)).all() and own_distances(one).shape == (1,)
+    # some keypoints only, in the order asked
+    np.testing.assert_array_equal(own_distances(f, [5, 2, 2]), d.min(axis=1)[[5, 2, 2]])
 
 
 def crossing(seed):
@@ -162,14 +166,14 @@ def test_distinct_matches_do_not_verify_a_pattern_repeated_within_the_image(seed
     # two places with the same crossing: its stripes verify them, unless a match must be distinct in its own image
     a, b = (extract_features(crossing(s)) for s in seeds)
     every = two_view_inliers(a, b, match_features(a, b))
-    distinct = two_view_inliers(a, b, match_features(a, b, own=(own_distances(a), own_distances(b))))
+    distinct = two_view_inliers(a, b, match_features(a, b, distinct=True))
     assert every >= 20 and distinct <= every // 2
 
 
 def test_distinct_matches_keep_a_scene_without_repeats(feats):
     f1, f2 = feats["a"], feats["a_warp"]
     own = (own_distances(f1), own_distances(f2))
-    kept, m = match_features(f1, f2, own=own), match_features(f1, f2)
+    kept, m = match_features(f1, f2, distinct=True), match_features(f1, f2)
     assert len(kept) >= 0.6 * len(m)
     assert two_view_inliers(f1, f2, kept) >= 0.6 * two_view_inliers(f1, f2, m)
     # exactly the matches below the ratio times both keypoints' own distances
@@ -182,8 +186,6 @@ def test_match_features_bad_args(feats):
         match_features(feats["a"], feats["b"], ratio=0)
     with pytest.raises(ValueError, match="f2"):
         match_features(feats["a"], np.zeros((3, 32), np.uint8))
-    with pytest.raises(ValueError, match="own"):
-        match_features(feats["a"], feats["b"], own=(np.zeros(2), np.zeros(3)))
 
 
 # --------------------------------------------------------------------------- #

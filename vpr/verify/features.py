@@ -17,12 +17,14 @@ _DESCRIPTOR_BYTES = 32  # ORB descriptors are 256 bits
 @dataclass(frozen=True, eq=False)
 class Keypoints:
     """ORB keypoints of one image: ``xy`` float64 (K, 2) in the original image's pixels, ``descriptors`` uint8
-    (K, 32), ``scale`` float64 (sx, sy) from the original image to the detection frame.
+    (K, 32), ``scale`` float64 (sx, sy) from the original image to the detection frame, ``size`` the original image's
+    (height, width).
     """
 
     xy: np.ndarray
     descriptors: np.ndarray
     scale: np.ndarray
+    size: tuple[int, int] = (0, 0)
 
     def __len__(self) -> int:
         return int(self.xy.shape[0])
@@ -59,38 +61,40 @@ def extract_features(image, n_features: int = 1000, min_side: int = 240, name: s
     orb = cv2.ORB_create(nfeatures=n_features)
     keypoints, desc = orb.detectAndCompute(grey, None)
     if desc is None or len(keypoints) == 0:
-        return Keypoints(np.zeros((0, 2)), np.zeros((0, _DESCRIPTOR_BYTES), np.uint8), scale)
+        return Keypoints(np.zeros((0, 2)), np.zeros((0, _DESCRIPTOR_BYTES), np.uint8), scale, (h, w))
     xy_det = np.array([kp.pt for kp in keypoints], dtype=np.float64).reshape(-1, 2)
     xy = (xy_det + 0.5) / scale - 0.5
-    return Keypoints(xy, np.ascontiguousarray(desc, dtype=np.uint8), scale)
+    return Keypoints(xy, np.ascontiguousarray(desc, dtype=np.uint8), scale, (h, w))
 
 
-def own_distances(f: Keypoints) -> np.ndarray:
-    """Each keypoint's Hamming distance to the nearest other descriptor of its own image, float64 (K,) (inf: none).
+def own_distances(f: Keypoints, which=None) -> np.ndarray:
+    """Each keypoint's Hamming distance to the nearest other descriptor of its own image, float64 (K,) (inf: none);
+    ``which``: only those keypoints' (indices), in that order.
 
     Small where a pattern repeats within the image (crossing stripes, tiles, a row of windows): such a keypoint matches
     wherever the pattern is, in any image.
     """
     f = check_keypoints(f, "f")
-    out = np.full(len(f), np.inf)
-    if len(f) < 2:
+    idx = np.arange(len(f)) if which is None else np.asarray(which, np.intp).reshape(-1)
+    out = np.full(idx.size, np.inf)
+    if len(f) < 2 or not idx.size:
         return out
-    for knn in cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(f.descriptors, f.descriptors, k=2):
-        other = [m for m in knn if m.trainIdx != m.queryIdx]
+    knns = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(np.ascontiguousarray(f.descriptors[idx]), f.descriptors, k=2)
+    for r, (i, knn) in enumerate(zip(idx, knns, strict=True)):
+        other = [m for m in knn if m.trainIdx != i]
         if other:
-            out[knn[0].queryIdx] = other[0].distance
+            out[r] = other[0].distance
     return out
 
 
 def match_features(f1: Keypoints, f2: Keypoints, ratio: float = 0.8, mutual: bool = True,
-                   own: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+                   distinct: bool = False) -> np.ndarray:
     """Match ORB descriptors by Hamming distance with Lowe's ratio test.
 
     A match ``i -> j`` is kept below ``ratio`` times the distance to ``i``'s second neighbour in ``f2`` (none: kept);
-    ``mutual`` also requires ``i`` to be ``j``'s nearest in ``f1``. ``own``: the two images' :func:`own_distances`;
-    given, a match is also kept only below ``ratio`` times both keypoints' own distances (the ratio test against each
-    keypoint's own image: a pattern repeated within an image matches nothing). Returns intp (M, 2) pairs ``(i, j)``
-    sorted by ``i``.
+    ``mutual`` also requires ``i`` to be ``j``'s nearest in ``f1``; ``distinct``: also below ``ratio`` times both
+    keypoints' :func:`own_distances` (the ratio test against each keypoint's own image: a pattern repeated within an
+    image matches nothing). Returns intp (M, 2) pairs ``(i, j)`` sorted by ``i``.
     """
     f1 = check_keypoints(f1, "f1")
     f2 = check_keypoints(f2, "f2")
@@ -98,11 +102,6 @@ def match_features(f1: Keypoints, f2: Keypoints, ratio: float = 0.8, mutual: boo
     empty = np.zeros((0, 2), dtype=np.intp)
     if len(f1) == 0 or len(f2) == 0:
         return empty
-    if own is not None:
-        own1, own2 = (np.asarray(o, np.float64) for o in own)
-        if own1.shape != (len(f1),) or own2.shape != (len(f2),):
-            raise ValueError(f"own must hold one distance per keypoint ({len(f1)}, {len(f2)}), "
-                             f"got shapes {own1.shape}, {own2.shape}")
     matcher = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=False)
     pairs = []
     for knn in matcher.knnMatch(f1.descriptors, f2.descriptors, k=2):
@@ -111,16 +110,18 @@ def match_features(f1: Keypoints, f2: Keypoints, ratio: float = 0.8, mutual: boo
         best = knn[0]
         if len(knn) > 1 and not best.distance < ratio * knn[1].distance:
             continue
-        if own is not None and not (best.distance < ratio * own1[best.queryIdx]
-                                    and best.distance < ratio * own2[best.trainIdx]):
-            continue
-        pairs.append((best.queryIdx, best.trainIdx))
+        pairs.append((best.queryIdx, best.trainIdx, best.distance))
     if not pairs:
         return empty
-    out = np.array(pairs, dtype=np.intp)
-    if mutual:
-        reverse = np.full(len(f2), -1, dtype=np.intp)
-        for m in matcher.match(f2.descriptors, f1.descriptors):
+    found = np.array(pairs)
+    out, dist = found[:, :2].astype(np.intp), found[:, 2]
+    if mutual:  # each matched f2 keypoint's own nearest in f1
+        reverse = np.full(len(out), -1, dtype=np.intp)
+        for m in matcher.match(np.ascontiguousarray(f2.descriptors[out[:, 1]]), f1.descriptors):
             reverse[m.queryIdx] = m.trainIdx
-        out = out[reverse[out[:, 1]] == out[:, 0]]
+        keep = reverse == out[:, 0]
+        out, dist = out[keep], dist[keep]
+    if distinct and len(out):
+        keep = (dist < ratio * own_distances(f1, out[:, 0])) & (dist < ratio * own_distances(f2, out[:, 1]))
+        out = out[keep]
     return out[np.argsort(out[:, 0], kind="stable")]

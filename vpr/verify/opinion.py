@@ -121,11 +121,12 @@ class GeometricOpinion(Decider):
         t = time.perf_counter()
         c = self.conf
         try:
-            if min(self.image(j).shape[:2]) < c.min_side:  # frames too small for geometry
+            fj = self._verifier.query_features(j)
+            if min(fj.size) < c.min_side:  # frames too small for geometry
                 self.blind += 1
                 return d
-            fj, fb = self._verifier.query_features(j), self._verifier.db_features(b)
-            if min(fj.xy.shape[0], fb.xy.shape[0]) < c.min_keypoints:
+            fb = self._verifier.db_features(b)
+            if min(len(fj), len(fb)) < c.min_keypoints:
                 self.blind += 1
                 return d
             self.verified += 1

@@ -13,7 +13,7 @@ from vpr.checks import check_choice, check_float, check_int, check_similarity
 from vpr.config import merge_conf
 from vpr.types import MatchResult
 
-from .features import Keypoints, extract_features, match_features, own_distances
+from .features import Keypoints, extract_features, match_features
 from .rerank import rerank, top_candidates
 from .twoview import MODELS, check_seed, two_view_inliers
 
@@ -91,10 +91,9 @@ class Verifier:
         ``S``'s shape.
     **conf
         Over ``Verifier.default_conf`` (:func:`vpr.config.merge_conf`): ``n_features`` ORB keypoints per image;
-        ``model`` and ``max_error, seed, max_trials`` as :func:`two_view_inliers`; ``ratio`` and ``mutual`` as
-        :func:`match_features`; ``distinct``: matches also pass the ratio test against each keypoint's own image
-        (:func:`own_distances`: a pattern repeated within an image, such as a crossing's stripes, matches nothing);
-        ``min_side`` as :func:`extract_features`; ``min_inliers`` the best candidate needs;
+        ``model`` and ``max_error, seed, max_trials`` as :func:`two_view_inliers`; ``ratio``, ``mutual`` and
+        ``distinct`` as :func:`match_features` (distinct: a pattern repeated within an image, such as a crossing's
+        stripes, matches nothing); ``min_side`` as :func:`extract_features`; ``min_inliers`` the best candidate needs;
         ``cache``: keep each image's features after first use (about 48 kB at 1000 features); ``max_cached``: at most
         this many images' per side, the least recently used dropped (0: every image).
     """
@@ -122,7 +121,8 @@ class Verifier:
         self.min_side = check_int(c["min_side"], "min_side", 1)
         self.max_cached = check_int(c["max_cached"], "max_cached", 0)
         self._cache = {"database": OrderedDict(), "query": OrderedDict()}
-        self._own: dict = {"database": OrderedDict(), "query": OrderedDict()}
+        if self._db is self._q:  # one sequence (a stream against itself): each image's features once
+            self._cache["query"] = self._cache["database"]
         # (db, query) -> inliers: several methods often propose the same candidates
         self._pairs: dict[tuple[int, int], int] = {}
 
@@ -144,18 +144,13 @@ class Verifier:
             if img is None:
                 raise ValueError(f"{name}: could not be loaded (got None)")
             f = extract_features(img, self.n_features, self.min_side, name=name)
-            self._keep(store, i, f)
+            if self.cache:
+                store[i] = f
+                if self.max_cached and len(store) > self.max_cached:  # the least recently used goes
+                    store.popitem(last=False)
         else:
             store.move_to_end(i)
         return f
-
-    def _keep(self, store: OrderedDict, i: int, value) -> None:
-        """``value`` of image ``i`` kept in ``store`` (as caching allows, the least recently used dropped)."""
-        if not self.cache:
-            return
-        store[i] = value
-        if self.max_cached and len(store) > self.max_cached:
-            store.popitem(last=False)
 
     def db_features(self, i: int) -> Keypoints:
         """Keypoints of database image ``i`` (computed on first use when caching)."""
@@ -171,23 +166,12 @@ class Verifier:
         n = self._pairs.get(key)
         if n is None:
             fd, fq = self.db_features(db_index), self.query_features(q_index)
-            own = (self._own_distances("query", q_index, fq), self._own_distances("database", db_index, fd)) \
-                if self.distinct else None
-            m = match_features(fq, fd, self.ratio, self.mutual, own)
+            m = match_features(fq, fd, self.ratio, self.mutual, self.distinct)
             n = two_view_inliers(fq, fd, m, self.model, self.max_error, self.seed, self.max_trials)
             if self.cache:
                 self._pairs[key] = n
         return n
 
-    def _own_distances(self, which: str, i: int, f: Keypoints) -> np.ndarray:
-        store = self._own[which]
-        d = store.get(i)
-        if d is None:
-            d = own_distances(f)
-            self._keep(store, i, d)
-        else:
-            store.move_to_end(i)
-        return d
 
     def verify(self, S, n_candidates: int, progress: bool = True) -> VerifyResult:
         """Verify each query's ``n_candidates`` best database entries under ``S`` (sparse: stored, not ``-inf``).
