@@ -237,6 +237,29 @@ def test_list_file_without_entries_is_an_error(tmp_path):
 
 # ---------------------------------------------------------------- videos
 
+def test_frame_reader_reads_a_video_on_rather_than_seeking_again(tmp_path, monkeypatch):
+    from vpr.sources import READ_ON, frame_reader
+
+    path = _video(tmp_path / "run.mp4", n=240, fps=30.0)
+    reference = _all_frames(path)
+    src = open_source(path, step=2)  # frame j is the video's 2 j
+    starts = []
+    real = src.iter_range
+    monkeypatch.setattr(src, "iter_range", lambda a, b: starts.append(a) or real(a, b))
+    image = frame_reader([src], [src.indices()])
+    # a frame and a path behind it, both moving on (the second opinion's current frame and its earlier frame)
+    for j in range(25, 45):
+        assert np.array_equal(image(j), reference[2 * j])
+        assert np.array_equal(image(j - 20), reference[2 * (j - 20)])
+    assert starts == [25, 5]  # one read each, read on
+    # a frame behind every read starts one; a frame up to READ_ON ahead of a read is read on from it
+    far = 45 + READ_ON + 1
+    for j in (0, 44, 3, far):
+        assert np.array_equal(image(j), reference[2 * j])
+    assert starts == [25, 5, 0, far]  # 44 from the second read (at 25), 3 from the one at 0
+
+
+
 def test_video_step_fps_and_max_frames_select_the_right_frames(tmp_path):
     path = _video(tmp_path / "run.mp4", n=30, fps=30.0)
     reference = _all_frames(path)

@@ -161,17 +161,56 @@ def iter_batches(source: Source, batch_size: int) -> Iterator[list[Frame]]:
         yield batch
 
 
+#: How far on a cursor of a sequential source reads rather than seeking again (:func:`frame_reader`).
+READ_ON = 64
+
+
+class _Cursors:
+    """Open reads of one sequential source (at most ``n``), each at the position it reads next: a frame at most
+    :data:`READ_ON` ahead of one is read on from it, another starts a read there (the least recently used closed)."""
+
+    def __init__(self, src: Source, n: int = 3):
+        self.src, self.n, self.end = src, n, len(src.indices())
+        self.open: list[list] = []  # [position read next, frames]; the most recently used last
+
+    def read(self, pos: int, index: int):
+        cur = next((c for c in self.open if c[0] <= pos <= c[0] + READ_ON), None)
+        if cur is None:
+            if len(self.open) == self.n:
+                self.open.pop(0)[1].close()
+            cur = [pos, self.src.iter_range(pos, self.end)]
+            self.open.append(cur)
+        else:
+            self.open.remove(cur)
+            self.open.append(cur)
+        for f in cur[1]:
+            if f.index == index:
+                cur[0] = pos + 1
+                return f.image
+            if f.index > index:  # left out when read again
+                break
+        self.open.remove(cur)
+        return None
+
+
 def frame_reader(srcs, read):
     """``image(j)``: frame ``j`` of the sources' frames ``read`` (each source's frame numbers) one after the other,
-    decoded again at the source's resolution (frames that were read once, e.g. for geometric verification)."""
+    decoded again at the source's resolution (frames that were read once, e.g. for geometric verification). A
+    sequential source (a video, a bag) is read on from the frames read last where the frame is a little ahead."""
     where = [(src, i) for src, numbers in zip(srcs, read, strict=True) for i in numbers]
     pos_of = {id(src): {k: p for p, k in enumerate(src.indices())} for src in srcs}
+    cursors = {id(src): _Cursors(src) for src in srcs if src.sequential}
 
     def image(j: int):
         src, index = where[j]
         pos = pos_of[id(src)][index]
-        for f in src.iter_range(pos, pos + 1):
-            return f.image
+        if id(src) in cursors:
+            img = cursors[id(src)].read(pos, index)
+            if img is not None:
+                return img
+        else:
+            for f in src.iter_range(pos, pos + 1):
+                return f.image
         raise ValueError(f"{src.path}: frame {index} could not be read again")
 
     return image

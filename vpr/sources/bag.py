@@ -148,6 +148,7 @@ class BagSource(Source):
 
     kind = "bag"
     carries = frozenset({"stamps", "positions"})
+    sequential = True
     options = frozenset({"fps", "step", "max_frames", "topic"})
 
     @classmethod

@@ -170,6 +170,9 @@ class Source:
     carries: frozenset = frozenset()
     #: the options (:func:`vpr.sources.open_source`) this kind takes
     options: frozenset = frozenset({"step", "max_frames"})
+    #: whether reading one frame alone costs more than reading on from the frame before it (a video decodes from its
+    #: key frame, a bag opens its index): :func:`vpr.sources.frame_reader` then reads on where it can
+    sequential: bool = False
 
     @classmethod
     def accepts(cls, path: Path) -> bool:

@@ -89,6 +89,7 @@ class VideoSource(Source):
 
     kind = "video"
     carries = frozenset({"stamps"})
+    sequential = True
     options = frozenset({"fps", "step", "max_frames"})
 
     @classmethod
