@@ -68,8 +68,8 @@ def far_pairs(name, stream, d, res, verifier, alias, n: int, seed: int = 0) -> N
 
 
 def grid_counts(names, grid, cache: Path, data: Path, far: int = 0, min_side: int = 120) -> dict:
-    """{(min_inliers, self_ratio, distinct, verified_within): {stream: count}} with one verifier per stream and
-    matching (its features and pairs computed once for every setting)."""
+    """{(min_inliers, self_ratio, distinct, verified_within, keep_inliers): {stream: count}} with one verifier per
+    stream and matching (its features and pairs computed once for every setting)."""
     conf = LoopConf()
     out: dict = {}
     for name in names:
@@ -82,13 +82,13 @@ def grid_counts(names, grid, cache: Path, data: Path, far: int = 0, min_side: in
             return shared[kw["distinct"]]
 
         with mock.patch("vpr.verify.opinion.Verifier", one_verifier):
-            for k, r, u, w in grid:
+            for k, r, u, w, keep in grid:
                 res, _ = second_opinion(d, image, stream.x, conf.back, conf.ahead, conf.stop_ratio,
                                         OpinionConf(min_inliers=k, self_ratio=r, distinct=u, verified_within=w,
-                                                    min_side=min_side),
+                                                    keep_inliers=keep, min_side=min_side),
                                         accept_score=conf.min_score)
-                out.setdefault((k, r, u, w), {})[name] = count(stream, res.best, res.accepted, alias)
-                if (k, r, u, w) == grid[0] and far:
+                out.setdefault((k, r, u, w, keep), {})[name] = count(stream, res.best, res.accepted, alias)
+                if (k, r, u, w, keep) == grid[0] and far:
                     far_pairs(name, stream, d, res, one_verifier.__defaults__[0][u], alias, far)
         print(f"  ({name}: {len(stream)} frames, {time.perf_counter() - t:.0f} s)", flush=True)
     return out
@@ -96,7 +96,8 @@ def grid_counts(names, grid, cache: Path, data: Path, far: int = 0, min_side: in
 
 def setting(s: tuple) -> str:
     """A grid setting as the tables name it."""
-    return f"min_inliers {s[0]}, self_ratio {s[1]:g}, distinct {'yes' if s[2] else 'no'}, within {s[3]}"
+    return (f"min_inliers {s[0]}, self_ratio {s[1]:g}, distinct {'yes' if s[2] else 'no'}, within {s[3]}, "
+            f"keep_inliers {s[4]}")
 
 
 def choose(counts: dict, names) -> tuple:
@@ -107,8 +108,10 @@ def choose(counts: dict, names) -> tuple:
         c = counts[s]
         false = sum(c[n]["false"] for n in names)
         rec = [c[n]["recall"] for n in revisits] or [0.0]
-        # no false closure first (else the fewest), then the smallest recall, the mean recall, the larger bar
-        return (-false, min(rec), sum(rec) / len(rec), s[0] + 100 * s[1] + 1000 * s[2] - 0.1 * s[3])
+        # no false closure first (else the fewest), then the smallest recall, the mean recall, the more careful:
+        # the larger bar, distinct matches, the shorter window, no tracking (else its larger bar)
+        careful = s[0] + 100 * s[1] + 1000 * s[2] - 0.1 * s[3] + 0.01 * (s[4] or 1000)
+        return (-false, min(rec), sum(rec) / len(rec), careful)
 
     return max(counts, key=key)
 
@@ -121,6 +124,7 @@ def main(argv=None) -> int:
     ap.add_argument("--ratios", default="0")
     ap.add_argument("--distinct", default="0,1", help="0: every match; 1: only matches distinct in their own image")
     ap.add_argument("--within", default="2,3", help="verified_within: the 2 verified frames among the last this many")
+    ap.add_argument("--keep", default="0", help="keep_inliers: the bar of the frames continuing an accepted path")
     ap.add_argument("--streams", default=",".join((*REVISITS, *FORWARD)))
     ap.add_argument("--far", type=int, default=0, help="also print the inliers of this many random far pairs")
     ap.add_argument("--sizes", default="160x120,320x240,640x480",
@@ -130,8 +134,9 @@ def main(argv=None) -> int:
     cache = Path(a.cache)
     cache.mkdir(parents=True, exist_ok=True)
     data = Path(a.data or os.environ.get("VPR_DATASETS", "../shared/datasets"))
-    grid = [(int(k), float(r), bool(int(u)), int(w)) for u in a.distinct.split(",") for w in a.within.split(",")
-            for k in a.inliers.split(",") for r in a.ratios.split(",")]
+    grid = [(int(k), float(r), bool(int(u)), int(w), int(keep)) for u in a.distinct.split(",")
+            for w in a.within.split(",") for k in a.inliers.split(",") for r in a.ratios.split(",")
+            for keep in a.keep.split(",")]
     counts, names = {}, []
     for k, size in enumerate(a.sizes.lower().split(",")):
         loop_streams.RENDER_SIZE = tuple(int(v) for v in size.split("x"))
@@ -142,11 +147,11 @@ def main(argv=None) -> int:
         for setting_, c in at.items():
             counts.setdefault(setting_, {}).update({n + tag: v for n, v in c.items()})
         names += [n + tag for n in these]
-    print("\n| distinct | within | min_inliers | self_ratio | " + " | ".join(names) + " |")
-    print("|---|---:|---:|---:|" + "---|" * len(names))
-    for k, r, u, w in grid:
-        print(f"| {'yes' if u else 'no'} | {w} | {k} | {r:g} | "
-              + " | ".join(cell(counts[(k, r, u, w)][n]) for n in names) + " |")
+    print("\n| distinct | within | min_inliers | self_ratio | keep_inliers | " + " | ".join(names) + " |")
+    print("|---|---:|---:|---:|---:|" + "---|" * len(names))
+    for k, r, u, w, keep in grid:
+        print(f"| {'yes' if u else 'no'} | {w} | {k} | {r:g} | {keep} | "
+              + " | ".join(cell(counts[(k, r, u, w, keep)][n]) for n in names) + " |")
     best = choose(counts, names)
     print(f"\nchosen on every stream: {setting(best)}")
     print("\n| held out | chosen on the others | held-out stream with it |")

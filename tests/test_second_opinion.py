@@ -65,6 +65,24 @@ def test_a_scene_never_out_of_sight_is_no_loop():
     assert rep["frames_verified"] > 0 and not d.accepted.any()
 
 
+def test_a_path_geometry_accepted_is_tracked_through_blind_and_weaker_frames():
+    imgs, best, x = _stream()
+    imgs[45] = np.zeros_like(imgs[45])  # blind: no keypoints
+    other = _textures(1, seed=7)[0]
+    cover = int(imgs[52].shape[1] * 0.85)
+    imgs[52] = imgs[52].copy()
+    imgs[52][:, :cover] = other[:, :cover]  # most of the view hidden: 18 inliers with frame 12
+    found, _ = _run(imgs, best, x, OpinionConf(keep_inliers=0))  # every frame needs 30 inliers and its run
+    assert found.accepted[43] and not found.accepted[45] and not found.accepted[52] and not found.accepted[53]
+    tracked, rep = _run(imgs, best, x, OpinionConf(keep_inliers=10))
+    assert not tracked.accepted[:43].any() and tracked.accepted[43:].all()
+    assert rep["frames_blind"] == 1 and rep["accepted_by_geometry"] == 17
+    # a frame that breaks the path (another place) ends the tracking: the next needs its run again
+    imgs[52] = other
+    broken, _ = _run(imgs, best, x, OpinionConf(keep_inliers=10))
+    assert broken.accepted[51] and not broken.accepted[52] and not broken.accepted[53] and broken.accepted[54]
+
+
 def test_too_few_inliers_are_not_enough():
     imgs, best, x = _stream()
     other = _textures(60, seed=9)  # the "revisits" show something else

@@ -25,6 +25,10 @@ class OpinionConf:
     verified_frames: int = 2
     #: ... among the last this many frames checked (blind ones skipped; equal to ``verified_frames``: in a row)
     verified_within: int = 2
+    #: once geometry accepted a frame, the frames continuing its path need only this many inliers, and a blind one none
+    #: (tracking, as against finding it: ORB-SLAM's lower bar for tracking than for relocalisation); 0: every frame
+    #: needs ``min_inliers`` and its run
+    keep_inliers: int = 10
     #: frames between the earlier frame and this one checked for a break of view (spread, the middle first)
     break_samples: int = 8
     #: out of sight: a frame between has fewer inliers with the earlier frame than this share of this frame's
@@ -59,6 +63,7 @@ class GeometricOpinion(Decider):
                                   min_side=1, distinct=self.conf.distinct, max_cached=self.conf.max_cached)
         self._recent: list[tuple[int, int]] = []  # (best, session) of the last frames
         self._checked: list[bool] = []  # whether each frame geometry checked along the path verified, the last first
+        self._tracking = False  # the path geometry accepted last goes on (keep_inliers)
         self._ptr, self._ind = [0], []
         self._session = 0
         self.verified = self.blind = self.accepted = 0
@@ -86,7 +91,8 @@ class GeometricOpinion(Decider):
         """The wrapped decider's state and the opinion's own (its recent best frames, its run, its counts); the
         features and inliers it computed are not kept (computed again as needed)."""
         header, arrays = self.decider.state()
-        own = {"recent": [list(r) for r in self._recent], "checked": self._checked, "session": self._session,
+        own = {"recent": [list(r) for r in self._recent], "checked": self._checked, "tracking": self._tracking,
+               "session": self._session,
                "verified": self.verified, "blind": self.blind, "accepted": self.accepted, "frames": self.frames}
         return {"rule": header, "opinion": own}, {**{f"rule_{k}": v for k, v in arrays.items()},
                                                   "opinion_ptr": np.asarray(self._ptr, np.int64),
@@ -96,7 +102,7 @@ class GeometricOpinion(Decider):
         self.decider.load_state(header["rule"], {k[5:]: v for k, v in arrays.items() if k.startswith("rule_")})
         own = header["opinion"]
         self._recent = [tuple(r) for r in own["recent"]]
-        self._checked = [bool(v) for v in own["checked"]]
+        self._checked, self._tracking = [bool(v) for v in own["checked"]], bool(own["tracking"])
         self._session, self.frames = int(own["session"]), int(own["frames"])
         self.verified, self.blind, self.accepted = int(own["verified"]), int(own["blind"]), int(own["accepted"])
         self._ptr, self._ind = arrays["opinion_ptr"].tolist(), arrays["opinion_ind"].tolist()
@@ -116,34 +122,41 @@ class GeometricOpinion(Decider):
         consistent = self._consistent(b)
         self._recent = (self._recent + [(b, self._session)])[-max(self.conf.frames, 1):]
         if d.accepted or not consistent:
-            self._checked = []
+            self._checked, self._tracking = [], False
             return d
         t = time.perf_counter()
         c = self.conf
         try:
             fj = self._verifier.query_features(j)
-            if min(fj.size) < c.min_side:  # frames too small for geometry
+            fb = self._verifier.db_features(b) if min(fj.size) >= c.min_side else None
+            if fb is None or min(len(fj), len(fb)) < c.min_keypoints:  # frames too small or bare for geometry
                 self.blind += 1
-                return d
-            fb = self._verifier.db_features(b)
-            if min(len(fj), len(fb)) < c.min_keypoints:
-                self.blind += 1
-                return d
+                return self._accept(d, b, j) if self._tracking else d
             self.verified += 1
             n = self._verifier.pair_inliers(b, j)
             ok = n >= c.min_inliers and not (c.self_ratio > 0 and n < c.self_ratio * self._own(b, j))
             self._checked = ([ok] + self._checked)[:max(c.verified_within, c.verified_frames)]
+            if self._tracking and n >= c.keep_inliers:
+                return self._accept(d, b, j)
+            self._tracking = False
             if not ok or sum(self._checked) < c.verified_frames or not self._out_of_sight(b, j, n):
                 return d
-            if self.stop_ratio > 0 and self._same_session(b, j):
-                ptr, ind = np.asarray(self._ptr, np.int64), np.asarray(self._ind, np.int64)
-                if stationary(ptr, ind, b, j, self.stop_ratio):
-                    return d
-            self.accepted += 1
-            # its score ranks it with the closures the decider accepts (the decision's curve, R@100P)
-            return replace(d, accepted=True, score=max(float(d.score), self.decider.accept_score))
+            return self._accept(d, b, j)
         finally:
             self.seconds += time.perf_counter() - t
+
+    def _accept(self, d: Decision, b: int, j: int) -> Decision:
+        """``d`` accepted by geometry, unless it is onto a place the camera never left (the stop check); from there on
+        the path is tracked (``keep_inliers``)."""
+        if self.stop_ratio > 0 and self._same_session(b, j):
+            ptr, ind = np.asarray(self._ptr, np.int64), np.asarray(self._ind, np.int64)
+            if stationary(ptr, ind, b, j, self.stop_ratio):
+                self._tracking = False
+                return d
+        self.accepted += 1
+        self._tracking = self.conf.keep_inliers > 0
+        # its score ranks it with the closures the decider accepts (the decision's curve, R@100P)
+        return replace(d, accepted=True, score=max(float(d.score), self.decider.accept_score))
 
     def _own(self, b: int, j: int) -> int:
         """The inliers of frame ``b`` with its neighbour ``self_gap`` frames on (before ``j``, in ``b``'s session),
@@ -179,7 +192,7 @@ class GeometricOpinion(Decider):
         """Frames verified, blind, accepted by geometry, milliseconds per verified frame."""
         return {"frames_verified": self.verified, "frames_blind": self.blind, "accepted_by_geometry": self.accepted,
                 "ms_per_verified_frame": round(1e3 * self.seconds / max(self.verified, 1), 2),
-                "min_inliers": self.conf.min_inliers}
+                "min_inliers": self.conf.min_inliers, "keep_inliers": self.conf.keep_inliers}
 
 
 class _Replay(Decider):
