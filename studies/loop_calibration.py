@@ -9,7 +9,8 @@ first size unnamed), the real streams at their own. The grid: ``min_inliers``;
 has with its own neighbour ``self_gap`` frames on: a bar in the stream's own
 units); ``distinct`` (only matches distinct within their own image count: a
 pattern repeated within a frame, a crossing's stripes, verifies nothing); and
-``verified_within`` (the 2 verified frames among the last that many checked).
+``verified_within`` (the 2 verified frames among the last that many checked);
+``keep_inliers`` (the bar of the frames continuing a path geometry accepted).
 Printed for each setting: recall and false closures (onto an identical copy
 of a rendered stretch counted apart, as they are no error of the detector;
 Nordland's 64 x 32 frames are blind); then the setting chosen by a rule
@@ -17,10 +18,12 @@ stated here, on all streams and with each stream held out in turn.
 
 The rule: the setting with the fewest false closures over the streams (none,
 where one has none), then the largest smallest recall over the revisit
-streams, then the largest mean recall, then the larger bar (the more careful).
+streams, then the largest mean recall, then the more careful: the larger bar,
+distinct matches, the shorter window, no tracking (else its larger bar).
 
 Usage: VPR_DATASETS=../shared/datasets python -m studies.loop_calibration [--cache DIR]
-[--inliers 20,30,40] [--ratios 0,0.5] [--distinct 0,1] [--within 2,3] [--sizes 160x120,320x240,640x480]
+[--inliers 20,30,40] [--ratios 0,0.5] [--distinct 0,1] [--within 2,3] [--keep 0,10,15]
+[--sizes 160x120,320x240,640x480]
 """
 from __future__ import annotations
 
@@ -124,7 +127,7 @@ def main(argv=None) -> int:
     ap.add_argument("--ratios", default="0")
     ap.add_argument("--distinct", default="0,1", help="0: every match; 1: only matches distinct in their own image")
     ap.add_argument("--within", default="2,3", help="verified_within: the 2 verified frames among the last this many")
-    ap.add_argument("--keep", default="0", help="keep_inliers: the bar of the frames continuing an accepted path")
+    ap.add_argument("--keep", default="0,10,15", help="keep_inliers: the bar of the frames continuing an accepted path")
     ap.add_argument("--streams", default=",".join((*REVISITS, *FORWARD)))
     ap.add_argument("--far", type=int, default=0, help="also print the inliers of this many random far pairs")
     ap.add_argument("--sizes", default="160x120,320x240,640x480",

@@ -72,14 +72,15 @@ def test_a_path_geometry_accepted_is_tracked_through_blind_and_weaker_frames():
     cover = int(imgs[52].shape[1] * 0.85)
     imgs[52] = imgs[52].copy()
     imgs[52][:, :cover] = other[:, :cover]  # most of the view hidden: 18 inliers with frame 12
-    found, _ = _run(imgs, best, x, OpinionConf(keep_inliers=0))  # every frame needs 30 inliers and its run
+    run = {"min_inliers": 30, "verified_frames": 2, "verified_within": 2}  # 2 frames of 30 inliers in a row
+    found, _ = _run(imgs, best, x, OpinionConf(keep_inliers=0, **run))
     assert found.accepted[43] and not found.accepted[45] and not found.accepted[52] and not found.accepted[53]
-    tracked, rep = _run(imgs, best, x, OpinionConf(keep_inliers=10))
+    tracked, rep = _run(imgs, best, x, OpinionConf(keep_inliers=10, **run))
     assert not tracked.accepted[:43].any() and tracked.accepted[43:].all()
     assert rep["frames_blind"] == 1 and rep["accepted_by_geometry"] == 17
     # a frame that breaks the path (another place) ends the tracking: the next needs its run again
     imgs[52] = other
-    broken, _ = _run(imgs, best, x, OpinionConf(keep_inliers=10))
+    broken, _ = _run(imgs, best, x, OpinionConf(keep_inliers=10, **run))
     assert broken.accepted[51] and not broken.accepted[52] and not broken.accepted[53] and broken.accepted[54]
 
 

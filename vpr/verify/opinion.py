@@ -19,12 +19,12 @@ __all__ = ["OpinionConf", "GeometricOpinion", "second_opinion"]
 class OpinionConf:
     """When geometry confirms a closure (``docs/internals.md``)."""
 
-    min_inliers: int = 30
+    min_inliers: int = 40
     frames: int = 3
     #: frames that must verify before geometry accepts (the first of a run is not enough) ...
     verified_frames: int = 2
     #: ... among the last this many frames checked (blind ones skipped; equal to ``verified_frames``: in a row)
-    verified_within: int = 2
+    verified_within: int = 3
     #: once geometry accepted a frame, the frames continuing its path need only this many inliers, and a blind one none
     #: (tracking, as against finding it: ORB-SLAM's lower bar for tracking than for relocalisation); 0: every frame
     #: needs ``min_inliers`` and its run
