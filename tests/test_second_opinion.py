@@ -1,4 +1,6 @@
 """The geometric second opinion on loop closures: a decider around the loop rule, where geometry can see."""
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
@@ -177,3 +179,32 @@ def test_vpr_loops_decides_short_loops_with_geometry_by_default_and_online_alike
     monkeypatch.setattr("sys.stdin", io.StringIO(""))
     assert main(["loops", "-", "--out", str(tmp_path / "x"), "--resume", str(state), "--geometry", "off"]) == 2
     assert "--geometry" in capsys.readouterr().err
+
+
+@pytest.mark.slow  # a forward drive rendered at 320 x 240, verified frame by frame
+def test_a_forward_drive_past_identical_crossings_closes_no_loop(tmp_path, capsys):
+    import csv
+    import json
+
+    from pipelines.cli import main
+    from vpr.render import write_scene
+
+    # speed_change's world paints the same crossing every 66 m and never comes back: every closure is false
+    res = write_scene("speed_change", tmp_path / "scene", size=(320, 240), traverses=["fast"], progress=False)
+    drive = Path(res["traverses"]["fast"]["folder"])
+    out = tmp_path / "out"
+    assert main(["loops", str(drive), "--out", str(out), "--no-progress"]) == 0
+    capsys.readouterr()
+    m = json.loads((out / "metrics.json").read_text())["methods"]["rshosm-seq"]
+    assert m["n_accepted"] == 0 and m["geometry"]["frames_verified"] > 150
+    # what the default keeps out: with every match counting, 20 inliers twice in a row, the crossings verify (the
+    # path accepted nothing, so the answers are the path's)
+    with open(out / "rshosm-seq" / "matches.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    path = Decision(np.array([int(r["best_db"]) for r in rows]), np.array([float(r["score"]) for r in rows]),
+                    np.array([r["accepted"] == "1" for r in rows]))
+    files = sorted(drive.glob("*.png"))
+    every = OpinionConf(min_inliers=20, distinct=False, verified_within=2, keep_inliers=0)
+    d, rep = second_opinion(path, lambda j: cv2.imread(str(files[j])), sdr.random_sdrs(len(rows), 256, 20, seed=0),
+                            back=4, ahead=6, stop_ratio=0.35, conf=every)
+    assert rep["accepted_by_geometry"] >= 3 and not path.accepted.any()
