@@ -146,15 +146,23 @@ def make_detector(settings: dict, exclude: int = LOOP_EXCLUDE, geometry: bool = 
     runner = methods.get(ONLINE_METHOD, **settings["method_conf"].get(ONLINE_METHOD, {}))
     enc = encoders.get(settings["encoder"], **settings["encoder_conf"])
     enc.check_memory(1)  # frames come one at a time
-    opinion = _paths_opinion(lambda: det) if geometry else None
-    det = runner.loop_detector(StreamEncoder(enc), exclude=exclude, opinion=opinion)
+    frames = _FramesByPath()
+    det = runner.loop_detector(StreamEncoder(enc), exclude=exclude,
+                               opinion=geometry_opinion(frames, {}, "") if geometry else None)
+    frames.names = det.names
     det.meta = {"encoder": enc.name, "encoder_conf": enc.conf, "preset": settings["preset"]}
     return det
 
 
-def _paths_opinion(detector):
-    """The geometric second opinion of ``vpr loops -``: ``detector()``'s frames read again from their paths."""
-    return geometry_opinion(lambda j: read_again(detector().names[j]), {}, "")
+class _FramesByPath:
+    """``image(j)`` of ``vpr loops -``'s geometric second opinion: frame ``j`` read again from its path (``names``,
+    the detector's frame names, set once the detector is made)."""
+
+    def __init__(self):
+        self.names: list[str] = []
+
+    def __call__(self, j: int):
+        return read_again(self.names[j])
 
 
 def resume_detector(path) -> LoopDetector:
@@ -163,8 +171,10 @@ def resume_detector(path) -> LoopDetector:
     enc = meta.get("encoder")
     if not enc:
         raise ValueError(f"{path}: a loop detector saved without its encoder (not by `vpr loops -`)")
+    frames = _FramesByPath()
     det = LoopDetector.load(path, encoder=StreamEncoder(encoders.get(enc, **meta["encoder_conf"])),
-                            opinion=_paths_opinion(lambda: det) if meta["opinion"] else None)
+                            opinion=geometry_opinion(frames, {}, "") if meta["opinion"] else None)
+    frames.names = det.names
     return det
 
 
@@ -240,9 +250,10 @@ class LoopsOnline(Online):
                                          for v in evaluate.session_speeds(best, starts)]}
             say_session_speeds(self.method, speeds["session_speeds"], read=self._said)
         if not self.gt.files:
-            return ({"sessions": evaluate.session_pairs(result.best, result.accepted, None, starts, names=labels,
-                                                        frames=frames), **speeds} if len(starts) > 1 else {}) \
-                | self._geometry(), None
+            m = {"sessions": evaluate.session_pairs(result.best, result.accepted, None, starts, names=labels,
+                                                    frames=frames), **speeds} if len(starts) > 1 else {}
+            m.update(self._geometry())
+            return m, None
         hard, soft = build_loop_gt(self.gt, self.det.names, list(range(N)), total=N)
         hard, soft = (None if g is None else g[:, frames] for g in (hard, soft))
         exclude = self.det.conf["exclude"]
