@@ -85,3 +85,23 @@ def test_from_topk_by_blocks_of_rows_equals_one_block(monkeypatch):
     x[433, 5] = np.nan
     with pytest.raises(ValueError, match="row 433"):
         sdr.from_topk(x, 12)
+
+
+def test_row_log_holds_the_rows_appended_as_a_batch_would():
+    rng = np.random.default_rng(0)
+    rows = [np.sort(rng.choice(256, int(rng.integers(0, 30)), replace=False)) for _ in range(300)]
+    batch = sdr.from_indices(rows, 256)
+    log = sdr.RowLog()
+    for r in rows:
+        log.append(r)
+    assert log.rows == 300
+    np.testing.assert_array_equal(log.ptr, batch.indptr)
+    np.testing.assert_array_equal(log.ind, batch.indices)
+    # from the first rows of a batch, then on
+    half = sdr.RowLog(batch[:100].indptr, batch[:100].indices)
+    for r in rows[100:]:
+        half.append(r)
+    np.testing.assert_array_equal(half.ptr, batch.indptr)
+    np.testing.assert_array_equal(half.ind, batch.indices)
+    with pytest.raises(ValueError, match="RowLog"):
+        sdr.RowLog([0, 3, 2], [1, 2])

@@ -18,6 +18,7 @@ __all__ = [
     "add_noise",
     "random_sdrs",
     "degenerate",
+    "RowLog",
 ]
 
 
@@ -265,3 +266,39 @@ def degenerate(x, duplicate_share: float = 0.1) -> str | None:
     if dup >= max(1, duplicate_share * n):
         parts.append(f"{dup} of {n} frames repeat another frame's SDR exactly")
     return "; ".join(parts) or None
+
+
+class RowLog:
+    """The SDR rows of a stream as they come, in CSR form (``ptr``, ``ind``), appended in amortised O(bits).
+
+    ``ptr``, ``ind``: the rows so far (views: valid until the next :meth:`append`); start from a batch's ``indptr``
+    and ``indices`` (or nothing).
+    """
+
+    def __init__(self, ptr=None, ind=None):
+        self._ptr = np.array([0] if ptr is None else ptr, np.int64)
+        self._ind = np.array([] if ind is None else ind, np.int64)
+        if self._ptr.ndim != 1 or self._ptr.size < 1 or self._ptr[0] != 0 or int(self._ptr[-1]) != self._ind.size \
+                or (np.diff(self._ptr) < 0).any():
+            raise ValueError(f"RowLog: ptr must start at 0, never fall and end at the {self._ind.size} indices")
+        self.rows = self._ptr.size - 1
+
+    @property
+    def ptr(self) -> np.ndarray:
+        return self._ptr[: self.rows + 1]
+
+    @property
+    def ind(self) -> np.ndarray:
+        return self._ind[: int(self._ptr[self.rows])]
+
+    def append(self, bits) -> None:
+        """Append the next row's active bits."""
+        bits = np.asarray(bits, np.int64)
+        n, end = self.rows, int(self._ptr[self.rows])
+        if n + 2 > self._ptr.size:
+            self._ptr = np.resize(self._ptr, 2 * (n + 2))
+        if end + bits.size > self._ind.size:
+            self._ind = np.resize(self._ind, max(2 * self._ind.size, end + bits.size))
+        self._ind[end:end + bits.size] = bits
+        self._ptr[n + 1] = end + bits.size
+        self.rows = n + 1

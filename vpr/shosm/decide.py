@@ -103,8 +103,7 @@ class LoopDecider(LoopRule):
         self._stops = float(self.loop.stop_ratio) > 0
         self._rule = self.loop.rule
         x = None if sdr is None else _sdr.check_batch(sdr, name="sdr")
-        self._set_sdr(np.zeros(1, np.int64) if x is None else x.indptr, np.zeros(0, np.int64) if x is None else
-                      x.indices)
+        self._rows = _sdr.RowLog() if x is None else _sdr.RowLog(x.indptr, x.indices)
 
     def new_session(self) -> None:
         """The next frame starts a new session: no path carries over into it."""
@@ -116,21 +115,8 @@ class LoopDecider(LoopRule):
 
     def add_sdr(self, bits) -> None:
         """Append the next frame's active bits (sorted) for the stop check (amortised O(bits))."""
-        if not self._stops:
-            return
-        bits = np.asarray(bits, np.int64)
-        n, end = self._n_sdr, int(self._ptr[self._n_sdr])
-        if n + 2 > self._ptr.size:
-            self._ptr = np.resize(self._ptr, 2 * (n + 2))
-        if end + bits.size > self._ind.size:
-            self._ind = np.resize(self._ind, max(2 * self._ind.size, end + bits.size))
-        self._ind[end:end + bits.size] = bits
-        self._ptr[n + 1] = end + bits.size
-        self._n_sdr = n + 1
-
-    def _set_sdr(self, ptr, ind) -> None:
-        self._ptr, self._ind = np.array(ptr, np.int64), np.array(ind, np.int64)
-        self._n_sdr = self._ptr.size - 1
+        if self._stops:
+            self._rows.append(bits)
 
     def _decide(self, column: Column) -> Decision:
         j = column.frame
@@ -139,10 +125,9 @@ class LoopDecider(LoopRule):
             self.place = np.concatenate([self.place, np.arange(self.place.size, size, dtype=np.int64)])
             self.path_b = np.concatenate([self.path_b, np.full(size - self.path_b.size, -1, np.int64)])
         vals = column.z.astype(np.float64)
-        end = int(self._ptr[self._n_sdr])
         best, score, ok, margin, _ = KD.decide_frame(
             j, (column.rows, vals, int(column.n), float(column.fill)), self._rule,
-            (self._ptr[: self._n_sdr + 1], self._ind[:end], self.place, self.path_b, self.st, self.starts))
+            (self._rows.ptr, self._rows.ind, self.place, self.path_b, self.st, self.starts))
         start = int(self.starts[-1])
         if start > 0 and not ok:  # a later session: its frame against the earlier ones, as against a map
             keep = column.rows < start
@@ -154,11 +139,11 @@ class LoopDecider(LoopRule):
         return Decision(int(best), float(score), bool(ok), float(margin), j, column)
 
     def state(self) -> tuple[dict, dict]:
-        n, end = self.frames, int(self._ptr[self._n_sdr])
+        n = self.frames
         header, arrays = joint_state(map=self.map_rule)
         return {**header, "frames": n}, {**arrays, "place": self.place[:n].copy(), "path_b": self.path_b[:n].copy(),
-                                         "st": self.st.copy(), "sdr_ptr": self._ptr[: self._n_sdr + 1].copy(),
-                                         "sdr_ind": self._ind[:end].copy(), "starts": self.starts.copy()}
+                                         "st": self.st.copy(), "sdr_ptr": self._rows.ptr.copy(),
+                                         "sdr_ind": self._rows.ind.copy(), "starts": self.starts.copy()}
 
     def load_state(self, header: dict, arrays: dict) -> LoopDecider:
         n = int(header["frames"])
@@ -166,7 +151,7 @@ class LoopDecider(LoopRule):
         self.path_b = np.full(self.place.size, -1, np.int64)
         self.place[:n], self.path_b[:n] = arrays["place"], arrays["path_b"]
         self.st[:] = np.asarray(arrays["st"], KD.PATH_STATE)
-        self._set_sdr(arrays["sdr_ptr"], arrays["sdr_ind"])
+        self._rows = _sdr.RowLog(arrays["sdr_ptr"], arrays["sdr_ind"])
         self.starts = np.asarray(arrays["starts"], np.int64)
         self.map_rule.load_state(*part_state(header, arrays, "map"))
         self.map_rule.starts = self.starts[:-1]

@@ -64,7 +64,7 @@ class GeometricOpinion(Decider):
         self._recent: list[tuple[int, int]] = []  # (best, session) of the last frames
         self._checked: list[bool] = []  # whether each frame geometry checked along the path verified, the last first
         self._tracking = False  # the path geometry accepted last goes on (keep_inliers)
-        self._ptr, self._ind = [0], []
+        self._rows = _sdr.RowLog()  # the stream's SDRs, for the stop check
         self._session = 0
         self.verified = self.blind = self.accepted = 0
         self.seconds = 0.0
@@ -80,8 +80,7 @@ class GeometricOpinion(Decider):
 
     def add_sdr(self, bits) -> None:
         self.decider.add_sdr(bits)
-        self._ind.extend(np.asarray(bits, np.int64).tolist())
-        self._ptr.append(len(self._ind))
+        self._rows.append(bits)
 
     def new_session(self) -> None:
         self.decider.new_session()
@@ -95,8 +94,8 @@ class GeometricOpinion(Decider):
                "session": self._session,
                "verified": self.verified, "blind": self.blind, "accepted": self.accepted, "frames": self.frames}
         return {"rule": header, "opinion": own}, {**{f"rule_{k}": v for k, v in arrays.items()},
-                                                  "opinion_ptr": np.asarray(self._ptr, np.int64),
-                                                  "opinion_ind": np.asarray(self._ind, np.int64)}
+                                                  "opinion_ptr": self._rows.ptr.copy(),
+                                                  "opinion_ind": self._rows.ind.copy()}
 
     def load_state(self, header: dict, arrays: dict) -> GeometricOpinion:
         self.decider.load_state(header["rule"], {k[5:]: v for k, v in arrays.items() if k.startswith("rule_")})
@@ -105,7 +104,7 @@ class GeometricOpinion(Decider):
         self._checked, self._tracking = [bool(v) for v in own["checked"]], bool(own["tracking"])
         self._session, self.frames = int(own["session"]), int(own["frames"])
         self.verified, self.blind, self.accepted = int(own["verified"]), int(own["blind"]), int(own["accepted"])
-        self._ptr, self._ind = arrays["opinion_ptr"].tolist(), arrays["opinion_ind"].tolist()
+        self._rows = _sdr.RowLog(arrays["opinion_ptr"], arrays["opinion_ind"])
         return self
 
     def _consistent(self, best: int) -> bool:
@@ -149,8 +148,7 @@ class GeometricOpinion(Decider):
         """``d`` accepted by geometry, unless it is onto a place the camera never left (the stop check); from there on
         the path is tracked (``keep_inliers``)."""
         if self.stop_ratio > 0 and self._same_session(b, j):
-            ptr, ind = np.asarray(self._ptr, np.int64), np.asarray(self._ind, np.int64)
-            if stationary(ptr, ind, b, j, self.stop_ratio):
+            if stationary(self._rows.ptr, self._rows.ind, b, j, self.stop_ratio):
                 self._tracking = False
                 return d
         self.accepted += 1
