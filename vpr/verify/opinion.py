@@ -57,7 +57,7 @@ class GeometricOpinion(Decider):
 
     def __init__(self, decider: Decider, image, back: int, ahead: int, stop_ratio: float,
                  conf: OpinionConf | None = None):
-        self.decider, self.image, self.conf = decider, image, conf or OpinionConf()
+        self.decider, self.conf = decider, conf or OpinionConf()
         self.back, self.ahead, self.stop_ratio = int(back), int(ahead), float(stop_ratio)
         self._verifier = Verifier(image, image, n_features=self.conf.n_features, max_error=self.conf.max_error,
                                   min_side=1, distinct=self.conf.distinct, max_cached=self.conf.max_cached)
