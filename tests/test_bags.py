@@ -77,6 +77,21 @@ def test_a_bag_reads_the_frames_a_folder_holds(seasons, tmp_path, kind):
     np.testing.assert_allclose(src.stamps(), T0 + 0.1 * np.arange(8), atol=1e-6)
 
 
+@pytest.mark.parametrize("ros", [1, 2])
+def test_frames_of_a_bag_are_read_again_on_from_the_last(seasons, tmp_path, monkeypatch, ros):
+    from vpr.sources import frame_reader
+
+    images = read_folder(seasons["day"])[:30]
+    src = open_source(write_bag(tmp_path / ("a.bag" if ros == 1 else "a"), images, ros=ros), step=2)
+    starts = []
+    real = src.iter_range
+    monkeypatch.setattr(src, "iter_range", lambda a, b: starts.append(a) or real(a, b))
+    image = frame_reader([src], [src.indices()])
+    for j in (3, 4, 5, 9, 1, 2, 14):  # on, on, on, on; behind: a second read, on from it
+        np.testing.assert_array_equal(image(j), images[2 * j])
+    assert starts == [3, 1]
+
+
 def test_fps_samples_a_bag_by_time(seasons, tmp_path):
     path = write_bag(tmp_path / "a.bag", read_folder(seasons["day"])[:20])  # 10 frames a second
     assert open_source(path, fps=2).indices() == [0, 5, 10, 15]
