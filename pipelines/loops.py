@@ -156,7 +156,8 @@ def make_detector(settings: dict, exclude: int = LOOP_EXCLUDE, geometry: bool = 
 
 class _FramesByPath:
     """``image(j)`` of ``vpr loops -``'s geometric second opinion: frame ``j`` read again from its path (``names``,
-    the detector's frame names, set once the detector is made)."""
+    the detector's frame names, set once the detector is made); None where the file is gone (geometry is blind
+    there: a run resumed elsewhere, a log rotated away)."""
 
     def __init__(self):
         self.names: list[str] = []

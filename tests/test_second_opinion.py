@@ -173,6 +173,14 @@ def test_vpr_loops_decides_short_loops_with_geometry_by_default_and_online_alike
     first = online(paths[:45], *loose[:-1], "--state-out", str(state))
     assert first + online(paths[45:], "--resume", str(state)) == rows
     assert LoopDetector.saved_meta(state)["opinion"]
+    # the earlier frames gone when the run resumes (a log rotated away): geometry is blind on them, every frame
+    # is answered
+    for p in paths[:45]:
+        Path(p).rename(p + ".gone")
+    resumed = online(paths[45:], "--resume", str(state))
+    assert len(resumed) == 15 and not any(a for _, a in resumed)
+    for p in paths[:45]:
+        Path(p + ".gone").rename(p)
     with pytest.raises(MemoryFileError, match="saved with a second opinion"):
         LoopDetector.load(state)
     # the opinion is the saved detector's: --geometry cannot change it

@@ -36,13 +36,15 @@ def _garbage(raw: bytes) -> str | None:
     return None
 
 
-def read_again(name: str) -> np.ndarray:
-    """The frame of an image path named on a stream, read again (BGR uint8; ValueError naming it where it is gone or
-    not an image)."""
-    img, reason = read_image(Path(name))
+def read_again(name: str) -> np.ndarray | None:
+    """The frame of an image path named on a stream, read again (BGR uint8; None where it is gone or no image)."""
+    img, _ = read_image(Path(name))
     if img is None:
-        raise ValueError(f"{name}: read again, {reason}")
-    return to_bgr(img, name)
+        return None
+    try:
+        return to_bgr(img, name)
+    except ValueError:
+        return None
 
 
 class StdinSource(Source):

@@ -51,7 +51,8 @@ class OpinionConf:
 class GeometricOpinion(Decider):
     """The wrapped decider's decision, and geometry's where the path has not accepted (a :class:`Decider`).
 
-    ``decider``: the loop rule (:class:`vpr.shosm.LoopDecider`); ``image(j)``: frame ``j`` at its source's resolution;
+    ``decider``: the loop rule (:class:`vpr.shosm.LoopDecider`); ``image(j)``: frame ``j`` at its source's resolution,
+    None where it cannot be read again (blind);
     ``back``, ``ahead``, ``stop_ratio``: :class:`vpr.shosm.LoopConf`'s; ``conf``: an :class:`OpinionConf`.
     """
 
@@ -60,7 +61,8 @@ class GeometricOpinion(Decider):
         self.decider, self.conf = decider, conf or OpinionConf()
         self.back, self.ahead, self.stop_ratio = int(back), int(ahead), float(stop_ratio)
         self._verifier = Verifier(image, image, n_features=self.conf.n_features, max_error=self.conf.max_error,
-                                  min_side=1, distinct=self.conf.distinct, max_cached=self.conf.max_cached)
+                                  min_side=1, distinct=self.conf.distinct, max_cached=self.conf.max_cached,
+                                  missing="blind")
         self._recent: list[tuple[int, int]] = []  # (best, session) of the last frames
         self._checked: list[bool] = []  # whether each frame geometry checked along the path verified, the last first
         self._tracking = False  # the path geometry accepted last goes on (keep_inliers)

@@ -95,12 +95,13 @@ class Verifier:
         ``distinct`` as :func:`match_features` (distinct: a pattern repeated within an image, such as a crossing's
         stripes, matches nothing); ``min_side`` as :func:`extract_features`; ``min_inliers`` the best candidate needs;
         ``cache``: keep each image's features after first use (about 48 kB at 1000 features); ``max_cached``: at most
-        this many images' per side, the least recently used dropped (0: every image).
+        this many images' per side, the least recently used dropped (0: every image); ``missing``: an image given as
+        None is an error (``"error"``) or has no keypoints (``"blind"``).
     """
 
     default_conf = {"n_features": 1000, "model": "fundamental", "ratio": 0.8, "min_inliers": 15, "cache": True,
                     "max_error": 4.0, "seed": 0, "max_trials": 2000, "mutual": True, "min_side": 240,
-                    "distinct": False, "max_cached": 0}
+                    "distinct": False, "max_cached": 0, "missing": "error"}
 
     def __init__(self, db_images: ImageSource, q_images: ImageSource, **conf):
         self._db = self._check_images(db_images, "db_images")
@@ -120,6 +121,7 @@ class Verifier:
         self.distinct = bool(c["distinct"])
         self.min_side = check_int(c["min_side"], "min_side", 1)
         self.max_cached = check_int(c["max_cached"], "max_cached", 0)
+        self.missing_blind = check_choice(c["missing"], "missing", ("error", "blind")) == "blind"
         self._cache = {"database": OrderedDict(), "query": OrderedDict()}
         if self._db is self._q:  # one sequence (a stream against itself): each image's features once
             self._cache["query"] = self._cache["database"]
@@ -141,9 +143,10 @@ class Verifier:
         if f is None:
             name = f"{which} image {i}"
             img = images(i) if callable(images) else images[i]
-            if img is None:
+            if img is None and not self.missing_blind:
                 raise ValueError(f"{name}: could not be loaded (got None)")
-            f = extract_features(img, self.n_features, self.min_side, name=name)
+            f = extract_features(img, self.n_features, self.min_side, name=name) if img is not None else \
+                Keypoints(np.zeros((0, 2)), np.zeros((0, 32), np.uint8), np.ones(2), (0, 0))
             if self.cache:
                 store[i] = f
                 if self.max_cached and len(store) > self.max_cached:  # the least recently used goes
