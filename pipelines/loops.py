@@ -37,7 +37,7 @@ from vpr.shosm import LOOP_EXCLUDE, LoopDetector
 from vpr.similarity import budget_setting
 from vpr.sources import frame_reader
 from vpr.sources.base import frames_in
-from vpr.sources.stdin import StdinSource, read_again
+from vpr.sources.stdin import FramesByPath, StdinSource
 from vpr.types import EncodedTraverse, MatchResult
 
 __all__ = ["COMMANDS", "add_arguments", "run_command", "detect_loops", "make_detector", "resume_detector",
@@ -146,24 +146,12 @@ def make_detector(settings: dict, exclude: int = LOOP_EXCLUDE, geometry: bool = 
     runner = methods.get(ONLINE_METHOD, **settings["method_conf"].get(ONLINE_METHOD, {}))
     enc = encoders.get(settings["encoder"], **settings["encoder_conf"])
     enc.check_memory(1)  # frames come one at a time
-    frames = _FramesByPath()
+    frames = FramesByPath()  # the detector's frame names, once it is made
     det = runner.loop_detector(StreamEncoder(enc), exclude=exclude,
                                opinion=geometry_opinion(frames, {}, "") if geometry else None)
     frames.names = det.names
     det.meta = {"encoder": enc.name, "encoder_conf": enc.conf, "preset": settings["preset"]}
     return det
-
-
-class _FramesByPath:
-    """``image(j)`` of ``vpr loops -``'s geometric second opinion: frame ``j`` read again from its path (``names``,
-    the detector's frame names, set once the detector is made); None where the file is gone (geometry is blind
-    there: a run resumed elsewhere, a log rotated away)."""
-
-    def __init__(self):
-        self.names: list[str] = []
-
-    def __call__(self, j: int):
-        return read_again(self.names[j])
 
 
 def resume_detector(path) -> LoopDetector:
@@ -172,7 +160,7 @@ def resume_detector(path) -> LoopDetector:
     enc = meta.get("encoder")
     if not enc:
         raise ValueError(f"{path}: a loop detector saved without its encoder (not by `vpr loops -`)")
-    frames = _FramesByPath()
+    frames = FramesByPath()  # the detector's frame names, once it is made
     det = LoopDetector.load(path, encoder=StreamEncoder(encoders.get(enc, **meta["encoder_conf"])),
                             opinion=geometry_opinion(frames, {}, "") if meta["opinion"] else None)
     frames.names = det.names
@@ -247,8 +235,7 @@ class LoopsOnline(Online):
         if len(starts) > 1:  # said, not followed: an online detector answers each frame as it comes (docs/loops.md)
             best = np.full(N, -1, np.int64)
             best[frames] = result.best
-            speeds = {"session_speeds": [None if v is None else round(v, 3)
-                                         for v in evaluate.session_speeds(best, starts)]}
+            speeds = {"session_speeds": _rounded(evaluate.session_speeds(best, starts))}
             say_session_speeds(self.method, speeds["session_speeds"], read=self._said)
         if not self.gt.files:
             m = {"sessions": evaluate.session_pairs(result.best, result.accepted, None, starts, names=labels,
@@ -306,6 +293,11 @@ def no_revisit(gt: GroundTruthSpec, exclude: int) -> None:
     """Say that the ground truth holds no loop to close: a drive without revisits, whose closures are all false."""
     warn(f"{gt.no_match_error(exclude=exclude)}: every closure accepted is false (metrics.json: n_false, "
          "false_per_1000 frames)")
+
+
+def _rounded(speeds) -> list:
+    """metrics.json's ``session_speeds``: each later session's speed to 3 decimals (None: not read)."""
+    return [None if v is None else round(v, 3) for v in speeds]
 
 
 def say_session_speeds(method: str, speeds, names=None, read=()) -> None:
@@ -368,7 +360,7 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
             if len(srcs) > 1:  # the closures per pair of sessions (with ground truth: their precision and recall)
                 evaluated[0]["sessions"] = evaluate.session_pairs(res.best, res.accepted, gt_hard, starts,
                                                                   gt_soft, mask, [s.name for s in srcs])
-                evaluated[0]["session_speeds"] = [None if v is None else round(v, 3) for v in speeds[m]]
+                evaluated[0]["session_speeds"] = _rounded(speeds[m])
             write_method(out / m, m, res, evaluated, features.names, features.names, gt_hard, gt_soft,
                          title=f"{m}: loop closures", loops=True, mask=mask)
             io.save_json(out / m / "config.json", config(opts, command="loops", seq=[str(q) for q in seqs],

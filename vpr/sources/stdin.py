@@ -11,7 +11,7 @@ from vpr.imageproc import to_bgr
 
 from .base import Frame, Source, read_image
 
-__all__ = ["StdinSource", "SESSION", "read_again"]
+__all__ = ["StdinSource", "SESSION", "FramesByPath"]
 
 #: What :class:`StdinSource` yields for a line ``#session``.
 SESSION = Frame(-2, "#session", None)
@@ -36,15 +36,23 @@ def _garbage(raw: bytes) -> str | None:
     return None
 
 
-def read_again(name: str) -> np.ndarray | None:
-    """The frame of an image path named on a stream, read again (BGR uint8; None where it is gone or no image)."""
-    img, _ = read_image(Path(name))
-    if img is None:
-        return None
-    try:
-        return to_bgr(img, name)
-    except ValueError:
-        return None
+class FramesByPath:
+    """``image(j)``: frame ``j`` of a stream of image paths, read again from its path (``names``, the paths in the
+    order their frames were numbered); None where the file is gone or no image (a run resumed elsewhere, a log
+    rotated away)."""
+
+    def __init__(self, names=()):
+        self.names: list[str] = list(names)
+
+    def __call__(self, j: int) -> np.ndarray | None:
+        name = self.names[j]
+        img, _ = read_image(Path(name))
+        if img is None:
+            return None
+        try:
+            return to_bgr(img, name)
+        except ValueError:
+            return None
 
 
 class StdinSource(Source):

@@ -29,6 +29,11 @@ class Keypoints:
     def __len__(self) -> int:
         return int(self.xy.shape[0])
 
+    @classmethod
+    def empty(cls, scale=(1.0, 1.0), size: tuple[int, int] = (0, 0)) -> Keypoints:
+        """No keypoints (a blank image, or none to read)."""
+        return cls(np.zeros((0, 2)), np.zeros((0, _DESCRIPTOR_BYTES), np.uint8), np.asarray(scale, np.float64), size)
+
     def detection_xy(self) -> np.ndarray:
         """Keypoint positions in the detection (possibly upscaled) frame, (K, 2) float64."""
         # pixel centres: cv2.resize maps x_orig to (x_orig + 0.5) * s - 0.5
@@ -61,7 +66,7 @@ def extract_features(image, n_features: int = 1000, min_side: int = 240, name: s
     orb = cv2.ORB_create(nfeatures=n_features)
     keypoints, desc = orb.detectAndCompute(grey, None)
     if desc is None or len(keypoints) == 0:
-        return Keypoints(np.zeros((0, 2)), np.zeros((0, _DESCRIPTOR_BYTES), np.uint8), scale, (h, w))
+        return Keypoints.empty(scale, (h, w))
     xy_det = np.array([kp.pt for kp in keypoints], dtype=np.float64).reshape(-1, 2)
     xy = (xy_det + 0.5) / scale - 0.5
     return Keypoints(xy, np.ascontiguousarray(desc, dtype=np.uint8), scale, (h, w))

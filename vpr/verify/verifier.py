@@ -145,8 +145,7 @@ class Verifier:
             img = images(i) if callable(images) else images[i]
             if img is None and not self.missing_blind:
                 raise ValueError(f"{name}: could not be loaded (got None)")
-            f = extract_features(img, self.n_features, self.min_side, name=name) if img is not None else \
-                Keypoints(np.zeros((0, 2)), np.zeros((0, 32), np.uint8), np.ones(2), (0, 0))
+            f = Keypoints.empty() if img is None else extract_features(img, self.n_features, self.min_side, name=name)
             if self.cache:
                 store[i] = f
                 if self.max_cached and len(store) > self.max_cached:  # the least recently used goes
