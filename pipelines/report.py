@@ -5,7 +5,7 @@ import warnings
 from pathlib import Path
 
 from vpr import report
-from vpr.sources import decode_image
+from vpr.sources import decode_image, images_at
 
 __all__ = ["write_report"]
 
@@ -23,13 +23,16 @@ def _frames(srcs):
             where.setdefault(f"{src.name}/{n}", (src, pos))
 
     def read(names) -> dict:
-        out = {}
-        for n in sorted(set(names), key=lambda n: (id(where[n][0]), where[n][1]) if n in where else (0, 0)):
+        out, wanted = {}, {}
+        for n in set(names):
             if n in where:
-                src, pos = where[n]
-                out[n] = next((f.image for f in src.iter_range(pos, pos + 1)), None)
+                wanted.setdefault(id(where[n][0]), []).append(n)
             elif n and Path(n).is_file():  # paths on stdin
                 out[n] = decode_image(Path(n))[0]
+        for group in wanted.values():  # each source read once through its frames, in order
+            src = where[group[0]][0]
+            images = images_at(src, [where[n][1] for n in group])
+            out.update({n: images[where[n][1]] for n in group})
         return out
 
     return read

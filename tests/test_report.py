@@ -83,8 +83,7 @@ def test_compare_writes_a_report_with_a_strip_per_decision_shown(compared):
 def test_the_report_renders_in_a_real_browser(compared):
     from selenium.webdriver.common.by import By
 
-    browser = chromium()
-    try:
+    with chromium() as browser:
         browser.get((compared / "report.html").as_uri())
         errors = [e for e in browser.get_log("browser") if e["level"] == "SEVERE"]
         assert not errors, errors
@@ -112,8 +111,6 @@ def test_the_report_renders_in_a_real_browser(compared):
         assert shown == dict(settings(params)) and {"preset", "encoder", "method_conf", "ground_truth"} <= set(shown)
         assert json.loads(shown["ground_truth"]) == params["ground_truth"]
         _click_a_match_on_the_matrix(browser, "rshosm-seq", compared)
-    finally:
-        browser.quit()
 
 
 def _click_a_match_on_the_matrix(browser, method, folder):

@@ -259,6 +259,22 @@ def test_frame_reader_reads_a_video_on_rather_than_seeking_again(tmp_path, monke
     assert starts == [25, 5, 0, far]  # 44 from the second read (at 25), 3 from the one at 0
 
 
+def test_images_at_reads_a_video_once_through_the_positions_asked(tmp_path, monkeypatch):
+    from vpr.sources import READ_ON, images_at
+
+    path = _video(tmp_path / "run.mp4", n=240, fps=30.0)
+    reference = _all_frames(path)
+    src = open_source(path, step=2)  # position p is the video's frame 2 p
+    starts = []
+    real = src.iter_range
+    monkeypatch.setattr(src, "iter_range", lambda a, b: starts.append(a) or real(a, b))
+    far = 41 + READ_ON + 1  # more than READ_ON past the position read next after 40
+    asked = [far, 3, 40, 0, 3, 17]  # in any order, once each
+    got = images_at(src, asked)
+    assert sorted(got) == sorted(set(asked))
+    assert all(np.array_equal(got[p], reference[2 * p]) for p in got)
+    assert starts == [0, far]  # one read through 0..40, another where the next is more than READ_ON on
+
 
 def test_video_step_fps_and_max_frames_select_the_right_frames(tmp_path):
     path = _video(tmp_path / "run.mp4", n=30, fps=30.0)

@@ -28,7 +28,7 @@ from .video import VideoSource
 __all__ = ["Frame", "FrameSkippedWarning", "IgnoredFilesWarning", "Source", "FolderSource", "ListSource", "VideoSource",
            "BagSource", "StdinSource", "KINDS", "is_bag",
            "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS", "LIST_EXTENSIONS", "natural_key", "decode_image", "open_source",
-           "open_sources", "load_all", "iter_batches", "frame_reader"]
+           "open_sources", "load_all", "iter_batches", "frame_reader", "images_at"]
 
 
 #: The kinds of source, asked in this order whether a path is theirs (:meth:`Source.accepts`).
@@ -191,6 +191,28 @@ class _Cursors:
                 break
         self.open.remove(cur)
         return None
+
+    def close(self) -> None:
+        """Close every open read."""
+        while self.open:
+            self.open.pop()[1].close()
+
+
+def images_at(src: Source, positions) -> dict:
+    """``{position: uint8 BGR image or None}``: the frames at these positions of ``src`` (of :meth:`Source.names`),
+    None where one cannot be read. A sequential source (a video, a bag) is read on through the positions in order
+    (:data:`READ_ON`) instead of opened again for each."""
+    indices = src.indices()
+    out = {}
+    cursors = _Cursors(src) if src.sequential else None
+    for pos in sorted({int(p) for p in positions}):
+        if cursors is not None:
+            out[pos] = cursors.read(pos, indices[pos])
+        else:
+            out[pos] = next((f.image for f in src.iter_range(pos, pos + 1)), None)
+    if cursors is not None:
+        cursors.close()
+    return out
 
 
 def frame_reader(srcs, read):
