@@ -52,7 +52,9 @@ best matches in the datasets' usual soft bands neither right nor wrong.
 
 With ``--loops``: only those two tables. With ``--one-run``: only ``vpr loops`` of one
 folder holding a revisit at 2x (Gardens Point) and of forward-only renders, and the
-runs of best earlier frames in each that read another speed. With ``--cases``: only
+runs of best earlier frames in each that read another speed; then one rendered run
+with loops in it, its later laps driven at 2x or its first lap at 2x (the later at 0.5x),
+with ground truth, geometry on and off. With ``--cases``: only
 the cases the localisation rule was chosen on (:mod:`studies.localize_decisions`),
 answered as they come and followed.
 
@@ -372,6 +374,55 @@ def one_run(data: Path, root: Path) -> None:
         off = [f"{a}-{b} ({v:.2f})" for a, b, v in runs if speed_step(v)]
         print(f"| {name} | {len(rows)} | {sum(r['accepted'] == '1' for r in rows)} | {len(runs)} | "
               f"{', '.join(off) or '-'} |", flush=True)
+    laps_at_speed(root)
+
+
+#: the rendered laps' ground truth (metres): right within, neither right nor wrong within
+LAPS_RADIUS, LAPS_SOFT = 5, 10
+
+
+def laps_at_speed(root: Path) -> None:
+    """``vpr loops`` of one run with loops in it, driven at another speed on the way back: the rendered
+    ``loop_revisits`` laps at the scene's own size (320 x 240, where geometry sees), every frame; the later laps every
+    2nd frame (2x); the first lap every 2nd frame (the later ones at 0.5x). Defaults, with ``--geometry off`` beside;
+    hard :data:`LAPS_RADIUS` m, soft :data:`LAPS_SOFT` m."""
+    rendered = root / "renders" / "loop_revisits"
+    if not (rendered / "scene.json").exists():
+        _quiet(["render", "loop_revisits", "--out", rendered])
+    with open(rendered / "ground_truth.csv", newline="") as fh:
+        gt = [r for r in csv.DictReader(fh) if r["traverse"] == "laps"]
+    files = sorted((rendered / "laps").glob("*.png"))
+    scene = json.loads((rendered / "scene.json").read_text())
+    lap = np.array([float(r["route_pos"]) for r in gt]) // scene["world"]["length"]
+    every, first, later = np.arange(len(files)), np.flatnonzero(lap == 0), np.flatnonzero(lap > 0)
+    streams = {"laps_1x": ("laps, every frame", every), "laps_2x": ("laps, the later laps every 2nd frame (2x)",
+                                                                    np.r_[first, later[::2]]),
+               "laps_half": ("laps, the first lap every 2nd frame (later laps 0.5x)", np.r_[first[::2], later])}
+    print(f"\nvpr loops of one run with loops, rendered at 320 x 240 (hard {LAPS_RADIUS} m, soft {LAPS_SOFT} m): "
+          "frames; accepted, P(acc), R(acc), false; geometry off, then on (the default): accepted by it, refused by it")
+    print("| stream | frames | --geometry off | default | by geometry | refused |")
+    print("|---|---|---|---|---|---|")
+    for key, (name, keep) in streams.items():
+        folder, positions = root / "one_run" / key, root / "one_run" / f"{key}.csv"
+        if not folder.exists():
+            folder.mkdir(parents=True)
+            for i, j in enumerate(keep):
+                (folder / f"{i:05d}.png").symlink_to(files[j].resolve())
+            with open(positions, "w", newline="") as fh:
+                w = csv.writer(fh)
+                w.writerow(["frame", "x", "y"])
+                w.writerows([i, gt[j]["x"], gt[j]["y"]] for i, j in enumerate(keep))
+        cells = []
+        for geometry in ("off", "on"):
+            out = root / "one_run" / f"{key}-geometry-{geometry}"
+            if not (out / "metrics.json").exists():
+                _quiet(["loops", folder, "--out", out, "--gt", positions, "--radius", LAPS_RADIUS, "--gt-soft",
+                        LAPS_SOFT, "--geometry", geometry])
+            m = json.loads((out / "metrics.json").read_text())["methods"]["rshosm-seq"]
+            cells.append(f"{decisions_cell(m, frames=False)}, {m['n_false']}")
+        g = m["geometry"]
+        print(f"| {name} | {len(keep)} | {cells[0]} | {cells[1]} | {g['accepted_by_geometry']} | "
+              f"{g['refused_by_geometry']} |", flush=True)
 
 
 #: the datasets' usual soft bands, by the hard radius of their streams (Gardens Point: 2 frames, 8 ignored;

@@ -29,6 +29,10 @@ class OpinionConf:
     #: (tracking, as against finding it: ORB-SLAM's lower bar for tracking than for relocalisation); 0: every frame
     #: needs ``min_inliers`` and its run
     keep_inliers: int = 10
+    #: a path the wrapped rule accepts is refused while none of its frames (its run since its score last stood at 0,
+    #: the accepted ones too) reached ``min_inliers`` and the last this many geometry saw all have fewer than
+    #: ``keep_inliers``; blind frames are not seen (0: never refused)
+    refuse_after: int = 3
     #: frames between the earlier frame and this one checked for a break of view (spread, the middle first)
     break_samples: int = 8
     #: out of sight: a frame between has fewer inliers with the earlier frame than this share of this frame's
@@ -49,7 +53,8 @@ class OpinionConf:
 
 
 class GeometricOpinion(Decider):
-    """The wrapped decider's decision, and geometry's where the path has not accepted (a :class:`Decider`).
+    """The wrapped decider's decision, geometry's where the path has not accepted, and geometry's refusal of a path
+    it saw and never confirmed (``OpinionConf.refuse_after``) (a :class:`Decider`).
 
     ``decider``: the loop rule (:class:`vpr.shosm.LoopDecider`); ``image(j)``: frame ``j`` at its source's resolution,
     None where it cannot be read again (blind);
@@ -66,9 +71,11 @@ class GeometricOpinion(Decider):
         self._recent: list[tuple[int, int]] = []  # (best, session) of the last frames
         self._checked: list[bool] = []  # whether each frame geometry checked along the path verified, the last first
         self._tracking = False  # the path geometry accepted last goes on (keep_inliers)
+        # the wrapped rule's current path: frames geometry saw in a row under keep_inliers, whether one confirmed it
+        self._seen, self._confirmed = 0, False
         self._rows = _sdr.RowLog()  # the stream's SDRs, for the stop check
         self._session = 0
-        self.verified = self.blind = self.accepted = 0
+        self.verified = self.blind = self.accepted = self.refused = 0
         self.seconds = 0.0
         self.frames = decider.frames
 
@@ -93,8 +100,9 @@ class GeometricOpinion(Decider):
         features and inliers it computed are not kept (computed again as needed)."""
         header, arrays = self.decider.state()
         own = {"recent": [list(r) for r in self._recent], "checked": self._checked, "tracking": self._tracking,
-               "session": self._session,
-               "verified": self.verified, "blind": self.blind, "accepted": self.accepted, "frames": self.frames}
+               "session": self._session, "seen": self._seen, "confirmed": self._confirmed,
+               "verified": self.verified, "blind": self.blind, "accepted": self.accepted, "refused": self.refused,
+               "frames": self.frames}
         return {"rule": header, "opinion": own}, {**{f"rule_{k}": v for k, v in arrays.items()},
                                                   "opinion_ptr": self._rows.ptr.copy(),
                                                   "opinion_ind": self._rows.ind.copy()}
@@ -106,6 +114,8 @@ class GeometricOpinion(Decider):
         self._checked, self._tracking = [bool(v) for v in own["checked"]], bool(own["tracking"])
         self._session, self.frames = int(own["session"]), int(own["frames"])
         self.verified, self.blind, self.accepted = int(own["verified"]), int(own["blind"]), int(own["accepted"])
+        self._seen, self._confirmed = int(own.get("seen", 0)), bool(own.get("confirmed", False))
+        self.refused = int(own.get("refused", 0))
         self._rows = _sdr.RowLog(arrays["opinion_ptr"], arrays["opinion_ind"])
         return self
 
@@ -122,19 +132,20 @@ class GeometricOpinion(Decider):
         j, b = int(d.frame), int(d.best)
         consistent = self._consistent(b)
         self._recent = (self._recent + [(b, self._session)])[-max(self.conf.frames, 1):]
-        if d.accepted or not consistent:
+        if not d.score > 0:  # the wrapped rule's path starts again
+            self._seen, self._confirmed = 0, False
+        if d.accepted:
+            self._checked, self._tracking = [], False
+            return self._judge(d, b, j)
+        if not consistent:
             self._checked, self._tracking = [], False
             return d
         t = time.perf_counter()
         c = self.conf
         try:
-            fj = self._verifier.query_features(j)
-            fb = self._verifier.db_features(b) if min(fj.size) >= c.min_side else None
-            if fb is None or min(len(fj), len(fb)) < c.min_keypoints:  # frames too small or bare for geometry
-                self.blind += 1
+            n = self._inliers(b, j)
+            if n is None:  # frames too small or bare for geometry
                 return self._accept(d, b, j) if self._tracking else d
-            self.verified += 1
-            n = self._verifier.pair_inliers(b, j)
             ok = n >= c.min_inliers and not (c.self_ratio > 0 and n < c.self_ratio * self._own(b, j))
             self._checked = ([ok] + self._checked)[:max(c.verified_within, c.verified_frames)]
             if self._tracking and n >= c.keep_inliers:
@@ -145,6 +156,37 @@ class GeometricOpinion(Decider):
             return self._accept(d, b, j)
         finally:
             self.seconds += time.perf_counter() - t
+
+    def _inliers(self, b: int, j: int) -> int | None:
+        """The distinct inliers of frames ``b`` and ``j`` (counted verified), None where either is blind (counted);
+        noted for the wrapped rule's current path (:meth:`_judge`)."""
+        c = self.conf
+        fj = self._verifier.query_features(j)
+        fb = self._verifier.db_features(b) if min(fj.size) >= c.min_side else None
+        if fb is None or min(len(fj), len(fb)) < c.min_keypoints:
+            self.blind += 1
+            return None
+        self.verified += 1
+        n = self._verifier.pair_inliers(b, j)
+        self._seen = self._seen + 1 if n < c.keep_inliers else 0
+        self._confirmed = self._confirmed or n >= c.min_inliers
+        return n
+
+    def _judge(self, d: Decision, b: int, j: int) -> Decision:
+        """A frame the wrapped rule accepted: refused while no frame of its path reached ``min_inliers`` and the last
+        ``refuse_after`` geometry saw have fewer than ``keep_inliers`` (this frame is looked at until one confirms)."""
+        c = self.conf
+        if c.refuse_after <= 0 or self._confirmed:
+            return d
+        t = time.perf_counter()
+        try:
+            self._inliers(b, j)
+        finally:
+            self.seconds += time.perf_counter() - t
+        if self._confirmed or self._seen < c.refuse_after:
+            return d
+        self.refused += 1
+        return replace(d, accepted=False)
 
     def _accept(self, d: Decision, b: int, j: int) -> Decision:
         """``d`` accepted by geometry, unless it is onto a place the camera never left (the stop check); from there on
@@ -189,8 +231,9 @@ class GeometricOpinion(Decider):
         return bool(np.searchsorted(starts, b, side="right") == np.searchsorted(starts, j, side="right"))
 
     def report(self) -> dict:
-        """Frames verified, blind, accepted by geometry, milliseconds per verified frame."""
+        """Frames verified, blind, accepted by geometry, refused by it, milliseconds per verified frame."""
         return {"frames_verified": self.verified, "frames_blind": self.blind, "accepted_by_geometry": self.accepted,
+                "refused_by_geometry": self.refused,
                 "ms_per_verified_frame": round(1e3 * self.seconds / max(self.verified, 1), 2),
                 "min_inliers": self.conf.min_inliers, "keep_inliers": self.conf.keep_inliers}
 
