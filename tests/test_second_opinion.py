@@ -93,12 +93,14 @@ def test_too_few_inliers_are_not_enough():
     assert not d.accepted.any()
 
 
-def test_a_path_the_rule_accepted_is_refused_where_geometry_sees_it_and_never_confirms_it():
+def test_with_refuse_after_a_path_the_rule_accepted_is_refused_where_geometry_sees_it_and_never_confirms_it():
     imgs, best, x = _stream()
     score = np.r_[np.zeros(40), np.arange(1.0, 21.0)]  # the rule's path from frame 40, accepted from frame 49 on
     path = Decision(best, score, score >= 10)
 
-    def run(images, conf=None):
+    refuse = OpinionConf(refuse_after=3)
+
+    def run(images, conf=refuse):
         return second_opinion(path, lambda j: images[j], x, back=4, ahead=6, stop_ratio=0.35, conf=conf)
 
     d, rep = run(imgs)  # the right place: confirmed before the rule accepts, and by geometry from frame 43
@@ -106,7 +108,7 @@ def test_a_path_the_rule_accepted_is_refused_where_geometry_sees_it_and_never_co
     other = imgs[:40] + _textures(60, seed=9)[40:]  # another place, in plain sight: 0 inliers on every frame
     d, rep = run(other)
     assert not d.accepted.any() and rep["refused_by_geometry"] == 11
-    d, rep = run(other, OpinionConf(refuse_after=0))
+    d, rep = run(other, OpinionConf())  # the default: the rule's path is never refused
     assert np.array_equal(d.accepted, path.accepted) and rep["refused_by_geometry"] == 0
     d, rep = run([cv2.resize(i, (64, 32)) for i in other])  # blind: the path decides alone
     assert np.array_equal(d.accepted, path.accepted) and rep["refused_by_geometry"] == 0
@@ -114,7 +116,7 @@ def test_a_path_the_rule_accepted_is_refused_where_geometry_sees_it_and_never_co
     # its frames (55-57)
     again = Decision(best, np.r_[score[:55], 0.0, 10.0, 11.0, 12.0, 13.0], np.r_[score[:55] >= 10, False, True,
                                                                                  True, True, True])
-    d, rep = second_opinion(again, lambda j: other[j], x, back=4, ahead=6, stop_ratio=0.35)
+    d, rep = second_opinion(again, lambda j: other[j], x, back=4, ahead=6, stop_ratio=0.35, conf=refuse)
     assert np.flatnonzero(d.accepted).tolist() == [56] and rep["refused_by_geometry"] == 6 + 3
 
 
