@@ -157,12 +157,16 @@ def z_rule(C, fill, zbest, z_min: float):
 def measure(best, ok, hard, soft) -> dict:
     """R@1, accepted, precision and recall of the accepted answers (soft-only answers count neither way)."""
     has = hard.any(axis=0)
-    q = np.arange(best.size)
-    right = (best >= 0) & hard[np.maximum(best, 0), q]
-    soft_only = (best >= 0) & soft[np.maximum(best, 0), q] & ~right
-    tp, fp = int((ok & right).sum()), int((ok & ~right & ~soft_only).sum())
+    right = (best >= 0) & hard[np.maximum(best, 0), np.arange(best.size)]
+    tp, fp = int((ok & right).sum()), int(wrong_answers(best, ok, hard, soft).size)
     return {"r1": float(right[has].mean()), "accepted": int(ok.sum()), "true": tp, "false": fp,
             "precision": tp / (tp + fp) if tp + fp else None, "recall": tp / max(int(has.sum()), 1)}
+
+
+def wrong_answers(best, ok, hard, soft) -> np.ndarray:
+    """The query frames whose accepted answer is neither right nor in the soft band (as :func:`measure` counts)."""
+    q, at = np.arange(best.size), np.maximum(best, 0)
+    return np.flatnonzero(ok & (best >= 0) & ~hard[at, q] & ~soft[at, q] | ok & (best < 0))
 
 
 def cell(r: dict) -> str:
@@ -250,12 +254,16 @@ def main(argv=None) -> int:
                        lambda rule: f"drift {rule[1]:g}, min_score {rule[2]:g}")
     conf = PathConf()
     print(f"\nWith the defaults (PathConf: drift {conf.drift:g}, min_score {conf.min_score:g}):\n")
-    print("| case | map frames | query frames | R@1 | accepted | precision of accepted | recall of accepted |")
-    print("|---|---|---|---|---|---|---|")
+    print("| case | map frames | query frames | R@1 | accepted | precision of accepted | recall of accepted | "
+          "wrong answers: query -> map frame (the first 10) |")
+    print("|---|---|---|---|---|---|---|---|")
     for k, (C, f, _, h, s) in cols.items():
-        r = measure(*decide(C, f, conf), h, s)
+        best, ok = decide(C, f, conf)
+        r = measure(best, ok, h, s)
         p = "-" if r["precision"] is None else f"{r['precision']:.3f} ({r['false']} wrong)"
-        print(f"| {k} | {C.shape[1]:,} | {C.shape[0]:,} | {r['r1']:.2f} | {r['accepted']} | {p} | {r['recall']:.2f} |")
+        wrong = ", ".join(f"{q} -> {best[q]}" for q in wrong_answers(best, ok, h, s)[:10]) or "-"
+        print(f"| {k} | {C.shape[1]:,} | {C.shape[0]:,} | {r['r1']:.2f} | {r['accepted']} | {p} | {r['recall']:.2f} | "
+              f"{wrong} |")
     return 0
 
 
