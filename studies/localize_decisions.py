@@ -17,6 +17,9 @@ query leaves the map:
 - ``nordland_half``: the first half of summer (every 10th) / all of winter
   (every 10th): the second half of the query is not on the map, so every
   accepted answer there is false.
+- ``nordland_gap``: summer every 10th without its middle third / all of
+  winter: the query leaves the map in its middle and comes back (reported,
+  not chosen on).
 - ``gardens_point``: Gardens Point day_left / day_right (200 frames each;
   hard within 2 frames, soft within 8).
 - ``speed_change``: the rendered ``speed_change`` world, ``slow`` traverse as
@@ -59,7 +62,8 @@ from vpr.shosm import Localizer, PathConf, PathDecider, decide_all
 from vpr.sources import open_source
 from vpr.types import Column
 
-CASES = ("nordland_358", "nordland_120", "nordland_3576", "nordland_half", "gardens_point", "speed_change")
+CASES = ("nordland_358", "nordland_120", "nordland_3576", "nordland_half", "nordland_gap", "gardens_point",
+         "speed_change")
 #: The cases and the preset the rule is chosen on (see the module docstring).
 CHOSEN_ON = ("nordland_358", "nordland_120", "nordland_3576", "nordland_half", "gardens_point")
 CHOSEN_PRESET = "default"
@@ -70,6 +74,8 @@ Z_MINS = (3.0, 4.0, 5.0, 6.0)
 
 def case_sources(case: str, data: Path, tmp: Path):
     """(map source, query source, hard (n_map x n_q), soft)."""
+    if case == "nordland_gap":
+        return nordland_gap(data / "nordland_trimmed", tmp)
     if case.startswith("nordland"):
         root = data / "nordland_trimmed"
         step = {"nordland_358": 10, "nordland_120": 30, "nordland_3576": None, "nordland_half": 10}[case]
@@ -86,6 +92,21 @@ def case_sources(case: str, data: Path, tmp: Path):
         d = np.abs(np.arange(len(m.names()))[:, None] - np.arange(len(q.names()))[None])
         return m, q, d <= 2, d <= 8
     return rendered_pair("speed_change", "slow", "fast", tmp, 5.0, 10.0)
+
+
+def nordland_gap(root: Path, tmp: Path):
+    """Nordland every 10th file, the map without the middle third of summer: the query (all of winter) leaves the
+    map there and comes back, where the map's sequence runs on from the frame before the gap to the frame after."""
+    full = open_source(root / "summer", step=10)
+    names, idx = full.names(), full.indices()
+    n = len(idx)
+    keep = [k for k in range(n) if not n // 3 <= k < 2 * n // 3]
+    listing = tmp / "nordland_gap_map.txt"
+    listing.write_text("".join(f"{(root / 'summer' / names[k]).resolve()}\n" for k in keep))
+    m, q = open_source(listing), open_source(root / "winter", step=10)
+    mi, qi = np.array([idx[k] for k in keep], float), np.asarray(q.indices(), float)
+    d = np.abs(mi[:, None] - qi[None])
+    return m, q, d <= 10, d <= 30
 
 
 def rendered_pair(scene: str, db: str, query: str, tmp: Path, radius: float, soft: float):
