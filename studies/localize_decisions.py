@@ -285,7 +285,32 @@ def main(argv=None) -> int:
         wrong = ", ".join(f"{q} -> {best[q]}" for q in wrong_answers(best, ok, h, s)[:10]) or "-"
         print(f"| {k} | {C.shape[1]:,} | {C.shape[0]:,} | {r['r1']:.2f} | {r['accepted']} | {p} | {r['recall']:.2f} | "
               f"{wrong} |")
+    print_fading(cols, conf)
     return 0
+
+
+#: a fall of the best frame's z to this share of its median over the last FADE_WINDOW frames (measured, not adopted)
+FADES = (0.6, 0.7, 0.8)
+FADE_WINDOW = 20
+
+
+def print_fading(cols: dict, conf: PathConf) -> None:
+    """What refusing an accepted answer whose best z-score fell to a share of its recent median would do (the
+    evidence fading once a query has left the map): right answers lost and wrong ones left, per case."""
+    print(f"\nAccepted answers refused where the best z fell below a share of its median over the last {FADE_WINDOW} "
+          "frames: right ones lost / wrong ones left")
+    print("| case | " + " | ".join(f"share {r:g}" for r in FADES) + " |")
+    print("|---|" + "---|" * len(FADES))
+    for k, (C, f, zbest, h, s) in cols.items():
+        best, ok = decide(C, f, conf)
+        wrong = wrong_answers(best, ok, h, s)
+        right = ok & (best >= 0) & h[np.maximum(best, 0), np.arange(best.size)]
+        ref = np.array([np.median(zbest[max(0, j - FADE_WINDOW):j]) if j >= 3 else np.inf for j in range(best.size)])
+        cells = []
+        for r in FADES:
+            kept = zbest >= r * ref
+            cells.append(f"{int((right & ~kept).sum())} / {int(kept[wrong].sum())} of {right.sum()} / {wrong.size}")
+        print(f"| {k} | " + " | ".join(cells) + " |")
 
 
 if __name__ == "__main__":
