@@ -12,7 +12,9 @@ its defaults (geometry on; blind on Nordland's 64 x 32), ground truth by place:
   rendered ``speed_change`` fast drive (another street, same renderer and size).
 
 Printed per stream: accepted, P(acc), R(acc), false; the false closures within 30 frames after the
-turn (the answers that run on along the earlier route), and those elsewhere.
+turn (the answers that run on along the earlier route), and those elsewhere. Then the evidence at each
+frame's best earlier frame, raw (not standardised), over the 10 frames before the turn and the 10
+after, and how a share of its median over the last 20 frames would tell the run-on apart.
 
 A query that leaves a map in its middle (``vpr localize``) is ``studies.localize_decisions``'
 ``nordland_gap`` case.
@@ -27,8 +29,13 @@ import json
 import os
 from pathlib import Path
 
+import numpy as np
+import scipy.sparse as sp
+
+from encoders.extract import load_cache
 from studies.cells import decisions_cell
 from studies.speed_models import _quiet
+from vpr.shosm import loop_evidence
 
 RUN_ON = 30
 
@@ -97,6 +104,7 @@ def main(argv=None) -> int:
           f"closures within {RUN_ON} frames after the turn (query -> earlier frame) and elsewhere")
     print("| stream | frames | turn at | decisions | run on after the turn | false elsewhere |")
     print("|---|---|---|---|---|---|")
+    fading = {}
     for name, (listing, positions, turn, radius, soft) in streams(data, out).items():
         run = out / f"{name}-out"
         if not (run / "metrics.json").exists():
@@ -109,7 +117,35 @@ def main(argv=None) -> int:
         print(f"| {name} | {len(rows)} | {turn} | {decisions_cell(m, frames=False)}, {m['n_false']} | "
               f"{len(on)}: {', '.join(on[:6])}{' ...' if len(on) > 6 else ''} | "
               f"{len(false) - len(on)} |", flush=True)
+        fading[name] = (run, rows, turn)
+    print("\nThe raw evidence at the best earlier frame (mean of the 10 frames before the turn / the 10 after); an "
+          f"accepted closure refused below a share of its median over the last {FADE_WINDOW} frames: right ones "
+          "lost / false ones left")
+    print("| stream | before / after the turn | " + " | ".join(f"share {r:g}" for r in FADES) + " |")
+    print("|---|---|" + "---|" * len(FADES))
+    for name, (run, rows, turn) in fading.items():
+        raw = raw_at_best(run)
+        right = np.array([r["accepted"] == "1" and r["right"] == "1" for r in rows])
+        false = np.array([r["accepted"] == "1" and r["right"] == "0" for r in rows])
+        ref = np.array([np.median(raw[max(0, j - FADE_WINDOW):j]) if j >= 3 else np.inf for j in range(raw.size)])
+        cells = [f"{int((right & (raw < r * ref)).sum())} / {int((false & (raw >= r * ref)).sum())} of "
+                 f"{int(right.sum())} / {int(false.sum())}" for r in FADES]
+        print(f"| {name} | {raw[turn - 10:turn].mean():.2f} / {raw[turn:turn + 10].mean():.2f} | " + " | ".join(cells)
+              + " |", flush=True)
     return 0
+
+
+FADES, FADE_WINDOW = (0.5, 0.7, 0.8), 20
+
+
+def raw_at_best(run: Path) -> np.ndarray:
+    """Per frame, the raw evidence (``normalise="none"``) at the best earlier frame of the standardised evidence, as
+    ``vpr loops`` scored the run's cached SDRs (exclude 30)."""
+    x = load_cache(next((run / "cache").glob("*.npz"))).features.sdr
+    best = loop_evidence(x, exclude=30).decision.best
+    S = loop_evidence(x, exclude=30, normalise="none").similarity
+    S = S.toarray() if sp.issparse(S) else S
+    return np.array([S[b, j] if b >= 0 else 0.0 for j, b in enumerate(best)])
 
 
 if __name__ == "__main__":
