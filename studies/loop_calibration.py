@@ -10,7 +10,8 @@ has with its own neighbour ``self_gap`` frames on: a bar in the stream's own
 units); ``distinct`` (only matches distinct within their own image count: a
 pattern repeated within a frame, a crossing's stripes, verifies nothing); and
 ``verified_within`` (the 2 verified frames among the last that many checked);
-``keep_inliers`` (the bar of the frames continuing a path geometry accepted).
+``keep_inliers`` (the bar of the frames continuing a path geometry accepted);
+``rising_inliers`` (the bar where the path score is already above 0).
 Printed for each setting: recall and false closures (onto an identical copy
 of a rendered stretch counted apart, as they are no error of the detector;
 Nordland's 64 x 32 frames are blind); then the setting chosen by a rule
@@ -23,7 +24,7 @@ distinct matches, the shorter window, no tracking (else its larger bar).
 
 Usage: VPR_DATASETS=../shared/datasets python -m studies.loop_calibration [--cache DIR]
 [--inliers 20,30,40] [--ratios 0,0.5] [--distinct 0,1] [--within 2,3] [--keep 0,10,15]
-[--sizes 160x120,320x240,640x480]
+[--rising 0,20] [--sizes 160x120,320x240,640x480]
 """
 from __future__ import annotations
 
@@ -71,7 +72,8 @@ def far_pairs(name, stream, d, res, verifier, alias, n: int, seed: int = 0) -> N
 
 
 def grid_counts(names, grid, cache: Path, data: Path, far: int = 0, min_side: int = 120) -> dict:
-    """{(min_inliers, self_ratio, distinct, verified_within, keep_inliers): {stream: count}} with one verifier per
+    """{(min_inliers, self_ratio, distinct, verified_within, keep_inliers, rising_inliers): {stream: count}} with one
+    verifier per
     stream and matching (its features and pairs computed once for every setting)."""
     conf = LoopConf()
     out: dict = {}
@@ -85,13 +87,13 @@ def grid_counts(names, grid, cache: Path, data: Path, far: int = 0, min_side: in
             return shared[kw["distinct"]]
 
         with mock.patch("vpr.verify.opinion.Verifier", one_verifier):
-            for k, r, u, w, keep in grid:
+            for k, r, u, w, keep, rise in grid:
                 res, _ = second_opinion(d, image, stream.x, conf.back, conf.ahead, conf.stop_ratio,
                                         OpinionConf(min_inliers=k, self_ratio=r, distinct=u, verified_within=w,
-                                                    keep_inliers=keep, min_side=min_side),
+                                                    keep_inliers=keep, rising_inliers=rise, min_side=min_side),
                                         accept_score=conf.min_score)
-                out.setdefault((k, r, u, w, keep), {})[name] = count(stream, res.best, res.accepted, alias)
-                if (k, r, u, w, keep) == grid[0] and far:
+                out.setdefault((k, r, u, w, keep, rise), {})[name] = count(stream, res.best, res.accepted, alias)
+                if (k, r, u, w, keep, rise) == grid[0] and far:
                     far_pairs(name, stream, d, res, one_verifier.__defaults__[0][u], alias, far)
         print(f"  ({name}: {len(stream)} frames, {time.perf_counter() - t:.0f} s)", flush=True)
     return out
@@ -100,7 +102,7 @@ def grid_counts(names, grid, cache: Path, data: Path, far: int = 0, min_side: in
 def setting(s: tuple) -> str:
     """A grid setting as the tables name it."""
     return (f"min_inliers {s[0]}, self_ratio {s[1]:g}, distinct {'yes' if s[2] else 'no'}, within {s[3]}, "
-            f"keep_inliers {s[4]}")
+            f"keep_inliers {s[4]}, rising_inliers {s[5]}")
 
 
 def choose(counts: dict, names) -> tuple:
@@ -113,7 +115,7 @@ def choose(counts: dict, names) -> tuple:
         rec = [c[n]["recall"] for n in revisits] or [0.0]
         # no false closure first (else the fewest), then the smallest recall, the mean recall, the more careful:
         # the larger bar, distinct matches, the shorter window, no tracking (else its larger bar)
-        careful = s[0] + 100 * s[1] + 1000 * s[2] - 0.1 * s[3] + 0.01 * (s[4] or 1000)
+        careful = s[0] + 100 * s[1] + 1000 * s[2] - 0.1 * s[3] + 0.01 * (s[4] or 1000) + 0.001 * (s[5] or 1000)
         return (-false, min(rec), sum(rec) / len(rec), careful)
 
     return max(counts, key=key)
@@ -128,6 +130,7 @@ def main(argv=None) -> int:
     ap.add_argument("--distinct", default="0,1", help="0: every match; 1: only matches distinct in their own image")
     ap.add_argument("--within", default="2,3", help="verified_within: the 2 verified frames among the last this many")
     ap.add_argument("--keep", default="0,10,15", help="keep_inliers: the bar of the frames continuing an accepted path")
+    ap.add_argument("--rising", default="0", help="rising_inliers: the bar where the path score is above 0 (0: none)")
     ap.add_argument("--streams", default=",".join((*REVISITS, *FORWARD)))
     ap.add_argument("--far", type=int, default=0, help="also print the inliers of this many random far pairs")
     ap.add_argument("--sizes", default="160x120,320x240,640x480",
@@ -137,9 +140,9 @@ def main(argv=None) -> int:
     cache = Path(a.cache)
     cache.mkdir(parents=True, exist_ok=True)
     data = Path(a.data or os.environ.get("VPR_DATASETS", "../shared/datasets"))
-    grid = [(int(k), float(r), bool(int(u)), int(w), int(keep)) for u in a.distinct.split(",")
+    grid = [(int(k), float(r), bool(int(u)), int(w), int(keep), int(rise)) for u in a.distinct.split(",")
             for w in a.within.split(",") for k in a.inliers.split(",") for r in a.ratios.split(",")
-            for keep in a.keep.split(",")]
+            for keep in a.keep.split(",") for rise in a.rising.split(",")]
     counts, names = {}, []
     for k, size in enumerate(a.sizes.lower().split(",")):
         loop_streams.RENDER_SIZE = tuple(int(v) for v in size.split("x"))
@@ -150,11 +153,12 @@ def main(argv=None) -> int:
         for setting_, c in at.items():
             counts.setdefault(setting_, {}).update({n + tag: v for n, v in c.items()})
         names += [n + tag for n in these]
-    print("\n| distinct | within | min_inliers | self_ratio | keep_inliers | " + " | ".join(names) + " |")
-    print("|---|---:|---:|---:|---:|" + "---|" * len(names))
-    for k, r, u, w, keep in grid:
-        print(f"| {'yes' if u else 'no'} | {w} | {k} | {r:g} | {keep} | "
-              + " | ".join(cell(counts[(k, r, u, w, keep)][n]) for n in names) + " |")
+    print("\n| distinct | within | min_inliers | self_ratio | keep_inliers | rising_inliers | " + " | ".join(names)
+          + " |")
+    print("|---|---:|---:|---:|---:|---:|" + "---|" * len(names))
+    for k, r, u, w, keep, rise in grid:
+        print(f"| {'yes' if u else 'no'} | {w} | {k} | {r:g} | {keep} | {rise} | "
+              + " | ".join(cell(counts[(k, r, u, w, keep, rise)][n]) for n in names) + " |")
     best = choose(counts, names)
     print(f"\nchosen on every stream: {setting(best)}")
     print("\n| held out | chosen on the others | held-out stream with it |")

@@ -93,6 +93,16 @@ def test_too_few_inliers_are_not_enough():
     assert not d.accepted.any()
 
 
+def test_rising_inliers_is_the_bar_where_the_path_score_is_above_0():
+    imgs, best, x = _stream()
+    score = np.r_[np.zeros(50), np.full(10, 5.0)]  # the rule's path stands out from frame 50 on, not accepted
+    path = Decision(best, score, np.zeros(best.size, bool))
+    conf = OpinionConf(min_inliers=100_000, rising_inliers=30)  # no pair reaches the first bar
+    d, rep = second_opinion(path, lambda j: imgs[j], x, back=4, ahead=6, stop_ratio=0.35, conf=conf)
+    # 2 verified frames where the score is above 0 (at min_inliers alone, none would be)
+    assert not d.accepted[:51].any() and d.accepted[51:].all() and rep["accepted_by_geometry"] == 9
+
+
 def test_with_refuse_after_a_path_the_rule_accepted_is_refused_where_geometry_sees_it_and_never_confirms_it():
     imgs, best, x = _stream()
     score = np.r_[np.zeros(40), np.arange(1.0, 21.0)]  # the rule's path from frame 40, accepted from frame 49 on

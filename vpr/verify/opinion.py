@@ -20,6 +20,9 @@ class OpinionConf:
     """When geometry confirms a closure (``docs/internals.md``)."""
 
     min_inliers: int = 40
+    #: the bar instead of ``min_inliers`` where the wrapped rule's path score is above 0 (its sequence evidence already
+    #: stands out on this path); 0: ``min_inliers`` there too
+    rising_inliers: int = 0
     frames: int = 3
     #: frames that must verify before geometry accepts (the first of a run is not enough) ...
     verified_frames: int = 2
@@ -146,7 +149,8 @@ class GeometricOpinion(Decider):
             n = self._inliers(b, j)
             if n is None:  # frames too small or bare for geometry
                 return self._accept(d, b, j) if self._tracking else d
-            ok = n >= c.min_inliers and not (c.self_ratio > 0 and n < c.self_ratio * self._own(b, j))
+            bar = c.rising_inliers if c.rising_inliers > 0 and d.score > 0 else c.min_inliers
+            ok = n >= bar and not (c.self_ratio > 0 and n < c.self_ratio * self._own(b, j))
             self._checked = ([ok] + self._checked)[:max(c.verified_within, c.verified_frames)]
             if self._tracking and n >= c.keep_inliers:
                 return self._accept(d, b, j)
