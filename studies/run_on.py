@@ -34,7 +34,7 @@ import scipy.sparse as sp
 
 from encoders.extract import load_cache
 from studies.cells import decisions_cell
-from studies.speed_models import _quiet
+from studies.speed_models import run_quietly
 from vpr.shosm import loop_evidence
 
 RUN_ON = 30
@@ -70,7 +70,7 @@ def streams(data: Path, out: Path) -> dict:
     rendered = out / "renders"
     for scene, only in (("loop_revisits", []), ("speed_change", ["--traverse", "fast"])):
         if not (rendered / scene / "scene.json").exists():
-            _quiet(["render", scene, "--out", rendered / scene, *only])
+            run_quietly(["render", scene, "--out", rendered / scene, *only])
     with open(rendered / "loop_revisits" / "ground_truth.csv", newline="") as fh:
         laps = [r for r in csv.DictReader(fh) if r["traverse"] == "laps"]
     length = json.loads((rendered / "loop_revisits" / "scene.json").read_text())["world"]["length"]
@@ -108,7 +108,7 @@ def main(argv=None) -> int:
     for name, (listing, positions, turn, radius, soft) in streams(data, out).items():
         run = out / f"{name}-out"
         if not (run / "metrics.json").exists():
-            _quiet(["loops", listing, "--out", run, "--gt", positions, "--radius", radius, "--gt-soft", soft])
+            run_quietly(["loops", listing, "--out", run, "--gt", positions, "--radius", radius, "--gt-soft", soft])
         m = json.loads((run / "metrics.json").read_text())["methods"]["rshosm-seq"]
         with open(run / "rshosm-seq" / "matches.csv", newline="") as fh:
             rows = list(csv.DictReader(fh))

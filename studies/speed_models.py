@@ -160,7 +160,7 @@ def _positions(path: Path, x) -> Path:
     return path
 
 
-def _quiet(argv: list) -> Path:
+def run_quietly(argv: list) -> Path:
     """Run ``vpr ARGV`` without its output; returns its ``--out``."""
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()), \
             warnings.catch_warnings(action="ignore"):
@@ -170,7 +170,7 @@ def _quiet(argv: list) -> Path:
 
 
 def _command(argv: list) -> str | None:
-    out = _quiet(argv)
+    out = run_quietly(argv)
     if argv[0] == "learn":
         return None
     with open(out / "rshosm-seq" / "matches.csv", newline="") as f:
@@ -351,7 +351,7 @@ def one_run(data: Path, root: Path) -> None:
                          ("speed_change", ("slow", "fast"))):
         rendered = root / "renders" / scene
         if not (rendered / "scene.json").exists():
-            _quiet(["render", scene, "--out", rendered, "--size", "160x120"])
+            run_quietly(["render", scene, "--out", rendered, "--size", "160x120"])
         for t in names:
             streams[f"{scene}_{t}"] = (f"rendered {scene} {t} (forward only)", sorted((rendered / t).glob("*.png")))
     print("\nvpr loops of one folder (defaults): frames, accepted; runs of 10 or more best earlier frames; those "
@@ -366,7 +366,7 @@ def one_run(data: Path, root: Path) -> None:
                 (folder / f"{i:05d}{f.suffix}").symlink_to(f.resolve())
         out = root / "one_run" / f"{key}-out"
         if not (out / "metrics.json").exists():
-            _quiet(["loops", folder, "--out", out])
+            run_quietly(["loops", folder, "--out", out])
         with open(out / "rshosm-seq" / "matches.csv", newline="") as fh:
             rows = list(csv.DictReader(fh))
         best = [int(r["best_db"]) for r in rows]
@@ -388,7 +388,7 @@ def laps_at_speed(root: Path) -> None:
     hard :data:`LAPS_RADIUS` m, soft :data:`LAPS_SOFT` m."""
     rendered = root / "renders" / "loop_revisits"
     if not (rendered / "scene.json").exists():
-        _quiet(["render", "loop_revisits", "--out", rendered])
+        run_quietly(["render", "loop_revisits", "--out", rendered])
     with open(rendered / "ground_truth.csv", newline="") as fh:
         gt = [r for r in csv.DictReader(fh) if r["traverse"] == "laps"]
     files = sorted((rendered / "laps").glob("*.png"))
@@ -416,7 +416,7 @@ def laps_at_speed(root: Path) -> None:
         for geometry in ("off", "on"):
             out = root / "one_run" / f"{key}-geometry-{geometry}"
             if not (out / "metrics.json").exists():
-                _quiet(["loops", folder, "--out", out, "--gt", positions, "--radius", LAPS_RADIUS, "--gt-soft",
+                run_quietly(["loops", folder, "--out", out, "--gt", positions, "--radius", LAPS_RADIUS, "--gt-soft",
                         LAPS_SOFT, "--geometry", geometry])
             m = json.loads((out / "metrics.json").read_text())["methods"]["rshosm-seq"]
             cells.append(f"{decisions_cell(m, frames=False)}, {m['n_false']}")
