@@ -16,6 +16,8 @@ Cases (database / query):
   ``studies.localize_decisions``).
 - ``nordland_half``: the first half of summer / all of winter (every 10th): half
   the queries are not on the map, every answer there is false.
+- ``nordland_gap``: summer every 10th without its middle third / all of winter: the
+  query leaves the map in its middle and comes back (reported, not chosen on).
 - ``gardens_point``: day_left / day_right (hard 2 frames, soft 8).
 - ``two_seasons``: the rendered demo (summer day 476 / winter night 533 frames at
   160 x 120; hard 3 m, soft 10 m), rendered here.
@@ -43,8 +45,8 @@ from studies.localize_decisions import best_rule, case_sources, cell, measure, p
 from vpr import methods, presets
 from vpr.shosm import PathConf, accept_path
 
-CASES = ("nordland_358", "nordland_120", "nordland_3576", "nordland_half", "gardens_point", "two_seasons",
-         "speed_change")
+CASES = ("nordland_358", "nordland_120", "nordland_3576", "nordland_half", "nordland_gap", "gardens_point",
+         "two_seasons", "speed_change")
 REAL = ("nordland_358", "nordland_120", "nordland_3576", "nordland_half", "gardens_point")
 CHOSEN_PRESET = "default"
 DRIFTS = (0.25, 0.5, 1.0, 1.5, 2.0, 3.0)
