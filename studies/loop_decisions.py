@@ -16,8 +16,10 @@ streams, weakest first (the smallest recall decides, the next breaks ties). ``--
 repeats the choice without each stream in turn and prints what the rule chosen
 without it does on it: a rule that only holds where it was chosen shows there.
 
+``--sizes``: the rendered streams also at other sizes, each a stream of its own.
+
 Usage: python -m studies.loop_decisions [--cache DIR] [--data DIR] [--presets default,fast] [--leave-one-out]
-       [--decay D]
+       [--decay D] [--sizes 160x120,320x240]
 """
 from __future__ import annotations
 
@@ -28,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from studies import loop_streams
 from studies.loop_streams import FORWARD, REAL_REVISITS, RENDERED_REVISITS, load_stream
 from vpr.shosm import LoopConf, LoopEvidence, accept_loops, loop_evidence
 
@@ -90,8 +93,9 @@ def count(stream, ev, alias, conf: LoopConf) -> dict:
 
 
 def _stream_of(key: str) -> str:
-    """The stream name of a result key (``"fast: gardens_point"`` or ``"gardens_point"``)."""
-    return key.split(": ")[-1]
+    """The stream name of a result key (``"fast: gardens_point"``, ``"gardens_point"``, a render at another size
+    ``"loop_revisits/laps@320x240"``)."""
+    return key.split(": ")[-1].split("@")[0]
 
 
 def choose(results: dict, streams: list[str]):
@@ -149,7 +153,7 @@ def _held_cell(stream: str, c: dict | None) -> str:
     """What the rule chosen without ``stream`` does on it."""
     if c is None:
         return "-"
-    if stream in REVISITS:
+    if _stream_of(stream) in REVISITS:
         return f"recall {c['true'] / c['frames']:.2f}, {c['false']} false"
     return f"{c['false']} false" + (f" (+{c['copy']} onto a copy)" if c["copy"] else "")
 
@@ -162,21 +166,29 @@ def main(argv=None) -> int:
     ap.add_argument("--leave-one-out", action="store_true", help="choose without each stream, check it")
     ap.add_argument("--decay", type=float, default=None,
                     help="the evidence's decay per frame (default: rshosm-seq's), e.g. 0.95 for a longer memory")
+    ap.add_argument("--sizes", default="160x120",
+                    help="the sizes the rendered streams are rendered at, each a stream of its own (the first unnamed)")
     a = ap.parse_args(argv)
     cache = Path(a.cache)
     cache.mkdir(parents=True, exist_ok=True)
     presets = [p.strip() for p in a.presets.split(",") if p.strip()]
     names, data, copies = [], {}, {}
-    for preset in presets:
-        for n in [*REVISITS, *FORWARD]:
-            t = time.perf_counter()
-            s = load_stream(n, preset=preset, cache=cache, data=a.data)
-            if n not in copies:
-                copies[n] = aliases(n)
-            key = n if len(presets) == 1 else f"{preset}: {n}"
-            names.append(key)
-            data[key] = (s, evidence(s, cache, preset, a.decay), copies[n])
-            print(f"{key}: {len(s)} frames ({time.perf_counter() - t:.0f} s)", flush=True)
+    for k, size in enumerate(a.sizes.lower().split(",")):
+        loop_streams.RENDER_SIZE = tuple(int(v) for v in size.split("x"))
+        at = cache if k == 0 else cache.with_name(f"{cache.name}_{size}")
+        at.mkdir(parents=True, exist_ok=True)
+        for preset in presets:
+            for n in [*REVISITS, *FORWARD]:
+                if k and "/" not in n:  # the real streams have their own size
+                    continue
+                t = time.perf_counter()
+                s = load_stream(n, preset=preset, cache=at, data=a.data)
+                if n not in copies:
+                    copies[n] = aliases(n)
+                key = (n if len(presets) == 1 else f"{preset}: {n}") + ("" if k == 0 else f"@{size}")
+                names.append(key)
+                data[key] = (s, evidence(s, at, preset, a.decay), copies[n])
+                print(f"{key}: {len(s)} frames ({time.perf_counter() - t:.0f} s)", flush=True)
     results = {}
     for rule in itertools.product(DRIFTS, SCORES):
         conf = LoopConf(drift=rule[0], min_score=rule[1])
