@@ -42,8 +42,7 @@ def _browse(page: Path, kind: str, repeats: int) -> dict:
     metrics = json.loads((page.parent / "metrics.json").read_text())["methods"]
     loads, errors, same, strips = [], 0, True, {}
     for _ in range(repeats):
-        browser = chromium()
-        try:
+        with chromium() as browser:
             browser.get(page.as_uri())
             loads.append(browser.execute_script(
                 "const t = performance.timing; return t.loadEventEnd - t.navigationStart") / 1000)
@@ -53,8 +52,6 @@ def _browse(page: Path, kind: str, repeats: int) -> dict:
                 same &= shown == table_cells(v, kind)
             for s in browser.find_elements(By.CSS_SELECTOR, ".strip"):
                 strips[s.get_attribute("data-method")] = strips.get(s.get_attribute("data-method"), 0) + 1
-        finally:
-            browser.quit()
     return {"MB": page.stat().st_size / 1e6, "load_s": loads, "errors": errors, "table_equals_metrics": same,
             "strips": {m: n // repeats for m, n in strips.items()}}
 
