@@ -119,15 +119,17 @@ def _run_online(args, settings: dict) -> int:
     return 0
 
 
-def geometry_opinion(image, opinions: dict, key: str):
+def geometry_opinion(image, opinions: dict | None = None, key: str = ""):
     """``opinion(rule)``: the geometric second opinion around a loop rule (:class:`vpr.verify.GeometricOpinion`) over
-    ``image(j)``, frame ``j`` at its source's resolution; the opinion made is kept in ``opinions[key]``."""
+    ``image(j)``, frame ``j`` at its source's resolution; the opinion made is kept in ``opinions[key]`` (given)."""
     from vpr.verify import GeometricOpinion  # pycolmap: loaded only when verifying
 
     def opinion(rule):
         loop = rule.loop  # the loop rule's own settings say what a consistent path is
-        opinions[key] = GeometricOpinion(rule, image, loop.back, loop.ahead, loop.stop_ratio)
-        return opinions[key]
+        made = GeometricOpinion(rule, image, loop.back, loop.ahead, loop.stop_ratio)
+        if opinions is not None:
+            opinions[key] = made
+        return made
     return opinion
 
 
@@ -148,7 +150,7 @@ def make_detector(settings: dict, exclude: int = LOOP_EXCLUDE, geometry: bool = 
     enc.check_memory(1)  # frames come one at a time
     frames = FramesByPath()  # the detector's frame names, once it is made
     det = runner.loop_detector(StreamEncoder(enc), exclude=exclude,
-                               opinion=geometry_opinion(frames, {}, "") if geometry else None)
+                               opinion=geometry_opinion(frames) if geometry else None)
     frames.names = det.names
     det.meta = {"encoder": enc.name, "encoder_conf": enc.conf, "preset": settings["preset"]}
     return det
@@ -162,7 +164,7 @@ def resume_detector(path) -> LoopDetector:
         raise ValueError(f"{path}: a loop detector saved without its encoder (not by `vpr loops -`)")
     frames = FramesByPath()  # the detector's frame names, once it is made
     det = LoopDetector.load(path, encoder=StreamEncoder(encoders.get(enc, **meta["encoder_conf"])),
-                            opinion=geometry_opinion(frames, {}, "") if meta["opinion"] else None)
+                            opinion=geometry_opinion(frames) if meta["opinion"] else None)
     frames.names = det.names
     return det
 

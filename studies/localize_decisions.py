@@ -278,14 +278,15 @@ def main(argv=None) -> int:
     print("| case | map frames | query frames | R@1 | accepted | precision of accepted | recall of accepted | "
           "wrong answers: query -> map frame (the first 10) |")
     print("|---|---|---|---|---|---|---|---|")
+    decided = {}
     for k, (C, f, _, h, s) in cols.items():
-        best, ok = decide(C, f, conf)
+        best, ok = decided[k] = decide(C, f, conf)
         r = measure(best, ok, h, s)
         p = "-" if r["precision"] is None else f"{r['precision']:.3f} ({r['false']} wrong)"
         wrong = ", ".join(f"{q} -> {best[q]}" for q in wrong_answers(best, ok, h, s)[:10]) or "-"
         print(f"| {k} | {C.shape[1]:,} | {C.shape[0]:,} | {r['r1']:.2f} | {r['accepted']} | {p} | {r['recall']:.2f} | "
               f"{wrong} |")
-    print_fading(cols, conf)
+    print_fading(cols, decided)
     return 0
 
 
@@ -294,18 +295,24 @@ FADES = (0.6, 0.7, 0.8)
 FADE_WINDOW = 20
 
 
-def print_fading(cols: dict, conf: PathConf) -> None:
+def recent_median(x: np.ndarray, window: int = FADE_WINDOW) -> np.ndarray:
+    """Per frame, the median of ``x`` over the ``window`` frames before it (inf for the first 3)."""
+    return np.array([np.median(x[max(0, j - window):j]) if j >= 3 else np.inf for j in range(x.size)])
+
+
+def print_fading(cols: dict, decided: dict) -> None:
     """What refusing an accepted answer whose best z-score fell to a share of its recent median would do (the
-    evidence fading once a query has left the map): right answers lost and wrong ones left, per case."""
+    evidence fading once a query has left the map): right answers lost and wrong ones left, per case (``decided``:
+    each case's (best, accepted) under the defaults)."""
     print(f"\nAccepted answers refused where the best z fell below a share of its median over the last {FADE_WINDOW} "
           "frames: right ones lost / wrong ones left")
     print("| case | " + " | ".join(f"share {r:g}" for r in FADES) + " |")
     print("|---|" + "---|" * len(FADES))
-    for k, (C, f, zbest, h, s) in cols.items():
-        best, ok = decide(C, f, conf)
+    for k, (_, _, zbest, h, s) in cols.items():
+        best, ok = decided[k]
         wrong = wrong_answers(best, ok, h, s)
         right = ok & (best >= 0) & h[np.maximum(best, 0), np.arange(best.size)]
-        ref = np.array([np.median(zbest[max(0, j - FADE_WINDOW):j]) if j >= 3 else np.inf for j in range(best.size)])
+        ref = recent_median(zbest)
         cells = []
         for r in FADES:
             kept = zbest >= r * ref

@@ -34,6 +34,7 @@ import scipy.sparse as sp
 
 from encoders.extract import load_cache
 from studies.cells import decisions_cell
+from studies.localize_decisions import recent_median
 from studies.speed_models import run_quietly
 from vpr.shosm import loop_evidence
 
@@ -127,7 +128,7 @@ def main(argv=None) -> int:
         raw = raw_at_best(run)
         right = np.array([r["accepted"] == "1" and r["right"] == "1" for r in rows])
         false = np.array([r["accepted"] == "1" and r["right"] == "0" for r in rows])
-        ref = np.array([np.median(raw[max(0, j - FADE_WINDOW):j]) if j >= 3 else np.inf for j in range(raw.size)])
+        ref = recent_median(raw, FADE_WINDOW)
         cells = [f"{int((right & (raw < r * ref)).sum())} / {int((false & (raw >= r * ref)).sum())} of "
                  f"{int(right.sum())} / {int(false.sum())}" for r in FADES]
         print(f"| {name} | {raw[turn - 10:turn].mean():.2f} / {raw[turn:turn + 10].mean():.2f} | " + " | ".join(cells)

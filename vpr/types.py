@@ -4,9 +4,12 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from vpr.sdr import RowLog
 import scipy.sparse as sp
 
 __all__ = ["EncodedTraverse", "ImageInput", "Column", "Decision", "Decider", "QueryLocalizer", "FrameEncoder",
@@ -178,6 +181,12 @@ class Decider(ABC):
 
     def add_sdr(self, bits) -> None:  # noqa: B027 - a hook most deciders do not need
         """The next frame's active bits (sorted), given before its column, for deciders that read them."""
+
+    @property
+    def rows(self) -> RowLog | None:
+        """The SDR rows of the frames given so far (:meth:`add_sdr`) where this decider keeps them; None: it keeps
+        none."""
+        return None
 
     @abstractmethod
     def state(self) -> tuple[dict, dict]:

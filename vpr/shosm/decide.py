@@ -118,6 +118,11 @@ class LoopDecider(LoopRule):
         if self._stops:
             self._rows.append(bits)
 
+    @property
+    def rows(self) -> _sdr.RowLog | None:
+        """The stream's SDR rows the stop check reads; None without a stop check."""
+        return self._rows if self._stops else None
+
     def _decide(self, column: Column) -> Decision:
         j = column.frame
         if j + 1 > self.place.size:

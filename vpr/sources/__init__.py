@@ -161,7 +161,8 @@ def iter_batches(source: Source, batch_size: int) -> Iterator[list[Frame]]:
         yield batch
 
 
-#: How far on a cursor of a sequential source reads rather than seeking again (:func:`frame_reader`).
+#: How far on a cursor of a sequential source reads rather than seeking again (:func:`frame_reader`,
+#: :func:`images_at`).
 READ_ON = 64
 
 
@@ -198,18 +199,21 @@ class _Cursors:
             self.open.pop()[1].close()
 
 
+def _read_at(src: Source, cursors: _Cursors | None, pos: int, index: int):
+    """Frame ``index`` at position ``pos`` of ``src``, read on by ``cursors`` (a sequential source's) or alone; None
+    where it cannot be read."""
+    if cursors is not None:
+        return cursors.read(pos, index)
+    return next((f.image for f in src.iter_range(pos, pos + 1)), None)
+
+
 def images_at(src: Source, positions) -> dict:
     """``{position: uint8 BGR image or None}``: the frames at these positions of ``src`` (of :meth:`Source.names`),
     None where one cannot be read. A sequential source (a video, a bag) is read on through the positions in order
     (:data:`READ_ON`) instead of opened again for each."""
     indices = src.indices()
-    out = {}
     cursors = _Cursors(src) if src.sequential else None
-    for pos in sorted({int(p) for p in positions}):
-        if cursors is not None:
-            out[pos] = cursors.read(pos, indices[pos])
-        else:
-            out[pos] = next((f.image for f in src.iter_range(pos, pos + 1)), None)
+    out = {pos: _read_at(src, cursors, pos, indices[pos]) for pos in sorted({int(p) for p in positions})}
     if cursors is not None:
         cursors.close()
     return out
@@ -225,14 +229,9 @@ def frame_reader(srcs, read):
 
     def image(j: int):
         src, index = where[j]
-        pos = pos_of[id(src)][index]
-        if id(src) in cursors:
-            img = cursors[id(src)].read(pos, index)
-            if img is not None:
-                return img
-        else:
-            for f in src.iter_range(pos, pos + 1):
-                return f.image
-        raise ValueError(f"{src.path}: frame {index} could not be read again")
+        img = _read_at(src, cursors.get(id(src)), pos_of[id(src)][index], index)
+        if img is None:
+            raise ValueError(f"{src.path}: frame {index} could not be read again")
+        return img
 
     return image

@@ -171,7 +171,8 @@ class Source:
     #: the options (:func:`vpr.sources.open_source`) this kind takes
     options: frozenset = frozenset({"step", "max_frames"})
     #: whether reading one frame alone costs more than reading on from the frame before it (a video decodes from its
-    #: key frame, a bag opens its index): :func:`vpr.sources.frame_reader` then reads on where it can
+    #: key frame, a bag opens its index): :func:`vpr.sources.frame_reader` and :func:`vpr.sources.images_at` then
+    #: read on where they can
     sequential: bool = False
 
     @classmethod

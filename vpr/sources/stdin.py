@@ -7,9 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vpr.imageproc import to_bgr
-
-from .base import Frame, Source, read_image
+from .base import Frame, Source, decode_image
 
 __all__ = ["StdinSource", "SESSION", "FramesByPath"]
 
@@ -45,14 +43,7 @@ class FramesByPath:
         self.names: list[str] = list(names)
 
     def __call__(self, j: int) -> np.ndarray | None:
-        name = self.names[j]
-        img, _ = read_image(Path(name))
-        if img is None:
-            return None
-        try:
-            return to_bgr(img, name)
-        except ValueError:
-            return None
+        return decode_image(Path(self.names[j]))[0]
 
 
 class StdinSource(Source):

@@ -76,7 +76,6 @@ class GeometricOpinion(Decider):
         self._tracking = False  # the path geometry accepted last goes on (keep_inliers)
         # the wrapped rule's current path: frames geometry saw in a row under keep_inliers, whether one confirmed it
         self._seen, self._confirmed = 0, False
-        self._rows = _sdr.RowLog()  # the stream's SDRs, for the stop check
         self._session = 0
         self.verified = self.blind = self.accepted = self.refused = 0
         self.seconds = 0.0
@@ -92,23 +91,25 @@ class GeometricOpinion(Decider):
 
     def add_sdr(self, bits) -> None:
         self.decider.add_sdr(bits)
-        self._rows.append(bits)
+
+    @property
+    def rows(self) -> _sdr.RowLog | None:
+        """The wrapped decider's SDR rows (its stop check's, and this opinion's)."""
+        return self.decider.rows
 
     def new_session(self) -> None:
         self.decider.new_session()
         self._session += 1
 
     def state(self) -> tuple[dict, dict]:
-        """The wrapped decider's state and the opinion's own (its recent best frames, its run, its counts); the
-        features and inliers it computed are not kept (computed again as needed)."""
+        """The wrapped decider's state (the stream's SDR rows with it) and the opinion's own (its recent best frames,
+        its run, its counts); the features and inliers it computed are not kept (computed again as needed)."""
         header, arrays = self.decider.state()
         own = {"recent": [list(r) for r in self._recent], "checked": self._checked, "tracking": self._tracking,
                "session": self._session, "seen": self._seen, "confirmed": self._confirmed,
                "verified": self.verified, "blind": self.blind, "accepted": self.accepted, "refused": self.refused,
                "frames": self.frames}
-        return {"rule": header, "opinion": own}, {**{f"rule_{k}": v for k, v in arrays.items()},
-                                                  "opinion_ptr": self._rows.ptr.copy(),
-                                                  "opinion_ind": self._rows.ind.copy()}
+        return {"rule": header, "opinion": own}, {f"rule_{k}": v for k, v in arrays.items()}
 
     def load_state(self, header: dict, arrays: dict) -> GeometricOpinion:
         self.decider.load_state(header["rule"], {k[5:]: v for k, v in arrays.items() if k.startswith("rule_")})
@@ -119,7 +120,6 @@ class GeometricOpinion(Decider):
         self.verified, self.blind, self.accepted = int(own["verified"]), int(own["blind"]), int(own["accepted"])
         self._seen, self._confirmed = int(own.get("seen", 0)), bool(own.get("confirmed", False))
         self.refused = int(own.get("refused", 0))
-        self._rows = _sdr.RowLog(arrays["opinion_ptr"], arrays["opinion_ind"])
         return self
 
     def _consistent(self, best: int) -> bool:
@@ -195,8 +195,9 @@ class GeometricOpinion(Decider):
     def _accept(self, d: Decision, b: int, j: int) -> Decision:
         """``d`` accepted by geometry, unless it is onto a place the camera never left (the stop check); from there on
         the path is tracked (``keep_inliers``)."""
-        if self.stop_ratio > 0 and self._same_session(b, j):
-            if stationary(self._rows.ptr, self._rows.ind, b, j, self.stop_ratio):
+        rows = self.rows
+        if self.stop_ratio > 0 and rows is not None and self._same_session(b, j):
+            if stationary(rows.ptr, rows.ind, b, j, self.stop_ratio):
                 self._tracking = False
                 return d
         self.accepted += 1
@@ -243,15 +244,21 @@ class GeometricOpinion(Decider):
 
 
 class _Replay(Decider):
-    """Decisions already taken (arrays of a whole stream), given again frame by frame."""
+    """Decisions already taken (arrays of a whole stream), given again frame by frame, with the stream's SDRs ``x``
+    (a batch, sorted rows)."""
 
-    def __init__(self, d: Decision, starts, accept_score: float):
+    def __init__(self, d: Decision, starts, accept_score: float, x):
         self.d, self.starts, self._accept = d, np.asarray(starts, np.int64), float(accept_score)
+        self._rows = _sdr.RowLog(x.indptr, x.indices)
         self.frames = 0
 
     @property
     def accept_score(self) -> float:
         return self._accept
+
+    @property
+    def rows(self) -> _sdr.RowLog:
+        return self._rows
 
     def new_session(self) -> None:
         pass
@@ -275,14 +282,14 @@ def second_opinion(decision: Decision, image, sdr, back: int, ahead: int, stop_r
 
     ``accept_score``: the score at which the rule that took them accepts (geometry's accepts score at least it).
     """
-    x = _sdr.check_batch(sdr, name="sdr")
+    x = _sdr.check_batch(sdr, name="sdr").copy()
+    x.sort_indices()
     starts = sorted({0, *(int(s) for s in sessions)})
-    op = GeometricOpinion(_Replay(decision, starts, accept_score), image, back, ahead, stop_ratio, conf)
+    op = GeometricOpinion(_Replay(decision, starts, accept_score, x), image, back, ahead, stop_ratio, conf)
     out = []
     empty, none = np.zeros(0, np.int64), np.zeros(0, np.float32)
     for j in range(x.shape[0]):
         if j in starts[1:]:
             op.new_session()
-        op.add_sdr(np.sort(x.indices[x.indptr[j]:x.indptr[j + 1]]))
         out.append(op.decide(Column(empty, none, 0.0, 0, j)))
     return Decision.stack(out), op.report()

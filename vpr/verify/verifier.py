@@ -174,7 +174,6 @@ class Verifier:
                 self._pairs[key] = n
         return n
 
-
     def verify(self, S, n_candidates: int, progress: bool = True) -> VerifyResult:
         """Verify each query's ``n_candidates`` best database entries under ``S`` (sparse: stored, not ``-inf``).
 
