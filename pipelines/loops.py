@@ -175,8 +175,9 @@ class LoopsOnline(Online):
     command = "loops"
     method = ONLINE_METHOD
 
-    def __init__(self, det: LoopDetector, gt: GroundTruthSpec):
+    def __init__(self, det: LoopDetector, gt: GroundTruthSpec, goes_on: bool = False):
         self.det, self.gt = det, gt
+        self.goes_on = goes_on  # the input's end is a pause (--state-out): closures wait in the state
         self.top_k = det.seq.top_k
         self._reader = evaluate.SpeedReader()  # the current later session's speed onto the earlier ones
         self._said: set[int] = set()  # the later sessions whose speed was said (numbered from 1, the first)
@@ -219,7 +220,7 @@ class LoopsOnline(Online):
         return self.det.frames  # a resumed detector's frames from before this run are candidates too
 
     def finish(self):
-        self.det.flush()
+        self.det.flush(closures=not self.goes_on)
         return self._watch(self.det.take_late())
 
     def new_session(self):
@@ -286,7 +287,7 @@ def detect_loops(det: LoopDetector, out, stdin=None, stdout=None, gt: GroundTrut
     check_loop_gt_files(gt)  # bad files are refused before any frame is read
     if state_out is not None:
         io.check_writable(state_out, "--state-out")
-    job = LoopsOnline(det, gt)
+    job = LoopsOnline(det, gt, goes_on=state_out is not None)
     job.warm_up()
     return run_online(job, StdinSource(stdin if stdin is not None else sys.stdin), out, stdout, state_out)
 

@@ -193,13 +193,17 @@ def _run(job: Online, src, out: Path, stdout, state_out, claim: contextlib.ExitS
         print(f"vpr {job.command}: skipped {name}: {reason}", file=sys.stderr, flush=True)
     if stop is not None and (rows or waiting):
         print(_stopped(job, taken, [w[0] for w in waiting], state_out), file=sys.stderr, flush=True)
+    elif waiting:  # the input ended with frames waiting in the state for the frames after them
+        print(f"vpr {job.command}: {len(waiting)} frame{'s' if len(waiting) > 1 else ''} read ({waiting[0][0]} .. "
+              f"{waiting[-1][0]}) wait in {state_out} for the frames after them, not yet in the outputs: to continue, "
+              f"{job.resume_hint(state_out)}; their answers come first", file=sys.stderr, flush=True)
     if not rows:
         if stop is not None:
             raise stop
         raise ValueError("no readable frames")
     with deferred():  # the outputs are written whole; a second signal stops at once
         report = _write(job, out, src, rows, [list(s) for s in src.skipped], seconds, state_out,
-                        None if stop is None else [w[0] for w in waiting])
+                        [w[0] for w in waiting], stop is not None)
     if stop is not None:
         raise stop
     return report
@@ -227,8 +231,9 @@ def _stopped(job: Online, taken: tuple | None, waiting: list[str], state_out) ->
             f"to continue, {job.resume_hint(state_out)} and {go_on}; their answers come first")
 
 
-def _write(job: Online, out: Path, src, rows, skipped, seconds, state_out, waiting: list[str] | None) -> dict:
-    """The outputs of the frames answered; ``waiting``: after a stop, the frames read and not yet answered."""
+def _write(job: Online, out: Path, src, rows, skipped, seconds, state_out, waiting: list[str], stopped: bool) -> dict:
+    """The outputs of the frames answered; ``waiting``: the frames read and not yet answered (after a stop, or
+    waiting in the state for the frames after them); ``stopped``: the run was stopped."""
 
     names = [r[0] for r in rows]
     ds = [r[2] for r in rows]
@@ -240,7 +245,7 @@ def _write(job: Online, out: Path, src, rows, skipped, seconds, state_out, waiti
     speed, sampling = evaluate.speed_metric(best, accepted), job.sampling()
     if sampling is None:
         check_speeds({job.method: speed})
-    m = {"frames": T, "seconds": round(seconds, 4), "n_accepted": int(accepted.sum()), "stopped": waiting is not None,
+    m = {"frames": T, "seconds": round(seconds, 4), "n_accepted": int(accepted.sum()), "stopped": stopped,
          "path_speed": speed, **({"sampling": sampling} if sampling else {}),
          "latency_ms": {"with_encoding": latency_summary(lat_all), "without_encoding": latency_summary(lat_dec)}}
     if waiting:

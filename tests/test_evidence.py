@@ -7,7 +7,7 @@ import scipy.sparse as sp
 
 from vpr import groundtruth, sdr, simulate
 from vpr import shosm as ev
-from vpr.shosm import BeamConf, EvidenceConf, LoopConf, SequenceMemory
+from vpr.shosm import BeamConf, EvidenceConf, LoopConf, SequenceMemory, confirm_closures
 from vpr.types import EncodedTraverse
 
 
@@ -253,8 +253,8 @@ def test_loop_evidence_beats_seqslam_on_the_paper_world():
     top = ev.loop_evidence(obs, exclude=10, conf=NO_TRANSITIONS, top_k=50)
     for a in ("best", "score", "accepted"):
         assert np.array_equal(getattr(top.decision, a), getattr(d, a)), a
-    # deciding again on the stored dense matrix gives them too
-    again = ev.accept_loops(loop, sdr=obs)
+    # deciding again on the stored dense matrix gives them too, the closures confirmed by the frames after them
+    again = confirm_closures(ev.accept_loops(loop, sdr=obs), obs, 10, NO_TRANSITIONS)
     assert np.array_equal(again.accepted, ok) and np.array_equal(again.best, d.best)
     with pytest.raises(ValueError, match="Evidence"):
         ev.accept_loops(top.similarity, exclude=10)
@@ -329,7 +329,7 @@ def test_rshosm_seq_loops_method_defaults():
     T = gt.shape[0]
     assert r.similarity.shape == (T, T) and np.all(r.best[:30] == -1)
     ok = r.accepted
-    assert ok.sum() >= 20 and np.all(gt[r.best[ok], np.flatnonzero(ok)])
+    assert ok.sum() >= 15 and np.all(gt[r.best[ok], np.flatnonzero(ok)])
     # the result's score is the decision's (the path score): every accepted frame has reached min_score
     assert np.all(r.score[ok] >= LoopConf().min_score) and np.all(r.score[r.best >= 0] >= 0)
     mask = groundtruth.loop_closure_mask(T, exclude=30)

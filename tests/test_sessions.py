@@ -68,8 +68,12 @@ def test_batch_sessions_equal_the_online_detector_and_close_loops_onto_the_first
     out = []
     for j in range(x.shape[0]):
         if j == 80:
-            det.new_session()
-        out.append(det.update(x[j]))
+            det.new_session()  # the first session's waiting closures are decided here
+        d = det.update(x[j])
+        out.extend([*det.take_late(), *([] if d is None else [d])])
+    det.flush()
+    out.extend(det.take_late())
+    assert [r.frame for r in out] == list(range(x.shape[0]))
     d = batch.decision
     np.testing.assert_array_equal([r.best for r in out], d.best)
     np.testing.assert_array_equal([r.accepted for r in out], d.accepted)

@@ -188,6 +188,13 @@ class Decider(ABC):
         none."""
         return None
 
+    @property
+    def pair_verified(self) -> bool:
+        """Whether the frame decided last was accepted on the evidence of its own pair of frames (a second opinion's
+        geometry, or its tracking of a path it confirmed), which the frames after it need not confirm; False: on the
+        sequence's evidence, or not accepted."""
+        return False
+
     @abstractmethod
     def state(self) -> tuple[dict, dict]:
         """(header, arrays) after the frames decided so far; :meth:`load_state` continues from them."""

@@ -12,6 +12,7 @@ from .conf import (
     RshosmSeqConf,
     memory_params,
 )
+from .confirm import Confirmation, confirm_closures
 from .connections import Connections, MemoryView
 from .decide import (
     LOOP_RULES,
@@ -51,4 +52,4 @@ __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pa
            "decide_all",
            "LoopRule", "LOOP_RULES", "loop_rule",
            "accept_loops", "accept_path", "stationary_closures", "Localizer", "Map", "LoopStream", "loop_evidence",
-           "LOOP_UNCAPPED_MAX", "LoopDetector"]
+           "LOOP_UNCAPPED_MAX", "LoopDetector", "Confirmation", "confirm_closures"]

@@ -209,22 +209,37 @@ class LoopConf(PathConf):
     stop_ratio : float in [0, 1)
         A closure onto a place the camera never left is a stop, not a loop (:func:`vpr.shosm.stationary_closures`; 0:
         not checked).
+    confirm_frames : int >= 0
+        A closure waits for this many frames (its own and the ones after it) and is kept only where they single out its
+        place on their own (:class:`vpr.shosm.Confirmation`); 0: decided at once, nothing confirmed.
+    confirm_z : float
+        How many standard deviations over the other candidates those frames must put the closure's place.
     """
 
     drift: float = 1.5
     min_score: float = 24.0
     stop_ratio: float = 0.35
+    confirm_frames: int = 20
+    confirm_z: float = 2.5
 
     def __post_init__(self):
         super().__post_init__()
         if not 0.0 <= float(self.stop_ratio) < 1.0:
             raise ValueError(f"stop_ratio must be in [0, 1) (0: stops are not checked), got {self.stop_ratio}")
+        v = self.confirm_frames
+        if isinstance(v, bool) or int(v) != v or int(v) < 0:
+            raise ValueError(f"confirm_frames must be an integer >= 0 (0: closures are not confirmed), got {v}")
+        if not np.isfinite(float(self.confirm_z)):
+            raise ValueError(f"confirm_z must be a finite z-score, got {self.confirm_z}")
 
     @property
     def rule(self) -> tuple:
         """(drift, min_score, back, ahead, island, stop_ratio) as the decision kernel reads them."""
         return (*super().rule, float(self.stop_ratio))
 
+
+#: The decision's keys of loop closure within one stream only.
+LOOP_ONLY_KEYS = ("stop_ratio", "confirm_frames", "confirm_z")
 
 #: The decision's keys; left None in :class:`RshosmSeqConf`, a key takes the default of :class:`LoopConf` in one
 #: stream, of :class:`PathConf` against a map.
@@ -346,11 +361,13 @@ class RshosmSeqConf:
     def path(self, between_sessions: bool = False) -> PathConf:
         """The decision against a map: the keys given over :class:`PathConf`'s defaults.
 
-        ``stop_ratio`` is refused unless the map is a stream's earlier sessions (``between_sessions``).
+        The keys of one stream only (:data:`LOOP_ONLY_KEYS`) are refused unless the map is a stream's earlier sessions
+        (``between_sessions``).
         """
-        if self.decision.get("stop_ratio") is not None and not between_sessions:
-            raise ValueError("rshosm-seq: stop_ratio applies to loop closure within one stream, not to localisation "
-                             "against a map")
+        own = [k for k in LOOP_ONLY_KEYS if self.decision.get(k) is not None]
+        if own and not between_sessions:
+            raise ValueError(f"rshosm-seq: {', '.join(own)} applies to loop closure within one stream, not to "
+                             "localisation against a map")
         return PathConf(**{k: v for k, v in self.decision.items() if v is not None and k in PathConf.keys()})
 
     def resolved(self, setting: str) -> dict:

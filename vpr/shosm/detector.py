@@ -10,6 +10,7 @@ from vpr.checks import check_int
 from vpr.types import Decision, FrameEncoder
 
 from .conf import LOOP_EXCLUDE, RshosmSeqConf
+from .confirm import standardised_overlaps
 from .loops import LoopStream
 from .state import MemoryFileError, read_file, write_file
 
@@ -64,12 +65,15 @@ class LoopDetector:
         tiny = LoopStream(1, self.seq.replace(n_inputs=64))
         for bits in ([0, 1, 2, 3], [4, 5, 6, 7], [0, 1, 2, 3]):
             tiny.step(np.array(bits, np.int64))
+        standardised_overlaps(tiny.rows.ptr, tiny.rows.ind, 2, 1, 64)
 
     def update(self, frame_or_sdr, name: str | None = None) -> Decision | None:
         """Learn the next frame and decide it: a loop closure onto an earlier frame, or a new place.
 
         ``frame_or_sdr``: an SDR row (1-row sparse matrix, bool vector or bit indices) or, with an encoder, an image.
-        The decision's ``column`` lists the earlier frames with evidence.
+        The decision's ``column`` lists the earlier frames with evidence. None while its decision waits: a closure is
+        confirmed by the frames after it (``LoopConf.confirm_frames``), and the frames after a waiting closure wait
+        with it; their decisions come with :meth:`take_late`, in frame order.
         """
         label = str(name) if name is not None else f"frame {self.frames}"
         if _is_sdr(frame_or_sdr):
@@ -77,7 +81,7 @@ class LoopDetector:
                 raise ValueError(f"{label}: an SDR while the encoder holds frames waiting for their SDRs; give "
                                  "images or SDRs, not both")
             self.names.append(label)
-            return self.stream.step(frame_or_sdr)[1]
+            return self._hand_out(self.stream.step(frame_or_sdr)[1], self.frames - 1)
         if self.encoder is None:
             raise ValueError(f"{label}: got an image ({np.asarray(frame_or_sdr).shape}) but the LoopDetector has no "
                              "encoder: pass SDR rows, or LoopDetector(encoder=...)")
@@ -88,8 +92,9 @@ class LoopDetector:
 
         Separate from :meth:`update`, so that a caller can time encoding and deciding apart. None when the frame's
         answer is not known yet: the first frames of a later session wait in a causal encoder for their statistics,
-        and every frame of the earlier sessions is their candidate; their answers come with :meth:`take_late` once
-        decided. (In the first session a waiting frame has no candidate, so its answer is known at once.)
+        and every frame of the earlier sessions is their candidate; a closure waits for the frames after it (as
+        :meth:`update`); their answers come with :meth:`take_late` once decided. (In the first session a frame waiting
+        in the encoder has no candidate, so its answer is known at once.)
         """
         j = self.frames
         self.names.append(str(name) if name is not None else f"frame {j}")
@@ -100,17 +105,22 @@ class LoopDetector:
         waiting in the encoder are decided first, and its causal window starts again."""
         if self.encoder is not None:
             self._release(sp.csr_matrix(self.encoder.new_session()))
-        self.stream.new_session()
+        self._late.extend(self.stream.new_session())
 
     def take_late(self) -> list[Decision]:
-        """The answers of earlier frames decided since the last call (frames that waited in the encoder)."""
+        """The answers of earlier frames decided since the last call (frames that waited in the encoder or for the
+        frames after a closure), in frame order."""
         out, self._late = self._late, []
         return out
 
-    def flush(self) -> None:
-        """Learn the frames still waiting for their SDRs (a stream that ends before the encoder's delay)."""
+    def flush(self, closures: bool = True) -> None:
+        """The stream ends: learn the frames still waiting for their SDRs (a stream that ends before the encoder's
+        delay) and, with ``closures``, decide the closures still waiting with the frames after them it has (False:
+        they wait on, for frames after a :meth:`save` and :meth:`load`); the answers come with :meth:`take_late`."""
         if self.encoder is not None:
             self._release(sp.csr_matrix(self.encoder.flush()))
+        if closures:
+            self._late.extend(self.stream.finish())
 
     def _release(self, rows: sp.csr_matrix) -> None:
         """Decide the frames that waited in the encoder (the last ``rows.shape[0]`` frames pushed)."""
@@ -121,22 +131,28 @@ class LoopDetector:
             self._late.append(d)
 
     def _learn(self, rows: sp.csr_matrix, j: int) -> Decision | None:
-        first = self.stream.frames
         later_session = self.stream.starts[-1] > 0
-        last = None
+        settled = []
         for r in range(rows.shape[0]):
-            _, last = self.stream.step(rows.indices[rows.indptr[r]:rows.indptr[r + 1]])
-            if first + r < j:
-                if later_session:  # a frame that waited, with the earlier sessions as candidates: answered now
-                    self._late.append(last)
-                elif last.column.n:  # pragma: no cover - guarded by exclude > delay
-                    raise RuntimeError("a frame decided late had candidates")
-        if self.stream.frames == j + 1 and last is not None:
-            return last
-        if j < 0 or later_session:
-            return None  # answered later (take_late)
-        # the frame waits for its SDR; it has no candidate yet (exclude > delay), so its answer is known
-        return Decision(-1, 0.0, False, 0.0, j)
+            settled.extend(self.stream.step(rows.indices[rows.indptr[r]:rows.indptr[r + 1]])[1])
+        out = self._hand_out(settled, j)
+        if out is None and self.stream.frames < j + 1 and j >= 0 and not later_session:
+            # the frame waits for its SDR; it has no candidate yet (exclude > delay), so its answer is known
+            return Decision(-1, 0.0, False, 0.0, j)
+        return out
+
+    def _hand_out(self, settled: list[Decision], j: int) -> Decision | None:
+        """Frame ``j``'s decision if final now; the other decisions made final go to :meth:`take_late`, but those of
+        first-session frames answered while they waited in the encoder (no candidate: a new place; a first-session frame
+        without candidates is final when learned, so only those come after their own call)."""
+        out = None
+        first = self.stream.starts[1] if len(self.stream.starts) > 1 else None
+        for d in settled:
+            if d.frame == j:
+                out = d
+            elif not ((first is None or d.frame < first) and d.column is not None and d.column.n == 0):
+                self._late.append(d)
+        return out
 
     # ------------------------------------------------------------ files
     def save(self, path) -> Path:

@@ -11,6 +11,7 @@ from vpr.similarity import fits_dense, n_candidates
 from vpr.types import Decider, Decision
 
 from .conf import LOOP_EXCLUDE, RshosmSeqConf
+from .confirm import Confirmation
 from .decide import loop_rule
 from .evidence import LoopEvidence, make_engine
 from .graph import Graph
@@ -47,6 +48,11 @@ class LoopStream:
         self.decider: Decider = loop_rule(self.seq.loop_rule)(self.seq.loop(), self.seq.path(between_sessions=True))
         if opinion is not None:
             self.decider = opinion(self.decider)
+        loop = self.seq.loop()
+        stay, skip = self.seq.evidence.costs
+        self.confirmation = Confirmation(loop.confirm_frames, loop.confirm_z, self.exclude, stay, skip,
+                                         self.mem.n_inputs)
+        self._rows = _sdr.RowLog()  # the stream's SDR rows, where the decider keeps none
         self.starts = [0]  # the first frame of every session
         self.frames = 0
 
@@ -54,24 +60,43 @@ class LoopStream:
     def n_inputs(self) -> int:
         return self.mem.n_inputs
 
-    def new_session(self) -> None:
-        """The next frame starts a new run of the robot (a session).
+    @property
+    def rows(self) -> _sdr.RowLog:
+        """The stream's SDR rows so far."""
+        rows = self.decider.rows
+        return self._rows if rows is None else rows
+
+    def new_session(self) -> list[Decision]:
+        """The next frame starts a new run of the robot (a session); returns the decisions of the last session's
+        closures that waited (confirmed with the frames it had).
 
         What was learned stays, and later frames close loops onto every earlier session; nothing of the last session's
         last moment carries over: the memory's context (the first frame of this run is nobody's successor), the
         evidence and the decision's path. ``exclude`` holds within a session only.
         """
         if self.frames == self.starts[-1]:
-            return
+            return []
         self.mem.reset()
         self.engine.reset()
         self.decider.new_session()
         self.starts.append(self.frames)
+        return self.confirmation.end_session(self.rows, self.frames)
 
-    def step(self, sdr_row) -> tuple[np.ndarray, Decision]:
+    def finish(self) -> list[Decision]:
+        """The stream ends (for now: more frames may follow): the decisions of the closures still waiting, confirmed
+        with the frames they have."""
+        return self.confirmation.end_session(self.rows, self.frames)
+
+    @property
+    def waiting(self) -> int:
+        """Frames decided by the rule whose decisions are not final yet."""
+        return len(self.confirmation.queue)
+
+    def step(self, sdr_row) -> tuple[np.ndarray, list[Decision]]:
         """Learn the next frame (SDR row: 1-row batch, dense row or bit indices), score and decide it.
 
-        Returns its winner cells and its decision (with its column over the candidates).
+        Returns its winner cells and the decisions final now (each with its column over the candidates), in frame
+        order: this frame's, unless it or an earlier one waits for the frames after it (:class:`Confirmation`).
         """
         bits = _sdr.row_bits(sdr_row, self.mem.n_inputs, name="frame SDR")
         j = self.frames
@@ -82,13 +107,19 @@ class LoopStream:
         capped = j >= LOOP_UNCAPPED_MAX if self.caps == "auto" else bool(self.caps)
         column = self.engine.step(bits, n_candidates(j, self.exclude, self.starts[-1]), capped, frame=j)
         self.decider.add_sdr(bits)
+        if self.decider.rows is None:
+            self._rows.append(bits)
         self.frames += 1
-        return winners, self.decider.decide(column)
+        d = self.decider.decide(column)
+        return winners, self.confirmation.push(d, self.rows, self.decider.pair_verified)
 
     # ------------------------------------------------------------- state
     def state(self) -> tuple[dict, dict]:
         """(header, arrays): the memory, the graph, the evidence and the decisions so far (:meth:`load_state`)."""
-        header, arrays = joint_state(mem=self.mem, graph=self.graph, engine=self.engine, dec=self.decider)
+        header, arrays = joint_state(mem=self.mem, graph=self.graph, engine=self.engine, dec=self.decider,
+                                     confirm=self.confirmation)
+        if self.decider.rows is None:
+            arrays.update(sdr_ptr=self._rows.ptr.copy(), sdr_ind=self._rows.ind.copy())
         header.update(exclude=self.exclude, seq=self.seq.flat(), caps=self.caps, frames=self.frames,
                       starts=list(self.starts))
         return header, arrays
@@ -100,9 +131,13 @@ class LoopStream:
         self.engine = make_engine(self.graph, self.seq.evidence, self.seq.beam).load_state(
             *part_state(header, arrays, "engine"))
         self.decider.load_state(*part_state(header, arrays, "dec"))
+        self.confirmation.load_state(*part_state(header, arrays, "confirm"))
+        if "sdr_ptr" in arrays:
+            self._rows = _sdr.RowLog(arrays["sdr_ptr"], arrays["sdr_ind"])
         self.frames, self.starts = int(header["frames"]), [int(v) for v in header["starts"]]
-        if self.decider.frames != self.frames:
-            raise ValueError(f"loop stream state: {self.decider.frames} decisions for {self.frames} frames")
+        if self.decider.frames != self.frames or self.rows.rows != self.frames:
+            raise ValueError(f"loop stream state: {self.decider.frames} decisions and {self.rows.rows} SDR rows for "
+                             f"{self.frames} frames")
         return self
 
     @classmethod
@@ -161,24 +196,30 @@ def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf=None, top_k: int 
     codes_ptr, codes_idx = np.zeros(T + 1, np.int64), []
     decisions, fill, best, z = [], np.zeros(T, np.float32), np.full(T, -1, np.int64), np.full(T, -np.inf)
     begin = set(starts)
+
+    def take(ds) -> None:
+        for d in ds:
+            j, c = d.frame, d.column
+            decisions.append(d)
+            fill[j] = c.fill
+            best[j], z[j] = c.best()
+            if dense is not None:
+                dense[: c.n, j] = c.fill
+                dense[c.rows, j] = c.z
+            else:
+                rows, vals = c.top(int(top_k))
+                cols_i.append(rows)
+                cols_v.append(vals)
+                counts[j] = rows.size
+
     for j in tqdm(range(T), desc="rSHOSM loops", unit="frame", leave=False, disable=not progress):
         if j in begin:
-            stream.new_session()
-        winners, d = stream.step(x.indices[x.indptr[j]:x.indptr[j + 1]])
-        c = d.column
+            take(stream.new_session())
+        winners, ds = stream.step(x.indices[x.indptr[j]:x.indptr[j + 1]])
         codes_idx.append(winners)
         codes_ptr[j + 1] = codes_ptr[j] + winners.size
-        decisions.append(d)
-        fill[j] = c.fill
-        best[j], z[j] = c.best()
-        if dense is not None:
-            dense[: c.n, j] = c.fill
-            dense[c.rows, j] = c.z
-        else:
-            rows, vals = c.top(int(top_k))
-            cols_i.append(rows)
-            cols_v.append(vals)
-            counts[j] = rows.size
+        take(ds)
+    take(stream.finish())
     codes = sp.csr_matrix((np.ones(int(codes_ptr[-1]), bool), np.concatenate(codes_idx + [np.zeros(0, np.int64)]),
                            codes_ptr), shape=(T, max(stream.mem.n_cells, 1)))
     decision = Decision.stack(decisions)

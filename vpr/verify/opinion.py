@@ -74,6 +74,7 @@ class GeometricOpinion(Decider):
         self._recent: list[tuple[int, int]] = []  # (best, session) of the last frames
         self._checked: list[bool] = []  # whether each frame geometry checked along the path verified, the last first
         self._tracking = False  # the path geometry accepted last goes on (keep_inliers)
+        self._verified = False  # the last frame accepted by geometry
         # the wrapped rule's current path: frames geometry saw in a row under keep_inliers, whether one confirmed it
         self._seen, self._confirmed = 0, False
         self._session = 0
@@ -130,8 +131,13 @@ class GeometricOpinion(Decider):
         chain = [b for b, _ in past] + [best]
         return all(a >= 0 and a - self.back <= b <= a + self.ahead for a, b in zip(chain[:-1], chain[1:], strict=True))
 
+    @property
+    def pair_verified(self) -> bool:
+        return self._verified
+
     def _decide(self, column: Column) -> Decision:
         d = self.decider.decide(column)
+        self._verified = False
         j, b = int(d.frame), int(d.best)
         consistent = self._consistent(b)
         self._recent = (self._recent + [(b, self._session)])[-max(self.conf.frames, 1):]
@@ -193,14 +199,15 @@ class GeometricOpinion(Decider):
         return replace(d, accepted=False)
 
     def _accept(self, d: Decision, b: int, j: int) -> Decision:
-        """``d`` accepted by geometry, unless it is onto a place the camera never left (the stop check); from there on
-        the path is tracked (``keep_inliers``)."""
+        """``d`` accepted by geometry (:attr:`pair_verified`), unless it is onto a place the camera never left (the stop
+        check); from there on the path is tracked (``keep_inliers``)."""
         rows = self.rows
         if self.stop_ratio > 0 and rows is not None and self._same_session(b, j):
             if stationary(rows.ptr, rows.ind, b, j, self.stop_ratio):
                 self._tracking = False
                 return d
         self.accepted += 1
+        self._verified = True
         self._tracking = self.conf.keep_inliers > 0
         # its score ranks it with the closures the decider accepts (the decision's curve, R@100P)
         return replace(d, accepted=True, score=max(float(d.score), self.decider.accept_score))
