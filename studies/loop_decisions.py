@@ -18,8 +18,13 @@ without it does on it: a rule that only holds where it was chosen shows there.
 
 ``--sizes``: the rendered streams also at other sizes, each a stream of its own.
 
+Closures are confirmed by the frames after them as ``vpr loops`` does (``LoopConf.confirm_frames``,
+``--confirm-frames``, 0: decided at once); ``--confirm-grid`` prints, for the default rule, every stream under
+each ``confirm_frames`` x ``confirm_z`` of :data:`CONFIRM_FRAMES` x :data:`CONFIRM_Z` (with ``studies.run_on``,
+where a revisit leaves the earlier route, the streams the confirmation was chosen on).
+
 Usage: python -m studies.loop_decisions [--cache DIR] [--data DIR] [--presets default,fast] [--leave-one-out]
-       [--decay D] [--sizes 160x120,320x240]
+       [--decay D] [--sizes 160x120,320x240] [--confirm-frames N] [--confirm-grid]
 """
 from __future__ import annotations
 
@@ -32,11 +37,13 @@ import numpy as np
 
 from studies import loop_streams
 from studies.loop_streams import FORWARD, REAL_REVISITS, RENDERED_REVISITS, load_stream
-from vpr.shosm import LoopConf, LoopEvidence, accept_loops, loop_evidence
+from vpr.shosm import LoopConf, LoopEvidence, accept_loops, confirm_closures, loop_evidence
 
 DRIFTS = (1.0, 1.25, 1.5, 1.75)
 SCORES = (16.0, 20.0, 24.0, 28.0, 32.0, 40.0)
 REVISITS = (*REAL_REVISITS, *RENDERED_REVISITS)
+CONFIRM_FRAMES = (0, 10, 20, 30)
+CONFIRM_Z = (2.0, 2.5, 3.0)
 EXCLUDE = 30
 
 
@@ -78,9 +85,18 @@ def aliases(name: str) -> np.ndarray | None:
     return out
 
 
+def decide(stream, ev, conf: LoopConf):
+    """The stream's decisions under ``conf`` as ``vpr loops`` takes them: the path rule, then its closures confirmed by
+    the frames after them (``conf.confirm_frames``; the frames' standardised overlaps kept on the stream)."""
+    d = accept_loops(ev, conf, sdr=stream.x)
+    if not conf.confirm_frames:
+        return d
+    return confirm_closures(d, stream.x, EXCLUDE, conf.as_dict(), scored=stream.scored)
+
+
 def count(stream, ev, alias, conf: LoopConf) -> dict:
     """Accepted closures of one stream under one rule: correct, false, onto a copy; frames with a loop."""
-    d = accept_loops(ev, conf, sdr=stream.x)
+    d = decide(stream, ev, conf)
     j = np.flatnonzero(d.accepted)
     b = d.best[j]
     if stream.forward_only:
@@ -116,15 +132,20 @@ def choose(results: dict, streams: list[str]):
     return best
 
 
-def row(rule, per: dict, names) -> str:
-    cells = []
+def stream_cells(per: dict, names) -> str:
+    """Each stream's cell: a revisit stream's recall (false closures), a forward drive's false (+ onto a copy)."""
+    out = []
     for s in names:
         c = per[s]
         if _stream_of(s) in REVISITS:
-            cells.append(f"{c['true'] / c['frames']:.2f} ({c['false']})")
+            out.append(f"{c['true'] / c['frames']:.2f} ({c['false']})")
         else:
-            cells.append(f"{c['false']}" + (f" (+{c['copy']})" if c["copy"] else ""))
-    return f"| {rule[0]} | {rule[1]:g} | " + " | ".join(cells) + " |"
+            out.append(f"{c['false']}" + (f" (+{c['copy']})" if c["copy"] else ""))
+    return " | ".join(out)
+
+
+def row(rule, per: dict, names) -> str:
+    return f"| {rule[0]} | {rule[1]:g} | {stream_cells(per, names)} |"
 
 
 def report(stream, ev, alias, conf: LoopConf) -> dict:
@@ -133,7 +154,7 @@ def report(stream, ev, alias, conf: LoopConf) -> dict:
     from vpr.evaluate import decision_curve
     from vpr.groundtruth import loop_closure_mask
 
-    d = accept_loops(ev, conf, sdr=stream.x)
+    d = decide(stream, ev, conf)
     c = count(stream, ev, alias, conf)
     out = {"frames": len(stream), "accepted": int(d.accepted.sum()), "false": c["false"], "copy": c["copy"]}
     if stream.forward_only:
@@ -166,6 +187,10 @@ def main(argv=None) -> int:
     ap.add_argument("--leave-one-out", action="store_true", help="choose without each stream, check it")
     ap.add_argument("--decay", type=float, default=None,
                     help="the evidence's decay per frame (default: rshosm-seq's), e.g. 0.95 for a longer memory")
+    ap.add_argument("--confirm-frames", type=int, default=LoopConf().confirm_frames,
+                    help="frames after a closure that confirm it (default: LoopConf's; 0: decided at once)")
+    ap.add_argument("--confirm-grid", action="store_true",
+                    help="the default rule under every confirm_frames x confirm_z of the grid")
     ap.add_argument("--sizes", default="160x120",
                     help="the sizes the rendered streams are rendered at, each a stream of its own (the first unnamed)")
     a = ap.parse_args(argv)
@@ -191,7 +216,7 @@ def main(argv=None) -> int:
                 print(f"{key}: {len(s)} frames ({time.perf_counter() - t:.0f} s)", flush=True)
     results = {}
     for rule in itertools.product(DRIFTS, SCORES):
-        conf = LoopConf(drift=rule[0], min_score=rule[1])
+        conf = LoopConf(drift=rule[0], min_score=rule[1], confirm_frames=a.confirm_frames)
         results[rule] = {n: count(*data[n], conf) for n in names}
     print("\nRevisit streams: recall of the accepted closures (false accepted); forward-only drives: false "
           "closures (+ onto an identical copy).\n")
@@ -201,7 +226,7 @@ def main(argv=None) -> int:
         print(row(rule, per, names))
     chosen = choose(results, names)
     print(f"\nchosen on every stream: drift {chosen[0]}, min_score {chosen[1]:g}" if chosen else "\nno rule qualifies")
-    conf = LoopConf()
+    conf = LoopConf(confirm_frames=a.confirm_frames)
     print(f"\nWith the defaults (LoopConf: drift {conf.drift}, min_score {conf.min_score:g}), what `vpr loops` reports "
           "(R@100P: recall at 100 % precision of the per-frame decisions; accepted closures onto an identical copy "
           "in brackets):\n")
@@ -217,6 +242,15 @@ def main(argv=None) -> int:
         else:
             print(f"| {n} | {r['frames']:,} | forward only | - | {r['accepted']} | - | - | - | {r['false']}"
                   + (f" (+{r['copy']})" if r["copy"] else "") + " |")
+    if a.confirm_grid:
+        print("\nThe default rule, its closures confirmed by the frames after them (confirm_frames, confirm_z; 0: "
+              "decided at once): revisit streams' recall (false), forward drives' false (+ onto a copy)\n")
+        print("| confirm_frames | confirm_z | " + " | ".join(names) + " |")
+        print("|---|---|" + "---|" * len(names))
+        for frames, z in [(0, None), *itertools.product(CONFIRM_FRAMES[1:], CONFIRM_Z)]:
+            conf = LoopConf(confirm_frames=frames, **({} if z is None else {"confirm_z": z}))
+            per = {n: count(*data[n], conf) for n in names}
+            print(f"| {frames} | {'-' if z is None else f'{z:g}'} | {stream_cells(per, names)} |", flush=True)
     if a.leave_one_out:
         print("\n| held out (every preset's) | rule chosen without it | on the held-out stream |")
         print("|---|---|---|")

@@ -49,10 +49,12 @@ FORWARD = ("nordland_summer", "nordland_winter", "two_seasons/summer_day", "two_
 
 class Stream:
     """One encoded stream: ``x`` (SDRs), ``hard`` / ``soft`` (T x T bool over pairs i < j, or None: forward only),
-    the source ``images`` loader (for verification at full resolution) and a name."""
+    the source ``images`` loader (for verification at full resolution), a name, and ``scored`` (a cache of
+    :func:`vpr.shosm.confirm_closures`)."""
 
     def __init__(self, name: str, x: sp.csr_matrix, hard, soft, frames: list[str] | None = None):
         self.name, self.x, self.hard, self.soft, self.frames = name, x, hard, soft, frames
+        self.scored: dict = {}  # the frames' standardised overlaps, kept for confirming closures (confirm_closures)
 
     @property
     def forward_only(self) -> bool:

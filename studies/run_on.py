@@ -16,10 +16,14 @@ turn (the answers that run on along the earlier route), and those elsewhere. The
 frame's best earlier frame, raw (not standardised), over the 10 frames before the turn and the 10
 after, and how a share of its median over the last 20 frames would tell the run-on apart.
 
+``--confirm FRAMES:Z,...``: also each ``rshosm-seq.confirm_frames`` / ``confirm_z`` given (0: closures decided at
+once), a table of false closures after the turn and right ones per setting (with ``studies.loop_decisions
+--confirm-grid``, the grid the confirmation was chosen on).
+
 A query that leaves a map in its middle (``vpr localize``) is ``studies.localize_decisions``'
 ``nordland_gap`` case.
 
-Usage: python -m studies.run_on [--data DIR] [--out DIR]
+Usage: python -m studies.run_on [--data DIR] [--out DIR] [--confirm 0:2,10:2,20:2]
 """
 from __future__ import annotations
 
@@ -36,7 +40,8 @@ from encoders.extract import load_cache
 from studies.cells import decisions_cell
 from studies.localize_decisions import recent_median
 from studies.speed_models import run_quietly
-from vpr.shosm import loop_evidence
+from vpr.sdr import RowLog
+from vpr.shosm import Confirmation, EvidenceConf, LoopConf, loop_evidence
 
 RUN_ON = 30
 
@@ -97,6 +102,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", default=None, help="datasets folder (default: $VPR_DATASETS or ../shared/datasets)")
     ap.add_argument("--out", default="results/run_on")
+    ap.add_argument("--confirm", default="", help="confirm_frames:confirm_z settings, comma-separated")
     a = ap.parse_args(argv)
     data = Path(a.data or os.environ.get("VPR_DATASETS", "../shared/datasets"))
     out = Path(a.out)
@@ -105,7 +111,6 @@ def main(argv=None) -> int:
           f"closures within {RUN_ON} frames after the turn (query -> earlier frame) and elsewhere")
     print("| stream | frames | turn at | decisions | run on after the turn | false elsewhere |")
     print("|---|---|---|---|---|---|")
-    fading = {}
     for name, (listing, positions, turn, radius, soft) in streams(data, out).items():
         run = out / f"{name}-out"
         if not (run / "metrics.json").exists():
@@ -118,14 +123,26 @@ def main(argv=None) -> int:
         print(f"| {name} | {len(rows)} | {turn} | {decisions_cell(m, frames=False)}, {m['n_false']} | "
               f"{len(on)}: {', '.join(on[:6])}{' ...' if len(on) > 6 else ''} | "
               f"{len(false) - len(on)} |", flush=True)
-        fading[name] = (run, rows, turn)
-    print("\nThe raw evidence at the best earlier frame (mean of the 10 frames before the turn / the 10 after); an "
-          f"accepted closure refused below a share of its median over the last {FADE_WINDOW} frames: right ones "
-          "lost / false ones left")
+    loop = LoopConf()
+    print(f"\nThe look-ahead of the closures accepted at once (`confirm_frames=0`): how far the next "
+          f"{loop.confirm_frames} frames single out the answer (z over the other places; kept from "
+          f"{loop.confirm_z:g}): right ones (min / median), false after the turn (median / max), false elsewhere (max)")
+    print("| stream | right | false after the turn | false elsewhere |")
+    print("|---|---|---|---|")
+    for name, (listing, positions, turn, radius, soft) in streams(data, out).items():
+        print(f"| {name} | {look_aheads(out, name, listing, positions, turn, radius, soft)} |", flush=True)
+    if a.confirm:
+        confirm_table(out, streams(data, out), [tuple(c.split(":")) for c in a.confirm.split(",")])
+    print("\nThe raw evidence at the best earlier frame (mean of the 10 frames before the turn / the 10 after); a "
+          f"closure accepted at once (`confirm_frames=0`) refused below a share of its median over the last "
+          f"{FADE_WINDOW} frames: right ones lost / false ones left")
     print("| stream | before / after the turn | " + " | ".join(f"share {r:g}" for r in FADES) + " |")
     print("|---|---|" + "---|" * len(FADES))
-    for name, (run, rows, turn) in fading.items():
-        raw = raw_at_best(run)
+    for name, (listing, positions, turn, radius, soft) in streams(data, out).items():
+        run = _decided_at_once(out, name, listing, positions, radius, soft)
+        with open(run / "rshosm-seq" / "matches.csv", newline="") as fh:
+            rows = list(csv.DictReader(fh))
+        raw = raw_at_best(out / f"{name}-out")
         right = np.array([r["accepted"] == "1" and r["right"] == "1" for r in rows])
         false = np.array([r["accepted"] == "1" and r["right"] == "0" for r in rows])
         ref = recent_median(raw, FADE_WINDOW)
@@ -137,6 +154,60 @@ def main(argv=None) -> int:
 
 
 FADES, FADE_WINDOW = (0.5, 0.7, 0.8), 20
+
+
+def _decided_at_once(out: Path, name: str, listing, positions, radius, soft) -> Path:
+    run = out / f"{name}-confirm0-z2"
+    if not (run / "metrics.json").exists():
+        run_quietly(["loops", listing, "--out", run, "--cache", out / f"{name}-out" / "cache", "--gt", positions,
+                     "--radius", radius, "--gt-soft", soft, "--method-conf", "rshosm-seq.confirm_frames=0"])
+    return run
+
+
+def look_aheads(out: Path, name: str, listing, positions, turn: int, radius, soft) -> str:
+    """The table cells of one stream's look-ahead z (:meth:`vpr.shosm.Confirmation.look_ahead`, the defaults) of the
+    closures accepted at once."""
+    run = _decided_at_once(out, name, listing, positions, radius, soft)
+    with open(run / "rshosm-seq" / "matches.csv", newline="") as fh:
+        rows = [r for r in csv.DictReader(fh) if r["accepted"] == "1"]
+    x = load_cache(next((out / f"{name}-out" / "cache").glob("*.npz"))).features.sdr.tocsr()
+    x.sort_indices()
+    loop = LoopConf()
+    c = Confirmation(loop.confirm_frames, loop.confirm_z, 30, *EvidenceConf().costs, x.shape[1])
+    log = RowLog(x.indptr, x.indices)
+    z = {int(r["query"]): c.look_ahead(log, int(r["query"]), int(r["best_db"]),
+                                       min(int(r["query"]) + loop.confirm_frames, x.shape[0])) for r in rows}
+    right = [z[int(r["query"])] for r in rows if r["right"] == "1"]
+    after = [z[int(r["query"])] for r in rows if r["right"] == "0" and turn <= int(r["query"]) < turn + RUN_ON]
+    other = [z[int(r["query"])] for r in rows if r["right"] == "0" and not turn <= int(r["query"]) < turn + RUN_ON]
+    return " | ".join([f"{min(right):.1f} / {np.median(right):.1f}" if right else "-",
+                       f"{np.median(after):.1f} / {max(after):.1f}" if after else "-",
+                       f"{max(other):.1f}" if other else "-"])
+
+
+def confirm_table(out: Path, runs: dict, settings: list[tuple[str, str]]) -> None:
+    """Per confirm_frames:confirm_z setting, each stream's accepted closures: right ones, false ones within
+    :data:`RUN_ON` frames after the turn and elsewhere."""
+    print("\nClosures confirmed by the frames after them (`--method-conf rshosm-seq.confirm_frames=F "
+          "rshosm-seq.confirm_z=Z`; 0: decided at once): right / false after the turn / false elsewhere")
+    print("| confirm_frames:confirm_z | " + " | ".join(runs) + " |")
+    print("|---|" + "---|" * len(runs))
+    for frames, z in settings:
+        cells = []
+        for name, (listing, positions, turn, radius, soft) in runs.items():
+            run = out / f"{name}-confirm{frames}-z{z}"
+            if not (run / "metrics.json").exists():
+                run_quietly(["loops", listing, "--out", run, "--cache", out / f"{name}-out" / "cache", "--gt",
+                             positions, "--radius", radius, "--gt-soft", soft,
+                             "--method-conf", f"rshosm-seq.confirm_frames={frames}",
+                             "--method-conf", f"rshosm-seq.confirm_z={z}"])
+            with open(run / "rshosm-seq" / "matches.csv", newline="") as fh:
+                rows = [r for r in csv.DictReader(fh) if r["accepted"] == "1"]
+            right = sum(r["right"] == "1" for r in rows)
+            false = [int(r["query"]) for r in rows if r["right"] == "0"]
+            on = sum(turn <= q < turn + RUN_ON for q in false)
+            cells.append(f"{right} / {on} / {len(false) - on}")
+        print(f"| {frames}:{z} | " + " | ".join(cells) + " |", flush=True)
 
 
 def raw_at_best(run: Path) -> np.ndarray:
