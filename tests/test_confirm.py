@@ -5,7 +5,7 @@ import scipy.sparse as sp
 
 from vpr import sdr
 from vpr.shosm import LoopStream, RshosmSeqConf, confirm_closures, loop_evidence
-from vpr.shosm.confirm import ahead_scores, standardised_overlaps
+from vpr.shosm.confirm import Columns, ahead_scores, standardised_overlaps
 
 LOOSE = {"min_score": 6.0, "drift": 0.5, "n_inputs": 1024}
 TURN = 140
@@ -72,13 +72,14 @@ def test_the_look_ahead_follows_a_path_and_its_costs():
     x = sdr.from_indices([[0, 1, 2], [0, 1, 3], [4, 5, 6], [0, 1, 2]], 8)
     z = standardised_overlaps(x.indptr, x.indices, 3, 3, 8)
     assert z.argmax() == 0 and z.mean() == pytest.approx(0.0) and z.std() == pytest.approx(1.0)
-    # through the columns of the first rows (bit -> rows), the rest row by row: the same
+    # through blocks of columns of the first rows (bit -> rows), the rest row by row: the same
     y = sdr.random_sdrs(300, 256, 20, seed=3)
-    csc = y[:200].tocsc()
-    csc.sort_indices()
-    for m, n in ((200, 280), (200, 150)):
-        through = standardised_overlaps(y.indptr, y.indices, 299, n, 256, (csc.indptr, csc.indices, m))
-        np.testing.assert_allclose(through, standardised_overlaps(y.indptr, y.indices, 299, n, 256))
+    ptr, ind = y.indptr.astype(np.int64), y.indices.astype(np.int64)
+    cols = Columns(256, every=64)
+    for n in (280, 150, 40):
+        through = standardised_overlaps(ptr, ind, 299, n, 256, cols.extend(ptr, ind, 280))
+        np.testing.assert_allclose(through, standardised_overlaps(ptr, ind, 299, n, 256))
+    assert cols.rows == 256  # four whole blocks of 64
 
 
 def test_confirmation_settings_are_checked_and_belong_to_one_stream():

@@ -13,10 +13,10 @@ from vpr.types import Column, Decision
 
 from .kernels import confirm as KC
 
-__all__ = ["Confirmation", "ahead_scores", "confirm_closures", "standardised_overlaps"]
+__all__ = ["Confirmation", "Columns", "ahead_scores", "confirm_closures", "standardised_overlaps"]
 
-#: The frames' columns (bit -> frames) are rebuilt once this many frames came after them (the newer are read row by
-#: row).
+#: The frames' columns (bit -> frames) are kept in blocks of this many frames, each built once it is whole (the
+#: newer frames are read row by row).
 COLUMNS_EVERY = 1024
 
 #: Candidates within this many frames of a closure's answer are its place for the look-ahead (a path may start a
@@ -26,13 +26,48 @@ NEAR = 3
 
 def standardised_overlaps(ptr, ind, q: int, n: int, n_bits: int, columns=None) -> np.ndarray:
     """The SDR overlap of row ``q`` with rows ``0 .. n - 1`` (a sorted CSR ``ptr``, ``ind`` of ``n_bits`` columns),
-    standardised over them (all 0 where they do not vary). ``columns``: (col_ptr, col_rows, m), the CSC of rows
-    ``0 .. m - 1`` (faster on many rows); default: row by row."""
-    col_ptr, col_rows, m = columns if columns is not None else (np.zeros(1, np.int64), np.zeros(0, np.int32), 0)
+    standardised over them (all 0 where they do not vary). ``columns``: (block_ptr, col_rows, m), the columns (bit ->
+    rows) of rows ``0 .. m - 1`` in blocks (:class:`Columns`; faster on many rows); default: row by row."""
+    block_ptr, col_rows, m = columns if columns is not None else (np.zeros((0, 2), np.int64), np.zeros(0, np.int32), 0)
     out = np.zeros(n, np.float32)
-    KC.standardised_overlaps(np.asarray(ptr, np.int64), np.asarray(ind, np.int64), int(q), int(n), col_ptr,
+    KC.standardised_overlaps(np.asarray(ptr, np.int64), np.asarray(ind, np.int64), int(q), int(n), block_ptr,
                              col_rows, int(m), np.zeros(int(n_bits), np.bool_), out)
     return out
+
+
+class Columns:
+    """The columns (bit -> rows, ascending) of a stream's SDR rows in blocks of ``every`` rows, each built once whole
+    (amortised O(bits) a row): what :func:`standardised_overlaps` counts through."""
+
+    def __init__(self, n_bits: int, every: int = COLUMNS_EVERY):
+        self.n_bits, self.every = int(n_bits), int(every)
+        self._ptr = np.zeros((0, self.n_bits + 1), np.int64)  # grown by doubling, blocks first
+        self._rows = np.zeros(0, np.int32)
+        self.blocks, self._used = 0, 0
+
+    @property
+    def rows(self) -> int:
+        """Rows in whole blocks."""
+        return self.blocks * self.every
+
+    def extend(self, ptr, ind, n: int) -> tuple:
+        """Build the blocks whole within rows ``0 .. n - 1`` (sorted CSR ``ptr``, ``ind``); returns (block_ptr,
+        col_rows, rows)."""
+        for a in range(self.rows, n - self.every + 1, self.every):
+            b = a + self.every
+            block = sp.csr_matrix((np.ones(int(ptr[b] - ptr[a]), bool), ind[ptr[a]:ptr[b]], ptr[a:b + 1] - ptr[a]),
+                                  shape=(self.every, self.n_bits)).tocsc()
+            block.sort_indices()
+            size = block.indices.size
+            if self.blocks == self._ptr.shape[0]:
+                self._ptr = np.concatenate([self._ptr, np.zeros((max(self.blocks, 4), self.n_bits + 1), np.int64)])
+            if self._used + size > self._rows.size:
+                self._rows = np.resize(self._rows, max(2 * self._rows.size, self._used + size))
+            self._ptr[self.blocks] = block.indptr + self._used
+            self._rows[self._used:self._used + size] = block.indices + a
+            self._used += size
+            self.blocks += 1
+        return self._ptr[:self.blocks], self._rows, self.rows
 
 
 def ahead_scores(z_rows: list[np.ndarray], stay: float, skip: float) -> np.ndarray:
@@ -77,7 +112,7 @@ class Confirmation:
         self.queue: deque[tuple[Decision, bool]] = deque()  # (decision, verified on its pair)
         self.start = 0  # the current session's first frame
         self._keep = scored is not None
-        self._columns = (np.zeros(1, np.int64), np.zeros(0, np.int32), 0)  # the CSC of the first frames
+        self._columns = Columns(self.n_bits)
         self._z: dict = {} if scored is None else scored  # (session start, frame) -> its standardised overlaps
 
     # ------------------------------------------------------------- the stream
@@ -138,12 +173,8 @@ class Confirmation:
         key = (self.start, q)
         if key not in self._z:
             n = n_candidates(q, self.exclude, self.start)
-            if n - self._columns[2] > COLUMNS_EVERY:
-                csc = sp.csr_matrix((np.ones(int(rows.ptr[n]), bool), rows.ind[:rows.ptr[n]], rows.ptr[:n + 1]),
-                                    shape=(n, self.n_bits)).tocsc()
-                csc.sort_indices()
-                self._columns = (csc.indptr.astype(np.int64), csc.indices.astype(np.int32), n)
-            self._z[key] = standardised_overlaps(rows.ptr, rows.ind, q, n, self.n_bits, self._columns)
+            columns = self._columns.extend(rows.ptr, rows.ind, n)
+            self._z[key] = standardised_overlaps(rows.ptr, rows.ind, q, n, self.n_bits, columns)
         return self._z[key]
 
     # ------------------------------------------------------------- state

@@ -6,18 +6,19 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
-def standardised_overlaps(ptr, ind, q, n, col_ptr, col_rows, m, mask, out):  # pragma: no cover - compiled
+def standardised_overlaps(ptr, ind, q, n, block_ptr, col_rows, m, mask, out):  # pragma: no cover - compiled
     """``out[:n]``: the SDR overlap of row ``q`` with rows ``0 .. n - 1`` (sorted CSR ``ptr``, ``ind``), standardised
-    over them (all 0 where they do not vary). Rows below ``m`` are counted through the columns ``col_ptr``,
-    ``col_rows`` (bit -> rows, ascending: the CSC of rows ``0 .. m - 1``), the others row by row; ``mask``: a
-    zeroed bool scratch of one entry per bit (left zeroed)."""
+    over them (all 0 where they do not vary). Rows below ``m`` are counted through blocks of columns: block ``k``'s
+    rows with bit ``b`` are ``col_rows[block_ptr[k, b]:block_ptr[k, b + 1]]``, ascending; the others row by row.
+    ``mask``: a zeroed bool scratch of one entry per bit (left zeroed)."""
     for i in range(n):
         out[i] = 0.0
     for p in range(ptr[q], ptr[q + 1]):
-        b = ind[p]
-        mask[b] = True
-        if b + 1 < col_ptr.shape[0]:
-            for t in range(col_ptr[b], col_ptr[b + 1]):
+        mask[ind[p]] = True
+    for k in range(block_ptr.shape[0]):
+        for p in range(ptr[q], ptr[q + 1]):
+            b = ind[p]
+            for t in range(block_ptr[k, b], block_ptr[k, b + 1]):
                 r = col_rows[t]
                 if r >= n:
                     break
