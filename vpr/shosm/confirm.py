@@ -123,10 +123,15 @@ class Confirmation:
         self.queue.append((d, bool(verified)))
         return self._settle(rows, int(d.frame) + 1)
 
+    def settle(self, rows: _sdr.RowLog, end: int) -> list[Decision]:
+        """Decide every waiting closure with the frames before ``end`` it has (the stream ends there); returns the
+        decisions, in frame order."""
+        return self._settle(rows, None, int(end))
+
     def end_session(self, rows: _sdr.RowLog, end: int) -> list[Decision]:
-        """The session ends before frame ``end`` (where a new one starts, or the stream ends): every waiting closure is
-        decided with the frames it has; returns the decisions, in frame order."""
-        out = self._settle(rows, None, int(end))
+        """The session ends before frame ``end``, where the next one starts: :meth:`settle`, then the candidates are
+        the next session's."""
+        out = self.settle(rows, end)
         self.start = int(end)
         if not self._keep:
             self._z.clear()
@@ -244,5 +249,5 @@ def confirm_closures(decision: Decision, sdr, exclude: int, conf=None, sessions=
             out.extend(c.end_session(rows, j))
         out.extend(c.push(Decision(int(best[j]), float(score[j]), bool(accepted[j]), float(margin[j]), j), rows,
                           bool(verified[j])))
-    out.extend(c.end_session(rows, T))
+    out.extend(c.settle(rows, T))
     return Decision.stack(out)

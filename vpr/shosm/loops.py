@@ -83,9 +83,8 @@ class LoopStream:
         return self.confirmation.end_session(self.rows, self.frames)
 
     def finish(self) -> list[Decision]:
-        """The stream ends (for now: more frames may follow): the decisions of the closures still waiting, confirmed
-        with the frames they have."""
-        return self.confirmation.end_session(self.rows, self.frames)
+        """The stream ends: the decisions of the closures still waiting, confirmed with the frames they have."""
+        return self.confirmation.settle(self.rows, self.frames)
 
     @property
     def waiting(self) -> int:
