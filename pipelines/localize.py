@@ -36,7 +36,7 @@ from pipelines.args import (
 )
 from pipelines.online import Online, run_online, summary_line
 from pipelines.outputs import warn
-from vpr import evaluate, io, presets
+from vpr import evaluate, io, methods, presets
 from vpr.checks import per_input
 from vpr.groundtruth import GroundTruthSpec, build_gt, prepare_positions, same_rate, same_sampling, sampling_step
 from vpr.methods import SpeedFollower
@@ -295,6 +295,7 @@ def run_command(args) -> int:
     # the preset's encoder and rshosm-seq conf unless flags name others (vpr.presets.resolve)
     settings = presets.resolve(args.preset, encoder=args.encoder, encoder_conf=encoders.parse_conf(args.encoder_conf),
                                methods=[ONLINE_METHOD], method_conf={ONLINE_METHOD: given})
+    methods.get(ONLINE_METHOD, **settings["method_conf"][ONLINE_METHOD]).check_matching()  # before a frame is read
     every = parse_every(args.every) if args.every else None
     if args.command == "learn":
         # where the positions are (no radius: nothing is evaluated here; the map keeps them)

@@ -149,6 +149,7 @@ def prepare_run(out: Path, paths, roles, opts: RunOptions, match: bool = False):
         db_att, q_att = srcs[0].indices(), q_src.indices()
         for runner in runners.values():
             runner.check_size(len(db_att), len(q_att))  # too large for a method: refused now, not after encoding
+            runner.check_matching()  # a loop closure setting: refused now
         xy = None if positions is None else (positions[0], positions[k])
         gt_hard, gt_soft = build_gt(opts.gt, srcs[0].names(), q_src.names(), db_att, q_att, srcs[0].name,
                                     q_src.name, totals=(srcs[0].exact_total(), q_src.exact_total()), positions=xy)

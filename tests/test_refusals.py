@@ -335,8 +335,14 @@ def test_sigterm_of_a_local_dask_encode_leaves_no_scratch_and_no_semaphores(scen
      ["--verify 1000000000: more candidates per query than the database's", "at most"]),
     (["demo", "--frames", "100000000"], ["--frames 100000000: the demo renders at most 20000 frames"]),
     (["render", "two_seasons", "--frames", "100000000"], ["at most 1000000 frames per traverse"]),
+    # settings of loop closure within one stream, given to database x query matching or a map
+    (["compare", "{db}", "{q}", "--methods", "rshosm-seq", "--method-conf", "rshosm-seq.confirm_frames=5"],
+     ["rshosm-seq: confirm_frames applies to loop closure within one stream"]),
+    (["learn", "{db}", "--method-conf", "rshosm-seq.stop_ratio=0.2"],
+     ["rshosm-seq: stop_ratio applies to loop closure within one stream"]),
 ])
-def test_huge_values_are_refused_in_one_line_before_anything_is_written(scene, tmp_path, capsys, argv, expect):
+def test_huge_or_misplaced_values_are_refused_in_one_line_before_anything_is_written(scene, tmp_path, capsys, argv,
+                                                                                     expect):
     out = tmp_path / "o"
     argv = [a.format(db=scene["db"], q=scene["q"]) for a in argv] + ["--out", out]
     code, _, err = _run(argv, capsys)

@@ -59,6 +59,10 @@ class Method:
     def check_size(self, n_db: int, n_q: int) -> None:
         """Raise ValueError if ``n_db x n_q`` is too large for this method (default: any size)."""
 
+    def check_matching(self) -> None:
+        """Raise ValueError if a setting given applies to loop closure within one stream only (database x query
+        matching and localisation refuse it before a frame is read; default: every setting applies)."""
+
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the method's kernels.
 

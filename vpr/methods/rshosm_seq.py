@@ -59,6 +59,9 @@ class RshosmSeq(Method):
         multi-session map) into a :class:`vpr.shosm.Localizer` with this conf."""
         return Localizer.from_database(db_sdr, names, progress=progress, conf=self.seq, sessions=sessions)
 
+    def check_matching(self) -> None:
+        self.seq.path()  # refuses the keys of loop closure only
+
     def warm_up(self) -> None:
         mem = warm_up_memory()
         tiny = sdr.from_indices([[0, 1, 2, 3]] * 2, 64)
