@@ -16,6 +16,7 @@ from vpr.shosm import (
     loop_rule,
     query_evidence,
 )
+from vpr.shosm.confirm import warm_up as warm_up_confirmation
 from vpr.similarity import top_k_or_dense
 from vpr.types import Decision, EncodedTraverse
 
@@ -69,6 +70,7 @@ class RshosmSeq(Method):
         # the dense and the sparse kernels: compiling them would otherwise count as matching time
         query_evidence(mem, tiny, codes)
         query_evidence(mem, tiny, codes, top_k=1)
+        warm_up_confirmation()  # loop closure's
 
     def _fit(self, db: EncodedTraverse, progress: bool):
         mem = SequenceMemory(**self.seq.memory_params)

@@ -13,7 +13,7 @@ from vpr.types import Column, Decision
 
 from .kernels import confirm as KC
 
-__all__ = ["Confirmation", "Columns", "ahead_scores", "confirm_closures", "standardised_overlaps"]
+__all__ = ["Confirmation", "Columns", "ahead_scores", "confirm_closures", "standardised_overlaps", "warm_up"]
 
 #: The frames' columns (bit -> frames) are kept in blocks of this many frames, each built once it is whole (the
 #: newer frames are read row by row).
@@ -68,6 +68,13 @@ class Columns:
             self._used += size
             self.blocks += 1
         return self._ptr[:self.blocks], self._rows, self.rows
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the confirmation's kernels."""
+    standardised_overlaps(np.zeros(3, np.int64), np.array([0, 1], np.int64), 1, 1, 2,
+                          (np.zeros((0, 3), np.int64), np.zeros(0, np.int32), 0))
+    ahead_scores([np.zeros(2, np.float32)] * 2, 0.05, 0.05)
 
 
 def ahead_scores(z_rows: list[np.ndarray], stay: float, skip: float) -> np.ndarray:

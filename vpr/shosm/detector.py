@@ -10,7 +10,7 @@ from vpr.checks import check_int
 from vpr.types import Decision, FrameEncoder
 
 from .conf import LOOP_EXCLUDE, RshosmSeqConf
-from .confirm import standardised_overlaps
+from .confirm import warm_up as warm_up_confirmation
 from .loops import LoopStream
 from .state import MemoryFileError, read_file, write_file
 
@@ -65,7 +65,7 @@ class LoopDetector:
         tiny = LoopStream(1, self.seq.replace(n_inputs=64))
         for bits in ([0, 1, 2, 3], [4, 5, 6, 7], [0, 1, 2, 3]):
             tiny.step(np.array(bits, np.int64))
-        standardised_overlaps(tiny.rows.ptr, tiny.rows.ind, 2, 1, 64)
+        warm_up_confirmation()
 
     def update(self, frame_or_sdr, name: str | None = None) -> Decision | None:
         """Learn the next frame and decide it: a loop closure onto an earlier frame, or a new place.
