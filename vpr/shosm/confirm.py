@@ -13,7 +13,8 @@ from vpr.types import Column, Decision
 
 from .kernels import confirm as KC
 
-__all__ = ["Confirmation", "Columns", "ahead_scores", "confirm_closures", "standardised_overlaps", "warm_up"]
+__all__ = ["Confirmation", "Columns", "ahead_scores", "confirm_closures", "look_ahead_z", "standardised_overlaps",
+           "warm_up"]
 
 #: The frames' columns (bit -> frames) are kept in blocks of this many frames, each built once it is whole (the
 #: newer frames are read row by row).
@@ -68,6 +69,21 @@ class Columns:
             self._used += size
             self.blocks += 1
         return self._ptr[:self.blocks], self._rows, self.rows
+
+
+def look_ahead_z(z_rows: list[np.ndarray], b: int, n: int, stay: float, skip: float) -> float:
+    """How far the frames of ``z_rows`` (each one's standardised scores over its candidates, the first frame's ``n``
+    first) single out candidate ``b`` of the first frame: the best :func:`ahead_scores` within :data:`NEAR` of ``b``,
+    in standard deviations over the other places (the candidates farther from ``b`` than a path moves in those
+    frames, which could otherwise join ``b``'s path); -inf where fewer than 2 are."""
+    scores = ahead_scores(z_rows, stay, skip)[:n]
+    near = scores[max(0, b - NEAR):b + NEAR + 1]
+    reach = 2 * len(z_rows) + NEAR
+    others = np.r_[scores[:max(0, b - reach)], scores[b + reach + 1:]]
+    if others.size < 2:
+        return -np.inf
+    sd = float(others.std())
+    return (float(near.max()) - float(others.mean())) / sd if near.size and sd > 0 else -np.inf
 
 
 def warm_up() -> None:
@@ -166,14 +182,7 @@ class Confirmation:
         score within :data:`NEAR` of ``b`` in standard deviations over the other places (``j``'s candidates farther
         from ``b`` than a path can move in those frames; -inf where fewer than 2 are)."""
         n = n_candidates(j, self.exclude, self.start)
-        scores = ahead_scores([self._row(rows, q) for q in range(j, stop)], self.stay, self.skip)[:n]
-        near = scores[max(0, b - NEAR):b + NEAR + 1]
-        reach = 2 * (stop - j) + NEAR  # a path from closer to b can join b's
-        others = np.r_[scores[:max(0, b - reach)], scores[b + reach + 1:]]
-        if others.size < 2:
-            return -np.inf
-        sd = float(others.std())
-        return (float(near.max()) - float(others.mean())) / sd if near.size and sd > 0 else -np.inf
+        return look_ahead_z([self._row(rows, q) for q in range(j, stop)], b, n, self.stay, self.skip)
 
     def _judge(self, d: Decision, rows: _sdr.RowLog, j: int, stop: int) -> Decision:
         if self.look_ahead(rows, j, int(d.best), stop) >= self.z:
