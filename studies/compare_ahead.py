@@ -30,21 +30,10 @@ CASES = ("nordland_gap", "nordland_358", "nordland_half", "gardens_point", "two_
 
 def answers(case: str, data: Path, tmp: Path):
     """(map SDRs, query SDRs, best, accepted, hard, soft) of ``vpr compare``'s rshosm-seq on a case."""
-    import encoders
-    from encoders.extract import extract
-    from studies.localize_decisions import case_sources, rendered_pair
-    from vpr import methods, presets
+    from studies.match_decisions import match_run
 
-    m, q, hard, soft = rendered_pair("two_seasons", "summer_day", "winter_night", tmp, 3.0, 10.0) \
-        if case == "two_seasons" else case_sources(case, data, tmp)
-    s = presets.resolve("default")
-    enc = encoders.get(s["encoder"], **s["encoder_conf"])
-    feats = [extract(src, enc, ("sdr",), progress=False) for src in (m, q)]  # each fitted on itself, as vpr match
-    res = methods.get("rshosm-seq").match(feats[0].features, feats[1].features)
-    rows = [{k: r for r, k in enumerate(src.indices())} for src in (m, q)]
-    hard = hard[np.ix_([rows[0][i] for i in feats[0].indices], [rows[1][i] for i in feats[1].indices])]
-    soft = soft[np.ix_([rows[0][i] for i in feats[0].indices], [rows[1][i] for i in feats[1].indices])]
-    return feats[0].features.sdr, feats[1].features.sdr, res.best, res.accepted, hard, soft
+    x_map, x_q, res, hard, soft = match_run(case, "default", data, tmp)
+    return x_map, x_q, res.best, res.accepted, hard, soft
 
 
 def look_aheads(x_map, x_q, best, accepted) -> dict[int, float]:

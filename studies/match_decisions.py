@@ -59,17 +59,13 @@ def _case_sources(case: str, data: Path, tmp: Path):
     return rendered_pair("two_seasons", "summer_day", "winter_night", tmp, 3.0, 10.0)
 
 
-def evidence(case: str, preset: str, data: Path, cache: Path):
-    """(S: the z-score matrix of ``vpr match``, hard, soft) of a case, cached."""
-    path = cache / f"match-{case}-{preset}.npz"
-    if path.is_file():
-        with np.load(path) as z:
-            S = sp.csr_matrix((z["val"], z["idx"], z["ptr"]), shape=tuple(z["shape"])) if "ptr" in z else z["S"]
-            return S, z["hard"], z["soft"]
+def match_run(case: str, preset: str, data: Path, tmp: Path):
+    """``rshosm-seq``'s match of a case as ``vpr match`` runs it (each traverse encoded with ``preset``'s encoder,
+    standardised on its own frames): (map SDRs, query SDRs, MatchResult, hard, soft over the frames read)."""
     import encoders
     from encoders.extract import extract
 
-    m, q, hard, soft = _case_sources(case, data, cache)
+    m, q, hard, soft = _case_sources(case, data, tmp)
     s = presets.resolve(preset)
     enc = encoders.get(s["encoder"], **s["encoder_conf"])
     feats = [extract(src, enc, ("sdr",), progress=False) for src in (m, q)]  # each fitted on itself, as vpr match
@@ -77,7 +73,17 @@ def evidence(case: str, preset: str, data: Path, cache: Path):
     rows = [{k: r for r, k in enumerate(src.indices())} for src in (m, q)]
     ri = [rows[0][i] for i in feats[0].indices]
     ci = [rows[1][i] for i in feats[1].indices]
-    hard, soft = hard[np.ix_(ri, ci)], soft[np.ix_(ri, ci)]
+    return feats[0].features.sdr, feats[1].features.sdr, res, hard[np.ix_(ri, ci)], soft[np.ix_(ri, ci)]
+
+
+def evidence(case: str, preset: str, data: Path, cache: Path):
+    """(S: the z-score matrix of ``vpr match``, hard, soft) of a case, cached."""
+    path = cache / f"match-{case}-{preset}.npz"
+    if path.is_file():
+        with np.load(path) as z:
+            S = sp.csr_matrix((z["val"], z["idx"], z["ptr"]), shape=tuple(z["shape"])) if "ptr" in z else z["S"]
+            return S, z["hard"], z["soft"]
+    _, _, res, hard, soft = match_run(case, preset, data, cache)
     S = res.similarity
     if sp.issparse(S):
         S = sp.csr_matrix(S)

@@ -7,10 +7,10 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
+import scipy.sparse as sp
 
 if TYPE_CHECKING:
     from vpr.sdr import RowLog
-import scipy.sparse as sp
 
 __all__ = ["EncodedTraverse", "ImageInput", "Column", "Decision", "Decider", "QueryLocalizer", "FrameEncoder",
            "MatchResult", "ENCODER_INPUTS"]
