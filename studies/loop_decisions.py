@@ -19,12 +19,13 @@ without it does on it: a rule that only holds where it was chosen shows there.
 ``--sizes``: the rendered streams also at other sizes, each a stream of its own.
 
 Closures are confirmed by the frames after them as ``vpr loops`` does (``LoopConf.confirm_frames``,
-``--confirm-frames``, 0: decided at once); ``--confirm-grid`` prints, for the default rule, every stream under
+``--confirm-frames``, 0: decided at once) and placed by the frames up to them (``LoopConf.place_frames``,
+``--place-frames``, 0: the evidence's answer); ``--confirm-grid`` prints, for the default rule, every stream under
 each ``confirm_frames`` x ``confirm_z`` of :data:`CONFIRM_FRAMES` x :data:`CONFIRM_Z` (with ``studies.run_on``,
 where a revisit leaves the earlier route, the streams the confirmation was chosen on).
 
 Usage: python -m studies.loop_decisions [--cache DIR] [--data DIR] [--presets default,fast] [--leave-one-out]
-       [--decay D] [--sizes 160x120,320x240] [--confirm-frames N] [--confirm-grid]
+       [--decay D] [--sizes 160x120,320x240] [--confirm-frames N] [--place-frames N] [--confirm-grid]
 """
 from __future__ import annotations
 
@@ -37,7 +38,7 @@ import numpy as np
 
 from studies import loop_streams
 from studies.loop_streams import FORWARD, REAL_REVISITS, RENDERED_REVISITS, load_stream
-from vpr.shosm import LoopConf, LoopEvidence, accept_loops, confirm_closures, loop_evidence
+from vpr.shosm import LoopConf, LoopEvidence, accept_loops, confirm_closures, loop_evidence, place_closures
 
 DRIFTS = (1.0, 1.25, 1.5, 1.75)
 SCORES = (16.0, 20.0, 24.0, 28.0, 32.0, 40.0)
@@ -87,11 +88,12 @@ def aliases(name: str) -> np.ndarray | None:
 
 def decide(stream, ev, conf: LoopConf):
     """The stream's decisions under ``conf`` as ``vpr loops`` takes them: the path rule, then its closures confirmed by
-    the frames after them (``conf.confirm_frames``; the frames' standardised overlaps kept on the stream)."""
+    the frames after them (``conf.confirm_frames``; the frames' standardised overlaps kept on the stream) and placed
+    by the frames up to them (``conf.place_frames``)."""
     d = accept_loops(ev, conf, sdr=stream.x)
-    if not conf.confirm_frames:
-        return d
-    return confirm_closures(d, stream.x, EXCLUDE, conf.as_dict(), scored=stream.scored)
+    if conf.confirm_frames:
+        d = confirm_closures(d, stream.x, EXCLUDE, conf.as_dict(), scored=stream.scored)
+    return place_closures(d, stream.x, EXCLUDE, conf.as_dict()) if conf.place_frames else d
 
 
 def count(stream, ev, alias, conf: LoopConf) -> dict:
@@ -189,6 +191,8 @@ def main(argv=None) -> int:
                     help="the evidence's decay per frame (default: rshosm-seq's), e.g. 0.95 for a longer memory")
     ap.add_argument("--confirm-frames", type=int, default=LoopConf().confirm_frames,
                     help="frames after a closure that confirm it (default: LoopConf's; 0: decided at once)")
+    ap.add_argument("--place-frames", type=int, default=LoopConf().place_frames,
+                    help="frames up to a closure that place it (default: LoopConf's; 0: the evidence's answer)")
     ap.add_argument("--confirm-grid", action="store_true",
                     help="the default rule under every confirm_frames x confirm_z of the grid")
     ap.add_argument("--sizes", default="160x120",
@@ -216,7 +220,8 @@ def main(argv=None) -> int:
                 print(f"{key}: {len(s)} frames ({time.perf_counter() - t:.0f} s)", flush=True)
     results = {}
     for rule in itertools.product(DRIFTS, SCORES):
-        conf = LoopConf(drift=rule[0], min_score=rule[1], confirm_frames=a.confirm_frames)
+        conf = LoopConf(drift=rule[0], min_score=rule[1], confirm_frames=a.confirm_frames,
+                        place_frames=a.place_frames)
         results[rule] = {n: count(*data[n], conf) for n in names}
     print("\nRevisit streams: recall of the accepted closures (false accepted); forward-only drives: false "
           "closures (+ onto an identical copy).\n")
@@ -226,7 +231,7 @@ def main(argv=None) -> int:
         print(row(rule, per, names))
     chosen = choose(results, names)
     print(f"\nchosen on every stream: drift {chosen[0]}, min_score {chosen[1]:g}" if chosen else "\nno rule qualifies")
-    conf = LoopConf(confirm_frames=a.confirm_frames)
+    conf = LoopConf(confirm_frames=a.confirm_frames, place_frames=a.place_frames)
     print(f"\nWith the defaults (LoopConf: drift {conf.drift}, min_score {conf.min_score:g}), what `vpr loops` reports "
           "(R@100P: recall at 100 % precision of the per-frame decisions; accepted closures onto an identical copy "
           "in brackets):\n")
@@ -248,7 +253,8 @@ def main(argv=None) -> int:
         print("| confirm_frames | confirm_z | " + " | ".join(names) + " |")
         print("|---|---|" + "---|" * len(names))
         for frames, z in [(0, None), *itertools.product(CONFIRM_FRAMES[1:], CONFIRM_Z)]:
-            conf = LoopConf(confirm_frames=frames, **({} if z is None else {"confirm_z": z}))
+            conf = LoopConf(confirm_frames=frames, place_frames=a.place_frames,
+                            **({} if z is None else {"confirm_z": z}))
             per = {n: count(*data[n], conf) for n in names}
             print(f"| {frames} | {'-' if z is None else f'{z:g}'} | {stream_cells(per, names)} |", flush=True)
     if a.leave_one_out:

@@ -381,11 +381,10 @@ def one_run(data: Path, root: Path) -> None:
 LAPS_RADIUS, LAPS_SOFT = 5, 10
 
 
-def laps_at_speed(root: Path) -> None:
-    """``vpr loops`` of one run with loops in it, driven at another speed on the way back: the rendered
-    ``loop_revisits`` laps at the scene's own size (320 x 240, where geometry sees), every frame; the later laps every
-    2nd frame (2x); the first lap every 2nd frame (the later ones at 0.5x). Defaults, with ``--geometry off`` beside;
-    hard :data:`LAPS_RADIUS` m, soft :data:`LAPS_SOFT` m."""
+def laps_streams(root: Path) -> dict:
+    """The rendered ``loop_revisits`` laps at the scene's own size (320 x 240) as one run with loops in it: every
+    frame; the later laps every 2nd frame (2x); the first lap every 2nd frame (the later ones at 0.5x). Rendered and
+    linked into ``root`` once; returns {key: (name, folder, positions file)}."""
     rendered = root / "renders" / "loop_revisits"
     if not (rendered / "scene.json").exists():
         run_quietly(["render", "loop_revisits", "--out", rendered])
@@ -398,10 +397,7 @@ def laps_at_speed(root: Path) -> None:
     streams = {"laps_1x": ("laps, every frame", every), "laps_2x": ("laps, the later laps every 2nd frame (2x)",
                                                                     np.r_[first, later[::2]]),
                "laps_half": ("laps, the first lap every 2nd frame (later laps 0.5x)", np.r_[first[::2], later])}
-    print(f"\nvpr loops of one run with loops, rendered at 320 x 240 (hard {LAPS_RADIUS} m, soft {LAPS_SOFT} m): "
-          "frames; accepted, P(acc), R(acc), false; geometry off, then on (the default): accepted by it, refused by it")
-    print("| stream | frames | --geometry off | default | by geometry | refused |")
-    print("|---|---|---|---|---|---|")
+    out = {}
     for key, (name, keep) in streams.items():
         folder, positions = root / "one_run" / key, root / "one_run" / f"{key}.csv"
         if not folder.exists():
@@ -412,6 +408,18 @@ def laps_at_speed(root: Path) -> None:
                 w = csv.writer(fh)
                 w.writerow(["frame", "x", "y"])
                 w.writerows([i, gt[j]["x"], gt[j]["y"]] for i, j in enumerate(keep))
+        out[key] = (name, folder, positions)
+    return out
+
+
+def laps_at_speed(root: Path) -> None:
+    """``vpr loops`` of one run with loops in it, driven at another speed on the way back (:func:`laps_streams`).
+    Defaults, with ``--geometry off`` beside; hard :data:`LAPS_RADIUS` m, soft :data:`LAPS_SOFT` m."""
+    print(f"\nvpr loops of one run with loops, rendered at 320 x 240 (hard {LAPS_RADIUS} m, soft {LAPS_SOFT} m): "
+          "frames; accepted, P(acc), R(acc), false; geometry off, then on (the default): accepted by it, refused by it")
+    print("| stream | frames | --geometry off | default | by geometry | refused |")
+    print("|---|---|---|---|---|---|")
+    for key, (name, folder, positions) in laps_streams(root).items():
         cells = []
         for geometry in ("off", "on"):
             out = root / "one_run" / f"{key}-geometry-{geometry}"
@@ -421,7 +429,7 @@ def laps_at_speed(root: Path) -> None:
             m = json.loads((out / "metrics.json").read_text())["methods"]["rshosm-seq"]
             cells.append(f"{decisions_cell(m, frames=False)}, {m['n_false']}")
         g = m["geometry"]
-        print(f"| {name} | {len(keep)} | {cells[0]} | {cells[1]} | {g['accepted_by_geometry']} | "
+        print(f"| {name} | {len(list(folder.iterdir()))} | {cells[0]} | {cells[1]} | {g['accepted_by_geometry']} | "
               f"{g['refused_by_geometry']} |", flush=True)
 
 

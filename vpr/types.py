@@ -13,10 +13,15 @@ if TYPE_CHECKING:
     from vpr.sdr import RowLog
 
 __all__ = ["EncodedTraverse", "ImageInput", "Column", "Decision", "Decider", "QueryLocalizer", "FrameEncoder",
-           "MatchResult", "ENCODER_INPUTS"]
+           "MatchResult", "ENCODER_INPUTS", "RATE_RATIO"]
 
 #: Inputs that come from the encoder (every other input is an :class:`ImageInput` of a method).
 ENCODER_INPUTS = {"sdr": "SDRs", "desc": "dense descriptors"}
+
+#: Frame rates or speeds this far apart (a ratio) make a sequence of one source move several frames per frame of the
+#: other and can cost the decisions their recall or precision; made to agree from here (docs/localize.md, "Frame
+#: rates"; a loop closure's place, docs/loops.md).
+RATE_RATIO = 1.5
 
 
 @dataclass(frozen=True)

@@ -7,6 +7,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from vpr.checks import per_input
+from vpr.types import RATE_RATIO
 
 from . import trajectories as tr
 from .files import load_traverse_positions, positions_for, positions_for_frames, positions_of_frames
@@ -212,11 +213,6 @@ def same_sampling(the_map, every: float | None, positions: bool, where: str, pro
     if said:
         warnings.warn(f"{where}: {said}", UserWarning, stacklevel=2)
     return the_map, every
-
-
-#: Frame rates this far apart (a ratio) make a sequence of one source move several frames per frame of the other
-#: and can cost the decisions their recall or precision; made to agree from here (docs/localize.md, "Frame rates").
-RATE_RATIO = 1.5
 
 
 def same_rate(the_map, src, fps: float | None, where: str, progress: bool = False):

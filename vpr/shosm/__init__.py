@@ -42,6 +42,7 @@ from .localizer import Localizer
 from .loops import LOOP_UNCAPPED_MAX, LoopStream, loop_evidence
 from .map import Map
 from .memory import SequenceMemory, pad_codes
+from .place import Placement, place_closures
 from .state import MemoryFileError
 
 __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pad_codes",
@@ -52,4 +53,5 @@ __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pa
            "decide_all",
            "LoopRule", "LOOP_RULES", "loop_rule",
            "accept_loops", "accept_path", "stationary_closures", "Localizer", "Map", "LoopStream", "loop_evidence",
-           "LOOP_UNCAPPED_MAX", "LoopDetector", "Confirmation", "confirm_closures"]
+           "LOOP_UNCAPPED_MAX", "LoopDetector", "Confirmation", "confirm_closures",
+           "Placement", "place_closures"]

@@ -214,6 +214,9 @@ class LoopConf(PathConf):
         place on their own (:class:`vpr.shosm.Confirmation`); 0: decided at once, nothing confirmed.
     confirm_z : float
         How many standard deviations over the other candidates those frames must put the closure's place.
+    place_frames : int, 0 or >= 3
+        An accepted closure is answered again with this many frames up to it where they read a revisit driven faster
+        than the evidence follows (:class:`vpr.shosm.Placement`); 0: the evidence's answer stands.
     """
 
     drift: float = 1.5
@@ -221,6 +224,7 @@ class LoopConf(PathConf):
     stop_ratio: float = 0.35
     confirm_frames: int = 20
     confirm_z: float = 2.5
+    place_frames: int = 20
 
     def __post_init__(self):
         super().__post_init__()
@@ -231,6 +235,9 @@ class LoopConf(PathConf):
             raise ValueError(f"confirm_frames must be an integer >= 0 (0: closures are not confirmed), got {v}")
         if not np.isfinite(float(self.confirm_z)):
             raise ValueError(f"confirm_z must be a finite z-score, got {self.confirm_z}")
+        v = self.place_frames
+        if isinstance(v, bool) or int(v) != v or not (int(v) == 0 or int(v) >= 3):
+            raise ValueError(f"place_frames must be 0 (closures are not placed) or an integer >= 3, got {v}")
 
     @property
     def rule(self) -> tuple:
@@ -239,7 +246,7 @@ class LoopConf(PathConf):
 
 
 #: The decision's keys of loop closure within one stream only.
-LOOP_ONLY_KEYS = ("stop_ratio", "confirm_frames", "confirm_z")
+LOOP_ONLY_KEYS = ("stop_ratio", "confirm_frames", "confirm_z", "place_frames")
 
 #: The decision's keys; left None in :class:`RshosmSeqConf`, a key takes the default of :class:`LoopConf` in one
 #: stream, of :class:`PathConf` against a map.

@@ -16,6 +16,7 @@ from .decide import loop_rule
 from .evidence import LoopEvidence, make_engine
 from .graph import Graph
 from .memory import SequenceMemory
+from .place import Placement
 from .state import joint_state, part_state
 
 __all__ = ["LoopStream", "loop_evidence", "LOOP_UNCAPPED_MAX"]
@@ -52,6 +53,7 @@ class LoopStream:
         stay, skip = self.seq.evidence.costs
         self.confirmation = Confirmation(loop.confirm_frames, loop.confirm_z, self.exclude, stay, skip,
                                          self.mem.n_inputs)
+        self.placement = Placement(loop.place_frames, self.exclude, loop.back, loop.ahead, self.mem.n_inputs)
         self._rows = _sdr.RowLog()  # the stream's SDR rows, where the decider keeps none
         self.starts = [0]  # the first frame of every session
         self.frames = 0
@@ -80,11 +82,15 @@ class LoopStream:
         self.engine.reset()
         self.decider.new_session()
         self.starts.append(self.frames)
-        return self.confirmation.end_session(self.rows, self.frames)
+        return self._final(self.confirmation.end_session(self.rows, self.frames))
 
     def finish(self) -> list[Decision]:
         """The stream ends: the decisions of the closures still waiting, confirmed with the frames they have."""
-        return self.confirmation.settle(self.rows, self.frames)
+        return self._final(self.confirmation.settle(self.rows, self.frames))
+
+    def _final(self, ds: list[Decision]) -> list[Decision]:
+        """Decisions leaving the confirmation, their closures placed (:class:`Placement`)."""
+        return self.placement(ds, self.rows, self.starts) if ds else ds
 
     @property
     def waiting(self) -> int:
@@ -95,7 +101,8 @@ class LoopStream:
         """Learn the next frame (SDR row: 1-row batch, dense row or bit indices), score and decide it.
 
         Returns its winner cells and the decisions final now (each with its column over the candidates), in frame
-        order: this frame's, unless it or an earlier one waits for the frames after it (:class:`Confirmation`).
+        order: this frame's, unless it or an earlier one waits for the frames after it (:class:`Confirmation`); an
+        accepted closure answered where the frames up to it place it (:class:`Placement`).
         """
         bits = _sdr.row_bits(sdr_row, self.mem.n_inputs, name="frame SDR")
         j = self.frames
@@ -110,7 +117,7 @@ class LoopStream:
             self._rows.append(bits)
         self.frames += 1
         d = self.decider.decide(column)
-        return winners, self.confirmation.push(d, self.rows, self.decider.pair_verified)
+        return winners, self._final(self.confirmation.push(d, self.rows, self.decider.pair_verified))
 
     # ------------------------------------------------------------- state
     def state(self) -> tuple[dict, dict]:
