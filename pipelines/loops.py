@@ -219,6 +219,9 @@ class LoopsOnline(Online):
     def n_candidates(self) -> int:
         return self.det.frames  # a resumed detector's frames from before this run are candidates too
 
+    def waiting_in_state(self) -> int:
+        return self.det.stream.waiting + (self.det.encoder.waiting if self.det.encoder is not None else 0)
+
     def finish(self):
         self.det.flush(closures=not self.goes_on)
         return self._watch(self.det.take_late())

@@ -62,6 +62,10 @@ class Online:
         every frame of the stream so far (those before a resume too)."""
         raise NotImplementedError
 
+    def waiting_in_state(self) -> int:
+        """Frames read before this run (a resumed state) whose answers are still to come; they come first."""
+        return 0
+
     def new_session(self):
         """A line ``#session``: the next frame starts a new run (returns decisions of frames that waited)."""
 
@@ -146,10 +150,15 @@ def _run(job: Online, src, out: Path, stdout, state_out, claim: contextlib.ExitS
     told = 0
     taken = None  # (input line, name) of the last frame or #session taken in whole: a stop goes on after it
 
+    from_state = [job.waiting_in_state()]  # frames read before a restart, answered first: no entry in ``waiting``
+
     def answered(got) -> None:
         for d in ([] if got is None else [got] if isinstance(got, Decision) else got):
-            # a frame pushed before a restart (it waited in the saved state) has no entry here
-            name, index, ms, ms_dec = waiting.pop(0) if waiting else (job.name_of(d.frame), -1, 0.0, 0.0)
+            if from_state[0]:
+                from_state[0] -= 1
+                name, index, ms, ms_dec = job.name_of(d.frame), -1, 0.0, 0.0
+            else:
+                name, index, ms, ms_dec = waiting.pop(0)
             rows.append((name, index, d, ms, ms_dec))
             lines.write({"query": int(d.frame), "query_name": name, "best_db": d.best if d.best >= 0 else None,
                          "db_name": job.name_of(d.best) if d.best >= 0 else None,

@@ -20,12 +20,15 @@ without it does on it: a rule that only holds where it was chosen shows there.
 
 Closures are confirmed by the frames after them as ``vpr loops`` does (``LoopConf.confirm_frames``,
 ``--confirm-frames``, 0: decided at once) and placed by the frames up to them (``LoopConf.place_frames``,
-``--place-frames``, 0: the evidence's answer); ``--confirm-grid`` prints, for the default rule, every stream under
+``--place-frames``, 0: the evidence's answer), the frames leading up to a confirmed closure accepted with it
+(``LoopConf.backfill_frames``, ``--backfill-frames``; ``--backfill-grid`` prints every stream under each of
+:data:`BACKFILL_FRAMES`); ``--confirm-grid`` prints, for the default rule, every stream under
 each ``confirm_frames`` x ``confirm_z`` of :data:`CONFIRM_FRAMES` x :data:`CONFIRM_Z` (with ``studies.run_on``,
 where a revisit leaves the earlier route, the streams the confirmation was chosen on).
 
 Usage: python -m studies.loop_decisions [--cache DIR] [--data DIR] [--presets default,fast] [--leave-one-out]
-       [--decay D] [--sizes 160x120,320x240] [--confirm-frames N] [--place-frames N] [--confirm-grid]
+       [--decay D] [--sizes 160x120,320x240] [--confirm-frames N] [--backfill-frames N] [--place-frames N]
+       [--confirm-grid] [--backfill-grid]
 """
 from __future__ import annotations
 
@@ -38,13 +41,25 @@ import numpy as np
 
 from studies import loop_streams
 from studies.loop_streams import FORWARD, REAL_REVISITS, RENDERED_REVISITS, load_stream
-from vpr.shosm import LoopConf, LoopEvidence, accept_loops, confirm_closures, loop_evidence, place_closures
+from vpr.shosm import (
+    Backfill,
+    LoopConf,
+    LoopEvidence,
+    accept_loops,
+    backfill_closures,
+    confirm_closures,
+    loop_evidence,
+    place_closures,
+)
+from vpr.types import Decision
 
 DRIFTS = (1.0, 1.25, 1.5, 1.75)
 SCORES = (16.0, 20.0, 24.0, 28.0, 32.0, 40.0)
 REVISITS = (*REAL_REVISITS, *RENDERED_REVISITS)
 CONFIRM_FRAMES = (0, 10, 20, 30)
 CONFIRM_Z = (2.0, 2.5, 3.0)
+#: the back-fill windows ``--backfill-grid`` prints
+BACKFILL_FRAMES = (0, 10, 20, 30, 40, 60, 80)
 EXCLUDE = 30
 
 
@@ -88,12 +103,31 @@ def aliases(name: str) -> np.ndarray | None:
 
 def decide(stream, ev, conf: LoopConf):
     """The stream's decisions under ``conf`` as ``vpr loops`` takes them: the path rule, then its closures confirmed by
-    the frames after them (``conf.confirm_frames``; the frames' standardised overlaps kept on the stream) and placed
-    by the frames up to them (``conf.place_frames``)."""
+    the frames after them (``conf.confirm_frames``; the frames' standardised overlaps kept on the stream), the frames
+    leading up to them accepted with them (``conf.backfill_frames``) and placed by the frames up to them
+    (``conf.place_frames``)."""
     d = accept_loops(ev, conf, sdr=stream.x)
     if conf.confirm_frames:
         d = confirm_closures(d, stream.x, EXCLUDE, conf.as_dict(), scored=stream.scored)
+    if conf.backfill_frames:
+        d = backfill_closures(d, conf.backfill_frames, conf.back, conf.ahead, conf.min_score)
     return place_closures(d, stream.x, EXCLUDE, conf.as_dict()) if conf.place_frames else d
+
+
+def backfill_waits(stream, ev, conf: LoopConf) -> np.ndarray:
+    """Per frame, how many frames its decision waits online in :class:`vpr.shosm.Backfill` (after the
+    confirmation; 0: it leaves at once)."""
+    d = accept_loops(ev, conf, sdr=stream.x)
+    if conf.confirm_frames:
+        d = confirm_closures(d, stream.x, EXCLUDE, conf.as_dict(), scored=stream.scored)
+    b, T = Backfill(conf.backfill_frames, conf.back, conf.ahead, conf.min_score), len(d.best)
+    wait = np.zeros(T, np.int64)
+    for j in range(T):
+        for o in b.push([Decision(int(d.best[j]), float(d.score[j]), bool(d.accepted[j]), 0.0, j)]):
+            wait[o.frame] = j - o.frame
+    for o in b.flush():
+        wait[o.frame] = T - o.frame
+    return wait
 
 
 def count(stream, ev, alias, conf: LoopConf) -> dict:
@@ -191,8 +225,12 @@ def main(argv=None) -> int:
                     help="the evidence's decay per frame (default: rshosm-seq's), e.g. 0.95 for a longer memory")
     ap.add_argument("--confirm-frames", type=int, default=LoopConf().confirm_frames,
                     help="frames after a closure that confirm it (default: LoopConf's; 0: decided at once)")
+    ap.add_argument("--backfill-frames", type=int, default=LoopConf().backfill_frames,
+                    help="frames before a confirmed closure accepted with it (default: LoopConf's; 0: none)")
     ap.add_argument("--place-frames", type=int, default=LoopConf().place_frames,
                     help="frames up to a closure that place it (default: LoopConf's; 0: the evidence's answer)")
+    ap.add_argument("--backfill-grid", action="store_true",
+                    help="the default rule under every backfill_frames of the grid, each stream's recall to 3 places")
     ap.add_argument("--confirm-grid", action="store_true",
                     help="the default rule under every confirm_frames x confirm_z of the grid")
     ap.add_argument("--sizes", default="160x120",
@@ -221,7 +259,7 @@ def main(argv=None) -> int:
     results = {}
     for rule in itertools.product(DRIFTS, SCORES):
         conf = LoopConf(drift=rule[0], min_score=rule[1], confirm_frames=a.confirm_frames,
-                        place_frames=a.place_frames)
+                        place_frames=a.place_frames, backfill_frames=a.backfill_frames)
         results[rule] = {n: count(*data[n], conf) for n in names}
     print("\nRevisit streams: recall of the accepted closures (false accepted); forward-only drives: false "
           "closures (+ onto an identical copy).\n")
@@ -231,7 +269,7 @@ def main(argv=None) -> int:
         print(row(rule, per, names))
     chosen = choose(results, names)
     print(f"\nchosen on every stream: drift {chosen[0]}, min_score {chosen[1]:g}" if chosen else "\nno rule qualifies")
-    conf = LoopConf(confirm_frames=a.confirm_frames, place_frames=a.place_frames)
+    conf = LoopConf(confirm_frames=a.confirm_frames, place_frames=a.place_frames, backfill_frames=a.backfill_frames)
     print(f"\nWith the defaults (LoopConf: drift {conf.drift}, min_score {conf.min_score:g}), what `vpr loops` reports "
           "(R@100P: recall at 100 % precision of the per-frame decisions; accepted closures onto an identical copy "
           "in brackets):\n")
@@ -253,10 +291,29 @@ def main(argv=None) -> int:
         print("| confirm_frames | confirm_z | " + " | ".join(names) + " |")
         print("|---|---|" + "---|" * len(names))
         for frames, z in [(0, None), *itertools.product(CONFIRM_FRAMES[1:], CONFIRM_Z)]:
-            conf = LoopConf(confirm_frames=frames, place_frames=a.place_frames,
+            conf = LoopConf(confirm_frames=frames, place_frames=a.place_frames, backfill_frames=a.backfill_frames,
                             **({} if z is None else {"confirm_z": z}))
             per = {n: count(*data[n], conf) for n in names}
             print(f"| {frames} | {'-' if z is None else f'{z:g}'} | {stream_cells(per, names)} |", flush=True)
+    if a.backfill_grid:
+        print("\nThe default rule, the frames leading up to a confirmed closure accepted with it (backfill_frames): "
+              "revisit streams' recall (false), forward drives' false (+ onto a copy)\n")
+        print("| backfill_frames | " + " | ".join(names) + " |")
+        print("|---|" + "---|" * len(names))
+        for frames in BACKFILL_FRAMES:
+            conf = LoopConf(confirm_frames=a.confirm_frames, place_frames=a.place_frames, backfill_frames=frames)
+            per = {n: count(*data[n], conf) for n in names}
+            cells = [f"{per[n]['true'] / per[n]['frames']:.3f} ({per[n]['false']})" if _stream_of(n) in REVISITS
+                     else f"{per[n]['false']}" + (f" (+{per[n]['copy']})" if per[n]["copy"] else "") for n in names]
+            print(f"| {frames} | {' | '.join(cells)} |", flush=True)
+        conf = LoopConf(confirm_frames=a.confirm_frames, place_frames=a.place_frames, backfill_frames=a.backfill_frames)
+        print(f"\nWhat waits for a later closure online (backfill_frames {conf.backfill_frames}, after the "
+              "confirmation): the share of frames that wait, the median wait of those, the longest (frames)\n")
+        print("| stream | waiting | median | longest |")
+        print("|---|---|---|---|")
+        for n in names:
+            w = backfill_waits(*data[n][:2], conf)
+            print(f"| {n} | {np.mean(w > 0):.2f} | {np.median(w[w > 0]) if (w > 0).any() else 0:g} | {w.max()} |")
     if a.leave_one_out:
         print("\n| held out (every preset's) | rule chosen without it | on the held-out stream |")
         print("|---|---|---|")

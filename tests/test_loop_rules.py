@@ -38,11 +38,12 @@ def _stream():
 
 def test_a_registered_rule_decides_in_batch_online_and_after_a_restart(toy, tmp_path):
     x = _stream()
-    # the rule's own decisions, unconfirmed by the frames after them (confirm_frames 0: each final at once)
-    batch = loop_evidence(x, exclude=10, n_inputs=256, loop_rule="every5", confirm_frames=0).decision
+    # the rule's own decisions, unconfirmed by the frames after them and none accepted back (each final at once)
+    batch = loop_evidence(x, exclude=10, n_inputs=256, loop_rule="every5", confirm_frames=0,
+                          backfill_frames=0).decision
     has = batch.best >= 0
     assert has.sum() > 60 and (batch.accepted == (has & (np.arange(x.shape[0]) % 5 == 0))).all()
-    det = LoopDetector(exclude=10, n_inputs=256, loop_rule="every5", confirm_frames=0)
+    det = LoopDetector(exclude=10, n_inputs=256, loop_rule="every5", confirm_frames=0, backfill_frames=0)
     online = [det.update(x[j]) for j in range(70)]
     det.save(tmp_path / "det.npz")
     det = LoopDetector.load(tmp_path / "det.npz")  # the rule comes back by its name in the saved conf
@@ -54,7 +55,7 @@ def test_a_registered_rule_decides_in_batch_online_and_after_a_restart(toy, tmp_
 
 def test_the_method_takes_a_rule_by_name_and_refuses_an_unknown_one(toy):
     x = _stream()
-    m = methods.get("rshosm-seq", loop_rule="every5", n_inputs=256)
+    m = methods.get("rshosm-seq", loop_rule="every5", n_inputs=256, backfill_frames=0)
     res = m.loops(EncodedTraverse([f"f{k}" for k in range(x.shape[0])], sdr=x), exclude=10)
     assert res.accepted.any() and not res.accepted[np.arange(x.shape[0]) % 5 != 0].any()
     with pytest.raises(ValueError, match=r"rshosm-seq: loop_rule 'nope' is not a loop rule \(known: every5, path\)"):

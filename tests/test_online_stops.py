@@ -21,6 +21,8 @@ pytestmark = pytest.mark.slow  # command-line runs in a subprocess, stopped by a
 
 ROOT = Path(__file__).resolve().parents[1]
 LOOSE = ["--preset", "fast", "--exclude", "12", "--method-conf", "rshosm-seq.min_score=10"]
+#: each frame answered before the next is read (the stop tests feed frames one by one): nothing accepted back
+ONE_BY_ONE = [*LOOSE, "--method-conf", "rshosm-seq.backfill_frames=0"]
 
 
 @pytest.fixture(scope="module")
@@ -68,9 +70,9 @@ def test_stopped_loops_writes_its_outputs_and_state_then_resumes_exactly(laps, t
 
     paths = laps["paths"]
     monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(paths) + "\n"))
-    assert _main(["loops", "-", "--out", tmp_path / "full", *LOOSE]) == 0
+    assert _main(["loops", "-", "--out", tmp_path / "full", *ONE_BY_ONE]) == 0
     full = [json.loads(s) for s in capsys.readouterr().out.splitlines()]
-    p = _start(["loops", "-", "--out", tmp_path / "a", *LOOSE, "--state-out", tmp_path / "state.npz"])
+    p = _start(["loops", "-", "--out", tmp_path / "a", *ONE_BY_ONE, "--state-out", tmp_path / "state.npz"])
     first, err = _feed_then_stop(p, paths[:40], sig)
     assert p.returncode == code, err
     assert err.strip().splitlines()[-1] == said

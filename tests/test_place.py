@@ -2,29 +2,9 @@
 (vpr.shosm.Placement)."""
 import numpy as np
 import pytest
-import scipy.sparse as sp
 
-from vpr import sdr
+from tests.revisits import N_BITS, route_driven_again
 from vpr.shosm import LoopDetector, RshosmSeqConf, loop_evidence, place_closures
-
-N_BITS, K, ROUTE = 2048, 80, 300
-
-
-def _route_driven_again(speed: float, seed: int = 0):
-    """A first pass of ROUTE frames whose view changes a fifth of its bits a frame, then the same route again at
-    ``speed`` frames a frame, a third of every frame's bits moved; returns (SDR batch, each frame's place or -1)."""
-    rng = np.random.default_rng(seed)
-    route = [rng.choice(N_BITS, K, replace=False)]
-    for _ in range(ROUTE - 1):
-        row = route[-1].copy()
-        row[rng.choice(K, K // 5, replace=False)] = rng.choice(np.setdiff1d(np.arange(N_BITS), row), K // 5,
-                                                              replace=False)
-        route.append(row)
-    first = sp.csr_matrix((np.ones(ROUTE * K, bool), np.concatenate(route), np.arange(ROUTE + 1) * K),
-                          shape=(ROUTE, N_BITS))
-    places = np.arange(0, ROUTE, speed).astype(int)
-    again = sdr.add_noise(first[places], 0.35, seed=seed + 1)
-    return sp.vstack([first, again]).tocsr(), np.r_[np.full(ROUTE, -1), places]
 
 
 def _off(d, place) -> np.ndarray:
@@ -33,9 +13,9 @@ def _off(d, place) -> np.ndarray:
 
 
 def test_a_revisit_driven_faster_is_answered_at_its_place():
-    x, place = _route_driven_again(2.5)
-    lagging = loop_evidence(x, exclude=30, place_frames=0).decision
-    placed = loop_evidence(x, exclude=30).decision
+    x, place = route_driven_again(2.5)
+    lagging = loop_evidence(x, exclude=30, place_frames=0, backfill_frames=0).decision
+    placed = loop_evidence(x, exclude=30, backfill_frames=0).decision  # the closures the path rule took
     np.testing.assert_array_equal(placed.accepted, lagging.accepted)  # the same closures, answered again
     assert placed.accepted.sum() >= 100
     assert (_off(lagging, place) > 2).sum() >= 10  # the evidence's best frame lags behind the place
@@ -43,14 +23,14 @@ def test_a_revisit_driven_faster_is_answered_at_its_place():
 
 
 def test_at_the_first_pass_speed_nothing_is_placed():
-    x, _ = _route_driven_again(1.0)
+    x, _ = route_driven_again(1.0)
     a, b = loop_evidence(x, exclude=30, place_frames=0).decision, loop_evidence(x, exclude=30).decision
     np.testing.assert_array_equal(a.best, b.best)
     np.testing.assert_array_equal(a.accepted, b.accepted)
 
 
 def test_placing_decisions_taken_equals_the_stream_and_the_detector():
-    x, _ = _route_driven_again(2.5)
+    x, _ = route_driven_again(2.5)
     whole = {}
     for sessions in ([0], [0, 340]):
         raw = loop_evidence(x, exclude=30, place_frames=0, sessions=sessions).decision

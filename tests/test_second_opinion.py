@@ -202,7 +202,8 @@ def test_vpr_loops_decides_short_loops_with_geometry_by_default_and_online_alike
     # the path alone accepts none of this short revisit; geometry confirms most of it (the first frames are its run)
     assert not any(a for _, a in path_only) and "geometry" not in m_off
     by_geometry = m["geometry"]["accepted_by_geometry"]
-    assert by_geometry >= 12 and sum(a for _, a in rows) == by_geometry
+    # (with the frames that led up to its closures on their paths, accepted with them)
+    assert by_geometry >= 12 and sum(a for _, a in rows) >= by_geometry
     assert all(b == j - 40 for j, (b, a) in enumerate(rows) if a)
     # online, one frame at a time: the same answers; stopped after 45 frames and resumed: the same again
     assert online(paths, *loose[:-1]) == rows
@@ -215,7 +216,7 @@ def test_vpr_loops_decides_short_loops_with_geometry_by_default_and_online_alike
     for p in paths[:45]:
         Path(p).rename(p + ".gone")
     resumed = online(paths[45:], "--resume", str(state))
-    assert len(resumed) == 15 and not any(a for _, a in resumed)
+    assert len(resumed) == 60 - len(first) and not any(a for _, a in resumed)  # what waited in the state, then 15
     for p in paths[:45]:
         Path(p + ".gone").rename(p)
     with pytest.raises(MemoryFileError, match="saved with a second opinion"):

@@ -128,9 +128,11 @@ def test_a_loop_detector_of_two_speed_models_continues_from_its_file(tmp_path):
     d = LoopDetector(n_inputs=512, speeds="same+faster")
     for j in range(100):
         d.update(stream[j])
+    d.take_late()  # answers handed out before the save
     d.save(tmp_path / "s.npz")
     e = LoopDetector.load(tmp_path / "s.npz")
     assert isinstance(e.stream.engine, SpeedEngine)
     for j in range(100, stream.shape[0]):
-        a, b = d.update(stream[j]), e.update(stream[j])
-        assert (a.best, a.accepted, a.score) == (b.best, b.accepted, b.score)
+        got = [[r, *det.take_late()] for r, det in ((d.update(stream[j]), d), (e.update(stream[j]), e))]
+        a, b = ([(x.frame, x.best, x.accepted, x.score) for x in g if x is not None] for g in got)
+        assert a == b  # this frame's answer, or the frames' that waited for it

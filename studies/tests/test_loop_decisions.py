@@ -30,8 +30,11 @@ def test_count_splits_false_copy_and_true_closures():
     assert count(s, ev, alias, conf) == {"true": 0, "false": 4, "copy": 3, "frames": 0}
     s, ev, _ = _stream(forward=False)
     assert count(s, ev, None, conf) == {"true": 3, "false": 4, "copy": 0, "frames": 3}
-    # a path must build up: with min_score 20 only the third frame of each run (score 24) is accepted
-    assert count(s, ev, None, LoopConf(drift=1.0, min_score=20.0, island=5.0, confirm_frames=0))["true"] == 1
+    # a path must build up: with min_score 20 only the third frame of each run (score 24) is accepted, and the
+    # frames that led up to it on its path with it
+    build = {"drift": 1.0, "min_score": 20.0, "island": 5.0, "confirm_frames": 0}
+    assert count(s, ev, None, LoopConf(**build, backfill_frames=0))["true"] == 1
+    assert count(s, ev, None, LoopConf(**build))["true"] == 3
 
 
 def test_choose_takes_the_rule_without_false_closures_and_the_best_worst_recall():

@@ -1,4 +1,5 @@
 """rSHOSM: the sequence memory of Neubert, Ahmad and Protzel (KI 2018), and rSHOSM-seq, our graded evidence over it."""
+from .backfill import Backfill, backfill_closures
 from .conf import (
     DECISION_KEYS,
     DENSE_EVIDENCE_PAIRS,
@@ -54,4 +55,4 @@ __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pa
            "LoopRule", "LOOP_RULES", "loop_rule",
            "accept_loops", "accept_path", "stationary_closures", "Localizer", "Map", "LoopStream", "loop_evidence",
            "LOOP_UNCAPPED_MAX", "LoopDetector", "Confirmation", "confirm_closures",
-           "Placement", "place_closures"]
+           "Placement", "place_closures", "Backfill", "backfill_closures"]

@@ -214,6 +214,9 @@ class LoopConf(PathConf):
         place on their own (:class:`vpr.shosm.Confirmation`); 0: decided at once, nothing confirmed.
     confirm_z : float
         How many standard deviations over the other candidates those frames must put the closure's place.
+    backfill_frames : int >= 0
+        When a closure is accepted (and confirmed), the frames up to this many before it that led up to it on its path
+        are accepted with it (:class:`vpr.shosm.Backfill`); they wait meanwhile. 0: nothing accepted back.
     place_frames : int, 0 or >= 3
         An accepted closure is answered again with this many frames up to it where they read a revisit driven faster
         than the evidence follows (:class:`vpr.shosm.Placement`); 0: the evidence's answer stands.
@@ -224,6 +227,7 @@ class LoopConf(PathConf):
     stop_ratio: float = 0.35
     confirm_frames: int = 20
     confirm_z: float = 2.5
+    backfill_frames: int = 40
     place_frames: int = 20
 
     def __post_init__(self):
@@ -235,6 +239,9 @@ class LoopConf(PathConf):
             raise ValueError(f"confirm_frames must be an integer >= 0 (0: closures are not confirmed), got {v}")
         if not np.isfinite(float(self.confirm_z)):
             raise ValueError(f"confirm_z must be a finite z-score, got {self.confirm_z}")
+        v = self.backfill_frames
+        if isinstance(v, bool) or int(v) != v or int(v) < 0:
+            raise ValueError(f"backfill_frames must be an integer >= 0 (0: nothing accepted back), got {v}")
         v = self.place_frames
         if isinstance(v, bool) or int(v) != v or not (int(v) == 0 or int(v) >= 3):
             raise ValueError(f"place_frames must be 0 (closures are not placed) or an integer >= 3, got {v}")
@@ -246,7 +253,7 @@ class LoopConf(PathConf):
 
 
 #: The decision's keys of loop closure within one stream only.
-LOOP_ONLY_KEYS = ("stop_ratio", "confirm_frames", "confirm_z", "place_frames")
+LOOP_ONLY_KEYS = ("stop_ratio", "confirm_frames", "confirm_z", "backfill_frames", "place_frames")
 
 #: The decision's keys; left None in :class:`RshosmSeqConf`, a key takes the default of :class:`LoopConf` in one
 #: stream, of :class:`PathConf` against a map.

@@ -204,36 +204,49 @@ class Confirmation:
     # ------------------------------------------------------------- state
     def state(self) -> tuple[dict, dict]:
         """(header, arrays): the waiting decisions, with their columns (:meth:`load_state`)."""
-        ds = [d for d, _ in self.queue]
-        cols = [d.column for d in ds]
-        lens = [0 if c is None else c.rows.size for c in cols]
-        return ({"start": self.start, "has_column": [c is not None for c in cols]},
-                {"best": np.array([d.best for d in ds], np.int64), "score": np.array([d.score for d in ds]),
-                 "accepted": np.array([d.accepted for d in ds], bool), "margin": np.array([d.margin for d in ds]),
-                 "frame": np.array([d.frame for d in ds], np.int64),
-                 "verified": np.array([v for _, v in self.queue], bool),
-                 "col_ptr": np.r_[0, np.cumsum(lens)].astype(np.int64),
-                 "col_rows": np.concatenate([c.rows for c in cols if c is not None] + [np.zeros(0, np.int64)]),
-                 "col_z": np.concatenate([c.z for c in cols if c is not None] + [np.zeros(0, np.float32)]),
-                 "col_fill": np.array([np.nan if c is None else c.fill for c in cols]),
-                 "col_n": np.array([0 if c is None else c.n for c in cols], np.int64)})
+        header, arrays = decisions_state([d for d, _ in self.queue])
+        arrays["verified"] = np.array([v for _, v in self.queue], bool)
+        return {**header, "start": self.start}, arrays
 
     def load_state(self, header: dict, arrays: dict) -> Confirmation:
         """Continue from a :meth:`state` (raises ValueError on inconsistent arrays)."""
-        frame, ptr = np.asarray(arrays["frame"], np.int64), np.asarray(arrays["col_ptr"], np.int64)
-        has = list(header["has_column"])
-        if not (len(has) == frame.size == ptr.size - 1 and ptr[-1] == np.asarray(arrays["col_rows"]).size):
-            raise ValueError("confirmation state: the waiting decisions and their columns do not agree")
-        self.queue = deque()
-        for k in range(frame.size):
-            col = Column(np.asarray(arrays["col_rows"][ptr[k]:ptr[k + 1]], np.int64),
-                         np.asarray(arrays["col_z"][ptr[k]:ptr[k + 1]], np.float32), float(arrays["col_fill"][k]),
-                         int(arrays["col_n"][k]), int(frame[k])) if has[k] else None
-            self.queue.append((Decision(int(arrays["best"][k]), float(arrays["score"][k]), bool(arrays["accepted"][k]),
-                                        float(arrays["margin"][k]), int(frame[k]), col), bool(arrays["verified"][k])))
+        ds = decisions_of_state(header, arrays, "confirmation")
+        self.queue = deque(zip(ds, (bool(v) for v in arrays["verified"]), strict=True))
         self.start = int(header["start"])
         self._z.clear()
         return self
+
+
+def decisions_state(ds: list[Decision]) -> tuple[dict, dict]:
+    """(header, arrays) of decisions of single frames, with their columns (:func:`decisions_of_state`)."""
+    cols = [d.column for d in ds]
+    lens = [0 if c is None else c.rows.size for c in cols]
+    return ({"has_column": [c is not None for c in cols]},
+            {"best": np.array([d.best for d in ds], np.int64), "score": np.array([d.score for d in ds], np.float64),
+             "accepted": np.array([d.accepted for d in ds], bool),
+             "margin": np.array([d.margin for d in ds], np.float64), "frame": np.array([d.frame for d in ds], np.int64),
+             "col_ptr": np.r_[0, np.cumsum(lens)].astype(np.int64),
+             "col_rows": np.concatenate([c.rows for c in cols if c is not None] + [np.zeros(0, np.int64)]),
+             "col_z": np.concatenate([c.z for c in cols if c is not None] + [np.zeros(0, np.float32)]),
+             "col_fill": np.array([np.nan if c is None else c.fill for c in cols], np.float64),
+             "col_n": np.array([0 if c is None else c.n for c in cols], np.int64)})
+
+
+def decisions_of_state(header: dict, arrays: dict, what: str) -> list[Decision]:
+    """The decisions of a :func:`decisions_state` pair (raises ValueError naming ``what`` on inconsistent arrays)."""
+    frame, ptr = np.asarray(arrays["frame"], np.int64), np.asarray(arrays["col_ptr"], np.int64)
+    has = list(header["has_column"])
+    if not (len(has) == frame.size == ptr.size - 1 == np.asarray(arrays["best"]).size
+            and ptr[-1] == np.asarray(arrays["col_rows"]).size):
+        raise ValueError(f"{what} state: the waiting decisions and their columns do not agree")
+    out = []
+    for k in range(frame.size):
+        col = Column(np.asarray(arrays["col_rows"][ptr[k]:ptr[k + 1]], np.int64),
+                     np.asarray(arrays["col_z"][ptr[k]:ptr[k + 1]], np.float32), float(arrays["col_fill"][k]),
+                     int(arrays["col_n"][k]), int(frame[k])) if has[k] else None
+        out.append(Decision(int(arrays["best"][k]), float(arrays["score"][k]), bool(arrays["accepted"][k]),
+                            float(arrays["margin"][k]), int(frame[k]), col))
+    return out
 
 
 def confirm_closures(decision: Decision, sdr, exclude: int, conf=None, sessions=(0,), verified=None,

@@ -17,7 +17,7 @@ from .state import MemoryFileError, read_file, write_file
 __all__ = ["LoopDetector"]
 
 _FORMAT = "vpr.LoopDetector"
-_FORMAT_VERSION = 4
+_FORMAT_VERSION = 5
 
 
 def _is_sdr(x) -> bool:

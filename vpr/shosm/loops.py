@@ -10,6 +10,7 @@ from vpr.checks import check_exclude, check_top_k
 from vpr.similarity import fits_dense, n_candidates
 from vpr.types import Decider, Decision
 
+from .backfill import Backfill
 from .conf import LOOP_EXCLUDE, RshosmSeqConf
 from .confirm import Confirmation
 from .decide import loop_rule
@@ -53,6 +54,7 @@ class LoopStream:
         stay, skip = self.seq.evidence.costs
         self.confirmation = Confirmation(loop.confirm_frames, loop.confirm_z, self.exclude, stay, skip,
                                          self.mem.n_inputs)
+        self.backfill = Backfill(loop.backfill_frames, loop.back, loop.ahead, self.decider.accept_score)
         self.placement = Placement(loop.place_frames, self.exclude, loop.back, loop.ahead, self.mem.n_inputs)
         self._rows = _sdr.RowLog()  # the stream's SDR rows, where the decider keeps none
         self.starts = [0]  # the first frame of every session
@@ -82,27 +84,30 @@ class LoopStream:
         self.engine.reset()
         self.decider.new_session()
         self.starts.append(self.frames)
-        return self._final(self.confirmation.end_session(self.rows, self.frames))
+        return self._final(self.confirmation.end_session(self.rows, self.frames), end=True)
 
     def finish(self) -> list[Decision]:
-        """The stream ends: the decisions of the closures still waiting, confirmed with the frames they have."""
-        return self._final(self.confirmation.settle(self.rows, self.frames))
+        """The stream ends: the decisions of the frames still waiting, confirmed with the frames they have."""
+        return self._final(self.confirmation.settle(self.rows, self.frames), end=True)
 
-    def _final(self, ds: list[Decision]) -> list[Decision]:
-        """Decisions leaving the confirmation, their closures placed (:class:`Placement`)."""
+    def _final(self, ds: list[Decision], end: bool = False) -> list[Decision]:
+        """Decisions leaving the confirmation, the frames leading up to a confirmed closure accepted with it
+        (:class:`Backfill`; ``end``: the session ends, nothing waits on), the closures placed (:class:`Placement`)."""
+        ds = self.backfill.push(ds) + (self.backfill.flush() if end else [])
         return self.placement(ds, self.rows, self.starts) if ds else ds
 
     @property
     def waiting(self) -> int:
         """Frames decided by the rule whose decisions are not final yet."""
-        return len(self.confirmation.queue)
+        return len(self.confirmation.queue) + len(self.backfill.held)
 
     def step(self, sdr_row) -> tuple[np.ndarray, list[Decision]]:
         """Learn the next frame (SDR row: 1-row batch, dense row or bit indices), score and decide it.
 
         Returns its winner cells and the decisions final now (each with its column over the candidates), in frame
-        order: this frame's, unless it or an earlier one waits for the frames after it (:class:`Confirmation`); an
-        accepted closure answered where the frames up to it place it (:class:`Placement`).
+        order: this frame's, unless it or an earlier one waits for the frames after it (:class:`Confirmation`) or on
+        a path that a later closure may accept with it (:class:`Backfill`); an accepted closure answered where the
+        frames up to it place it (:class:`Placement`).
         """
         bits = _sdr.row_bits(sdr_row, self.mem.n_inputs, name="frame SDR")
         j = self.frames
@@ -123,7 +128,7 @@ class LoopStream:
     def state(self) -> tuple[dict, dict]:
         """(header, arrays): the memory, the graph, the evidence and the decisions so far (:meth:`load_state`)."""
         header, arrays = joint_state(mem=self.mem, graph=self.graph, engine=self.engine, dec=self.decider,
-                                     confirm=self.confirmation)
+                                     confirm=self.confirmation, backfill=self.backfill)
         if self.decider.rows is None:
             arrays.update(sdr_ptr=self._rows.ptr.copy(), sdr_ind=self._rows.ind.copy())
         header.update(exclude=self.exclude, seq=self.seq.flat(), caps=self.caps, frames=self.frames,
@@ -138,6 +143,7 @@ class LoopStream:
             *part_state(header, arrays, "engine"))
         self.decider.load_state(*part_state(header, arrays, "dec"))
         self.confirmation.load_state(*part_state(header, arrays, "confirm"))
+        self.backfill.load_state(*part_state(header, arrays, "backfill"))
         if "sdr_ptr" in arrays:
             self._rows = _sdr.RowLog(arrays["sdr_ptr"], arrays["sdr_ind"])
         self.frames, self.starts = int(header["frames"]), [int(v) for v in header["starts"]]
