@@ -150,12 +150,13 @@ def _run(job: Online, src, out: Path, stdout, state_out, claim: contextlib.ExitS
     told = 0
     taken = None  # (input line, name) of the last frame or #session taken in whole: a stop goes on after it
 
-    from_state = [job.waiting_in_state()]  # frames read before a restart, answered first: no entry in ``waiting``
+    from_state = job.waiting_in_state()  # frames read before a restart, answered first: no entry in ``waiting``
 
     def answered(got) -> None:
+        nonlocal from_state
         for d in ([] if got is None else [got] if isinstance(got, Decision) else got):
-            if from_state[0]:
-                from_state[0] -= 1
+            if from_state:
+                from_state -= 1
                 name, index, ms, ms_dec = job.name_of(d.frame), -1, 0.0, 0.0
             else:
                 name, index, ms, ms_dec = waiting.pop(0)

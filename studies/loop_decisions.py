@@ -101,14 +101,20 @@ def aliases(name: str) -> np.ndarray | None:
     return out
 
 
-def decide(stream, ev, conf: LoopConf):
-    """The stream's decisions under ``conf`` as ``vpr loops`` takes them: the path rule, then its closures confirmed by
-    the frames after them (``conf.confirm_frames``; the frames' standardised overlaps kept on the stream), the frames
-    leading up to them accepted with them (``conf.backfill_frames``) and placed by the frames up to them
-    (``conf.place_frames``)."""
+def confirmed(stream, ev, conf: LoopConf):
+    """The stream's decisions under ``conf``'s path rule, its closures confirmed by the frames after them
+    (``conf.confirm_frames``; the frames' standardised overlaps kept on the stream)."""
     d = accept_loops(ev, conf, sdr=stream.x)
-    if conf.confirm_frames:
-        d = confirm_closures(d, stream.x, EXCLUDE, conf.as_dict(), scored=stream.scored)
+    if not conf.confirm_frames:
+        return d
+    return confirm_closures(d, stream.x, EXCLUDE, conf.as_dict(), scored=stream.scored)
+
+
+def decide(stream, ev, conf: LoopConf):
+    """The stream's decisions under ``conf`` as ``vpr loops`` takes them: :func:`confirmed`, the frames leading up
+    to a confirmed closure accepted with it (``conf.backfill_frames``), the closures placed by the frames up to them
+    (``conf.place_frames``)."""
+    d = confirmed(stream, ev, conf)
     if conf.backfill_frames:
         d = backfill_closures(d, conf.backfill_frames, conf.back, conf.ahead, conf.min_score)
     return place_closures(d, stream.x, EXCLUDE, conf.as_dict()) if conf.place_frames else d
@@ -117,9 +123,7 @@ def decide(stream, ev, conf: LoopConf):
 def backfill_waits(stream, ev, conf: LoopConf) -> np.ndarray:
     """Per frame, how many frames its decision waits online in :class:`vpr.shosm.Backfill` (after the
     confirmation; 0: it leaves at once)."""
-    d = accept_loops(ev, conf, sdr=stream.x)
-    if conf.confirm_frames:
-        d = confirm_closures(d, stream.x, EXCLUDE, conf.as_dict(), scored=stream.scored)
+    d = confirmed(stream, ev, conf)
     b, T = Backfill(conf.backfill_frames, conf.back, conf.ahead, conf.min_score), len(d.best)
     wait = np.zeros(T, np.int64)
     for j in range(T):

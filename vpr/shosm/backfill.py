@@ -49,9 +49,8 @@ class Backfill:
     def _one(self, d: Decision, out: list) -> None:
         if self.held and not self._continues(self.held[-1], d):
             out.extend(self.flush())
-        if d.accepted:
-            out.extend(Decision(h.best, h.score, True, h.margin, h.frame, h.column)
-                       if int(d.frame) - int(h.frame) <= self.frames else h for h in self.flush())
+        if d.accepted:  # every frame still held is within ``frames`` of it (older ones left below)
+            out.extend(Decision(h.best, h.score, True, h.margin, h.frame, h.column) for h in self.flush())
             out.append(d)
             return
         while self.held and int(d.frame) - int(self.held[0].frame) >= self.frames:

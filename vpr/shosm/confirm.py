@@ -13,8 +13,8 @@ from vpr.types import Column, Decision
 
 from .kernels import confirm as KC
 
-__all__ = ["Confirmation", "Columns", "ahead_scores", "confirm_closures", "look_ahead_z", "standardised_overlaps",
-           "warm_up"]
+__all__ = ["Confirmation", "Columns", "ahead_scores", "confirm_closures", "decisions_of_state", "decisions_state",
+           "look_ahead_z", "standardised_overlaps", "warm_up"]
 
 #: The frames' columns (bit -> frames) are kept in blocks of this many frames, each built once it is whole (the
 #: newer frames are read row by row).
