@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 
 from vpr.imageproc import to_bgr
+from vpr.interrupts import import_held
 
 from .base import as_image_list
 from .projection import ProjectedEncoder
@@ -103,7 +104,7 @@ class CnnEncoder(ProjectedEncoder):
 
     def __init__(self, **conf):
         super().__init__(**conf)
-        import onnxruntime as ort
+        ort = import_held("onnxruntime")  # its extension turns a Ctrl-C while it loads into an ImportError
 
         c = self.conf
         if c["pooling"] not in _POOLING:

@@ -31,7 +31,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from vpr.interrupts import Terminated, on_sigterm
+from vpr.interrupts import Terminated, import_held, on_sigterm, stopped_import
 
 __all__ = ["MODULES", "commands", "build_parser", "main"]
 
@@ -77,7 +77,8 @@ def build_parser(only: str | None = None, table: dict | None = None) -> argparse
     for cmd, (module, help_) in table.items():
         p = sub.add_parser(cmd, help=help_, description=help_)
         if only is None or cmd == only:
-            importlib.import_module(module).add_arguments(p, cmd)
+            # NumPy, OpenCV, numba load here: a stop while they load is held, not lost in their loaders
+            import_held(module).add_arguments(p, cmd)
     return ap
 
 
@@ -187,6 +188,10 @@ def main(argv=None) -> int:
             # read-only or full file system, permissions, missing files: the path and the reason
             print(f"{command}: error: {_os_error_line(e)}", file=sys.stderr)
             return 2
+        except ImportError as e:  # a library loaded lazily (e.g. onnxruntime) stopped while it loaded
+            if stopped_import(e):
+                raise KeyboardInterrupt from e
+            raise
     except Terminated:
         print("vpr: terminated", file=sys.stderr)
         return 143

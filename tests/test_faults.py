@@ -362,6 +362,21 @@ def test_ctrl_c_right_after_start(scene, tmp_path):
     assert err.strip() == "vpr: interrupted"
 
 
+def test_ctrl_c_while_a_library_loads_lazily_is_an_interrupt(scene, tmp_path, monkeypatch, capsys):
+    import encoders.cnn
+
+    def stopped(name):  # what onnxruntime's extension raises when Ctrl-C comes while it initialises
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as e:
+            raise ImportError("initialization failed") from e
+
+    monkeypatch.setattr(encoders.cnn, "import_held", stopped)
+    assert main(["match", str(scene["db"]), str(scene["q"]), "--out", str(tmp_path / "o")]) == 130
+    assert capsys.readouterr().err.strip() == "vpr: interrupted"
+    assert not (tmp_path / "o").exists()
+
+
 # ------------------------------------------------------------ interrupted runs, corrupt cache
 def _check_complete(out: Path, n_db: int, n_q: int) -> None:
     """Every file present is whole; no temporary file is left."""

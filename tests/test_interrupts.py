@@ -4,7 +4,7 @@ import signal
 
 import pytest
 
-from vpr.interrupts import Terminated, deferred, on_sigterm
+from vpr.interrupts import Terminated, deferred, import_held, on_sigterm, stopped_import
 
 
 @pytest.fixture
@@ -67,3 +67,28 @@ def test_no_signal_no_change(sigterm_raises):
     with deferred():
         x = 1
     assert x == 1
+
+
+def test_a_stop_a_loader_swallows_is_raised_once_the_module_is_loaded(tmp_path, monkeypatch):
+    # a loader with a bare except (as OpenCV's): the stop that came while it ran is lost without the hold
+    (tmp_path / "swallows_a_stop.py").write_text(
+        "import signal\ntry:\n    signal.raise_signal(signal.SIGINT)\n    for _ in range(1000): pass\n"
+        "except:\n    pass\nLOADED = True\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import sys
+
+    with pytest.raises(KeyboardInterrupt):
+        import_held("swallows_a_stop")
+    assert sys.modules.pop("swallows_a_stop").LOADED
+
+
+def test_an_import_error_raised_by_a_stop_is_told_apart():
+    try:
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as e:
+            raise ImportError("initialization failed") from e
+    except ImportError as e:
+        assert stopped_import(e)
+    assert not stopped_import(ImportError("No module named 'onnxruntime'"))
+    assert not stopped_import(KeyboardInterrupt())

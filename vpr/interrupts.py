@@ -2,12 +2,13 @@
 from __future__ import annotations
 
 import contextlib
+import importlib
 import os
 import signal
 import sys
 import threading
 
-__all__ = ["Terminated", "on_sigterm", "deferred"]
+__all__ = ["Terminated", "on_sigterm", "deferred", "import_held", "stopped_import"]
 
 
 class Terminated(KeyboardInterrupt):
@@ -76,3 +77,26 @@ def deferred(signums=(signal.SIGINT, signal.SIGTERM)):
             signal.signal(s, h)
     if got:
         _deliver(got[0], saved[got[0]])
+
+
+def import_held(name: str):
+    """Import module ``name`` (and what it imports) with Ctrl-C and SIGTERM held until it is loaded; returns it.
+
+    Some libraries' loaders lose a stop that comes while they load: a bare ``except:`` (OpenCV's) swallows it,
+    and an extension module's initialisation turns it into ``ImportError: initialization failed`` (pybind11,
+    NumPy's C API). Held, the stop is raised once the import is done.
+    """
+    with deferred():
+        return importlib.import_module(name)
+
+
+def stopped_import(exc: BaseException) -> bool:
+    """Whether ``exc`` is an ``ImportError`` that a stop (Ctrl-C, SIGTERM) raised while a module loaded."""
+    seen = set()
+    e = exc if isinstance(exc, ImportError) else None
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
