@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from tests.revisits import route_driven_again
-from vpr.shosm import Backfill, RshosmSeqConf, backfill_closures, loop_evidence
+from vpr.shosm import Backfill, LoopConf, RshosmSeqConf, backfill_closures, loop_evidence
 from vpr.types import Decision
 
 
@@ -48,7 +48,8 @@ def test_a_revisit_is_accepted_from_its_first_frames_and_the_replay_equals_the_s
     sessions = [0, 450]  # nothing waits across a session's start
     raw = loop_evidence(x, exclude=30, backfill_frames=0, place_frames=0, sessions=sessions).decision
     whole = loop_evidence(x, exclude=30, place_frames=0, sessions=sessions).decision
-    again = backfill_closures(raw, 40, 4, 6, 24.0, sessions=sessions)
+    c = LoopConf()
+    again = backfill_closures(raw, c.backfill_frames, c.back, c.ahead, c.min_score, sessions=sessions)
     np.testing.assert_array_equal(again.accepted, whole.accepted)
     np.testing.assert_array_equal(again.best, whole.best)
 

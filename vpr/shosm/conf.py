@@ -222,8 +222,8 @@ class LoopConf(PathConf):
         than the evidence follows (:class:`vpr.shosm.Placement`); 0: the evidence's answer stands.
     """
 
-    drift: float = 1.5
-    min_score: float = 24.0
+    drift: float = 1.25
+    min_score: float = 28.0
     stop_ratio: float = 0.35
     confirm_frames: int = 20
     confirm_z: float = 2.5
