@@ -150,7 +150,7 @@ def decide(S, fill, n_of, nov, h, back=4, ahead=6, sdr=None, stop_ratio=0.35, ex
         near = exclude is not None and b >= n - 1 - ahead
         accepted = score >= h and not near
         if accepted and ptr is not None and stop_ratio > 0:
-            accepted = not stationary(ptr, ind, b, j, stop_ratio)
+            accepted = not stationary(ptr, ind, b, j, stop_ratio, x.shape[1])
         ok[j] = accepted
     return best, ev, ok
 

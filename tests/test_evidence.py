@@ -7,7 +7,7 @@ import scipy.sparse as sp
 
 from vpr import groundtruth, sdr, simulate
 from vpr import shosm as ev
-from vpr.shosm import BeamConf, EvidenceConf, LoopConf, SequenceMemory, confirm_closures
+from vpr.shosm import BeamConf, EvidenceConf, LoopConf, LoopDecider, SequenceMemory, confirm_closures
 from vpr.types import EncodedTraverse
 
 
@@ -452,6 +452,28 @@ def test_a_closure_onto_a_place_never_left_is_a_stop():
         LoopConf(stop_ratio=1.5)
     with pytest.raises(ValueError, match="one entry per frame"):
         ev.stationary_closures(x, best[:-1], acc)
+
+
+def test_a_closure_sharing_little_beyond_chance_is_no_stop():
+    # 200 bits of 2,048: two unrelated frames share about 20 by chance. Frame 29 shares 24 with frame 0 (a weak view
+    # of it) and chance with every frame between: the camera drove on; counted raw, every frame in between would
+    # keep the 0.35 x 24 bits of a stop
+    rng = np.random.default_rng(1)
+    rows = [np.sort(rng.choice(2048, 200, replace=False)) for _ in range(29)]
+    rest = rng.choice(np.setdiff1d(np.arange(2048), rows[0]), 176, replace=False)
+    rows.append(np.sort(np.concatenate([rows[0][:24], rest])))
+    x = sdr.from_indices(rows, 2048)
+    raw = [len(np.intersect1d(r, rows[-1])) for r in rows[1:-1]]
+    assert min(raw) >= 0.35 * 24  # what the raw overlap reads as a stop
+    best, acc = np.full(30, -1), np.zeros(30, bool)
+    best[29], acc[29] = 0, True
+    assert not ev.stationary_closures(x, best, acc)[29]
+    stood = sdr.from_indices([rows[0]] * 10 + [rows[0][:190]], 2048)  # the same view, then 10 bits fewer
+    best, acc = np.full(11, -1), np.zeros(11, bool)
+    best[10], acc[10] = 0, True
+    assert ev.stationary_closures(stood, best, acc)[10]
+    with pytest.raises(ValueError, match="width"):
+        LoopDecider(LoopConf())  # the stop check without the SDRs' width
 
 
 def test_loop_evidence_caps_the_beam_only_beyond_the_dense_output():

@@ -42,7 +42,7 @@ def test_candidates_hold_exclude_within_a_session_only():
 
 def test_a_path_does_not_move_on_across_a_session_boundary():
     def run(new_sessions):
-        d = LoopDecider(RshosmSeqConf.build({"drift": 0.5, "min_score": 1e9}).loop(), capacity=400)
+        d = LoopDecider(RshosmSeqConf.build({"drift": 0.5, "min_score": 1e9}).loop(), n_bits=256, capacity=400)
         scores = []
         for j in range(260):
             if j in new_sessions:

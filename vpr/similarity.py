@@ -283,19 +283,22 @@ def _overlap(ptr, ind, a, b):
 
 
 @njit(cache=True)
-def stationary(ptr, ind, b, j, ratio):  # pragma: no cover - compiled
-    """Whether the camera never left place ``b`` before frame ``j`` (rows of a batch's sorted CSR ``ptr``, ``ind``).
+def stationary(ptr, ind, b, j, ratio, n_bits):  # pragma: no cover - compiled
+    """Whether the camera never left place ``b`` before frame ``j`` (rows of a batch's sorted CSR ``ptr``, ``ind``, of
+    ``n_bits`` columns).
 
     A loop closure means the camera went elsewhere and came back: some frame between ``b`` and ``j`` shares fewer than
     ``ratio`` times the bits ``b`` shares with ``j``. When every frame in between keeps at least that much, the
-    vehicle stood still or crept (a station, a traffic light): a stop, not a loop. Frames that share nothing are not
-    one place.
+    vehicle stood still or crept (a station, a traffic light): a stop, not a loop. Bits are counted beyond what two
+    rows share by chance (``|row k| * |row j| / n_bits``): frames that share nothing beyond it are not one place, and
+    the chance overlap every frame has with ``j`` is no sign that the camera stood.
     """
-    o_b = _overlap(ptr, ind, b, j)
-    if o_b == 0:
+    size_j = ptr[j + 1] - ptr[j]
+    e_b = _overlap(ptr, ind, b, j) - (ptr[b + 1] - ptr[b]) * size_j / n_bits
+    if e_b <= 0.0:
         return False
     for k in range(b + 1, j):
-        if _overlap(ptr, ind, k, j) < ratio * o_b:
+        if _overlap(ptr, ind, k, j) - (ptr[k + 1] - ptr[k]) * size_j / n_bits < ratio * e_b:
             return False
     return True
 

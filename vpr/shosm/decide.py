@@ -63,15 +63,18 @@ class PathDecider(Decider):
 class LoopRule(Decider):
     """The contract of a loop-closure rule: decides frame ``column.frame`` of one stream (columns in order) as a
     closure onto an earlier frame or a new place. Registered by name in :data:`LOOP_RULES`, chosen with
-    ``rshosm-seq.loop_rule``, built as ``Rule(loop, path, sdr)``: the :class:`LoopConf`, the :class:`PathConf` of a
-    later session's frames against the earlier ones, and the stream's SDRs at once (else :meth:`add_sdr`).
+    ``rshosm-seq.loop_rule``, built as ``Rule(loop, path, sdr, n_bits=...)``: the :class:`LoopConf`, the
+    :class:`PathConf` of a later session's frames against the earlier ones, the stream's SDRs at once (else
+    :meth:`add_sdr`) and their width (``n_bits``; that of ``sdr`` where it is given).
     """
 
-    def __init__(self, loop: LoopConf | None = None, path: PathConf | None = None, sdr=None):
+    def __init__(self, loop: LoopConf | None = None, path: PathConf | None = None, sdr=None,
+                 n_bits: int | None = None):
         self.loop = loop or LoopConf()
         self.path = path or PathConf()
         self.starts = np.zeros(1, np.int64)
         self.frames = 0
+        self.n_bits = int(sdr.shape[1]) if sdr is not None else None if n_bits is None else int(n_bits)
 
     @property
     def accept_score(self) -> float:
@@ -94,13 +97,15 @@ class LoopDecider(LoopRule):
     """
 
     def __init__(self, loop: LoopConf | None = None, path: PathConf | None = None, sdr=None,
-                 capacity: int = 1024):
-        super().__init__(loop, path, sdr)
+                 n_bits: int | None = None, capacity: int = 1024):
+        super().__init__(loop, path, sdr, n_bits)
         self.map_rule = PathDecider(self.path)  # against the earlier sessions
         self.place = np.arange(capacity, dtype=np.int64)
         self.path_b = np.full(capacity, -1, np.int64)
         self.st = KD.path_state()
         self._stops = float(self.loop.stop_ratio) > 0
+        if self._stops and (self.n_bits is None or self.n_bits < 1):
+            raise ValueError("the stop check (stop_ratio > 0) needs the SDRs' width: give sdr or n_bits")
         self._rule = self.loop.rule
         x = None if sdr is None else _sdr.check_batch(sdr, name="sdr")
         self._rows = _sdr.RowLog() if x is None else _sdr.RowLog(x.indptr, x.indices)
@@ -132,7 +137,7 @@ class LoopDecider(LoopRule):
         vals = column.z.astype(np.float64)
         best, score, ok, margin, _ = KD.decide_frame(
             j, (column.rows, vals, int(column.n), float(column.fill)), self._rule,
-            (self._rows.ptr, self._rows.ind, self.place, self.path_b, self.st, self.starts))
+            (self._rows.ptr, self._rows.ind, self.place, self.path_b, self.st, self.starts, self.n_bits or 1))
         start = int(self.starts[-1])
         if start > 0 and not ok:  # a later session: its frame against the earlier ones, as against a map
             keep = column.rows < start
@@ -282,5 +287,5 @@ def stationary_closures(sdr, best, accepted, ratio: float = 0.35) -> np.ndarray:
     ptr, ind = x.indptr.astype(np.int64), x.indices.astype(np.int64)
     out = np.zeros(x.shape[0], bool)
     for j in np.flatnonzero(accepted & (best >= 0)):
-        out[j] = stationary(ptr, ind, int(best[j]), int(j), ratio)
+        out[j] = stationary(ptr, ind, int(best[j]), int(j), ratio, x.shape[1])
     return out

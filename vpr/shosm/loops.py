@@ -47,7 +47,8 @@ class LoopStream:
         self.mem = SequenceMemory(**self.seq.memory_params)
         self.graph = Graph.growing(self.mem)
         self.engine = make_engine(self.graph, self.seq.evidence, self.seq.beam)
-        self.decider: Decider = loop_rule(self.seq.loop_rule)(self.seq.loop(), self.seq.path(between_sessions=True))
+        self.decider: Decider = loop_rule(self.seq.loop_rule)(self.seq.loop(), self.seq.path(between_sessions=True),
+                                                              n_bits=self.mem.n_inputs)
         if opinion is not None:
             self.decider = opinion(self.decider)
         loop = self.seq.loop()

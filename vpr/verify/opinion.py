@@ -203,7 +203,7 @@ class GeometricOpinion(Decider):
         check); from there on the path is tracked (``keep_inliers``)."""
         rows = self.rows
         if self.stop_ratio > 0 and rows is not None and self._same_session(b, j):
-            if stationary(rows.ptr, rows.ind, b, j, self.stop_ratio):
+            if stationary(rows.ptr, rows.ind, b, j, self.stop_ratio, self.decider.n_bits):
                 self._tracking = False
                 return d
         self.accepted += 1
@@ -257,6 +257,7 @@ class _Replay(Decider):
     def __init__(self, d: Decision, starts, accept_score: float, x):
         self.d, self.starts, self._accept = d, np.asarray(starts, np.int64), float(accept_score)
         self._rows = _sdr.RowLog(x.indptr, x.indices)
+        self.n_bits = int(x.shape[1])
         self.frames = 0
 
     @property

@@ -90,12 +90,12 @@ def decide_frame(j, column, rule, stream):  # pragma: no cover - compiled
 
     ``column``: (rows, vals, n, fill), candidates ``0 .. n - 1``, rows sorted, ``fill`` the z of one not stored;
     ``rule``: :class:`vpr.shosm.LoopConf`'s; ``stream``: (sdr_ptr, sdr_ind (empty: no stop check), place (each frame's
-    place), path_b (each frame's best candidate), st (:data:`PATH_STATE`), starts). Returns (best, score, accepted,
-    margin, near).
+    place), path_b (each frame's best candidate), st (:data:`PATH_STATE`), starts, n_bits (the SDRs' width)). Returns
+    (best, score, accepted, margin, near).
     """
     rows, vals, n, fill = column
     drift, min_score, back, ahead, island, stop_ratio = rule
-    sdr_ptr, sdr_ind, place, path_b, st, starts = stream
+    sdr_ptr, sdr_ind, place, path_b, st, starts, n_bits = stream
     p = st[0]
     s_j = session_of(starts, j)
     newest = n - 1 if n - 1 >= starts[s_j] else -1  # the current session's newest candidate, if any
@@ -126,7 +126,7 @@ def decide_frame(j, column, rule, stream):  # pragma: no cover - compiled
     p.score = score
     ok = score >= min_score and not near
     if ok and stop_ratio > 0.0 and sdr_ptr.shape[0] > j and session_of(starts, b) == s_j:  # within one run only
-        ok = not stationary(sdr_ptr, sdr_ind, b, j, stop_ratio)
+        ok = not stationary(sdr_ptr, sdr_ind, b, j, stop_ratio, n_bits)
     if score > 0.0 and not near and place[j] == j:  # a frame on a path is (provisionally) the place it matched
         place[j] = place[b]
     return b, score, ok, zb - zo, near
