@@ -43,6 +43,7 @@ def _same(a: dict, b: dict) -> None:
         assert a[k][1:] == b[k][1:], k
 
 
+@pytest.mark.slow
 def test_serial_fleet_equals_one_run_per_query(fleet_data, tmp_path):
     gt = GroundTruthSpec(files=(str(fleet_data["gt"]),), radius=3.0, soft=10.0)
     queries = fleet_data["queries"][:2]  # both traverses of the scene's ground truth

@@ -67,6 +67,7 @@ def test_a_scene_never_out_of_sight_is_no_loop():
     assert rep["frames_verified"] > 0 and not d.accepted.any()
 
 
+@pytest.mark.slow
 def test_a_path_geometry_accepted_is_tracked_through_blind_and_weaker_frames():
     imgs, best, x = _stream()
     imgs[45] = np.zeros_like(imgs[45])  # blind: no keypoints
