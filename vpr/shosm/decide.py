@@ -90,7 +90,8 @@ class LoopDecider(LoopRule):
     """The path rule of one stream, frame by frame (:class:`vpr.shosm.LoopConf`; ``LOOP_RULES["path"]``).
 
     The stop check reads the stream's SDRs, given frame by frame with
-    :meth:`add_sdr` (or all at once with ``sdr``). :meth:`new_session` starts
+    :meth:`add_sdr` (or all at once with ``sdr``), and their width ``n_bits`` (``sdr``'s where it is given; raises
+    ValueError where the check is on and neither is). :meth:`new_session` starts
     a new run of the robot: the path restarts, and never moves on across the boundary. A frame of a later session is
     also decided against the earlier sessions by a :class:`PathDecider` (``path``), as ``vpr localize`` decides
     against a map: a robot's second run over its first is localisation; either decision accepts.
