@@ -22,16 +22,16 @@ from __future__ import annotations
 import argparse
 import ast
 import contextlib
+import gc
 import importlib
 import importlib.util
 import os
 import re
-import signal
 import sys
 import warnings
 from pathlib import Path
 
-from vpr.interrupts import Terminated, import_held, on_sigterm, stopped_import
+from vpr.interrupts import Terminated, import_held, on_sigterm, restore, stopped_import
 
 __all__ = ["MODULES", "commands", "build_parser", "main"]
 
@@ -149,6 +149,7 @@ def main(argv=None) -> int:
     saved_format = warnings.formatwarning
     warnings.formatwarning = _format_warning
     saved_term = on_sigterm()
+    stopped = False
     command = "vpr"
     try:
         table = commands()
@@ -194,15 +195,17 @@ def main(argv=None) -> int:
             raise
     except Terminated:
         print("vpr: terminated", file=sys.stderr)
+        stopped = True
         return 143
     except KeyboardInterrupt:
         print("vpr: interrupted", file=sys.stderr)
+        stopped = True
         return 130
     finally:
         warnings.formatwarning = saved_format
-        if saved_term is not None:
-            signal.signal(signal.SIGTERM, saved_term[0])
-            sys.unraisablehook = saved_term[1]
+        if stopped:  # what the stop cut short is finalised now, while its errors are known to be the stop's
+            gc.collect()
+        restore(saved_term)
 
 
 if __name__ == "__main__":

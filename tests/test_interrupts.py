@@ -4,17 +4,15 @@ import signal
 
 import pytest
 
-from vpr.interrupts import Terminated, deferred, import_held, on_sigterm, stopped_import
+from vpr.interrupts import Terminated, deferred, import_held, on_sigterm, restore, stopped_import
 
 
 @pytest.fixture
 def sigterm_raises():
-    import sys
 
-    handler, hook = on_sigterm()
+    saved = on_sigterm()
     yield
-    signal.signal(signal.SIGTERM, handler)
-    sys.unraisablehook = hook
+    restore(saved)
 
 
 def test_a_stop_inside_a_finalizer_is_sent_again(sigterm_raises, capsys):
@@ -92,3 +90,42 @@ def test_an_import_error_raised_by_a_stop_is_told_apart():
         assert stopped_import(e)
     assert not stopped_import(ImportError("No module named 'onnxruntime'"))
     assert not stopped_import(KeyboardInterrupt())
+
+
+def test_a_finalizer_failing_after_a_stop_is_not_reported(monkeypatch):
+    import sys
+    import time
+
+    class HalfBuilt:  # a library's wrapper whose constructor the stop cut short: its __del__ fails
+        def __del__(self):
+            raise AttributeError("'HalfBuilt' object has no attribute '_ptr'")
+
+    seen = []
+    monkeypatch.setattr(sys, "unraisablehook", lambda u: seen.append(u.exc_type))
+    saved = on_sigterm()
+    try:
+        HalfBuilt()  # before any stop: reported, as ever
+        assert seen == [AttributeError]
+        with pytest.raises(Terminated):
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(2)
+        HalfBuilt()
+        assert seen == [AttributeError]
+    finally:
+        restore(saved)
+    HalfBuilt()  # the run's hooks put back: reported again
+    assert seen == [AttributeError, AttributeError]
+
+
+def test_ctrl_c_is_noted_as_a_stop_and_put_back():
+    before = signal.getsignal(signal.SIGINT)
+    saved = on_sigterm()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            signal.raise_signal(signal.SIGINT)
+            import time
+
+            time.sleep(2)
+    finally:
+        restore(saved)
+    assert signal.getsignal(signal.SIGINT) is before

@@ -8,23 +8,37 @@ import signal
 import sys
 import threading
 
-__all__ = ["Terminated", "on_sigterm", "deferred", "import_held", "stopped_import"]
+__all__ = ["Terminated", "on_sigterm", "restore", "deferred", "import_held", "stopped_import"]
 
 
 class Terminated(KeyboardInterrupt):
     """SIGTERM, handled as Ctrl-C: what is being written is dropped (atomic writes), one line, status 143."""
 
 
+class _Stop:
+    """Whether a stop was raised by the handlers of :func:`on_sigterm` since they were installed."""
+
+    raised = False
+
+
 def _raise_terminated(signum, frame):
+    _Stop.raised = True
     raise Terminated()
+
+
+def _raise_interrupt(signum, frame):
+    _Stop.raised = True
+    raise KeyboardInterrupt()
 
 
 def _stop_again(hook):
     """``sys.unraisablehook`` that sends again a stop raised inside a finalizer or weakref callback (where Python
-    drops it with a traceback): a run stopped there must still stop, with one line."""
+    drops it with a traceback): a run stopped there must still stop, with one line. Once a stop was raised, the
+    errors of finalizers are dropped: an object the stop cut short while it was built (a library's half-made
+    wrapper) fails in its ``__del__``, a traceback after the run's one line."""
     def handle(u):
         if not isinstance(u.exc_value, KeyboardInterrupt):
-            return hook(u)
+            return None if _Stop.raised else hook(u)
         again = signal.SIGTERM if isinstance(u.exc_value, Terminated) else signal.SIGINT
         timer = threading.Timer(0.01, signal.raise_signal, (again,))
         timer.daemon = True  # never keeps a finished process alive to signal it
@@ -33,14 +47,31 @@ def _stop_again(hook):
 
 
 def on_sigterm():
-    """Handle SIGTERM as an interrupt (main thread only); returns (the handler and the unraisable hook it replaced),
-    or None."""
+    """Handle SIGTERM as an interrupt, and Ctrl-C as Python does (where its handler is Python's), both noted as a stop
+    (main thread only); returns what they replaced, for :func:`restore`, or None."""
     try:
-        saved = signal.signal(signal.SIGTERM, _raise_terminated), sys.unraisablehook
+        term = signal.signal(signal.SIGTERM, _raise_terminated)
     except ValueError:  # not the main thread (e.g. main() called from a worker thread)
         return None
+    interrupt = signal.getsignal(signal.SIGINT)
+    if interrupt is signal.default_int_handler:
+        signal.signal(signal.SIGINT, _raise_interrupt)
+    saved = term, interrupt, sys.unraisablehook
     sys.unraisablehook = _stop_again(sys.unraisablehook)
+    _Stop.raised = False
     return saved
+
+
+def restore(saved) -> None:
+    """Put back what :func:`on_sigterm` replaced (``saved``: its result; None: nothing)."""
+    if saved is None:
+        return
+    term, interrupt, hook = saved
+    signal.signal(signal.SIGTERM, term)
+    if signal.getsignal(signal.SIGINT) is _raise_interrupt:
+        signal.signal(signal.SIGINT, interrupt)
+    sys.unraisablehook = hook
+    _Stop.raised = False
 
 
 def _deliver(signum: int, handler) -> None:
