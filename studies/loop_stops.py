@@ -8,7 +8,7 @@ reads a stop. The check counts the bits shared beyond chance (each frame's overl
 ``|row| * |j| / n``; no stop where ``b`` shares none beyond it).
 
 For every stream of ``studies.loop_streams`` and both presets: the closures the path rule accepts without the check
-(``stop_ratio`` 0), and those the check refuses counting raw bits (:func:`stop_raw`, as it was) and beyond chance
+(``stop_ratio`` 0), and those the check refuses counting raw bits (:func:`stop_raw`) and beyond chance
 (:func:`vpr.similarity.stationary`): right / soft / false (forward drives: onto an identical copy counted as soft).
 
 Usage: python -m studies.loop_stops [--cache DIR] [--data DIR] [--presets default,fast]

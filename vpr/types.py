@@ -157,11 +157,13 @@ class Decider(ABC):
 
     Every decider implements :meth:`_decide`, :meth:`new_session`, :meth:`state` and :meth:`load_state`;
     :meth:`decide` checks the column and counts the frames; deciders that read the frames' SDRs override
-    :meth:`add_sdr`. ``frames``: frames decided; ``starts``: each session's first frame.
+    :meth:`add_sdr`. ``frames``: frames decided; ``starts``: each session's first frame; ``n_bits``: the width of
+    the SDRs it reads (None: it reads none, or was not told).
     """
 
     frames: int = 0
     starts: np.ndarray
+    n_bits: int | None = None
 
     @property
     @abstractmethod

@@ -98,6 +98,11 @@ class GeometricOpinion(Decider):
         """The wrapped decider's SDR rows (its stop check's, and this opinion's)."""
         return self.decider.rows
 
+    @property
+    def n_bits(self) -> int | None:
+        """The width of the wrapped decider's SDRs."""
+        return self.decider.n_bits
+
     def new_session(self) -> None:
         self.decider.new_session()
         self._session += 1
@@ -203,7 +208,7 @@ class GeometricOpinion(Decider):
         check); from there on the path is tracked (``keep_inliers``)."""
         rows = self.rows
         if self.stop_ratio > 0 and rows is not None and self._same_session(b, j):
-            if stationary(rows.ptr, rows.ind, b, j, self.stop_ratio, self.decider.n_bits):
+            if stationary(rows.ptr, rows.ind, b, j, self.stop_ratio, self.n_bits):
                 self._tracking = False
                 return d
         self.accepted += 1
