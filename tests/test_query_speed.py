@@ -67,12 +67,76 @@ def test_a_slower_query_is_matched_as_queries_of_one_frame_in_two():
     res, said = _match(fitted, q)
     assert res.sampling["query_step"] == 2 and res.sampling["speed"] < 0.6
     assert len(said) == 1 and "as 2 queries of one frame in 2" in said[0]
+    best, score, accepted = np.zeros(len(q), np.int64), np.zeros(len(q)), np.zeros(len(q), bool)
     for a in (0, 1):  # each query frame has the answer of its own phase's query
         part = fitted.match(q.take(np.arange(a, len(q), 2)))
-        np.testing.assert_array_equal(res.best[a::2], part.best)
-        np.testing.assert_array_equal(res.accepted[a::2], part.accepted)
+        best[a::2], score[a::2], accepted[a::2] = part.best, part.score, part.accepted
         np.testing.assert_array_equal(res.similarity[:, a::2], part.similarity)
+    # ... or, not accepted there, the one between its neighbours' accepted answers (the fill's oracle below)
+    filled = _filled(best, accepted, 2)
+    np.testing.assert_array_equal(res.accepted, accepted | (filled >= 0))
+    np.testing.assert_array_equal(res.best, np.where(filled >= 0, filled, best))
+    assert res.sampling["query_filled"] == int((filled >= 0).sum())
     assert _decisions(res, q_place)[0] >= 0.99
+
+
+def _filled(best, accepted, step):
+    """The oracle of fill_between: per frame, the interpolated answer (-1: not filled)."""
+    out = np.full(len(best), -1)
+    for q in range(len(best)):
+        if accepted[q] and best[q] >= 0:
+            continue
+        before = [i for i in range(q) if accepted[i] and best[i] >= 0]
+        after = [i for i in range(q + 1, len(best)) if accepted[i] and best[i] >= 0]
+        if not before or not after:
+            continue
+        q0, q1 = before[-1], after[0]
+        if q1 - q0 <= step and 0 <= best[q1] - best[q0] <= 2:
+            out[q] = best[q0] + round((best[q1] - best[q0]) * (q - q0) / (q1 - q0))
+    return out
+
+
+def _odd_frames_noise(x, seed=0):
+    """``x`` with every 2nd row replaced by random bits (as many as its first row's)."""
+    rng = np.random.default_rng(seed)
+    x = x.tolil(copy=True)
+    k = int(x[0].nnz)
+    for j in range(1, x.shape[0], 2):
+        x[j] = np.isin(np.arange(x.shape[1]), rng.choice(x.shape[1], k, replace=False))
+    return sp.csr_matrix(x, dtype=bool)
+
+
+def test_a_slower_querys_frames_that_match_nothing_are_placed_between_their_neighbours():
+    """Every 2nd frame of a query at 0.5x shares nothing with the map (as a frame halfway between two sparse map
+    frames can): its own query of one frame in 2 accepts none of them; placed between their neighbours' answers."""
+    db, q, q_place = _traverses((0.45, 0.55))
+    q = EncodedTraverse(q.names, sdr=_odd_frames_noise(q.sdr))
+    fitted = methods.get("rshosm-seq").fit(db)
+    odd = fitted.match(q.take(np.arange(1, len(q), 2)))
+    assert odd.accepted.mean() < 0.05
+    res, _ = _match(fitted, q)
+    right = res.accepted & (np.abs(res.best - q_place) <= 1)
+    assert res.sampling["query_filled"] > 0.4 * len(q)
+    assert right[res.accepted].mean() >= 0.99 and right[1::2].mean() > 0.9
+
+
+@pytest.mark.parametrize("step", [2, 3])
+def test_a_slower_querys_frame_between_two_accepted_takes_the_place_between_them(step):
+    rng = np.random.default_rng(step)
+    best = np.cumsum(rng.integers(-1, 3, 400)) + rng.integers(-1, 2, 400) * (rng.random(400) < 0.1)
+    best[rng.random(400) < 0.05] = -1
+    accepted = rng.random(400) < 0.6
+    score = rng.random(400) * 30
+    new_best, new_score, filled = methods.fill_between(best, score, accepted, step)
+    oracle = _filled(best, accepted, step)
+    np.testing.assert_array_equal(filled, oracle >= 0)
+    np.testing.assert_array_equal(new_best, np.where(oracle >= 0, oracle, best))
+    assert 10 < filled.sum() < 400 - accepted.sum()  # some filled, not every frame not accepted
+    for q in np.flatnonzero(filled):  # the smaller score of the two accepted frames around it
+        q0 = np.flatnonzero(accepted[:q] & (best[:q] >= 0))[-1]
+        q1 = q + 1 + np.flatnonzero(accepted[q + 1:] & (best[q + 1:] >= 0))[0]
+        assert new_score[q] == min(score[q0], score[q1])
+    np.testing.assert_array_equal(new_score[~filled], score[~filled])
 
 
 @pytest.mark.parametrize("method, speed", [("rshosm-seq", (0.9, 1.1)), ("pairwise", (1.8, 2.2))])
@@ -140,6 +204,40 @@ def test_online_a_slower_query_is_answered_as_queries_of_one_frame_in_two():
     assert _scores(b, q_place)[0] >= 0.99
 
 
+def test_online_a_slower_querys_frame_its_own_does_not_accept_takes_the_answer_just_before():
+    db, q, _, q_place = simulate.aliased_traverses(300, 100, speed=(0.45, 0.55), seed=3)
+    q = _odd_frames_noise(q)
+    _, follower = _follower(db)
+    b = _online(follower, q)
+    s = follower.sampling()
+    assert s["query_filled"] > 0.3 * q.shape[0]
+    right = np.array([d.accepted and abs(d.best - p) <= 1 for d, p in zip(b, q_place, strict=True)])
+    assert _scores(b, q_place)[0] >= 0.99 and right[1::2].mean() > 0.6
+    acc = np.array([d.accepted for d in b])
+    for j in range(1, q.shape[0]):  # a filled frame: the answer of the frame before, which its own query accepted
+        if acc[j] and acc[j - 1] and b[j].best == b[j - 1].best and j % 2:
+            assert b[j].score == b[j - 1].score
+
+
+def test_online_a_slower_speed_is_left_only_at_a_frame_its_queries_do_not_answer(monkeypatch):
+    db, q, _, _ = simulate.aliased_traverses(300, 100, speed=(0.45, 0.55), seed=3)
+    q = _odd_frames_noise(q)
+    plain, follower = _follower(db)
+    j = 0
+    while follower.mode >= 0 or j < 100:
+        plain.update(q[j]), follower.update(q[j])
+        j += 1
+    monkeypatch.setattr(follower.path, "speed", lambda frame: 1.0)  # from here on the map's answers read its speed
+    ds, own = [], []
+    while follower.mode < 0 and j < q.shape[0]:
+        own.append(plain.update(q[j]))
+        ds.append(follower.update(q[j]))
+        j += 1
+    assert all(d.accepted for d in ds[:-1]) and len(ds) > 20  # held while its queries answered
+    assert follower.mode == 0 and follower.last is None  # then left, the frame answered by the map's localizer
+    assert (ds[-1].best, ds[-1].score, ds[-1].accepted) == (own[-1].best, own[-1].score, own[-1].accepted)
+
+
 def test_online_at_the_maps_speed_the_follower_answers_as_the_localizer():
     db, q, _, _ = simulate.aliased_traverses(300, 100, speed=(0.9, 1.1), seed=3)
     plain, follower = _follower(db)
@@ -148,13 +246,16 @@ def test_online_at_the_maps_speed_the_follower_answers_as_the_localizer():
     assert follower.sampling() is None
 
 
-def test_a_follower_continues_from_its_state():
-    db, q, _, _ = simulate.aliased_traverses(300, 100, speed=(1.8, 2.2), seed=1)
+@pytest.mark.parametrize("speed", [(1.8, 2.2), (0.45, 0.55)])
+def test_a_follower_continues_from_its_state(speed):
+    db, q, _, _ = simulate.aliased_traverses(300, 100, speed=speed, seed=1)
+    q = q if speed[0] > 1 else _odd_frames_noise(q)  # a slower query's fill carried across the stop
     _, whole = _follower(db)
     expected = _online(whole, q)
     _, first = _follower(db)
-    half = q.shape[0] // 2
+    half = q.shape[0] // 2 | 1  # stopped just after a frame of real bits
     got = [first.update(q[j]) for j in range(half)]
+    assert speed[0] > 1 or first.last is not None  # the next frame's fill comes from the state
     loc_state, state = first.base.state(), first.state()
     _, second = _follower(db)
     second.base.load_state(*loc_state)

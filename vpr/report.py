@@ -296,7 +296,9 @@ def sampling_note(method: str, m: dict) -> str | None:
     def how(k: dict, whose: str) -> str:
         if k.get("db_step"):
             return f"matched again against {whose} {k['db_step']} maps of one frame in {k['db_step']}"
-        return f"its frames matched as {k['query_step']} queries of one frame in {k['query_step']}"
+        filled = f", {k['query_filled']} placed between the accepted frames around them" if k.get("query_filled") \
+            else ""
+        return f"its frames matched as {k['query_step']} queries of one frame in {k['query_step']}{filled}"
 
     if "sessions" in s:  # loops: every later session read, those off speed followed
         said = [f"session {f['session']} moved {f['speed']:.2f} of the earlier sessions' frames a frame, "
@@ -305,6 +307,7 @@ def sampling_note(method: str, m: dict) -> str | None:
     if "db_step_frames" in s or "query_step_frames" in s:  # localize: frames answered so while the speed lasted
         said = [f"{s[k + '_frames']} frames answered by the map's {s[k]} maps of one frame in {s[k]}" if k == "db_step"
                 else f"{s[k + '_frames']} frames answered as {s[k]} queries of one frame in {s[k]}"
+                + (f" ({s['query_filled']} by the frame before)" if s.get("query_filled") else "")
                 for k in ("db_step", "query_step") if s.get(k + "_frames")]
         return f"{method}: the query was driven at another speed than the map: {'; '.join(said)} (--query-speed follow)"
     whose = "the database's"

@@ -16,7 +16,7 @@ from vpr.types import Column, Decision, EncodedTraverse, MatchResult, QueryLocal
 
 from .base import Fitted, Method
 
-__all__ = ["match_at_speed", "loops_at_speed", "SpeedFollower", "PICKS"]
+__all__ = ["match_at_speed", "loops_at_speed", "fill_between", "SpeedFollower", "PICKS"]
 
 
 #: How a frame is answered by one of the ``k`` maps of one frame in ``k``: ``"path"``, the map that accepts it on the
@@ -35,12 +35,14 @@ def match_at_speed(fitted: Fitted, query: EncodedTraverse, progress: bool = Fals
     """Match ``query`` against the learned database; match again where the query was driven at another speed.
 
     A method whose sequences follow one database frame a frame (:attr:`Method.follows_sequences`) and whose accepted
-    paths move ``k`` >= :data:`~vpr.groundtruth.RATE_RATIO` database frames a query frame (:func:`vpr.evaluate.
-    path_speed`, no ground truth; :func:`~vpr.groundtruth.speed_step`) is matched again against one database frame in
-    ``k`` (the ``k`` maps of frames ``a, a + k, ...``, learned again; each query frame answered by the map ``pick``
-    chooses) and, moving ``1 / k``, as ``k`` queries of one frame in ``k`` (each frame answered by its own); each is
+    paths move ``k`` >= :data:`~vpr.groundtruth.RATE_RATIO` database frames a query frame
+    (:func:`vpr.evaluate.path_speed`, no ground truth; :func:`~vpr.groundtruth.speed_step`) is matched again against
+    one database frame in ``k`` (the ``k`` maps of frames ``a, a + k, ...``, learned again; each query frame answered
+    by the map ``pick`` chooses) and, moving ``1 / k``, as ``k`` queries of one frame in ``k`` (each frame answered
+    by its own, or where its own does not accept it, between two accepted frames: :func:`fill_between`); each is
     said (a warning). The result keeps the traverses' frames and their similarity; :attr:`MatchResult.sampling`
-    records the first pass's speed and the step, ``seconds`` both passes.
+    records the first pass's speed, the step and, slower, the frames filled (``query_filled``); ``seconds`` both
+    passes.
     ``first``: the query's result as already matched (by default matched here, :meth:`Fitted.match`); ``speed``:
     the query's speed read by another method of the same run, used where this method's accepted paths read none
     (a method whose answers off the database's speed form no path); ``pick``: one of :data:`PICKS`. Returns the
@@ -97,13 +99,42 @@ def _resampled(fitted: Fitted, query: EncodedTraverse, k: int, speed: float, pic
         S = (sp.hstack if sparse else np.hstack)([r.similarity for r in parts])[:, order]
         best, score, accepted = (np.concatenate([getattr(r, f) for r in parts])[order]
                                  for f in ("best", "score", "accepted"))
+        best, score, filled = fill_between(best, score, accepted, step)
+        accepted = accepted | filled
         said = f"its frames were matched as {step} queries of one frame in {step}"
     S = S.tocsr() if sparse else S
     warnings.warn(f"{who}: along its {along} the query moved {speed:.2g} database frames a frame, "
                   f"driven {'faster' if k > 0 else 'slower'} than the database at the same frame rate: {said}, so "
                   "that its sequences follow the query's (docs/localize.md)", UserWarning, stacklevel=3)
+    sampling = {"speed": round(float(speed), 3), "db_step" if k > 0 else "query_step": abs(k)}
+    if k < 0:
+        sampling["query_filled"] = int(filled.sum())
     return MatchResult(method.name, S, best, score, accepted, sum(r.seconds for r in parts), dict(method.conf),
-                       {"speed": round(float(speed), 3), "db_step" if k > 0 else "query_step": abs(k)})
+                       sampling)
+
+
+def fill_between(best, score, accepted, step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Answers of a query driven ``step`` times slower than the map for its frames that were not accepted between two
+    that were: a frame whose nearest accepted frames before and after, ``q0`` and ``q1``, lie at most ``step`` frames
+    apart and were answered with map frames ``b0 <= b1 <= b0 + 2`` (moving on as such a query does) lies between
+    their places, and takes the map frame interpolated between them, with the smaller of their scores.
+
+    ``best``, ``score``, ``accepted``: per query frame, in the traverse's order. Returns (best, score, filled): the
+    answers with those frames', and which frames were filled so (accepted there).
+    """
+    best, score = np.array(best, np.int64), np.array(score, np.float64)
+    accepted = np.asarray(accepted, bool) & (best >= 0)
+    filled = np.zeros(best.size, bool)
+    acc = np.flatnonzero(accepted)
+    for q0, q1 in zip(acc[:-1], acc[1:], strict=True):
+        b0, b1 = best[q0], best[q1]
+        if not 1 < q1 - q0 <= step or not 0 <= b1 - b0 <= 2:
+            continue
+        q = np.arange(q0 + 1, q1)
+        best[q] = b0 + np.rint((b1 - b0) * (q - q0) / (q1 - q0)).astype(np.int64)
+        score[q] = min(score[q0], score[q1])
+        filled[q] = True
+    return best, score, filled
 
 
 def loops_at_speed(method: Method, seq: EncodedTraverse, res: MatchResult, sessions, progress: bool = False,
@@ -219,11 +250,13 @@ class SpeedFollower(QueryLocalizer):
     one frame in ``step`` (learned again from ``sdr``, the map's SDRs, when first needed; each frame by the map whose
     path is accepted and longest); while it is ``1 / RATE_RATIO`` or less (:func:`~vpr.groundtruth.speed_step`: a
     path that stays on one map frame is no speed), by the map with the frames taken as ``step`` queries of one frame
-    in ``step`` (each frame by its own); otherwise by ``localizer``. The engines of a speed start when it is read,
-    from the last ``replay`` frames (kept for that), so that they answer with their evidence built; at the map's
-    speed only ``localizer`` runs. Without ``sdr`` a faster query is answered by
-    ``localizer``; ``pick``: how the map of one frame in ``step`` is chosen (:data:`PICKS`). :meth:`update` returns the
-    map's :class:`~vpr.types.Decision` with the frame's number.
+    in ``step`` (each frame by its own; a frame its own does not accept, just after one its own accepted, by that
+    one's answer: it moved less than a map frame since), and such a speed is left only at a frame they do not answer
+    (the localizer's evidence runs ahead of a slower query); otherwise by ``localizer``. The engines of a speed start
+    when it is read, from the last ``replay`` frames (kept for that), so that they answer with their evidence built;
+    at the map's speed only ``localizer`` runs. Without ``sdr`` a faster query is answered by ``localizer``;
+    ``pick``: how the map of one frame in ``step`` is chosen (:data:`PICKS`). :meth:`update` returns the map's
+    :class:`~vpr.types.Decision` with the frame's number.
     """
 
     def __init__(self, localizer: Localizer, sdr=None, step: int = 2, replay: int = 2 * MIN_RUN, pick: str = "path"):
@@ -240,7 +273,9 @@ class SpeedFollower(QueryLocalizer):
         self.recent: list[tuple[int, np.ndarray]] = []  # (frame, active bits) of the last ``replay`` frames
         #: frames this object answered by the maps of one frame in ``step`` / as queries of one frame in ``step``
         #: (not part of the state: a follower loaded from one counts its own)
-        self.frames = {"db_step": 0, "query_step": 0}
+        self.frames = {"db_step": 0, "query_step": 0, "query_filled": 0}
+        self.last: tuple[int, int, float] | None = None  # (frame, best, score) of a slower query's frame accepted on
+        # its own query, the frame before this one
 
     @property
     def follows_faster(self) -> bool:
@@ -285,7 +320,7 @@ class SpeedFollower(QueryLocalizer):
         for loc in [*self.phases, *self.queries]:
             loc.reset()
         self.path.step(-1, -1)
-        self.mode, self.frame, self.recent = 0, 0, []
+        self.mode, self.frame, self.recent, self.last = 0, 0, [], None
 
     def warm_up(self) -> None:
         self.base.warm_up()
@@ -297,6 +332,16 @@ class SpeedFollower(QueryLocalizer):
         self.recent = [*self.recent[-(self.replay - 1):], (j, bits)] if self.replay > 0 else []
         d = self.base.update(bits)
         self.frame += 1
+        if self.mode < 0:  # a slower query's engines answer first; the speed the map's answers read
+            out = self._slower(j, bits, d)  # leaves it at a frame they do not answer
+            if out.accepted:
+                self.path.step(j, d.best)
+            else:
+                self._read(j, d.best)
+            if self.mode < 0:
+                self.frames["query_step"] += 1
+                return out
+            return self._answer(j, bits, d)
         faster = self.mode > 0 and self.follows_faster
         if not faster:  # the map's own answers read the speed
             self._read(j, d.best)
@@ -320,6 +365,8 @@ class SpeedFollower(QueryLocalizer):
     def _answer(self, j: int, bits, d: Decision) -> Decision:
         """Frame ``j``'s answer at the current speed (``d``: the map's own)."""
         answers = self._feed(self.mode, j, bits)
+        if self.mode >= 0:
+            self.last = None
         if self.mode > 0 and answers:
             i = max(range(self.step), key=lambda i: (bool(answers[i].accepted), self.phase_paths[i].length)
                     if self.pick == "path" else answers[i].score)
@@ -327,21 +374,36 @@ class SpeedFollower(QueryLocalizer):
             return _on_map(answers[i], self.keeps[i], self.base.n_db, d.frame)
         if self.mode < 0:
             self.frames["query_step"] += 1
-            return dataclasses.replace(answers[0], frame=d.frame)
+            return self._slower(j, bits, d, answers)
         return d
+
+    def _slower(self, j: int, bits, d: Decision, answers: list[Decision] | None = None) -> Decision:
+        """Frame ``j``'s answer by the queries of one frame in ``step`` (``answers``: their decisions, default: fed
+        here): its own query's, or where that does not accept it just after a frame its own accepted, that one's."""
+        answers = self._feed(-1, j, bits) if answers is None else answers
+        own, prev = dataclasses.replace(answers[0], frame=d.frame), self.last
+        self.last = (j, own.best, own.score) if own.accepted and own.best >= 0 else None
+        if own.accepted or prev is None or prev[0] != j - 1:
+            return own
+        self.frames["query_filled"] += 1  # it moved less than a map frame since the frame before
+        return dataclasses.replace(own, best=prev[1], score=prev[2], accepted=True)
 
     def sampling(self) -> dict | None:
         """metrics.json's ``sampling`` of the frames so far: the step and the frames answered at it (None: every
         frame as it came)."""
-        used = {k: v for k, v in self.frames.items() if v}
-        return {**{k: self.step for k in used}, **{f"{k}_frames": v for k, v in used.items()}} or None
+        used = {k: v for k, v in self.frames.items() if v and k != "query_filled"}
+        out = {**{k: self.step for k in used}, **{f"{k}_frames": v for k, v in used.items()}}
+        if used.get("query_step"):
+            out["query_filled"] = self.frames["query_filled"]
+        return out or None
 
     def state(self) -> tuple[dict, dict]:
         """(header, arrays) of what the follower carries besides the map's localizer (:meth:`load_state`)."""
         frames = np.array([j for j, _ in self.recent], np.int64)
         sizes = np.array([b.size for _, b in self.recent], np.int64)
         header = {"step": self.step, "replay": self.replay, "mode": self.mode, "frame": self.frame,
-                  "path": self.path.state(), "phase_paths": [p.state() for p in self.phase_paths]}
+                  "path": self.path.state(), "phase_paths": [p.state() for p in self.phase_paths],
+                  "last": None if self.last is None else [int(self.last[0]), int(self.last[1]), float(self.last[2])]}
         arrays = {"recent_frames": frames, "recent_sizes": sizes,
                   "recent_bits": np.concatenate([b for _, b in self.recent] or [np.zeros(0, np.int64)])}
         engines, engine_arrays = joint_state(**self._named(self.mode))
@@ -357,6 +419,8 @@ class SpeedFollower(QueryLocalizer):
                              f"continue one of step {self.step}, replay {self.replay}")
         self.mode, self.frame = int(header["mode"]), int(header["frame"])
         self.path.restore(header["path"])
+        last = header.get("last")
+        self.last = None if last is None else (int(last[0]), int(last[1]), float(last[2]))
         bits = np.split(np.asarray(arrays["recent_bits"], np.int64), np.cumsum(arrays["recent_sizes"])[:-1])
         self.recent = [(int(j), b) for j, b in zip(arrays["recent_frames"], bits, strict=True)] \
             if len(arrays["recent_frames"]) else []
