@@ -37,7 +37,8 @@ their defaults on the first table's streams, the query's frames as they come
 :func:`vpr.methods.match_at_speed`, :class:`vpr.methods.SpeedFollower`); and
 the phase of the sampling: a map
 from one frame in 2 starting at the query's first frame or one later, a
-slower query's answers copied from one frame in 2 or each frame its own; and
+slower query's answers copied from one frame in 2 or each frame its own (and
+so, with the frames not accepted placed between accepted ones); and
 the two ways a frame picks one of the maps of one frame in 2, chosen with
 each dataset held out in turn.
 
@@ -480,7 +481,10 @@ def _as_is(db: Path, x_db, query: Path, x_q, radius, out: Path) -> tuple[dict, l
 def phases(data: Path, root: Path) -> None:
     """The fifth table: why ``follow`` matches every phase. A 2x query against a map from one frame in two that
     starts at the query's first frame (phase 0) or one frame later (phase 1); a 0.5x query as one query of one frame
-    in two whose answers the frames between take (copied), or as two queries, every frame its own."""
+    in two whose answers the frames between take (copied), or as two queries, every frame its own, and so with the
+    frames not accepted placed between the accepted frames around them (:func:`vpr.methods.fill_between`)."""
+    from vpr.methods import fill_between
+
     gp, nl = data / "gardens_point_day", data / "nordland_trimmed"
     gp_n = lambda f: int(f.stem.removeprefix("Image"))  # noqa: E731
     nl_n = lambda f: int(f.stem.split("-")[-1]) // 10  # noqa: E731
@@ -500,8 +504,9 @@ def phases(data: Path, root: Path) -> None:
             cells.append(decisions_cell(_as_is(d, x_d, q, x_q, radius, work / f"{d.name}-run")[0], frames=False))
         print(f"| {name} | {' | '.join(cells)} |")
     print("\n| stream | a query of one frame in 2, its answers copied to the frames between | every frame its "
-          "own (two queries of one frame in 2) |")
-    print("|---|---|---|")
+          "own (two queries of one frame in 2) | every frame its own, those not accepted placed between the accepted "
+          "frames around them (fill_between, the default) |")
+    print("|---|---|---|---|")
     slower = {"Gardens Point 0.5x": (left[::2], right, gp_n, 2), "Nordland 0.5x": (summer[::10], winter[::5], nl_n, 10)}
     for name, (db, query, number, radius) in slower.items():
         d, x_d = _folder(work, f"{name}-map".replace(" ", "_"), db, number)
@@ -511,10 +516,13 @@ def phases(data: Path, root: Path) -> None:
             q, x_q = _folder(work, f"{name}-q{a}".replace(" ", "_"), query[a::2], number)
             rows.append(_as_is(d, x_d, q, x_q, radius, work / f"{q.name}-run")[1])
         cells = []
-        for how in ("copied", "own"):
+        for how in ("copied", "own", "filled"):
             answers = [rows[0][j // 2] if how == "copied" or j % 2 == 0 else rows[1][j // 2]
                        for j in range(len(query))]
             best, acc = np.array([b for b, _ in answers]), np.array([a for _, a in answers], bool)
+            if how == "filled":
+                best, _, filled = fill_between(best, np.zeros(best.size), acc, 2)
+                acc = acc | filled
             right_ = acc & (best >= 0) & (np.abs(x_d[np.maximum(best, 0)] - x_all) <= radius)
             cells.append(f"{acc.sum()}, {right_.sum() / max(acc.sum(), 1):.3f}, {right_.sum() / len(query):.2f}")
         print(f"| {name} | {' | '.join(cells)} |", flush=True)

@@ -75,6 +75,7 @@ def test_plot_similarity_with_markers_and_gt(tmp_path, example):
     _no_pyplot_figures()
 
 
+@pytest.mark.slow
 def test_plot_similarity_large_and_sparse(tmp_path):
     rng = np.random.default_rng(1)
     n_db, n_q = 2500, 2100

@@ -325,6 +325,7 @@ def _loops(method, stream, res, *later):
     return out, [str(w.message) for w in caught]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("speed, key, said, gain", [
     ((1.8, 2.2), "db_step", "learned again as 2 maps of one frame in 2", 0.05),
     ((0.45, 0.55), "query_step", "as 2 queries of one frame in 2", 0.0)])

@@ -276,8 +276,8 @@ class MatchResult:
     seconds: float
     conf: dict = field(default_factory=dict)
     #: how the result was matched when the query was driven at another speed than the database
-    #: (:func:`vpr.methods.match_at_speed`): ``{"speed": first pass's path speed, "db_step" or "query_step": k}``;
-    #: None: every frame as it came
+    #: (:func:`vpr.methods.match_at_speed`): ``{"speed": first pass's path speed, "db_step" or "query_step": k}``
+    #: (a slower query also ``"query_filled"``: its frames placed between accepted ones); None: every frame as it came
     sampling: dict | None = None
 
     @classmethod
