@@ -59,6 +59,20 @@ def test_a_faster_query_is_matched_against_maps_of_one_frame_in_two():
     n_even, n_odd = _lengths(even.best), _lengths(odd.best)
     take_odd = (odd.accepted > even.accepted) | ((odd.accepted == even.accepted) & (n_odd > n_even))
     np.testing.assert_array_equal(res.best, np.where(take_odd, 2 * odd.best + 1, 2 * even.best))
+    # accepted unless both accept it more than 3 database frames apart
+    apart = even.accepted & odd.accepted & (np.abs(2 * odd.best + 1 - 2 * even.best) > 3)
+    np.testing.assert_array_equal(res.accepted, np.where(take_odd, odd.accepted, even.accepted) & ~apart)
+    assert res.sampling["db_apart"] == apart.sum()
+
+
+def test_maps_of_one_frame_in_k_that_place_a_frame_apart_leave_it_undecided():
+    best = np.array([[10, 10, 10, 10, 10, -1], [11, 13, 15, 6, 30, 50]])
+    accepted = np.array([[1, 1, 1, 1, 0, 1], [1, 1, 1, 1, 1, 1]], bool)
+    np.testing.assert_array_equal(methods.disagree(best, accepted, 2), [False, False, True, True, False, False])
+    three = np.array([[10, 10], [12, 12], [14, 13]])  # step 3: more than 4 apart among those that accept
+    np.testing.assert_array_equal(methods.disagree(three, np.ones((3, 2), bool), 3), [False, False])
+    np.testing.assert_array_equal(methods.disagree(three + [[0, 0], [0, 0], [1, 9]], np.ones((3, 2), bool), 3),
+                                  [True, True])
 
 
 def test_a_slower_query_is_matched_as_queries_of_one_frame_in_two():
@@ -179,6 +193,31 @@ def test_online_a_faster_query_is_answered_by_the_maps_of_one_frame_in_two():
         assert d.column.n == db.shape[0] and (d.best < 0 or d.column.rows.max() < db.shape[0])
 
 
+def test_online_maps_of_one_frame_in_two_that_place_a_frame_apart_leave_it_undecided(monkeypatch):
+    db, q, _, q_place = simulate.aliased_traverses(300, 100, speed=(1.8, 2.2), seed=1)
+    _, follower = _follower(db)
+    fed, feed = {}, follower._feed
+
+    def spy(mode, j, bits):
+        out = feed(mode, j, bits)
+        if j == follower.frame - 1:  # the frame answered now, not one replayed when a speed starts
+            fed[j] = (mode, out)
+        return out
+
+    monkeypatch.setattr(follower, "_feed", spy)
+    ds = [follower.update(q[j]) for j in range(q.shape[0])]
+    apart = 0
+    for j, d in enumerate(ds):
+        mode, answers = fed.get(j, (0, []))
+        if mode <= 0 or not answers:
+            continue
+        on_map = [keep[a.best] for a, keep in zip(answers, follower.keeps, strict=True) if a.accepted and a.best >= 0]
+        far = len(on_map) == 2 and abs(on_map[0] - on_map[1]) > 3
+        apart += far
+        assert d.accepted == (any(a.accepted for a in answers) and not far), j
+    assert apart == follower.sampling()["db_apart"] > 10
+
+
 @pytest.mark.parametrize("speed", [(1.8, 2.2), (0.45, 0.55)])
 def test_online_the_speed_is_read_on_the_answers_given(speed):
     """The path of the map's own answers reads the speed; while a faster query is followed, the path of the answers
@@ -290,7 +329,8 @@ def test_a_method_whose_answers_read_no_speed_takes_the_speed_another_read():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         res = methods.match_at_speed(fitted, dense(q), first=first, speed=2.0)
-    assert res.sampling == {"speed": 2.0, "db_step": 2}
+    assert {k: res.sampling[k] for k in ("speed", "db_step")} == {"speed": 2.0, "db_step": 2}
+    assert 0 <= res.sampling["db_apart"] < len(q) // 4
     (p0, r0), (p1, r1) = _decisions(first, q_place), _decisions(res, q_place)
     assert p1 > p0 + 0.5 and r1 > r0 + 0.3, (p0, r0, p1, r1)
 

@@ -49,6 +49,10 @@ def test_choose_shows_the_worst_first_within_the_limit():
     ({"speed": 1.87, "db_step": 2}, "moved 1.87 database frames a frame along the run's accepted paths, matched again "
                                     "against the database's 2 maps of one frame in 2"),
     ({"speed": 0.56, "query_step": 2}, "its frames matched as 2 queries of one frame in 2"),
+    ({"speed": 1.9, "db_step": 2, "db_apart": 4}, "2 maps of one frame in 2, 4 frames they place apart left "
+                                                  "undecided"),
+    ({"db_step": 2, "db_step_frames": 60, "db_apart": 3},
+     "60 frames answered by the map's 2 maps of one frame in 2 (3 placed apart by them, left undecided)"),
     ({"speed": 0.56, "query_step": 2, "query_filled": 7}, "queries of one frame in 2, 7 placed between the accepted "
                                                           "frames around them"),
     ({"query_step": 2, "query_step_frames": 50, "query_filled": 9},

@@ -295,7 +295,8 @@ def sampling_note(method: str, m: dict) -> str | None:
 
     def how(k: dict, whose: str) -> str:
         if k.get("db_step"):
-            return f"matched again against {whose} {k['db_step']} maps of one frame in {k['db_step']}"
+            apart = f", {k['db_apart']} frames they place apart left undecided" if k.get("db_apart") else ""
+            return f"matched again against {whose} {k['db_step']} maps of one frame in {k['db_step']}{apart}"
         filled = f", {k['query_filled']} placed between the accepted frames around them" if k.get("query_filled") \
             else ""
         return f"its frames matched as {k['query_step']} queries of one frame in {k['query_step']}{filled}"
@@ -305,8 +306,9 @@ def sampling_note(method: str, m: dict) -> str | None:
                 + how(f, "the earlier sessions'") for f in s["sessions"] if f.get("db_step") or f.get("query_step")]
         return f"{method}: {'; '.join(said)} (--query-speed follow)" if said else None
     if "db_step_frames" in s or "query_step_frames" in s:  # localize: frames answered so while the speed lasted
-        said = [f"{s[k + '_frames']} frames answered by the map's {s[k]} maps of one frame in {s[k]}" if k == "db_step"
-                else f"{s[k + '_frames']} frames answered as {s[k]} queries of one frame in {s[k]}"
+        said = [f"{s[k + '_frames']} frames answered by the map's {s[k]} maps of one frame in {s[k]}"
+                + (f" ({s['db_apart']} placed apart by them, left undecided)" if s.get("db_apart") else "")
+                if k == "db_step" else f"{s[k + '_frames']} frames answered as {s[k]} queries of one frame in {s[k]}"
                 + (f" ({s['query_filled']} by the frame before)" if s.get("query_filled") else "")
                 for k in ("db_step", "query_step") if s.get(k + "_frames")]
         return f"{method}: the query was driven at another speed than the map: {'; '.join(said)} (--query-speed follow)"

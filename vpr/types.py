@@ -277,7 +277,8 @@ class MatchResult:
     conf: dict = field(default_factory=dict)
     #: how the result was matched when the query was driven at another speed than the database
     #: (:func:`vpr.methods.match_at_speed`): ``{"speed": first pass's path speed, "db_step" or "query_step": k}``
-    #: (a slower query also ``"query_filled"``: its frames placed between accepted ones); None: every frame as it came
+    #: (and ``"db_apart"``: frames the maps placed apart, undecided; or ``"query_filled"``: a slower query's frames
+    #: placed between accepted ones); None: every frame as it came
     sampling: dict | None = None
 
     @classmethod

@@ -16,7 +16,7 @@ from vpr.types import Column, Decision, EncodedTraverse, MatchResult, QueryLocal
 
 from .base import Fitted, Method
 
-__all__ = ["match_at_speed", "loops_at_speed", "fill_between", "SpeedFollower", "PICKS"]
+__all__ = ["match_at_speed", "loops_at_speed", "disagree", "fill_between", "SpeedFollower", "PICKS"]
 
 
 #: How a frame is answered by one of the ``k`` maps of one frame in ``k``: ``"path"``, the map that accepts it on the
@@ -38,11 +38,12 @@ def match_at_speed(fitted: Fitted, query: EncodedTraverse, progress: bool = Fals
     paths move ``k`` >= :data:`~vpr.groundtruth.RATE_RATIO` database frames a query frame
     (:func:`vpr.evaluate.path_speed`, no ground truth; :func:`~vpr.groundtruth.speed_step`) is matched again against
     one database frame in ``k`` (the ``k`` maps of frames ``a, a + k, ...``, learned again; each query frame answered
-    by the map ``pick`` chooses) and, moving ``1 / k``, as ``k`` queries of one frame in ``k`` (each frame answered
+    by the map ``pick`` chooses, and not accepted where the maps that accept it place it apart: :func:`disagree`)
+    and, moving ``1 / k``, as ``k`` queries of one frame in ``k`` (each frame answered
     by its own, or where its own does not accept it, between two accepted frames: :func:`fill_between`); each is
     said (a warning). The result keeps the traverses' frames and their similarity; :attr:`MatchResult.sampling`
-    records the first pass's speed, the step and, slower, the frames filled (``query_filled``); ``seconds`` both
-    passes.
+    records the first pass's speed, the step and the frames left undecided (``db_apart``) or, slower, filled
+    (``query_filled``); ``seconds`` both passes.
     ``first``: the query's result as already matched (by default matched here, :meth:`Fitted.match`); ``speed``:
     the query's speed read by another method of the same run, used where this method's accepted paths read none
     (a method whose answers off the database's speed form no path); ``pick``: one of :data:`PICKS`. Returns the
@@ -93,7 +94,8 @@ def _resampled(fitted: Fitted, query: EncodedTraverse, k: int, speed: float, pic
             chosen = np.argmax(accepted * (n_q + 1) + lengths, axis=0), np.arange(n_q)
         else:
             chosen = np.argmax(score, axis=0), np.arange(n_q)
-        best, score, accepted = best[chosen], score[chosen], accepted[chosen]
+        apart = disagree(best, accepted, step)
+        best, score, accepted = best[chosen], score[chosen], accepted[chosen] & ~apart
         said = f"the database was learned again as {step} maps of one frame in {step}"
     else:  # each query frame is in one phase's query
         S = (sp.hstack if sparse else np.hstack)([r.similarity for r in parts])[:, order]
@@ -106,11 +108,23 @@ def _resampled(fitted: Fitted, query: EncodedTraverse, k: int, speed: float, pic
     warnings.warn(f"{who}: along its {along} the query moved {speed:.2g} database frames a frame, "
                   f"driven {'faster' if k > 0 else 'slower'} than the database at the same frame rate: {said}, so "
                   "that its sequences follow the query's (docs/localize.md)", UserWarning, stacklevel=3)
-    sampling = {"speed": round(float(speed), 3), "db_step" if k > 0 else "query_step": abs(k)}
-    if k < 0:
-        sampling["query_filled"] = int(filled.sum())
+    sampling = {"speed": round(float(speed), 3), "db_step" if k > 0 else "query_step": abs(k),
+                "db_apart" if k > 0 else "query_filled": int((apart if k > 0 else filled).sum())}
     return MatchResult(method.name, S, best, score, accepted, sum(r.seconds for r in parts), dict(method.conf),
                        sampling)
+
+
+def disagree(best, accepted, step: int) -> np.ndarray:
+    """Per query frame, whether the maps of one frame in ``step`` that accept it place it more than ``step + 1``
+    frames of the whole map apart (each map's answer is within about ``step / 2`` of the place, and a frame of it
+    either way): they contradict each other, and the frame is not decided.
+
+    ``best``, ``accepted``: one row per map, one column per query frame, answers numbered on the whole map.
+    """
+    best, accepted = np.asarray(best, np.int64), np.asarray(accepted, bool) & (np.asarray(best) >= 0)
+    lo = np.where(accepted, best, np.iinfo(np.int64).max).min(axis=0)
+    hi = np.where(accepted, best, -1).max(axis=0)
+    return (accepted.sum(axis=0) >= 2) & (hi - lo > step + 1)
 
 
 def fill_between(best, score, accepted, step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -245,12 +259,12 @@ class SpeedFollower(QueryLocalizer):
     Steps the map's ``localizer`` on every frame and reads the speed of the consistent path of best frames (the
     path rule's ``back`` / ``ahead``, over at least :data:`~vpr.evaluate.MIN_RUN` frames) of the answers: the
     localizer's, and while a faster query is followed, those given (the localizer's evidence lags a faster
-    query). While it is
-    :data:`~vpr.groundtruth.RATE_RATIO` or more map frames a frame, the frames are answered by the ``step`` maps of
-    one frame in ``step`` (learned again from ``sdr``, the map's SDRs, when first needed; each frame by the map whose
-    path is accepted and longest); while it is ``1 / RATE_RATIO`` or less (:func:`~vpr.groundtruth.speed_step`: a
-    path that stays on one map frame is no speed), by the map with the frames taken as ``step`` queries of one frame
-    in ``step`` (each frame by its own; a frame its own does not accept, just after one its own accepted, by that
+    query). While it is :data:`~vpr.groundtruth.RATE_RATIO` or more map frames a frame, the frames are answered by
+    the ``step`` maps of one frame in ``step`` (learned again from ``sdr``, the map's SDRs, when first needed; each
+    frame by the map whose path is accepted and longest, not accepted where the maps that accept it place it
+    apart: :func:`disagree`); while it is ``1 / RATE_RATIO`` or less (:func:`~vpr.groundtruth.speed_step`: a path
+    that stays on one map frame is no speed), by the map with the frames taken as ``step`` queries of one frame in
+    ``step`` (each frame by its own; a frame its own does not accept, just after one its own accepted, by that
     one's answer: it moved less than a map frame since), and such a speed is left only at a frame they do not answer
     (the localizer's evidence runs ahead of a slower query); otherwise by ``localizer``. The engines of a speed start
     when it is read, from the last ``replay`` frames (kept for that), so that they answer with their evidence built;
@@ -273,7 +287,7 @@ class SpeedFollower(QueryLocalizer):
         self.recent: list[tuple[int, np.ndarray]] = []  # (frame, active bits) of the last ``replay`` frames
         #: frames this object answered by the maps of one frame in ``step`` / as queries of one frame in ``step``
         #: (not part of the state: a follower loaded from one counts its own)
-        self.frames = {"db_step": 0, "query_step": 0, "query_filled": 0}
+        self.frames = {"db_step": 0, "query_step": 0, "db_apart": 0, "query_filled": 0}
         self.last: tuple[int, int, float] | None = None  # (frame, best, score) of a slower query's frame accepted on
         # its own query, the frame before this one
 
@@ -371,7 +385,13 @@ class SpeedFollower(QueryLocalizer):
             i = max(range(self.step), key=lambda i: (bool(answers[i].accepted), self.phase_paths[i].length)
                     if self.pick == "path" else answers[i].score)
             self.frames["db_step"] += 1
-            return _on_map(answers[i], self.keeps[i], self.base.n_db, d.frame)
+            out = _on_map(answers[i], self.keeps[i], self.base.n_db, d.frame)
+            on_map = np.array([keep[a.best] if a.best >= 0 else -1 for a, keep in zip(answers, self.keeps,
+                                                                                    strict=True)])[:, None]
+            if out.accepted and disagree(on_map, np.array([a.accepted for a in answers])[:, None], self.step)[0]:
+                self.frames["db_apart"] += 1  # the maps contradict each other: not decided
+                return dataclasses.replace(out, accepted=False)
+            return out
         if self.mode < 0:
             self.frames["query_step"] += 1
             return self._slower(j, bits, d, answers)
@@ -391,10 +411,11 @@ class SpeedFollower(QueryLocalizer):
     def sampling(self) -> dict | None:
         """metrics.json's ``sampling`` of the frames so far: the step and the frames answered at it (None: every
         frame as it came)."""
-        used = {k: v for k, v in self.frames.items() if v and k != "query_filled"}
+        used = {k: self.frames[k] for k in ("db_step", "query_step") if self.frames[k]}
         out = {**{k: self.step for k in used}, **{f"{k}_frames": v for k, v in used.items()}}
-        if used.get("query_step"):
-            out["query_filled"] = self.frames["query_filled"]
+        for k, extra in (("db_step", "db_apart"), ("query_step", "query_filled")):
+            if used.get(k):
+                out[extra] = self.frames[extra]
         return out or None
 
     def state(self) -> tuple[dict, dict]:
