@@ -51,7 +51,11 @@ stream, as they come and followed (:func:`vpr.methods.loops_at_speed`).
 Then both, ``vpr loops`` and ``vpr localize``, as the goal measures them: the
 best matches in the datasets' usual soft bands neither right nor wrong.
 
-With ``--loops``: only those two tables. With ``--one-run``: only ``vpr loops`` of one
+Then, where a faster query's two maps of one frame in 2 both accept a frame, how far
+apart they place it, and the decisions with frames placed apart left undecided
+(:func:`vpr.methods.disagree`).
+
+With ``--loops``: only those two tables; with ``--apart``: only the last. With ``--one-run``: only ``vpr loops`` of one
 folder holding a revisit at 2x (Gardens Point) and of forward-only renders, and the
 runs of best earlier frames in each that read another speed; then one rendered run
 with loops in it, its later laps driven at 2x or its first lap at 2x (the later at 0.5x),
@@ -289,7 +293,8 @@ def followed(data: Path, root: Path) -> None:
                 m = reports[how][method]
                 v, sampling = m["path_speed"], m.get("sampling")
                 again = (f"; one {'database' if 'db_step' in sampling else 'query'} frame in "
-                         f"{sampling.get('db_step') or sampling.get('query_step')}") if sampling else ""
+                         f"{sampling.get('db_step') or sampling.get('query_step')}{_decided(sampling)}") \
+                    if sampling else ""
                 cells.append(f"{decisions_cell(m, frames=False)}; speed {'-' if v is None else f'{v:.2f}'}{again}")
             print(f"| {name} | {method} | {' | '.join(cells)} |", flush=True)
     for name, db, query, radius, p_db, p_q in _as_is_or_followed(
@@ -306,8 +311,17 @@ def followed(data: Path, root: Path) -> None:
             sampling = json.loads((out / "metrics.json").read_text())["methods"]["rshosm-seq"].get("sampling")
             how_said = {"db_step": "by the maps of one frame in", "query_step": "as queries of one frame in"}
             cells.append(cell + "".join(f"; {sampling[k + '_frames']} frames {said} {sampling[k]}"
-                                        for k, said in how_said.items() if sampling and k in sampling))
+                                        for k, said in how_said.items() if sampling and k in sampling)
+                         + _decided(sampling or {}))
         print(f"| {name} | {' | '.join(cells)} |", flush=True)
+
+
+def _decided(sampling: dict) -> str:
+    """What a followed speed decided otherwise: frames the maps of one frame in k placed apart (left undecided), or a
+    slower query's frames placed between accepted ones."""
+    return "".join(f", {sampling[k]} {said}" for k, said in (("db_apart", "placed apart"),
+                                                               ("query_filled", "placed between"))
+                   if sampling.get(k))
 
 
 def loops(data: Path, root: Path) -> None:
@@ -326,7 +340,7 @@ def loops(data: Path, root: Path) -> None:
             for f in (m.get("sampling") or {}).get("sessions", []):
                 step = f.get("db_step") or f.get("query_step")
                 again += f"; matched {f['speed']:.2f}" + (
-                    f"; one {'earlier' if 'db_step' in f else 'later'} frame in {step}" if step else "")
+                    f"; one {'earlier' if 'db_step' in f else 'later'} frame in {step}{_decided(f)}" if step else "")
             cells.append(f"{decisions_cell(m, frames=False)}; speed {'-' if v is None else f'{v:.2f}'}{again}")
         print(f"| {name} | {' | '.join(cells)} |", flush=True)
 
@@ -619,6 +633,58 @@ def picks(data: Path, root: Path) -> None:
         print(f"| {held} | {chosen} | {pb:.3f}, {rb:.2f}; {po:.3f}, {ro:.2f} |", flush=True)
 
 
+def apart(data: Path, root: Path) -> None:
+    """Where a faster query's two maps of one frame in 2 both accept a frame: how far apart they place it, how many
+    of those frames one of them answers wrong (beyond the soft band), and the batch decisions (``match_at_speed``'s
+    pick) with such frames left undecided beyond a bound of 3 (:func:`vpr.methods.disagree`, the default) or 5 map
+    frames, or never. SDRs as ``vpr compare`` encodes them."""
+    import encoders
+    from encoders.extract import extract_all
+    from vpr import methods, presets
+    from vpr.methods.speed import _path_lengths
+    from vpr.sources import open_sources
+    from vpr.types import EncodedTraverse
+
+    s = presets.resolve(None)
+    enc = encoders.get(s["encoder"], **s["encoder_conf"])
+    print("\na faster query's two maps of one frame in 2, where both accept a frame: frames by how far apart they "
+          "place it (map frames; with a wrong answer among them); the decisions with frames placed farther apart "
+          "than a bound left undecided: accepted, P(acc), R(acc) (soft bands as above)")
+    print("| stream | both accept | 1 apart | 3 apart | 5 apart | 7 or more | never undecided | bound 5 | bound 3 "
+          "(default) |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for name, (db, x_db), (query, x_q), radius in _streams(data, root):
+        if not ("2x" in name or "1.5-2.5x" in name):
+            continue
+        with warnings.catch_warnings(action="ignore"):
+            D, Q = (e.features for e in extract_all(open_sources([db, query]), ["database", "query"], enc, {"sdr"},
+                                                    root / "cache", False, False))
+            m = methods.get("rshosm-seq")
+            dbt = EncodedTraverse(D.names, sdr=D.sdr)
+            parts = [m.fit(dbt.take(np.arange(a, len(dbt), 2))).match(EncodedTraverse(Q.names, sdr=Q.sdr))
+                     for a in (0, 1)]
+        best = np.stack([np.where(p.best >= 0, 2 * p.best + a, -1) for a, p in enumerate(parts)])
+        acc = np.stack([p.accepted for p in parts]) & (best >= 0)
+        n_q = best.shape[1]
+        chosen = np.argmax(acc * (n_q + 1) + np.stack([_path_lengths(p.best, 4, 6) for p in parts]), axis=0)
+        b, a = best[chosen, np.arange(n_q)], acc[chosen, np.arange(n_q)]
+        soft = SOFT[radius]
+        err = np.abs(x_db[np.maximum(best, 0)] - x_q[None])
+        wrong_one = (acc & (err > soft)).any(axis=0)
+        both, diff = acc.all(axis=0), np.abs(best[0] - best[1])
+        cells = [str(int(both.sum()))]
+        for lo, hi in ((1, 1), (3, 3), (5, 5), (7, 10**9)):
+            at = both & (diff >= lo) & (diff <= hi)
+            cells.append(f"{int(at.sum())} ({int((at & wrong_one).sum())})")
+        for bound in (None, 5, 3):
+            keep = a & ~(both & (diff > bound)) if bound else a
+            e = np.abs(x_db[np.maximum(b, 0)] - x_q)
+            right, wrong = keep & (e <= radius), keep & (e > soft)
+            n = int((right | wrong).sum())
+            cells.append(f"{int(keep.sum())}, {right.sum() / n if n else 0:.3f}, {right.sum() / n_q:.2f}")
+        print(f"| {name} | {' | '.join(cells)} |", flush=True)
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "datasets",
@@ -627,6 +693,8 @@ def main(argv=None) -> None:
     ap.add_argument("--cases", action="store_true", help="only the localisation cases (several minutes: Nordland "
                     "at every file)")
     ap.add_argument("--one-run", action="store_true", help="only the table of loops within one folder")
+    ap.add_argument("--apart", action="store_true", help="only the table of a faster query's maps that place a "
+                    "frame apart")
     ap.add_argument("--loops", action="store_true", help="only the loops table (vpr loops MAP QUERY) and the table of "
                     "the goal's measure (soft bands)")
     args = ap.parse_args(argv)
@@ -642,6 +710,9 @@ def main(argv=None) -> None:
         if args.loops:
             loops(args.data, root)
             soft(args.data, root)
+            return
+        if args.apart:
+            apart(args.data, root)
             return
         print("AP, accepted, P(acc), R(acc) of rshosm-seq (default preset), query frames as they come; speed along "
               "the accepted paths, map frames per query frame (query frames counted)")
@@ -669,6 +740,7 @@ def main(argv=None) -> None:
         soft(args.data, root)
         phases(args.data, root)
         picks(args.data, root)
+        apart(args.data, root)
 
 
 if __name__ == "__main__":
