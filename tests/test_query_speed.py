@@ -65,6 +65,12 @@ def test_a_faster_query_is_matched_against_maps_of_one_frame_in_two():
     assert res.sampling["db_apart"] == apart.sum()
 
 
+def test_path_lengths_count_each_frames_consistent_path():
+    best = np.random.default_rng(0).integers(-1, 30, 300).cumsum() % 500 - 1
+    best[::17] = -1
+    np.testing.assert_array_equal(methods.path_lengths(best, 4, 6), _lengths(best))
+
+
 def test_maps_of_one_frame_in_k_that_place_a_frame_apart_leave_it_undecided():
     best = np.array([[10, 10, 10, 10, 10, -1], [11, 13, 15, 6, 30, 50]])
     accepted = np.array([[1, 1, 1, 1, 0, 1], [1, 1, 1, 1, 1, 1]], bool)

@@ -16,7 +16,7 @@ from vpr.types import Column, Decision, EncodedTraverse, MatchResult, QueryLocal
 
 from .base import Fitted, Method
 
-__all__ = ["match_at_speed", "loops_at_speed", "disagree", "fill_between", "SpeedFollower", "PICKS"]
+__all__ = ["match_at_speed", "loops_at_speed", "disagree", "fill_between", "path_lengths", "SpeedFollower", "PICKS"]
 
 
 #: How a frame is answered by one of the ``k`` maps of one frame in ``k``: ``"path"``, the map that accepts it on the
@@ -90,7 +90,7 @@ def _resampled(fitted: Fitted, query: EncodedTraverse, k: int, speed: float, pic
         score, accepted = np.stack([r.score for r in parts]), np.stack([r.accepted for r in parts])
         if pick == "path":
             bounds = PathConf(**{k: method.conf[k] for k in ("back", "ahead") if method.conf.get(k) is not None})
-            lengths = np.stack([_path_lengths(r.best, bounds.back, bounds.ahead) for r in parts])
+            lengths = np.stack([path_lengths(r.best, bounds.back, bounds.ahead) for r in parts])
             chosen = np.argmax(accepted * (n_q + 1) + lengths, axis=0), np.arange(n_q)
         else:
             chosen = np.argmax(score, axis=0), np.arange(n_q)
@@ -453,8 +453,9 @@ class SpeedFollower(QueryLocalizer):
         return self
 
 
-def _path_lengths(best, back: int, ahead: int) -> np.ndarray:
-    """Each frame's length of the consistent path of best frames it ends (:class:`_Path`'s, over a whole traverse)."""
+def path_lengths(best, back: int, ahead: int) -> np.ndarray:
+    """Each frame's length of the consistent path of best frames it ends, over a whole traverse: a frame whose best
+    (``best``, -1: none) lies within ``back`` behind and ``ahead`` beyond the frame before's continues its path."""
     best = np.asarray(best, np.int64)
     found, step = best >= 0, np.diff(best, prepend=-1)
     linked = found & np.r_[False, found[:-1]] & (step >= -back) & (step <= ahead)
