@@ -39,9 +39,8 @@ def match_at_speed(fitted: Fitted, query: EncodedTraverse, progress: bool = Fals
     (:func:`vpr.evaluate.path_speed`, no ground truth; :func:`~vpr.groundtruth.speed_step`) is matched again against
     one database frame in ``k`` (the ``k`` maps of frames ``a, a + k, ...``, learned again; each query frame answered
     by the map ``pick`` chooses, and not accepted where the maps that accept it place it apart: :func:`disagree`)
-    and, moving ``1 / k``, as ``k`` queries of one frame in ``k`` (each frame answered
-    by its own, or where its own does not accept it, between two accepted frames: :func:`fill_between`); each is
-    said (a warning). The result keeps the traverses' frames and their similarity; :attr:`MatchResult.sampling`
+    and, moving ``1 / k``, as ``k`` queries of one frame in ``k`` (each frame answered by its own, or where its own
+    does not accept it, between two accepted frames: :func:`fill_between`); each is said (a warning). The result keeps the traverses' frames and their similarity; :attr:`MatchResult.sampling`
     records the first pass's speed, the step and the frames left undecided (``db_apart``) or, slower, filled
     (``query_filled``); ``seconds`` both passes.
     ``first``: the query's result as already matched (by default matched here, :meth:`Fitted.match`); ``speed``:
@@ -285,8 +284,9 @@ class SpeedFollower(QueryLocalizer):
         self.queries: list[Localizer] = []
         self.mode, self.frame = 0, 0
         self.recent: list[tuple[int, np.ndarray]] = []  # (frame, active bits) of the last ``replay`` frames
-        #: frames this object answered by the maps of one frame in ``step`` / as queries of one frame in ``step``
-        #: (not part of the state: a follower loaded from one counts its own)
+        #: frames this object answered by the maps of one frame in ``step`` / as queries of one frame in ``step``, of
+        #: them those the maps placed apart / answered by the frame before (not part of the state: a follower loaded
+        #: from one counts its own)
         self.frames = {"db_step": 0, "query_step": 0, "db_apart": 0, "query_filled": 0}
         self.last: tuple[int, int, float] | None = None  # (frame, best, score) of a slower query's frame accepted on
         # its own query, the frame before this one
@@ -346,8 +346,8 @@ class SpeedFollower(QueryLocalizer):
         self.recent = [*self.recent[-(self.replay - 1):], (j, bits)] if self.replay > 0 else []
         d = self.base.update(bits)
         self.frame += 1
-        if self.mode < 0:  # a slower query's engines answer first; the speed the map's answers read
-            out = self._slower(j, bits, d)  # leaves it at a frame they do not answer
+        if self.mode < 0:  # a slower query's queries answer first; the speed read leaves it where they do not
+            out = self._slower(j, bits, d)
             if out.accepted:
                 self.path.step(j, d.best)
             else:
