@@ -40,9 +40,10 @@ def match_at_speed(fitted: Fitted, query: EncodedTraverse, progress: bool = Fals
     one database frame in ``k`` (the ``k`` maps of frames ``a, a + k, ...``, learned again; each query frame answered
     by the map ``pick`` chooses, and not accepted where the maps that accept it place it apart: :func:`disagree`)
     and, moving ``1 / k``, as ``k`` queries of one frame in ``k`` (each frame answered by its own, or where its own
-    does not accept it, between two accepted frames: :func:`fill_between`); each is said (a warning). The result keeps the traverses' frames and their similarity; :attr:`MatchResult.sampling`
-    records the first pass's speed, the step and the frames left undecided (``db_apart``) or, slower, filled
-    (``query_filled``); ``seconds`` both passes.
+    does not accept it, between two accepted frames: :func:`fill_between`); each is said (a warning). The result
+    keeps the traverses' frames and their similarity; :attr:`MatchResult.sampling` records the first pass's speed,
+    the step and the frames left undecided (``db_apart``) or, slower, filled (``query_filled``); ``seconds`` both
+    passes.
     ``first``: the query's result as already matched (by default matched here, :meth:`Fitted.match`); ``speed``:
     the query's speed read by another method of the same run, used where this method's accepted paths read none
     (a method whose answers off the database's speed form no path); ``pick``: one of :data:`PICKS`. Returns the
