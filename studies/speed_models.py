@@ -633,11 +633,16 @@ def picks(data: Path, root: Path) -> None:
         print(f"| {held} | {chosen} | {pb:.3f}, {rb:.2f}; {po:.3f}, {ro:.2f} |", flush=True)
 
 
+#: The bounds :func:`apart` compares (None: never undecided; 3: ``disagree``'s k + 1 at k = 2).
+BOUNDS = (None, 5, 3)
+
+
 def apart(data: Path, root: Path) -> None:
     """Where a faster query's two maps of one frame in 2 both accept a frame: how far apart they place it, how many
     of those frames one of them answers wrong (beyond the soft band), and the batch decisions (``match_at_speed``'s
     pick) with such frames left undecided beyond a bound of 3 (:func:`vpr.methods.disagree`, the default) or 5 map
-    frames, or never. SDRs as ``vpr compare`` encodes them."""
+    frames, or never; then the bounds the larger mean precision, then recall, picks on one dataset's streams,
+    reported on the other's. SDRs as ``vpr compare`` encodes them."""
     import encoders
     from encoders.extract import extract_all
     from vpr import methods, presets
@@ -647,6 +652,7 @@ def apart(data: Path, root: Path) -> None:
 
     s = presets.resolve(None)
     enc = encoders.get(s["encoder"], **s["encoder_conf"])
+    rows: dict = {}
     print("\na faster query's two maps of one frame in 2, where both accept a frame: frames by how far apart they "
           "place it (map frames; with a wrong answer among them); the decisions with frames placed farther apart "
           "than a bound left undecided: accepted, P(acc), R(acc) (soft bands as above)")
@@ -676,13 +682,27 @@ def apart(data: Path, root: Path) -> None:
         for lo, hi in ((1, 1), (3, 3), (5, 5), (7, 10**9)):
             at = both & (diff >= lo) & (diff <= hi)
             cells.append(f"{int(at.sum())} ({int((at & wrong_one).sum())})")
-        for bound in (None, 5, 3):
+        for bound in BOUNDS:
             keep = a & ~(both & (diff > bound)) if bound else a
             e = np.abs(x_db[np.maximum(b, 0)] - x_q)
             right, wrong = keep & (e <= radius), keep & (e > soft)
             n = int((right | wrong).sum())
-            cells.append(f"{int(keep.sum())}, {right.sum() / n if n else 0:.3f}, {right.sum() / n_q:.2f}")
+            rows[name, bound] = (right.sum() / n if n else None, right.sum() / n_q)
+            cells.append(f"{int(keep.sum())}, {'-' if not n else f'{right.sum() / n:.3f}'}, {right.sum() / n_q:.2f}")
         print(f"| {name} | {' | '.join(cells)} |", flush=True)
+    print("\n| held out | bounds best on the other dataset (mean P, then mean R) | on the held-out streams: mean P, "
+          "mean R of each |")
+    print("|---|---|---|")
+    for held in ("Gardens Point", "Nordland"):
+        def mean(bound, inside, held=held):
+            vals = [v for (n, k), v in rows.items() if k == bound and n.startswith(held) == inside]
+            return (float(np.mean([p for p, _ in vals if p is not None] or [0.0])),
+                    float(np.mean([r for _, r in vals])))
+        top = max(mean(k, False) for k in BOUNDS)
+        best = [k for k in BOUNDS if mean(k, False) == top]
+        print(f"| {held} | {', '.join('never' if k is None else str(k) for k in best)} | "
+              + "; ".join(f"{'never' if k is None else k}: {mean(k, True)[0]:.3f}, {mean(k, True)[1]:.2f}"
+                          for k in best) + " |", flush=True)
 
 
 def main(argv=None) -> None:
