@@ -646,7 +646,7 @@ def apart(data: Path, root: Path) -> None:
     import encoders
     from encoders.extract import extract_all
     from vpr import methods, presets
-    from vpr.methods import path_lengths
+    from vpr.methods import pick_maps
     from vpr.sources import open_sources
     from vpr.types import EncodedTraverse
 
@@ -672,7 +672,7 @@ def apart(data: Path, root: Path) -> None:
         best = np.stack([np.where(p.best >= 0, 2 * p.best + a, -1) for a, p in enumerate(parts)])
         acc = np.stack([p.accepted for p in parts]) & (best >= 0)
         n_q = best.shape[1]
-        chosen = np.argmax(acc * (n_q + 1) + np.stack([path_lengths(p.best, 4, 6) for p in parts]), axis=0)
+        chosen = pick_maps(np.stack([p.best for p in parts]), acc, np.stack([p.score for p in parts]))
         b, a = best[chosen, np.arange(n_q)], acc[chosen, np.arange(n_q)]
         soft = SOFT[radius]
         err = np.abs(x_db[np.maximum(best, 0)] - x_q[None])

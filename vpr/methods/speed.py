@@ -16,7 +16,8 @@ from vpr.types import Column, Decision, EncodedTraverse, MatchResult, QueryLocal
 
 from .base import Fitted, Method
 
-__all__ = ["match_at_speed", "loops_at_speed", "disagree", "fill_between", "path_lengths", "SpeedFollower", "PICKS"]
+__all__ = ["match_at_speed", "loops_at_speed", "pick_maps", "disagree", "fill_between", "path_lengths",
+           "SpeedFollower", "PICKS"]
 
 
 #: How a frame is answered by one of the ``k`` maps of one frame in ``k``: ``"path"``, the map that accepts it on the
@@ -88,12 +89,9 @@ def _resampled(fitted: Fitted, query: EncodedTraverse, k: int, speed: float, pic
         best = np.stack([np.where(r.best >= 0, f[np.maximum(r.best, 0)], -1) for r, f in zip(parts, phases,
                                                                                           strict=True)])
         score, accepted = np.stack([r.score for r in parts]), np.stack([r.accepted for r in parts])
-        if pick == "path":
-            bounds = PathConf(**{k: method.conf[k] for k in ("back", "ahead") if method.conf.get(k) is not None})
-            lengths = np.stack([path_lengths(r.best, bounds.back, bounds.ahead) for r in parts])
-            chosen = np.argmax(accepted * (n_q + 1) + lengths, axis=0), np.arange(n_q)
-        else:
-            chosen = np.argmax(score, axis=0), np.arange(n_q)
+        bounds = PathConf(**{k: method.conf[k] for k in ("back", "ahead") if method.conf.get(k) is not None})
+        chosen = pick_maps(np.stack([r.best for r in parts]), accepted, score, pick, bounds.back, bounds.ahead), \
+            np.arange(n_q)
         apart = disagree(best, accepted, step)
         best, score, accepted = best[chosen], score[chosen], accepted[chosen] & ~apart
         said = f"the database was learned again as {step} maps of one frame in {step}"
@@ -112,6 +110,21 @@ def _resampled(fitted: Fitted, query: EncodedTraverse, k: int, speed: float, pic
                 "db_apart" if k > 0 else "query_filled": int((apart if k > 0 else filled).sum())}
     return MatchResult(method.name, S, best, score, accepted, sum(r.seconds for r in parts), dict(method.conf),
                        sampling)
+
+
+def pick_maps(best, accepted, score, pick: str = "path", back: int = PathConf.back,
+              ahead: int = PathConf.ahead) -> np.ndarray:
+    """Per query frame, the map of one frame in k that answers it (:data:`PICKS`): ``"path"``, an accepting map on
+    the longest consistent path of best frames (:func:`path_lengths` with ``back`` / ``ahead``; ties: the first
+    map), or ``"score"``, the map of the largest score.
+
+    ``best`` (each map's own frame numbers), ``accepted``, ``score``: one row per map, one column per query frame.
+    """
+    best, accepted = np.asarray(best, np.int64), np.asarray(accepted, bool)
+    if _check_pick(pick) == "score":
+        return np.argmax(np.asarray(score), axis=0)
+    lengths = np.stack([path_lengths(b, back, ahead) for b in best])
+    return np.argmax(accepted * (best.shape[1] + 1) + lengths, axis=0)
 
 
 def disagree(best, accepted, step: int) -> np.ndarray:
@@ -140,10 +153,10 @@ def fill_between(best, score, accepted, step: int) -> tuple[np.ndarray, np.ndarr
     accepted = np.asarray(accepted, bool) & (best >= 0)
     filled = np.zeros(best.size, bool)
     acc = np.flatnonzero(accepted)
-    for q0, q1 in zip(acc[:-1], acc[1:], strict=True):
+    gap, moved = np.diff(acc), np.diff(best[acc])
+    for i in np.flatnonzero((gap > 1) & (gap <= step) & (moved >= 0) & (moved <= 2)):
+        q0, q1 = acc[i], acc[i + 1]
         b0, b1 = best[q0], best[q1]
-        if not 1 < q1 - q0 <= step or not 0 <= b1 - b0 <= 2:
-            continue
         q = np.arange(q0 + 1, q1)
         best[q] = b0 + np.rint((b1 - b0) * (q - q0) / (q1 - q0)).astype(np.int64)
         score[q] = min(score[q0], score[q1])
