@@ -640,13 +640,14 @@ BOUNDS = (None, 5, 3)
 def apart(data: Path, root: Path) -> None:
     """Where a faster query's two maps of one frame in 2 both accept a frame: how far apart they place it, how many
     of those frames one of them answers wrong (beyond the soft band), and the batch decisions (``match_at_speed``'s
-    pick) with such frames left undecided beyond a bound of 3 (:func:`vpr.methods.disagree`, the default) or 5 map
-    frames, or never; then the bounds the larger mean precision, then recall, picks on one dataset's streams,
+    pick, between the two answers where they agree: :func:`vpr.methods.between_maps`) with such frames left
+    undecided beyond a bound of 3 (:func:`vpr.methods.disagree`, the default) or 5 map frames, or never; then the
+    bounds the larger mean precision, then recall, picks on one dataset's streams,
     reported on the other's. SDRs as ``vpr compare`` encodes them."""
     import encoders
     from encoders.extract import extract_all
     from vpr import methods, presets
-    from vpr.methods import pick_maps
+    from vpr.methods import between_maps, pick_maps
     from vpr.sources import open_sources
     from vpr.types import EncodedTraverse
 
@@ -673,7 +674,7 @@ def apart(data: Path, root: Path) -> None:
         acc = np.stack([p.accepted for p in parts]) & (best >= 0)
         n_q = best.shape[1]
         chosen = pick_maps(np.stack([p.best for p in parts]), acc, np.stack([p.score for p in parts]))
-        b, a = best[chosen, np.arange(n_q)], acc[chosen, np.arange(n_q)]
+        b, a = between_maps(best, acc, best[chosen, np.arange(n_q)], 2), acc[chosen, np.arange(n_q)]
         soft = SOFT[radius]
         err = np.abs(x_db[np.maximum(best, 0)] - x_q[None])
         wrong_one = (acc & (err > soft)).any(axis=0)

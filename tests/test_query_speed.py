@@ -58,11 +58,41 @@ def test_a_faster_query_is_matched_against_maps_of_one_frame_in_two():
     even = methods.get("rshosm-seq").fit(db.take(np.arange(0, len(db), 2))).match(q)
     n_even, n_odd = _lengths(even.best), _lengths(odd.best)
     take_odd = (odd.accepted > even.accepted) | ((odd.accepted == even.accepted) & (n_odd > n_even))
-    np.testing.assert_array_equal(res.best, np.where(take_odd, 2 * odd.best + 1, 2 * even.best))
-    # accepted unless both accept it more than 3 database frames apart
+    picked = np.where(take_odd, 2 * odd.best + 1, 2 * even.best)
+    # accepted unless both accept it more than 3 database frames apart; where both accept it nearer, between them
     apart = even.accepted & odd.accepted & (np.abs(2 * odd.best + 1 - 2 * even.best) > 3)
+    both = even.accepted & odd.accepted & ~apart
+    np.testing.assert_array_equal(res.best, [_between([2 * e, 2 * o + 1], p) if b else p for e, o, p, b in
+                                             zip(even.best, odd.best, picked, both, strict=True)])
+    assert (res.best != picked).any()
     np.testing.assert_array_equal(res.accepted, np.where(take_odd, odd.accepted, even.accepted) & ~apart)
     assert res.sampling["db_apart"] == apart.sum()
+
+
+def _between(answers, picked):
+    """The oracle of between_maps for one frame that several maps accept and agree on: the mean of their answers,
+    rounded toward the picked map's answer."""
+    mean = sum(answers) / len(answers)
+    return int(np.ceil(mean)) if picked >= mean else int(np.floor(mean))
+
+
+def test_maps_of_one_frame_in_k_that_agree_answer_between_them():
+    best = np.array([[10, 10, 10, 10, 10, -1, 7], [11, 13, 14, 6, 30, 50, 7]])
+    accepted = np.array([[1, 1, 1, 1, 0, 1, 1], [1, 1, 1, 1, 1, 1, 1]], bool)
+    chosen = np.array([10, 13, 10, 10, 30, 50, 7])
+    # 10 / 11: 10.5 toward 10; 10 / 13: 11.5 toward 13; 10 / 14 and 10 / 6 apart; one map accepts; the same answer
+    np.testing.assert_array_equal(methods.between_maps(best, accepted, chosen, 2), [10, 12, 10, 10, 30, 50, 7])
+    three = np.array([[10, 10, -1], [12, 12, 20], [13, 14, 21]])
+    np.testing.assert_array_equal(methods.between_maps(three, three >= 0, [13, 10, 20], 3), [12, 12, 20])
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        b = rng.integers(-1, 12, (3, 1))
+        a = rng.random((3, 1)) < 0.7
+        took = a[:, 0] & (b[:, 0] >= 0)
+        pick = int(b[took, 0][0]) if took.any() else int(b[0, 0])
+        agree = took.sum() >= 2 and np.ptp(b[took, 0]) <= 4
+        want = _between(list(b[took, 0]), pick) if agree else pick
+        assert methods.between_maps(b, a, [pick], 3)[0] == want
 
 
 def test_path_lengths_count_each_frames_consistent_path():
@@ -199,7 +229,8 @@ def test_online_a_faster_query_is_answered_by_the_maps_of_one_frame_in_two():
         assert d.column.n == db.shape[0] and (d.best < 0 or d.column.rows.max() < db.shape[0])
 
 
-def test_online_maps_of_one_frame_in_two_that_place_a_frame_apart_leave_it_undecided(monkeypatch):
+def test_online_maps_of_one_frame_in_two_that_place_a_frame_apart_leave_it_undecided_and_near_answer_between(
+        monkeypatch):
     db, q, _, q_place = simulate.aliased_traverses(300, 100, speed=(1.8, 2.2), seed=1)
     _, follower = _follower(db)
     fed, feed = {}, follower._feed
@@ -212,7 +243,7 @@ def test_online_maps_of_one_frame_in_two_that_place_a_frame_apart_leave_it_undec
 
     monkeypatch.setattr(follower, "_feed", spy)
     ds = [follower.update(q[j]) for j in range(q.shape[0])]
-    apart = 0
+    apart = between = 0
     for j, d in enumerate(ds):
         mode, answers = fed.get(j, (0, []))
         if mode <= 0 or not answers:
@@ -221,7 +252,11 @@ def test_online_maps_of_one_frame_in_two_that_place_a_frame_apart_leave_it_undec
         far = len(on_map) == 2 and abs(on_map[0] - on_map[1]) > 3
         apart += far
         assert d.accepted == (any(a.accepted for a in answers) and not far), j
+        if len(on_map) == 2 and not far:  # both accept it near each other: between their answers
+            between += on_map[0] != on_map[1] and d.best not in on_map
+            assert d.best in (np.floor(np.mean(on_map)), np.ceil(np.mean(on_map))), j
     assert apart == follower.sampling()["db_apart"] > 10
+    assert between > 0
 
 
 @pytest.mark.parametrize("speed", [(1.8, 2.2), (0.45, 0.55)])
@@ -348,7 +383,10 @@ def test_the_map_of_the_largest_score_and_a_pick_refused():
         warnings.simplefilter("ignore")
         res = methods.match_at_speed(fitted, q, pick="score")
     even, odd = (methods.get("rshosm-seq").fit(db.take(np.arange(a, len(db), 2))).match(q) for a in (0, 1))
-    np.testing.assert_array_equal(res.best, np.where(odd.score > even.score, 2 * odd.best + 1, 2 * even.best))
+    picked = np.where(odd.score > even.score, 2 * odd.best + 1, 2 * even.best)
+    both = even.accepted & odd.accepted & (np.abs(2 * odd.best + 1 - 2 * even.best) <= 3)
+    np.testing.assert_array_equal(res.best, [_between([2 * e, 2 * o + 1], p) if b else p for e, o, p, b in
+                                             zip(even.best, odd.best, picked, both, strict=True)])
     with pytest.raises(ValueError, match="pick must be one of path, score"):
         methods.match_at_speed(fitted, q, pick="nope")
     with pytest.raises(ValueError, match="pick must be one of"):

@@ -7,10 +7,20 @@ from importlib import import_module
 from vpr.types import EncodedTraverse, ImageInput, MatchResult
 
 from .base import Fitted, Method
-from .speed import PICKS, SpeedFollower, disagree, fill_between, loops_at_speed, match_at_speed, path_lengths, pick_maps
+from .speed import (
+    PICKS,
+    SpeedFollower,
+    between_maps,
+    disagree,
+    fill_between,
+    loops_at_speed,
+    match_at_speed,
+    path_lengths,
+    pick_maps,
+)
 
 __all__ = ["online", "get", "build", "available", "get_class", "match", "loops", "image_inputs", "Method", "Fitted",
-           "match_at_speed", "loops_at_speed", "pick_maps", "disagree", "fill_between", "path_lengths",
+           "match_at_speed", "loops_at_speed", "pick_maps", "disagree", "between_maps", "fill_between", "path_lengths",
            "SpeedFollower", "PICKS"]
 
 # name -> (module, class); imported on first use, so that e.g. the SeqSLAM kernels load only for seqslam

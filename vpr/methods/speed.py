@@ -16,8 +16,8 @@ from vpr.types import Column, Decision, EncodedTraverse, MatchResult, QueryLocal
 
 from .base import Fitted, Method
 
-__all__ = ["match_at_speed", "loops_at_speed", "pick_maps", "disagree", "fill_between", "path_lengths",
-           "SpeedFollower", "PICKS"]
+__all__ = ["match_at_speed", "loops_at_speed", "pick_maps", "disagree", "between_maps", "fill_between",
+           "path_lengths", "SpeedFollower", "PICKS"]
 
 
 #: How a frame is answered by one of the ``k`` maps of one frame in ``k``: ``"path"``, the map that accepts it on the
@@ -39,7 +39,8 @@ def match_at_speed(fitted: Fitted, query: EncodedTraverse, progress: bool = Fals
     paths move ``k`` >= :data:`~vpr.groundtruth.RATE_RATIO` database frames a query frame
     (:func:`vpr.evaluate.path_speed`, no ground truth; :func:`~vpr.groundtruth.speed_step`) is matched again against
     one database frame in ``k`` (the ``k`` maps of frames ``a, a + k, ...``, learned again; each query frame answered
-    by the map ``pick`` chooses, and not accepted where the maps that accept it place it apart: :func:`disagree`)
+    by the map ``pick`` chooses or, where several accept it, between their answers (:func:`between_maps`), and not
+    accepted where they place it apart: :func:`disagree`)
     and, moving ``1 / k``, as ``k`` queries of one frame in ``k`` (each frame answered by its own, or where its own
     does not accept it, between two accepted frames: :func:`fill_between`); each is said (a warning). The result
     keeps the traverses' frames and their similarity; :attr:`MatchResult.sampling` records the first pass's speed,
@@ -93,7 +94,8 @@ def _resampled(fitted: Fitted, query: EncodedTraverse, k: int, speed: float, pic
         chosen = pick_maps(np.stack([r.best for r in parts]), accepted, score, pick, bounds.back, bounds.ahead), \
             np.arange(n_q)
         apart = disagree(best, accepted, step)
-        best, score, accepted = best[chosen], score[chosen], accepted[chosen] & ~apart
+        score, taken = score[chosen], accepted[chosen] & ~apart
+        best, accepted = between_maps(best, accepted, best[chosen], step), taken
         said = f"the database was learned again as {step} maps of one frame in {step}"
     else:  # each query frame is in one phase's query
         S = (sp.hstack if sparse else np.hstack)([r.similarity for r in parts])[:, order]
@@ -138,6 +140,23 @@ def disagree(best, accepted, step: int) -> np.ndarray:
     lo = np.where(accepted, best, np.iinfo(np.int64).max).min(axis=0)
     hi = np.where(accepted, best, -1).max(axis=0)
     return (accepted.sum(axis=0) >= 2) & (hi - lo > step + 1)
+
+
+def between_maps(best, accepted, chosen, step: int) -> np.ndarray:
+    """Per query frame, the answer of the maps of one frame in ``step`` that accept it and agree: the mean of their
+    answers, rounded toward ``chosen`` (the answer of the map picked, :func:`pick_maps`); ``chosen`` where fewer than
+    two accept or they place the frame apart (:func:`disagree`: it is not decided).
+
+    Each map holds the place within about ``step / 2`` frames of the whole map, so two that accept a frame bracket
+    it. ``best``, ``accepted``: one row per map, one column per query frame, answers numbered on the whole map;
+    ``chosen``: one per query frame.
+    """
+    best, chosen = np.asarray(best, np.int64), np.asarray(chosen, np.int64)
+    accepted = np.asarray(accepted, bool) & (best >= 0)
+    n = accepted.sum(axis=0)
+    mean = np.where(accepted, best, 0).sum(axis=0) / np.maximum(n, 1)
+    toward = np.where(chosen >= mean, np.ceil(mean), np.floor(mean)).astype(np.int64)
+    return np.where((n >= 2) & ~disagree(best, accepted, step), toward, chosen)
 
 
 def fill_between(best, score, accepted, step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -274,9 +293,10 @@ class SpeedFollower(QueryLocalizer):
     localizer's, and while a faster query is followed, those given (the localizer's evidence lags a faster
     query). While it is :data:`~vpr.groundtruth.RATE_RATIO` or more map frames a frame, the frames are answered by
     the ``step`` maps of one frame in ``step`` (learned again from ``sdr``, the map's SDRs, when first needed; each
-    frame by the map whose path is accepted and longest, not accepted where the maps that accept it place it
-    apart: :func:`disagree`); while it is ``1 / RATE_RATIO`` or less (:func:`~vpr.groundtruth.speed_step`: a path
-    that stays on one map frame is no speed), by the map with the frames taken as ``step`` queries of one frame in
+    frame by the map whose path is accepted and longest or, where several accept it, between their answers
+    (:func:`between_maps`), not accepted where they place it apart: :func:`disagree`); while it is
+    ``1 / RATE_RATIO`` or less (:func:`~vpr.groundtruth.speed_step`: a path that stays on one map frame is no
+    speed), by the map with the frames taken as ``step`` queries of one frame in
     ``step`` (each frame by its own; a frame its own does not accept, just after one its own accepted, by that
     one's answer: it moved less than a map frame since), and such a speed is left only at a frame they do not answer
     (the localizer's evidence runs ahead of a slower query); otherwise by ``localizer``. The engines of a speed start
@@ -402,9 +422,12 @@ class SpeedFollower(QueryLocalizer):
             out = _on_map(answers[i], self.keeps[i], self.base.n_db, d.frame)
             on_map = np.array([keep[a.best] if a.best >= 0 else -1 for a, keep in zip(answers, self.keeps,
                                                                                     strict=True)])[:, None]
-            if out.accepted and disagree(on_map, np.array([a.accepted for a in answers])[:, None], self.step)[0]:
+            took = np.array([a.accepted for a in answers])[:, None]
+            if out.accepted and disagree(on_map, took, self.step)[0]:
                 self.frames["db_apart"] += 1  # the maps contradict each other: not decided
                 return dataclasses.replace(out, accepted=False)
+            if out.accepted:  # between the answers of the maps that accept it
+                out = dataclasses.replace(out, best=int(between_maps(on_map, took, [out.best], self.step)[0]))
             return out
         if self.mode < 0:
             self.frames["query_step"] += 1
