@@ -376,13 +376,18 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
             opinion = geometry_opinion(frame_reader(srcs, read), opinions, r.name) if opts.geometry else None
             res = r.loops(features, exclude=exclude, progress=opts.progress, sessions=starts, opinion=opinion)
             speeds[r.name] = evaluate.session_speeds(res.best, starts)  # as the sessions came, before any is followed
-            return methods.loops_at_speed(r, features, res, starts, opts.progress) if opts.follow_speed else res
+            if not opts.follow_speed:
+                return res
+            if len(starts) > 1:
+                return methods.loops_at_speed(r, features, res, starts, opts.progress)
+            return methods.loops_in_run_at_speed(r, features, res, exclude, opts.progress)
 
         done = evaluate.run_methods(runners, loops_of, gt_hard, gt_soft, mask, on_result=write, loops=True)
         if len(srcs) == 1:  # the sessions of a stream are read one by one (below)
             groundtruth.check_speeds({k: m.get("path_speed") for k, (m, _) in done.items()},
-                                     fix="within one run a revisit driven at another speed is decided as it comes; "
-                                         "given as sessions (vpr loops RUN1 RUN2), a later run is followed")
+                                     fix="within one run, a stretch whose best earlier frames read another speed "
+                                         "is matched again at that sampling by default (metrics.json sampling.runs); "
+                                         "given as sessions (vpr loops RUN1 RUN2), a later run is followed whole")
         for k, (m, _) in done.items():
             say_session_speeds(k, m.get("session_speeds"), [str(src.path) for src in srcs],
                                {f["session"] for f in (m.get("sampling") or {}).get("sessions", [])})

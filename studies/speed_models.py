@@ -57,7 +57,8 @@ apart they place it, and the decisions with frames placed apart left undecided
 
 With ``--loops``: only those two tables; with ``--apart``: only the last. With ``--one-run``: only ``vpr loops`` of one
 folder holding a revisit at 2x (Gardens Point) and of forward-only renders, and the
-runs of best earlier frames in each that read another speed; then one rendered run
+runs of best earlier frames in each that read another speed, and what a re-match from them would decide (not
+built); then one rendered run
 with loops in it, its later laps driven at 2x or its first lap at 2x (the later at 0.5x),
 with ground truth, geometry on and off. With ``--cases``: only
 the cases the localisation rule was chosen on (:mod:`studies.localize_decisions`),
@@ -353,43 +354,138 @@ def _runs(best) -> list[tuple[int, int, float]]:
     return [(int(a), int(b), (best[b] - best[a]) / (b - a)) for a, b in zip(first, last, strict=True)]
 
 
+#: the forward-only renders of the one-run table: scene, its traverses
+RENDERED_ONE_RUN = {"two_seasons": ("summer_day", "winter_night"), "aliased_corridor": ("lights_on", "night"),
+                    "speed_change": ("slow", "fast")}
+
+
 def one_run(data: Path, root: Path) -> None:
-    """Why a loop within one run is not followed: ``vpr loops`` of one folder (defaults) on a revisit at 2x and on
-    forward-only drives, and the runs of best earlier frames that read another speed (what would start a re-match)."""
+    """A loop within one run: ``vpr loops`` of one folder on a revisit at 2x and on forward-only drives, as it comes
+    (``--query-speed as-is``) and by default (the stretches whose best earlier frames read another speed matched
+    again: :func:`vpr.methods.loops_in_run_at_speed`), each closure judged (:func:`_judged`); the runs of best earlier
+    frames that read another speed; then how the re-match's rule and start were chosen (:func:`rematched`)."""
     from vpr.groundtruth import speed_step
 
     gp = data / "gardens_point_day"
     left, right = sorted((gp / "day_left").iterdir()), sorted((gp / "day_right").iterdir())
     streams = {"gp_1x": ("Gardens Point day_left + day_right, one folder (1x)", left + right),
                "gp_2x": ("Gardens Point day_left + day_right every 2nd, one folder (2x)", left + right[::2])}
-    for scene, names in (("two_seasons", ("summer_day", "winter_night")), ("aliased_corridor", ("lights_on", "night")),
-                         ("speed_change", ("slow", "fast"))):
+    for scene, names in RENDERED_ONE_RUN.items():
         rendered = root / "renders" / scene
         if not (rendered / "scene.json").exists():
             run_quietly(["render", scene, "--out", rendered, "--size", "160x120"])
         for t in names:
             streams[f"{scene}_{t}"] = (f"rendered {scene} {t} (forward only)", sorted((rendered / t).glob("*.png")))
-    print("\nvpr loops of one folder (defaults): frames, accepted; runs of 10 or more best earlier frames; those "
-          "reading 1.5 or more, or 1/1.5 or less, their frames and speed")
-    print("| stream | frames | accepted | runs | off speed |")
-    print("|---|---|---|---|---|")
+    print("\nvpr loops of one folder: frames; runs of 10 or more best earlier frames, those reading 1.5 or more, or "
+          "1/1.5 or less (as it comes); closures accepted as it comes and by default (Gardens Point: right within 2, "
+          "false beyond 8 frames; renders: onto an identical copy, false), the default's stretches matched again")
+    print("| stream | frames | runs | off speed | --query-speed as-is | default | matched again |")
+    print("|---|---|---|---|---|---|---|")
     for key, (name, files) in streams.items():
         folder = root / "one_run" / key
         if not folder.exists():
             folder.mkdir(parents=True)
             for i, f in enumerate(files):
                 (folder / f"{i:05d}{f.suffix}").symlink_to(f.resolve())
-        out = root / "one_run" / f"{key}-out"
-        if not (out / "metrics.json").exists():
-            run_quietly(["loops", folder, "--out", out])
-        with open(out / "rshosm-seq" / "matches.csv", newline="") as fh:
-            rows = list(csv.DictReader(fh))
-        best = [int(r["best_db"]) for r in rows]
-        runs = _runs(best)
+        cells, rows = [], {}
+        for how in ("as-is", "follow"):
+            out = root / "one_run" / f"{key}-{how}"
+            if not (out / "metrics.json").exists():
+                run_quietly(["loops", folder, "--query-speed", how, "--out", out])
+            with open(out / "rshosm-seq" / "matches.csv", newline="") as fh:
+                rows[how] = list(csv.DictReader(fh))
+            best = np.array([int(r["best_db"]) for r in rows[how]])
+            cells.append(_judged(key, best, np.array([r["accepted"] == "1" for r in rows[how]])))
+        runs = _runs([int(r["best_db"]) for r in rows["as-is"]])
         off = [f"{a}-{b} ({v:.2f})" for a, b, v in runs if speed_step(v)]
-        print(f"| {name} | {len(rows)} | {sum(r['accepted'] == '1' for r in rows)} | {len(runs)} | "
-              f"{', '.join(off) or '-'} |", flush=True)
+        sampling = json.loads((root / "one_run" / f"{key}-follow" / "metrics.json").read_text())["methods"][
+            "rshosm-seq"].get("sampling") or {}
+        again = "; ".join(f"{r['frames'][0]}-{r['frames'][1]}, {r['closures']} taken" for r in sampling.get("runs", []))
+        print(f"| {name} | {len(rows['as-is'])} | {len(runs)} | {', '.join(off) or '-'} | {cells[0]} | {cells[1]} | "
+              f"{again or '-'} |", flush=True)
+    rematched(streams, root)
     laps_at_speed(root)
+
+
+def _copies(key: str):
+    """The pairs of a forward-only render of the one-run table that see an identical copy of each other (None: not
+    a render)."""
+    from studies.loop_decisions import aliases
+
+    scene = next((sc for sc in RENDERED_ONE_RUN if key.startswith(sc + "_")), None)
+    return None if scene is None else aliases(f"{scene}/{key[len(scene) + 1:]}")
+
+
+def _judged(key: str, best, accepted) -> str:
+    """The accepted closures of a one-run stream: on Gardens Point (day_left's 200 frames, then day_right, every
+    frame or every 2nd) right within 2 frames and false beyond 8; on a render, onto an identical copy or false."""
+    j = np.flatnonzero(accepted)
+    copy = _copies(key)
+    if copy is None:
+        truth = np.where(j >= 200, (2 if key == "gp_2x" else 1) * (j - 200), -99)
+        err = np.abs(best[j] - truth)
+        return f"{j.size}: {int((err <= 2).sum())} right, {int((err > 8).sum())} false"
+    on = copy[best[j], j]
+    return f"{j.size}: {int(on.sum())} copy, {int((~on).sum())} false"
+
+
+#: the rules a stretch of one run re-matched at another speed is decided by: the localisation's path rule
+#: (rshosm-seq's defaults against a map) and the loop rule's path (LoopConf's drift and min_score)
+REMATCH_RULES = {"localisation rule": {}, "loop rule": {"drift": 1.25, "min_score": 28.0}}
+
+
+def rematched(streams: dict, root: Path) -> None:
+    """How a re-match within one run decides, by rule and start (what ``vpr loops`` does of one run,
+    :func:`vpr.methods.loops_in_run_at_speed`: the loop rule, from ``exclude`` frames before): from each run of best
+    earlier frames that reads another speed (``vpr loops --query-speed as-is`` of the folder; the runs after it at the
+    same step continue it) to the next such stretch or the stream's end, its frames matched against the frames before
+    it (the loop's ``exclude`` back) at the sampling of that speed
+    (:func:`vpr.methods.match_at_speed`, the speed read given), decided by each of :data:`REMATCH_RULES`, then
+    confirmed by the frames after each closure (:func:`vpr.shosm.confirm_closures`, the defaults); starting at the
+    run's first frame, or ``exclude`` frames before it. Closures: right / false on Gardens Point (within 2 / beyond 8
+    frames), onto an identical copy / false on the renders (:func:`studies.loop_decisions.aliases`)."""
+    import encoders
+    from encoders.extract import extract_all
+    from vpr import methods, presets
+    from vpr.groundtruth import speed_step
+    from vpr.methods import match_at_speed
+    from vpr.shosm import LOOP_EXCLUDE, confirm_closures
+    from vpr.sources import open_sources
+    from vpr.types import Decision, EncodedTraverse
+
+    s = presets.resolve(None)
+    enc = encoders.get(s["encoder"], **s["encoder_conf"])
+    print("\na re-match within one run: from each run that reads another speed to the next or the end, against the "
+          "frames before it, decided by a path rule, then confirmed by the frames after each closure; accepted "
+          "(Gardens Point: right, false; renders: onto the copy, false)")
+    print(f"| stream | from | {' | '.join(f'{r} | confirmed' for r in REMATCH_RULES)} |")
+    print("|---|---|" + "---|---|" * len(REMATCH_RULES))
+    for key, (name, _) in streams.items():
+        with open(root / "one_run" / f"{key}-as-is" / "rshosm-seq" / "matches.csv", newline="") as fh:
+            best = [int(r["best_db"]) for r in csv.DictReader(fh)]
+        runs = [(a, v) for a, _, v in _runs(best) if speed_step(v)]
+        runs = [r for i, r in enumerate(runs) if not i or speed_step(r[1]) != speed_step(runs[i - 1][1])]
+        if not runs:
+            continue
+        with warnings.catch_warnings(action="ignore"):
+            (x,) = (e.features for e in extract_all(open_sources([root / "one_run" / key]), ["stream"], enc, {"sdr"},
+                                                    root / "cache", False, False))
+        seq, n = EncodedTraverse(x.names, sdr=x.sdr), len(x.names)
+        for back, label in ((0, "the run's first frame"), (LOOP_EXCLUDE, f"{LOOP_EXCLUDE} frames before it")):
+            cells = []
+            for conf in REMATCH_RULES.values():
+                best_, score, acc = np.full(n, -1), np.zeros(n), np.zeros(n, bool)
+                for i, (a, v) in enumerate(runs):
+                    lo = max(a - back, LOOP_EXCLUDE + 1)
+                    hi = max(runs[i + 1][0] - back, lo) if i + 1 < len(runs) else n
+                    fitted = methods.get("rshosm-seq", **conf).fit(seq.take(np.arange(lo - LOOP_EXCLUDE)))
+                    with warnings.catch_warnings(action="ignore"):
+                        r = match_at_speed(fitted, seq.take(np.arange(lo, hi)), speed=v)
+                    best_[lo:hi], score[lo:hi], acc[lo:hi] = r.best, r.score, r.accepted
+                d = Decision(best_, score, acc, np.ones(n))
+                kept = np.asarray(confirm_closures(d, x.sdr, LOOP_EXCLUDE, RshosmSeqConf.of({})).accepted, bool)
+                cells += [_judged(key, best_, acc), _judged(key, best_, kept)]
+            print(f"| {name} | {label} | {' | '.join(cells)} |", flush=True)
 
 
 #: the rendered laps' ground truth (metres): right within, neither right nor wrong within

@@ -133,12 +133,22 @@ def test_vpr_loops_stdin_equals_the_batch_and_resumes(laps, tmp_path, capsys, mo
 
     paths = sorted(str(p) for p in laps["laps"].glob("*.png"))
     gt = ["--gt", laps["dir"] / "loop_pairs.csv"]
-    code, _, err = _cli(["loops", laps["laps"], "--out", tmp_path / "a", "--no-progress", *LOOSE, *gt], capsys,
-                        monkeypatch)
+    # online, nothing is matched again at another speed: the batch as it comes (--query-speed as-is)
+    code, _, err = _cli(["loops", laps["laps"], "--out", tmp_path / "a", "--no-progress", "--query-speed", "as-is",
+                         *LOOSE, *gt], capsys, monkeypatch)
     assert code == 0, err
     with open(tmp_path / "a" / "rshosm-seq" / "matches.csv") as fh:
         batch = [(int(r["best_db"]), r["accepted"] == "1") for r in csv.DictReader(fh)]
     assert sum(a for _, a in batch) >= 50  # closures are found, so the comparison means something
+    code, _, err = _cli(["loops", laps["laps"], "--out", tmp_path / "e", "--no-progress", *LOOSE, *gt], capsys,
+                        monkeypatch)
+    with open(tmp_path / "e" / "rshosm-seq" / "matches.csv") as fh:
+        default = [(int(r["best_db"]), r["accepted"] == "1") for r in csv.DictReader(fh)]
+    runs = (json.loads((tmp_path / "e" / "metrics.json").read_text())["methods"]["rshosm-seq"].get("sampling")
+            or {}).get("runs", [])
+    changed = [j for j, (x, y) in enumerate(zip(batch, default, strict=True)) if x != y]
+    # by default only the closures its stretches matched again took differ, each onto a frame the as-is left open
+    assert len(changed) == sum(r["closures"] for r in runs) and all(default[j][1] and not batch[j][1] for j in changed)
     code, out, err = _cli(["loops", "-", "--out", tmp_path / "b", *LOOSE, *gt], capsys, monkeypatch,
                           "\n".join(paths) + "\n")
     assert code == 0, err

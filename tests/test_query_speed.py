@@ -9,8 +9,8 @@ import scipy.sparse as sp
 
 from vpr import methods, simulate
 from vpr.methods import SpeedFollower
-from vpr.shosm import Localizer
-from vpr.types import EncodedTraverse
+from vpr.shosm import Localizer, LoopConf, confirm_closures
+from vpr.types import Decision, EncodedTraverse
 
 
 def _traverses(speed, seed=3):
@@ -497,3 +497,64 @@ def test_each_later_session_is_read_against_all_earlier_ones_and_only_the_one_of
         np.testing.assert_array_equal(getattr(out, key)[:a], getattr(res, key)[:a])
         np.testing.assert_array_equal(getattr(out, key)[b:], getattr(res, key)[b:])
     assert not np.array_equal(out.best[a:b], res.best[a:b])
+
+
+def _one_run(speed, seed=3):
+    """One run (one session) that drives the database's route, then again at ``speed``: (method, stream, where the
+    revisit starts, its places, the loops of the stream)."""
+    db, q, q_place = _traverses(speed, seed)
+    stream = EncodedTraverse.from_parts([db, q], ["a", "b"])
+    method = methods.get("rshosm-seq")
+    return method, stream, len(db), q_place, method.loops(stream, exclude=30)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("speed, key", [((1.8, 2.2), "db_step"), ((0.45, 0.55), "query_step")])
+def test_a_revisit_within_one_run_at_another_speed_is_matched_again_by_the_loop_rule_and_confirmed(speed, key):
+    method, stream, a, q_place, res = _one_run(speed)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = methods.loops_in_run_at_speed(method, stream, res, 30)
+    (run,) = out.sampling["runs"]
+    lo, hi = run["frames"][0], run["frames"][1] + 1
+    assert run[key] == 2 and a - 30 < lo < a + 50 and hi == len(stream)
+    said = [str(w.message) for w in caught]
+    assert len(said) == 1 and f"frames {lo}-{hi - 1} of one run" in said[0]
+    # the oracle: the stretch matched against the frames 30 before it at that sampling, decided by the loop rule's
+    # path, confirmed by the frames after each closure; taken where the loops did not accept
+    strict = methods.get("rshosm-seq", drift=LoopConf.drift, min_score=LoopConf.min_score)
+    with warnings.catch_warnings(action="ignore"):
+        m = methods.match_at_speed(strict.fit(stream.slice(0, lo - 30)), stream.slice(lo, hi), speed=run["speed"])
+    best, score, acc = np.full(len(stream), -1), np.zeros(len(stream)), np.zeros(len(stream), bool)
+    best[lo:hi], score[lo:hi], acc[lo:hi] = m.best, m.score, m.accepted
+    kept = confirm_closures(Decision(best, score, acc, np.zeros(len(stream))), stream.sdr, 30, method.seq).accepted
+    take = kept & ~res.accepted
+    assert run["closures"] == take.sum() > 5
+    np.testing.assert_array_equal(out.accepted, res.accepted | take)
+    np.testing.assert_array_equal(out.best, np.where(take, best, res.best))
+    np.testing.assert_array_equal(out.similarity[:lo - 30, lo:hi], m.similarity)
+    np.testing.assert_array_equal(out.similarity[:, :lo], res.similarity[:, :lo])
+    # what it takes is the place, near enough (the query's own places; no closure on the first drive)
+    assert not out.accepted[:a].any() and (np.abs(out.best[a:] - q_place)[take[a:]] <= 3).all()
+
+
+def test_one_run_at_one_speed_forward_or_without_sequences_is_left_as_it_is():
+    method, stream, a, _, res = _one_run((0.9, 1.1))
+    assert methods.loops_in_run_at_speed(method, stream, res, 30) is res
+    forward = stream.slice(0, a)
+    assert methods.loops_in_run_at_speed(method, forward, method.loops(forward, exclude=30), 30).sampling is None
+    pairwise = methods.get("pairwise")
+    fast = _one_run((1.8, 2.2))[1]
+    res = pairwise.loops(fast, exclude=30)
+    assert methods.loops_in_run_at_speed(pairwise, fast, res, 30) is res
+
+
+def test_a_later_session_is_followed_also_with_settings_of_one_stream():
+    """A setting of loop closure within one stream (place_frames) does not keep a later session from being matched
+    again against the earlier ones (its match is a map's, where such a setting is refused)."""
+    db, q, _ = _traverses((1.8, 2.2))
+    stream = EncodedTraverse.from_parts([db, q], ["a", "b"])
+    method = methods.get("rshosm-seq", place_frames=10)
+    res = method.loops(stream, exclude=5, sessions=[len(db)])
+    out, said = _loops(method, stream, res, len(db))
+    assert out.sampling["sessions"][0]["db_step"] == 2 and not any("cannot be matched" in s for s in said)

@@ -63,6 +63,9 @@ def test_choose_shows_the_worst_first_within_the_limit():
      "session 2 moved 1.88 of the earlier sessions' frames a frame, matched again against the earlier sessions' 2 "
      "maps of one frame in 2 (--query-speed follow)"),
     ({"sessions": [{"session": 2, "speed": 1.0}]}, None),
+    ({"runs": [{"frames": [206, 299], "speed": 1.81, "db_step": 2, "db_apart": 0, "closures": 45}]},
+     "frames 206-299 moved 1.81 earlier frames a frame, matched again against the frames before them as 2 maps of one "
+     "frame in 2: 45 closures taken, confirmed by the frames after them (--query-speed follow)"),
     (None, None)])
 def test_a_query_followed_at_another_speed_is_said_on_the_page(sampling, said):
     note = report.sampling_note("m", {"sampling": sampling} if sampling else {})

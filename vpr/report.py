@@ -301,6 +301,11 @@ def sampling_note(method: str, m: dict) -> str | None:
             else ""
         return f"its frames matched as {k['query_step']} queries of one frame in {k['query_step']}{filled}"
 
+    if "runs" in s:  # loops of one run: the stretches whose best earlier frames read another speed
+        said = [f"frames {f['frames'][0]}-{f['frames'][1]} moved {f['speed']:.2f} earlier frames a frame, "
+                + how(f, "the frames before them as") + f": {f['closures']} closures taken, confirmed by the frames "
+                "after them" for f in s["runs"]]
+        return f"{method}: {'; '.join(said)} (--query-speed follow)"
     if "sessions" in s:  # loops: every later session read, those off speed followed
         said = [f"session {f['session']} moved {f['speed']:.2f} of the earlier sessions' frames a frame, "
                 + how(f, "the earlier sessions'") for f in s["sessions"] if f.get("db_step") or f.get("query_step")]

@@ -14,14 +14,15 @@ from .speed import (
     disagree,
     fill_between,
     loops_at_speed,
+    loops_in_run_at_speed,
     match_at_speed,
     path_lengths,
     pick_maps,
 )
 
 __all__ = ["online", "get", "build", "available", "get_class", "match", "loops", "image_inputs", "Method", "Fitted",
-           "match_at_speed", "loops_at_speed", "pick_maps", "disagree", "between_maps", "fill_between", "path_lengths",
-           "SpeedFollower", "PICKS"]
+           "match_at_speed", "loops_at_speed", "loops_in_run_at_speed", "pick_maps", "disagree", "between_maps",
+           "fill_between", "path_lengths", "SpeedFollower", "PICKS"]
 
 # name -> (module, class); imported on first use, so that e.g. the SeqSLAM kernels load only for seqslam
 _REGISTRY = {

@@ -8,16 +8,16 @@ import numpy as np
 import scipy.sparse as sp
 
 from vpr import sdr as _sdr
-from vpr.evaluate import MIN_RUN, path_speed, session_speeds
+from vpr.evaluate import MIN_RUN, path_runs, path_speed, session_speeds
 from vpr.groundtruth import speed_step
-from vpr.shosm import Localizer, PathConf
+from vpr.shosm import LOOP_ONLY_KEYS, Localizer, PathConf, confirm_closures
 from vpr.shosm.state import joint_state, part_state
 from vpr.types import Column, Decision, EncodedTraverse, MatchResult, QueryLocalizer
 
 from .base import Fitted, Method
 
-__all__ = ["match_at_speed", "loops_at_speed", "pick_maps", "disagree", "between_maps", "fill_between",
-           "path_lengths", "SpeedFollower", "PICKS"]
+__all__ = ["match_at_speed", "loops_at_speed", "loops_in_run_at_speed", "pick_maps", "disagree", "between_maps",
+           "fill_between", "path_lengths", "SpeedFollower", "PICKS"]
 
 
 #: How a frame is answered by one of the ``k`` maps of one frame in ``k``: ``"path"``, the map that accepts it on the
@@ -209,7 +209,7 @@ def loops_at_speed(method: Method, seq: EncodedTraverse, res: MatchResult, sessi
     read, seconds = [], res.seconds
     for s, own in enumerate(session_speeds(res.best, bounds[:-1]), start=1):
         a, b = bounds[s], bounds[s + 1]
-        fitted, query = method.fit(seq.slice(0, a), progress), seq.slice(a, b)
+        fitted, query = _matcher(method).fit(seq.slice(0, a), progress), seq.slice(a, b)
         first = fitted.match(query, progress)
         v = path_speed(first.best, first.accepted)[0]
         v = own if v is None else v
@@ -229,12 +229,84 @@ def loops_at_speed(method: Method, seq: EncodedTraverse, res: MatchResult, sessi
                                sampling={"sessions": read})
 
 
+def loops_in_run_at_speed(method: Method, seq: EncodedTraverse, res: MatchResult, exclude: int,
+                          progress: bool = False, pick: str = "path") -> MatchResult:
+    """Loop closures of one run decided again where its best earlier frames read another speed.
+
+    ``res``: ``method``'s :meth:`~Method.loops` of ``seq``, one session, ``exclude`` frames excluded. Each run of
+    best earlier frames (:func:`vpr.evaluate.path_runs`, accepted or not) that moves ``k`` >=
+    :data:`~vpr.groundtruth.RATE_RATIO` earlier frames a frame, or ``1 / k`` (:func:`~vpr.groundtruth.speed_step`),
+    starts a stretch (the runs after it at the same step continue it): from ``exclude`` frames before the run's first
+    frame to where the next stretch starts or the stream's end. The stretch is matched against the frames at least
+    ``exclude`` before it as :func:`match_at_speed` matches a query at ``k`` (said), decided by the loop rule's path
+    (the method's loop ``drift`` and ``min_score``: the localisation rule is too lax within one run) and each closure
+    confirmed by the frames after it (:func:`vpr.shosm.confirm_closures`, the method's conf). A frame the loops did
+    not accept takes its stretch's confirmed closure, and its similarity onto the frames the stretch was matched
+    against is that match's. :attr:`MatchResult.sampling`: ``{"runs": [{"frames": [first, last], "speed",
+    "db_step" or "query_step", "closures"}]}``, each stretch matched again (``closures``: its frames taken);
+    ``seconds`` counts the matches. Returns ``res`` where no run reads another speed, or for a method whose sequences
+    do not follow one frame a frame or that has no loop rule (rshosm-seq's ``seq``).
+    """
+    _check_pick(pick)
+    rule = getattr(method, "seq", None)
+    if not method.follows_sequences or rule is None:
+        return res
+    loop, n, exclude = rule.loop(), len(seq), int(exclude)
+    first, last = path_runs(res.best, res.best >= 0)
+    runs = [(int(a), float(v)) for a, b in zip(first, last, strict=True)
+            if speed_step(v := (res.best[b] - res.best[a]) / (b - a))]
+    runs = [r for i, r in enumerate(runs) if not i or speed_step(r[1]) != speed_step(runs[i - 1][1])]  # one a speed
+    if not runs:
+        return res
+    strict = _matcher(method, drift=loop.drift, min_score=loop.min_score)
+    best, score = np.full(n, -1, np.int64), np.zeros(n)
+    accepted = np.zeros(n, bool)
+    S, read, seconds, blocks = res.similarity, [], res.seconds, []
+    for i, (a, v) in enumerate(runs):
+        lo, hi = max(a - exclude, 0), max(runs[i + 1][0] - exclude, 0) if i + 1 < len(runs) else n
+        m = lo - exclude  # the frames it is matched against
+        if m < 1 or hi <= lo:
+            continue
+        again = _resampled(strict.fit(seq.slice(0, m), progress), seq.slice(lo, hi), speed_step(v), v, pick,
+                           progress, f"{method.name}: frames {lo}-{hi - 1} of one run",
+                           "run of best earlier frames")
+        if again is None:
+            continue
+        best[lo:hi], score[lo:hi], accepted[lo:hi] = again.best, again.score, again.accepted
+        blocks.append((again.similarity, lo, hi))
+        seconds += again.seconds
+        read.append({"frames": [lo, hi - 1], "speed": round(v, 3),
+                     **{k: x for k, x in again.sampling.items() if k != "speed"}})
+    if not read:
+        return res
+    kept = confirm_closures(Decision(best, score, accepted, np.zeros(n)), method.need(seq, "sdr", "loop"), exclude,
+                            rule).accepted
+    take = np.asarray(kept, bool) & ~res.accepted
+    for block, lo, hi in blocks:
+        S = _with_block(S, block, lo, hi)
+    for r in read:
+        r["closures"] = int(take[r["frames"][0]:r["frames"][1] + 1].sum())
+    return dataclasses.replace(res, similarity=S, best=np.where(take, best, res.best),
+                               score=np.where(take, score, res.score), accepted=res.accepted | take,
+                               seconds=seconds, sampling={"runs": read})
+
+
+def _matcher(method: Method, **decision) -> Method:
+    """``method`` as it matches frames of a stream against its earlier frames (a later session, a stretch of one run):
+    its conf without the keys of loop closure within one stream (:data:`~vpr.shosm.LOOP_ONLY_KEYS`), ``decision``
+    over it."""
+    drop = dict.fromkeys(k for k in LOOP_ONLY_KEYS if method.conf.get(k) is not None)
+    return type(method)(**{**method.conf, **drop, **decision}) if drop or decision else method
+
+
 def _with_block(S, block, a: int, b: int):
-    """The loop similarity ``S`` (T x T, dense or top-K sparse) with rows ``:a`` of columns ``a:b`` from ``block``
-    (in a sparse ``S``, each of those columns keeps its largest values, as many as ``S``'s fullest column holds)."""
+    """The loop similarity ``S`` (T x T, dense or top-K sparse) with rows ``:m`` of columns ``a:b`` from ``block``
+    (``m`` x ``b - a``, ``m <= a``; in a sparse ``S``, each of those columns keeps its largest values, as many as
+    ``S``'s fullest column holds)."""
+    m = block.shape[0]
     if not sp.issparse(S):
         S = S.copy()
-        S[:a, a:b] = block.toarray() if sp.issparse(block) else block
+        S[:m, a:b] = block.toarray() if sp.issparse(block) else block
         return S
     coo, csc = S.tocoo(), S.tocsc()
     blk = sp.csc_matrix(block) if sp.issparse(block) else None
@@ -249,7 +321,7 @@ def _with_block(S, block, a: int, b: int):
         else:
             r_b = np.flatnonzero(np.isfinite(block[:, c]))
             x_b = block[r_b, c]
-        own = r >= a
+        own = r >= m
         r, x = np.r_[r_b, r[own]], np.r_[x_b.astype(S.dtype), x[own]]
         top = np.argsort(-x, kind="stable")[:per_column]
         rows.append(r[top])

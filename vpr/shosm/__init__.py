@@ -5,6 +5,7 @@ from .conf import (
     DENSE_EVIDENCE_PAIRS,
     LEARN_THRESHOLD,
     LOOP_EXCLUDE,
+    LOOP_ONLY_KEYS,
     SPEEDS,
     BeamConf,
     EvidenceConf,
@@ -47,8 +48,8 @@ from .place import Placement, place_closures
 from .state import MemoryFileError
 
 __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pad_codes",
-           "LEARN_THRESHOLD", "LOOP_EXCLUDE", "DENSE_EVIDENCE_PAIRS", "EvidenceConf", "BeamConf", "LoopConf",
-           "PathConf", "RshosmSeqConf", "DECISION_KEYS", "SPEEDS", "memory_params", "Graph", "Engine",
+           "LEARN_THRESHOLD", "LOOP_EXCLUDE", "LOOP_ONLY_KEYS", "DENSE_EVIDENCE_PAIRS", "EvidenceConf", "BeamConf",
+           "LoopConf", "PathConf", "RshosmSeqConf", "DECISION_KEYS", "SPEEDS", "memory_params", "Graph", "Engine",
            "EvidenceEngine", "SpeedEngine", "make_engine", "Evidence",
            "query_evidence", "dense_evidence", "sparse_evidence", "LoopEvidence", "LoopDecider", "PathDecider",
            "decide_all",
