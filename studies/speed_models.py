@@ -435,8 +435,9 @@ REMATCH_RULES = {"localisation rule": {}, "loop rule": {"drift": 1.25, "min_scor
 
 
 def rematched(streams: dict, root: Path) -> None:
-    """How a re-match within one run decides, by rule and start (what ``vpr loops`` does of one run,
-    :func:`vpr.methods.loops_in_run_at_speed`: the loop rule, from ``exclude`` frames before): from each run of best
+    """How a re-match within one run decides, by rule and start (``vpr loops`` of one run,
+    :func:`vpr.methods.loops_in_run_at_speed`, takes the loop rule from ``exclude`` frames before, and of those only
+    the faster stretches and the closures on a run of closures that reads a faster speed too): from each run of best
     earlier frames that reads another speed (``vpr loops --query-speed as-is`` of the folder; the runs after it at the
     same step continue it) to the next such stretch or the stream's end, its frames matched against the frames before
     it (the loop's ``exclude`` back) at the sampling of that speed
