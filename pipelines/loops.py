@@ -181,6 +181,7 @@ class LoopsOnline(Online):
         self.top_k = det.seq.top_k
         self._reader = evaluate.SpeedReader()  # the current later session's speed onto the earlier ones
         self._said: set[int] = set()  # the later sessions whose speed was said (numbered from 1, the first)
+        self._run = evaluate.SpeedReader()  # one run's paths of best earlier frames: a revisit driven faster
 
     def warm_up(self) -> None:
         self.det.warm_up()
@@ -198,7 +199,9 @@ class LoopsOnline(Online):
         of best earlier frames, as :func:`vpr.evaluate.session_speeds` reads them); returns ``ds``."""
         starts = self.det.stream.starts
         a, n = starts[-1], len(starts)
-        if not a or n in self._said:
+        if not a:
+            return self._watch_run(ds)
+        if n in self._said:
             return ds
         for d in (d for d in ds if d.frame >= a):
             self._reader.step(d.best, d.best < a)
@@ -211,6 +214,23 @@ class LoopsOnline(Online):
                       "vpr loops S1 S2, follows it (docs/loops.md)",
                       file=sys.stderr, flush=True)
                 break
+        return ds
+
+    def _watch_run(self, ds: list) -> list:
+        """Say, once, a revisit within one run driven faster than the first pass: a run of best earlier frames that
+        moves :data:`~vpr.groundtruth.RATE_RATIO` or more of them a frame (what the batch matches again:
+        :func:`vpr.methods.loops_in_run_at_speed`); returns ``ds``."""
+        for d in ds:
+            if 0 in self._said:
+                break
+            self._run.step(d.best)
+            v = self._run.run_speed
+            if groundtruth.speed_step(v) > 0:
+                self._said.add(0)
+                print(f"vpr loops: from frame {d.frame} on, the best earlier frames move {v:.2g} of them a frame: a "
+                      "revisit driven faster than the first pass at the same frame rate, not matched again online; "
+                      "vpr loops of the folder or video matches it again (docs/loops.md)", file=sys.stderr,
+                      flush=True)
         return ds
 
     def name_of(self, frame: int) -> str | None:

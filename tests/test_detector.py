@@ -154,6 +154,8 @@ def test_vpr_loops_stdin_equals_the_batch_and_resumes(laps, tmp_path, capsys, mo
     assert code == 0, err
     lines = [json.loads(s) for s in out.splitlines()]
     assert set(lines[0]) == {"query", "query_name", "best_db", "db_name", "score", "accepted", "latency_ms"}
+    # a revisit read faster (the batch's stretch) is said online, where nothing is matched again
+    assert runs and "revisit driven faster than the first pass" in err and "not matched again online" in err
     assert [(r["best_db"] if r["best_db"] is not None else -1, r["accepted"]) for r in lines] == batch
     m = json.loads((tmp_path / "b" / "metrics.json").read_text())["methods"]["rshosm-seq"]
     a = json.loads((tmp_path / "a" / "metrics.json").read_text())["methods"]["rshosm-seq"]

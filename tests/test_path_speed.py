@@ -58,6 +58,11 @@ def test_the_speed_read_as_frames_come_is_path_speed_of_the_frames_so_far():
         for j in range(n):
             reader.step(best[j], accepted[j])
             assert reader.speed == pytest.approx(path_speed(best[:j + 1], accepted[:j + 1], reader.min_run)[0])
+            # the run it is on now: the last run of path_runs over the frames so far, where it reaches this frame
+            first, last = path_runs(best[:j + 1], accepted[:j + 1], reader.min_run)
+            now = last.size and last[-1] == j
+            want = (best[j] - best[first[-1]]) / (j - first[-1]) if now else None
+            assert reader.run_speed == (pytest.approx(want) if now else None)
         first, last = path_runs(best, accepted, reader.min_run)
         assert (last - first).sum() == path_speed(best, accepted, reader.min_run)[1]
 

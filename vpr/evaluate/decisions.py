@@ -226,6 +226,12 @@ class SpeedReader:
         moved = self.moved + (self.last - self.first if open_run else 0)
         return moved / steps if steps else None
 
+    @property
+    def run_speed(self) -> float | None:
+        """The speed of the run the frames are on now (a run of :func:`path_runs`), once it is ``min_run`` frames
+        long; None before."""
+        return (self.last - self.first) / (self.length - 1) if self.length >= max(self.min_run, 2) else None
+
 
 def session_speeds(best, starts, min_run: int = MIN_RUN) -> list[float | None]:
     """Each later session's speed against the earlier ones, without ground truth: :func:`path_speed` over the frames
