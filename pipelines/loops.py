@@ -405,8 +405,8 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
         done = evaluate.run_methods(runners, loops_of, gt_hard, gt_soft, mask, on_result=write, loops=True)
         if len(srcs) == 1:  # the sessions of a stream are read one by one (below)
             groundtruth.check_speeds({k: m.get("path_speed") for k, (m, _) in done.items()},
-                                     fix="within one run, a stretch whose best earlier frames read a faster speed "
-                                         "is matched again at that sampling by default (metrics.json sampling.runs); "
+                                     fix="within one run, a stretch read faster is matched again by default "
+                                         "(metrics.json sampling.runs), one read slower is decided as it comes; "
                                          "given as sessions (vpr loops RUN1 RUN2), a later run is followed whole")
         for k, (m, _) in done.items():
             say_session_speeds(k, m.get("session_speeds"), [str(src.path) for src in srcs],

@@ -82,7 +82,7 @@ import numpy as np
 from pipelines.cli import main as vpr
 from studies.cells import decisions_cell
 from vpr import simulate
-from vpr.evaluate import average_precision, path_runs, path_speed
+from vpr.evaluate import average_precision, path_run_speeds, path_speed
 from vpr.shosm import Localizer, RshosmSeqConf
 from vpr.shosm.decide import accept_path
 
@@ -350,8 +350,7 @@ def _runs(best) -> list[tuple[int, int, float]]:
     """Every run of best earlier frames :func:`vpr.evaluate.path_runs` reads, accepted or not: (first frame, last
     frame, speed)."""
     best = np.asarray(best, np.int64)
-    first, last = path_runs(best, best >= 0)
-    return [(int(a), int(b), (best[b] - best[a]) / (b - a)) for a, b in zip(first, last, strict=True)]
+    return [(int(a), int(b), float(v)) for a, b, v in zip(*path_run_speeds(best, best >= 0), strict=True)]
 
 
 #: the forward-only renders of the one-run table: scene, its traverses

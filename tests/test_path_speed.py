@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from tests.cli import run
-from vpr.evaluate import SpeedReader, path_runs, path_speed, session_speeds
+from vpr.evaluate import SpeedReader, path_run_speeds, path_runs, path_speed, session_speeds
 from vpr.groundtruth import check_speeds
 
 
@@ -65,6 +65,10 @@ def test_the_speed_read_as_frames_come_is_path_speed_of_the_frames_so_far():
             assert reader.run_speed == (pytest.approx(want) if now else None)
         first, last = path_runs(best, accepted, reader.min_run)
         assert (last - first).sum() == path_speed(best, accepted, reader.min_run)[1]
+        a, b, v = path_run_speeds(best, accepted, reader.min_run)
+        np.testing.assert_array_equal(a, first)
+        np.testing.assert_array_equal(b, last)
+        np.testing.assert_allclose(v, [(best[j] - best[i]) / (j - i) for i, j in zip(first, last, strict=True)])
 
 
 def test_a_later_session_is_read_against_the_earlier_ones_accepted_or_not():

@@ -6,6 +6,7 @@ from .decisions import (
     best_in_soft_band,
     decision_curve,
     outcomes,
+    path_run_speeds,
     path_runs,
     path_speed,
     session_pairs,
@@ -25,5 +26,5 @@ from .ranking import (
 
 __all__ = ["average_precision", "pr_curve", "thin_pr", "auc_pr", "auc_from_pr", "recall_at_100p", "recall_at_k",
            "evaluate", "accepted_precision", "best_in_soft_band", "decision_curve", "session_pairs", "outcomes",
-           "path_speed", "path_runs", "SpeedReader", "session_speeds", "MIN_RUN", "speed_metric", "method_metrics",
-           "run_methods", "peak_rss_mb"]
+           "path_speed", "path_runs", "path_run_speeds", "SpeedReader", "session_speeds", "MIN_RUN", "speed_metric",
+           "method_metrics", "run_methods", "peak_rss_mb"]

@@ -7,7 +7,7 @@ import scipy.sparse as sp
 from vpr.checks import at
 
 __all__ = ["accepted_precision", "best_in_soft_band", "decision_curve", "session_pairs", "outcomes", "path_speed",
-           "path_runs", "SpeedReader", "session_speeds", "MIN_RUN"]
+           "path_runs", "path_run_speeds", "SpeedReader", "session_speeds", "MIN_RUN"]
 
 
 def accepted_precision(best_db, accepted, gt_hard, gt_soft=None, mask=None) -> dict:
@@ -176,6 +176,14 @@ def path_runs(best, accepted, min_run: int = MIN_RUN) -> tuple[np.ndarray, np.nd
     first, last = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)  # a run's frames: first .. last
     long = last - first + 1 >= min_run
     return first[long], last[long]
+
+
+def path_run_speeds(best, accepted, min_run: int = MIN_RUN) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The runs of :func:`path_runs` and each one's speed (best frames moved per frame). Returns (first frames, last
+    frames, speeds)."""
+    best = np.asarray(best, np.int64)
+    first, last = path_runs(best, accepted, min_run)
+    return first, last, (best[last] - best[first]) / np.maximum(last - first, 1)
 
 
 def path_speed(best, accepted, min_run: int = MIN_RUN) -> tuple[float | None, int]:

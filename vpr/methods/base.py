@@ -79,6 +79,11 @@ class Method:
     #: ``localizer(db_sdr, names, ...)``: ``vpr loops -``, ``vpr learn`` / ``vpr localize``)
     runs_online: bool = False
 
+    def loop_conf(self):
+        """The conf its loop closures within one stream are decided by, frame by frame (a
+        :class:`vpr.shosm.RshosmSeqConf`: its loop rule and confirmation), or None (default: a method without one)."""
+        return None
+
     @property
     def supports_loops(self) -> bool:
         """Whether :meth:`loops` (loop closure within one traverse) is implemented."""

@@ -60,6 +60,9 @@ class RshosmSeq(Method):
         multi-session map) into a :class:`vpr.shosm.Localizer` with this conf."""
         return Localizer.from_database(db_sdr, names, progress=progress, conf=self.seq, sessions=sessions)
 
+    def loop_conf(self) -> RshosmSeqConf:
+        return self.seq
+
     def check_matching(self) -> None:
         self.seq.path()  # refuses the keys of loop closure only
 

@@ -8,7 +8,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from vpr import sdr as _sdr
-from vpr.evaluate import MIN_RUN, path_runs, path_speed, session_speeds
+from vpr.evaluate import MIN_RUN, path_run_speeds, path_speed, session_speeds
 from vpr.groundtruth import speed_step
 from vpr.shosm import LOOP_ONLY_KEYS, Localizer, PathConf, confirm_closures
 from vpr.shosm.state import joint_state, part_state
@@ -235,29 +235,27 @@ def loops_in_run_at_speed(method: Method, seq: EncodedTraverse, res: MatchResult
 
     ``res``: ``method``'s :meth:`~Method.loops` of ``seq``, one session, ``exclude`` frames excluded. Each run of
     best earlier frames (:func:`vpr.evaluate.path_runs`, accepted or not) that moves ``k`` >=
-    :data:`~vpr.groundtruth.RATE_RATIO` earlier frames a frame (:func:`~vpr.groundtruth.speed_step`; not slower: the
-    evidence's stays follow a slower revisit, and within one run a slower reading is mostly a robot that stands or
-    slows down, docs/loops.md) starts a stretch (the runs after it at the same step continue it): from ``exclude``
-    frames before the run's first frame to where the next stretch starts or the stream's end. The stretch is matched
-    against the ``k`` maps of one frame in ``k`` of the frames at least ``exclude`` before it (as
-    :func:`match_at_speed`; said), decided by the loop rule's path (the method's loop ``drift`` and ``min_score``:
-    the localisation rule is too lax within one run) and each closure confirmed by the frames after it
-    (:func:`vpr.shosm.confirm_closures`, the method's conf). A frame the loops did not accept takes its stretch's
-    confirmed closure where it lies on a run of closures that reads a faster speed too (:func:`~vpr.evaluate.path_runs`,
-    with the loops' own), and its similarity onto the frames the stretch was matched against is that match's.
+    :data:`~vpr.groundtruth.RATE_RATIO` earlier frames a frame (:func:`~vpr.groundtruth.speed_step`; a slower one
+    starts none) starts a stretch (the runs after it at the same step continue it): from ``exclude`` frames before
+    the run's first frame to where the next stretch starts or the stream's end. The stretch is matched against the
+    ``k`` maps of one frame in ``k`` of the frames at least ``exclude`` before it (as :func:`match_at_speed`; said),
+    decided by the loop rule's path (the method's loop ``drift`` and ``min_score``) and each closure confirmed by
+    the frames after it (:func:`vpr.shosm.confirm_closures`, the method's :meth:`~Method.loop_conf`). A frame the
+    loops did not accept takes its stretch's confirmed closure where it lies on a run of closures
+    (:func:`~vpr.evaluate.path_runs`, with the loops' own) that reads a faster speed too, and its similarity onto the
+    frames the stretch was matched against is that match's.
     :attr:`MatchResult.sampling`: ``{"runs": [{"frames": [first, last], "speed", "db_step", "db_apart",
     "closures"}]}``, each stretch matched again (``closures``: its frames taken); ``seconds`` counts the matches.
     Returns ``res`` where no run reads a faster speed, or for a method whose sequences do not follow one frame a
-    frame or that has no loop rule (rshosm-seq's ``seq``).
+    frame or that has no loop conf.
     """
     _check_pick(pick)
-    rule = getattr(method, "seq", None)
+    rule = method.loop_conf()
     if not method.follows_sequences or rule is None:
         return res
     loop, n, exclude = rule.loop(), len(seq), int(exclude)
-    first, last = path_runs(res.best, res.best >= 0)
-    runs = [(int(a), float(v)) for a, b in zip(first, last, strict=True)
-            if speed_step(v := (res.best[b] - res.best[a]) / (b - a)) > 0]
+    first, _, speeds = path_run_speeds(res.best, res.best >= 0)
+    runs = [(int(a), float(v)) for a, v in zip(first, speeds, strict=True) if speed_step(v) > 0]
     runs = [r for i, r in enumerate(runs) if not i or speed_step(r[1]) != speed_step(runs[i - 1][1])]  # one a speed
     if not runs:
         return res
@@ -287,8 +285,8 @@ def loops_in_run_at_speed(method: Method, seq: EncodedTraverse, res: MatchResult
     take = np.asarray(kept, bool) & ~res.accepted
     joined = np.where(take, best, res.best)
     on_path = np.zeros(n, bool)  # a closure taken lies on a path of closures that reads a faster speed too
-    for a, b in zip(*path_runs(joined, res.accepted | take), strict=True):
-        on_path[a:b + 1] = speed_step((joined[b] - joined[a]) / (b - a)) > 0
+    for a, b, v in zip(*path_run_speeds(joined, res.accepted | take), strict=True):
+        on_path[a:b + 1] = speed_step(v) > 0
     take &= on_path
     for block, lo, hi in blocks:
         S = _with_block(S, block, lo, hi)
