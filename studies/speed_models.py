@@ -55,16 +55,20 @@ Then, where a faster query's two maps of one frame in 2 both accept a frame, how
 apart they place it, and the decisions with frames placed apart left undecided
 (:func:`vpr.methods.disagree`).
 
-With ``--loops``: only those two tables; with ``--apart``: only the last. With ``--one-run``: only ``vpr loops`` of one
-folder holding a revisit at 2x (Gardens Point) and of forward-only renders, and the
-runs of best earlier frames in each that read another speed, and what a re-match from them would decide (not
-built); then one rendered run
+Then ``vpr localize``'s follower frame by frame on the streams off the map's speed: the frame it first reads
+another speed, its answers before and after, and the wrong answers at a slower speed that contradict the frame
+before's (``--online``: only that table).
+
+With ``--loops``: only those two tables; with ``--apart``: only the table of frames placed apart. With
+``--one-run``: only ``vpr loops`` of one folder holding a revisit at 2x (Gardens Point) and of forward-only
+renders, and the runs of best earlier frames in each that read another speed, and what a re-match from them
+would decide; then one rendered run
 with loops in it, its later laps driven at 2x or its first lap at 2x (the later at 0.5x),
 with ground truth, geometry on and off. With ``--cases``: only
 the cases the localisation rule was chosen on (:mod:`studies.localize_decisions`),
 answered as they come and followed.
 
-Usage: python -m studies.speed_models [--data DIR] [--out DIR] [--cases | --loops | --one-run]
+Usage: python -m studies.speed_models [--data DIR] [--out DIR] [--cases | --loops | --one-run | --apart | --online]
 """
 from __future__ import annotations
 
@@ -802,6 +806,80 @@ def apart(data: Path, root: Path) -> None:
                           for k in best) + " |", flush=True)
 
 
+def _contradicting(best, accepted, slower) -> np.ndarray:
+    """The frames answered at a slower speed whose accepted answer lies more than one map frame behind, or more than
+    two ahead of, the accepted answer of the frame before (a query moving less than a map frame a frame, each answer
+    within a frame of its place)."""
+    out = np.zeros(best.size, bool)
+    for j in range(1, best.size):
+        if slower[j] and accepted[j] and accepted[j - 1] and not -1 <= best[j] - best[j - 1] <= 2:
+            out[j] = True
+    return out
+
+
+def _refusing(best, accepted, slower) -> np.ndarray:
+    """``accepted`` with each contradicting frame (:func:`_contradicting`) refused, frame by frame as online (a
+    refused frame is no longer the frame before's answer)."""
+    acc = np.array(accepted, bool)
+    for j in range(1, best.size):
+        if slower[j] and acc[j] and acc[j - 1] and not -1 <= best[j] - best[j - 1] <= 2:
+            acc[j] = False
+    return acc
+
+
+def _online_cell(accepted, right, wrong) -> str:
+    """accepted, P(acc), R(acc) of the frames (``right`` / ``wrong``: per frame; the rest in the soft band)."""
+    r, w = int((accepted & right).sum()), int((accepted & wrong).sum())
+    return f"{int(accepted.sum())}, {r / (r + w):.3f}, {r / right.size:.2f}" if r + w else "-"
+
+
+def online(data: Path, root: Path) -> None:
+    """Why ``vpr localize`` follows a query at another speed less well than ``vpr loops MAP QUERY`` does: the
+    follower (:class:`vpr.methods.SpeedFollower`, as ``vpr localize`` runs it) stepped frame by frame, the frame it
+    first reads another speed, what it answers before and after, and the wrong answers at a slower speed that
+    contradict the frame before's (:func:`_contradicting`) with what refusing them would give (measured, not built).
+    The goal's measure (soft bands)."""
+    from encoders.maps import load_map
+    from encoders.stream import StreamEncoder
+    from vpr.methods import SpeedFollower
+    from vpr.sources import open_source
+
+    print("\n`vpr localize` (follow) frame by frame, soft bands: accepted, P(acc), R(acc); the frame another speed is "
+          "first read (and answers right before it); R(acc) over the frames from it; wrong answers before / after it, "
+          "of them at a slower speed contradicting the frame before's, and of the others those in the replay's frames "
+          "after the read (the engines of the speed started from those kept); those contradicting refused")
+    print("| stream | frames | accepted, P, R | speed read at (right before) | R from it | wrong before / after "
+          "(contradicting; others in the replay after) | contradicting refused: accepted, P, R |")
+    print("|---|---|---|---|---|---|---|")
+    for name, (db, x_db), (query, x_q), radius in _streams(data, root):
+        if name.endswith(" 1x"):
+            continue
+        the_map = root / "followed" / f"{db.name}.npz"
+        if not the_map.exists():
+            _command(["learn", db, "--out", the_map, "--gt", _positions(root / f"{db.name}.csv", x_db)])
+        m, enc = load_map(the_map)
+        qenc, follower = StreamEncoder(enc, "running"), SpeedFollower(m.localizer, m.sdr)
+        follower.warm_up()
+        rows = []
+        with warnings.catch_warnings(action="ignore"):
+            for frame in open_source(query):
+                d = follower.update(qenc.encode(frame.image))
+                rows.append((d.best, d.accepted, follower.mode))
+        best, acc, mode = (np.array(v) for v in zip(*rows, strict=True))
+        acc = acc.astype(bool)
+        off = np.abs(x_db[np.maximum(best, 0)] - x_q)
+        right, wrong = (best >= 0) & (off <= radius), (best >= 0) & (off > SOFT[radius])
+
+        read = int(np.argmax(mode != 0)) if (mode != 0).any() else best.size
+        contra = _contradicting(best, acc, mode < 0)
+        print(f"| {name} | {best.size} | {_online_cell(acc, right, wrong)} | {read} "
+              f"({int((acc & right)[:read].sum())}) | "
+              f"{(acc & right)[read:].sum() / max(best.size - read, 1):.2f} | {int((acc & wrong)[:read].sum())} / "
+              f"{int((acc & wrong)[read:].sum())} ({int((contra & wrong).sum())}; "
+              f"{int((acc & wrong & ~contra)[read:read + follower.replay].sum())}) | "
+              f"{_online_cell(_refusing(best, acc, mode < 0), right, wrong)} |", flush=True)
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "datasets",
@@ -812,6 +890,7 @@ def main(argv=None) -> None:
     ap.add_argument("--one-run", action="store_true", help="only the table of loops within one folder")
     ap.add_argument("--apart", action="store_true", help="only the table of a faster query's maps that place a "
                     "frame apart")
+    ap.add_argument("--online", action="store_true", help="only the table of vpr localize's follower frame by frame")
     ap.add_argument("--loops", action="store_true", help="only the loops table (vpr loops MAP QUERY) and the table of "
                     "the goal's measure (soft bands)")
     args = ap.parse_args(argv)
@@ -830,6 +909,9 @@ def main(argv=None) -> None:
             return
         if args.apart:
             apart(args.data, root)
+            return
+        if args.online:
+            online(args.data, root)
             return
         print("AP, accepted, P(acc), R(acc) of rshosm-seq (default preset), query frames as they come; speed along "
               "the accepted paths, map frames per query frame (query frames counted)")
@@ -858,6 +940,7 @@ def main(argv=None) -> None:
         phases(args.data, root)
         picks(args.data, root)
         apart(args.data, root)
+        online(args.data, root)
 
 
 if __name__ == "__main__":
