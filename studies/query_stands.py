@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from pipelines.cli import main as vpr
+from studies.nordland_stands import kinds, standing_steps
 
 #: (stream name, dataset folder, map subfolder, query subfolder, file step, first files, stop frame, stop frames,
 #: hard radius, soft radius): positions are file numbers (Nordland: divided by 10, Gardens Point: the image number)
@@ -102,7 +103,7 @@ def main(argv=None) -> None:
     print("| stream | as it comes | stop answered (right) | 20 after answered | wrong | held while the "
           f"observation repeats (share >= {a.hold:g}) | stop answered (right) | 20 after answered | wrong |")
     print("|---|---|---|---|---|---|---|---|---|")
-    traces = []
+    traces, notes = [], []
     for name, ds, db_sub, q_sub, step, first, at, n, radius, soft in STREAMS:
         db_files = sorted((a.data / ds / db_sub).iterdir())[:first][::step]
         q_files = sorted((a.data / ds / q_sub).iterdir())[:first][::step]
@@ -118,7 +119,7 @@ def main(argv=None) -> None:
                     raise SystemExit(f"vpr learn {db} failed")
         x_db = np.array([_number(f) for f in db_files])
         x_q = np.array([_number(q_files[i]) for i in order])
-        cells = []
+        cells, runs = [], []
         for hold in (None, a.hold):
             ds_ = run(the_map, query, hold)
             best = np.array([d.best for d in ds_])
@@ -127,6 +128,7 @@ def main(argv=None) -> None:
             right, wrong = acc & (best >= 0) & (off <= radius), acc & (best >= 0) & (off > soft)
             r, w = int(right.sum()), int(wrong.sum())
             cell = f"{int(acc.sum())}, {r / (r + w):.3f}, {r / best.size:.2f}" if r + w else "-"
+            runs.append((best, acc))
             stop = slice(at, at + n) if at is not None else slice(0, 0)
             after = slice(at + n, at + n + 20) if at is not None else slice(0, 0)
             cells += [cell, f"{int(acc[stop].sum())} ({int(right[stop].sum())})" if at is not None else "",
@@ -135,6 +137,13 @@ def main(argv=None) -> None:
                 traces = [(k, ds_[k], x_q[k]) for k in range(at - 5, at + n + 25, 5)]
                 trace_x_db = x_db
         print(f"| {name} | {' | '.join(cells)} |", flush=True)
+        if step == 1 and ds == "nordland_trimmed":
+            still = standing_steps(db_files), standing_steps(q_files)
+            told = [{k: v for k, v in kinds(b, acc_, *still).items() if k != "accepted"} for b, acc_ in runs]
+            notes.append(f"{name}: the wrong answers' kinds (`studies.nordland_stands`), as it comes / held: "
+                         + " / ".join(", ".join(f"{k} {v}" for k, v in t.items()) for t in told))
+    for line in notes:
+        print(line)
     print("\nAlong the first stop (as it comes): frame, best map frame (accepted), the place's map frame and its z in "
           "the column, the best's z")
     print("| frame | best (accepted) | place | place's z | best's z |")
