@@ -1,7 +1,7 @@
 """Shared fixtures: the compiled kernels, rendered scenes in memory and on disk.
 
 The suite runs on both cores (``-n 2``, pytest-xdist: each worker builds its
-own session fixtures). ``-m "not slow"`` leaves out the command-line, fault, signal and Dask
+own session fixtures). ``-m "not slow"`` leaves out the command-line, fault, signal, browser and Dask
 integration tests (marked ``slow``): the inner loop of a developer.
 """
 from __future__ import annotations

@@ -15,6 +15,7 @@ def sigterm_raises():
     restore(saved)
 
 
+@pytest.mark.slow
 def test_a_stop_inside_a_finalizer_is_sent_again(sigterm_raises, capsys):
     import time
 

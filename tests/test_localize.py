@@ -202,6 +202,7 @@ def test_localize_stdin_answers_each_path_before_the_next_arrives(scene, tmp_pat
         p.kill()
 
 
+@pytest.mark.slow
 def test_a_corrupt_speed_follower_state_is_refused_naming_the_map(scene, tmp_path, capsys):
     from vpr.shosm import Map
 

@@ -91,6 +91,7 @@ def test_compare_writes_a_report_with_a_strip_per_decision_shown(compared):
     assert (compared / "report.html").stat().st_size < 20e6
 
 
+@pytest.mark.slow
 def test_the_report_renders_in_a_real_browser(compared):
     from selenium.webdriver.common.by import By
 
