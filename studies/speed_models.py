@@ -806,23 +806,24 @@ def apart(data: Path, root: Path) -> None:
                           for k in best) + " |", flush=True)
 
 
+def _contradicts(best, accepted, slower, j: int) -> bool:
+    """Whether frame ``j``, answered at a slower speed, has an accepted answer more than one map frame behind, or more
+    than two ahead of, the accepted answer of the frame before (a query moving less than a map frame a frame, each
+    answer within a frame of its place)."""
+    return bool(slower[j] and accepted[j] and accepted[j - 1] and not -1 <= best[j] - best[j - 1] <= 2)
+
+
 def _contradicting(best, accepted, slower) -> np.ndarray:
-    """The frames answered at a slower speed whose accepted answer lies more than one map frame behind, or more than
-    two ahead of, the accepted answer of the frame before (a query moving less than a map frame a frame, each answer
-    within a frame of its place)."""
-    out = np.zeros(best.size, bool)
-    for j in range(1, best.size):
-        if slower[j] and accepted[j] and accepted[j - 1] and not -1 <= best[j] - best[j - 1] <= 2:
-            out[j] = True
-    return out
+    """Per frame, :func:`_contradicts` (the first frame: False)."""
+    return np.array([j > 0 and _contradicts(best, accepted, slower, j) for j in range(best.size)], bool)
 
 
 def _refusing(best, accepted, slower) -> np.ndarray:
-    """``accepted`` with each contradicting frame (:func:`_contradicting`) refused, frame by frame as online (a
-    refused frame is no longer the frame before's answer)."""
+    """``accepted`` with each contradicting frame (:func:`_contradicts`) refused, frame by frame as online (a refused
+    frame's answer is no longer the one the next frame is held against)."""
     acc = np.array(accepted, bool)
     for j in range(1, best.size):
-        if slower[j] and acc[j] and acc[j - 1] and not -1 <= best[j] - best[j - 1] <= 2:
+        if _contradicts(best, acc, slower, j):
             acc[j] = False
     return acc
 
