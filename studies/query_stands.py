@@ -58,7 +58,7 @@ def _folder(root: Path, name: str, files: list[Path]) -> Path:
     return out
 
 
-def _shared(a: np.ndarray, b: np.ndarray, n_bits: int) -> float:
+def shared_beyond_chance(a: np.ndarray, b: np.ndarray, n_bits: int) -> float:
     """The share of ``a``'s bits ``b`` has beyond chance (1: all of them, 0: as many as chance gives)."""
     chance = a.size * b.size / n_bits
     if a.size <= chance:
@@ -83,7 +83,7 @@ def run(the_map: Path, query: Path, hold: float | None):
         for k, frame in enumerate(open_source(query)):
             row = qenc.encode(frame.image)
             bits = np.sort(row.indices.astype(np.int64))
-            if hold is not None and last is not None and _shared(bits, prev, n_bits) >= hold:
+            if hold is not None and last is not None and shared_beyond_chance(bits, prev, n_bits) >= hold:
                 d = dataclasses.replace(last, frame=k)
             else:
                 d = follower.update(row)

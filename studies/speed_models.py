@@ -813,12 +813,12 @@ def _contradicts(best, accepted, slower, j: int) -> bool:
     return bool(slower[j] and accepted[j] and accepted[j - 1] and not -1 <= best[j] - best[j - 1] <= 2)
 
 
-def _contradicting(best, accepted, slower) -> np.ndarray:
+def contradicting(best, accepted, slower) -> np.ndarray:
     """Per frame, :func:`_contradicts` (the first frame: False)."""
     return np.array([j > 0 and _contradicts(best, accepted, slower, j) for j in range(best.size)], bool)
 
 
-def _refusing(best, accepted, slower) -> np.ndarray:
+def refusing(best, accepted, slower) -> np.ndarray:
     """``accepted`` with each contradicting frame (:func:`_contradicts`) refused, frame by frame as online (a refused
     frame's answer is no longer the one the next frame is held against)."""
     acc = np.array(accepted, bool)
@@ -838,7 +838,7 @@ def online(data: Path, root: Path) -> None:
     """Why ``vpr localize`` follows a query at another speed less well than ``vpr loops MAP QUERY`` does: the
     follower (:class:`vpr.methods.SpeedFollower`, as ``vpr localize`` runs it) stepped frame by frame, the frame it
     first reads another speed, what it answers before and after, and the wrong answers at a slower speed that
-    contradict the frame before's (:func:`_contradicting`) with what refusing them would give (measured, not built).
+    contradict the frame before's (:func:`contradicting`) with what refusing them would give (measured, not built).
     The goal's measure (soft bands)."""
     from encoders.maps import load_map
     from encoders.stream import StreamEncoder
@@ -872,13 +872,13 @@ def online(data: Path, root: Path) -> None:
         right, wrong = (best >= 0) & (off <= radius), (best >= 0) & (off > SOFT[radius])
 
         read = int(np.argmax(mode != 0)) if (mode != 0).any() else best.size
-        contra = _contradicting(best, acc, mode < 0)
+        contra = contradicting(best, acc, mode < 0)
         print(f"| {name} | {best.size} | {_online_cell(acc, right, wrong)} | {read} "
               f"({int((acc & right)[:read].sum())}) | "
               f"{(acc & right)[read:].sum() / max(best.size - read, 1):.2f} | {int((acc & wrong)[:read].sum())} / "
               f"{int((acc & wrong)[read:].sum())} ({int((contra & wrong).sum())}; "
               f"{int((acc & wrong & ~contra)[read:read + follower.replay].sum())}) | "
-              f"{_online_cell(_refusing(best, acc, mode < 0), right, wrong)} |", flush=True)
+              f"{_online_cell(refusing(best, acc, mode < 0), right, wrong)} |", flush=True)
 
 
 def main(argv=None) -> None:
