@@ -19,17 +19,15 @@ Usage: python -m studies.query_stands [--data DIR] [--out DIR] [--hold 0.9]
 from __future__ import annotations
 
 import argparse
-import contextlib
-import dataclasses
-import io
 import os
-import warnings
 from pathlib import Path
 
 import numpy as np
 
-from pipelines.cli import main as vpr
+from studies.cells import decisions_cell
 from studies.nordland_stands import kinds, standing_steps
+from studies.speed_models import followed_frames, linked, position_truth, run_quietly
+from vpr.evaluate import accepted_precision
 
 #: (stream name, dataset folder, map subfolder, query subfolder, file step, first files, stop frame, stop frames,
 #: hard radius, soft radius): positions are file numbers (Nordland: divided by 10, Gardens Point: the image number)
@@ -45,51 +43,6 @@ STREAMS = (
 def _number(f: Path) -> float:
     digits = "".join(c for c in f.stem.split("-")[-1] if c.isdigit())
     return float(int(digits) // 10 if f.stem.startswith("images") else int(digits))
-
-
-def _folder(root: Path, name: str, files: list[Path]) -> Path:
-    """A folder of links, one per entry of ``files`` (a file may come several times), in that order."""
-    out = root / name
-    out.mkdir(parents=True, exist_ok=True)
-    for k, f in enumerate(files):
-        link = out / f"{k:05d}{f.suffix}"
-        if not link.exists():
-            link.symlink_to(f.resolve())
-    return out
-
-
-def shared_beyond_chance(a: np.ndarray, b: np.ndarray, n_bits: int) -> float:
-    """The share of ``a``'s bits ``b`` has beyond chance (1: all of them, 0: as many as chance gives)."""
-    chance = a.size * b.size / n_bits
-    if a.size <= chance:
-        return 0.0
-    return (np.intersect1d(a, b, assume_unique=True).size - chance) / (a.size - chance)
-
-
-def run(the_map: Path, query: Path, hold: float | None):
-    """``vpr localize``'s follower over ``query`` frame by frame: (best, accepted, the place's z per frame (None: not
-    recorded), ...) with ``hold``: a frame sharing that much with the frame before takes its decision."""
-    from encoders.maps import load_map
-    from encoders.stream import StreamEncoder
-    from vpr.methods import SpeedFollower
-    from vpr.sources import open_source
-
-    m, enc = load_map(the_map)
-    qenc, follower = StreamEncoder(enc, "running"), SpeedFollower(m.localizer, m.sdr)
-    follower.warm_up()
-    n_bits = m.localizer.memory.n_inputs
-    out, prev, last = [], None, None
-    with warnings.catch_warnings(action="ignore"):
-        for k, frame in enumerate(open_source(query)):
-            row = qenc.encode(frame.image)
-            bits = np.sort(row.indices.astype(np.int64))
-            if hold is not None and last is not None and shared_beyond_chance(bits, prev, n_bits) >= hold:
-                d = dataclasses.replace(last, frame=k)
-            else:
-                d = follower.update(row)
-            out.append(d)
-            prev, last = bits, d
-    return out
 
 
 def main(argv=None) -> None:
@@ -110,29 +63,25 @@ def main(argv=None) -> None:
         order = list(range(len(q_files))) if at is None else \
             list(range(at)) + [at] * n + list(range(at + 1, len(q_files)))
         tag = f"{ds}-{step}-{first}"
-        db = _folder(a.out, f"map-{tag}", db_files)
-        query = _folder(a.out, f"query-{tag}-{at}-{n}", [q_files[i] for i in order])
+        db, x_db = linked(a.out, f"map-{tag}", db_files, _number, numbered=True)
+        query, x_q = linked(a.out, f"query-{tag}-{at}-{n}", [q_files[i] for i in order], _number, numbered=True)
         the_map = a.out / f"map-{tag}.npz"
         if not the_map.exists():
-            with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings(action="ignore"):
-                if vpr(["learn", str(db), "--out", str(the_map), "--no-progress"]):
-                    raise SystemExit(f"vpr learn {db} failed")
-        x_db = np.array([_number(f) for f in db_files])
-        x_q = np.array([_number(q_files[i]) for i in order])
+            run_quietly(["learn", db, "--out", the_map])
+        hard, soft_ = position_truth(x_db, x_q, radius, soft)
+        stop = slice(at, at + n) if at is not None else slice(0, 0)
+        after = slice(at + n, at + n + 20) if at is not None else slice(0, 0)
         cells, runs = [], []
         for hold in (None, a.hold):
-            ds_ = run(the_map, query, hold)
+            ds_ = followed_frames(the_map, query, hold)[0]
             best = np.array([d.best for d in ds_])
             acc = np.array([d.accepted for d in ds_], bool)
-            off = np.abs(x_db[np.maximum(best, 0)] - x_q)
-            right, wrong = acc & (best >= 0) & (off <= radius), acc & (best >= 0) & (off > soft)
-            r, w = int(right.sum()), int(wrong.sum())
-            cell = f"{int(acc.sum())}, {r / (r + w):.3f}, {r / best.size:.2f}" if r + w else "-"
+            m = accepted_precision(best, acc, hard, soft_)
+            right = acc & (best >= 0) & hard[np.maximum(best, 0), np.arange(best.size)]
             runs.append((best, acc))
-            stop = slice(at, at + n) if at is not None else slice(0, 0)
-            after = slice(at + n, at + n + 20) if at is not None else slice(0, 0)
-            cells += [cell, f"{int(acc[stop].sum())} ({int(right[stop].sum())})" if at is not None else "",
-                      f"{int(acc[after].sum())}" if at is not None else "", str(w)]
+            cells += [decisions_cell(m, frames=False),
+                      f"{int(acc[stop].sum())} ({int(right[stop].sum())})" if at is not None else "",
+                      f"{int(acc[after].sum())}" if at is not None else "", str(m["n_false"])]
             if hold is None and at is not None and not traces:
                 traces = [(k, ds_[k], x_q[k]) for k in range(at - 5, at + n + 25, 5)]
                 trace_x_db = x_db

@@ -75,6 +75,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import csv
+import dataclasses
 import io
 import json
 import tempfile
@@ -87,7 +88,7 @@ from pipelines.cli import main as vpr
 from studies.cells import decisions_cell
 from vpr import simulate
 from vpr.evaluate import average_precision, path_run_speeds, path_speed
-from vpr.shosm import Localizer, RshosmSeqConf
+from vpr.shosm import Localizer, LoopConf, RshosmSeqConf
 from vpr.shosm.decide import accept_path
 
 #: model -> (stay, skip)
@@ -100,7 +101,7 @@ def _speed_cell(best, accepted) -> str:
     return "-" if v is None else f"{v:.2f} ({n})"
 
 
-def _folder(root: Path, name: str, files: list[Path], number, numbered: bool = False) -> tuple[Path, np.ndarray]:
+def linked(root: Path, name: str, files: list[Path], number, numbered: bool = False) -> tuple[Path, np.ndarray]:
     """A folder of links to ``files`` and each file's position along the route (``number(file)``); ``numbered``: each
     link named by its place in the list (a file may come several times)."""
     out = root / name
@@ -131,22 +132,22 @@ def _streams(data: Path, root: Path):
     summer, winter = sorted((nl / "summer").iterdir()), sorted((nl / "winter").iterdir())
     gp_n = lambda f: int(f.stem.removeprefix("Image"))  # noqa: E731
     nl_n = lambda f: int(f.stem.split("-")[-1]) // 10  # noqa: E731
-    yield "Gardens Point 1x", _folder(root, "gp_left", left, gp_n), _folder(root, "gp_right", right, gp_n), 2
-    yield "Gardens Point 2x", _folder(root, "gp_left", left, gp_n), _folder(root, "gp_right2", right[::2], gp_n), 2
-    yield "Gardens Point 0.5x", _folder(root, "gp_left2", left[::2], gp_n), _folder(root, "gp_right", right, gp_n), 2
-    s10 = _folder(root, "nl_summer10", summer[::10], nl_n)
-    yield "Nordland 1x", s10, _folder(root, "nl_winter10", winter[::10], nl_n), 10
-    yield "Nordland 2x", s10, _folder(root, "nl_winter20", winter[::20], nl_n), 10
-    yield "Nordland 0.5x", s10, _folder(root, "nl_winter5", winter[::5], nl_n), 10
+    yield "Gardens Point 1x", linked(root, "gp_left", left, gp_n), linked(root, "gp_right", right, gp_n), 2
+    yield "Gardens Point 2x", linked(root, "gp_left", left, gp_n), linked(root, "gp_right2", right[::2], gp_n), 2
+    yield "Gardens Point 0.5x", linked(root, "gp_left2", left[::2], gp_n), linked(root, "gp_right", right, gp_n), 2
+    s10 = linked(root, "nl_summer10", summer[::10], nl_n)
+    yield "Nordland 1x", s10, linked(root, "nl_winter10", winter[::10], nl_n), 10
+    yield "Nordland 2x", s10, linked(root, "nl_winter20", winter[::20], nl_n), 10
+    yield "Nordland 0.5x", s10, linked(root, "nl_winter5", winter[::5], nl_n), 10
     # driven at a speed that changes every 10-40 frames: the sampled frames fall on the map's in every phase
-    yield ("Gardens Point 1.5-2.5x", _folder(root, "gp_left", left, gp_n),
-           _folder(root, "gp_right_1.5-2.5", _varying(right, 1.5, 2.5, 0), gp_n, True), 2)
-    yield ("Gardens Point 0.4-0.6x", _folder(root, "gp_left2", left[::2], gp_n),
-           _folder(root, "gp_right_0.8-1.25", _varying(right, 0.8, 1.25, 0), gp_n, True), 2)
+    yield ("Gardens Point 1.5-2.5x", linked(root, "gp_left", left, gp_n),
+           linked(root, "gp_right_1.5-2.5", _varying(right, 1.5, 2.5, 0), gp_n, True), 2)
+    yield ("Gardens Point 0.4-0.6x", linked(root, "gp_left2", left[::2], gp_n),
+           linked(root, "gp_right_0.8-1.25", _varying(right, 0.8, 1.25, 0), gp_n, True), 2)
     yield ("Nordland 1.5-2.5x", s10,
-           _folder(root, "nl_winter_1.5-2.5", _varying(winter, 1.5, 2.5, 0, 10), nl_n, True), 10)
-    yield ("Nordland 0.4-0.6x", _folder(root, "nl_summer20", summer[::20], nl_n),
-           _folder(root, "nl_winter_0.8-1.25", _varying(winter, 0.8, 1.25, 0, 10), nl_n, True), 10)
+           linked(root, "nl_winter_1.5-2.5", _varying(winter, 1.5, 2.5, 0, 10), nl_n, True), 10)
+    yield ("Nordland 0.4-0.6x", linked(root, "nl_summer20", summer[::20], nl_n),
+           linked(root, "nl_winter_0.8-1.25", _varying(winter, 0.8, 1.25, 0, 10), nl_n, True), 10)
 
 
 def _similarity(db: Path, query: Path, model: str, root: Path) -> np.ndarray:
@@ -191,6 +192,29 @@ def _command(argv: list) -> str | None:
     return decisions_cell(m, frames=False) + f"; speed {speed}{later}"
 
 
+def _encoded(folders: list[Path], names: list[str], root: Path) -> list:
+    """The default preset's SDRs of ``folders`` as ``vpr compare`` encodes them (each standardised on its own
+    frames; cached under ``root``): their features, in order."""
+    import encoders
+    from encoders.extract import extract_all
+    from vpr import presets
+    from vpr.sources import open_sources
+
+    s = presets.resolve(None)
+    enc = encoders.get(s["encoder"], **s["encoder_conf"])
+    with warnings.catch_warnings(action="ignore"):
+        return [e.features for e in extract_all(open_sources(folders), names, enc, {"sdr"}, root / "cache", False,
+                                                 False)]
+
+
+def _learned(root: Path, db: Path, positions: Path) -> Path:
+    """The map ``vpr learn`` writes of ``db`` (with its frames' ``positions``), learned once under ``root``."""
+    the_map = root / "followed" / f"{db.name}.npz"
+    if not the_map.exists():
+        _command(["learn", db, "--out", the_map, "--gt", positions])
+    return the_map
+
+
 def _simulated(speeds: str) -> str:
     db, q, _, q_place = simulate.aliased_traverses(400, 40, speed=(1.8, 2.2), seed=1)
     loc = Localizer.from_database(db, [str(i) for i in range(db.shape[0])], conf=RshosmSeqConf.of(speeds=speeds))
@@ -206,7 +230,7 @@ def commands(data: Path, root: Path) -> None:
     """The second table: the setting through the commands."""
     gp = data / "gardens_point_day"
     left, right = gp / "day_left", gp / "day_right"
-    right2 = _folder(root, "gp_right2", sorted(right.iterdir())[::2], lambda f: 0)[0]
+    right2 = linked(root, "gp_right2", sorted(right.iterdir())[::2], lambda f: 0)[0]
     n = len(list(left.iterdir()))
     p_left, p_right = _positions(root / "left.csv", range(n)), _positions(root / "right.csv", range(n))
     p_right2 = _positions(root / "right2.csv", range(0, n, 2))
@@ -236,12 +260,12 @@ def sampled(data: Path, root: Path) -> None:
     the speed says to do), against the map of every frame; default settings."""
     gp, nl = data / "gardens_point_day", data / "nordland_trimmed"
     left, right = gp / "day_left", gp / "day_right"
-    right2 = _folder(root, "gp_right2", sorted(right.iterdir())[::2], lambda f: 0)[0]
+    right2 = linked(root, "gp_right2", sorted(right.iterdir())[::2], lambda f: 0)[0]
     n = len(list(left.iterdir()))
     p_left, p_right2 = _positions(root / "left.csv", range(n)), _positions(root / "right2.csv", range(0, n, 2))
     nl_n = lambda f: int(f.stem.split("-")[-1]) // 10  # noqa: E731
-    s10, x10 = _folder(root, "nl_summer10", sorted((nl / "summer").iterdir())[::10], nl_n)
-    w20, x20 = _folder(root, "nl_winter20", sorted((nl / "winter").iterdir())[::20], nl_n)
+    s10, x10 = linked(root, "nl_summer10", sorted((nl / "summer").iterdir())[::10], nl_n)
+    w20, x20 = linked(root, "nl_winter20", sorted((nl / "winter").iterdir())[::20], nl_n)
     p_s10, p_w20 = _positions(root / "s10.csv", x10), _positions(root / "w20.csv", x20)
     print("\nlocalize, a query driven twice as fast: accepted, P(acc), R(acc); speed along the accepted paths")
     print("| stream | map of every frame, --query-speed as-is | map of every frame, follow (default) | map from one "
@@ -305,9 +329,7 @@ def followed(data: Path, root: Path) -> None:
     for name, db, query, radius, p_db, p_q in _as_is_or_followed(
             data, root, "vpr localize (learned map, defaults): accepted, P(acc), R(acc); speed along the accepted "
             "paths; the frames answered at another sampling"):
-        the_map = root / "followed" / f"{db.name}.npz"
-        if not the_map.exists():
-            _command(["learn", db, "--out", the_map, "--gt", p_db])
+        the_map = _learned(root, db, p_db)
         cells = []
         for how in ("as-is", "follow"):
             out = root / "followed" / f"localize-{db.name}-{query.name}-{how}"
@@ -434,7 +456,7 @@ def _judged(key: str, best, accepted) -> str:
 
 #: the rules a stretch of one run re-matched at another speed is decided by: the localisation's path rule
 #: (rshosm-seq's defaults against a map) and the loop rule's path (LoopConf's drift and min_score)
-REMATCH_RULES = {"localisation rule": {}, "loop rule": {"drift": 1.25, "min_score": 28.0}}
+REMATCH_RULES = {"localisation rule": {}, "loop rule": {"drift": LoopConf.drift, "min_score": LoopConf.min_score}}
 
 
 def rematched(streams: dict, root: Path) -> None:
@@ -448,17 +470,12 @@ def rematched(streams: dict, root: Path) -> None:
     confirmed by the frames after each closure (:func:`vpr.shosm.confirm_closures`, the defaults); starting at the
     run's first frame, or ``exclude`` frames before it. Closures: right / false on Gardens Point (within 2 / beyond 8
     frames), onto an identical copy / false on the renders (:func:`studies.loop_decisions.aliases`)."""
-    import encoders
-    from encoders.extract import extract_all
-    from vpr import methods, presets
+    from vpr import methods
     from vpr.groundtruth import speed_step
     from vpr.methods import match_at_speed
     from vpr.shosm import LOOP_EXCLUDE, confirm_closures
-    from vpr.sources import open_sources
     from vpr.types import Decision, EncodedTraverse
 
-    s = presets.resolve(None)
-    enc = encoders.get(s["encoder"], **s["encoder_conf"])
     print("\na re-match within one run: from each run that reads another speed to the next or the end, against the "
           "frames before it, decided by a path rule, then confirmed by the frames after each closure; accepted "
           "(Gardens Point: right, false; renders: onto the copy, false)")
@@ -471,9 +488,7 @@ def rematched(streams: dict, root: Path) -> None:
         runs = [r for i, r in enumerate(runs) if not i or speed_step(r[1]) != speed_step(runs[i - 1][1])]
         if not runs:
             continue
-        with warnings.catch_warnings(action="ignore"):
-            (x,) = (e.features for e in extract_all(open_sources([root / "one_run" / key]), ["stream"], enc, {"sdr"},
-                                                    root / "cache", False, False))
+        (x,) = _encoded([root / "one_run" / key], ["stream"], root)
         seq, n = EncodedTraverse(x.names, sdr=x.sdr), len(x.names)
         for back, label in ((0, "the run's first frame"), (LOOP_EXCLUDE, f"{LOOP_EXCLUDE} frames before it")):
             cells = []
@@ -562,9 +577,7 @@ def soft(data: Path, root: Path) -> None:
     print("|---|---|---|---|---|")
     for name, (db, x_db), (query, x_q), radius in _streams(data, root):
         p_db, p_q = _positions(root / f"{db.name}.csv", x_db), _positions(root / f"{query.name}.csv", x_q)
-        the_map = root / "followed" / f"{db.name}.npz"
-        if not the_map.exists():
-            _command(["learn", db, "--out", the_map, "--gt", p_db])
+        the_map = _learned(root, db, p_db)
         cells = []
         for command in ("loops", "localize"):
             for how in ("as-is", "follow"):
@@ -611,10 +624,10 @@ def phases(data: Path, root: Path) -> None:
     print("|---|---|---|")
     faster = {"Gardens Point 2x": (left, right[::2], gp_n, 2), "Nordland 2x": (summer[::10], winter[::20], nl_n, 10)}
     for name, (db, query, number, radius) in faster.items():
-        q, x_q = _folder(work, f"{name}-q".replace(" ", "_"), query, number)
+        q, x_q = linked(work, f"{name}-q".replace(" ", "_"), query, number)
         cells = []
         for a in (0, 1):
-            d, x_d = _folder(work, f"{name}-map{a}".replace(" ", "_"), db[a::2], number)
+            d, x_d = linked(work, f"{name}-map{a}".replace(" ", "_"), db[a::2], number)
             cells.append(decisions_cell(_as_is(d, x_d, q, x_q, radius, work / f"{d.name}-run")[0], frames=False))
         print(f"| {name} | {' | '.join(cells)} |")
     print("\n| stream | a query of one frame in 2, its answers copied to the frames between | every frame its "
@@ -623,11 +636,11 @@ def phases(data: Path, root: Path) -> None:
     print("|---|---|---|---|")
     slower = {"Gardens Point 0.5x": (left[::2], right, gp_n, 2), "Nordland 0.5x": (summer[::10], winter[::5], nl_n, 10)}
     for name, (db, query, number, radius) in slower.items():
-        d, x_d = _folder(work, f"{name}-map".replace(" ", "_"), db, number)
+        d, x_d = linked(work, f"{name}-map".replace(" ", "_"), db, number)
         x_all = np.array([number(f) for f in query], np.float64)
         rows = []
         for a in (0, 1):
-            q, x_q = _folder(work, f"{name}-q{a}".replace(" ", "_"), query[a::2], number)
+            q, x_q = linked(work, f"{name}-q{a}".replace(" ", "_"), query[a::2], number)
             rows.append(_as_is(d, x_d, q, x_q, radius, work / f"{q.name}-run")[1])
         cells = []
         for how in ("copied", "own", "filled"):
@@ -683,15 +696,10 @@ def picks(data: Path, root: Path) -> None:
     stream off the map's speed, and the choice made with each dataset held out in turn: the pick with the larger mean
     precision (then recall) on the other dataset's streams, reported on the held-out one. SDRs as ``vpr compare``
     encodes (each traverse standardised on its own frames), the same for both picks."""
-    import encoders
-    from encoders.extract import extract_all
-    from vpr import methods, presets
+    from vpr import methods
     from vpr.methods import PICKS, SpeedFollower
-    from vpr.sources import open_sources
     from vpr.types import EncodedTraverse
 
-    s = presets.resolve(None)
-    enc = encoders.get(s["encoder"], **s["encoder_conf"])
     rows: dict = {}
     print("\nthe map of one frame in 2 a frame is answered by: accepted, P(acc), R(acc), batch (match_at_speed) and "
           "online (SpeedFollower)")
@@ -700,9 +708,8 @@ def picks(data: Path, root: Path) -> None:
     for name, (db, x_db), (query, x_q), radius in _streams(data, root):
         if name.endswith(" 1x"):
             continue
+        D, Q = _encoded([db, query], ["database", "query"], root)
         with warnings.catch_warnings(action="ignore"):
-            D, Q = (e.features for e in extract_all(open_sources([db, query]), ["database", "query"], enc, {"sdr"},
-                                                    root / "cache", False, False))
             cells = []
             for online in (False, True):
                 for pick in PICKS:
@@ -744,15 +751,10 @@ def apart(data: Path, root: Path) -> None:
     undecided beyond a bound of 3 (:func:`vpr.methods.disagree`, the default) or 5 map frames, or never; then the
     bounds the larger mean precision, then recall, picks on one dataset's streams,
     reported on the other's. SDRs as ``vpr compare`` encodes them."""
-    import encoders
-    from encoders.extract import extract_all
-    from vpr import methods, presets
+    from vpr import methods
     from vpr.methods import between_maps, pick_maps
-    from vpr.sources import open_sources
     from vpr.types import EncodedTraverse
 
-    s = presets.resolve(None)
-    enc = encoders.get(s["encoder"], **s["encoder_conf"])
     rows: dict = {}
     print("\na faster query's two maps of one frame in 2, where both accept a frame: frames by how far apart they "
           "place it (map frames; with a wrong answer among them); the decisions with frames placed farther apart "
@@ -763,9 +765,8 @@ def apart(data: Path, root: Path) -> None:
     for name, (db, x_db), (query, x_q), radius in _streams(data, root):
         if not ("2x" in name or "1.5-2.5x" in name):
             continue
+        D, Q = _encoded([db, query], ["database", "query"], root)
         with warnings.catch_warnings(action="ignore"):
-            D, Q = (e.features for e in extract_all(open_sources([db, query]), ["database", "query"], enc, {"sdr"},
-                                                    root / "cache", False, False))
             m = methods.get("rshosm-seq")
             dbt = EncodedTraverse(D.names, sdr=D.sdr)
             parts = [m.fit(dbt.take(np.arange(a, len(dbt), 2))).match(EncodedTraverse(Q.names, sdr=Q.sdr))
@@ -828,22 +829,57 @@ def refusing(best, accepted, slower) -> np.ndarray:
     return acc
 
 
-def _online_cell(accepted, right, wrong) -> str:
-    """accepted, P(acc), R(acc) of the frames (``right`` / ``wrong``: per frame; the rest in the soft band)."""
-    r, w = int((accepted & right).sum()), int((accepted & wrong).sum())
-    return f"{int(accepted.sum())}, {r / (r + w):.3f}, {r / right.size:.2f}" if r + w else "-"
-
-
-def online(data: Path, root: Path) -> None:
-    """Why ``vpr localize`` follows a query at another speed less well than ``vpr loops MAP QUERY`` does: the
-    follower (:class:`vpr.methods.SpeedFollower`, as ``vpr localize`` runs it) stepped frame by frame, the frame it
-    first reads another speed, what it answers before and after, and the wrong answers at a slower speed that
-    contradict the frame before's (:func:`contradicting`) with what refusing them would give (measured, not built).
-    The goal's measure (soft bands)."""
+def followed_frames(the_map: Path, query: Path, hold: float | None = None) -> tuple[list, np.ndarray, object]:
+    """``vpr localize``'s follower (:class:`vpr.methods.SpeedFollower`, the query encoded with running statistics)
+    over ``query`` frame by frame against ``the_map`` (a ``vpr learn`` file): (decisions, the follower's mode after
+    each frame, the follower). ``hold``: a frame sharing at least that share of its bits beyond chance with the frame
+    before (:func:`shared_beyond_chance`) takes its decision without stepping the follower (the evidence held while
+    the observation repeats; None: never)."""
     from encoders.maps import load_map
     from encoders.stream import StreamEncoder
     from vpr.methods import SpeedFollower
     from vpr.sources import open_source
+
+    m, enc = load_map(the_map)
+    qenc, follower = StreamEncoder(enc, "running"), SpeedFollower(m.localizer, m.sdr)
+    follower.warm_up()
+    n_bits = m.localizer.memory.n_inputs
+    out, modes, prev = [], [], None
+    with warnings.catch_warnings(action="ignore"):
+        for k, frame in enumerate(open_source(query)):
+            row = qenc.encode(frame.image)
+            bits = np.sort(row.indices.astype(np.int64))
+            if hold is not None and out and shared_beyond_chance(bits, prev, n_bits) >= hold:
+                out.append(dataclasses.replace(out[-1], frame=k))
+            else:
+                out.append(follower.update(row))
+            modes.append(follower.mode)
+            prev = bits
+    return out, np.array(modes), follower
+
+
+def shared_beyond_chance(a: np.ndarray, b: np.ndarray, n_bits: int) -> float:
+    """The share of ``a``'s bits ``b`` has beyond chance (1: all of them, 0: as many as chance gives)."""
+    chance = a.size * b.size / n_bits
+    if a.size <= chance:
+        return 0.0
+    return (np.intersect1d(a, b, assume_unique=True).size - chance) / (a.size - chance)
+
+
+def position_truth(x_db, x_q, radius: float, soft: float) -> tuple[np.ndarray, np.ndarray]:
+    """(gt_hard, gt_soft), database x query, of frames at positions ``x_db`` and ``x_q`` within ``radius`` /
+    ``soft``."""
+    d = np.abs(np.asarray(x_db, float)[:, None] - np.asarray(x_q, float)[None, :])
+    return d <= radius, d <= soft
+
+
+def online(data: Path, root: Path) -> None:
+    """Why ``vpr localize`` follows a query at another speed less well than ``vpr loops MAP QUERY`` does: the
+    follower stepped frame by frame (:func:`followed_frames`), the frame it first reads another speed, what it
+    answers before and after, and the wrong answers at a slower speed that contradict the frame before's
+    (:func:`contradicting`) with what refusing them would give (measured, not built). The goal's measure (soft
+    bands)."""
+    from vpr.evaluate import accepted_precision
 
     print("\n`vpr localize` (follow) frame by frame, soft bands: accepted, P(acc), R(acc); the frame another speed is "
           "first read (and answers right before it); R(acc) over the frames from it; wrong answers before / after it, "
@@ -855,30 +891,23 @@ def online(data: Path, root: Path) -> None:
     for name, (db, x_db), (query, x_q), radius in _streams(data, root):
         if name.endswith(" 1x"):
             continue
-        the_map = root / "followed" / f"{db.name}.npz"
-        if not the_map.exists():
-            _command(["learn", db, "--out", the_map, "--gt", _positions(root / f"{db.name}.csv", x_db)])
-        m, enc = load_map(the_map)
-        qenc, follower = StreamEncoder(enc, "running"), SpeedFollower(m.localizer, m.sdr)
-        follower.warm_up()
-        rows = []
-        with warnings.catch_warnings(action="ignore"):
-            for frame in open_source(query):
-                d = follower.update(qenc.encode(frame.image))
-                rows.append((d.best, d.accepted, follower.mode))
-        best, acc, mode = (np.array(v) for v in zip(*rows, strict=True))
-        acc = acc.astype(bool)
-        off = np.abs(x_db[np.maximum(best, 0)] - x_q)
-        right, wrong = (best >= 0) & (off <= radius), (best >= 0) & (off > SOFT[radius])
-
+        ds, mode, follower = followed_frames(_learned(root, db, _positions(root / f"{db.name}.csv", x_db)), query)
+        best, acc = np.array([d.best for d in ds]), np.array([d.accepted for d in ds], bool)
+        hard, soft = position_truth(x_db, x_q, radius, SOFT[radius])
+        frames = np.arange(best.size)
+        on = best >= 0
+        right = on & hard[np.maximum(best, 0), frames]
+        wrong = acc & on & ~soft[np.maximum(best, 0), frames]
         read = int(np.argmax(mode != 0)) if (mode != 0).any() else best.size
+        after = accepted_precision(best[read:], acc[read:], hard[:, read:], soft[:, read:])
         contra = contradicting(best, acc, mode < 0)
-        print(f"| {name} | {best.size} | {_online_cell(acc, right, wrong)} | {read} "
-              f"({int((acc & right)[:read].sum())}) | "
-              f"{(acc & right)[read:].sum() / max(best.size - read, 1):.2f} | {int((acc & wrong)[:read].sum())} / "
-              f"{int((acc & wrong)[read:].sum())} ({int((contra & wrong).sum())}; "
-              f"{int((acc & wrong & ~contra)[read:read + follower.replay].sum())}) | "
-              f"{_online_cell(refusing(best, acc, mode < 0), right, wrong)} |", flush=True)
+        replay = (wrong & ~contra)[read:read + follower.replay]
+        given, refused = (decisions_cell(accepted_precision(best, a, hard, soft), frames=False)
+                          for a in (acc, refusing(best, acc, mode < 0)))
+        print(f"| {name} | {best.size} | {given} | {read} ({int((acc & right)[:read].sum())}) | "
+              f"{after['recall_accepted']:.2f} | {int(wrong[:read].sum())} / {int(wrong[read:].sum())} "
+              f"({int((contra & wrong).sum())}; {int(replay.sum())}) | {refused} |",
+              flush=True)
 
 
 def main(argv=None) -> None:
@@ -898,21 +927,12 @@ def main(argv=None) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         root = args.out or Path(tmp)
         root.mkdir(parents=True, exist_ok=True)
-        if args.cases:
-            cases(args.data, root)
-            return
-        if args.one_run:
-            one_run(args.data, root)
-            return
-        if args.loops:
-            loops(args.data, root)
-            soft(args.data, root)
-            return
-        if args.apart:
-            apart(args.data, root)
-            return
-        if args.online:
-            online(args.data, root)
+        only = {"cases": (cases,), "one_run": (one_run,), "loops": (loops, soft), "apart": (apart,),
+                "online": (online,)}
+        chosen = next((tables for flag, tables in only.items() if getattr(args, flag)), None)
+        if chosen:
+            for table in chosen:
+                table(args.data, root)
             return
         print("AP, accepted, P(acc), R(acc) of rshosm-seq (default preset), query frames as they come; speed along "
               "the accepted paths, map frames per query frame (query frames counted)")

@@ -1,7 +1,7 @@
-"""studies.query_stands: the share of a frame's bits the frame before has beyond chance."""
+"""studies.speed_models: the share of a frame's bits the frame before has beyond chance."""
 import numpy as np
 
-from studies.query_stands import shared_beyond_chance
+from studies.speed_models import shared_beyond_chance
 
 
 def test_the_share_is_one_for_a_repeated_frame_and_zero_at_chance():
