@@ -83,7 +83,8 @@ def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, met
             "db_indices": [] if prefix else list(exs[0].indices or []),
             "skipped": [sk for ex in exs for sk in ex.skipped], "encode_seconds": t_enc,
             "learn_seconds": time.perf_counter() - t, "positions": spec.describe() if pos is not None else None,
-            "every": every, "rate": float(np.median(rates)) if rates else None}
+            "every": every, "rate": float(np.median(rates)) if rates else None,
+            "source_rate": None if prefix else srcs[0].native_rate()}
     the_map = Map(loc, {"name": enc.name, "conf": enc.conf}, enc.statistics() if fitted else [],  # the last session's
                   xy, None if pos is None else pos.origin, info, sdr)
     the_map.save(out)

@@ -105,13 +105,16 @@ class LocalizeOnline(Online):
         gt, loc, info = self.gt, self.loc, self.map.info
         if gt.tolerance is None and not gt.files and gt.topic is None:
             return {}, None
-        q_idx = [i if i >= 0 else k for k, i in enumerate(indices)]
+        own = [i if i >= 0 else k for k, i in enumerate(indices)]  # the source's frame numbers (stdin: the lines)
         positions = None
         if self.q_xy is not None:
             row = {k: r for r, k in enumerate(self.q_src.indices())}
-            positions = (self.map.positions, self.q_xy[[row[k] for k in q_idx]])
+            positions = (self.map.positions, self.q_xy[[row[k] for k in own]])
+        # a resumed run's query frames continue the stopped run's numbering: it answered frames 0 .. frames[0] - 1
+        q_idx = [int(frames[0] * sampling_step(own)) + i for i in own]
         gt_hard, gt_soft = build_gt(gt, loc.names, names, info.get("db_indices") or list(range(loc.n_db)), q_idx,
-                                    info.get("db_source", "database"), self.q_src.name, positions=positions)
+                                    info.get("db_source", "database"), self.q_src.name, positions=positions,
+                                    rates=(info.get("source_rate"), self.q_src.native_rate()))
         m, curve = evaluate.method_metrics(result, gt_hard, gt_soft)
         self.ground_truth = (gt_hard, gt_soft, None)
         m.pop("seconds", None)

@@ -269,11 +269,11 @@ class LoopsOnline(Online):
             m.update(self._geometry())
             return m, None
         hard, soft = build_loop_gt(self.gt, self.det.names, list(range(N)), total=N)
-        hard, soft = (None if g is None else g[:, frames] for g in (hard, soft))
         exclude = self.det.conf["exclude"]
-        mask = groundtruth.loop_closure_mask(N, exclude=exclude, starts=starts)[:, frames]
-        if not (hard & mask).any():
+        if not any_true(groundtruth.loop_pairs(hard, exclude, starts)[:, frames]):
             no_revisit(self.gt, exclude)
+        hard, soft = (None if g is None else g[:, frames] for g in (hard, soft))
+        mask = groundtruth.loop_closure_mask(N, exclude=exclude, starts=starts)[:, frames]
         m, curve = evaluate.method_metrics(result, hard, soft, mask=mask, loops=True)
         self.ground_truth = (hard, soft, mask)
         if len(starts) > 1:
@@ -364,7 +364,7 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
                          "apart")
     sessions = [0, *np.cumsum([len(a) for a in attempted])[:-1].tolist()]
     gt_hard, gt_soft = build_stream_gt(opts.gt, srcs, attempted, positions)
-    if gt_hard is not None and not any_true(gt_hard & groundtruth.loop_closure_mask(T, exclude, starts=sessions)):
+    if gt_hard is not None and not any_true(groundtruth.loop_pairs(gt_hard, exclude, sessions)):
         no_revisit(opts.gt, exclude)
     # ---- the work starts here: nothing above wrote a file
     with claim_methods(out, runners):  # a second run of this method into out meanwhile is refused

@@ -152,7 +152,8 @@ def prepare_run(out: Path, paths, roles, opts: RunOptions, match: bool = False):
             runner.check_matching()  # a loop closure setting: refused now
         xy = None if positions is None else (positions[0], positions[k])
         gt_hard, gt_soft = build_gt(opts.gt, srcs[0].names(), q_src.names(), db_att, q_att, srcs[0].name,
-                                    q_src.name, totals=(srcs[0].exact_total(), q_src.exact_total()), positions=xy)
+                                    q_src.name, totals=(srcs[0].exact_total(), q_src.exact_total()), positions=xy,
+                                    rates=(srcs[0].native_rate(), q_src.native_rate()))
         if gt_hard is not None and not any_true(gt_hard):
             raise opts.gt.no_match_error(db_att, q_att)
         gts.append((gt_hard, gt_soft))

@@ -8,7 +8,7 @@ import scipy.sparse as sp
 from pipelines import outputs
 from pipelines.args import parse_size
 from pipelines.cli import main
-from vpr import similarity
+from vpr import groundtruth, similarity
 from vpr.shosm import loop_evidence
 from vpr.similarity import DENSE_BYTES_PER_PAIR, dense_budget, dense_pairs, fits_dense
 
@@ -86,3 +86,29 @@ def test_an_online_stream_refuses_a_memory_budget(tmp_path, capsys):
     assert main(["loops", "-", "--out", str(tmp_path / "o"), "--memory-budget", "1GB", "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert "--memory-budget" in err and err.count("\n") == 1 and not (tmp_path / "o").exists()
+
+
+def test_the_loop_pairs_of_a_sparse_ground_truth_are_those_of_the_dense_one():
+    rng = np.random.default_rng(1)
+    G = rng.random((40, 40)) < 0.3
+    for exclude, starts in ((0, None), (5, None), (3, [0, 15, 31])):
+        dense = groundtruth.loop_pairs(G, exclude, starts)
+        np.testing.assert_array_equal(dense, G & groundtruth.loop_closure_mask(40, exclude, starts))
+        small = groundtruth.loop_pairs(sp.csr_matrix(G), exclude, starts)
+        assert sp.issparse(small) and small.dtype == bool
+        np.testing.assert_array_equal(small.toarray(), dense)
+
+
+@pytest.mark.slow
+def test_loops_with_positions_beyond_the_budget_score_as_the_dense_run(scene_on_disk, tmp_path, capsys):
+    s = scene_on_disk("loop_revisits", (48, 36), 240)
+    argv = ["loops", s["laps"], "--gt", s["gt"], "--radius", 6, "--preset", "fast", "--no-progress"]
+    got = {}
+    for out, extra in (("dense", []), ("topk", ["--memory-budget", "1KB"])):
+        assert main([str(a) for a in [*argv, "--out", tmp_path / out, *extra]]) == 0, capsys.readouterr().err
+        got[out] = json.loads((tmp_path / out / "metrics.json").read_text())["methods"]["rshosm-seq"]
+    assert (tmp_path / "topk" / "rshosm-seq" / "similarity_topk.npz").is_file()
+    assert got["topk"]["n_accepted"] > 0 and got["topk"]["frames_with_loop"] > 0
+    for key in ("precision_accepted", "recall_accepted", "n_accepted", "n_false", "frames_with_loop"):
+        assert got["topk"][key] == got["dense"][key], key  # the same decisions, scored on the same pairs
+    assert got["topk"]["ap"] == pytest.approx(got["dense"]["ap"], abs=0.01)  # the top-K of each frame ranked

@@ -9,7 +9,7 @@ from vpr.checks import check_count, check_float
 from vpr.similarity import candidate_limit
 
 __all__ = ["gt_from_labels", "gt_from_frames", "gt_from_tolerance", "gt_from_positions", "loop_closure_mask",
-           "loop_closure_gt", "any_true", "frame_rows"]
+           "loop_closure_gt", "loop_pairs", "any_true", "frame_rows"]
 
 
 def _expand_ranges(starts, counts):
@@ -151,6 +151,21 @@ def loop_closure_gt(labels_or_xy, radius=None, exclude=0, sparse=False):
     if sparse:
         return sp.triu(gt, k=max(exclude, 1), format="csr").astype(bool)
     return gt & loop_closure_mask(len(a), exclude)
+
+
+def loop_pairs(G, exclude=0, starts=None):
+    """The pairs of a T x T ground truth ``G`` (dense or sparse bool) that :func:`loop_closure_mask` evaluates.
+
+    Dense ``G`` gives ``G & loop_closure_mask(T, exclude, starts)``; sparse ``G`` a csr_matrix of its entries inside
+    the mask, with no dense T x T built.
+    """
+    T = G.shape[1]
+    if not sp.issparse(G):
+        return np.asarray(G) & loop_closure_mask(T, exclude, starts)
+    n = candidate_limit(T, check_count(exclude, "exclude"), starts)
+    C = sp.coo_matrix(G)
+    keep = (C.row < n[C.col]) & (C.data != 0)
+    return sp.csr_matrix((np.ones(int(keep.sum()), bool), (C.row[keep], C.col[keep])), shape=G.shape)
 
 
 def any_true(G) -> bool:

@@ -26,7 +26,7 @@ from .formats import db_query_matrix, is_matrix_file, loop_matrix, split_variabl
 from .matrices import gt_from_frames, gt_from_positions
 
 __all__ = ["GroundTruthSpec", "build_gt", "build_loop_gt", "check_loop_gt_files", "warn_if_mostly_true",
-           "sampling_step", "tolerance_text", "check_tolerance", "check_radius"]
+           "sampling_step", "tolerance_text", "check_tolerance", "check_radius", "aligned_frames"]
 
 
 @dataclass(frozen=True)
@@ -244,19 +244,20 @@ def check_radius(spec: GroundTruthSpec, db_xy) -> None:
 
 def build_gt(spec: GroundTruthSpec, db_names: Sequence[str], q_names: Sequence[str], db_indices: Sequence[int],
              q_indices: Sequence[int], db_traverse: str = "database", q_traverse: str = "query", totals=None,
-             positions=None):
+             positions=None, rates=None):
     """(gt_hard, gt_soft) of the frames read, or (None, None) without ground truth.
 
     ``db_traverse`` / ``q_traverse``: names in a ``traverse,frame,x,y`` file; ``*_indices``: source frame numbers;
     ``totals``: frames per source where known (a matrix file must match); ``positions``: (database, query) positions
-    the caller read, matched within ``spec.radius``. Warns when most pairs are true; bad options or files raise
-    ValueError.
+    the caller read, matched within ``spec.radius``; ``rates``: the sources' own frame rates, for a tolerance
+    (:func:`aligned_frames`). Warns when most pairs are true; bad options or files raise ValueError.
     """
     if positions is not None:  # read by the caller from a checked spec
         check_radius(spec, positions[0])
         hard, soft = _from_positions(spec, positions[0], positions[1])
     else:
-        hard, soft = _db_query_gt(spec, db_names, q_names, db_indices, q_indices, db_traverse, q_traverse, totals)
+        hard, soft = _db_query_gt(spec, db_names, q_names, db_indices, q_indices, db_traverse, q_traverse, totals,
+                                  rates)
     said = check_tolerance(spec, db_indices, q_indices)
     if hard is not None and not said:
         warn_if_mostly_true(spec, hard)
@@ -288,14 +289,41 @@ def _from_positions(spec: GroundTruthSpec, a, b):
     return (hard, soft.tocsr()) if big else (hard.toarray(), soft.toarray())
 
 
-def _db_query_gt(spec, db_names, q_names, db_indices, q_indices, db_traverse, q_traverse, totals):
+def aligned_frames(db_names, q_names, db_indices, q_indices, rates=None) -> np.ndarray:
+    """The query frames' places in the database's frame numbers, for a ``--tolerance`` between aligned traverses.
+
+    Where both sources have frame rates (``rates``: database, query; :meth:`vpr.sources.Source.native_rate`) that
+    differ, each is placed by its time; else, where every query frame is named as a database frame (a subsampled copy
+    of one run, or datasets named frame by frame alike), at the frame of its name; else at its own frame number.
+    A query placed otherwise than at its own number is said (one line).
+    """
+    q = np.asarray(q_indices, np.float64)
+    db_rate, q_rate = rates if rates is not None else (None, None)
+    where = {n: i for n, i in zip(db_names, db_indices, strict=False)}
+    if db_rate and q_rate and not math.isclose(db_rate, q_rate, rel_tol=1e-3):
+        at = q * (db_rate / q_rate)
+        how = (f"at {q_rate:.4g} frames per second and the database's at {db_rate:.4g}: each is paired with the "
+               "database frame of its time")
+    elif len(where) == len(db_names) and len(q_names) and all(n in where for n in q_names):
+        at = np.asarray([where[n] for n in q_names], np.float64)
+        how = "named as database frames: each is paired with the database frame of its name"
+    else:
+        return q
+    if not np.array_equal(at, q):
+        warnings.warn(f"--tolerance: the query's frames are {how} (query frame {int(q[-1])} with database frame "
+                      f"{at[-1]:g})", UserWarning, stacklevel=4)
+    return at
+
+
+def _db_query_gt(spec, db_names, q_names, db_indices, q_indices, db_traverse, q_traverse, totals, rates=None):
     spec.check()
     files = list(spec.files)
     if spec.tolerance is not None:  # in frames kept: the input frames a kept frame stands for
         step = sampling_step(db_indices)
+        q_at = aligned_frames(db_names, q_names, db_indices, q_indices, rates)
         big = not fits_dense(len(db_indices), len(q_indices))  # a band, never the dense matrix
-        hard = gt_from_frames(db_indices, q_indices, spec.tolerance * step, sparse=big)
-        soft = gt_from_frames(db_indices, q_indices, spec.soft * step, sparse=big) if spec.soft is not None else None
+        hard = gt_from_frames(db_indices, q_at, spec.tolerance * step, sparse=big)
+        soft = gt_from_frames(db_indices, q_at, spec.soft * step, sparse=big) if spec.soft is not None else None
         return hard, soft
     if not files:
         return None, None

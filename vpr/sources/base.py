@@ -208,6 +208,11 @@ class Source:
         """
         return None
 
+    def native_rate(self) -> float | None:
+        """Frames per second of the source's own frame numbers (:meth:`indices`), where they are evenly timed (a
+        video's rate; else None)."""
+        return None
+
     def rate(self) -> float | None:
         """Frames per second of the frames kept, from their times (None without times)."""
         t = self.stamps()

@@ -96,6 +96,9 @@ class VideoSource(Source):
     def accepts(cls, path: Path) -> bool:
         return path.suffix.lower() in VIDEO_EXTENSIONS
 
+    def native_rate(self) -> float | None:
+        return self.video_fps or None
+
     def rate(self) -> float | None:
         """Frames per second of the frames kept: ``fps`` where it lowers the video's rate, else its rate / ``step``."""
         if not self.video_fps:
