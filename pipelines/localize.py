@@ -63,6 +63,7 @@ class LocalizeOnline(Online):
     def __init__(self, the_map: Map, qenc: StreamEncoder, gt: GroundTruthSpec, q_src, params: dict, q_xy=None,
                  follower: SpeedFollower | None = None):
         self.map, self.loc, self.qenc, self.gt, self.q_src = the_map, the_map.localizer, qenc, gt, q_src
+        self.resumed = bool(the_map.query_state)
         self._params, self.q_xy = params, q_xy  # the query frames' positions, by q_src.indices()
         self.top_k = self.loc.seq.top_k
         self.follower = follower  # a query driven faster or slower than the map, followed (docs/localize.md)

@@ -177,6 +177,7 @@ class LoopsOnline(Online):
 
     def __init__(self, det: LoopDetector, gt: GroundTruthSpec, goes_on: bool = False):
         self.det, self.gt = det, gt
+        self.resumed = det.frames > 0
         self.goes_on = goes_on  # the input's end is a pause (--state-out): closures wait in the state
         self.top_k = det.seq.top_k
         self._reader = evaluate.SpeedReader()  # the current later session's speed onto the earlier ones

@@ -42,6 +42,8 @@ class Online:
     top_k: int | None = None
     #: (gt_hard, gt_soft, mask) of this run's frames, set by :meth:`evaluate` where there is ground truth
     ground_truth: tuple | None = None
+    #: the job goes on from a saved state (``--resume``, or a map saved with ``--state-out``)
+    resumed: bool = False
 
     def warm_up(self) -> None:
         """Compile kernels and load models now, so that the first frame's latency is its own."""
@@ -139,8 +141,13 @@ def run_online(job: Online, src, out, stdout=None, state_out=None) -> dict:
     The method's folder is claimed with the first frame (a second run of the
     method into ``out`` meanwhile is refused; a run refused before it writes nothing).
     """
+    out = Path(out)
+    before = out / job.method / "matches.csv"
+    if job.resumed and before.is_file():
+        raise ValueError(f"--out {out}: holds {job.method}'s answers of an earlier run ({before}); a resumed run "
+                         "writes the frames it answers and would replace them: give it another --out")
     with contextlib.ExitStack() as claim:
-        return _run(job, src, Path(out), sys.stdout if stdout is None else stdout, state_out, claim)
+        return _run(job, src, out, sys.stdout if stdout is None else stdout, state_out, claim)
 
 
 def _run(job: Online, src, out: Path, stdout, state_out, claim: contextlib.ExitStack) -> dict:
@@ -206,7 +213,8 @@ def _run(job: Online, src, out: Path, stdout, state_out, claim: contextlib.ExitS
     elif waiting:  # the input ended with frames waiting in the state for the frames after them
         print(f"vpr {job.command}: {len(waiting)} frame{'s' if len(waiting) > 1 else ''} read ({waiting[0][0]} .. "
               f"{waiting[-1][0]}) wait in {state_out} for the frames after them, not yet in the outputs: to continue, "
-              f"{job.resume_hint(state_out)}; their answers come first", file=sys.stderr, flush=True)
+              f"{job.resume_hint(state_out)} with another --out; their answers come first", file=sys.stderr,
+              flush=True)
     if not rows:
         if stop is not None:
             raise stop
@@ -233,12 +241,12 @@ def _stopped(job: Online, taken: tuple | None, waiting: list[str], state_out) ->
     upto = f" up to input line {line}" if line else f" up to {name}" if name else ""
     if not waiting:
         return f"vpr {job.command}: stopped; every frame{upto} is answered in the outputs" + (
-            f"; to continue, {job.resume_hint(state_out)} and {go_on}" if state_out else "")
+            f"; to continue, {job.resume_hint(state_out)} with another --out and {go_on}" if state_out else "")
     which = f"{len(waiting)} frame{'s' if len(waiting) > 1 else ''} read ({waiting[0]} .. {waiting[-1]})"
     if not state_out:
         return f"vpr {job.command}: stopped; {which} wait for later frames and are not answered (no --state-out)"
     return (f"vpr {job.command}: stopped; {which} wait in {state_out} for later frames, not yet in the outputs: "
-            f"to continue, {job.resume_hint(state_out)} and {go_on}; their answers come first")
+            f"to continue, {job.resume_hint(state_out)} with another --out and {go_on}; their answers come first")
 
 
 def _write(job: Online, out: Path, src, rows, skipped, seconds, state_out, waiting: list[str], stopped: bool) -> dict:

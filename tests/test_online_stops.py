@@ -166,7 +166,7 @@ def test_a_stop_while_a_frame_is_read_names_that_frames_line_to_go_on_from(laps,
     waiting = json.loads((tmp_path / "a" / "metrics.json").read_text())["methods"]["rshosm-seq"].get("waiting", [])
     assert len(_rows(tmp_path / "a")) + len(waiting) == 120
     assert ("every frame up to input line 120 is answered in the outputs" in err) == (not waiting), err
-    assert f"--resume {tmp_path / 's.npz'} and feed it from input line 121" in err
+    assert f"--resume {tmp_path / 's.npz'} with another --out and feed it from input line 121" in err
     monkeypatch.undo()
     monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(paths[120:]) + "\n"))  # as the message says
     assert _main(["loops", "-", "--out", tmp_path / "b", "--resume", tmp_path / "s.npz"]) == 0
@@ -182,6 +182,13 @@ def test_a_resumed_run_is_scored_against_the_frames_in_its_state(laps, tmp_path,
     assert _main(["loops", "-", "--out", tmp_path / "whole", *LOOSE, *gt]) == 0
     monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(paths[:120]) + "\n"))
     assert _main(["loops", "-", "--out", tmp_path / "a", *LOOSE, "--state-out", tmp_path / "s.npz"]) == 0
+    monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(paths[120:]) + "\n"))
+    before = (tmp_path / "a" / "rshosm-seq" / "matches.csv").read_bytes()
+    capsys.readouterr()
+    assert _main(["loops", "-", "--out", tmp_path / "a", "--resume", tmp_path / "s.npz", *gt]) == 2  # the first part's
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "holds rshosm-seq's answers of an earlier run" in err and "another --out" in err
+    assert (tmp_path / "a" / "rshosm-seq" / "matches.csv").read_bytes() == before
     monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(paths[120:]) + "\n"))
     assert _main(["loops", "-", "--out", tmp_path / "b", "--resume", tmp_path / "s.npz", *gt]) == 0
     err = capsys.readouterr().err
@@ -211,8 +218,16 @@ def test_a_stopped_localize_says_how_to_go_on_with_its_state(laps, tmp_path, cap
     err = capsys.readouterr().err
     assert "--resume" not in err
     assert (f"every frame up to input line 30 is answered in the outputs; to continue, give {tmp_path / 's.npz'} as "
-            f"the map (vpr localize {tmp_path / 's.npz'} QUERY) and feed it from input line 31") in err, err
+            f"the map (vpr localize {tmp_path / 's.npz'} QUERY) with another --out and feed it from input line 31") \
+        in err, err
     monkeypatch.undo()
+    # into the stopped run's --out: refused in one line, its answers kept
+    before = (tmp_path / "a" / "rshosm-seq" / "matches.csv").read_bytes()
+    monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(paths[30:]) + "\n"))
+    assert _main(["localize", tmp_path / "s.npz", "-", "--out", tmp_path / "a"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "holds rshosm-seq's answers of an earlier run" in err and "another --out" in err
+    assert (tmp_path / "a" / "rshosm-seq" / "matches.csv").read_bytes() == before
     monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(paths[30:]) + "\n"))
     assert _main(["localize", tmp_path / "s.npz", "-", "--out", tmp_path / "b"]) == 0
     assert len(_rows(tmp_path / "a")) + len(_rows(tmp_path / "b")) == len(paths)
