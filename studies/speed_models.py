@@ -166,7 +166,7 @@ def _similarity(db: Path, query: Path, model: str, root: Path) -> np.ndarray:
 SETTINGS = ("same", "faster", "same+faster", "same+faster+slower")
 
 
-def _positions(path: Path, x) -> Path:
+def positions_csv(path: Path, x) -> Path:
     path.write_text("frame,x,y\n" + "".join(f"{i},{v:g},0\n" for i, v in enumerate(x)))
     return path
 
@@ -232,8 +232,8 @@ def commands(data: Path, root: Path) -> None:
     left, right = gp / "day_left", gp / "day_right"
     right2 = linked(root, "gp_right2", sorted(right.iterdir())[::2], lambda f: 0)[0]
     n = len(list(left.iterdir()))
-    p_left, p_right = _positions(root / "left.csv", range(n)), _positions(root / "right.csv", range(n))
-    p_right2 = _positions(root / "right2.csv", range(0, n, 2))
+    p_left, p_right = positions_csv(root / "left.csv", range(n)), positions_csv(root / "right.csv", range(n))
+    p_right2 = positions_csv(root / "right2.csv", range(0, n, 2))
     the_map = root / "gp_left_map.npz"
     if not the_map.exists():
         _command(["learn", left, "--out", the_map, "--gt", p_left])
@@ -262,11 +262,11 @@ def sampled(data: Path, root: Path) -> None:
     left, right = gp / "day_left", gp / "day_right"
     right2 = linked(root, "gp_right2", sorted(right.iterdir())[::2], lambda f: 0)[0]
     n = len(list(left.iterdir()))
-    p_left, p_right2 = _positions(root / "left.csv", range(n)), _positions(root / "right2.csv", range(0, n, 2))
+    p_left, p_right2 = positions_csv(root / "left.csv", range(n)), positions_csv(root / "right2.csv", range(0, n, 2))
     nl_n = lambda f: int(f.stem.split("-")[-1]) // 10  # noqa: E731
     s10, x10 = linked(root, "nl_summer10", sorted((nl / "summer").iterdir())[::10], nl_n)
     w20, x20 = linked(root, "nl_winter20", sorted((nl / "winter").iterdir())[::20], nl_n)
-    p_s10, p_w20 = _positions(root / "s10.csv", x10), _positions(root / "w20.csv", x20)
+    p_s10, p_w20 = positions_csv(root / "s10.csv", x10), positions_csv(root / "w20.csv", x20)
     print("\nlocalize, a query driven twice as fast: accepted, P(acc), R(acc); speed along the accepted paths")
     print("| stream | map of every frame, --query-speed as-is | map of every frame, follow (default) | map from one "
           "frame in 2 (vpr learn --step 2) |")
@@ -291,8 +291,8 @@ def _as_is_or_followed(data: Path, root: Path, title: str):
     print("| stream | --query-speed as-is | follow (default) |")
     print("|---|---|---|")
     for name, (db, x_db), (query, x_q), radius in _streams(data, root):
-        yield (name, db, query, radius, _positions(root / f"{db.name}.csv", x_db),
-               _positions(root / f"{query.name}.csv", x_q))
+        yield (name, db, query, radius, positions_csv(root / f"{db.name}.csv", x_db),
+               positions_csv(root / f"{query.name}.csv", x_q))
 
 
 def _pair(command: str, db: Path, query: Path, root: Path, p_db: Path, p_q: Path, radius, how: str) -> dict:
@@ -314,7 +314,7 @@ def followed(data: Path, root: Path) -> None:
     print("| stream | method | --query-speed as-is | follow (default) |")
     print("|---|---|---|---|")
     for name, (db, x_db), (query, x_q), radius in _streams(data, root):
-        p_db, p_q = _positions(root / f"{db.name}.csv", x_db), _positions(root / f"{query.name}.csv", x_q)
+        p_db, p_q = positions_csv(root / f"{db.name}.csv", x_db), positions_csv(root / f"{query.name}.csv", x_q)
         reports = {how: _pair("compare", db, query, root, p_db, p_q, radius, how) for how in ("as-is", "follow")}
         for method in reports["as-is"]:
             cells = []
@@ -576,7 +576,7 @@ def soft(data: Path, root: Path) -> None:
     print("| stream | loops as-is | loops follow (default) | localize as-is | localize follow (default) |")
     print("|---|---|---|---|---|")
     for name, (db, x_db), (query, x_q), radius in _streams(data, root):
-        p_db, p_q = _positions(root / f"{db.name}.csv", x_db), _positions(root / f"{query.name}.csv", x_q)
+        p_db, p_q = positions_csv(root / f"{db.name}.csv", x_db), positions_csv(root / f"{query.name}.csv", x_q)
         the_map = _learned(root, db, p_db)
         cells = []
         for command in ("loops", "localize"):
@@ -594,7 +594,8 @@ def soft(data: Path, root: Path) -> None:
 def _as_is(db: Path, x_db, query: Path, x_q, radius, out: Path) -> tuple[dict, list]:
     """``vpr compare --methods rshosm-seq --query-speed as-is``: its metrics and its (best_db, accepted) rows."""
     if not (out / "metrics.json").exists():
-        p_db, p_q = _positions(out.parent / f"{db.name}.csv", x_db), _positions(out.parent / f"{query.name}.csv", x_q)
+        p_db = positions_csv(out.parent / f"{db.name}.csv", x_db)
+        p_q = positions_csv(out.parent / f"{query.name}.csv", x_q)
         with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings(action="ignore"):
             if vpr([str(a) for a in ["compare", db, query, "--out", out, "--cache", out.parent.parent / "cache",
                                      "--gt", p_db, p_q, "--radius", radius, "--methods", "rshosm-seq",
@@ -891,7 +892,7 @@ def online(data: Path, root: Path) -> None:
     for name, (db, x_db), (query, x_q), radius in _streams(data, root):
         if name.endswith(" 1x"):
             continue
-        ds, mode, follower = followed_frames(_learned(root, db, _positions(root / f"{db.name}.csv", x_db)), query)
+        ds, mode, follower = followed_frames(_learned(root, db, positions_csv(root / f"{db.name}.csv", x_db)), query)
         best, acc = np.array([d.best for d in ds]), np.array([d.accepted for d in ds], bool)
         hard, soft = position_truth(x_db, x_q, radius, SOFT[radius])
         frames = np.arange(best.size)
