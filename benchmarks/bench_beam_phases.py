@@ -32,7 +32,7 @@ def _sdrs(n: int, folders: str | None, cache: str | None):
         db, q = simulate.aliased_traverses(n, n // 10, k=200, seed=0)[:2]
         return db, q
     import encoders
-    from encoders.extract import extract
+    from pipelines.extract import extract
     from vpr import presets
     from vpr.sources import open_source
 

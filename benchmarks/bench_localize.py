@@ -6,7 +6,7 @@ the query traverse is fed one SDR at a time (encoding excluded). Prints the
 learning time and the latency of ``update`` (wall clock,
 ms: median / p95 / max over the frames), the causal R@1 within one place, and
 the same for ``exact=True`` (dense evidence per frame) up to ``--exact-max``, and for ``follow``: the
-:class:`vpr.methods.SpeedFollower` around the localizer that ``vpr localize`` runs by default (the query here moves
+:class:`vpr.shosm.SpeedFollower` around the localizer that ``vpr localize`` runs by default (the query here moves
 0.8-1.2 places a frame, so its answers are the localizer's; the cost is that of its engines); ``beam2x`` and
 ``follow2x``: the same with a query moving 1.8-2.2 places a frame (R@1 within one place). ``held MB``: the arrays
 the localizer (or the follower, with the engines it built) holds after the query (:func:`held_mb`).
@@ -57,8 +57,7 @@ def held_mb(obj) -> float:
 
 def latency(n, frames, exact, seed=0, follow=False, speed=(0.8, 1.2)):
     from vpr import simulate
-    from vpr.methods import SpeedFollower
-    from vpr.shosm import Localizer
+    from vpr.shosm import Localizer, SpeedFollower
 
     db, q, dp, qp = simulate.aliased_traverses(n, max(n // 10, 1), seed=seed, speed=speed)
     t = time.perf_counter()
@@ -102,7 +101,7 @@ def nordland(path):
         r1 = np.mean(np.abs(best - np.arange(w.shape[0])) <= 1)
         print(f"Nordland 358 winter vs summer, causal forward evidence ({'exact' if exact else 'beam'}): "
               f"R@1 (radius 1) {r1:.3f}")
-    from encoders.stream import StreamEncoder
+    from pipelines.stream import StreamEncoder
     from vpr import presets
     from vpr.shosm import Localizer
 

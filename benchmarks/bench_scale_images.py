@@ -69,7 +69,7 @@ def encode(data: Path, preset: str, n: int) -> float:
     if all(sdr_path(data, preset, w).is_file() for w in ("db", "query")):
         return 0.0
     import encoders
-    from encoders.extract import extract
+    from pipelines.extract import extract
     from vpr import presets
     from vpr.sources import open_source
 

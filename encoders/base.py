@@ -15,7 +15,7 @@ Two kinds:
   traverse (``standardise="fit"``) and keeps the descriptor for methods that
   read it (``seqslam-desc``). Its fitted statistics can be read and restored
   (:meth:`DescriptorEncoder.statistics`), and overridden per call, which is
-  how :mod:`encoders.stream` encodes one frame at a time.
+  how :mod:`pipelines.stream` encodes one frame at a time.
 """
 from __future__ import annotations
 

@@ -27,7 +27,7 @@ Standardisation (``standardise``):
   loops``): a fit on the whole stream mixes the conditions, a sliding window
   follows them, and only the past counts.
 
-Encoding one frame at a time (:mod:`encoders.stream`): ``vpr localize`` uses
+Encoding one frame at a time (:mod:`pipelines.stream`): ``vpr localize`` uses
 :class:`RunningStandardiser` (the statistics of a sliding window of the frames
 so far, with the fitted statistics as a prior); ``vpr loops -`` uses
 :class:`CausalStandardiser`, the incremental form of ``"causal"``, which gives

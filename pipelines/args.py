@@ -11,13 +11,12 @@ import re
 from pathlib import Path
 
 import encoders
-from encoders.maps import ONLINE_METHOD  # the method of the online commands
 from vpr import methods, presets
 from vpr.config import parse_key_values, parse_method_confs
 from vpr.groundtruth import GroundTruthSpec
 
 __all__ = ["add_common_arguments", "add_source_arguments", "add_preset_argument", "add_gt_arguments",
-           "gt_spec_from_args", "method_confs", "add_method_conf_argument", "ONLINE_METHOD",
+           "gt_spec_from_args", "method_confs", "add_method_conf_argument",
            "add_run_arguments", "settings_from_args", "options_from_args", "parse_every", "parse_size",
            "add_query_speed_argument", "follows_speed"]
 
@@ -108,7 +107,7 @@ def follows_speed(args) -> bool:
 def add_method_conf_argument(ap: argparse.ArgumentParser) -> None:
     """``--method-conf METHOD.KEY=VALUE`` (repeatable)."""
     ap.add_argument("--method-conf", action="append", default=[], metavar="METHOD.KEY=VALUE",
-                    help="method option, repeatable, e.g. seqslam.ds=20 or rshosm.p_extra=0.01")
+                    help=f"method option, repeatable, e.g. {' or '.join(presets.CONF_EXAMPLES)}")
 
 
 def add_run_arguments(ap: argparse.ArgumentParser, method_help: str) -> None:

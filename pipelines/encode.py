@@ -3,8 +3,8 @@
 Each source is split into frame ranges that workers read and describe
 themselves; the client joins a source's ranges in order, fits the encoder on
 the whole traverse where its conf asks, and writes one cache file per source
-(:func:`encoders.extract.cache_path`), byte for byte what a serial
-:func:`encoders.extract.extract` writes. ``workers=0`` runs here, ``workers=N``
+(:func:`pipelines.extract.cache_path`), byte for byte what a serial
+:func:`pipelines.extract.extract` writes. ``workers=0`` runs here, ``workers=N``
 on a local cluster of single-threaded workers, ``scheduler=ADDRESS`` on a
 running one; a dead worker's chunks run again elsewhere.
 """
@@ -19,7 +19,9 @@ import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from encoders.extract import (
+from pipelines.args import add_common_arguments, add_preset_argument, add_source_arguments, topic_arg
+from pipelines.cluster import check_workers, dask_client, default_workers
+from pipelines.extract import (
     DEFAULT_CHUNK_FRAMES,
     assemble,
     available_inputs,
@@ -31,8 +33,6 @@ from encoders.extract import (
     load_cache,
     save_cache,
 )
-from pipelines.args import add_common_arguments, add_preset_argument, add_source_arguments, topic_arg
-from pipelines.cluster import check_workers, dask_client, default_workers
 from vpr import presets
 from vpr.interrupts import deferred
 from vpr.sources import Source, open_source, open_sources
@@ -85,7 +85,7 @@ def encode_sources(sources, cache_dir, encoder_name: str = "pixel", encoder_conf
         process; None (default) is the number of cores. Not with ``scheduler``.
     scheduler : address of a running Dask scheduler (``tcp://host:port``).
     chunk_frames : frames per task.
-    parts : the inputs to store, a subset of :func:`encoders.extract.available_inputs`
+    parts : the inputs to store, a subset of :func:`pipelines.extract.available_inputs`
         (default all: ``sdr``, ``desc`` and every method's image inputs, so any
         later method finds what it needs).
     overwrite : encode again even when a cache file with these parts exists.

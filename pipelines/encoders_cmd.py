@@ -1,7 +1,7 @@
 """``vpr encoders list`` and ``vpr encoders test``: the encoders, and how one fares on the rendered scenes.
 
 ``list`` prints every registered encoder with its default conf. ``test``
-scores one on the scenes (:func:`encoders.scenes.score_encoder`: AP and R@1 of
+scores one on the scenes (:func:`pipelines.scenes.score_encoder`: AP and R@1 of
 ``pairwise`` and ``rshosm-seq`` for every traverse pair), prints the table and
 writes ``metrics.json`` and ``metrics.png`` to ``--out``.
 """
@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 import encoders
-from encoders.scenes import METHODS, EncoderTest, list_encoders, score_encoder
 from pipelines.args import add_common_arguments
+from pipelines.scenes import METHODS, EncoderTest, list_encoders, score_encoder
 from vpr import io as _io
 from vpr import render
 from vpr.report import write_table

@@ -1,12 +1,12 @@
 """``vpr learn`` and ``vpr localize``: learn a map once, then localise a query stream frame by frame.
 
-``learn`` encodes and learns the database and writes a :class:`vpr.shosm.Map`
+``learn`` encodes and learns the database and writes a :class:`vpr.maps.Map`
 (the localizer, the encoder with what it fitted on the database, the frames'
 positions). ``localize`` reads a map (or learns a database first), then
 encodes and localises each query frame as it comes (a folder, video, bag, or
 ``-``: image paths on stdin), one JSON line per frame (:mod:`pipelines.online`).
 The query is standardised causally (``--query-standardise``, ``--window``,
-``--prior-frames``: :class:`encoders.stream.StreamEncoder`); ``docs/localize.md``.
+``--prior-frames``: :class:`pipelines.stream.StreamEncoder`); ``docs/localize.md``.
 """
 from __future__ import annotations
 
@@ -18,10 +18,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import encoders
-from encoders.maps import learn, load_map, map_path
-from encoders.stream import PRIOR_FRAMES, WINDOW, StreamEncoder
 from pipelines.args import (
-    ONLINE_METHOD,
     add_common_arguments,
     add_gt_arguments,
     add_method_conf_argument,
@@ -34,16 +31,17 @@ from pipelines.args import (
     parse_every,
     topic_arg,
 )
+from pipelines.maps import learn, load_map, map_path
 from pipelines.online import Online, run_online, summary_line
 from pipelines.outputs import warn
+from pipelines.stream import PRIOR_FRAMES, WINDOW, StreamEncoder
 from vpr import evaluate, io, methods, presets
 from vpr.checks import per_input
 from vpr.groundtruth import GroundTruthSpec, build_gt, prepare_positions, same_rate, same_sampling, sampling_step
-from vpr.methods import SpeedFollower
-from vpr.shosm import Map, MemoryFileError
+from vpr.methods import Map, MemoryFileError
 from vpr.sources import open_source
 from vpr.sources.stdin import StdinSource
-from vpr.types import Decision, QueryLocalizer
+from vpr.types import Decision, FollowingLocalizer, QueryLocalizer
 
 __all__ = ["COMMANDS", "add_arguments", "run_command", "learn", "load_map", "localize"]
 
@@ -58,14 +56,14 @@ class LocalizeOnline(Online):
     """``vpr localize``: each query frame encoded with the map's encoder and localised by its :class:`vpr.Localizer`."""
 
     command = "localize"
-    method = ONLINE_METHOD
 
     def __init__(self, the_map: Map, qenc: StreamEncoder, gt: GroundTruthSpec, q_src, params: dict, q_xy=None,
-                 follower: SpeedFollower | None = None):
+                 follower: FollowingLocalizer | None = None):
         self.map, self.loc, self.qenc, self.gt, self.q_src = the_map, the_map.localizer, qenc, gt, q_src
+        self.method = the_map.method
         self.resumed = bool(the_map.query_state)
         self._params, self.q_xy = params, q_xy  # the query frames' positions, by q_src.indices()
-        self.top_k = self.loc.seq.top_k
+        self.top_k = self.loc.top_k
         self.follower = follower  # a query driven faster or slower than the map, followed (docs/localize.md)
         self.answering: QueryLocalizer = follower or self.loc
         self._said = {0}
@@ -146,7 +144,8 @@ class LocalizeOnline(Online):
         return srcs, [src]
 
     def params(self) -> dict:
-        return {**self._params, "encoder": self.map.encoder["name"], "encoder_conf": self.map.encoder["conf"],
+        return {**self._params, "method": self.method, "encoder": self.map.encoder["name"],
+                "encoder_conf": self.map.encoder["conf"],
                 "method_conf": {self.method: self.loc.conf}, "n_db": self.loc.n_db,
                 "ground_truth": self.gt.describe(sampling_step(self.map.info.get("db_indices") or
                                                                range(self.loc.n_db)))}
@@ -163,8 +162,8 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
     ----------
     map_or_db : path of a map written by :func:`learn`, or a database source (learned with ``learn_options``).
     query : folder, video, image list, bag, or ``"-"`` (paths read from ``stdin``).
-    out : output folder (``rshosm-seq/matches.csv``, ``metrics.json``; :mod:`pipelines.online`).
-    query_standardise, prior_frames, window : see :class:`encoders.stream.StreamEncoder` (None: its default;
+    out : output folder (``METHOD/matches.csv``, ``metrics.json``; :mod:`pipelines.online`).
+    query_standardise, prior_frames, window : see :class:`pipelines.stream.StreamEncoder` (None: its default;
         window 0: all frames so far); ``prior_frames`` and ``window`` apply to ``"running"`` only.
     gt : ground truth (as ``vpr match``), optional; position ground truth (``--radius``) needs the map's
         positions and a query source.
@@ -172,8 +171,8 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
         metres (with the query's positions).
     state_out : optional path: the map with the query's state after the last frame (a robot's restart file).
     follow_speed : a query driven faster or slower than the map at the same frame rate answered by the maps of one
-        frame in k or as queries of one frame in k while it is so (:class:`vpr.methods.SpeedFollower`); False: the
-        frames as they come.
+        frame in k or as queries of one frame in k while it is so (the method's ``follower``, where it has one);
+        False: the frames as they come.
     progress : progress bar while learning a database (``map_or_db`` a traverse).
     """
     out = Path(out)
@@ -197,6 +196,9 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
     gt = replace(gt, topic=gt_topic)
     if learned:
         the_map, enc = load_map(p)
+        named = (learn_options or {}).get("method")
+        if named and named != the_map.method:
+            raise ValueError(f"{map_or_db} is a map of {the_map.method}: --method-conf for {named} does not apply")
         if (learn_options or {}).get("method_conf"):  # query-time settings apply to a learned map
             the_map.localizer = the_map.localizer.reconfigure(**learn_options["method_conf"])
     else:
@@ -225,9 +227,8 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
         q_xy = prepare_positions([q_src], ["query"], gt, every, loops=False, origin=the_map.origin)[0]
     elif every is not None:
         prepare_positions([q_src] if str(query) != "-" else [], ["query"], gt, every)
-    follower = None
-    if follow_speed:
-        follower = SpeedFollower(the_map.localizer, the_map.sdr)
+    follower = methods.get(the_map.method).follower(the_map.localizer, the_map.sdr) if follow_speed else None
+    if follower is not None:
         if the_map.follow_state is not None:  # a --state-out file continues its follower too
             try:
                 follower.load_state(*the_map.follow_state)
@@ -246,6 +247,8 @@ def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: 
 def _add_learn_args(ap):
     add_preset_argument(ap)
     encoders.add_arguments(ap, default=None)
+    online = [m for m in methods.available() if methods.get_class(m).runs_online]
+    ap.add_argument("--method", choices=online, help=f"the method that learns the map (default {methods.online()})")
     add_method_conf_argument(ap)
 
 
@@ -284,22 +287,25 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     add_common_arguments(ap)
 
 
-def _method_conf(args) -> dict:
-    """The ``rshosm-seq`` conf given with ``--method-conf`` (the preset's under it); other methods' refused."""
+def _online_method(args) -> tuple[str, dict]:
+    """The method that learns the map (``--method``, else the one that runs online ``--method-conf`` names, else
+    :func:`vpr.methods.online`) and the conf given for it; a conf of another method refused."""
     confs = method_confs(args.method_conf)
-    other = sorted(set(confs) - {ONLINE_METHOD})
+    online = [m for m in confs if methods.get_class(m).runs_online]
+    name = args.method or (online[0] if len(online) == 1 else methods.online())
+    other = sorted(set(confs) - {name})
     if other:
-        raise ValueError(f"vpr {args.command}: the map is {ONLINE_METHOD}'s; --method-conf for {', '.join(other)} "
-                         "does not apply")
-    return confs.get(ONLINE_METHOD, {})
+        raise ValueError(f"vpr {args.command}: the map is {name}'s; --method-conf for {', '.join(other)} does not "
+                         "apply")
+    return name, confs.get(name, {})
 
 
 def run_command(args) -> int:
-    given = _method_conf(args)
-    # the preset's encoder and rshosm-seq conf unless flags name others (vpr.presets.resolve)
+    name, given = _online_method(args)
+    # the preset's encoder and the method's conf unless flags name others (vpr.presets.resolve)
     settings = presets.resolve(args.preset, encoder=args.encoder, encoder_conf=encoders.parse_conf(args.encoder_conf),
-                               methods=[ONLINE_METHOD], method_conf={ONLINE_METHOD: given})
-    methods.get(ONLINE_METHOD, **settings["method_conf"][ONLINE_METHOD]).check_matching()  # before a frame is read
+                               methods=[name], method_conf={name: given})
+    methods.get_online(name, **settings["method_conf"][name]).check_matching()  # before a frame is read
     every = parse_every(args.every) if args.every else None
     if args.command == "learn":
         # where the positions are (no radius: nothing is evaluated here; the map keeps them)
@@ -308,31 +314,31 @@ def run_command(args) -> int:
         the_map = learn(args.db[0] if len(args.db) == 1 else args.db, args.out, fps=args.fps, step=args.step,
                     max_frames=args.max_frames,
                     progress=not args.no_progress, encoder=settings["encoder"], encoder_conf=settings["encoder_conf"],
-                    method_conf=settings["method_conf"][ONLINE_METHOD], topic=topic_arg(args.topic), positions=spec,
+                    method=name, method_conf=settings["method_conf"][name], topic=topic_arg(args.topic), positions=spec,
                     every=every)
         loc = the_map.localizer
         skipped = the_map.info.get("skipped") or []
         if skipped:
             warn(f"{len(skipped)} of the frames could not be read and are not in the map "
                  f"(first: {skipped[0][0]}: {skipped[0][1]})")
-        print(f"learned {loc.n_db} frames ({loc.memory!r}); wrote {map_path(args.out)}")
+        print(f"learned {loc.n_db} frames ({loc!r}); wrote {map_path(args.out)}")
         return 0
     if Map.is_map(args.map) or Path(args.map).suffix.lower() == ".npz":
         fixed = [f for f, v in (("--encoder", args.encoder), ("--encoder-conf", args.encoder_conf),
-                                ("--preset", args.preset)) if v]
+                                ("--preset", args.preset), ("--method", args.method)) if v]
         if fixed:
-            raise ValueError(f"{args.map} is a learned map: it fixes the encoder and its conf ({', '.join(fixed)} "
-                             f"cannot change them); --method-conf {ONLINE_METHOD}.KEY=VALUE sets the query-time "
-                             "options")
-        learn_opts = {"method_conf": given}  # over the map's own conf: only what was given
+            raise ValueError(f"{args.map} is a learned map: it fixes the method, the encoder and its conf "
+                             f"({', '.join(fixed)} cannot change them); --method-conf METHOD.KEY=VALUE sets the "
+                             "query-time options")
+        learn_opts = {"method": name if given else None, "method_conf": given}  # over the map's own: what was given
     else:
-        learn_opts = {"encoder": settings["encoder"], "encoder_conf": settings["encoder_conf"],
-                      "method_conf": settings["method_conf"][ONLINE_METHOD]}
+        learn_opts = {"encoder": settings["encoder"], "encoder_conf": settings["encoder_conf"], "method": name,
+                      "method_conf": settings["method_conf"][name]}
     src_opts = {"fps": args.fps, "step": args.step, "max_frames": args.max_frames, "topic": topic_arg(args.topic),
                 "every": every}
     report = localize(args.map, args.query, args.out, query_standardise=args.query_standardise,
                       prior_frames=args.prior_frames, window=args.window, state_out=args.state_out,
                       gt=gt_spec_from_args(args), learn_options=learn_opts, progress=not args.no_progress,
                       follow_speed=follows_speed(args), **src_opts)
-    print(summary_line(report, ONLINE_METHOD, args.out), file=sys.stderr)
+    print(summary_line(report, args.out), file=sys.stderr)
     return 0

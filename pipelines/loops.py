@@ -1,10 +1,11 @@
 """``vpr loops``: loop closures within one stream (or the sessions of one), in batch or online from stdin.
 
-``vpr loops SEQ...`` runs the batch (:func:`pipelines.runs.run_loops`, any
-method that supports loop closure). ``vpr loops -`` decides image paths on
-stdin frame by frame with :class:`vpr.LoopDetector` and the preset's causal
-loop encoder: the answers of the batch on the same frames, one JSON line per
-frame (:mod:`pipelines.online`); ``--state-out`` / ``--resume`` keep the detector.
+``vpr loops SEQ...`` runs the batch (:func:`run_loops`, any method that
+supports loop closure). ``vpr loops -`` decides image paths on stdin frame by
+frame with the loop detector a method that runs online hands out
+(:class:`vpr.types.StreamDetector`) and the preset's causal loop encoder: the
+answers of the batch on the same frames, one JSON line per frame
+(:mod:`pipelines.online`); ``--state-out`` / ``--resume`` keep the detector.
 """
 from __future__ import annotations
 
@@ -16,9 +17,7 @@ from pathlib import Path
 import numpy as np
 
 import encoders
-from encoders.stream import StreamEncoder
 from pipelines.args import (
-    ONLINE_METHOD,
     add_common_arguments,
     add_gt_arguments,
     add_query_speed_argument,
@@ -31,14 +30,15 @@ from pipelines.online import Online, run_online, summary_line
 from pipelines.outputs import claim_methods, merge_metrics, versions, warn, write_method
 from pipelines.report import write_report
 from pipelines.runs import RunOptions, config, extract_run, prepare_run
+from pipelines.stream import StreamEncoder
 from vpr import evaluate, groundtruth, io, methods
 from vpr.groundtruth import GroundTruthSpec, any_true, build_loop_gt, build_stream_gt, check_loop_gt_files, frame_rows
-from vpr.shosm import LOOP_EXCLUDE, LoopDetector
+from vpr.methods import LOOP_EXCLUDE
 from vpr.similarity import budget_setting
 from vpr.sources import frame_reader
 from vpr.sources.base import frames_in
 from vpr.sources.stdin import FramesByPath, StdinSource
-from vpr.types import EncodedTraverse, MatchResult
+from vpr.types import EncodedTraverse, MatchResult, StreamDetector
 
 __all__ = ["COMMANDS", "add_arguments", "run_command", "detect_loops", "make_detector", "resume_detector",
            "LoopsOnline"]
@@ -60,10 +60,10 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
                     help="ignore matches fewer than W frames back, or W seconds for videos with 'Ws' "
                          f"(e.g. 5s; default {LOOP_EXCLUDE} frames)")
     ap.add_argument("--geometry", choices=("on", "off"),
-                    help="rshosm-seq: a geometric second opinion (ORB + two-view RANSAC inliers of the best earlier "
-                         "frame, where the images are large enough) accepts closures the path score has not reached "
-                         "yet: short loops, revisits the path is slow to trust; on by default for rshosm-seq "
-                         "(docs/loops.md), off: the path alone decides")
+                    help="a geometric second opinion (ORB + two-view RANSAC inliers of the best earlier frame, where "
+                         "the images are large enough) accepts closures the method's own rule has not reached yet: "
+                         "short loops, revisits a sequence is slow to trust; on by default for a method that decides "
+                         "frame by frame (docs/loops.md), off: the method's rule alone decides")
     add_query_speed_argument(ap, sessions=True)
     add_gt_arguments(ap, loops=True)
     online = ap.add_argument_group("online (SEQ is -)")
@@ -83,10 +83,8 @@ def run_command(args) -> int:
     from vpr.report import metrics_table
 
     method = settings["methods"][0]
-    if args.geometry == "on" and method != "rshosm-seq":
-        raise ValueError(f"--geometry on: a second opinion on rshosm-seq's loop closures, not on {method}'s")
     opts = options_from_args(args)
-    opts.geometry = method == "rshosm-seq" and args.geometry != "off"
+    opts.geometry = _geometry(method, args.geometry)
     report = run_loops(args.seq[0] if len(args.seq) == 1 else args.seq, method, opts,
                        exclude=LOOP_EXCLUDE if args.exclude is None else args.exclude)
     print(metrics_table(report["methods"], "loops"))
@@ -113,10 +111,20 @@ def _run_online(args, settings: dict) -> int:
                              f"detector's; {', '.join(given)} cannot change them")
         det = resume_detector(args.resume)
     else:
-        det = make_detector(settings, exclude, geometry=args.geometry != "off")
+        det = make_detector(settings, exclude, geometry=_geometry(settings["methods"][0], args.geometry))
     report = detect_loops(det, args.out, gt=gt_spec_from_args(args), state_out=args.state_out)
-    print(summary_line(report, ONLINE_METHOD, args.out, "loop closures accepted"), file=sys.stderr)
+    print(summary_line(report, args.out, "loop closures accepted"), file=sys.stderr)
     return 0
+
+
+def _geometry(method: str, given: str | None) -> bool:
+    """Whether ``method``'s closures get the geometric second opinion: ``--geometry`` (``on`` refused for a method that
+    does not decide frame by frame), by default where it does."""
+    decides = methods.get_class(method).decides_frames
+    if given == "on" and not decides:
+        raise ValueError(f"--geometry on: a second opinion on the closures of a method that decides them frame by "
+                         f"frame, not on {method}'s")
+    return decides and given != "off"
 
 
 def geometry_opinion(image, opinions: dict | None = None, key: str = ""):
@@ -133,53 +141,51 @@ def geometry_opinion(image, opinions: dict | None = None, key: str = ""):
     return opinion
 
 
-def make_detector(settings: dict, exclude: int = LOOP_EXCLUDE, geometry: bool = True) -> LoopDetector:
+def make_detector(settings: dict, exclude: int = LOOP_EXCLUDE, geometry: bool = True) -> StreamDetector:
     """The detector of ``vpr loops -`` for the run's ``settings`` (:func:`pipelines.args.settings_from_args`):
-    the preset's loop encoder and the ``rshosm-seq`` method's conf, which hands out the detector; ``geometry``: with
-    the geometric second opinion (its frames read again from their paths)."""
+    the preset's loop encoder and the loop detector its method (one that runs online) hands out with its conf;
+    ``geometry``: with the geometric second opinion (its frames read again from their paths)."""
     method = settings["methods"][0]
-    if not methods.get_class(method).runs_online:
-        raise ValueError(f"vpr loops -: {method} does not run online (one frame at a time as it comes); online loop "
-                         f"closure is {ONLINE_METHOD}'s (--method {ONLINE_METHOD}, or a folder or video for {method})")
-    unused = sorted(set(settings["method_conf"]) - {ONLINE_METHOD})
+    runner = methods.get_online(method, **settings["method_conf"].get(method, {}))
+    unused = sorted(set(settings["method_conf"]) - {method})
     if unused:
-        raise ValueError(f"vpr loops -: online loop closure is {ONLINE_METHOD}'s; --method-conf for "
-                         f"{', '.join(unused)} does not apply")
-    runner = methods.get(ONLINE_METHOD, **settings["method_conf"].get(ONLINE_METHOD, {}))
+        raise ValueError(f"vpr loops -: online loop closure is {method}'s; --method-conf for {', '.join(unused)} does "
+                         "not apply")
     enc = encoders.get(settings["encoder"], **settings["encoder_conf"])
     enc.check_memory(1)  # frames come one at a time
     frames = FramesByPath()  # the detector's frame names, once it is made
     det = runner.loop_detector(StreamEncoder(enc), exclude=exclude,
                                opinion=geometry_opinion(frames) if geometry else None)
     frames.names = det.names
-    det.meta = {"encoder": enc.name, "encoder_conf": enc.conf, "preset": settings["preset"]}
+    det.meta.update({"encoder": enc.name, "encoder_conf": enc.conf, "preset": settings["preset"]})
     return det
 
 
-def resume_detector(path) -> LoopDetector:
+def resume_detector(path) -> StreamDetector:
     """A detector saved by ``vpr loops - --state-out``, with the encoder and the opinion it was saved with."""
-    meta = LoopDetector.saved_meta(path)
+    meta = methods.saved_loop_meta(path)
     enc = meta.get("encoder")
     if not enc:
         raise ValueError(f"{path}: a loop detector saved without its encoder (not by `vpr loops -`)")
     frames = FramesByPath()  # the detector's frame names, once it is made
-    det = LoopDetector.load(path, encoder=StreamEncoder(encoders.get(enc, **meta["encoder_conf"])),
-                            opinion=geometry_opinion(frames) if meta["opinion"] else None)
+    det = methods.resume_loop_detector(path, StreamEncoder(encoders.get(enc, **meta["encoder_conf"])),
+                                       opinion=geometry_opinion(frames) if meta["opinion"] else None)
     frames.names = det.names
     return det
 
 
 class LoopsOnline(Online):
-    """``vpr loops -``: each frame learned and decided by a :class:`vpr.LoopDetector`."""
+    """``vpr loops -``: each frame learned and decided by a method's loop detector (a
+    :class:`vpr.types.StreamDetector`)."""
 
     command = "loops"
-    method = ONLINE_METHOD
 
-    def __init__(self, det: LoopDetector, gt: GroundTruthSpec, goes_on: bool = False):
+    def __init__(self, det: StreamDetector, gt: GroundTruthSpec, goes_on: bool = False):
         self.det, self.gt = det, gt
+        self.method = det.meta["method"]
         self.resumed = det.frames > 0
         self.goes_on = goes_on  # the input's end is a pause (--state-out): closures wait in the state
-        self.top_k = det.seq.top_k
+        self.top_k = det.top_k
         self._reader = evaluate.SpeedReader()  # the current later session's speed onto the earlier ones
         self._said: set[int] = set()  # the later sessions whose speed was said (numbered from 1, the first)
         self._run = evaluate.SpeedReader()  # one run's paths of best earlier frames: a revisit driven faster
@@ -198,7 +204,7 @@ class LoopsOnline(Online):
     def _watch(self, ds: list) -> list:
         """Say, from the frame it is read, a later session driven at another speed than the earlier ones (its paths
         of best earlier frames, as :func:`vpr.evaluate.session_speeds` reads them); returns ``ds``."""
-        starts = self.det.stream.starts
+        starts = self.det.starts
         a, n = starts[-1], len(starts)
         if not a:
             return self._watch_run(ds)
@@ -241,7 +247,7 @@ class LoopsOnline(Online):
         return self.det.frames  # a resumed detector's frames from before this run are candidates too
 
     def waiting_in_state(self) -> int:
-        return self.det.stream.waiting + (self.det.encoder.waiting if self.det.encoder is not None else 0)
+        return self.det.waiting + (self.det.encoder.waiting if self.det.encoder is not None else 0)
 
     def finish(self):
         self.det.flush(closures=not self.goes_on)
@@ -255,7 +261,7 @@ class LoopsOnline(Online):
     def evaluate(self, result, names, indices, frames) -> dict:
         """Metrics over the frames answered in this run, against every frame of the stream before them (those
         from before a resume too: the state's names)."""
-        starts = list(self.det.stream.starts)
+        starts = self.det.starts
         labels = [str(k + 1) for k in range(len(starts))]  # as the batch run's table, the sessions by their number
         N = self.det.frames
         speeds = {}
@@ -288,19 +294,20 @@ class LoopsOnline(Online):
 
     def _geometry(self) -> dict:
         """metrics.json's ``geometry``: the second opinion's report (frames verified, blind, accepted), if any."""
-        return {"geometry": self.det.stream.decider.report()} if self.det.opinion is not None else {}
+        report = self.det.opinion_report()
+        return {"geometry": report} if report is not None else {}
 
     def save(self, path) -> None:
         self.det.save(path)
 
     def params(self) -> dict:
         det = self.det
-        return {"seq": "-", "method": ONLINE_METHOD, "exclude": det.conf["exclude"],
+        return {"seq": "-", "method": self.method, "exclude": det.conf["exclude"],
                 "encoder": det.meta.get("encoder"), "encoder_conf": det.meta.get("encoder_conf"),
-                "method_conf": {ONLINE_METHOD: det.conf}, "ground_truth": self.gt.describe()}
+                "method_conf": {self.method: det.conf}, "ground_truth": self.gt.describe()}
 
 
-def detect_loops(det: LoopDetector, out, stdin=None, stdout=None, gt: GroundTruthSpec | None = None,
+def detect_loops(det: StreamDetector, out, stdin=None, stdout=None, gt: GroundTruthSpec | None = None,
                  state_out=None) -> dict:
     """Decide every frame named on ``stdin`` with ``det``; write ``out``'s files; return metrics.json's content.
 

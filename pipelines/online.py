@@ -38,7 +38,8 @@ class Online:
     """
 
     command = "online"
-    method = "rshosm-seq"
+    #: the method that answers (its folder in the outputs)
+    method: str = ""
     top_k: int | None = None
     #: (gt_hard, gt_soft, mask) of this run's frames, set by :meth:`evaluate` where there is ground truth
     ground_truth: tuple | None = None
@@ -108,9 +109,10 @@ def latency_summary(ms) -> dict:
     return {"median": float(np.median(ms)), "p95": float(np.percentile(ms, 95)), "max": float(ms.max())}
 
 
-def summary_line(report: dict, method: str, out, accepted: str | None = None) -> str:
-    """The line an online command prints on stderr at the end: frames, what was accepted, the latency."""
-    m = report["methods"][method]
+def summary_line(report: dict, out, accepted: str | None = None) -> str:
+    """The line an online command prints on stderr at the end: frames, what was accepted, the latency (of the method
+    the run's ``params`` name)."""
+    m = report["methods"][report["params"]["method"]]
     lat = m["latency_ms"]
     what = f", {m['n_accepted']} {accepted}" if accepted else ""
     truth = report["params"].get("ground_truth") or {}

@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 import encoders
-from encoders.extract import extract_all
 from pipelines.cluster import check_workers, dask_client, run_tasks, send_once, split_match
+from pipelines.extract import extract_all
 from pipelines.outputs import claim_methods, merge_metrics, versions, warn, write_method
 from pipelines.report import write_report
 from vpr import evaluate, io, methods
@@ -164,7 +164,7 @@ def prepare_run(out: Path, paths, roles, opts: RunOptions, match: bool = False):
 
 
 def extract_run(srcs, roles, encoder, runners: dict, opts: RunOptions):
-    """The sources encoded once with what every method needs (:func:`encoders.extract.extract_all`)."""
+    """The sources encoded once with what every method needs (:func:`pipelines.extract.extract_all`)."""
     needed = set().union(*(r.required_inputs for r in runners.values()))
     return extract_all(srcs, roles, encoder, needed, opts.cache or Path(opts.out) / "cache", opts.verify > 0,
                        opts.progress)

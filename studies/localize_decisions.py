@@ -3,7 +3,7 @@
 ``vpr learn`` / ``vpr localize`` as a robot runs them: the map traverse is
 encoded with a preset's encoder (``standardise=fit`` on the map) and learned
 (:class:`vpr.Localizer`); the query is encoded one frame at a time with
-running statistics (:class:`encoders.stream.StreamEncoder`) and scored with
+running statistics (:class:`pipelines.stream.StreamEncoder`) and scored with
 the causal evidence. Each query frame's evidence column over the map is kept,
 so that any rule decides on exactly what the localizer sees.
 
@@ -55,8 +55,8 @@ import numpy as np
 import scipy.sparse as sp
 
 import encoders
-from encoders.extract import extract
-from encoders.stream import StreamEncoder
+from pipelines.extract import extract
+from pipelines.stream import StreamEncoder
 from vpr import presets
 from vpr.shosm import Localizer, PathConf, PathDecider, decide_all
 from vpr.sources import open_source

@@ -63,7 +63,7 @@ def match_run(case: str, preset: str, data: Path, tmp: Path):
     """``rshosm-seq``'s match of a case as ``vpr match`` runs it (each traverse encoded with ``preset``'s encoder,
     standardised on its own frames): (map SDRs, query SDRs, MatchResult, hard, soft over the frames read)."""
     import encoders
-    from encoders.extract import extract
+    from pipelines.extract import extract
 
     m, q, hard, soft = _case_sources(case, data, tmp)
     s = presets.resolve(preset)

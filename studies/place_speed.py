@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from encoders.extract import load_cache
+from pipelines.extract import load_cache
 from studies.speed_models import LAPS_RADIUS, LAPS_SOFT, laps_streams, run_quietly
 from vpr.sdr import RowLog
 from vpr.shosm import LoopConf, Placement

@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
-from encoders.extract import load_cache
+from pipelines.extract import load_cache
 from studies.cells import decisions_cell
 from studies.localize_decisions import recent_median
 from studies.speed_models import run_quietly

@@ -34,7 +34,7 @@ at 2x; right within one place).
 Then ``vpr compare`` and ``vpr localize`` (against a map of ``vpr learn``) with
 their defaults on the first table's streams, the query's frames as they come
 (``--query-speed as-is``) and followed (the default:
-:func:`vpr.methods.match_at_speed`, :class:`vpr.methods.SpeedFollower`); and
+:func:`vpr.methods.match_at_speed`, :class:`vpr.shosm.SpeedFollower`); and
 the phase of the sampling: a map
 from one frame in 2 starting at the query's first frame or one later, a
 slower query's answers copied from one frame in 2 or each frame its own (and
@@ -53,7 +53,7 @@ best matches in the datasets' usual soft bands neither right nor wrong.
 
 Then, where a faster query's two maps of one frame in 2 both accept a frame, how far
 apart they place it, and the decisions with frames placed apart left undecided
-(:func:`vpr.methods.disagree`).
+(:func:`vpr.shosm.disagree`).
 
 Then ``vpr localize``'s follower frame by frame on the streams off the map's speed: the frame it first reads
 another speed, its answers before and after, and the wrong answers at a slower speed that contradict the frame
@@ -196,7 +196,7 @@ def _encoded(folders: list[Path], names: list[str], root: Path) -> list:
     """The default preset's SDRs of ``folders`` as ``vpr compare`` encodes them (each standardised on its own
     frames; cached under ``root``): their features, in order."""
     import encoders
-    from encoders.extract import extract_all
+    from pipelines.extract import extract_all
     from vpr import presets
     from vpr.sources import open_sources
 
@@ -610,8 +610,8 @@ def phases(data: Path, root: Path) -> None:
     """The fifth table: why ``follow`` matches every phase. A 2x query against a map from one frame in two that
     starts at the query's first frame (phase 0) or one frame later (phase 1); a 0.5x query as one query of one frame
     in two whose answers the frames between take (copied), or as two queries, every frame its own, and so with the
-    frames not accepted placed between the accepted frames around them (:func:`vpr.methods.fill_between`)."""
-    from vpr.methods import fill_between
+    frames not accepted placed between the accepted frames around them (:func:`vpr.shosm.fill_between`)."""
+    from vpr.shosm import fill_between
 
     gp, nl = data / "gardens_point_day", data / "nordland_trimmed"
     gp_n = lambda f: int(f.stem.removeprefix("Image"))  # noqa: E731
@@ -658,16 +658,16 @@ def phases(data: Path, root: Path) -> None:
 
 def cases(data: Path, root: Path) -> None:
     """The cases the localisation rule was chosen on (:mod:`studies.localize_decisions`), each query frame encoded as
-    ``vpr localize`` does and answered by the map's localizer and by the :class:`vpr.methods.SpeedFollower` around
+    ``vpr localize`` does and answered by the map's localizer and by the :class:`vpr.shosm.SpeedFollower` around
     it: what following costs where the query is not driven at another speed (and the rendered ``speed_change``,
     where it is)."""
     import encoders
-    from encoders.extract import extract
-    from encoders.stream import StreamEncoder
+    from pipelines.extract import extract
+    from pipelines.stream import StreamEncoder
     from studies.localize_decisions import CASES, case_sources
     from vpr import presets
     from vpr.evaluate import accepted_precision
-    from vpr.methods import SpeedFollower
+    from vpr.shosm import SpeedFollower
 
     s = presets.resolve(None)
     print("\nthe localisation cases (studies.localize_decisions, default preset): accepted, P(acc), R(acc); frames "
@@ -693,12 +693,12 @@ def cases(data: Path, root: Path) -> None:
 
 
 def picks(data: Path, root: Path) -> None:
-    """How a frame picks one of the maps of one frame in 2 (:data:`vpr.methods.PICKS`), batch and online, on every
+    """How a frame picks one of the maps of one frame in 2 (:data:`vpr.shosm.PICKS`), batch and online, on every
     stream off the map's speed, and the choice made with each dataset held out in turn: the pick with the larger mean
     precision (then recall) on the other dataset's streams, reported on the held-out one. SDRs as ``vpr compare``
     encodes (each traverse standardised on its own frames), the same for both picks."""
     from vpr import methods
-    from vpr.methods import PICKS, SpeedFollower
+    from vpr.shosm import PICKS, SpeedFollower
     from vpr.types import EncodedTraverse
 
     rows: dict = {}
@@ -748,12 +748,12 @@ BOUNDS = (None, 5, 3)
 def apart(data: Path, root: Path) -> None:
     """Where a faster query's two maps of one frame in 2 both accept a frame: how far apart they place it, how many
     of those frames one of them answers wrong (beyond the soft band), and the batch decisions (``match_at_speed``'s
-    pick, between the two answers where they agree: :func:`vpr.methods.between_maps`) with such frames left
-    undecided beyond a bound of 3 (:func:`vpr.methods.disagree`, the default) or 5 map frames, or never; then the
+    pick, between the two answers where they agree: :func:`vpr.shosm.between_maps`) with such frames left
+    undecided beyond a bound of 3 (:func:`vpr.shosm.disagree`, the default) or 5 map frames, or never; then the
     bounds the larger mean precision, then recall, picks on one dataset's streams,
     reported on the other's. SDRs as ``vpr compare`` encodes them."""
     from vpr import methods
-    from vpr.methods import between_maps, pick_maps
+    from vpr.shosm import between_maps, pick_maps
     from vpr.types import EncodedTraverse
 
     rows: dict = {}
@@ -831,14 +831,14 @@ def refusing(best, accepted, slower) -> np.ndarray:
 
 
 def followed_frames(the_map: Path, query: Path, hold: float | None = None) -> tuple[list, np.ndarray, object]:
-    """``vpr localize``'s follower (:class:`vpr.methods.SpeedFollower`, the query encoded with running statistics)
+    """``vpr localize``'s follower (:class:`vpr.shosm.SpeedFollower`, the query encoded with running statistics)
     over ``query`` frame by frame against ``the_map`` (a ``vpr learn`` file): (decisions, the follower's mode after
     each frame, the follower). ``hold``: a frame sharing at least that share of its bits beyond chance with the frame
     before (:func:`shared_beyond_chance`) takes its decision without stepping the follower (the evidence held while
     the observation repeats; None: never)."""
-    from encoders.maps import load_map
-    from encoders.stream import StreamEncoder
-    from vpr.methods import SpeedFollower
+    from pipelines.maps import load_map
+    from pipelines.stream import StreamEncoder
+    from vpr.shosm import SpeedFollower
     from vpr.sources import open_source
 
     m, enc = load_map(the_map)

@@ -4,7 +4,7 @@ import pytest
 import scipy.sparse as sp
 
 import encoders
-from encoders.stream import StreamEncoder
+from pipelines.stream import StreamEncoder
 from vpr import sdr
 from vpr.shosm import LoopDetector, MemoryFileError, loop_evidence
 
@@ -178,8 +178,8 @@ def test_vpr_loops_stdin_equals_the_batch_and_resumes(laps, tmp_path, capsys, mo
 @pytest.mark.parametrize("extra, message", [
     (["--fps", "2"], "--fps apply to a folder or video"),
     (["--exclude", "3s"], "seconds need the frames' times, and image paths on stdin have none"),
-    (["--preset", "paper"], "rshosm does not run online (one frame at a time as it comes); online loop closure is "
-                               "rshosm-seq's"),
+    (["--preset", "paper"], "rshosm does not run online (one frame at a time as it comes); methods that do: "
+                               "rshosm-seq"),
     (["--method-conf", "seqslam.ds=4"], "--method-conf for seqslam does not apply"),
     (["--exclude", "5"], "must exceed the encoder's delay"),
     (["--gt", "nope.csv"], "no such ground-truth file"),

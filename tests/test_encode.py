@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import encoders
-from encoders.extract import cache_path, extract, load_cache
 from pipelines.encode import add_arguments, encode_sources, run_command
+from pipelines.extract import cache_path, extract, load_cache
 from vpr.sources import ListSource, open_source
 
 N_FRAMES = 36

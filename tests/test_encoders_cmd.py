@@ -1,12 +1,12 @@
-"""vpr encoders list / test (encoders.scenes, pipelines/encoders_cmd.py) on tiny renders."""
+"""vpr encoders list / test (pipelines.scenes, pipelines/encoders_cmd.py) on tiny renders."""
 import argparse
 import json
 
 import numpy as np
 import pytest
 
-from encoders.scenes import METHODS, EncoderTest, average_precision, list_encoders
 from pipelines import encoders_cmd as E
+from pipelines.scenes import METHODS, EncoderTest, average_precision, list_encoders
 
 
 def _parse(argv):

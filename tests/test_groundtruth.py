@@ -275,7 +275,7 @@ def test_build_gt_from_a_combined_file_with_soft_radius(tmp_path):
 def test_build_gt_tolerance_and_pairs(tmp_path):
     # tolerances count frames kept: the database keeps every 2nd frame, so --gt-soft 1 reaches 2 input frames
     with pytest.warns(UserWarning, match="--tolerance 0 accepts only the exact frame"):
-        hard, soft = build_gt(GroundTruthSpec(tolerance=0, soft=1), ["a", "b"], ["a", "b"], [0, 2], [0, 1])
+        hard, soft = build_gt(GroundTruthSpec(tolerance=0, soft=1), ["a", "b"], ["x", "y"], [0, 2], [0, 1])
     assert hard.tolist() == [[True, False], [False, False]] and soft.tolist() == [[True, True], [True, True]]
     hard, soft = build_gt(GroundTruthSpec(tolerance=1), list("abcd"), list("abc"), [0, 1, 2, 3], [0, 1, 2])
     assert hard[:, 1].tolist() == [True, True, True, False]

@@ -178,7 +178,7 @@ def test_conf_round_trips_and_tells_pipelines_to_fit():
 def test_compare_pipeline_extracts_joined_features(frames, tmp_path):
     import cv2
 
-    from encoders.extract import extract
+    from pipelines.extract import extract
     from vpr.sources import open_source
 
     db, _ = frames

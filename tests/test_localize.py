@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import vpr
+from vpr import methods, simulate
 from vpr import shosm as ev
-from vpr import simulate
 from vpr.shosm import MemoryFileError
 
 
@@ -19,7 +19,7 @@ def traverses():
 
 
 def _map(loc) -> vpr.Map:
-    return vpr.Map(loc, {"name": "pixel", "conf": {"k": 200}})
+    return vpr.Map("rshosm-seq", loc, {"name": "pixel", "conf": {"k": 200}})
 
 
 def test_localizer_equals_batch_forward_and_restarts(traverses, tmp_path):
@@ -33,7 +33,7 @@ def test_localizer_equals_batch_forward_and_restarts(traverses, tmp_path):
     for j in range(q.shape[0]):
         if j == 100:  # the robot stops, and a new process continues from the file
             _map(loc).save(tmp_path / "loc.npz")
-            loc = vpr.Map.load(tmp_path / "loc.npz").localizer
+            loc = methods.load_map(tmp_path / "loc.npz").localizer
             assert loc.frames == 100
         r, w = loc.update(q[j]), whole.update(q[j])
         assert r.best == batch.best[j] and abs(r.column.best()[1] - batch.z[j]) <= 1e-6
@@ -56,18 +56,18 @@ def test_map_file_keeps_conf_encoder_statistics_and_positions(traverses, tmp_pat
     db, q, _, _ = traverses
     loc = vpr.Localizer.from_database(db[:50], [str(i) for i in range(50)], decay=0.8, stay=None, top_k=5,
                                       seed=3)
-    m = vpr.Map(loc, {"name": "pixel", "conf": {"k": 200}}, [(np.arange(4.0), np.ones(4))],
+    m = vpr.Map("rshosm-seq", loc, {"name": "pixel", "conf": {"k": 200}}, [(np.arange(4.0), np.ones(4))],
                 positions=np.arange(100.0).reshape(50, 2), origin=(48.1, 11.5), info={"db": "day"})
     m.query_state = {"q_n": np.array(3)}
     loc.update(q[0])
     p = m.save(tmp_path / "m.npz")
-    back = vpr.Map.load(p)
+    back = methods.load_map(p)
     b = back.localizer
     assert b.conf == loc.conf and b.conf["stay"] is None and b.conf["top_k"] == 5
     assert back.encoder == m.encoder and np.array_equal(back.statistics[0][0], np.arange(4.0))
     assert np.array_equal(back.positions, m.positions) and back.origin == (48.1, 11.5) and back.info == m.info
     assert int(back.query_state["q_n"]) == 3
-    assert b.names == loc.names and (b.db_codes != loc.db_codes).nnz == 0
+    assert back.method == "rshosm-seq" and b.names == loc.names and (b.db_codes != loc.db_codes).nnz == 0
     x, y = loc.update(q[1]), b.update(q[1])
     assert (x.best, x.score) == (y.best, y.score)
     assert not list(tmp_path.glob(".*"))  # atomic: no temporary file left
@@ -84,12 +84,12 @@ def test_localizer_bad_input(traverses, tmp_path):
         loc.update(np.zeros(10, bool))
     (tmp_path / "x.npz").write_bytes(b"not a zip")
     with pytest.raises(MemoryFileError, match="not a readable map"):
-        vpr.Map.load(tmp_path / "x.npz")
+        methods.load_map(tmp_path / "x.npz")
     with pytest.raises(MemoryFileError, match="no such"):
-        vpr.Map.load(tmp_path / "missing.npz")
+        methods.load_map(tmp_path / "missing.npz")
     np.savez(tmp_path / "y.npz", header=np.array(json.dumps({"format": "other"})))
     with pytest.raises(MemoryFileError, match="not a map file"):
-        vpr.Map.load(tmp_path / "y.npz")
+        methods.load_map(tmp_path / "y.npz")
 
 
 # ---------------------------------------------------------------- command line
@@ -204,12 +204,10 @@ def test_localize_stdin_answers_each_path_before_the_next_arrives(scene, tmp_pat
 
 @pytest.mark.slow
 def test_a_corrupt_speed_follower_state_is_refused_naming_the_map(scene, tmp_path, capsys):
-    from vpr.shosm import Map
-
     code, _, err = _cli(["learn", scene["summer_day"], "--out", tmp_path / "map.npz", "--no-progress",
                          "--encoder-conf", "k=100"], capsys)
     assert code == 0, err
-    the_map = Map.load(tmp_path / "map.npz")
+    the_map = methods.load_map(tmp_path / "map.npz")
     the_map.follow_state = ({"step": 2}, {})  # what a damaged --state-out file could hold
     the_map.save(tmp_path / "bad.npz")
     code, out, err = _cli(["localize", tmp_path / "bad.npz", scene["summer_day"], "--out", tmp_path / "o"], capsys)

@@ -71,7 +71,7 @@ def test_every_decider_keeps_the_one_contract():
         assert not getattr(cls, "__abstractmethods__", None), cls  # every hook implemented
     with pytest.raises(TypeError, match="takes a Column"):
         PathDecider().decide(np.zeros(3))
-    from encoders.stream import StreamEncoder
+    from pipelines.stream import StreamEncoder
     from vpr.types import FrameEncoder
 
     assert issubclass(StreamEncoder, FrameEncoder) and not StreamEncoder.__abstractmethods__

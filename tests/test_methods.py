@@ -177,7 +177,7 @@ def image_folders(tmp_path_factory):
 @pytest.mark.parametrize("enc", ["pixel", "projection", "orb", "cnn"])
 def test_every_encoder_with_a_dense_descriptor_feeds_seqslam_desc(image_folders, enc, tmp_path):
     import encoders
-    from encoders.extract import extract
+    from pipelines.extract import extract
     from vpr.sources import open_source
 
     m = methods.get("seqslam-desc", ds=2, R=2)
@@ -198,7 +198,7 @@ def test_every_encoder_with_a_dense_descriptor_feeds_seqslam_desc(image_folders,
 
 def test_an_encoder_without_a_dense_descriptor_is_named(image_folders):
     import encoders
-    from encoders.extract import extract
+    from pipelines.extract import extract
     from vpr.sources import open_source
 
     class NoDesc(encoders.base.BaseEncoder):

@@ -7,9 +7,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from vpr import methods, simulate
-from vpr.methods import SpeedFollower
-from vpr.shosm import Localizer, LoopConf, confirm_closures
+from vpr import methods, shosm, simulate
+from vpr.shosm import Localizer, LoopConf, SpeedFollower, confirm_closures
 from vpr.types import Decision, EncodedTraverse
 
 
@@ -81,9 +80,9 @@ def test_maps_of_one_frame_in_k_that_agree_answer_between_them():
     accepted = np.array([[1, 1, 1, 1, 0, 1, 1], [1, 1, 1, 1, 1, 1, 1]], bool)
     chosen = np.array([10, 13, 10, 10, 30, 50, 7])
     # 10 / 11: 10.5 toward 10; 10 / 13: 11.5 toward 13; 10 / 14 and 10 / 6 apart; one map accepts; the same answer
-    np.testing.assert_array_equal(methods.between_maps(best, accepted, chosen, 2), [10, 12, 10, 10, 30, 50, 7])
+    np.testing.assert_array_equal(shosm.between_maps(best, accepted, chosen, 2), [10, 12, 10, 10, 30, 50, 7])
     three = np.array([[10, 10, -1], [12, 12, 20], [13, 14, 21]])
-    np.testing.assert_array_equal(methods.between_maps(three, three >= 0, [13, 10, 20], 3), [12, 12, 20])
+    np.testing.assert_array_equal(shosm.between_maps(three, three >= 0, [13, 10, 20], 3), [12, 12, 20])
     rng = np.random.default_rng(1)
     for _ in range(200):
         b = rng.integers(-1, 12, (3, 1))
@@ -92,22 +91,22 @@ def test_maps_of_one_frame_in_k_that_agree_answer_between_them():
         pick = int(b[took, 0][0]) if took.any() else int(b[0, 0])
         agree = took.sum() >= 2 and np.ptp(b[took, 0]) <= 4
         want = _between(list(b[took, 0]), pick) if agree else pick
-        assert methods.between_maps(b, a, [pick], 3)[0] == want
+        assert shosm.between_maps(b, a, [pick], 3)[0] == want
 
 
 def test_path_lengths_count_each_frames_consistent_path():
     best = np.random.default_rng(0).integers(-1, 30, 300).cumsum() % 500 - 1
     best[::17] = -1
-    np.testing.assert_array_equal(methods.path_lengths(best, 4, 6), _lengths(best))
+    np.testing.assert_array_equal(shosm.path_lengths(best, 4, 6), _lengths(best))
 
 
 def test_maps_of_one_frame_in_k_that_place_a_frame_apart_leave_it_undecided():
     best = np.array([[10, 10, 10, 10, 10, -1], [11, 13, 15, 6, 30, 50]])
     accepted = np.array([[1, 1, 1, 1, 0, 1], [1, 1, 1, 1, 1, 1]], bool)
-    np.testing.assert_array_equal(methods.disagree(best, accepted, 2), [False, False, True, True, False, False])
+    np.testing.assert_array_equal(shosm.disagree(best, accepted, 2), [False, False, True, True, False, False])
     three = np.array([[10, 10], [12, 12], [14, 13]])  # step 3: more than 4 apart among those that accept
-    np.testing.assert_array_equal(methods.disagree(three, np.ones((3, 2), bool), 3), [False, False])
-    np.testing.assert_array_equal(methods.disagree(three + [[0, 0], [0, 0], [1, 9]], np.ones((3, 2), bool), 3),
+    np.testing.assert_array_equal(shosm.disagree(three, np.ones((3, 2), bool), 3), [False, False])
+    np.testing.assert_array_equal(shosm.disagree(three + [[0, 0], [0, 0], [1, 9]], np.ones((3, 2), bool), 3),
                                   [True, True])
 
 
@@ -177,7 +176,7 @@ def test_a_slower_querys_frame_between_two_accepted_takes_the_place_between_them
     best[rng.random(400) < 0.05] = -1
     accepted = rng.random(400) < 0.6
     score = rng.random(400) * 30
-    new_best, new_score, filled = methods.fill_between(best, score, accepted, step)
+    new_best, new_score, filled = shosm.fill_between(best, score, accepted, step)
     oracle = _filled(best, accepted, step)
     np.testing.assert_array_equal(filled, oracle >= 0)
     np.testing.assert_array_equal(new_best, np.where(oracle >= 0, oracle, best))

@@ -212,7 +212,7 @@ def test_degenerate_sdrs_warn_with_their_count(tmp_path, capsys):
 
 def test_a_cache_file_of_another_source_is_not_trusted(scene, tmp_path, capsys):
     import encoders
-    from encoders.extract import cache_path
+    from pipelines.extract import cache_path
     from vpr.sources import open_source
 
     args = ["--method", "pairwise", "--preset", "fast", "--tolerance", 2, "--cache", tmp_path / "c"]

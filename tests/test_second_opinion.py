@@ -190,9 +190,11 @@ def test_vpr_loops_decides_short_loops_with_geometry_by_default_and_online_alike
             rows = [(int(r["best_db"]), r["accepted"] == "1") for r in csv.DictReader(fh)]
         return rows, json.loads((out / "metrics.json").read_text())["methods"]["rshosm-seq"]
 
-    def online(lines, *extra):
+    runs = iter(range(100))
+
+    def online(lines, *extra):  # each run into a folder of its own
         monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(lines) + "\n"))
-        code = main(["loops", "-", "--out", str(tmp_path / f"online{len(lines)}{len(extra)}"), *extra])
+        code = main(["loops", "-", "--out", str(tmp_path / f"online{next(runs)}"), *extra])
         out, err = capsys.readouterr()
         assert code == 0, err
         return [(r["best_db"] if r["best_db"] is not None else -1, r["accepted"])

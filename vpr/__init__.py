@@ -3,7 +3,7 @@ from importlib import import_module
 
 __version__ = "0.1.0"
 
-_LAZY = {"SequenceMemory": "vpr.shosm", "Localizer": "vpr.shosm", "LoopDetector": "vpr.shosm", "Map": "vpr.shosm"}
+_LAZY = {"SequenceMemory": "vpr.shosm", "Localizer": "vpr.shosm", "LoopDetector": "vpr.shosm", "Map": "vpr.maps"}
 
 
 def __getattr__(name):

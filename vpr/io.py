@@ -230,22 +230,26 @@ def load_versioned_npz(path, fmt: str, version: int, what: str, error: type[Exce
     return header, data
 
 
-def is_versioned_npz(path, fmt: str | None = None) -> bool:
-    """Whether ``path`` is a file of :func:`save_versioned_npz` (of format ``fmt``), whatever its name."""
+def versioned_npz_header(path) -> dict | None:
+    """The JSON header of a file of :func:`save_versioned_npz` (None: not such a file), read without its arrays."""
     path = Path(path)
     if not path.is_file() or not zipfile.is_zipfile(path):
-        return False
+        return None
     try:
         with zipfile.ZipFile(path) as z:
             if "header.npy" not in z.namelist():
-                return False
-            if fmt is None:
-                return True
+                return None
             with z.open("header.npy") as fh:
                 header = json.loads(str(np.lib.format.read_array(fh, allow_pickle=False)))
     except (OSError, ValueError, zipfile.BadZipFile):
-        return False
-    return isinstance(header, dict) and header.get("format") == fmt
+        return None
+    return header if isinstance(header, dict) else None
+
+
+def is_versioned_npz(path, fmt: str | None = None) -> bool:
+    """Whether ``path`` is a file of :func:`save_versioned_npz` (of format ``fmt``), whatever its name."""
+    header = versioned_npz_header(path)
+    return header is not None and (fmt is None or header.get("format") == fmt)
 
 
 #: The only globals a ``.npy`` of Python objects may name: how NumPy pickles its arrays, dtypes and

@@ -3,7 +3,10 @@ from __future__ import annotations
 
 import copy
 
-__all__ = ["PRESETS", "DEFAULT", "available", "get", "resolve", "describe"]
+__all__ = ["PRESETS", "DEFAULT", "CONF_EXAMPLES", "available", "get", "resolve", "describe"]
+
+#: ``--method-conf`` settings the command line's help shows as examples
+CONF_EXAMPLES = ("seqslam.ds=20", "rshosm.p_extra=0.01")
 
 #: the preset of a run without ``--preset``
 DEFAULT = "default"

@@ -12,8 +12,8 @@ import scipy.sparse as sp
 if TYPE_CHECKING:
     from vpr.sdr import RowLog
 
-__all__ = ["EncodedTraverse", "ImageInput", "Column", "Decision", "Decider", "QueryLocalizer", "FrameEncoder",
-           "MatchResult", "ENCODER_INPUTS", "RATE_RATIO"]
+__all__ = ["EncodedTraverse", "ImageInput", "Column", "Decision", "Decider", "QueryLocalizer", "MapLocalizer",
+           "FollowingLocalizer", "StreamDetector", "FrameEncoder", "MatchResult", "ENCODER_INPUTS", "RATE_RATIO"]
 
 #: Inputs that come from the encoder (every other input is an :class:`ImageInput` of a method).
 ENCODER_INPUTS = {"sdr": "SDRs", "desc": "dense descriptors"}
@@ -212,8 +212,8 @@ class Decider(ABC):
 
 
 class QueryLocalizer(Protocol):
-    """Answers a query stream frame by frame against a learned map (:class:`vpr.shosm.Localizer`,
-    :class:`vpr.methods.SpeedFollower`)."""
+    """Answers a query stream frame by frame against a learned map (:class:`MapLocalizer`,
+    :class:`FollowingLocalizer`)."""
 
     def update(self, sdr_row) -> Decision:
         """The next query frame's decision (an SDR row: 1-row batch, dense row or bit indices)."""
@@ -223,6 +223,155 @@ class QueryLocalizer(Protocol):
 
     def warm_up(self) -> None:
         """Compile (or load) the kernels now, so that the first frame's latency is its own."""
+
+
+class MapLocalizer(ABC):
+    """What a map holds (``vpr learn``, ``vpr localize``): a database learned by a method that runs online, answering
+    a query stream frame by frame. Handed out by the method (``Method.localizer``) and read again from a map file by
+    it (``Method.restore_localizer``).
+
+    ``names``: the database frames' names; ``conf``: the whole conf (recorded in metrics.json); ``sessions``: each map
+    session's first frame.
+    """
+
+    names: list[str]
+    conf: dict
+    sessions: np.ndarray
+
+    @property
+    def n_db(self) -> int:
+        return len(self.names)
+
+    @property
+    @abstractmethod
+    def top_k(self) -> int | None:
+        """The database frames an answer lists (None: every frame with evidence)."""
+
+    @abstractmethod
+    def update(self, sdr_row) -> Decision:
+        """The next query frame's decision (an SDR row: 1-row batch, dense row or bit indices)."""
+
+    @abstractmethod
+    def reset(self) -> None:
+        """A new query traverse: nothing of the last frames carries over."""
+
+    @abstractmethod
+    def warm_up(self) -> None:
+        """Compile (or load) the kernels now, so that the first frame's latency is its own."""
+
+    @abstractmethod
+    def reconfigure(self, **conf) -> MapLocalizer:
+        """This map with other query-time settings, continuing its state (ValueError for a setting the map fixed)."""
+
+    @abstractmethod
+    def every(self, k: int, phase: int = 0) -> np.ndarray:
+        """The frame numbers of one map frame in ``k`` of each session, from the session's frame ``phase`` on."""
+
+    @abstractmethod
+    def relearned(self, db_sdr, keep, progress: bool = False) -> MapLocalizer:
+        """A localizer of the same conf learned from the map frames numbered ``keep`` alone (their SDRs
+        ``db_sdr[keep]``)."""
+
+    @abstractmethod
+    def map_state(self) -> tuple[dict, dict[str, dict]]:
+        """(header, parts: name -> arrays) of what was learned and of the query so far, for a map file; part names
+        other than ``enc``, ``qenc``, ``db`` and ``follow``."""
+
+
+class FollowingLocalizer(ABC):
+    """Answers a query stream over a :class:`MapLocalizer`, following a query driven at another speed than the map
+    (handed out by ``Method.follower``). ``mode``: +1 while a faster query is followed, -1 a slower, 0 at the map's
+    speed; ``step``: the sampling k it follows at; ``follows_faster``: whether a faster one can be followed."""
+
+    mode: int
+    step: int
+
+    @property
+    @abstractmethod
+    def follows_faster(self) -> bool: ...
+
+    @abstractmethod
+    def update(self, sdr_row) -> Decision: ...
+
+    @abstractmethod
+    def reset(self) -> None: ...
+
+    @abstractmethod
+    def warm_up(self) -> None: ...
+
+    @abstractmethod
+    def sampling(self) -> dict | None:
+        """metrics.json's ``sampling`` of the frames so far (None: every frame as it came)."""
+
+    @abstractmethod
+    def state(self) -> tuple[dict, dict]:
+        """(header, arrays) of what it carries besides the map's localizer."""
+
+    @abstractmethod
+    def load_state(self, header: dict, arrays: dict) -> FollowingLocalizer:
+        """Continue from a :meth:`state`; returns self."""
+
+
+class StreamDetector(ABC):
+    """Loop closure within one stream, online, one frame at a time (``vpr loops -``): handed out by a method that runs
+    online (``Method.loop_detector``) and read again from its saved state (``Method.resume_loop_detector``).
+
+    ``names``: the frames' names so far; ``encoder``: the :class:`FrameEncoder` of its images (None: SDR rows);
+    ``conf``: the whole conf with ``exclude`` (recorded in metrics.json); ``meta``: caller metadata :meth:`save`
+    stores (``method``, ``encoder``, ``encoder_conf``, ...).
+    """
+
+    names: list[str]
+    encoder: FrameEncoder | None
+    conf: dict
+    meta: dict
+
+    @property
+    def frames(self) -> int:
+        """Frames given so far (those before a resume too)."""
+        return len(self.names)
+
+    @property
+    @abstractmethod
+    def starts(self) -> list[int]:
+        """Each session's first frame."""
+
+    @property
+    @abstractmethod
+    def waiting(self) -> int:
+        """Frames given whose answers wait in the detector (for the frames after a closure)."""
+
+    @property
+    @abstractmethod
+    def top_k(self) -> int | None:
+        """The earlier frames an answer lists (None: every frame with evidence)."""
+
+    @abstractmethod
+    def warm_up(self) -> None: ...
+
+    @abstractmethod
+    def update_encoded(self, rows, name: str | None = None) -> Decision | None:
+        """The next frame, given what its encoder's ``push`` returned for it; None while its answer waits."""
+
+    @abstractmethod
+    def take_late(self) -> list[Decision]:
+        """The answers of earlier frames decided since the last call, in frame order."""
+
+    @abstractmethod
+    def flush(self, closures: bool = True) -> None:
+        """The stream ends (``closures``) or pauses for a save (not ``closures``): decide what can be."""
+
+    @abstractmethod
+    def new_session(self) -> None:
+        """The next frame starts a new run of the robot."""
+
+    @abstractmethod
+    def save(self, path):
+        """Write the detector's state, its encoder's and :attr:`meta` (one atomic file)."""
+
+    def opinion_report(self) -> dict | None:
+        """What a second opinion on its closures did (metrics.json's ``geometry``), or None without one."""
+        return None
 
 
 class FrameEncoder(ABC):

@@ -7,6 +7,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from vpr.checks import per_input
+from vpr.paths import speed_step
 from vpr.types import RATE_RATIO
 
 from . import trajectories as tr
@@ -178,7 +179,7 @@ def prepare_positions(srcs, roles, spec: GroundTruthSpec, every: float | None = 
 
 
 def same_sampling(the_map, every: float | None, positions: bool, where: str, progress: bool = False):
-    """A map (:class:`vpr.shosm.Map`) and a query's ``--every`` made to agree; returns (map, query's every).
+    """A map (:class:`vpr.maps.Map`) and a query's ``--every`` made to agree; returns (map, query's every).
 
     The sequence evidence follows a query that moves about one map frame per query frame; a query sampled coarser than
     the map moves several, and its decisions lose their precision. A query ``--every`` coarser than the map's
@@ -249,15 +250,6 @@ def same_rate(the_map, src, fps: float | None, where: str, progress: bool = Fals
     if said:
         warnings.warn(f"{where}: {said}", UserWarning, stacklevel=2)
     return the_map, fps
-
-
-def speed_step(speed: float | None) -> int:
-    """The sampling that makes a query moving ``speed`` frames a frame (:func:`vpr.evaluate.path_speed`) move one:
-    ``k`` >= 2 for one frame in k of what it is matched to (:data:`RATE_RATIO` or more times faster), ``-k`` for one
-    query frame in k (as many times slower), 0 otherwise (also without a speed, or paths that never move on)."""
-    if speed is None or speed <= 0 or RATE_RATIO > speed > 1 / RATE_RATIO:
-        return 0
-    return max(2, round(speed)) if speed > 1 else -max(2, round(1 / speed))
 
 
 def check_speeds(speeds: Mapping[str, float | None], paths: str = "accepted paths", fix: str | None = None) -> None:

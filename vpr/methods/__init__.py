@@ -4,25 +4,18 @@ from __future__ import annotations
 import warnings
 from importlib import import_module
 
-from vpr.types import EncodedTraverse, ImageInput, MatchResult
+from vpr import io
+from vpr.maps import Map
+from vpr.shosm import LOOP_EXCLUDE
+from vpr.statefile import MemoryFileError
+from vpr.types import EncodedTraverse, ImageInput, MatchResult, StreamDetector
 
 from .base import Fitted, Method
-from .speed import (
-    PICKS,
-    SpeedFollower,
-    between_maps,
-    disagree,
-    fill_between,
-    loops_at_speed,
-    loops_in_run_at_speed,
-    match_at_speed,
-    path_lengths,
-    pick_maps,
-)
+from .speed import loops_at_speed, loops_in_run_at_speed, match_at_speed
 
-__all__ = ["online", "get", "build", "available", "get_class", "match", "loops", "image_inputs", "Method", "Fitted",
-           "match_at_speed", "loops_at_speed", "loops_in_run_at_speed", "pick_maps", "disagree", "between_maps",
-           "fill_between", "path_lengths", "SpeedFollower", "PICKS"]
+__all__ = ["online", "get_online", "load_map", "saved_loop_meta", "resume_loop_detector", "LOOP_EXCLUDE", "Map",
+           "MemoryFileError", "get", "build", "available", "get_class", "match", "loops", "image_inputs", "Method",
+           "Fitted", "match_at_speed", "loops_at_speed", "loops_in_run_at_speed"]
 
 # name -> (module, class); imported on first use, so that e.g. the SeqSLAM kernels load only for seqslam
 _REGISTRY = {
@@ -54,9 +47,42 @@ def get_class(name: str) -> type[Method]:
 
 
 def online() -> str:
-    """The method that runs online (:attr:`Method.runs_online`): the online commands' (``vpr loops -``,
-    ``vpr learn`` / ``vpr localize``)."""
+    """The first registered method that runs online (:attr:`Method.runs_online`): the online commands' default
+    (``vpr loops -``, ``vpr learn`` / ``vpr localize``)."""
     return next(m for m in available() if get_class(m).runs_online)
+
+
+def get_online(name: str, **conf) -> Method:
+    """A new method ``name`` that runs online (ValueError naming those that do, for one that does not)."""
+    method = get(name, **conf)
+    if not method.runs_online:
+        able = [m for m in available() if get_class(m).runs_online]
+        raise ValueError(f"{name} does not run online (one frame at a time as it comes); methods that do: "
+                         f"{', '.join(able)}")
+    return method
+
+
+def load_map(path) -> Map:
+    """A map file written by ``vpr learn`` (:meth:`vpr.maps.Map.save`), its localizer restored by the method that
+    learned it (MemoryFileError: missing, corrupt, foreign, of another version, or of a method not registered)."""
+    def restore(name, header, parts, names):
+        return get_class(name).restore_localizer(header, parts, names)
+    return Map.load(path, restore)
+
+
+def saved_loop_meta(path) -> dict:
+    """The meta of a loop detector's saved state (``vpr loops - --state-out``): ``method``, what its caller stored,
+    and ``opinion`` (whether it decided with one). MemoryFileError: not such a state."""
+    header = io.versioned_npz_header(path)
+    name = (header or {}).get("meta", {}).get("method") if isinstance((header or {}).get("meta"), dict) else None
+    if name not in _REGISTRY or not get_class(name).runs_online:
+        raise MemoryFileError(f"{path}: not a loop detector's state (written by `vpr loops - --state-out`)")
+    return get_class(name).saved_loop_meta(path)
+
+
+def resume_loop_detector(path, encoder=None, opinion=None) -> StreamDetector:
+    """The loop detector saved at ``path``, by the method that saved it, continuing where it was saved."""
+    return get_class(saved_loop_meta(path)["method"]).resume_loop_detector(path, encoder, opinion)
 
 
 def image_inputs() -> dict[str, ImageInput]:

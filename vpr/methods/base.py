@@ -9,7 +9,16 @@ import scipy.sparse as sp
 from vpr.checks import check_exclude, check_top_k
 from vpr.config import merge_conf
 from vpr.similarity import best_matches, mask_recent
-from vpr.types import ENCODER_INPUTS, Decision, EncodedTraverse, ImageInput, MatchResult
+from vpr.types import (
+    ENCODER_INPUTS,
+    Decision,
+    EncodedTraverse,
+    FollowingLocalizer,
+    ImageInput,
+    MapLocalizer,
+    MatchResult,
+    StreamDetector,
+)
 
 __all__ = ["Method", "Fitted"]
 
@@ -75,9 +84,42 @@ class Method:
     #: whether the method's sequences follow a query that moves one database frame a frame (a query driven at
     #: another speed is matched again at the sampling that makes the two agree: :func:`vpr.methods.match_at_speed`)
     follows_sequences: bool = False
-    #: whether the method runs online, one frame at a time as it comes (``loop_detector(encoder, exclude)`` and
-    #: ``localizer(db_sdr, names, ...)``: ``vpr loops -``, ``vpr learn`` / ``vpr localize``)
+    #: whether the method runs online, one frame at a time as it comes: the online face below (``vpr loops -``,
+    #: ``vpr learn`` / ``vpr localize``)
     runs_online: bool = False
+
+    # ----------------------------------------------------------- the online face (runs_online)
+    def loop_detector(self, encoder=None, exclude: int = 1, opinion=None) -> StreamDetector:
+        """Loop closure one frame at a time with this conf: ``encoder`` (a :class:`~vpr.types.FrameEncoder`, None:
+        SDR rows), ``exclude`` (frames closer are not candidates), ``opinion`` (a second opinion around its
+        decision, where :attr:`decides_frames`). Its :attr:`~vpr.types.StreamDetector.meta` names this method."""
+        raise ValueError(f"{self.name} does not run online (one frame at a time as it comes)")
+
+    @classmethod
+    def resume_loop_detector(cls, path, encoder=None, opinion=None) -> StreamDetector:
+        """The detector its :meth:`~vpr.types.StreamDetector.save` wrote to ``path``, continuing where it was saved
+        (``encoder``: a fresh one of the kind its meta names, its state restored)."""
+        raise ValueError(f"{cls.name} does not run online (one frame at a time as it comes)")
+
+    @classmethod
+    def saved_loop_meta(cls, path) -> dict:
+        """The meta of a detector state written by this method (and ``opinion``: whether it decided with one)."""
+        raise ValueError(f"{cls.name} does not run online (one frame at a time as it comes)")
+
+    def localizer(self, db_sdr, names, progress: bool = False, sessions=None) -> MapLocalizer:
+        """Learn the database ``db_sdr`` (frames x bits, named ``names``; ``sessions``: the first frame of each run of
+        a multi-session map) into what a map holds."""
+        raise ValueError(f"{self.name} does not run online (one frame at a time as it comes)")
+
+    @classmethod
+    def restore_localizer(cls, header: dict, parts: dict, names) -> MapLocalizer:
+        """The localizer a map file holds (:meth:`~vpr.types.MapLocalizer.map_state`), continuing its state."""
+        raise ValueError(f"{cls.name} does not run online (one frame at a time as it comes)")
+
+    def follower(self, localizer: MapLocalizer, sdr=None) -> FollowingLocalizer | None:
+        """What answers a query driven at another speed than the map over ``localizer`` (``sdr``: the map's SDRs, to
+        learn it again at another sampling); None (the default): the query's frames as they come."""
+        return None
 
     def loop_conf(self):
         """The conf its loop closures within one stream are decided by, frame by frame (a

@@ -11,6 +11,7 @@ from vpr.shosm import (
     LoopDetector,
     RshosmSeqConf,
     SequenceMemory,
+    SpeedFollower,
     accept_path,
     loop_evidence,
     loop_rule,
@@ -51,14 +52,32 @@ class RshosmSeq(Method):
         loop_rule(self.seq.loop_rule)  # a rule not registered is refused now
 
     def loop_detector(self, encoder=None, exclude: int = LOOP_EXCLUDE, opinion=None) -> LoopDetector:
-        """Loop closure one frame at a time with this conf (``vpr loops -``): the answers of :meth:`loops` (with the
-        same ``opinion`` around the loop rule)."""
-        return LoopDetector(encoder, self.seq, exclude=exclude, opinion=opinion)
+        """A :class:`vpr.shosm.LoopDetector` with this conf: the answers of :meth:`loops` (with the same ``opinion``
+        around the loop rule)."""
+        det = LoopDetector(encoder, self.seq, exclude=exclude, opinion=opinion)
+        det.meta["method"] = self.name
+        return det
+
+    @classmethod
+    def resume_loop_detector(cls, path, encoder=None, opinion=None) -> LoopDetector:
+        return LoopDetector.load(path, encoder=encoder, opinion=opinion)
+
+    @classmethod
+    def saved_loop_meta(cls, path) -> dict:
+        return LoopDetector.saved_meta(path)
 
     def localizer(self, db_sdr, names, progress: bool = False, sessions=None) -> Localizer:
-        """Learn the database ``db_sdr`` (named ``names``; ``sessions``: the first frame of each run of a
-        multi-session map) into a :class:`vpr.shosm.Localizer` with this conf."""
+        """A :class:`vpr.shosm.Localizer` with this conf."""
         return Localizer.from_database(db_sdr, names, progress=progress, conf=self.seq, sessions=sessions)
+
+    @classmethod
+    def restore_localizer(cls, header: dict, parts: dict, names) -> Localizer:
+        return Localizer.restore(header, parts, names)
+
+    def follower(self, localizer: Localizer, sdr=None) -> SpeedFollower:
+        """A :class:`vpr.shosm.SpeedFollower`: the maps of one frame in k (learned again from ``sdr``) or the queries
+        of one frame in k while the query's speed reads so."""
+        return SpeedFollower(localizer, sdr)
 
     def loop_conf(self) -> RshosmSeqConf:
         return self.seq

@@ -7,28 +7,22 @@ import warnings
 import numpy as np
 import scipy.sparse as sp
 
-from vpr import sdr as _sdr
-from vpr.evaluate import MIN_RUN, path_run_speeds, path_speed, session_speeds
-from vpr.groundtruth import speed_step
-from vpr.shosm import LOOP_ONLY_KEYS, Localizer, PathConf, confirm_closures
-from vpr.shosm.state import joint_state, part_state
-from vpr.types import Column, Decision, EncodedTraverse, MatchResult, QueryLocalizer
+from vpr.paths import path_run_speeds, path_speed, session_speeds, speed_step
+from vpr.shosm import (
+    LOOP_ONLY_KEYS,
+    PathConf,
+    between_maps,
+    check_pick,
+    confirm_closures,
+    disagree,
+    fill_between,
+    pick_maps,
+)
+from vpr.types import Decision, EncodedTraverse, MatchResult
 
 from .base import Fitted, Method
 
-__all__ = ["match_at_speed", "loops_at_speed", "loops_in_run_at_speed", "pick_maps", "disagree", "between_maps",
-           "fill_between", "path_lengths", "SpeedFollower", "PICKS"]
-
-
-#: How a frame is answered by one of the ``k`` maps of one frame in ``k``: ``"path"``, the map that accepts it on the
-#: longest consistent path of best frames; ``"score"``, the map of the largest path score (docs/localize.md).
-PICKS = ("path", "score")
-
-
-def _check_pick(pick: str) -> str:
-    if pick not in PICKS:
-        raise ValueError(f"pick must be one of {', '.join(PICKS)}, got {pick!r}")
-    return pick
+__all__ = ["match_at_speed", "loops_at_speed", "loops_in_run_at_speed"]
 
 
 def match_at_speed(fitted: Fitted, query: EncodedTraverse, progress: bool = False,
@@ -51,7 +45,7 @@ def match_at_speed(fitted: Fitted, query: EncodedTraverse, progress: bool = Fals
     (a method whose answers off the database's speed form no path); ``pick``: one of :data:`PICKS`. Returns the
     first result where nothing is to be done or the sampled traverse is too short for the method.
     """
-    _check_pick(pick)
+    check_pick(pick)
     res = fitted.match(query, progress) if first is None else first
     own = path_speed(res.best, res.accepted)[0]
     speed = speed if own is None else own
@@ -114,75 +108,6 @@ def _resampled(fitted: Fitted, query: EncodedTraverse, k: int, speed: float, pic
                        sampling)
 
 
-def pick_maps(best, accepted, score, pick: str = "path", back: int = PathConf.back,
-              ahead: int = PathConf.ahead) -> np.ndarray:
-    """Per query frame, the map of one frame in k that answers it (:data:`PICKS`): ``"path"``, an accepting map on
-    the longest consistent path of best frames (:func:`path_lengths` with ``back`` / ``ahead``; ties: the first
-    map), or ``"score"``, the map of the largest score.
-
-    ``best`` (each map's own frame numbers), ``accepted``, ``score``: one row per map, one column per query frame.
-    """
-    best, accepted = np.asarray(best, np.int64), np.asarray(accepted, bool)
-    if _check_pick(pick) == "score":
-        return np.argmax(np.asarray(score), axis=0)
-    lengths = np.stack([path_lengths(b, back, ahead) for b in best])
-    return np.argmax(accepted * (best.shape[1] + 1) + lengths, axis=0)
-
-
-def disagree(best, accepted, step: int) -> np.ndarray:
-    """Per query frame, whether the maps of one frame in ``step`` that accept it place it more than ``step + 1``
-    frames of the whole map apart (each map's answer is within about ``step / 2`` of the place, and a frame of it
-    either way): they contradict each other, and the frame is not decided.
-
-    ``best``, ``accepted``: one row per map, one column per query frame, answers numbered on the whole map.
-    """
-    best, accepted = np.asarray(best, np.int64), np.asarray(accepted, bool) & (np.asarray(best) >= 0)
-    lo = np.where(accepted, best, np.iinfo(np.int64).max).min(axis=0)
-    hi = np.where(accepted, best, -1).max(axis=0)
-    return (accepted.sum(axis=0) >= 2) & (hi - lo > step + 1)
-
-
-def between_maps(best, accepted, chosen, step: int) -> np.ndarray:
-    """Per query frame, the answer of the maps of one frame in ``step`` that accept it and agree: the mean of their
-    answers, rounded toward ``chosen`` (the answer of the map picked, :func:`pick_maps`); ``chosen`` where fewer than
-    two accept or they place the frame apart (:func:`disagree`: it is not decided).
-
-    Each map holds the place within about ``step / 2`` frames of the whole map, so two that accept a frame bracket
-    it. ``best``, ``accepted``: one row per map, one column per query frame, answers numbered on the whole map;
-    ``chosen``: one per query frame.
-    """
-    best, chosen = np.asarray(best, np.int64), np.asarray(chosen, np.int64)
-    accepted = np.asarray(accepted, bool) & (best >= 0)
-    n = accepted.sum(axis=0)
-    mean = np.where(accepted, best, 0).sum(axis=0) / np.maximum(n, 1)
-    toward = np.where(chosen >= mean, np.ceil(mean), np.floor(mean)).astype(np.int64)
-    return np.where((n >= 2) & ~disagree(best, accepted, step), toward, chosen)
-
-
-def fill_between(best, score, accepted, step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Answers of a query driven ``step`` times slower than the map for its frames that were not accepted between two
-    that were: a frame whose nearest accepted frames before and after, ``q0`` and ``q1``, lie at most ``step`` frames
-    apart and were answered with map frames ``b0 <= b1 <= b0 + 2`` (moving on as such a query does) lies between
-    their places, and takes the map frame interpolated between them, with the smaller of their scores.
-
-    ``best``, ``score``, ``accepted``: per query frame, in the traverse's order. Returns (best, score, filled): the
-    answers with those frames', and which frames were filled so (accepted there).
-    """
-    best, score = np.array(best, np.int64), np.array(score, np.float64)
-    accepted = np.asarray(accepted, bool) & (best >= 0)
-    filled = np.zeros(best.size, bool)
-    acc = np.flatnonzero(accepted)
-    gap, moved = np.diff(acc), np.diff(best[acc])
-    for i in np.flatnonzero((gap > 1) & (gap <= step) & (moved >= 0) & (moved <= 2)):
-        q0, q1 = acc[i], acc[i + 1]
-        b0, b1 = best[q0], best[q1]
-        q = np.arange(q0 + 1, q1)
-        best[q] = b0 + np.rint((b1 - b0) * (q - q0) / (q1 - q0)).astype(np.int64)
-        score[q] = min(score[q0], score[q1])
-        filled[q] = True
-    return best, score, filled
-
-
 def loops_at_speed(method: Method, seq: EncodedTraverse, res: MatchResult, sessions, progress: bool = False,
                    pick: str = "path") -> MatchResult:
     """Loop closures of a stream of sessions, each later session read for its speed and decided again where it was
@@ -201,7 +126,7 @@ def loops_at_speed(method: Method, seq: EncodedTraverse, res: MatchResult, sessi
     later session; ``seconds`` counts the matches. Returns ``res`` for a stream of one session or a method whose
     sequences do not follow one frame a frame.
     """
-    _check_pick(pick)
+    check_pick(pick)
     bounds = [*sorted({0, *(int(a) for a in sessions)}), len(seq)]
     if not method.follows_sequences or len(bounds) < 3:
         return res
@@ -249,7 +174,7 @@ def loops_in_run_at_speed(method: Method, seq: EncodedTraverse, res: MatchResult
     Returns ``res`` where no run reads a faster speed, or for a method whose sequences do not follow one frame a
     frame or that has no loop conf.
     """
-    _check_pick(pick)
+    check_pick(pick)
     rule = method.loop_conf()
     if not method.follows_sequences or rule is None:
         return res
@@ -336,253 +261,5 @@ def _with_block(S, block, a: int, b: int):
     out = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=S.shape)
     out.sort_indices()
     return out
-
-
-class _Path:
-    """A consistent path of best frames (each within ``back`` behind and ``ahead`` beyond the last): its first frame
-    and best, its last best and its length."""
-
-    def __init__(self, back: int, ahead: int):
-        self.back, self.ahead = back, ahead
-        self.start, self.first, self.last, self.length = -1, -1, -1, 0
-
-    def step(self, frame: int, best: int) -> None:
-        if best >= 0 and self.length and -self.back <= best - self.last <= self.ahead:
-            self.last, self.length = best, self.length + 1
-        else:
-            self.start, self.first, self.last, self.length = frame, best, best, int(best >= 0)
-
-    def speed(self, frame: int) -> float | None:
-        """Best frames per frame since the path started, once it is :data:`~vpr.evaluate.MIN_RUN` frames long."""
-        return (self.last - self.first) / (frame - self.start) if self.length >= MIN_RUN else None
-
-    def state(self) -> list[int]:
-        return [self.start, self.first, self.last, self.length]
-
-    def restore(self, values) -> None:
-        self.start, self.first, self.last, self.length = (int(v) for v in values)
-
-
-class SpeedFollower(QueryLocalizer):
-    """Online localisation that follows a query driven at another speed than the map at the same frame rate.
-
-    Steps the map's ``localizer`` on every frame and reads the speed of the consistent path of best frames (the
-    path rule's ``back`` / ``ahead``, over at least :data:`~vpr.evaluate.MIN_RUN` frames) of the answers: the
-    localizer's, and while a faster query is followed, those given (the localizer's evidence lags a faster
-    query). While it is :data:`~vpr.groundtruth.RATE_RATIO` or more map frames a frame, the frames are answered by
-    the ``step`` maps of one frame in ``step`` (learned again from ``sdr``, the map's SDRs, when first needed; each
-    frame by the map whose path is accepted and longest or, where several accept it, between their answers
-    (:func:`between_maps`), not accepted where they place it apart: :func:`disagree`); while it is
-    ``1 / RATE_RATIO`` or less (:func:`~vpr.groundtruth.speed_step`: a path that stays on one map frame is no
-    speed), by the map with the frames taken as ``step`` queries of one frame in
-    ``step`` (each frame by its own; a frame its own does not accept, just after one its own accepted, by that
-    one's answer: it moved less than a map frame since), and such a speed is left only at a frame they do not answer
-    (the localizer's evidence runs ahead of a slower query); otherwise by ``localizer``. The engines of a speed start
-    when it is read, from the last ``replay`` frames (kept for that), so that they answer with their evidence built;
-    at the map's speed only ``localizer`` runs. Without ``sdr`` a faster query is answered by ``localizer``;
-    ``pick``: how the map of one frame in ``step`` is chosen (:data:`PICKS`). :meth:`update` returns the map's
-    :class:`~vpr.types.Decision` with the frame's number.
-    """
-
-    def __init__(self, localizer: Localizer, sdr=None, step: int = 2, replay: int = 2 * MIN_RUN, pick: str = "path"):
-        self.base, self.sdr, self.step, self.replay = localizer, sdr, int(step), int(replay)
-        self.pick = _check_pick(pick)
-        path = localizer.seq.path()
-        self._bounds = path.back, path.ahead
-        self.path = _Path(*self._bounds)
-        self.phases: list[Localizer] = []
-        self.keeps: list[np.ndarray] = []
-        self.phase_paths: list[_Path] = []
-        self.queries: list[Localizer] = []
-        self.mode, self.frame = 0, 0
-        self.recent: list[tuple[int, np.ndarray]] = []  # (frame, active bits) of the last ``replay`` frames
-        #: frames this object answered by the maps of one frame in ``step`` / as queries of one frame in ``step``, of
-        #: them those the maps placed apart / answered by the frame before (not part of the state: a follower loaded
-        #: from one counts its own)
-        self.frames = {"db_step": 0, "query_step": 0, "db_apart": 0, "query_filled": 0}
-        self.last: tuple[int, int, float] | None = None  # (frame, best, score) of a slower query's frame accepted on
-        # its own query, the frame before this one
-
-    @property
-    def follows_faster(self) -> bool:
-        """Whether a faster query can be followed (the map's SDRs are there to learn its maps of one frame in k)."""
-        return self.sdr is not None and self.base.n_db >= 2 * self.step
-
-    def _learn_phases(self) -> None:
-        self.keeps = [self.base.every(self.step, a) for a in range(self.step)]
-        self.phases = [self.base.relearned(self.sdr, keep) for keep in self.keeps]
-
-    def _engines(self, mode: int) -> list[Localizer]:
-        """The engines that answer at ``mode`` (+1 faster, -1 slower), built the first time."""
-        if mode > 0:
-            if not self.phases and self.follows_faster:
-                self._learn_phases()
-            return self.phases
-        if mode < 0 and not self.queries:
-            loc = self.base
-            self.queries = [Localizer(loc.memory, loc.db_codes, loc.names, loc.seq, sessions=loc.sessions)
-                            for _ in range(self.step)]
-        return self.queries if mode < 0 else []
-
-    def _start(self, mode: int) -> None:
-        """Start the engines of ``mode`` afresh and give them the frames kept (those before this one)."""
-        for loc in self._engines(mode):
-            loc.reset()
-        self.phase_paths = [_Path(*self._bounds) for _ in self.phases]
-        for j, bits in self.recent[:-1]:
-            self._feed(mode, j, bits)
-
-    def _feed(self, mode: int, j: int, bits) -> list[Decision]:
-        if mode > 0:
-            out = [p.update(bits) for p in self.phases]
-            for path, d in zip(self.phase_paths, out, strict=True):
-                path.step(j, d.best)
-            return out
-        return [self.queries[j % self.step].update(bits)] if mode < 0 else []
-
-    def reset(self) -> None:
-        """A new query traverse: the evidence and the paths start again."""
-        self.base.reset()
-        for loc in [*self.phases, *self.queries]:
-            loc.reset()
-        self.path.step(-1, -1)
-        self.mode, self.frame, self.recent, self.last = 0, 0, [], None
-
-    def warm_up(self) -> None:
-        self.base.warm_up()
-
-    def update(self, sdr_row) -> Decision:
-        """Localise one query frame (as :meth:`vpr.shosm.Localizer.update`)."""
-        j = self.frame
-        bits = _sdr.row_bits(sdr_row, self.base.memory.n_inputs, name="query SDR")
-        self.recent = [*self.recent[-(self.replay - 1):], (j, bits)] if self.replay > 0 else []
-        d = self.base.update(bits)
-        self.frame += 1
-        if self.mode < 0:  # a slower query's queries answer first; the speed read leaves it where they do not
-            out = self._slower(j, bits, d)
-            if out.accepted:
-                self.path.step(j, d.best)
-            else:
-                self._read(j, d.best)
-            if self.mode < 0:
-                self.frames["query_step"] += 1
-                return out
-            return self._answer(j, bits, d)
-        faster = self.mode > 0 and self.follows_faster
-        if not faster:  # the map's own answers read the speed
-            self._read(j, d.best)
-        out = self._answer(j, bits, d)
-        if faster:  # while a faster query is followed, the answers given read it
-            self._read(j, out.best)
-            if self.mode < 0:  # from the faster speed to the slower: this frame too
-                self._feed(self.mode, j, bits)
-        return out
-
-    def _read(self, j: int, best: int) -> None:
-        """Step the path with frame ``j``'s answer and switch to the speed it reads (its engines started from the
-        frames kept before ``j``)."""
-        self.path.step(j, best)
-        v = self.path.speed(j)
-        mode = self.mode if v is None else int(np.sign(speed_step(v)))
-        if mode != self.mode:
-            self.mode = mode
-            self._start(mode)
-
-    def _answer(self, j: int, bits, d: Decision) -> Decision:
-        """Frame ``j``'s answer at the current speed (``d``: the map's own)."""
-        answers = self._feed(self.mode, j, bits)
-        if self.mode >= 0:
-            self.last = None
-        if self.mode > 0 and answers:
-            i = max(range(self.step), key=lambda i: (bool(answers[i].accepted), self.phase_paths[i].length)
-                    if self.pick == "path" else answers[i].score)
-            self.frames["db_step"] += 1
-            out = _on_map(answers[i], self.keeps[i], self.base.n_db, d.frame)
-            on_map = np.array([keep[a.best] if a.best >= 0 else -1 for a, keep in zip(answers, self.keeps,
-                                                                                    strict=True)])[:, None]
-            took = np.array([a.accepted for a in answers])[:, None]
-            if out.accepted and disagree(on_map, took, self.step)[0]:
-                self.frames["db_apart"] += 1  # the maps contradict each other: not decided
-                return dataclasses.replace(out, accepted=False)
-            if out.accepted:  # between the answers of the maps that accept it
-                out = dataclasses.replace(out, best=int(between_maps(on_map, took, [out.best], self.step)[0]))
-            return out
-        if self.mode < 0:
-            self.frames["query_step"] += 1
-            return self._slower(j, bits, d, answers)
-        return d
-
-    def _slower(self, j: int, bits, d: Decision, answers: list[Decision] | None = None) -> Decision:
-        """Frame ``j``'s answer by the queries of one frame in ``step`` (``answers``: their decisions, default: fed
-        here): its own query's, or where that does not accept it just after a frame its own accepted, that one's."""
-        answers = self._feed(-1, j, bits) if answers is None else answers
-        own, prev = dataclasses.replace(answers[0], frame=d.frame), self.last
-        self.last = (j, own.best, own.score) if own.accepted and own.best >= 0 else None
-        if own.accepted or prev is None or prev[0] != j - 1:
-            return own
-        self.frames["query_filled"] += 1  # it moved less than a map frame since the frame before
-        return dataclasses.replace(own, best=prev[1], score=prev[2], accepted=True)
-
-    def sampling(self) -> dict | None:
-        """metrics.json's ``sampling`` of the frames so far: the step and the frames answered at it (None: every
-        frame as it came)."""
-        used = {k: self.frames[k] for k in ("db_step", "query_step") if self.frames[k]}
-        out = {**{k: self.step for k in used}, **{f"{k}_frames": v for k, v in used.items()}}
-        for k, extra in (("db_step", "db_apart"), ("query_step", "query_filled")):
-            if used.get(k):
-                out[extra] = self.frames[extra]
-        return out or None
-
-    def state(self) -> tuple[dict, dict]:
-        """(header, arrays) of what the follower carries besides the map's localizer (:meth:`load_state`)."""
-        frames = np.array([j for j, _ in self.recent], np.int64)
-        sizes = np.array([b.size for _, b in self.recent], np.int64)
-        header = {"step": self.step, "replay": self.replay, "mode": self.mode, "frame": self.frame,
-                  "path": self.path.state(), "phase_paths": [p.state() for p in self.phase_paths],
-                  "last": None if self.last is None else [int(self.last[0]), int(self.last[1]), float(self.last[2])]}
-        arrays = {"recent_frames": frames, "recent_sizes": sizes,
-                  "recent_bits": np.concatenate([b for _, b in self.recent] or [np.zeros(0, np.int64)])}
-        engines, engine_arrays = joint_state(**self._named(self.mode))
-        return {**header, "engines": engines}, {**arrays, **engine_arrays}
-
-    def _named(self, mode: int) -> dict[str, Localizer]:
-        return {f"{'phase' if mode > 0 else 'query'}{i}": loc for i, loc in enumerate(self._engines(mode))}
-
-    def load_state(self, header: dict, arrays: dict) -> SpeedFollower:
-        """Continue from :meth:`state` (of a follower of the same map, step and replay)."""
-        if int(header["step"]) != self.step or int(header["replay"]) != self.replay:
-            raise ValueError(f"a speed follower's state of step {header['step']}, replay {header['replay']} cannot "
-                             f"continue one of step {self.step}, replay {self.replay}")
-        self.mode, self.frame = int(header["mode"]), int(header["frame"])
-        self.path.restore(header["path"])
-        last = header.get("last")
-        self.last = None if last is None else (int(last[0]), int(last[1]), float(last[2]))
-        bits = np.split(np.asarray(arrays["recent_bits"], np.int64), np.cumsum(arrays["recent_sizes"])[:-1])
-        self.recent = [(int(j), b) for j, b in zip(arrays["recent_frames"], bits, strict=True)] \
-            if len(arrays["recent_frames"]) else []
-        for name, loc in self._named(self.mode).items():
-            loc.load_state(*part_state(header["engines"], arrays, name))
-        self.phase_paths = [_Path(*self._bounds) for _ in self.phases]
-        for p, v in zip(self.phase_paths, header["phase_paths"], strict=False):
-            p.restore(v)
-        return self
-
-
-def path_lengths(best, back: int, ahead: int) -> np.ndarray:
-    """Each frame's length of the consistent path of best frames it ends, over a whole traverse: a frame whose best
-    (``best``, -1: none) lies within ``back`` behind and ``ahead`` beyond the frame before's continues its path."""
-    best = np.asarray(best, np.int64)
-    found, step = best >= 0, np.diff(best, prepend=-1)
-    linked = found & np.r_[False, found[:-1]] & (step >= -back) & (step <= ahead)
-    frame = np.arange(best.size)
-    start = np.maximum.accumulate(np.where(linked, 0, frame))  # the frame each path started at
-    return np.where(found, frame - start + 1, 0)
-
-
-def _on_map(d: Decision, keep: np.ndarray, n: int, frame: int) -> Decision:
-    """A decision of the map of the frames ``keep`` on the whole map of ``n`` frames."""
-    c = d.column
-    column = None if c is None else Column(keep[c.rows], c.z, c.fill, n, c.frame)
-    return dataclasses.replace(d, best=int(keep[d.best]) if d.best >= 0 else -1, frame=frame, column=column)
 
 

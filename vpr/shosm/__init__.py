@@ -1,4 +1,6 @@
 """rSHOSM: the sequence memory of Neubert, Ahmad and Protzel (KI 2018), and rSHOSM-seq, our graded evidence over it."""
+from vpr.statefile import MemoryFileError
+
 from .backfill import Backfill, backfill_closures
 from .conf import (
     DECISION_KEYS,
@@ -39,13 +41,12 @@ from .evidence import (
     query_evidence,
     sparse_evidence,
 )
+from .follow import PICKS, SpeedFollower, between_maps, check_pick, disagree, fill_between, path_lengths, pick_maps
 from .graph import Graph
 from .localizer import Localizer
 from .loops import LOOP_UNCAPPED_MAX, LoopStream, loop_evidence
-from .map import Map
 from .memory import SequenceMemory, pad_codes
 from .place import Placement, place_closures
-from .state import MemoryFileError
 
 __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pad_codes",
            "LEARN_THRESHOLD", "LOOP_EXCLUDE", "LOOP_ONLY_KEYS", "DENSE_EVIDENCE_PAIRS", "EvidenceConf", "BeamConf",
@@ -54,6 +55,7 @@ __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pa
            "query_evidence", "dense_evidence", "sparse_evidence", "LoopEvidence", "LoopDecider", "PathDecider",
            "decide_all",
            "LoopRule", "LOOP_RULES", "loop_rule",
-           "accept_loops", "accept_path", "stationary_closures", "Localizer", "Map", "LoopStream", "loop_evidence",
+           "accept_loops", "accept_path", "stationary_closures", "Localizer", "LoopStream", "loop_evidence",
            "LOOP_UNCAPPED_MAX", "LoopDetector", "Confirmation", "confirm_closures",
-           "Placement", "place_closures", "Backfill", "backfill_closures"]
+           "Placement", "place_closures", "Backfill", "backfill_closures", "SpeedFollower", "PICKS", "check_pick",
+           "pick_maps", "disagree", "between_maps", "fill_between", "path_lengths"]

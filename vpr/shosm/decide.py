@@ -8,12 +8,12 @@ import scipy.sparse as sp
 from vpr import sdr as _sdr
 from vpr.checks import check_exclude
 from vpr.similarity import n_candidates, stationary
+from vpr.statefile import joint_state, part_state
 from vpr.types import Column, Decider, Decision
 
 from .conf import LoopConf, PathConf
 from .evidence import LoopEvidence
 from .kernels import decide as KD
-from .state import joint_state, part_state
 
 __all__ = ["LoopRule", "LoopDecider", "PathDecider", "LOOP_RULES", "loop_rule", "decide_all", "accept_loops",
            "accept_path", "stationary_closures"]

@@ -7,12 +7,12 @@ import numpy as np
 import scipy.sparse as sp
 
 from vpr.checks import check_int
-from vpr.types import Decision, FrameEncoder
+from vpr.statefile import MemoryFileError, read_file, write_file
+from vpr.types import Decision, FrameEncoder, StreamDetector
 
 from .conf import LOOP_EXCLUDE, RshosmSeqConf
 from .confirm import warm_up as warm_up_confirmation
 from .loops import LoopStream
-from .state import MemoryFileError, read_file, write_file
 
 __all__ = ["LoopDetector"]
 
@@ -27,7 +27,7 @@ def _is_sdr(x) -> bool:
     return a.dtype == bool or (a.ndim == 1 and a.dtype.kind in "iu")
 
 
-class LoopDetector:
+class LoopDetector(StreamDetector):
     """Loop closure within one stream, learned online, one frame at a time.
 
     ``encoder``: encodes the images :meth:`update` takes (without it, SDR rows; ``docs/internals.md``); ``conf``:
@@ -56,9 +56,19 @@ class LoopDetector:
         self._late: list[Decision] = []
 
     @property
-    def frames(self) -> int:
-        """Frames given to :meth:`update`."""
-        return len(self.names)
+    def starts(self) -> list[int]:
+        return list(self.stream.starts)
+
+    @property
+    def waiting(self) -> int:
+        return self.stream.waiting
+
+    @property
+    def top_k(self) -> int | None:
+        return self.seq.top_k
+
+    def opinion_report(self) -> dict | None:
+        return self.stream.decider.report() if self.opinion is not None else None
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the kernels now, so that the first frame's latency is its own."""

@@ -14,13 +14,13 @@ from tqdm import tqdm
 from vpr import sdr as _sdr
 from vpr.checks import check_choice, check_top_k
 from vpr.similarity import TOP_K, best_matches
+from vpr.statefile import joint_state, part_state
 from vpr.types import Column, Decision
 
 from .conf import BeamConf, EvidenceConf
 from .graph import BIG, Beam, Graph
 from .kernels import evidence as KE
 from .memory import SequenceMemory
-from .state import joint_state, part_state
 
 __all__ = ["EvidenceEngine", "Engine", "beam_params", "SpeedEngine", "make_engine", "merge_columns", "merge_evidence",
            "Evidence", "LoopEvidence", "query_evidence", "dense_evidence", "sparse_evidence"]

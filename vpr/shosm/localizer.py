@@ -5,19 +5,19 @@ import numpy as np
 import scipy.sparse as sp
 
 from vpr import sdr as _sdr
-from vpr.types import Decision, QueryLocalizer
+from vpr.statefile import joint_state, part_state
+from vpr.types import Decision, MapLocalizer
 
 from .conf import RshosmSeqConf, memory_params
 from .decide import PathDecider
 from .evidence import make_engine
 from .graph import Graph
 from .memory import SequenceMemory, pad_codes
-from .state import joint_state, part_state
 
 __all__ = ["Localizer"]
 
 
-class Localizer(QueryLocalizer):
+class Localizer(MapLocalizer):
     """Causal place recognition of a query stream against a learned database.
 
     ``memory``: the memory that learned the database (queries do not change it); ``db_codes``: its winner codes
@@ -68,8 +68,8 @@ class Localizer(QueryLocalizer):
         return cls(mem, codes, names, seq, sessions=bounds[:-1])
 
     @property
-    def n_db(self) -> int:
-        return len(self.names)
+    def top_k(self) -> int | None:
+        return self.seq.top_k
 
     @property
     def frames(self) -> int:
@@ -135,6 +135,27 @@ class Localizer(QueryLocalizer):
             self.engine.load_state(*part_state(header, arrays, "engine"))
         self.decider.load_state(*part_state(header, arrays, "dec"))
         return self
+
+    def map_state(self) -> tuple[dict, dict[str, dict]]:
+        """(header, parts) of the memory, the database's winner codes and the query so far (:meth:`restore`)."""
+        mem_header, mem_arrays = self.memory.state()
+        q_header, q_arrays = self.state()
+        header = {"conf": self.seq.flat(), "memory": mem_header, "query": q_header,
+                  "db_shape": list(self.db_codes.shape), "sessions": self.sessions.tolist()}
+        codes = {"indptr": self.db_codes.indptr.astype(np.int64), "indices": self.db_codes.indices.astype(np.int64)}
+        return header, {"mem": mem_arrays, "query": q_arrays, "codes": codes}
+
+    @classmethod
+    def restore(cls, header: dict, parts: dict, names) -> Localizer:
+        """The localizer of a :meth:`map_state`, continuing where it was saved (errors raise as they come: the map file
+        reader names the file)."""
+        mem_h = header["memory"]
+        mem = SequenceMemory(**mem_h["params"]).load_state(mem_h, parts.get("mem", {}))
+        n_db, width = header["db_shape"]
+        idx = parts["codes"]["indices"]
+        codes = sp.csr_matrix((np.ones(idx.size, bool), idx, parts["codes"]["indptr"]), shape=(n_db, width))
+        loc = cls(mem, codes, names, sessions=header["sessions"], **header["conf"])
+        return loc.load_state(header["query"], parts.get("query", {}))
 
     def __repr__(self) -> str:
         return (f"Localizer(n_db={self.n_db}, frames={self.frames}, drift={self.conf['drift']}, "

@@ -8,6 +8,7 @@ from tqdm import tqdm
 from vpr import sdr as _sdr
 from vpr.checks import check_exclude, check_top_k
 from vpr.similarity import fits_dense, n_candidates
+from vpr.statefile import joint_state, part_state
 from vpr.types import Decider, Decision
 
 from .backfill import Backfill
@@ -18,7 +19,6 @@ from .evidence import LoopEvidence, make_engine
 from .graph import Graph
 from .memory import SequenceMemory
 from .place import Placement
-from .state import joint_state, part_state
 
 __all__ = ["LoopStream", "loop_evidence", "LOOP_UNCAPPED_MAX"]
 

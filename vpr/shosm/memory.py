@@ -9,10 +9,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from vpr import sdr as _sdr
+from vpr.statefile import MemoryFileError, read_file, write_file
 
 from .connections import Connections, MemoryView, readonly
 from .kernels import memory as K
-from .state import MemoryFileError, read_file, write_file
 
 __all__ = ["SequenceMemory", "MemoryFileError", "pad_codes"]
 

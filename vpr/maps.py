@@ -1,4 +1,5 @@
-"""A learned map, one file: the :class:`~vpr.shosm.Localizer`, the encoder that made its SDRs, where its frames were."""
+"""A learned map, one file: a method's :class:`~vpr.types.MapLocalizer`, the encoder that made its SDRs, where its
+frames were."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -7,15 +8,14 @@ import numpy as np
 import scipy.sparse as sp
 
 from vpr import io
-
-from .localizer import Localizer
-from .memory import SequenceMemory
-from .state import read_file, write_file
+from vpr.statefile import read_file, write_file
+from vpr.types import MapLocalizer
 
 __all__ = ["Map"]
 
 _FORMAT = "vpr.Map"
-_FORMAT_VERSION = 2
+_FORMAT_VERSION = 3
+_HINT = " (written by `vpr learn` / Map.save)"
 
 
 class Map:
@@ -23,7 +23,9 @@ class Map:
 
     Attributes
     ----------
-    localizer : Localizer
+    method : str
+        The method that learned it (the name :mod:`vpr.methods` finds it by).
+    localizer : MapLocalizer
     encoder : dict
         ``{"name", "conf"}`` of the encoder that made the database's SDRs.
     statistics : list of (mean, std) arrays
@@ -37,11 +39,12 @@ class Map:
     sdr : csr matrix (n_db x bits) or None
         The database's SDRs, which :meth:`subset` learns again.
     follow_state : (header, arrays) or None
-        The state of what follows the query's speed over the localizer (:class:`vpr.methods.SpeedFollower`).
+        The state of what follows the query's speed over the localizer (:class:`~vpr.types.FollowingLocalizer`).
     """
 
-    def __init__(self, localizer: Localizer, encoder: dict, statistics=(), positions=None, origin=None,
-                 info: dict | None = None, sdr=None):
+    def __init__(self, method: str, localizer: MapLocalizer, encoder: dict, statistics=(), positions=None,
+                 origin=None, info: dict | None = None, sdr=None):
+        self.method = str(method)
         self.localizer, self.encoder = localizer, {"name": encoder["name"], "conf": dict(encoder["conf"])}
         self.statistics = [(np.asarray(m), np.asarray(s)) for m, s in statistics]
         self.positions = None if positions is None else np.asarray(positions, np.float64)
@@ -78,8 +81,9 @@ class Map:
                              "with vpr learn")
         keep = np.asarray(sorted(set(int(k) for k in keep)), np.int64)
         new = self.localizer.relearned(self.sdr, keep, progress)
-        out = Map(new, self.encoder, self.statistics, None if self.positions is None else self.positions[keep],
-                  self.origin, {**self.info, "subset_of": self.localizer.n_db}, self.sdr[keep])
+        xy = None if self.positions is None else self.positions[keep]
+        info = {**self.info, "subset_of": self.localizer.n_db}
+        out = Map(self.method, new, self.encoder, self.statistics, xy, self.origin, info, self.sdr[keep])
         out.query_state = self.query_state
         return out
 
@@ -90,56 +94,51 @@ class Map:
 
     def save(self, path) -> Path:
         """Write the map (atomic ``.npz``)."""
-        loc = self.localizer
-        mem_header, mem_arrays = loc.memory.state()
-        q_header, q_arrays = loc.state()
-        header = {"conf": loc.seq.flat(), "memory": mem_header, "query": q_header, "encoder": self.encoder,
-                  "n_statistics": len(self.statistics), "db_shape": list(loc.db_codes.shape),
-                  "sessions": loc.sessions.tolist(), "origin": self.origin, "info": self.info}
+        loc_header, loc_parts = self.localizer.map_state()
+        header = {"method": self.method, "localizer": loc_header, "encoder": self.encoder,
+                  "n_statistics": len(self.statistics), "n_db": self.localizer.n_db, "origin": self.origin,
+                  "info": self.info}
         stats = {}
         for i, (m, s) in enumerate(self.statistics):
             stats[f"mean{i}"], stats[f"std{i}"] = m, s
-        db = {"indptr": loc.db_codes.indptr.astype(np.int64), "indices": loc.db_codes.indices.astype(np.int64)}
+        db = {}
         if self.positions is not None:
             db["xy"] = self.positions
         if self.sdr is not None:
             db["sdr_indptr"], db["sdr_indices"] = self.sdr.indptr.astype(np.int64), self.sdr.indices.astype(np.int64)
             header["sdr_width"] = int(self.sdr.shape[1])
-        parts = {"mem": mem_arrays, "query": q_arrays, "enc": stats, "qenc": self.query_state, "db": db}
+        parts = {**loc_parts, "enc": stats, "qenc": self.query_state, "db": db}
         if self.follow_state is not None:
             header["follow"], parts["follow"] = self.follow_state
-        return write_file(path, _FORMAT, _FORMAT_VERSION, header, parts, names=loc.names)
+        return write_file(path, _FORMAT, _FORMAT_VERSION, header, parts, names=self.localizer.names)
 
     @classmethod
-    def load(cls, path) -> Map:
+    def load(cls, path, restore) -> Map:
         """Read a file written by :meth:`save`; its localizer continues where it was saved.
+
+        ``restore(method, header, parts, names)``: the localizer of the map's method (its name) from what its
+        :meth:`~vpr.types.MapLocalizer.map_state` wrote (``vpr.methods.load_map`` hands it to the method).
 
         Raises
         ------
         MemoryFileError
             Missing, corrupt or foreign file (a map is written by ``vpr learn``), or another format version.
         """
-        with read_file(path, _FORMAT, _FORMAT_VERSION, "map", " (written by `vpr learn` / Map.save)",
-                       ("mem", "query", "enc", "qenc", "db", "follow")) as (header, parts, names):
-            mem_h = header["memory"]
-            mem = SequenceMemory(**mem_h["params"]).load_state(mem_h, parts["mem"])
-            n_db, width = header["db_shape"]
-            idx = parts["db"]["indices"]
-            codes = sp.csr_matrix((np.ones(idx.size, bool), idx, parts["db"]["indptr"]), shape=(n_db, width))
-            loc = Localizer(mem, codes, names, sessions=header["sessions"], **header["conf"])
-            loc.load_state(header["query"], parts["query"])
-            enc = parts["enc"]
+        with read_file(path, _FORMAT, _FORMAT_VERSION, "map", _HINT) as (header, parts, names):
+            loc = restore(header["method"], header["localizer"], parts, names)
+            enc = parts.get("enc", {})
             stats = [(enc[f"mean{i}"], enc[f"std{i}"]) for i in range(int(header["n_statistics"]))]
-            db = parts["db"]
+            db = parts.get("db", {})
             sdr = None
             if "sdr_indptr" in db:
                 sdr = sp.csr_matrix((np.ones(db["sdr_indices"].size, bool), db["sdr_indices"], db["sdr_indptr"]),
-                                    shape=(n_db, int(header["sdr_width"])))
-            out = cls(loc, header["encoder"], stats, db.get("xy"), header.get("origin"), header["info"], sdr)
-            out.query_state = parts["qenc"]
+                                    shape=(loc.n_db, int(header["sdr_width"])))
+            out = cls(header["method"], loc, header["encoder"], stats, db.get("xy"), header.get("origin"),
+                      header["info"], sdr)
+            out.query_state = parts.get("qenc", {})
             if header.get("follow") is not None:
-                out.follow_state = (header["follow"], parts["follow"])
+                out.follow_state = (header["follow"], parts.get("follow", {}))
         return out
 
     def __repr__(self) -> str:
-        return f"Map({self.encoder['name']}, {self.localizer!r})"
+        return f"Map({self.method}, {self.encoder['name']}, {self.localizer!r})"

@@ -17,10 +17,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from encoders.base import BaseEncoder, DescriptorEncoder
+from encoders.projection import CAUSAL_MIN, CausalStandardiser, RunningStandardiser
 from vpr.types import FrameEncoder
-
-from .base import BaseEncoder, DescriptorEncoder
-from .projection import CAUSAL_MIN, CausalStandardiser, RunningStandardiser
 
 __all__ = ["StreamEncoder", "STANDARDISE", "PRIOR_FRAMES", "WINDOW"]
 

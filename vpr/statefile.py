@@ -1,4 +1,4 @@
-"""The one file format of rSHOSM's saved states: a memory, a loop detector, a localizer (map)."""
+"""The one file format of saved states (a memory, a loop detector, a map): a header and named arrays."""
 from __future__ import annotations
 
 import contextlib

@@ -1,8 +1,8 @@
 """A map learned from a database traverse with an encoder, and read again with its encoder.
 
 :func:`learn` opens the database's sources (a session each), encodes them
-(each standardised on its own frames), learns rSHOSM-seq's memory and writes a
-:class:`vpr.shosm.Map`; :func:`load_map` reads it with the encoder rebuilt
+(each standardised on its own frames), learns them with a method that runs
+online and writes a :class:`vpr.maps.Map`; :func:`load_map` reads it with the encoder rebuilt
 from the map (its fitted statistics set). ``vpr learn`` and ``vpr localize``
 call them; so does a robot's own code.
 """
@@ -14,20 +14,15 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
+from encoders import get
+from encoders.base import DescriptorEncoder
+from pipelines.extract import extract
 from vpr import io, methods
 from vpr.groundtruth import GroundTruthSpec, check_rates, prepare_positions
-from vpr.shosm import Map
+from vpr.methods import Map
 from vpr.sources import open_sources
 
-from . import get
-from .base import DescriptorEncoder
-from .extract import extract
-
-__all__ = ["ONLINE_METHOD", "learn", "load_map", "map_path"]
-
-#: The method a map holds and online commands run.
-#: The method the online commands run (the one registered method that runs online).
-ONLINE_METHOD = methods.online()
+__all__ = ["learn", "load_map", "map_path"]
 
 
 def map_path(out) -> Path:
@@ -37,21 +32,22 @@ def map_path(out) -> Path:
     return out if out.suffix.lower() == ".npz" else out.with_name(out.name + ".npz")
 
 
-def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, method_conf: dict | None = None,
-          fps=None, step=None, max_frames=None, progress: bool = True, topic: str | None = None,
-          positions: GroundTruthSpec | None = None, every: float | None = None) -> Map:
+def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, method: str | None = None,
+          method_conf: dict | None = None, fps=None, step=None, max_frames=None, progress: bool = True,
+          topic: str | None = None, positions: GroundTruthSpec | None = None, every: float | None = None) -> Map:
     """Encode and learn the database traverse ``db``; write the map to :func:`map_path` ``(out)`` (atomic).
 
     ``db``: one source, or a list of sources: the sessions of a multi-session
     map (each encoded and standardised on its own frames, learned one after
-    the other from a fresh context). ``method_conf``: the ``rshosm-seq`` conf,
-    checked before any work; the map keeps it. ``topic``: a bag's camera
+    the other from a fresh context). ``method``: the method that learns it (one that
+    runs online; default :func:`vpr.methods.online`) and ``method_conf`` its conf,
+    checked before any work; the map keeps them. ``topic``: a bag's camera
     topic. ``positions``: where the frames' positions are (``--gt-topic``,
     ``--gt FILE``, ``names``, ``exif``): the map keeps them, and ``every``
     (metres) keeps one frame per so much travel.
     """
     out = map_path(out)
-    method = methods.get(ONLINE_METHOD, **(method_conf or {}))
+    method = methods.get_online(method or methods.online(), **(method_conf or {}))
     dbs = [db] if isinstance(db, (str, Path)) else list(db)
     srcs = open_sources(dbs, topic=topic, fps=fps, step=step, max_frames=max_frames)
     roles = ["database"] if len(srcs) == 1 else [f"database session {k + 1}" for k in range(len(srcs))]
@@ -85,15 +81,16 @@ def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, met
             "learn_seconds": time.perf_counter() - t, "positions": spec.describe() if pos is not None else None,
             "every": every, "rate": float(np.median(rates)) if rates else None,
             "source_rate": None if prefix else srcs[0].native_rate()}
-    the_map = Map(loc, {"name": enc.name, "conf": enc.conf}, enc.statistics() if fitted else [],  # the last session's
-                  xy, None if pos is None else pos.origin, info, sdr)
+    stats = enc.statistics() if fitted else []  # the last session's
+    origin = None if pos is None else pos.origin
+    the_map = Map(method.name, loc, {"name": enc.name, "conf": enc.conf}, stats, xy, origin, info, sdr)
     the_map.save(out)
     return the_map
 
 
 def load_map(path) -> tuple[Map, object]:
     """(map, encoder with the database's fitted statistics) of a map written by :func:`learn`."""
-    the_map = Map.load(path)
+    the_map = methods.load_map(path)
     enc = get(the_map.encoder["name"], **the_map.encoder["conf"])
     if the_map.statistics:
         enc.set_statistics(the_map.statistics)

@@ -19,11 +19,10 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
+from encoders import available, get, get_class
 from vpr import evaluate, methods, render
 from vpr.evaluate import recall_at_k
 from vpr.types import EncodedTraverse
-
-from . import available, get, get_class
 
 __all__ = ["EncoderTest", "METHODS", "score_encoder", "list_encoders", "average_precision"]
 
