@@ -16,7 +16,7 @@ from vpr.config import parse_key_values, parse_method_confs
 from vpr.groundtruth import GroundTruthSpec
 
 __all__ = ["add_common_arguments", "add_source_arguments", "add_preset_argument", "add_gt_arguments",
-           "gt_spec_from_args", "method_confs", "add_method_conf_argument",
+           "gt_spec_from_args", "loop_geometry", "method_confs", "add_method_conf_argument",
            "add_run_arguments", "settings_from_args", "options_from_args", "parse_every", "parse_size",
            "add_query_speed_argument", "follows_speed"]
 
@@ -149,16 +149,17 @@ def settings_from_args(args) -> dict:
     return s
 
 
-def options_from_args(args):
-    """The :class:`pipelines.runs.RunOptions` of parsed run arguments: the settings (:func:`settings_from_args`),
-    the sources' frames, the ground truth and where the run goes."""
+def options_from_args(args, settings: dict | None = None, **own):
+    """The :class:`pipelines.runs.RunOptions` of parsed run arguments: the settings (:func:`settings_from_args`, or
+    those given), the sources' frames, the ground truth and where the run goes; ``own``: the command's own options
+    (``vpr loops``: ``exclude``, ``geometry``)."""
     from pipelines.runs import RunOptions  # the runs' module loads the methods: only once a run is under way
 
     every = parse_every(args.every) if args.every else None
     budget = None if args.memory_budget is None else parse_size(args.memory_budget)
     gt = gt_spec_from_args(args)
-    s = settings_from_args(args)
-    return RunOptions(
+    s = settings_from_args(args) if settings is None else settings
+    return RunOptions(**own,
         out=Path(args.out), methods=tuple(s["methods"]), preset=s["preset"], encoder=s["encoder"],
         encoder_conf=s["encoder_conf"], method_conf=s["method_conf"], fps=args.fps, step=args.step,
         max_frames=args.max_frames, gt=gt, topic=topic_arg(args.topic),
@@ -167,6 +168,16 @@ def options_from_args(args):
         workers=getattr(args, "workers", None), scheduler=getattr(args, "scheduler", None),
         progress=not args.no_progress, cache=Path(args.cache) if args.cache else None,
         memory_budget=budget, follow_speed=follows_speed(args))
+
+
+def loop_geometry(method: str, given: str | None) -> bool:
+    """Whether ``method``'s loop closures get the geometric second opinion: ``--geometry`` (``on`` refused for a method
+    that does not decide them frame by frame), by default where it does."""
+    decides = methods.get_class(method).decides_frames
+    if given == "on" and not decides:
+        raise ValueError(f"--geometry on: a second opinion on the closures of a method that decides them frame by "
+                         f"frame, not on {method}'s")
+    return decides and given != "off"
 
 
 def parse_every(text) -> float:

@@ -5,7 +5,9 @@ Each pipeline module listed in :data:`MODULES` contributes its sub-commands:
 - ``COMMANDS = {"name": "one-line help", ...}``, a literal dict;
 - ``add_arguments(parser, command)``, adding the command's arguments;
 - ``run_command(args) -> int``, a thin adapter from the parsed arguments to the
-  module's functions (which take explicit parameters).
+  module's functions (which take explicit parameters); a command that runs in two
+  forms from one parser (``vpr loops SEQ`` and ``vpr loops -``) also declares
+  ``route(args)``, the ``run_command`` of the form asked for.
 
 ``vpr --help`` reads the ``COMMANDS`` literals from the modules' source
 without importing them, and only the chosen command's module is imported, so
@@ -65,13 +67,20 @@ def commands() -> dict[str, tuple[str, str]]:
     return out
 
 
+def _runner(module, args):
+    """The function that runs the parsed command: the module's ``route(args)`` where a command runs in two forms (batch
+    and online, one parser), else its ``run_command``."""
+    route = getattr(module, "route", None)
+    return route(args) if route is not None else module.run_command
+
+
 def build_parser(only: str | None = None, table: dict | None = None) -> argparse.ArgumentParser:
     """The ``vpr`` parser; with ``only``, just that command gets its arguments (imports one module)."""
     from vpr import __version__  # imports here keep `vpr --help` and typos fast
 
     table = commands() if table is None else table
     ap = argparse.ArgumentParser(prog="vpr", description="Sequence-based visual place recognition: "
-                                 "rSHOSM, SeqSLAM and pairwise matching, evaluation and plots.")
+                                 "a sequence memory and its baselines, evaluation and plots.")
     ap.add_argument("--version", action="version", version=f"vpr {__version__}")
     sub = ap.add_subparsers(dest="command", metavar="COMMAND")
     for cmd, (module, help_) in table.items():
@@ -173,8 +182,8 @@ def main(argv=None) -> int:
                 importlib.import_module("vpr.verify")  # its library's signal handlers replaced now, not mid-run
             _check_paths(args)
             with _memory_budget(getattr(args, "memory_budget", None)):
-                return int(importlib.import_module(table[args.command][0]).run_command(args) or 0)
-        except ValueError as e:  # bad input, including vpr.shosm.MemoryFileError
+                return int(_runner(importlib.import_module(table[args.command][0]), args)(args) or 0)
+        except ValueError as e:  # bad input, including a state or map file that cannot be used
             print(f"{command}: error: {' '.join(str(e).split())}", file=sys.stderr)
             return 2
         except BrokenPipeError:

@@ -3,10 +3,9 @@
 Renders the ``two_seasons`` scene (a street driven on a summer day and on a
 winter night, at different speeds), then runs ``vpr compare`` on it: the summer
 traverse is the database, the winter traverse the query, ground truth comes
-from the rendered positions. Prints the metrics table of rSHOSM, SeqSLAM (on
-its thumbnails and on the encoder's descriptors) and pairwise (and
-``rshosm-seq``, our sequence-evidence extension of rSHOSM, also with geometric
-verification of its best candidates), and writes everything
+from the rendered positions. Prints the metrics table of the default preset's
+methods (the headline method also with geometric verification of its best
+candidates: :data:`vpr.presets.DEMO`), and writes everything
 ``compare`` writes to ``DIR`` (the render goes to ``DIR/scene`` and is reused by
 the next run).
 """
@@ -34,11 +33,8 @@ MAX_FRAMES = 20_000
 #: Fewest frames per traverse ``--frames`` may ask for.
 MIN_FRAMES = 20
 
-# every setting of the demo, in one place (a preset can replace it). Verification is the expensive part
-# (ORB matching per candidate pair): only rshosm-seq's 3 best candidates per query are verified, with 500
-# keypoints, so that the demo stays near a minute on 2 cores (docs/benchmarks.md has the cost).
-DEFAULTS = {"scene": "two_seasons", "preset": presets.DEFAULT, "radius": 3.0, "soft_radius": 10.0,
-            "verify": 3, "verify_methods": ("rshosm-seq",), "verify_conf": {"n_features": 500}}
+#: every setting of the demo, in one place (:data:`vpr.presets.DEMO`)
+DEFAULTS = presets.DEMO
 
 
 def add_arguments(ap: argparse.ArgumentParser, command: str = "demo") -> None:

@@ -2,7 +2,7 @@
 
 ``list`` prints every registered encoder with its default conf. ``test``
 scores one on the scenes (:func:`pipelines.scenes.score_encoder`: AP and R@1 of
-``pairwise`` and ``rshosm-seq`` for every traverse pair), prints the table and
+:data:`vpr.presets.ENCODER_TEST_METHODS` for every traverse pair), prints the table and
 writes ``metrics.json`` and ``metrics.png`` to ``--out``.
 """
 from __future__ import annotations
@@ -87,7 +87,7 @@ def add_arguments(parser: argparse.ArgumentParser, command: str = "encoders") ->
     """Sub-commands ``list`` and ``test`` of ``vpr encoders``."""
     sub = parser.add_subparsers(dest="encoders_action", metavar="{list,test}", required=True)
     add_common_arguments(sub.add_parser("list", help="registered encoders and their default confs"))
-    p = sub.add_parser("test", help="score one encoder on the synthetic scenes (pairwise and rshosm-seq)",
+    p = sub.add_parser("test", help="score one encoder on the synthetic scenes (frame by frame and as sequences)",
                        description=score_encoder.__doc__.split("\n\n")[0])
     p.add_argument("--encoder", required=True, help=f"encoder name ({', '.join(encoders.available())})")
     p.add_argument("--encoder-conf", action="append", default=[], metavar="KEY=VALUE",

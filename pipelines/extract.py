@@ -147,7 +147,7 @@ def encode_chunk(source: Source, encoder, start: int, stop: int, inputs=("sdr",)
             try:
                 d = encoder.describe(images)
             except NotImplementedError as e:  # the base class's "no dense descriptor"
-                raise ValueError(f"a method needs dense descriptors (e.g. seqslam-desc), but {e}; "
+                raise ValueError(f"a method run needs dense descriptors but {e}; "
                                  "choose an encoder with one (pixel, projection, cnn, orb)") from e
             blocks["desc"].append(np.asarray(d, dtype=np.float32))
         if "sdr" in inputs and not described:

@@ -1,53 +1,42 @@
 """``vpr loops``: loop closures within one stream (or the sessions of one), in batch or online from stdin.
 
 ``vpr loops SEQ...`` runs the batch (:func:`run_loops`, any method that
-supports loop closure). ``vpr loops -`` decides image paths on stdin frame by
-frame with the loop detector a method that runs online hands out
-(:class:`vpr.types.StreamDetector`) and the preset's causal loop encoder: the
-answers of the batch on the same frames, one JSON line per frame
-(:mod:`pipelines.online`); ``--state-out`` / ``--resume`` keep the detector.
+supports loop closure); ``vpr loops -`` decides image paths on stdin frame by
+frame (:mod:`pipelines.loops_online`).
 """
 from __future__ import annotations
 
 import argparse
-import sys
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-import encoders
+from pipelines import loops_online
 from pipelines.args import (
     add_common_arguments,
     add_gt_arguments,
     add_query_speed_argument,
     add_run_arguments,
-    gt_spec_from_args,
+    loop_geometry,
     options_from_args,
     settings_from_args,
 )
-from pipelines.online import Online, run_online, summary_line
-from pipelines.outputs import claim_methods, merge_metrics, versions, warn, write_method
+from pipelines.loops_online import no_revisit, rounded, say_session_speeds
+from pipelines.outputs import claim_methods, merge_metrics, versions, write_method
 from pipelines.report import write_report
 from pipelines.runs import RunOptions, config, extract_run, prepare_run
-from pipelines.stream import StreamEncoder
 from vpr import evaluate, groundtruth, io, methods
-from vpr.groundtruth import GroundTruthSpec, any_true, build_loop_gt, build_stream_gt, check_loop_gt_files, frame_rows
+from vpr.groundtruth import any_true, build_stream_gt, frame_rows
 from vpr.methods import LOOP_EXCLUDE
 from vpr.similarity import budget_setting
 from vpr.sources import frame_reader
-from vpr.sources.base import frames_in
-from vpr.sources.stdin import FramesByPath, StdinSource
-from vpr.types import EncodedTraverse, MatchResult, StreamDetector
+from vpr.types import EncodedTraverse, MatchResult
+from vpr.verify import opinion_around
 
-__all__ = ["COMMANDS", "add_arguments", "run_command", "detect_loops", "make_detector", "resume_detector",
-           "LoopsOnline"]
+__all__ = ["COMMANDS", "add_arguments", "route", "run_command", "run_loops"]
 
 COMMANDS = {"loops": "loop closures within one traverse (the paper's setting)"}
-
-#: what follows a later session's speed where this command does not
-_LOCALIZE_SESSION = ("localise it against a map of the earlier sessions (vpr learn EARLIER --out map.npz; vpr localize "
-                     "map.npz SESSION)")
 
 
 def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
@@ -72,290 +61,40 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     add_common_arguments(ap)
 
 
+def route(args):
+    """``vpr loops -`` runs online (:func:`pipelines.loops_online.run_command`), any other ``SEQ`` in batch."""
+    return loops_online.run_command if "-" in args.seq else run_command
+
+
 def run_command(args) -> int:
-    settings = settings_from_args(args)
-    if "-" in args.seq:
-        if len(args.seq) > 1:
-            raise ValueError("vpr loops: - (paths on stdin) stands alone; mark its sessions with a line #session")
-        return _run_online(args, settings)
+    """``vpr loops SEQ...``: the batch."""
     if args.state_out or args.resume:
         raise ValueError("--state-out and --resume are for online loop closure: SEQ - (image paths on stdin)")
     from vpr.report import metrics_table
 
-    method = settings["methods"][0]
-    opts = options_from_args(args)
-    opts.geometry = _geometry(method, args.geometry)
-    report = run_loops(args.seq[0] if len(args.seq) == 1 else args.seq, method, opts,
-                       exclude=LOOP_EXCLUDE if args.exclude is None else args.exclude)
+    settings = settings_from_args(args)
+    own = {"geometry": loop_geometry(settings["methods"][0], args.geometry)}
+    if args.exclude is not None:
+        own["exclude"] = args.exclude
+    opts = options_from_args(args, settings, **own)
+    report = run_loops(args.seq[0] if len(args.seq) == 1 else args.seq, opts)
     print(metrics_table(report["methods"], "loops"))
-    print(f"wrote {args.out}/report.html (open it: the table, the plots and the frames side by side), metrics.json")
+    print(f"wrote {opts.out}/report.html (open it: the table, the plots and the frames side by side), metrics.json")
     return 0
 
 
-def _run_online(args, settings: dict) -> int:
-    """``vpr loops -``: refuse what does not apply to a stream on stdin, then decide it frame by frame."""
-    given = [f for f, v in (("--fps", args.fps), ("--step", args.step), ("--max-frames", args.max_frames),
-                            ("--cache", args.cache), ("--topic", args.topic), ("--every", args.every),
-                            ("--gt-topic", args.gt_topic),
-                            ("--memory-budget", args.memory_budget), ("--query-speed", args.query_speed))
-             if v is not None]
-    if given:
-        raise ValueError(f"vpr loops -: {', '.join(given)} apply to a folder or video, not to image paths on stdin")
-    exclude = frames_in(LOOP_EXCLUDE if args.exclude is None else args.exclude, None, "image paths on stdin have none")
-    if args.resume is not None:
-        given = [f for f, v in (("--preset", args.preset), ("--method", args.method), ("--encoder", args.encoder),
-                                ("--encoder-conf", args.encoder_conf), ("--method-conf", args.method_conf),
-                                ("--exclude", args.exclude), ("--geometry", args.geometry)) if v]
-        if given:
-            raise ValueError(f"--resume {args.resume}: the encoder, the conf, --exclude and --geometry are the saved "
-                             f"detector's; {', '.join(given)} cannot change them")
-        det = resume_detector(args.resume)
-    else:
-        det = make_detector(settings, exclude, geometry=_geometry(settings["methods"][0], args.geometry))
-    report = detect_loops(det, args.out, gt=gt_spec_from_args(args), state_out=args.state_out)
-    print(summary_line(report, args.out, "loop closures accepted"), file=sys.stderr)
-    return 0
-
-
-def _geometry(method: str, given: str | None) -> bool:
-    """Whether ``method``'s closures get the geometric second opinion: ``--geometry`` (``on`` refused for a method that
-    does not decide frame by frame), by default where it does."""
-    decides = methods.get_class(method).decides_frames
-    if given == "on" and not decides:
-        raise ValueError(f"--geometry on: a second opinion on the closures of a method that decides them frame by "
-                         f"frame, not on {method}'s")
-    return decides and given != "off"
-
-
-def geometry_opinion(image, opinions: dict | None = None, key: str = ""):
-    """``opinion(rule)``: the geometric second opinion around a loop rule (:class:`vpr.verify.GeometricOpinion`) over
-    ``image(j)``, frame ``j`` at its source's resolution; the opinion made is kept in ``opinions[key]`` (given)."""
-    from vpr.verify import GeometricOpinion  # pycolmap: loaded only when verifying
-
-    def opinion(rule):
-        loop = rule.loop  # the loop rule's own settings say what a consistent path is
-        made = GeometricOpinion(rule, image, loop.back, loop.ahead, loop.stop_ratio)
-        if opinions is not None:
-            opinions[key] = made
-        return made
-    return opinion
-
-
-def make_detector(settings: dict, exclude: int = LOOP_EXCLUDE, geometry: bool = True) -> StreamDetector:
-    """The detector of ``vpr loops -`` for the run's ``settings`` (:func:`pipelines.args.settings_from_args`):
-    the preset's loop encoder and the loop detector its method (one that runs online) hands out with its conf;
-    ``geometry``: with the geometric second opinion (its frames read again from their paths)."""
-    method = settings["methods"][0]
-    runner = methods.get_online(method, **settings["method_conf"].get(method, {}))
-    unused = sorted(set(settings["method_conf"]) - {method})
-    if unused:
-        raise ValueError(f"vpr loops -: online loop closure is {method}'s; --method-conf for {', '.join(unused)} does "
-                         "not apply")
-    enc = encoders.get(settings["encoder"], **settings["encoder_conf"])
-    enc.check_memory(1)  # frames come one at a time
-    frames = FramesByPath()  # the detector's frame names, once it is made
-    det = runner.loop_detector(StreamEncoder(enc), exclude=exclude,
-                               opinion=geometry_opinion(frames) if geometry else None)
-    frames.names = det.names
-    det.meta.update({"encoder": enc.name, "encoder_conf": enc.conf, "preset": settings["preset"]})
-    return det
-
-
-def resume_detector(path) -> StreamDetector:
-    """A detector saved by ``vpr loops - --state-out``, with the encoder and the opinion it was saved with."""
-    meta = methods.saved_loop_meta(path)
-    enc = meta.get("encoder")
-    if not enc:
-        raise ValueError(f"{path}: a loop detector saved without its encoder (not by `vpr loops -`)")
-    frames = FramesByPath()  # the detector's frame names, once it is made
-    det = methods.resume_loop_detector(path, StreamEncoder(encoders.get(enc, **meta["encoder_conf"])),
-                                       opinion=geometry_opinion(frames) if meta["opinion"] else None)
-    frames.names = det.names
-    return det
-
-
-class LoopsOnline(Online):
-    """``vpr loops -``: each frame learned and decided by a method's loop detector (a
-    :class:`vpr.types.StreamDetector`)."""
-
-    command = "loops"
-
-    def __init__(self, det: StreamDetector, gt: GroundTruthSpec, goes_on: bool = False):
-        self.det, self.gt = det, gt
-        self.method = det.meta["method"]
-        self.resumed = det.frames > 0
-        self.goes_on = goes_on  # the input's end is a pause (--state-out): closures wait in the state
-        self.top_k = det.top_k
-        self._reader = evaluate.SpeedReader()  # the current later session's speed onto the earlier ones
-        self._said: set[int] = set()  # the later sessions whose speed was said (numbered from 1, the first)
-        self._run = evaluate.SpeedReader()  # one run's paths of best earlier frames: a revisit driven faster
-
-    def warm_up(self) -> None:
-        self.det.warm_up()
-        self.det.encoder.warm_up()
-
-    def encode(self, image):
-        return self.det.encoder.push(image)
-
-    def answer(self, encoded, name: str):
-        d = self.det.update_encoded(encoded, name)
-        return self._watch(sorted([*self.det.take_late(), *([d] if d is not None else [])], key=lambda d: d.frame))
-
-    def _watch(self, ds: list) -> list:
-        """Say, from the frame it is read, a later session driven at another speed than the earlier ones (its paths
-        of best earlier frames, as :func:`vpr.evaluate.session_speeds` reads them); returns ``ds``."""
-        starts = self.det.starts
-        a, n = starts[-1], len(starts)
-        if not a:
-            return self._watch_run(ds)
-        if n in self._said:
-            return ds
-        for d in (d for d in ds if d.frame >= a):
-            self._reader.step(d.best, d.best < a)
-            v = self._reader.speed
-            if groundtruth.speed_step(v):
-                self._said.add(n)
-                print(f"vpr loops: from frame {d.frame} on, session {n}'s best frames in the earlier sessions move "
-                      f"{v:.2g} of theirs a frame: driven {'faster' if v > 1 else 'slower'} than they were at the "
-                      f"same frame rate; its closures onto them are not followed online: {_LOCALIZE_SESSION}, or "
-                      "vpr loops S1 S2, follows it (docs/loops.md)",
-                      file=sys.stderr, flush=True)
-                break
-        return ds
-
-    def _watch_run(self, ds: list) -> list:
-        """Say, once, a revisit within one run driven faster than the first pass: a run of best earlier frames that
-        moves :data:`~vpr.groundtruth.RATE_RATIO` or more of them a frame (what the batch matches again:
-        :func:`vpr.methods.loops_in_run_at_speed`); returns ``ds``."""
-        for d in ds:
-            if 0 in self._said:
-                break
-            self._run.step(d.best)
-            v = self._run.run_speed
-            if groundtruth.speed_step(v) > 0:
-                self._said.add(0)
-                print(f"vpr loops: from frame {d.frame} on, the best earlier frames move {v:.2g} of them a frame: a "
-                      "revisit driven faster than the first pass at the same frame rate, not matched again online; "
-                      "vpr loops of the folder or video matches it again (docs/loops.md)", file=sys.stderr,
-                      flush=True)
-        return ds
-
-    def name_of(self, frame: int) -> str | None:
-        return self.det.names[frame]
-
-    def n_candidates(self) -> int:
-        return self.det.frames  # a resumed detector's frames from before this run are candidates too
-
-    def waiting_in_state(self) -> int:
-        return self.det.waiting + (self.det.encoder.waiting if self.det.encoder is not None else 0)
-
-    def finish(self):
-        self.det.flush(closures=not self.goes_on)
-        return self._watch(self.det.take_late())
-
-    def new_session(self):
-        self.det.new_session()
-        self._reader = evaluate.SpeedReader()
-        return self._watch(self.det.take_late())
-
-    def evaluate(self, result, names, indices, frames) -> dict:
-        """Metrics over the frames answered in this run, against every frame of the stream before them (those
-        from before a resume too: the state's names)."""
-        starts = self.det.starts
-        labels = [str(k + 1) for k in range(len(starts))]  # as the batch run's table, the sessions by their number
-        N = self.det.frames
-        speeds = {}
-        if len(starts) > 1:  # said, not followed: an online detector answers each frame as it comes (docs/loops.md)
-            best = np.full(N, -1, np.int64)
-            best[frames] = result.best
-            speeds = {"session_speeds": _rounded(evaluate.session_speeds(best, starts))}
-            say_session_speeds(self.method, speeds["session_speeds"], read=self._said)
-        if not self.gt.files:
-            m = {"sessions": evaluate.session_pairs(result.best, result.accepted, None, starts, names=labels,
-                                                    frames=frames), **speeds} if len(starts) > 1 else {}
-            m.update(self._geometry())
-            return m, None
-        hard, soft = build_loop_gt(self.gt, self.det.names, list(range(N)), total=N)
-        exclude = self.det.conf["exclude"]
-        if not any_true(groundtruth.loop_pairs(hard, exclude, starts)[:, frames]):
-            no_revisit(self.gt, exclude)
-        hard, soft = (None if g is None else g[:, frames] for g in (hard, soft))
-        mask = groundtruth.loop_closure_mask(N, exclude=exclude, starts=starts)[:, frames]
-        m, curve = evaluate.method_metrics(result, hard, soft, mask=mask, loops=True)
-        self.ground_truth = (hard, soft, mask)
-        if len(starts) > 1:
-            m["sessions"] = evaluate.session_pairs(result.best, result.accepted, hard, starts, soft, mask, labels,
-                                                   frames=frames)
-        m.update(speeds)
-        m.update(self._geometry())
-        m.pop("seconds", None)
-        m.pop("n_accepted", None)
-        return m, curve
-
-    def _geometry(self) -> dict:
-        """metrics.json's ``geometry``: the second opinion's report (frames verified, blind, accepted), if any."""
-        report = self.det.opinion_report()
-        return {"geometry": report} if report is not None else {}
-
-    def save(self, path) -> None:
-        self.det.save(path)
-
-    def params(self) -> dict:
-        det = self.det
-        return {"seq": "-", "method": self.method, "exclude": det.conf["exclude"],
-                "encoder": det.meta.get("encoder"), "encoder_conf": det.meta.get("encoder_conf"),
-                "method_conf": {self.method: det.conf}, "ground_truth": self.gt.describe()}
-
-
-def detect_loops(det: StreamDetector, out, stdin=None, stdout=None, gt: GroundTruthSpec | None = None,
-                 state_out=None) -> dict:
-    """Decide every frame named on ``stdin`` with ``det``; write ``out``'s files; return metrics.json's content.
-
-    On a stop (Ctrl-C, SIGTERM) the frames decided so far are written and the
-    detector saved, then the stop goes on (:func:`pipelines.online.run_online`).
-    """
-    gt = gt or GroundTruthSpec()
-    check_loop_gt_files(gt)  # bad files are refused before any frame is read
-    if state_out is not None:
-        io.check_writable(state_out, "--state-out")
-    job = LoopsOnline(det, gt, goes_on=state_out is not None)
-    job.warm_up()
-    return run_online(job, StdinSource(stdin if stdin is not None else sys.stdin), out, stdout, state_out)
-
-
-def no_revisit(gt: GroundTruthSpec, exclude: int) -> None:
-    """Say that the ground truth holds no loop to close: a drive without revisits, whose closures are all false."""
-    warn(f"{gt.no_match_error(exclude=exclude)}: every closure accepted is false (metrics.json: n_false, "
-         "false_per_1000 frames)")
-
-
-def _rounded(speeds) -> list:
-    """metrics.json's ``session_speeds``: each later session's speed to 3 decimals (None: not read)."""
-    return [None if v is None else round(v, 3) for v in speeds]
-
-
-def say_session_speeds(method: str, speeds, names=None, read=()) -> None:
-    """Warn for each later session (``speeds``: metrics.json's ``session_speeds``; ``names``: every session's source)
-    driven at another speed than the earlier ones, but those ``read`` and followed where they needed it
-    (:func:`vpr.methods.loops_at_speed`; numbered from 1, the first session)."""
-    src = lambda s: f" ({names[s + 1]})" if names else ""  # noqa: E731
-    groundtruth.check_speeds({f"{method}: session {s + 2}{src(s)} against the earlier ones": v
-                              for s, v in enumerate(speeds or []) if s + 2 not in read},
-                             paths="paths of best earlier frames",
-                             fix=f"{_LOCALIZE_SESSION}, which follows its speed")
-
-
-def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCLUDE) -> dict:
-    """Loop closures within the traverse ``seq`` with ``method``; writes the same outputs as ``match``.
+def run_loops(seq, opts: RunOptions) -> dict:
+    """Loop closures within the traverse ``seq`` with the first of ``opts.methods``; writes the same outputs as
+    ``match``.
 
     ``seq``: one source, or the sessions of one stream (a robot's runs, in
     order): learned one after the other, closures onto every earlier session
     count, nothing of a session's last moment carries into the next, and
-    ``metrics.json`` reports each session pair. ``exclude``: frames, or
+    ``metrics.json`` reports each session pair. ``opts.exclude``: frames, or
     ``"Ns"`` seconds where the frames have times (:meth:`vpr.sources.Source.frames_in`).
     Ground truth: :func:`vpr.groundtruth.build_stream_gt`.
     """
-    out = Path(opts.out)
+    out, method, exclude = Path(opts.out), opts.methods[0], opts.exclude
     seqs = [seq] if isinstance(seq, (str, Path)) else list(seq)
     roles = ["sequence"] if len(seqs) == 1 else [f"session {k + 1}" for k in range(len(seqs))]
     runners, encoder, srcs, positions, _ = prepare_run(out, seqs, roles, replace(opts, methods=(method,)))
@@ -394,14 +133,14 @@ def run_loops(seq, method: str, opts: RunOptions, exclude: int | str = LOOP_EXCL
             if len(srcs) > 1:  # the closures per pair of sessions (with ground truth: their precision and recall)
                 evaluated[0]["sessions"] = evaluate.session_pairs(res.best, res.accepted, gt_hard, starts,
                                                                   gt_soft, mask, [s.name for s in srcs])
-                evaluated[0]["session_speeds"] = _rounded(speeds[m])
+                evaluated[0]["session_speeds"] = rounded(speeds[m])
             write_method(out / m, m, res, evaluated, features.names, features.names, gt_hard, gt_soft,
                          title=f"{m}: loop closures", loops=True, mask=mask)
             io.save_json(out / m / "config.json", config(opts, command="loops", seq=[str(q) for q in seqs],
                                                           method=m, exclude=exclude))
 
         def loops_of(r):
-            opinion = geometry_opinion(frame_reader(srcs, read), opinions, r.name) if opts.geometry else None
+            opinion = opinion_around(frame_reader(srcs, read), opinions, r.name) if opts.geometry else None
             res = r.loops(features, exclude=exclude, progress=opts.progress, sessions=starts, opinion=opinion)
             speeds[r.name] = evaluate.session_speeds(res.best, starts)  # as the sessions came, before any is followed
             if not opts.follow_speed:

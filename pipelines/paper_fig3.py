@@ -1,12 +1,12 @@
 """Reproduce Fig. 3 of Neubert, Ahmad & Protzel (KI 2018) on the simulated grid world.
 
 Left panel: SHOSM vs rSHOSM (p_extra = 0.01 and 0.05), no noise, no aliasing.
-Right panel: pairwise comparison of the input SDRs vs rSHOSM (p_extra = 0.05) for
+Right panel: single-frame comparison of the input SDRs vs rSHOSM (p_extra = 0.05) for
 (a=0, n=0.5), (a=5, n=0) and (a=5, n=0.5): ``a`` pairs of places share one SDR,
 ``n`` is the fraction of 1-bits moved per observation.
 
 Trajectory: 10 laps of a 20-place loop (200 observations). Similarity: overlap of
-winner codes (rSHOSM) or of input SDRs (pairwise), T x T; every pair i < j is a
+winner codes (rSHOSM) or of input SDRs (single frames), T x T; every pair i < j is a
 decision, ground truth = same place. Metrics are averaged over seeds.
 
 Run: ``vpr paper-fig3 --out results/fig3`` or ``python -m pipelines.paper_fig3 --out DIR``.
@@ -21,38 +21,29 @@ from pathlib import Path
 import numpy as np
 
 from pipelines.args import add_common_arguments
-from vpr import evaluate, groundtruth, io, plots, simulate
-from vpr.frame_pairs import pairwise
-from vpr.shosm import SequenceMemory
-from vpr.similarity import overlap_similarity
+from vpr import evaluate, groundtruth, io, methods, plots, presets, simulate
+from vpr.types import EncodedTraverse
 
 __all__ = ["CURVES_LEFT", "CURVES_RIGHT", "run_curve", "run", "main"]
 
 COMMANDS = {"paper-fig3": "reproduce Fig. 3 of the paper on the simulated grid world"}
 
-#: name -> (method, p_extra, aliasing a, noise n)
-CURVES_LEFT = {
-    "SHOSM": ("rshosm", 0.0, 0, 0.0),
-    "rSHOSM p=0.01": ("rshosm", 0.01, 0, 0.0),
-    "rSHOSM p=0.05": ("rshosm", 0.05, 0, 0.0),
-}
-CURVES_RIGHT = {
-    f"{m} a={a} n={n}": (method, p, a, n)
-    for a, n in ((0, 0.5), (5, 0.0), (5, 0.5))
-    for m, method, p in (("pairwise", "pairwise", 0.0), ("rSHOSM p=0.05", "rshosm", 0.05))
-}
+#: name -> (method, p_extra, aliasing a, noise n): :data:`vpr.presets.PAPER_FIG3`
+CURVES_LEFT, CURVES_RIGHT = presets.PAPER_FIG3["left"], presets.PAPER_FIG3["right"]
+
+
+def _conf(method: str, p_extra: float, seed: int) -> dict:
+    """The method's conf for a curve: a memory's ``p_extra`` and ``seed`` where it has them."""
+    known = methods.get_class(method).default_conf
+    return {k: v for k, v in (("p_extra", p_extra), ("seed", seed)) if k in known}
+
 
 def run_curve(method: str, p_extra: float, aliasing: int, noise: float, seed: int, n_loops: int = 10) -> dict:
-    """One curve for one seed: similarity of all pairs, metrics and the PR curve."""
+    """One curve for one seed: the method's loop similarity of all pairs i < j, metrics and the PR curve."""
     obs, places = simulate.simulate_loops(aliasing=aliasing, noise=noise, n_loops=n_loops, seed=seed)
+    seq = EncodedTraverse([str(i) for i in range(obs.shape[0])], sdr=obs)
     t = time.perf_counter()
-    if method == "rshosm":
-        codes = SequenceMemory(p_extra=p_extra, seed=seed).run(obs)
-        S = overlap_similarity(codes)
-    elif method == "pairwise":
-        S = pairwise(obs)
-    else:
-        raise ValueError(f"unknown method {method!r}")
+    S = methods.get(method, **_conf(method, p_extra, seed)).loops(seq, exclude=1).similarity
     seconds = time.perf_counter() - t
     gt = groundtruth.gt_from_labels(places, places)
     mask = groundtruth.loop_closure_mask(len(places), exclude=1)
@@ -72,7 +63,8 @@ def run(out_dir, seeds: int = 5, n_loops: int = 10, progress: bool = True) -> di
 
     panels = {"left": CURVES_LEFT, "right": CURVES_RIGHT}
     metrics = {"curves": {}, "params": {"seeds": seeds, "n_loops": n_loops, "places_per_loop": 20,
-                                         "n_bits": 2048, "n_active": 40, "memory": SequenceMemory().get_params()}}
+                                         "n_bits": 2048, "n_active": 40,
+                                         "memory": _memory_conf()}}
     jobs = [(panel, name, spec, s) for panel, curves in panels.items() for name, spec in curves.items()
             for s in range(seeds)]
     results: dict = {}
@@ -96,7 +88,7 @@ def run(out_dir, seeds: int = 5, n_loops: int = 10, progress: bool = True) -> di
             # the curves drawn are seed 0's; metrics.json has the means over all seeds
             plot_curves[name] = (rs[0]["precision"], rs[0]["recall"])
         title = ("SHOSM vs rSHOSM (no noise, no aliasing)" if panel == "left"
-                 else "pairwise vs rSHOSM (a = aliased pairs, n = noise)")
+                 else "single frames vs rSHOSM (a = aliased pairs, n = noise)")
         plots.plot_pr(plot_curves, out / f"fig3_{panel}.png", title=f"{title}; seed 0",
                       ap={name: results[(panel, name)][0]["ap"] for name in curves})
     io.save_json(out / "metrics.json", metrics)
@@ -110,6 +102,13 @@ def run(out_dir, seeds: int = 5, n_loops: int = 10, progress: bool = True) -> di
                 [f"means over {seeds} seeds, {n_loops} laps of a 20-place loop; the settings: "
                  + json.dumps(metrics["params"], sort_keys=True)])
     return metrics
+
+
+def _memory_conf() -> dict:
+    """The default conf of the memory the curves learn (the method of theirs with a ``p_extra``)."""
+    name = next(m for c in (CURVES_LEFT, CURVES_RIGHT) for m, *_ in c.values()
+                if "p_extra" in methods.get_class(m).default_conf)
+    return {k: v for k, v in methods.get(name).conf.items() if k != "top_k"}
 
 
 def format_table(metrics: dict) -> str:

@@ -35,6 +35,7 @@ from vpr.groundtruth import (
     sampling_step,
 )
 from vpr.interrupts import deferred
+from vpr.methods import LOOP_EXCLUDE
 from vpr.report import TABLE, table_cells, write_table
 from vpr.similarity import budget_setting, dense_budget
 from vpr.sources import open_sources
@@ -74,8 +75,11 @@ class RunOptions:
     #: serial (one query) or a local cluster of every core (a fleet)
     workers: int | None = None
     scheduler: str | None = None
-    #: loops: a geometric second opinion on rshosm-seq's closures (:class:`vpr.verify.GeometricOpinion`)
+    #: loops: a geometric second opinion on the closures of a method deciding frame by frame
+    #: (:class:`vpr.verify.GeometricOpinion`)
     geometry: bool = False
+    #: loops: candidates at least this many frames back, or ``"Ns"`` seconds where the frames have times
+    exclude: int | str = LOOP_EXCLUDE
     #: methods whose candidates are verified (None: all)
     verify_methods: tuple | None = None
     #: a query driven at another speed than the database matched again at the sampling that makes them agree

@@ -1,14 +1,14 @@
-"""How an image encoder fares on the rendered scenes: every traverse pair scored pairwise and with rSHOSM-seq.
+"""How an image encoder fares on the rendered scenes: every traverse pair scored frame by frame and as sequences.
 
 :func:`score_encoder` renders the builtin scenes of :mod:`vpr.render` (or the
 ones given), encodes every traverse with one encoder (fitted on each traverse
 first when its conf says ``standardise=fit``, which removes the appearance a
 whole traverse shares) and scores every ordered pair of a scene's traverses
-with ``pairwise`` (SDR overlap of single frames) and ``rshosm-seq`` (the
-memory learned on the database traverse): average precision and recall@1
+with :data:`vpr.presets.ENCODER_TEST_METHODS` (SDR overlap of single frames,
+and a sequence memory learned on the database traverse): average precision and recall@1
 against :func:`vpr.render.gt_matrix` within ``radius`` (pairs within twice
 that are ignored). A scene of one traverse is scored as loop closure against
-its own past (pairwise only).
+its own past (the single-frame method only).
 """
 from __future__ import annotations
 
@@ -20,13 +20,13 @@ import numpy as np
 import scipy.sparse as sp
 
 from encoders import available, get, get_class
-from vpr import evaluate, methods, render
+from vpr import evaluate, methods, presets, render
 from vpr.evaluate import recall_at_k
 from vpr.types import EncodedTraverse
 
 __all__ = ["EncoderTest", "METHODS", "score_encoder", "list_encoders", "average_precision"]
 
-METHODS = ("pairwise", "rshosm-seq")
+METHODS = presets.ENCODER_TEST_METHODS
 
 
 @dataclass
@@ -124,7 +124,7 @@ def score_encoder(cfg: EncoderTest, log=print) -> dict:
             row = {"scene": scene_name, "db": scene.traverses[a].name, "query": scene.traverses[b].name,
                    "n_db": sdrs[a].shape[0], "n_query": sdrs[b].shape[0]}
             for method in METHODS:
-                if method == "rshosm-seq" and a == b:
+                if methods.get_class(method).follows_sequences and a == b:
                     row[method] = None  # a sequence memory matches two traverses, not one against itself
                     continue
                 t = time.perf_counter()

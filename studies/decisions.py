@@ -78,8 +78,11 @@ def speed_cell(m: dict, said: list[str]) -> str:
     again = []
     if s.get("db_step") or s.get("query_step"):
         again.append(f"one {'map' if s.get('db_step') else 'query'} frame in {s.get('db_step') or s.get('query_step')}")
-    again += [f"session {f['session']} at {f['speed']:.2f}" for f in s.get("sessions", [])]
-    again += [f"frames {r.get('first')}-{r.get('last')} at {r.get('speed', 0):.2f}" for r in s.get("runs", [])]
+    again += [f"session {f['session']} at {f['speed']:.2f}, one {'earlier' if f.get('db_step') else 'later'} frame in "
+              f"{f.get('db_step') or f.get('query_step')}" for f in s.get("sessions", [])
+              if f.get("db_step") or f.get("query_step")]
+    again += [f"frames {r['frames'][0]}-{r['frames'][1]} at {r['speed']:.2f} ({r['closures']} closures)"
+              for r in s.get("runs", [])]
     if again:
         return "matched again: " + "; ".join(again)
     return f"said ({len(said)})" if said else "-"

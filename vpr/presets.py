@@ -3,10 +3,38 @@ from __future__ import annotations
 
 import copy
 
-__all__ = ["PRESETS", "DEFAULT", "CONF_EXAMPLES", "available", "get", "resolve", "describe"]
+__all__ = ["PRESETS", "DEFAULT", "CONF_EXAMPLES", "PAPER_FIG3", "NORDLAND_METHODS", "DEMO", "ENCODER_TEST_METHODS",
+           "available", "get", "resolve", "describe"]
 
 #: ``--method-conf`` settings the command line's help shows as examples
 CONF_EXAMPLES = ("seqslam.ds=20", "rshosm.p_extra=0.01")
+
+#: The curves of the paper's Fig. 3 (``vpr paper-fig3``), per panel: name -> (method, its ``p_extra``, aliasing ``a``,
+#: noise ``n``). Left: SHOSM against rSHOSM; right: pairwise comparison of the input SDRs against rSHOSM.
+PAPER_FIG3 = {
+    "left": {"SHOSM": ("rshosm", 0.0, 0, 0.0), "rSHOSM p=0.01": ("rshosm", 0.01, 0, 0.0),
+             "rSHOSM p=0.05": ("rshosm", 0.05, 0, 0.0)},
+    "right": {f"{m} a={a} n={n}": (method, p, a, n) for a, n in ((0, 0.5), (5, 0.0), (5, 0.5))
+              for m, method, p in (("pairwise", "pairwise", 0.0), ("rSHOSM p=0.05", "rshosm", 0.05))},
+}
+
+#: The entries of ``vpr nordland``'s table: label -> (method, conf). Defaults everywhere except where stated.
+NORDLAND_METHODS = {
+    "pairwise (pixel, SAD)": ("pairwise", {"on": "descriptor", "metric": "sad"}),
+    "pairwise (SDR overlap)": ("pairwise", {"on": "sdr", "metric": "overlap"}),
+    "SeqSLAM (pixel)": ("seqslam", {}),
+    "rSHOSM (paper)": ("rshosm", {}),
+    "rSHOSM-seq": ("rshosm-seq", {}),
+}
+
+#: Every setting of ``vpr demo``. Verification is the expensive part (ORB matching per candidate pair): only the
+#: headline method's 3 best candidates per query are verified, with 500 keypoints, so that the demo stays near a
+#: minute on 2 cores (docs/benchmarks.md has the cost).
+DEMO = {"scene": "two_seasons", "preset": "default", "radius": 3.0, "soft_radius": 10.0,
+        "verify": 3, "verify_methods": ("rshosm-seq",), "verify_conf": {"n_features": 500}}
+
+#: The methods ``vpr encoders test`` scores an encoder with: single frames and a sequence method.
+ENCODER_TEST_METHODS = ("pairwise", "rshosm-seq")
 
 #: the preset of a run without ``--preset``
 DEFAULT = "default"

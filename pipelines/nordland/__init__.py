@@ -2,9 +2,9 @@
 
 Summer is the database, winter the query; a query frame i matches database
 frame j when |i - j| <= 1 (hard), pairs with 1 < |i - j| <= 3 are ignored
-(soft). Methods: pairwise (pixel SAD; SDR overlap), SeqSLAM (pixel, OpenSeqSLAM
-defaults), rSHOSM as in the paper and ``rshosm-seq`` (our sequence-evidence
-extension), all on the same frames. Writes ``metrics.json``, ``pr.png`` and
+(soft). Methods: :data:`vpr.presets.NORDLAND_METHODS` (single frames, the
+classic sequence baseline, the paper's memory and our extension), all on the
+same frames. Writes ``metrics.json``, ``pr.png`` and
 ``table.md`` to ``--out`` and prints the table. The dataset is ``--data``,
 else ``$VPR_DATASETS/nordland_trimmed``, else (source checkout only)
 ``../shared/datasets/nordland_trimmed`` next to the repository. The variant

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 import encoders
-from vpr import evaluate, groundtruth, methods
+from vpr import evaluate, groundtruth, methods, presets
 from vpr import io as _io
 from vpr.types import EncodedTraverse
 
@@ -20,14 +20,8 @@ from .data import SUBSETS, find_dataset, frame_names, pixel_descriptors
 
 __all__ = ["METHOD_SPECS", "encode_sdrs", "run_methods", "run_benchmark", "markdown_table"]
 
-#: Benchmark entry -> (vpr.methods name, conf). Defaults everywhere except where stated.
-METHOD_SPECS = {
-    "pairwise (pixel, SAD)": ("pairwise", {"on": "descriptor", "metric": "sad"}),
-    "pairwise (SDR overlap)": ("pairwise", {"on": "sdr", "metric": "overlap"}),
-    "SeqSLAM (pixel)": ("seqslam", {}),
-    "rSHOSM (paper)": ("rshosm", {}),
-    "rSHOSM-seq": ("rshosm-seq", {}),
-}
+#: Benchmark entry -> (vpr.methods name, conf): :data:`vpr.presets.NORDLAND_METHODS`
+METHOD_SPECS = presets.NORDLAND_METHODS
 
 
 def encode_sdrs(db_desc, q_desc, n_bits: int = 2048, k: int = 40, standardise: str = "fit", seed: int = 0):
@@ -100,7 +94,7 @@ def run_benchmark(subset: str, out, data=None, k: int = 40, threshold: float | N
     specs = {label: (m, dict(c)) for label, (m, c) in METHOD_SPECS.items()}
     if threshold is not None:
         for m, c in specs.values():
-            if m.startswith("rshosm"):
+            if "threshold" in methods.get_class(m).default_conf:
                 c["threshold"] = float(threshold)
     metrics, curves = run_methods(db_desc, q_desc, db_sdr, q_sdr, specs, progress)
     out.mkdir(parents=True, exist_ok=True)

@@ -14,8 +14,8 @@ from .base import Fitted, Method
 from .speed import loops_at_speed, loops_in_run_at_speed, match_at_speed
 
 __all__ = ["online", "get_online", "load_map", "saved_loop_meta", "resume_loop_detector", "LOOP_EXCLUDE", "Map",
-           "MemoryFileError", "get", "build", "available", "get_class", "match", "loops", "image_inputs", "Method",
-           "Fitted", "match_at_speed", "loops_at_speed", "loops_in_run_at_speed"]
+           "MemoryFileError", "register", "unregister", "get", "build", "available", "get_class", "match", "loops",
+           "image_inputs", "Method", "Fitted", "match_at_speed", "loops_at_speed", "loops_in_run_at_speed"]
 
 # name -> (module, class); imported on first use, so that e.g. the SeqSLAM kernels load only for seqslam
 _REGISTRY = {
@@ -25,6 +25,24 @@ _REGISTRY = {
     "seqslam-desc": ("vpr.methods.seqslam", "SeqSlamDesc"),
     "pairwise": ("vpr.methods.pairwise", "Pairwise"),
 }
+
+
+def register(name: str, module: str, cls: str) -> None:
+    """Register the method class ``cls`` of ``module`` as ``name`` (imported on first use), after the others.
+
+    Raises
+    ------
+    ValueError
+        ``name`` is taken.
+    """
+    if name in _REGISTRY:
+        raise ValueError(f"method {name!r} is registered already ({'.'.join(_REGISTRY[name])})")
+    _REGISTRY[name] = (module, cls)
+
+
+def unregister(name: str) -> None:
+    """Remove the method ``name`` from the registry (KeyError: not registered)."""
+    del _REGISTRY[name]
 
 
 def available() -> list[str]:

@@ -12,7 +12,7 @@ from vpr.types import Column, Decider, Decision
 
 from .verifier import Verifier
 
-__all__ = ["OpinionConf", "GeometricOpinion", "second_opinion"]
+__all__ = ["opinion_around", "OpinionConf", "GeometricOpinion", "second_opinion"]
 
 
 @dataclass(frozen=True)
@@ -306,3 +306,16 @@ def second_opinion(decision: Decision, image, sdr, back: int, ahead: int, stop_r
             op.new_session()
         out.append(op.decide(Column(empty, none, 0.0, 0, j)))
     return Decision.stack(out), op.report()
+
+
+def opinion_around(image, opinions: dict | None = None, key: str = ""):
+    """``opinion(rule)``: the geometric second opinion around a loop rule (:class:`GeometricOpinion`) over
+    ``image(j)``, frame ``j`` at its source's resolution, with the rule's own bounds of a consistent path; the opinion
+    made is kept in ``opinions[key]`` (given)."""
+    def opinion(rule):
+        loop = rule.loop
+        made = GeometricOpinion(rule, image, loop.back, loop.ahead, loop.stop_ratio)
+        if opinions is not None:
+            opinions[key] = made
+        return made
+    return opinion
