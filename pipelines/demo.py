@@ -75,17 +75,17 @@ def render_once(scene, out: Path, size=None, n_frames=None, progress=True) -> di
     return json.loads(json.dumps(result, default=str))
 
 
-def run_demo(out, scene=DEFAULTS["scene"], preset=DEFAULTS["preset"], encoder=None, encoder_conf=None,
-             methods=None, method_conf=None, radius=DEFAULTS["radius"],
-             soft_radius=DEFAULTS["soft_radius"], verify=DEFAULTS["verify"], size=None, n_frames=None,
-             progress=True) -> dict:
-    """Render ``scene`` (once) and compare ``methods`` on its first two traverses; print the table.
+def run_demo(out, scene=DEFAULTS["scene"], radius=DEFAULTS["radius"], soft_radius=DEFAULTS["soft_radius"],
+             verify=DEFAULTS["verify"], size=None, n_frames=None, progress=True, **settings) -> dict:
+    """Render ``scene`` (once) and compare the methods on its first two traverses; print the table.
 
-    ``encoder_conf`` (dict, default ``DEFAULTS["encoder_conf"]``) and
-    ``method_conf`` (method -> dict) values may be strings; ``methods`` is a
-    comma-separated string or a list. Returns :func:`pipelines.runs.run_compare`'s report.
+    ``settings``: ``preset`` (default ``DEFAULTS["preset"]``), ``encoder``, ``encoder_conf``, ``methods`` (a
+    comma-separated string or a list) and ``method_conf`` (method -> dict), as :func:`vpr.presets.resolve` takes them;
+    conf values may be strings. Returns :func:`pipelines.runs.run_compare`'s report.
     """
     out = Path(out)
+    methods = settings.pop("methods", None)
+    preset = settings.pop("preset", DEFAULTS["preset"])
     if isinstance(methods, str):
         methods = [m.strip() for m in methods.split(",") if m.strip()]
     # checked before rendering: a refused demo writes nothing
@@ -96,7 +96,7 @@ def run_demo(out, scene=DEFAULTS["scene"], preset=DEFAULTS["preset"], encoder=No
         raise ValueError(f"--frames {n_frames}: the demo renders at most {MAX_FRAMES} frames per traverse (its "
                          "methods keep dense matrices); a longer drive: vpr render, then vpr compare")
     GroundTruthSpec(radius=radius, soft=soft_radius, files=("ground_truth.csv",)).check(files=False)
-    s = presets.resolve(preset, encoder=encoder, encoder_conf=encoder_conf, methods=methods, method_conf=method_conf)
+    s = presets.resolve(preset, methods=methods, **settings)
     encoder, methods = s["encoder"], s["methods"]
     t0 = time.perf_counter()
     rendered = render_once(scene, out / "scene", size=size, n_frames=n_frames, progress=progress)

@@ -69,9 +69,8 @@ def _chunk_task(source: Source, encoder_name: str, conf_json: str, start: int, s
 
 
 def encode_sources(sources, cache_dir, encoder_name: str = "pixel", encoder_conf: dict | None = None,
-                   workers: int | None = None, scheduler: str | None = None,
                    chunk_frames: int = DEFAULT_CHUNK_FRAMES, parts=None, overwrite: bool = False,
-                   batch_size: int = 64, progress=True) -> list[Encoded]:
+                   batch_size: int = 64, progress=True, **cluster) -> list[Encoded]:
     """Encode ``sources`` into ``cache_dir``, one cache file per source.
 
     Parameters
@@ -81,9 +80,6 @@ def encode_sources(sources, cache_dir, encoder_name: str = "pixel", encoder_conf
         key: open the sources as the later ``vpr match`` will.
     cache_dir : folder of the cache files (created if needed).
     encoder_name, encoder_conf : as :func:`encoders.get`.
-    workers : local worker processes (1 thread each); 0 runs serially in this
-        process; None (default) is the number of cores. Not with ``scheduler``.
-    scheduler : address of a running Dask scheduler (``tcp://host:port``).
     chunk_frames : frames per task.
     parts : the inputs to store, a subset of :func:`pipelines.extract.available_inputs`
         (default all: ``sdr``, ``desc`` and every method's image inputs, so any
@@ -92,6 +88,9 @@ def encode_sources(sources, cache_dir, encoder_name: str = "pixel", encoder_conf
     batch_size : frames per encoder call inside a task.
     progress : True for a progress bar, False for none, or a callable receiving
         ``(source_position, start, stop, chunks_done, chunks_total)`` after each chunk.
+    cluster : ``workers``, local worker processes (1 thread each; 0 runs serially in
+        this process; None, the default, the number of cores), or ``scheduler``, the
+        address of a running Dask scheduler (``tcp://host:port``); not both.
 
     Returns
     -------
@@ -104,6 +103,10 @@ def encode_sources(sources, cache_dir, encoder_name: str = "pixel", encoder_conf
     """
     import encoders
 
+    unknown = sorted(set(cluster) - {"workers", "scheduler"})
+    if unknown:
+        raise TypeError(f"encode_sources: unknown option {', '.join(unknown)}")
+    workers, scheduler = cluster.get("workers"), cluster.get("scheduler")
     n_workers = check_workers(workers, scheduler)
     parts = available_inputs() if parts is None else check_inputs(parts, "part")
     if not parts:

@@ -14,7 +14,7 @@ import argparse
 import contextlib
 import sys
 import warnings
-from dataclasses import replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 import encoders
@@ -43,7 +43,7 @@ from vpr.sources import open_source
 from vpr.sources.stdin import StdinSource
 from vpr.types import Decision, FollowingLocalizer, QueryLocalizer
 
-__all__ = ["COMMANDS", "add_arguments", "run_command", "learn", "load_map", "localize"]
+__all__ = ["COMMANDS", "add_arguments", "run_command", "learn", "load_map", "localize", "LocalizeOptions"]
 
 COMMANDS = {
     "learn": "learn a database traverse once and write a map file for `vpr localize`",
@@ -151,30 +151,54 @@ class LocalizeOnline(Online):
                                                                range(self.loc.n_db)))}
 
 
-def localize(map_or_db, query, out, stdout=None, stdin=None, query_standardise: str = "running",
-             prior_frames: float | None = None, window: int | None = None, gt: GroundTruthSpec | None = None,
-             learn_options: dict | None = None, fps=None, step=None, max_frames=None, state_out=None,
-             progress: bool = False, topic: str | None = None, every: float | None = None,
-             follow_speed: bool = True) -> dict:
-    """Localise every frame of ``query`` against a map (or a database learned first); return metrics.json's content.
+@dataclass(frozen=True)
+class LocalizeOptions:
+    """How ``vpr localize`` reads and answers a query.
 
-    Parameters
+    Attributes
     ----------
-    map_or_db : path of a map written by :func:`learn`, or a database source (learned with ``learn_options``).
-    query : folder, video, image list, bag, or ``"-"`` (paths read from ``stdin``).
-    out : output folder (``METHOD/matches.csv``, ``metrics.json``; :mod:`pipelines.online`).
     query_standardise, prior_frames, window : see :class:`pipelines.stream.StreamEncoder` (None: its default;
         window 0: all frames so far); ``prior_frames`` and ``window`` apply to ``"running"`` only.
     gt : ground truth (as ``vpr match``), optional; position ground truth (``--radius``) needs the map's
         positions and a query source.
+    learn_options : how a database given instead of a map is learned (:func:`pipelines.maps.learn`'s keywords); over
+        a map: ``method_conf``, its query-time settings (and ``method``, which must be the map's).
+    fps, step, max_frames : the frames read (as ``vpr match``).
+    state_out : optional path: the map with the query's state after the last frame (a robot's restart file).
+    progress : progress bar while learning a database.
     topic : bags' camera topic (a pair: the database's and the query's); every : one query frame per so many
         metres (with the query's positions).
-    state_out : optional path: the map with the query's state after the last frame (a robot's restart file).
     follow_speed : a query driven faster or slower than the map at the same frame rate answered by the maps of one
         frame in k or as queries of one frame in k while it is so (the method's ``follower``, where it has one);
         False: the frames as they come.
-    progress : progress bar while learning a database (``map_or_db`` a traverse).
     """
+
+    query_standardise: str = "running"
+    prior_frames: float | None = None
+    window: int | None = None
+    gt: GroundTruthSpec = field(default_factory=GroundTruthSpec)
+    learn_options: dict = field(default_factory=dict)
+    fps: float | None = None
+    step: int | None = None
+    max_frames: int | None = None
+    state_out: str | Path | None = None
+    progress: bool = False
+    topic: str | tuple | None = None
+    every: float | None = None
+    follow_speed: bool = True
+
+
+def localize(map_or_db, query, out, opts: LocalizeOptions | None = None, stdout=None, stdin=None, **options) -> dict:
+    """Localise every frame of ``query`` against a map (or a database learned first); return metrics.json's content.
+
+    ``map_or_db``: a map written by :func:`learn`, or a database source (learned with ``opts.learn_options``);
+    ``query``: folder, video, image list, bag, or ``"-"`` (paths read from ``stdin``); ``out``: the output folder
+    (``METHOD/matches.csv``, ``metrics.json``; :mod:`pipelines.online`); ``opts``: :class:`LocalizeOptions`, with
+    ``**options`` over them.
+    """
+    o = replace(opts or LocalizeOptions(), **options)
+    (query_standardise, prior_frames, window, gt, learn_options, fps, step, max_frames, state_out, progress, topic,
+     every, follow_speed) = (getattr(o, f.name) for f in fields(o))
     out = Path(out)
     io.check_writable(out / "metrics.json", "--out")
     if state_out:
@@ -336,9 +360,10 @@ def run_command(args) -> int:
                       "method_conf": settings["method_conf"][name]}
     src_opts = {"fps": args.fps, "step": args.step, "max_frames": args.max_frames, "topic": topic_arg(args.topic),
                 "every": every}
-    report = localize(args.map, args.query, args.out, query_standardise=args.query_standardise,
-                      prior_frames=args.prior_frames, window=args.window, state_out=args.state_out,
-                      gt=gt_spec_from_args(args), learn_options=learn_opts, progress=not args.no_progress,
-                      follow_speed=follows_speed(args), **src_opts)
+    opts = LocalizeOptions(query_standardise=args.query_standardise, prior_frames=args.prior_frames,
+                           window=args.window, state_out=args.state_out, gt=gt_spec_from_args(args),
+                           learn_options=learn_opts, progress=not args.no_progress,
+                           follow_speed=follows_speed(args), **src_opts)
+    report = localize(args.map, args.query, args.out, opts)
     print(summary_line(report, args.out), file=sys.stderr)
     return 0

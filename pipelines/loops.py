@@ -134,8 +134,8 @@ def run_loops(seq, opts: RunOptions) -> dict:
                 evaluated[0]["sessions"] = evaluate.session_pairs(res.best, res.accepted, gt_hard, starts,
                                                                   gt_soft, mask, [s.name for s in srcs])
                 evaluated[0]["session_speeds"] = rounded(speeds[m])
-            write_method(out / m, m, res, evaluated, features.names, features.names, gt_hard, gt_soft,
-                         title=f"{m}: loop closures", loops=True, mask=mask)
+            write_method(out / m, res, evaluated, features.names, features.names, (gt_hard, gt_soft, mask),
+                         title=f"{m}: loop closures", loops=True)
             io.save_json(out / m / "config.json", config(opts, command="loops", seq=[str(q) for q in seqs],
                                                           method=m, exclude=exclude))
 

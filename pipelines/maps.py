@@ -33,31 +33,29 @@ def map_path(out) -> Path:
 
 
 def learn(db, out, encoder: str = "pixel", encoder_conf: dict | None = None, method: str | None = None,
-          method_conf: dict | None = None, fps=None, step=None, max_frames=None, progress: bool = True,
-          topic: str | None = None, positions: GroundTruthSpec | None = None, every: float | None = None) -> Map:
+          method_conf: dict | None = None, progress: bool = True, positions: GroundTruthSpec | None = None,
+          every: float | None = None, **source) -> Map:
     """Encode and learn the database traverse ``db``; write the map to :func:`map_path` ``(out)`` (atomic).
 
-    ``db``: one source, or a list of sources: the sessions of a multi-session
-    map (each encoded and standardised on its own frames, learned one after
-    the other from a fresh context). ``method``: the method that learns it (one that
-    runs online; default :func:`vpr.methods.online`) and ``method_conf`` its conf,
-    checked before any work; the map keeps them. ``topic``: a bag's camera
-    topic. ``positions``: where the frames' positions are (``--gt-topic``,
-    ``--gt FILE``, ``names``, ``exif``): the map keeps them, and ``every``
-    (metres) keeps one frame per so much travel.
+    ``db``: one source, or a list of sources: the sessions of a multi-session map (each encoded and standardised on
+    its own frames, learned one after the other from a fresh context). ``method``: the method that learns it (one
+    that runs online; default :func:`vpr.methods.online`) and ``method_conf`` its conf, checked before any work; the
+    map keeps them. ``positions``: where the frames' positions are (``--gt-topic``, ``--gt FILE``, ``names``,
+    ``exif``): the map keeps them, and ``every`` (metres) keeps one frame per so much travel. ``source``: the frames
+    read (``fps``, ``step``, ``max_frames``, a bag's camera ``topic``: :func:`vpr.sources.open_sources`).
     """
     out = map_path(out)
     method = methods.get_online(method or methods.online(), **(method_conf or {}))
     dbs = [db] if isinstance(db, (str, Path)) else list(db)
-    srcs = open_sources(dbs, topic=topic, fps=fps, step=step, max_frames=max_frames)
+    srcs = open_sources(dbs, **source)
     roles = ["database"] if len(srcs) == 1 else [f"database session {k + 1}" for k in range(len(srcs))]
     spec = positions or GroundTruthSpec()
     pos = prepare_positions(srcs, roles, spec, every, loops=False, need=bool(spec.topic or spec.files))
     check_rates(srcs, every)
     rates = [r for r in (s.rate() for s in srcs) if r]  # frames per second where the sources have times
     enc = get(encoder, **(encoder_conf or {}))
-    enc.check_sources(srcs, roles, " and ".join(f"{f} {v}" for f, v in (("--step", step),
-                                                                          ("--max-frames", max_frames)) if v))
+    chosen = (("--step", source.get("step")), ("--max-frames", source.get("max_frames")))
+    enc.check_sources(srcs, roles, " and ".join(f"{f} {v}" for f, v in chosen if v))
     if enc.conf.get("standardise") in ("per_batch", "causal"):
         raise ValueError(f"encoders with standardise={enc.conf['standardise']} cannot encode one query frame at a "
                          "time; use standardise=fit (vpr localize then standardises the query causally, --window)")

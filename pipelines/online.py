@@ -272,10 +272,9 @@ def _write(job: Online, out: Path, src, rows, skipped, seconds, state_out, waiti
         m["waiting"] = waiting  # in the state (--state-out), answered after --resume
     scored, curve = job.evaluate(res, names, [r[1] for r in rows], frames)
     m.update(scored)
-    gt_hard, gt_soft, mask = job.ground_truth or (None, None, None)
-    m = write_method(out / job.method, job.method, res, (m, curve), None, names, gt_hard, gt_soft,
+    m = write_method(out / job.method, res, (m, curve), None, names, job.ground_truth or (None, None, None),
                      title=f"{job.method}: {'loop closures' if job.command == 'loops' else 'the map x the query'}",
-                     loops=job.command == "loops", mask=mask,
+                     loops=job.command == "loops",
                      columns={"latency_ms": [round(v, 3) for v in lat_all],
                               "latency_decide_ms": [round(v, 3) for v in lat_dec]},
                      best_names=[job.name_of(b) if b >= 0 else "" for b in best], query_ids=frames.tolist(),

@@ -204,7 +204,7 @@ def run_compare(db, query, opts: RunOptions, command: str = "compare") -> dict:
                     return f.match(q_ex.features, progress=opts.progress)
                 return split_match(f, q_ex.features, client, workers, extra["split"].setdefault(f.name, {}))
 
-        return compare_query(the_map, query, q_src, opts, command, q_ex=q_ex, argv=sys.argv[1:], gt=gt,
+        return compare_query(the_map, query, q_src, opts, (command, sys.argv[1:]), q_ex=q_ex, gt=gt,
                              encoder=encoder, matcher=matcher, extra=extra)
 
 
@@ -283,7 +283,7 @@ def _query_task(the_map: MatchMap, query: str, q_src, opts: RunOptions, command:
                 p.unlink(missing_ok=True)
     with warnings.catch_warnings(), dense_budget(opts.memory_budget):  # the run's budget, not the worker's default
         warnings.simplefilter("ignore")  # a worker has no terminal; what matters is in metrics.json
-        return compare_query(the_map, query, q_src, opts, command, argv=argv, gt=gt)
+        return compare_query(the_map, query, q_src, opts, (command, argv), gt=gt)
 
 
 @dataclass
@@ -302,11 +302,12 @@ class MatchMap:
     fitted: dict
 
 
-def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, command: str = "compare", q_ex=None,
-                  argv=None, gt=(None, None), encoder=None, matcher=None, extra: dict | None = None) -> dict:
+def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, ran: tuple = ("compare", None), q_ex=None,
+                  gt=(None, None), encoder=None, matcher=None, extra: dict | None = None) -> dict:
     """One query traverse against a built map: encode it (unless ``q_ex``), run, evaluate, write ``opts.out``.
 
-    ``gt``: the ground truth of :func:`prepare_run`; ``encoder`` (the map's)
+    ``ran``: the command and its argument list (None: this process's), recorded in the outputs; ``gt``: the ground
+    truth of :func:`prepare_run`; ``encoder`` (the map's)
     is built here when not given (a fleet's worker gets the map alone);
     ``matcher(fitted)``: how each method matches the query (default: in this
     process; a query matched again at its speed is matched here); ``extra``: more ``params`` for ``metrics.json``.
@@ -333,6 +334,7 @@ def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, command: st
         verifier = Verifier(db_ex.thumbs, q_ex.thumbs, **{"min_inliers": opts.min_inliers, **opts.verify_conf})
     confs = {}
     db_names, q_names = db_ex.features.names, q_ex.features.names
+    command, argv = ran
     db, argv = the_map.db, list(sys.argv[1:] if argv is None else argv)
 
     def write(m: str, res: MatchResult, evaluated) -> dict:
@@ -340,8 +342,8 @@ def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, command: st
         v = verifier if opts.verify_methods is None or m in opts.verify_methods else None
         io.save_json(out / m / "config.json", config(opts, argv, command=command, db=str(db), query=str(query),
                                                       methods=list(runners)))
-        entries = write_method(out / m, m, res, evaluated, db_names, q_names, gt_hard, gt_soft, v, opts.verify,
-                               opts.progress)
+        entries = write_method(out / m, res, evaluated, db_names, q_names, (gt_hard, gt_soft, None),
+                               (v, opts.verify, opts.progress) if v is not None else None)
         return {k: (e, None) for k, e in entries.items() if k != m}
 
     read: dict = {}  # the query's speed as the first method to read it read it, for those that read none

@@ -3,11 +3,11 @@
 The batch commands standardise a traverse on its own frames
 (``standardise="fit"``), which needs the whole traverse. Online that is
 impossible; :class:`StreamEncoder` standardises each frame with
-``"running"`` statistics (:class:`encoders.projection.RunningStandardiser`:
+``"running"`` statistics (:class:`vpr.standardise.RunningStandardiser`:
 the last ``window`` frames plus the database's statistics as a prior) or the
 database's own (``"db"``). An encoder with ``standardise="causal"`` (the loop
 encoders of the presets) needs nothing from a database: its frames are
-standardised as the batch does it (:class:`encoders.projection.CausalStandardiser`),
+standardised as the batch does it (:class:`vpr.standardise.CausalStandardiser`),
 so the SDRs equal the batch's, but the first ``CAUSAL_MIN`` frames wait for
 each other (:meth:`StreamEncoder.push`). Encoders that do not standardise, or
 that have no dense descriptor, encode each frame as they would a batch.
@@ -18,7 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from encoders.base import BaseEncoder, DescriptorEncoder
-from encoders.projection import CAUSAL_MIN, CausalStandardiser, RunningStandardiser
+from vpr.standardise import CAUSAL_MIN, CausalStandardiser, RunningStandardiser
 from vpr.types import FrameEncoder
 
 __all__ = ["StreamEncoder", "STANDARDISE", "PRIOR_FRAMES", "WINDOW"]

@@ -167,9 +167,12 @@ def _has_candidate(S, best_db):
     return has
 
 
-def plot_similarity(S, path, best_db=None, accepted=None, gt_hard=None, title=None,
-                    max_pixels=1000, dpi=150, value_label="similarity", axis_labels=("database", "query"),
-                    gt_soft=None, mask=None) -> Path:
+#: how :func:`plot_similarity` draws by default (its ``**style``)
+SIMILARITY_STYLE = {"title": None, "max_pixels": 1000, "dpi": 150, "value_label": "similarity",
+                    "axis_labels": ("database", "query")}
+
+
+def plot_similarity(S, path, best_db=None, accepted=None, gt_hard=None, gt_soft=None, mask=None, **style) -> Path:
     """Heatmap of a similarity matrix with best matches and ground truth; returns ``path``.
 
     Database entries down the y axis, queries along x, max-pooled to at most ``max_pixels`` per axis (markers exact);
@@ -189,13 +192,16 @@ def plot_similarity(S, path, best_db=None, accepted=None, gt_hard=None, title=No
         ``gt_soft`` only.
     gt_hard, gt_soft : bool array or sparse bool matrix, shape (n_db, n_q), optional
         Drawn as a faint red overlay (hard).
-    value_label : str
-        What the matrix holds, for the colour bar.
-    axis_labels : (rows, columns)
     mask : bool array or sparse bool matrix, shape (n_db, n_q), optional
         The pairs evaluated; the ground truth is drawn only there.
-    title, max_pixels, dpi
+    style : ``title``, ``max_pixels``, ``dpi``, ``value_label``, ``axis_labels`` over :data:`SIMILARITY_STYLE`
+        (another key: ValueError).
     """
+    unknown = sorted(set(style) - set(SIMILARITY_STYLE))
+    if unknown:
+        raise ValueError(f"plot_similarity: unknown style {', '.join(unknown)}; known: {', '.join(SIMILARITY_STYLE)}")
+    style = {**SIMILARITY_STYLE, **style}
+    title, max_pixels, dpi, value_label, axis_labels = (style[k] for k in SIMILARITY_STYLE)
     S = check_similarity(S, sparse_format="csc")
     n_db, n_q = S.shape
     max_pixels = check_int(max_pixels, "max_pixels", minimum=1)

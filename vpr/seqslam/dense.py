@@ -143,7 +143,8 @@ class SeqSlamConf:
     ``ds`` sequence length minus one (even unless ``causal``; 0: one frame, which the ``seqslam`` method refuses),
     ``v_min``, ``v_max``, ``v_step`` the velocities searched (database rows per query frame), ``R`` the contrast
     enhancement's window, ``rwindow`` the uniqueness test's, ``ratio_threshold`` its bar, ``causal`` the trajectory
-    ends at the query instead of being centred on it.
+    ends at the query instead of being centred on it, ``enhance`` the contrast enhancement applied (False: the raw
+    differences).
     """
 
     ds: int = 10
@@ -154,9 +155,19 @@ class SeqSlamConf:
     rwindow: int = 10
     ratio_threshold: float = 0.9
     causal: bool = False
+    enhance: bool = True
 
     def __post_init__(self):
-        check_sequence_params(**self.as_dict())
+        check_sequence_params(**{k: v for k, v in self.as_dict().items() if k != "enhance"})
+
+    @classmethod
+    def of(cls, conf: SeqSlamConf | None = None, **params) -> SeqSlamConf:
+        """``conf`` (None: the defaults) with ``params`` over it (an unknown name: ValueError naming the known)."""
+        unknown = sorted(set(params) - set(cls.__dataclass_fields__))
+        if unknown:
+            raise ValueError(f"unknown SeqSLAM parameter {', '.join(unknown)}; known: "
+                             f"{', '.join(cls.__dataclass_fields__)}")
+        return cls(**{**(conf.as_dict() if conf is not None else {}), **params})
 
     @classmethod
     def from_conf(cls, conf) -> SeqSlamConf:
@@ -182,28 +193,21 @@ def check_sequence_params(ds, causal, v_min, v_max, v_step, R, rwindow, ratio_th
     return ds, velocities, offsets, R, rwindow, check_float(ratio_threshold, "ratio_threshold")
 
 
-def seqslam(D, ds: int = 10, v_min: float = 0.8, v_max: float = 1.2, v_step: float = 0.1,
-            R: int = 10, rwindow: int = 10, ratio_threshold: float = 0.9, causal: bool = False,
-            enhance: bool = True, chunk: int = 256) -> SeqSLAMResult:
+def seqslam(D, conf: SeqSlamConf | None = None, chunk: int = 256, **params) -> SeqSLAMResult:
     """SeqSLAM trajectory search and uniqueness test on a difference matrix, as OpenSeqSLAM (``docs/internals.md``).
 
     Parameters
     ----------
     D : array_like, shape (n_db, n_q)
         Finite differences, database x query, lower = more similar (non-negative unless ``enhance``).
-    ds : int
-        Each trajectory visits ``ds + 1`` query frames; even unless ``causal`` (an odd one is refused).
-    v_min, v_max, v_step : float
-        Velocities searched, in database rows per query frame (:func:`trajectory_offsets`).
-    R : int
-        Contrast-enhancement window (:func:`enhance_contrast`), applied when ``enhance``.
-    rwindow : int
-        The second best is searched outside rows ``best - rwindow//2 .. best + rwindow//2``.
-    ratio_threshold : float
-        A match is accepted when ``ratio <= ratio_threshold``.
-    causal : bool
-        Query frames ``q - ds .. q`` (online) instead of OpenSeqSLAM's ``q - ds/2 .. q + ds/2``.
-    enhance : bool
+    conf : SeqSlamConf, optional
+        The parameters (default: OpenSeqSLAM's), ``params`` over them by name: ``ds`` (each trajectory visits
+        ``ds + 1`` query frames; even unless ``causal``, an odd one is refused), ``v_min``, ``v_max``, ``v_step``
+        (velocities searched, database rows per query frame: :func:`trajectory_offsets`), ``R`` (contrast-enhancement
+        window: :func:`enhance_contrast`, applied when ``enhance``), ``rwindow`` (the second best is searched outside
+        rows ``best - rwindow//2 .. best + rwindow//2``), ``ratio_threshold`` (a match is accepted when ``ratio <=
+        ratio_threshold``), ``causal`` (query frames ``q - ds .. q``, online, instead of OpenSeqSLAM's ``q - ds/2 .. q
+        + ds/2``), ``enhance``.
     chunk : int
         Query columns processed at once (memory only).
 
@@ -214,8 +218,10 @@ def seqslam(D, ds: int = 10, v_min: float = 0.8, v_max: float = 1.2, v_step: flo
     Bad ``D`` or parameters raise ValueError naming the argument.
     """
     D = check_difference(D, "D")
+    c = SeqSlamConf.of(conf, **params)
+    causal, enhance = c.causal, c.enhance
     ds, velocities, offsets, R, rwindow, ratio_threshold = check_sequence_params(
-        ds, causal, v_min, v_max, v_step, R, rwindow, ratio_threshold)
+        c.ds, causal, c.v_min, c.v_max, c.v_step, c.R, c.rwindow, c.ratio_threshold)
     chunk = check_int(chunk, "chunk", 1)
     if enhance:
         DD = enhance_contrast(D, R)

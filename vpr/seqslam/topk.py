@@ -9,7 +9,7 @@ from vpr.checks import check_int, check_top_k
 from vpr.similarity import TOP_K, bitsets_pay, mean_abs_diff, overlap_similarity, sdr_candidates, sdr_overlap_rows
 
 from . import kernels as K
-from .dense import SeqSLAMResult, check_sequence_params
+from .dense import SeqSlamConf, SeqSLAMResult, check_sequence_params
 from .difference import as_descriptors, unit_rows
 
 __all__ = ["seqslam_topk"]
@@ -163,10 +163,7 @@ def _windows(ptr, rows, q0: int, q1: int, n_db: int, n_windows: int, v_min: floa
 
 def seqslam_topk(db_desc, q_desc, top_k: int = TOP_K, metric: str = "sad", block: int | None = None,
                  candidates=None, n_candidates: int = TOP_K, candidate_stride: int = 4, n_windows: int = 4,
-                 ds: int = 10,
-                 v_min: float = 0.8, v_max: float = 1.2, v_step: float = 0.1, R: int = 10,
-                 rwindow: int = 10, ratio_threshold: float = 0.9, causal: bool = False,
-                 enhance: bool = True) -> SeqSLAMResult:
+                 conf: SeqSlamConf | None = None, **params) -> SeqSLAMResult:
     """SeqSLAM from descriptors, by blocks of queries, keeping the top-K per query.
 
     Memory is ``O(searched rows x block)``. ``candidates=None``: every row searched, :func:`seqslam`'s result up to
@@ -185,8 +182,10 @@ def seqslam_topk(db_desc, q_desc, top_k: int = TOP_K, metric: str = "sad", block
         Queries per block: 256 exact, 64 with candidates.
     candidates, n_candidates, candidate_stride, n_windows
         See above.
-    metric, ds, v_min, v_max, v_step, R, rwindow, ratio_threshold, causal, enhance
-        As :func:`difference_matrix` and :func:`seqslam` (``enhance=False``: the raw differences).
+    metric
+        As :func:`difference_matrix`.
+    conf, params
+        SeqSLAM's parameters, as :func:`seqslam` takes them (``enhance=False``: the raw differences).
 
     Returns
     -------
@@ -195,8 +194,10 @@ def seqslam_topk(db_desc, q_desc, top_k: int = TOP_K, metric: str = "sad", block
     desc = _Descriptors(db_desc, q_desc, metric)
     n_db, n_q = desc.n_db, desc.n_q
     top_k = check_top_k(top_k, nullable=False)
+    c = SeqSlamConf.of(conf, **params)
+    causal, enhance = c.causal, c.enhance
     ds, velocities, offsets, R, rwindow, ratio_threshold = check_sequence_params(
-        ds, causal, v_min, v_max, v_step, R, rwindow, ratio_threshold)
+        c.ds, causal, c.v_min, c.v_max, c.v_step, c.R, c.rwindow, c.ratio_threshold)
     n_windows = check_int(n_windows, "n_windows", 1)
     n_candidates = check_int(n_candidates, "n_candidates", 1)
     candidate_stride = check_int(candidate_stride, "candidate_stride", 1)

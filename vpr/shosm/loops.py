@@ -160,8 +160,8 @@ class LoopStream:
 
 
 def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf=None, top_k: int | None = None,
-                  caps: str | bool = "auto", dense_max: int | None = None, stops: bool = True,
-                  progress: bool = False, sessions=None, opinion=None, **flat) -> LoopEvidence:
+                  caps: str | bool = "auto", dense_max: int | None = None, progress: bool = False, sessions=None,
+                  opinion=None, **flat) -> LoopEvidence:
     """Loop closure within one stream with graded forward sequence evidence, learned online.
 
     Frame ``j`` is learned with Algorithm 1 (one memory over the stream), scored against the frames ``i <= j -
@@ -173,12 +173,11 @@ def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf=None, top_k: int 
     exclude : int >= 1
         Frames closer than this are not candidates.
     conf : RshosmSeqConf, one of its parts, or a mapping of its flat keys
-        ``**flat`` keys over it (:meth:`RshosmSeqConf.of`); ``caps`` as :class:`LoopStream`.
+        ``**flat`` keys over it (:meth:`RshosmSeqConf.of`; ``stop_ratio=0`` leaves out the decision's stop check);
+        ``caps`` as :class:`LoopStream`.
     top_k : int or None
         Earlier frames kept per frame (None: dense where it fits, :func:`vpr.similarity.fits_dense`, or up to
         ``dense_max`` frames; the conf's ``top_k`` beyond). The decisions do not depend on it.
-    stops : bool
-        False leaves out the decision's stop check.
     sessions : sequence of int, optional
         The first frame of each session.
     opinion : callable, optional
@@ -191,8 +190,6 @@ def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf=None, top_k: int 
     """
     top_k = check_top_k(top_k)
     seq = RshosmSeqConf.of(conf, **flat)
-    if not stops:
-        seq = seq.replace(stop_ratio=0.0)
     stream = LoopStream(exclude, seq, caps, opinion)
     x = _sdr.check_batch(sdr_batch, n_bits=stream.n_inputs, name="stream SDR batch")
     T = x.shape[0]

@@ -8,6 +8,7 @@ import json
 import math
 import struct
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 
 import cv2
@@ -185,105 +186,12 @@ class Strip:
     captions: tuple = ()  # short captions of the three frames (:func:`caption`)
 
 
-_CSS = """
-body{font:14px/1.4 system-ui,sans-serif;margin:1.5em;color:#222}
-table{border-collapse:collapse;margin:.5em 0}td,th{padding:.2em .7em;text-align:right;border-bottom:1px solid #ddd}
-td:first-child,th:first-child{text-align:left}figure{display:inline-block;margin:.3em;vertical-align:top}
-figcaption{font-size:12px;color:#555;overflow-wrap:anywhere}.figs figcaption{max-width:400px}
-.figs img{width:400px;border:1px solid #ccc}.figs a{display:inline-block}.figs img.full{width:auto;max-width:none}
-.figs figure.full{display:block}.figs figure.full figcaption{max-width:none}
-.pair figure{margin:.3em .6em .3em 0}.pair img{width:200px;border:1px solid #ccc}
-# settings td{text-align:left;font-family:monospace;font-size:12px;overflow-wrap:anywhere}#settings
-# th{text-align:left} strip-list{display:flex;flex-wrap:wrap}
-.strip{border-left:6px solid #999;padding:.3em .6em;margin:.4em;box-sizing:border-box;flex:1 1 480px;max-width:720px}
-.strip figure{width:31%;margin:.3em 1% .3em 0}
-.strip.wrong{border-color:#c0392b}.strip.missed{border-color:#e67e22}.strip.lost{border-color:#f1c40f}
-.strip.right{border-color:#27ae60}.strip.none,.strip.soft{border-color:#8e44ad}.strip img{width:100%;display:block}
-.strip .missing{width:100%;height:96px;background:#eee;color:#888;display:flex;align-items:center;
-justify-content:center}button{margin:.15em;padding:.2em .6em}button.on{background:#333;color:#fff}
-caption{text-align:left;font-weight:600;padding:.3em 0}.note{color:#555}
-.strip.hit{outline:3px solid #2980b9}img.matrix{cursor:crosshair}
-"""
 
-_JS = """
-const pics = JSON.parse(document.getElementById("pics").textContent);
-for (const img of document.querySelectorAll("img[data-pic]")) img.src = pics[img.dataset.pic];
-const state = {method: "all", outcome: "all"};
-function apply() {
-  let n = 0;
-  for (const s of document.querySelectorAll(".strip")) {
-    const show = (state.method === "all" || s.dataset.method === state.method)
-      && (state.outcome === "all" || s.dataset.outcome === state.outcome);
-    s.style.display = show ? "" : "none";
-    if (show) n++;
-  }
-  document.getElementById("shown").textContent = n + " shown";
-  for (const b of document.querySelectorAll("button[data-filter]"))
-    b.classList.toggle("on", state[b.dataset.filter] === b.dataset.value);
-}
-for (const b of document.querySelectorAll("button[data-filter]"))
-  b.addEventListener("click", () => { state[b.dataset.filter] = b.dataset.value; apply(); });
-for (const a of document.querySelectorAll("a[data-method]"))
-  a.addEventListener("click", () => { state.method = a.dataset.method; state.outcome = "all"; apply(); });
-// a similarity matrix: the pair under the pointer said, a click shows that pair's frames (the nearest embedded)
-const pairsEl = document.getElementById("pairs");
-const pairs = pairsEl ? JSON.parse(pairsEl.textContent) : null;
-for (const button of document.querySelectorAll("button.full-size"))
-  button.addEventListener("click", () => {
-    const fig = button.closest("figure");
-    fig.classList.toggle("full");
-    fig.querySelector("img.matrix").classList.toggle("full");
-  });
-function nearest(side, i) {
-  let k = Math.min(side.index.length - 1, Math.max(0, Math.round(i / side.step)));
-  return k;
-}
-for (const img of document.querySelectorAll("img.matrix")) {
-  const [x0, y0, x1, y1] = JSON.parse(img.dataset.box), [rows, cols] = JSON.parse(img.dataset.shape);
-  const names = JSON.parse(img.dataset.labels), fig = img.closest("figure"), at = fig.querySelector(".at");
-  const box = fig.querySelector(".pair");
-  const pair = e => {
-    const r = img.getBoundingClientRect();
-    const fx = ((e.clientX - r.left) / r.width - x0) / (x1 - x0);
-    const fy = ((e.clientY - r.top) / r.height - y0) / (y1 - y0);
-    if (fx < 0 || fx >= 1 || fy < 0 || fy >= 1) return null;
-    return [Math.floor(fy * rows), Math.floor(fx * cols)];
-  };
-  img.addEventListener("mousemove", e => {
-    const p = pair(e);
-    at.textContent = p ? `${names[0]} ${p[0]}, ${names[1]} ${p[1]}` : "";
-  });
-  img.addEventListener("click", e => {
-    const p = pair(e);
-    if (!p || !pairs) return;
-    box.textContent = "";
-    const sides = [[pairs.columns || pairs.rows, p[1], names[1]], [pairs.rows, p[0], names[0]]];
-    for (const [side, asked, label] of sides) {
-      const k = nearest(side, asked), f = document.createElement("figure"), im = document.createElement("img");
-      if (side.pics[k]) im.src = side.pics[k];
-      im.title = side.names[k];
-      im.alt = `${label} ${side.index[k]}`;
-      const cap = document.createElement("figcaption");
-      cap.textContent = `${label} ${side.index[k]}: ${side.captions[k]}`
-        + (side.index[k] !== asked ? ` (the nearest embedded to ${asked})` : "");
-      f.append(im, cap);
-      box.append(f);
-    }
-    const strip = document.getElementById(`s-${img.dataset.method}-${p[1]}`);
-    if (strip) {
-      const a = document.createElement("a");
-      a.href = "#" + strip.id;
-      a.textContent = `${names[1]} ${p[1]}'s decision below`;
-      a.addEventListener("click", () => { state.method = img.dataset.method; state.outcome = "all"; apply(); });
-      box.append(a);
-    }
-    box.dataset.row = p[0];
-    box.dataset.column = p[1];
-    at.textContent = `${names[0]} ${p[0]}, ${names[1]} ${p[1]}`;
-  });
-}
-apply();
-"""
+
+
+def _asset(name: str) -> str:
+    """The page's stylesheet or script, shipped beside this module."""
+    return resources.files(__package__).joinpath(name).read_text(encoding="utf-8")
 
 
 def sampling_note(method: str, m: dict) -> str | None:
@@ -361,18 +269,19 @@ def settings(params: dict) -> list[tuple[str, str]]:
 
 def page(title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[str]]], figures: list[tuple],
          strips: list[Strip], counts: dict, notes: list[str], sides=("query", "best match", "true match"),
-         sessions: dict | None = None, params: dict | None = None, pairs: dict | None = None) -> str:
+         run: dict | None = None) -> str:
     """The report's HTML.
 
     ``header``/``rows``: the metrics table's (key, label) columns and each method's printed cells; ``figures``:
     (caption, data URI[, matrix]) (:func:`_figure`); ``strips``: the decisions shown; ``counts``: per method {outcome:
-    (shown, of)}; ``notes``: lines under the title; ``sides``: what a strip's three frames are; ``sessions``: per
-    method
-    :func:`vpr.evaluate.session_pairs`' rows; ``params``: ``metrics.json``'s params (:func:`settings`); ``pairs``: the
-    frames a click on a matrix shows (:func:`pair_frames`).
+    (shown, of)}; ``notes``: lines under the title; ``sides``: what a strip's three frames are; ``run``: what the run
+    adds, each optional: ``sessions`` (per method :func:`vpr.evaluate.session_pairs`' rows), ``params``
+    (``metrics.json``'s params: :func:`settings`) and ``pairs`` (the frames a click on a matrix shows:
+    :func:`pair_frames`).
     """
+    sessions, params, pairs = ((run or {}).get(k) for k in ("sessions", "params", "pairs"))
     out = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
-           f"<title>{_esc(title)}</title><style>{_CSS}</style></head><body>", f"<h1>{_esc(title)}</h1>"]
+           f"<title>{_esc(title)}</title><style>{_asset('page.css')}</style></head><body>", f"<h1>{_esc(title)}</h1>"]
     out += [f'<p class="note">{_esc(n)}</p>' for n in notes]
     labels = ["method", *(lab for _, lab in header)]
     out.append('<table id="metrics"><tr>' + "".join(f"<th>{_esc(h)}</th>" for h in labels) + "</tr>")
@@ -429,7 +338,7 @@ def page(title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[s
     if pairs:
         out.append('<script type="application/json" id="pairs">' + json.dumps(pairs).replace("</", "<\\/")
                    + "</script>")
-    out.append(f"<script>{_JS}</script>")
+    out.append(f"<script>{_asset('page.js')}</script>")
     out.append('<script type="application/json" id="counts">' + json.dumps(counts).replace("</", "<\\/")
                + "</script></body></html>")
     return "\n".join(out)
@@ -557,7 +466,7 @@ def write(out, read_query, read_db, kind: str = "match", title: str | None = Non
     sides = sides if truth_known else sides[:2]
     sessions = {m: v["sessions"] for m, v in methods.items() if v.get("sessions")}
     return _save(out, page(title or f"vpr {params.get('command', '')}: {out.name}", TABLE[kind], rows, figures,
-                           strips, counts, notes, sides, sessions, params, pairs))
+                           strips, counts, notes, sides, {"sessions": sessions, "params": params, "pairs": pairs}))
 
 
 def write_table(out, title: str, header: list[tuple[str, str]], rows: list[tuple[str, list[str]]], figures=(),
