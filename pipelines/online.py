@@ -275,10 +275,10 @@ def _write(job: Online, out: Path, src, rows, skipped, seconds, state_out, waiti
     m = write_method(out / job.method, res, (m, curve), None, names, job.ground_truth or (None, None, None),
                      title=f"{job.method}: {'loop closures' if job.command == 'loops' else 'the map x the query'}",
                      loops=job.command == "loops",
-                     columns={"latency_ms": [round(v, 3) for v in lat_all],
-                              "latency_decide_ms": [round(v, 3) for v in lat_dec]},
-                     best_names=[job.name_of(b) if b >= 0 else "" for b in best], query_ids=frames.tolist(),
-                     name_of=job.name_of)[job.method]
+                     matches={"columns": {"latency_ms": [round(v, 3) for v in lat_all],
+                                          "latency_decide_ms": [round(v, 3) for v in lat_dec]},
+                              "best_names": [job.name_of(b) if b >= 0 else "" for b in best],
+                              "query_ids": frames.tolist(), "name_of": job.name_of})[job.method]
     if state_out:
         job.save(state_out)
     params = {"command": job.command, **job.params(), "skipped": skipped,

@@ -97,17 +97,19 @@ def write_matches(folder: Path, res: MatchResult, db_names, q_names, extra: dict
 
 
 def write_method(folder: Path, res: MatchResult, evaluated: tuple, db_names, q_names, truth: tuple = (None, None, None),
-                 verification: tuple | None = None, title: str = "", loops: bool = False, columns: dict | None = None,
-                 **names) -> dict:
+                 verification: tuple | None = None, title: str = "", loops: bool = False,
+                 matches: dict | None = None) -> dict:
     """Write one method's files in its folder; return its metrics entries (``m`` and ``m+verify``, ``m`` the method
     of ``res``).
 
     ``evaluated``: the (metrics, curve) of :func:`vpr.evaluate.method_metrics` for ``res``; ``truth``: (gt_hard,
     gt_soft, mask) as evaluated. With ``verification`` (verifier, candidates, progress), each query's best candidates
     are re-ordered by geometric inliers (:meth:`vpr.verify.Verifier.verify`): the entry ``m+verify`` evaluates that
-    matrix and its decisions. ``columns``: more columns of ``matches.csv``; ``names``: ``best_names``,
-    ``query_ids``, ``name_of`` of :func:`write_matches` (an online run's).
+    matrix and its decisions. ``matches``: what ``matches.csv`` adds (an online run's): ``columns`` (more
+    columns), and ``best_names``, ``query_ids``, ``name_of`` of :func:`write_matches`.
     """
+    names = dict(matches or {})
+    columns = names.pop("columns", None)
     m = res.method
     gt_hard, gt_soft, mask = truth
     verifier, verify, progress = verification or (None, 0, False)

@@ -12,7 +12,7 @@ from . import kernels as K
 from .dense import SeqSlamConf, SeqSLAMResult, check_sequence_params
 from .difference import as_descriptors, unit_rows
 
-__all__ = ["seqslam_topk"]
+__all__ = ["seqslam_topk", "SEARCH"]
 
 
 class _Descriptors:
@@ -161,8 +161,11 @@ def _windows(ptr, rows, q0: int, q1: int, n_db: int, n_windows: int, v_min: floa
     return out
 
 
-def seqslam_topk(db_desc, q_desc, top_k: int = TOP_K, metric: str = "sad", block: int | None = None,
-                 candidates=None, n_candidates: int = TOP_K, candidate_stride: int = 4, n_windows: int = 4,
+#: how :func:`seqslam_topk` searches by default (its ``**params`` beside SeqSLAM's own)
+SEARCH = {"block": None, "n_candidates": TOP_K, "candidate_stride": 4, "n_windows": 4}
+
+
+def seqslam_topk(db_desc, q_desc, top_k: int = TOP_K, metric: str = "sad", candidates=None,
                  conf: SeqSlamConf | None = None, **params) -> SeqSLAMResult:
     """SeqSLAM from descriptors, by blocks of queries, keeping the top-K per query.
 
@@ -178,14 +181,14 @@ def seqslam_topk(db_desc, q_desc, top_k: int = TOP_K, metric: str = "sad", block
         Both of one kind; SDRs are compared as dense 0/1 rows, never densified.
     top_k : int
         Database entries kept per query.
-    block : int, optional
-        Queries per block: 256 exact, 64 with candidates.
-    candidates, n_candidates, candidate_stride, n_windows
+    candidates
         See above.
     metric
         As :func:`difference_matrix`.
     conf, params
-        SeqSLAM's parameters, as :func:`seqslam` takes them (``enhance=False``: the raw differences).
+        SeqSLAM's parameters, as :func:`seqslam` takes them (``enhance=False``: the raw differences), and by name
+        the search's (:data:`SEARCH`): ``block`` (queries per block: 256 exact, 64 with candidates),
+        ``n_candidates``, ``candidate_stride``, ``n_windows`` (see above).
 
     Returns
     -------
@@ -194,6 +197,8 @@ def seqslam_topk(db_desc, q_desc, top_k: int = TOP_K, metric: str = "sad", block
     desc = _Descriptors(db_desc, q_desc, metric)
     n_db, n_q = desc.n_db, desc.n_q
     top_k = check_top_k(top_k, nullable=False)
+    search = {**SEARCH, **{k: params.pop(k) for k in SEARCH if k in params}}
+    block, n_candidates, candidate_stride, n_windows = (search[k] for k in SEARCH)
     c = SeqSlamConf.of(conf, **params)
     causal, enhance = c.causal, c.enhance
     ds, velocities, offsets, R, rwindow, ratio_threshold = check_sequence_params(
