@@ -6,7 +6,7 @@ parts' SDRs (``n_bits`` = the sum of the parts' widths, active bits = the sum
 of their ``k``), so a place is recognised when any of the parts' descriptors
 still matches: on Nordland's 64x32 frames the CNN part fails and the pixel part
 carries the match, on camera images the CNN part adds invariance (see
-``docs/experiments.md``, "Default preset").
+``research/docs/experiments.md``, "Default preset").
 
 Configuration
 -------------

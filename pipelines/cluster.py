@@ -15,7 +15,7 @@ data scattered to a worker that dies is lost; a task's result is recomputed).
 forgotten what came before to within ``RshosmSeq.BLOCK_TOLERANCE``; the
 decision runs over every query in order in the client
 (:meth:`vpr.methods.Fitted.combine`). Where the beam's floors bind, a block's
-top-K columns approximate the serial ones (``benchmarks/bench_split.py``).
+top-K columns approximate the serial ones (``research/benchmarks/bench_split.py``).
 """
 from __future__ import annotations
 

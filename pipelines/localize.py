@@ -6,7 +6,7 @@ positions). ``localize`` reads a map (or learns a database first), then
 encodes and localises each query frame as it comes (a folder, video, bag, or
 ``-``: image paths on stdin), one JSON line per frame (:mod:`pipelines.online`).
 The query is standardised causally (``--query-standardise``, ``--window``,
-``--prior-frames``: :class:`pipelines.stream.StreamEncoder`); ``docs/localize.md``.
+``--prior-frames``: :class:`pipelines.stream.StreamEncoder`); ``research/docs/localize.md``.
 """
 from __future__ import annotations
 
@@ -64,7 +64,7 @@ class LocalizeOnline(Online):
         self.resumed = bool(the_map.query_state)
         self._params, self.q_xy = params, q_xy  # the query frames' positions, by q_src.indices()
         self.top_k = self.loc.top_k
-        self.follower = follower  # a query driven faster or slower than the map, followed (docs/localize.md)
+        self.follower = follower  # a query driven faster or slower than the map, followed (research/docs/localize.md)
         self.answering: QueryLocalizer = follower or self.loc
         self._said = {0}
 
@@ -87,7 +87,7 @@ class LocalizeOnline(Online):
                    f"the map, its frames taken as {k} queries of one frame in {k}")
             print(f"vpr localize: from query frame {d.frame} ({name}) on, the map's best frames move "
                   f"{'faster' if mode > 0 else 'slower'} than one a frame: the query was driven at another speed than "
-                  f"the map; frames are answered by {how} while it is so (docs/localize.md)", file=sys.stderr,
+                  f"the map; frames are answered by {how} while it is so (research/docs/localize.md)", file=sys.stderr,
                   flush=True)
         return d
 

@@ -52,7 +52,7 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
                     help="a geometric second opinion (ORB + two-view RANSAC inliers of the best earlier frame, where "
                          "the images are large enough) accepts closures the method's own rule has not reached yet: "
                          "short loops, revisits a sequence is slow to trust; on by default for a method that decides "
-                         "frame by frame (docs/loops.md), off: the method's rule alone decides")
+                         "frame by frame (research/docs/loops.md), off: the method's rule alone decides")
     add_query_speed_argument(ap, sessions=True)
     add_gt_arguments(ap, loops=True)
     online = ap.add_argument_group("online (SEQ is -)")

@@ -136,7 +136,7 @@ class LoopsOnline(Online):
                 print(f"vpr loops: from frame {d.frame} on, session {n}'s best frames in the earlier sessions move "
                       f"{v:.2g} of theirs a frame: driven {'faster' if v > 1 else 'slower'} than they were at the "
                       f"same frame rate; its closures onto them are not followed online: {LOCALIZE_SESSION}, or "
-                      "vpr loops S1 S2, follows it (docs/loops.md)",
+                      "vpr loops S1 S2, follows it (research/docs/loops.md)",
                       file=sys.stderr, flush=True)
                 break
         return ds
@@ -154,7 +154,7 @@ class LoopsOnline(Online):
                 self._said.add(0)
                 print(f"vpr loops: from frame {d.frame} on, the best earlier frames move {v:.2g} of them a frame: a "
                       "revisit driven faster than the first pass at the same frame rate, not matched again online; "
-                      "vpr loops of the folder or video matches it again (docs/loops.md)", file=sys.stderr,
+                      "vpr loops of the folder or video matches it again (research/docs/loops.md)", file=sys.stderr,
                       flush=True)
         return ds
 
@@ -183,7 +183,7 @@ class LoopsOnline(Online):
         labels = [str(k + 1) for k in range(len(starts))]  # as the batch run's table, the sessions by their number
         N = self.det.frames
         speeds = {}
-        if len(starts) > 1:  # said, not followed: an online detector answers each frame as it comes (docs/loops.md)
+        if len(starts) > 1:  # said, not followed: an online detector answers each frame as it comes
             best = np.full(N, -1, np.int64)
             best[frames] = result.best
             speeds = {"session_speeds": rounded(evaluate.session_speeds(best, starts))}

@@ -28,7 +28,7 @@ STANDARDISE = ("running", "db")
 
 
 #: Running standardisation of a query stream (``vpr localize``): the database's statistics weigh as this many
-#: frames, and the statistics are those of the last :data:`WINDOW` frames (chosen in ``docs/localize.md``).
+#: frames, and the statistics are those of the last :data:`WINDOW` frames (chosen in ``research/docs/localize.md``).
 PRIOR_FRAMES = 10.0
 WINDOW = 50
 

@@ -5,8 +5,8 @@ random numbers from the same generator in the same order as
 :class:`vpr.shosm.SequenceMemory`, so for the same seed both must produce
 identical winner cells (with learning off neither draws any: ties between
 bursting cells are broken by :func:`query_tie_key`). The tests compare them;
-``benchmarks/bench_memory.py`` uses it for a speed ratio and the studies in
-``studies/`` build their pure-Python variants on it. Not part of the product.
+``research/benchmarks/bench_memory.py`` uses it for a speed ratio and the studies in
+``research/studies/`` build their pure-Python variants on it. Not part of the product.
 """
 from __future__ import annotations
 

@@ -3,7 +3,7 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("vpr", "encoders", "pipelines", "studies", "benchmarks", "tests", "tools")
+PACKAGES = ("vpr", "encoders", "pipelines", "research", "tests", "tools")
 
 
 def private_imports(root: Path = ROOT) -> list[str]:

@@ -89,7 +89,7 @@ def test_a_speed_is_said_with_the_fix_given():
     lines = [str(w.message) for w in caught]
     assert len(lines) == 4 and all("along its best paths" in x for x in lines)
     assert "--step 2" in lines[0] and "one query frame in 2" in lines[1] and "--step 3" in lines[2]
-    assert lines[3].endswith("do this (docs/localize.md)")
+    assert lines[3].endswith("do this (research/docs/localize.md)")
 
 
 @pytest.mark.slow

@@ -37,7 +37,7 @@ def test_rshosm_seq_goes_sparse_above_the_limit_with_the_dense_best_matches(monk
 
 
 def test_rshosm_seq_switches_to_the_sparse_evidence_at_its_own_lower_size(monkeypatch):
-    # the sparse evidence becomes the faster one well below the memory limit (docs/benchmarks.md):
+    # the sparse evidence becomes the faster one well below the memory limit (research/docs/benchmarks.md):
     # rshosm-seq switches there, the single-frame methods keep their dense matrix up to the limit
     from vpr.methods import rshosm_seq
 

@@ -4,7 +4,7 @@ The brute-force reference below (``ref_*``) is a deliberately plain per-query,
 per-row loop written from the documented semantics; the vectorised module is
 checked against it, against a literal reading of OpenSeqSLAM's matching step
 (interior queries), and against a convolution of D with an identity kernel.
-``benchmarks/bench_seqslam.py`` imports the reference to time it.
+``research/benchmarks/bench_seqslam.py`` imports the reference to time it.
 """
 from __future__ import annotations
 

@@ -16,7 +16,7 @@ def bitsets_pay(A, B, against: str = "product") -> bool:
 
     A pair costs about one 64-bit word with bit sets; the others cost with the bits two rows are expected to share.
     ``against``: ``"product"`` (:func:`overlap_similarity`'s sparse product) or ``"index"`` (a count through an
-    inverted index). Winner codes never take bit sets. Figures: ``docs/benchmarks.md``.
+    inverted index). Winner codes never take bit sets. Figures: ``research/docs/benchmarks.md``.
     """
     n_bits = A.shape[1]
     words = -(-n_bits // 64)

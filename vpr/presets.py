@@ -29,7 +29,7 @@ NORDLAND_METHODS = {
 
 #: Every setting of ``vpr demo``. Verification is the expensive part (ORB matching per candidate pair): only the
 #: headline method's 3 best candidates per query are verified, with 500 keypoints, so that the demo stays near a
-#: minute on 2 cores (docs/benchmarks.md has the cost).
+#: minute on 2 cores (research/docs/benchmarks.md has the cost).
 DEMO = {"scene": "two_seasons", "preset": "default", "radius": 3.0, "soft_radius": 10.0,
         "verify": 3, "verify_methods": ("rshosm-seq",), "verify_conf": {"n_features": 500}}
 

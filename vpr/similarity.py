@@ -21,7 +21,7 @@ __all__ = ["overlap_similarity", "overlap_count", "stationary", "sdr_overlap_row
 #: Above this many database x query pairs a dense matrix is never built, whatever the memory budget.
 DENSE_PAIRS_LIMIT = 20_000 * 20_000
 #: Peak bytes per database x query pair of a run that holds its matrices dense (SeqSLAM's difference and
-#: enhanced matrices, the similarity, the ground truth; ``docs/benchmarks.md``, "Memory at the dense switch").
+#: enhanced matrices, the similarity, the ground truth; ``research/docs/benchmarks.md``, "Memory at the dense switch").
 DENSE_BYTES_PER_PAIR = 40
 _BUDGET: contextvars.ContextVar[int | None] = contextvars.ContextVar("dense_budget", default=None)
 

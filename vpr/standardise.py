@@ -9,7 +9,7 @@ import numpy as np
 __all__ = ["CausalStandardiser", "RunningStandardiser", "CAUSAL_WINDOW", "CAUSAL_MIN", "causal_standardised",
            "window_standardised"]
 
-#: Frames in the sliding window of ``standardise="causal"`` (chosen in docs/localize.md).
+#: Frames in the sliding window of ``standardise="causal"`` (chosen in research/docs/localize.md).
 CAUSAL_WINDOW = 100
 #: Frames the window needs before it is used (earlier frames share the statistics of the first ones).
 CAUSAL_MIN = 10

@@ -19,8 +19,9 @@ __all__ = ["EncodedTraverse", "ImageInput", "Column", "Decision", "Decider", "Qu
 ENCODER_INPUTS = {"sdr": "SDRs", "desc": "dense descriptors"}
 
 #: Frame rates or speeds this far apart (a ratio) make a sequence of one source move several frames per frame of the
-#: other and can cost the decisions their recall or precision; made to agree from here (docs/localize.md, "Frame
-#: rates"; a loop closure's place, docs/loops.md).
+#: other and can cost the decisions their recall or precision; made to agree from here (research/docs/localize.md,
+#: "Frame
+#: rates"; a loop closure's place, research/docs/loops.md).
 RATE_RATIO = 1.5
 
 

@@ -8,7 +8,7 @@ same frames. Writes ``metrics.json``, ``pr.png`` and
 ``table.md`` to ``--out`` and prints the table. The dataset is ``--data``,
 else ``$VPR_DATASETS/nordland_trimmed``, else (source checkout only)
 ``../shared/datasets/nordland_trimmed`` next to the repository. The variant
-study of ``docs/experiments.md`` is ``python -m studies.nordland_variants``.
+study of ``research/docs/experiments.md`` is ``python -m research.studies.nordland_variants``.
 """
 from __future__ import annotations
 

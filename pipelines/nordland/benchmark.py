@@ -4,7 +4,7 @@ Every method sees the same frames: the pixel descriptor (OpenSeqSLAM's
 patch-normalised 64x32 grey thumbnail) and, for the SDR methods, its random
 projection top-k SDR with per-traverse standardisation (each season's encoder
 is fitted on that season's own frames, which removes the season's mean
-appearance; see ``docs/experiments.md`` for why).
+appearance; see ``research/docs/experiments.md`` for why).
 """
 from __future__ import annotations
 

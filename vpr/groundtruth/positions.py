@@ -264,7 +264,7 @@ def check_speeds(speeds: Mapping[str, float | None], paths: str = "accepted path
                            if k > 0 else f"localise one query frame in {-k} against a learned map (--step {-k})")
             warnings.warn(f"{label}: along its {paths} the query moves {v:.2g} of the frames it matches a "
                           f"frame: driven {'faster' if v > 1 else 'slower'} than they were at the same frame rate, its "
-                          f"answers may trail the place; {then} (docs/localize.md)", UserWarning, stacklevel=2)
+                          f"answers may trail the place; {then} (research/docs/localize.md)", UserWarning, stacklevel=2)
 
 
 def check_rates(srcs, every: float | None = None, against_first: bool = False) -> None:

@@ -101,7 +101,7 @@ def _resampled(fitted: Fitted, query: EncodedTraverse, k: int, speed: float, pic
     S = S.tocsr() if sparse else S
     warnings.warn(f"{who}: along its {along} the query moved {speed:.2g} database frames a frame, "
                   f"driven {'faster' if k > 0 else 'slower'} than the database at the same frame rate: {said}, so "
-                  "that its sequences follow the query's (docs/localize.md)", UserWarning, stacklevel=3)
+                  "that its sequences follow the query's (research/docs/localize.md)", UserWarning, stacklevel=3)
     sampling = {"speed": round(float(speed), 3), "db_step" if k > 0 else "query_step": abs(k),
                 "db_apart" if k > 0 else "query_filled": int((apart if k > 0 else filled).sum())}
     return MatchResult(method.name, S, best, score, accepted, sum(r.seconds for r in parts), dict(method.conf),

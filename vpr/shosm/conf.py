@@ -73,7 +73,8 @@ class EvidenceConf(_Conf):
         same for every frame.
     speeds : str
         The speed models, ``+``-joined names of :data:`SPEEDS` (e.g. ``"same+faster"``): each an evidence of its own,
-        merged by the largest score per pair (:meth:`split`; ``docs/localize.md``, "A query driven faster or slower").
+        merged by the largest score per pair (:meth:`split`; ``research/docs/localize.md``, "A query driven faster or
+        slower").
     """
 
     decay: float = 0.9
@@ -168,7 +169,7 @@ class PathConf(_Conf):
     """When a localisation is accepted, query frame by query frame (:class:`vpr.shosm.Localizer`).
 
     The rule of :class:`LoopConf` (which extends it, same attributes) against a map, with its own defaults
-    (``docs/localize.md``).
+    (``research/docs/localize.md``).
     """
 
     drift: float = 0.25
@@ -193,7 +194,7 @@ class LoopConf(PathConf):
     A frame's best earlier frame stands out from every other place by ``z_best - z_other`` (its z-score minus the best
     z-score outside the *island* of neighbouring candidates around it whose z is at least ``island``). Along a path of
     consistent best matches this margin minus ``drift`` is accumulated (never below 0); a closure is accepted when the
-    score reaches ``min_score``. Defaults: ``docs/loops.md``.
+    score reaches ``min_score``. Defaults: ``research/docs/loops.md``.
 
     Attributes
     ----------

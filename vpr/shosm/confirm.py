@@ -113,7 +113,7 @@ def ahead_scores(z_rows: list[np.ndarray], stay: float, skip: float) -> np.ndarr
 
 class Confirmation:
     """Closures held until the frames after them are seen; kept where those frames, on their own, single out the
-    closure's place (``docs/loops.md``, "A revisit that leaves the earlier route").
+    closure's place (``research/docs/loops.md``, "A revisit that leaves the earlier route").
 
     A closure of frame ``j`` onto ``b`` waits for ``frames`` frames of its session (``j`` and the ones after it; fewer
     where the session or the stream ends first). Each of them is scored against its own candidates by its SDR overlap

@@ -195,7 +195,8 @@ def accept_loops(evidence, conf: LoopConf | None = None, sdr=None, exclude: int 
     Frame ``j``'s best earlier frame stands out by ``z_best - z_other`` (earlier visits of the same place, linked by
     accepted closures, are not other places); along a consistent path the margins minus ``drift`` add up, restarting
     at 0 when the path breaks; a closure is accepted at ``min_score`` unless it is the place just left or (with the
-    SDRs) the camera never left it (``docs/loops.md``). On a stored top-K matrix an island may be cut where entries
+    SDRs) the camera never left it (``research/docs/loops.md``). On a stored top-K matrix an island may be cut where
+    entries
     were dropped: :func:`vpr.shosm.loop_evidence` decides on full columns.
 
     ``evidence``: a LoopEvidence or a dense T x T loop matrix; ``sdr`` (T rows): optional, for the stop check;

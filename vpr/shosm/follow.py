@@ -19,7 +19,7 @@ __all__ = ["PICKS", "check_pick", "pick_maps", "disagree", "between_maps", "fill
 
 
 #: How a frame is answered by one of the ``k`` maps of one frame in ``k``: ``"path"``, the map that accepts it on the
-#: longest consistent path of best frames; ``"score"``, the map of the largest path score (docs/localize.md).
+#: longest consistent path of best frames; ``"score"``, the map of the largest path score (research/docs/localize.md).
 PICKS = ("path", "score")
 
 

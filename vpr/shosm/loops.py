@@ -25,7 +25,7 @@ __all__ = ["LoopStream", "loop_evidence", "LOOP_UNCAPPED_MAX"]
 #: The beam carries every cell until the stream has this many frames; from then on the caps of
 #: :class:`vpr.shosm.BeamConf` bound the cost per frame (``caps="auto"``). Uncapped, a long stream's time and
 #: memory grow too fast; capped from the start, the frames of the current condition fill the beam and the
-#: other condition's frames of the same place never enter it (``docs/loops.md``).
+#: other condition's frames of the same place never enter it (``research/docs/loops.md``).
 LOOP_UNCAPPED_MAX = 10_000
 
 

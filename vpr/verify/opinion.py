@@ -34,7 +34,7 @@ class OpinionConf:
     keep_inliers: int = 10
     #: a path the wrapped rule accepts is refused while none of its frames (its run since its score last stood at 0,
     #: the accepted ones too) reached ``min_inliers`` and the last this many geometry saw all have fewer than
-    #: ``keep_inliers``; blind frames are not seen (0, the default: never refused; ``docs/loops.md``)
+    #: ``keep_inliers``; blind frames are not seen (0, the default: never refused; ``research/docs/loops.md``)
     refuse_after: int = 0
     #: frames between the earlier frame and this one checked for a break of view (spread, the middle first)
     break_samples: int = 8
