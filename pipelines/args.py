@@ -13,7 +13,7 @@ from pathlib import Path
 import encoders
 from vpr import methods, presets
 from vpr.config import parse_key_values, parse_method_confs
-from vpr.groundtruth import GroundTruthSpec
+from vpr.groundtruth import NAMES_RADIUS, GroundTruthSpec
 
 __all__ = ["add_common_arguments", "add_source_arguments", "add_preset_argument", "add_gt_arguments",
            "gt_spec_from_args", "loop_geometry", "method_confs", "add_method_conf_argument",
@@ -74,9 +74,12 @@ def add_gt_arguments(ap, loops: bool = False, title: str = "ground truth (option
 
 
 def gt_spec_from_args(args) -> GroundTruthSpec:
-    """The :class:`GroundTruthSpec` of the options added by :func:`add_gt_arguments`."""
-    return GroundTruthSpec(tolerance=getattr(args, "tolerance", None), files=tuple(args.gt or ()),
-                           radius=args.radius, soft=args.gt_soft, topic=topic_arg(getattr(args, "gt_topic", None)))
+    """The :class:`GroundTruthSpec` of the options added by :func:`add_gt_arguments` (``--gt names`` without
+    ``--radius``: :data:`vpr.groundtruth.NAMES_RADIUS`, the field's)."""
+    files = tuple(args.gt or ())
+    radius = NAMES_RADIUS if args.radius is None and files == ("names",) else args.radius
+    return GroundTruthSpec(tolerance=getattr(args, "tolerance", None), files=files, radius=radius, soft=args.gt_soft,
+                           topic=topic_arg(getattr(args, "gt_topic", None)))
 
 
 def topic_arg(values):

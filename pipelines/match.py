@@ -16,6 +16,7 @@ from pipelines.args import (
     add_run_arguments,
     options_from_args,
 )
+from vpr.evaluate import RECALL_AT
 
 __all__ = ["COMMANDS", "add_arguments", "run_command"]
 
@@ -43,15 +44,33 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     ap.add_argument("--verify", type=int, default=0, metavar="N",
                     help="geometric verification of each query's N best candidates (ORB + pycolmap)")
     ap.add_argument("--min-inliers", type=int, default=15, help="inliers needed to accept a verified match")
+    ap.add_argument("--recall-at", default=None, metavar="N1,N2,...",
+                    help="the N of Recall@N, over every query (the field's) and over the queries with a true match "
+                         f"(default {','.join(map(str, RECALL_AT))}; needs ground truth)")
     add_query_speed_argument(ap)
     add_common_arguments(ap)
+
+
+def parse_recall_at(args) -> tuple:
+    """``--recall-at 1,5,10,20`` -> (1, 5, 10, 20) (refused: not positive integers, or without ground truth)."""
+    if args.recall_at is None:
+        return RECALL_AT
+    try:
+        ns = tuple(int(n) for n in args.recall_at.split(","))
+    except ValueError:
+        ns = ()
+    if not ns or any(n < 1 for n in ns):
+        raise ValueError(f"--recall-at {args.recall_at}: positive integers separated by commas, e.g. 1,5,10,20")
+    if not (args.gt or args.tolerance is not None or args.gt_topic):
+        raise ValueError("--recall-at needs ground truth (--gt, --tolerance or --gt-topic) to score recall")
+    return ns
 
 
 def run_command(args) -> int:
     from pipelines.runs import run_compare, run_fleet
     from vpr.report import metrics_table
 
-    opts = options_from_args(args)
+    opts = options_from_args(args, recall_at=parse_recall_at(args))
     if len(args.query) > 1:  # a fleet: one table per query traverse
         def said(name, done, total):
             print(f"vpr {args.command}: query {name} done ({done} of {total})", file=sys.stderr, flush=True)

@@ -80,6 +80,8 @@ class RunOptions:
     geometry: bool = False
     #: loops: candidates at least this many frames back, or ``"Ns"`` seconds where the frames have times
     exclude: int | str = LOOP_EXCLUDE
+    #: the N of Recall@N (:func:`vpr.evaluate.recall_at_n`)
+    recall_at: tuple = evaluate.RECALL_AT
     #: methods whose candidates are verified (None: all)
     verify_methods: tuple | None = None
     #: a query driven at another speed than the database matched again at the sampling that makes them agree
@@ -357,7 +359,7 @@ def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, ran: tuple 
             read.setdefault("speed", res.sampling["speed"])
         return res
 
-    done = evaluate.run_methods(the_map.fitted, call, gt_hard, gt_soft, on_result=write)
+    done = evaluate.run_methods(the_map.fitted, call, gt_hard, gt_soft, on_result=write, recall_at=opts.recall_at)
     check_speeds({k: m.get("path_speed") for k, (m, _) in done.items() if not m.get("sampling")})
     # what makes two runs' metrics comparable: same frames (content keys), encoding and ground truth
     truth = opts.gt.describe(sampling_step(db_src.indices()))  # a tolerance in frames kept and in input frames

@@ -120,3 +120,21 @@ class ReferenceMemory:
         self.predicted = next_predicted
         self.prev_winners = winners
         return winners
+
+
+def field_recalls(S, db_xy, q_xy, ns, radius: float = 25.0) -> np.ndarray:
+    """Recall@N as VPR-methods-evaluation computes it, from its description: each query's positives are the database
+    positions within ``radius`` (scikit-learn's ``radius_neighbors``), its predictions the database frames by
+    decreasing similarity (ties: lower index first), and a query counts at N (and every larger N) once one of its N
+    first predictions is a positive; the counts are divided by the number of queries, every query."""
+    from sklearn.neighbors import NearestNeighbors
+
+    positives = NearestNeighbors().fit(db_xy).radius_neighbors(q_xy, radius=radius, return_distance=False)
+    predictions = np.argsort(-np.asarray(S, np.float64), axis=0, kind="stable")[:max(ns)].T
+    recalls = np.zeros(len(ns))
+    for q, preds in enumerate(predictions):
+        for i, n in enumerate(ns):
+            if np.any(np.isin(preds[:n], positives[q])):
+                recalls[i:] += 1
+                break
+    return recalls / len(q_xy)

@@ -326,10 +326,14 @@ def test_every_two_metres_through_loops(laps, tmp_path, capsys):
     assert kept < len(laps["xy"]) * step / 3 * 1.3 and kept < len(laps["xy"])
 
 
-def test_exif_and_names_need_a_radius_and_every_needs_positions(seasons, tmp_path, capsys):
+def test_exif_needs_a_radius_names_default_to_the_fields_and_every_needs_positions(seasons, tmp_path, capsys):
+    code, _, err = _run(["compare", seasons["day"], seasons["night"], "--out", tmp_path / "o", "--gt", "exif"],
+                        capsys)
+    assert code == 2 and "--gt exif needs --radius" in err
+    # --gt names without --radius: the field's 25 m; these names hold no UTM, said naming the file
     code, _, err = _run(["compare", seasons["day"], seasons["night"], "--out", tmp_path / "o", "--gt", "names"],
                         capsys)
-    assert code == 2 and "--gt names needs --radius" in err
+    assert code == 2 and "no UTM coordinates in the name" in err and not (tmp_path / "o").exists()
     code, _, err = _run(["compare", seasons["day"], seasons["night"], "--out", tmp_path / "o", "--every", "2m"],
                         capsys)
     assert code == 2 and "--every needs the frames' positions" in err

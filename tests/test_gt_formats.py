@@ -45,10 +45,20 @@ def test_vpr_bench_ground_truth_rows(tmp_path):
     expected[[0, 1], 0] = True
     expected[2, 1] = True
     np.testing.assert_array_equal(gt, expected)
-    rows[1] = [1, [9]]
-    np.save(tmp_path / "bad.npy", rows, allow_pickle=True)
-    with pytest.raises(ValueError, match=r"bad.npy: row 1: database frame 9 out of range"):
-        db_query_matrix(tmp_path / "bad.npy", 4, 3)
+    # an entry beyond the traverses' frames (VPR-Bench's Gardens Point lists database frames 200 and 201 of 200):
+    # left out and said, the rest as the file without it
+    rows[1] = [1, [2, 9]]
+    np.save(tmp_path / "beyond.npy", rows, allow_pickle=True)
+    with pytest.warns(UserWarning, match=r"beyond.npy: 1 entry name frames beyond .* row 1 \(database frame 9\)"):
+        np.testing.assert_array_equal(db_query_matrix(tmp_path / "beyond.npy", 4, 3), expected)
+    rows[0], rows[1], rows[2] = [0, [7, 8]], [1, [9]], [5, [0]]  # most of it beyond: another dataset's file
+    np.save(tmp_path / "other.npy", rows, allow_pickle=True)
+    with pytest.raises(ValueError, match=r"other.npy: 4 of its 4 entries name frames beyond"):
+        db_query_matrix(tmp_path / "other.npy", 4, 3)
+    rows[2] = [2, [-1]]
+    np.save(tmp_path / "negative.npy", rows, allow_pickle=True)
+    with pytest.raises(ValueError, match=r"negative.npy: row 2: a negative frame number"):
+        db_query_matrix(tmp_path / "negative.npy", 4, 3)
 
 
 def test_loop_matrix_png_is_symmetrised_and_subset(tmp_path):

@@ -14,6 +14,7 @@ from .decisions import (
 )
 from .harness import method_metrics, peak_rss_mb, run_methods, speed_metric
 from .ranking import (
+    RECALL_AT,
     auc_from_pr,
     auc_pr,
     average_precision,
@@ -21,10 +22,11 @@ from .ranking import (
     pr_curve,
     recall_at_100p,
     recall_at_k,
+    recall_at_n,
     thin_pr,
 )
 
-__all__ = ["average_precision", "pr_curve", "thin_pr", "auc_pr", "auc_from_pr", "recall_at_100p", "recall_at_k",
-           "evaluate", "accepted_precision", "best_in_soft_band", "decision_curve", "session_pairs", "outcomes",
-           "path_speed", "path_runs", "path_run_speeds", "SpeedReader", "session_speeds", "MIN_RUN", "speed_metric",
-           "method_metrics", "run_methods", "peak_rss_mb"]
+__all__ = ["recall_at_n", "RECALL_AT", "average_precision", "pr_curve", "thin_pr", "auc_pr", "auc_from_pr",
+           "recall_at_100p", "recall_at_k", "evaluate", "accepted_precision", "best_in_soft_band", "decision_curve",
+           "session_pairs", "outcomes", "path_speed", "path_runs", "path_run_speeds", "SpeedReader", "session_speeds",
+           "MIN_RUN", "speed_metric", "method_metrics", "run_methods", "peak_rss_mb"]

@@ -9,7 +9,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .decisions import accepted_precision, best_in_soft_band, decision_curve, path_speed
-from .ranking import evaluate
+from .ranking import RECALL_AT, evaluate, recall_at_n
 
 __all__ = ["method_metrics", "speed_metric", "run_methods", "peak_rss_mb"]
 
@@ -32,7 +32,7 @@ def speed_metric(best, accepted) -> float | None:
     return None if speed is None else round(float(speed), 3)
 
 
-def method_metrics(res, gt_hard, gt_soft, mask=None, loops: bool = False):
+def method_metrics(res, gt_hard, gt_soft, mask=None, loops: bool = False, recall_at=RECALL_AT):
     """(metrics dict, (precision, recall) or None without ground truth) of a :class:`~vpr.types.MatchResult`.
 
     Always the seconds, the number of accepted matches and ``path_speed`` (:func:`path_speed`: database frames per
@@ -42,7 +42,8 @@ def method_metrics(res, gt_hard, gt_soft, mask=None, loops: bool = False):
     where the curve is that of the per-frame decisions (:func:`decision_curve`: ``frame_ap``,
     ``frame_recall_at_100p``), what loop-closure detectors report; a stream without a true loop (a drive without
     revisits) has no ranking or recall to measure: ``revisits`` 0 and the accepted closures, all false
-    (``false_per_1000``).
+    (``false_per_1000``). A database x query match also gets ``recall_at_n``, Recall@N for each of ``recall_at`` over
+    every query and over the queries with a true match (:func:`recall_at_n`).
     """
     m = {"seconds": round(res.seconds, 4), "n_accepted": int(np.count_nonzero(res.accepted & (res.best >= 0))),
          "path_speed": speed_metric(res.best, res.accepted)}
@@ -57,6 +58,8 @@ def method_metrics(res, gt_hard, gt_soft, mask=None, loops: bool = False):
     ev, (prec, rec, _) = evaluate(res.similarity, gt_hard, gt_soft, mask=mask, return_curve=True)
     m.update({k: float(v) for k, v in ev.items()})
     m.update(accepted_precision(res.best, res.accepted, gt_hard, gt_soft, mask=mask))
+    if not loops:
+        m["recall_at_n"] = recall_at_n(res.similarity, gt_hard, gt_soft, recall_at, mask=mask)
     if gt_soft is not None:
         m["best_in_soft"] = best_in_soft_band(res.best, gt_hard, gt_soft, mask=mask)
     if loops:
@@ -66,20 +69,21 @@ def method_metrics(res, gt_hard, gt_soft, mask=None, loops: bool = False):
 
 
 def run_methods(runners: dict, call: Callable, gt_hard=None, gt_soft=None, mask=None,
-                on_result: Callable | None = None, resources: bool = False, loops: bool = False) -> dict:
+                on_result: Callable | None = None, resources: bool = False, loops: bool = False,
+                recall_at=RECALL_AT) -> dict:
     """Run and evaluate every method, one at a time (one similarity matrix alive at once).
 
     ``runners``: label -> :class:`vpr.methods.Method`; ``call(runner) -> MatchResult``; ground truth None: seconds
     only; ``on_result(label, result, (metrics, curve))`` may return further ``{label: (metrics, curve)}``;
-    ``resources``: also ``cpu_seconds`` and ``peak_rss_mb``; ``loops``: one stream (:func:`method_metrics`). Returns
-    label -> (metrics, curve or None), in the order run.
+    ``resources``: also ``cpu_seconds`` and ``peak_rss_mb``; ``loops``: one stream, ``recall_at``: the N of Recall@N
+    (:func:`method_metrics`). Returns label -> (metrics, curve or None), in the order run.
     """
     out = {}
     for label, runner in runners.items():
         c0 = time.process_time()
         res = call(runner)
         cpu = time.process_time() - c0
-        metrics, curve = method_metrics(res, gt_hard, gt_soft, mask=mask, loops=loops)
+        metrics, curve = method_metrics(res, gt_hard, gt_soft, mask=mask, loops=loops, recall_at=recall_at)
         if resources:
             metrics.update(cpu_seconds=round(cpu, 4), peak_rss_mb=round(peak_rss_mb(), 1))
         out[label] = (metrics, curve)

@@ -8,8 +8,8 @@ import scipy.sparse as sp
 
 from vpr.checks import at, check_int, check_similarity
 
-__all__ = ["average_precision", "pr_curve", "thin_pr", "auc_pr", "auc_from_pr", "recall_at_100p", "recall_at_k",
-           "evaluate"]
+__all__ = ["recall_at_n", "RECALL_AT", "average_precision", "pr_curve", "thin_pr", "auc_pr", "auc_from_pr",
+           "recall_at_100p", "recall_at_k", "evaluate"]
 
 _MATCHINGS = ("multi", "single")
 
@@ -199,14 +199,19 @@ def _recall_at_k(p: _Problem, k: int) -> float:
     n_pos = int(np.count_nonzero(p.pos_queries))
     if n_pos == 0:
         raise ValueError("gt_hard has no query with a true match to evaluate: recall@k is undefined")
+    return float(np.count_nonzero(_hits_at_k(p, k)) / n_pos)
+
+
+def _hits_at_k(p: _Problem, k: int) -> np.ndarray:
+    """Per query: whether one of its ``k`` first-ranked evaluated entries is a true match."""
     if p.sparse:
+        hit = np.zeros(p.shape[1], dtype=bool)
         if len(p.cols) == 0:
-            return 0.0
+            return hit
         start = np.searchsorted(p.cols, p.cols, side="left")
         rank = np.arange(len(p.cols)) - start
-        hit = np.zeros(p.shape[1], dtype=bool)
         hit[p.cols[p.is_hard & (rank < k)]] = True
-        return float(np.count_nonzero(hit & p.pos_queries) / n_pos)
+        return hit & p.pos_queries
 
     # Rank of each query's best true match under the order (similarity desc, db index asc): entries strictly more
     # similar, plus ties with a lower index.
@@ -217,7 +222,31 @@ def _recall_at_k(p: _Problem, k: int) -> float:
     rows = np.arange(p.shape[0])[:, None]
     tied_before = np.count_nonzero(p.cand & (p.S == v) & (rows < r_best), axis=0)
     hit = (v > -np.inf) & (above + tied_before < k)
-    return float(np.count_nonzero(hit & p.pos_queries) / n_pos)
+    return hit & p.pos_queries
+
+
+#: The N of Recall@N the field reports (VPR-methods-evaluation, the published tables).
+RECALL_AT = (1, 5, 10, 20)
+
+
+def recall_at_n(S, gt_hard, gt_soft=None, ns=RECALL_AT, mask=None) -> dict:
+    """Recall@N as the field computes it, and over the queries with a true match.
+
+    A query is a hit at N when one of its N first-ranked evaluated entries (similarity descending, ties by lower
+    index; soft-only and masked-out entries left out, as :func:`recall_at_k`) is a true match. Returns
+    ``every_query`` (N -> hits over every query: the field's denominator, VPR-methods-evaluation's), ``with_true_match``
+    (N -> hits over the queries with a true match: :func:`recall_at_k`'s; None without one), ``queries`` and
+    ``queries_with_true_match``. N: positive integers (ValueError otherwise).
+    """
+    ns = [int(n) for n in ns]
+    if not ns or any(n < 1 for n in ns):
+        raise ValueError(f"recall at N: positive integers, got {list(ns)}")
+    p = _prepare(S, gt_hard, gt_soft, mask)
+    n_q, n_pos = p.shape[1], int(np.count_nonzero(p.pos_queries))
+    hits = {n: int(np.count_nonzero(_hits_at_k(p, n))) for n in ns}
+    return {"every_query": {str(n): h / n_q if n_q else None for n, h in hits.items()},
+            "with_true_match": {str(n): h / n_pos if n_pos else None for n, h in hits.items()},
+            "queries": n_q, "queries_with_true_match": n_pos}
 
 
 def pr_curve(S, gt_hard, gt_soft=None, matching="multi", mask=None):

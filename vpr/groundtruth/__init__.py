@@ -31,6 +31,7 @@ from .positions import (
     speed_step,
 )
 from .spec import (
+    NAMES_RADIUS,
     GroundTruthSpec,
     aligned_frames,
     build_gt,
@@ -43,12 +44,10 @@ from .spec import (
     tolerance_text,
 )
 
-__all__ = ["gt_from_labels", "gt_from_frames", "gt_from_tolerance", "gt_from_positions", "loop_closure_mask",
-           "loop_closure_gt", "loop_pairs", "load_pairs_csv", "load_loop_pairs", "load_positions_csv",
-           "gt_from_position_files",
-           "load_traverse_positions", "positions_of_frames", "db_query_matrix", "loop_matrix", "GroundTruthSpec",
-           "build_gt", "build_loop_gt", "build_stream_gt", "check_loop_gt_files", "prepare_positions",
-           "frame_positions", "Positions", "same_sampling", "same_rate", "check_rates", "check_speeds", "speed_step",
-           "RATE_RATIO",
-           "any_true", "frame_rows", "sampling_step", "tolerance_text", "check_tolerance", "check_radius",
-           "aligned_frames"]
+__all__ = ["NAMES_RADIUS", "gt_from_labels", "gt_from_frames", "gt_from_tolerance", "gt_from_positions",
+           "loop_closure_mask", "loop_closure_gt", "loop_pairs", "load_pairs_csv", "load_loop_pairs",
+           "load_positions_csv", "gt_from_position_files", "load_traverse_positions", "positions_of_frames",
+           "db_query_matrix", "loop_matrix", "GroundTruthSpec", "build_gt", "build_loop_gt", "build_stream_gt",
+           "check_loop_gt_files", "prepare_positions", "frame_positions", "Positions", "same_sampling", "same_rate",
+           "check_rates", "check_speeds", "speed_step", "RATE_RATIO", "any_true", "frame_rows", "sampling_step",
+           "tolerance_text", "check_tolerance", "check_radius", "aligned_frames"]

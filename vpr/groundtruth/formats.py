@@ -1,6 +1,7 @@
 """Ground truth as the common benchmarks ship it: matrices in ``.npy``, images and Matlab files."""
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -105,19 +106,35 @@ def read_matrix(spec):
 
 
 def _vpr_bench(a, path, n_db: int, n_q: int) -> np.ndarray:
-    """VPR-Bench rows ``[query, [db, ...]]`` -> bool (n_db, n_q)."""
+    """VPR-Bench rows ``[query, [db, ...]]`` -> bool (n_db, n_q).
+
+    Entries naming frames beyond the traverses' (VPR-Bench's Gardens Point file lists database frames 200 and 201 of
+    200-frame folders) are dropped and said (how many, which); a file most of whose entries lie beyond them is
+    refused (the ground truth of other traverses). A negative frame is refused.
+    """
     gt = np.zeros((n_db, n_q), bool)
+    dropped, entries = [], 0
     for r, row in enumerate(a):
         try:
             q, dbs = int(row[0]), np.atleast_1d(np.asarray(row[1], dtype=np.int64))
         except (TypeError, ValueError, IndexError):
             raise ValueError(f"{path}: row {r} is not [query, [db, ...]] with integer frames") from None
-        if not 0 <= q < n_q:
-            raise ValueError(f"{path}: row {r}: query frame {q} out of range 0..{n_q - 1}")
-        bad = dbs[(dbs < 0) | (dbs >= n_db)]
-        if bad.size:
-            raise ValueError(f"{path}: row {r}: database frame {int(bad[0])} out of range 0..{n_db - 1}")
-        gt[dbs, q] = True
+        entries += max(dbs.size, 1)
+        if q < 0 or (dbs < 0).any():
+            raise ValueError(f"{path}: row {r}: a negative frame number")
+        if q >= n_q:
+            dropped.append(f"row {r} (query frame {q})")
+            continue
+        outside = dbs >= n_db
+        dropped += [f"row {r} (database frame {int(b)})" for b in dbs[outside]]
+        gt[dbs[~outside], q] = True
+    if dropped and len(dropped) > entries / 2:
+        raise ValueError(f"{path}: {len(dropped)} of its {entries} entries name frames beyond the database's "
+                         f"0..{n_db - 1} or the query's 0..{n_q - 1} (ground truth of other traverses?)")
+    if dropped:
+        warnings.warn(f"{path}: {len(dropped)} entr{'y' if len(dropped) == 1 else 'ies'} name frames beyond the "
+                      f"database's 0..{n_db - 1} or the query's 0..{n_q - 1} and are left out: "
+                      f"{', '.join(dropped[:6])}{' ...' if len(dropped) > 6 else ''}", UserWarning, stacklevel=4)
     return gt
 
 

@@ -25,8 +25,13 @@ from .files import (
 from .formats import db_query_matrix, is_matrix_file, loop_matrix, split_variable
 from .matrices import gt_from_frames, gt_from_positions
 
-__all__ = ["GroundTruthSpec", "build_gt", "build_loop_gt", "check_loop_gt_files", "warn_if_mostly_true",
+__all__ = ["NAMES_RADIUS", "GroundTruthSpec", "build_gt", "build_loop_gt", "check_loop_gt_files", "warn_if_mostly_true",
            "sampling_step", "tolerance_text", "check_tolerance", "check_radius", "aligned_frames"]
+
+
+#: Metres within which positions read from file names (``--gt names``: UTM as ``@east@north@``) are one place when no
+#: ``--radius`` is given: the field's (VPR-methods-evaluation's and its datasets' 25 m).
+NAMES_RADIUS = 25.0
 
 
 @dataclass(frozen=True)
