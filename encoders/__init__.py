@@ -34,6 +34,7 @@ _REGISTRY = {
     "projection": ("encoders.projection", "ProjectionEncoder"),
     "orb": ("encoders.orb", "OrbEncoder"),
     "cnn": ("encoders.cnn", "CnnEncoder"),
+    "descriptors": ("encoders.descriptors", "DescriptorsEncoder"),
 }
 
 

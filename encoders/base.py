@@ -159,6 +159,11 @@ class DescriptorEncoder(BaseEncoder):
     one), fitted by :meth:`fit_descriptors` when ``standardise="fit"``.
     """
 
+    def warm_up(self) -> None:
+        """Load models and build projection matrices now (two tiny frames described and sparsified), so that the
+        first frame's latency is its own."""
+        self.encode_descriptors(self.describe([np.zeros((48, 64, 3), np.uint8)] * 2))
+
     def describe(self, images) -> np.ndarray:
         """Dense float32 descriptor, (frames, dims)."""
         raise NotImplementedError

@@ -14,11 +14,13 @@ import encoders
 from vpr import methods, presets
 from vpr.config import parse_key_values, parse_method_confs
 from vpr.groundtruth import NAMES_RADIUS, GroundTruthSpec
+from vpr.sources import is_descriptor_file
+from vpr.types import ENCODER_INPUTS
 
 __all__ = ["add_common_arguments", "add_source_arguments", "add_preset_argument", "add_gt_arguments",
-           "gt_spec_from_args", "loop_geometry", "method_confs", "add_method_conf_argument",
-           "add_run_arguments", "settings_from_args", "options_from_args", "parse_every", "parse_size",
-           "add_query_speed_argument", "follows_speed"]
+           "gt_spec_from_args", "loop_geometry", "descriptor_inputs", "input_encoder", "method_confs",
+           "add_method_conf_argument", "add_run_arguments", "settings_from_args", "options_from_args", "parse_every",
+           "parse_size", "add_query_speed_argument", "follows_speed", "DESCRIPTORS"]
 
 _UNITS = {"": 2**30, "b": 1, "k": 2**10, "m": 2**20, "g": 2**30, "t": 2**40}
 
@@ -145,11 +147,63 @@ def settings_from_args(args) -> dict:
         names = [args.method] if getattr(args, "method", None) else None
     enc_conf = parse_key_values(args.encoder_conf, "--encoder-conf")
     confs = parse_method_confs(args.method_conf, methods.available())
-    s = presets.resolve(args.preset, encoder=args.encoder, encoder_conf=enc_conf, methods=names, method_conf=confs,
+    given = descriptor_inputs(args)
+    encoder = input_encoder(args, given)
+    s = presets.resolve(args.preset, encoder=encoder, encoder_conf=enc_conf, methods=names, method_conf=confs,
                         loops=args.command == "loops")
+    if given:
+        s["methods"] = _without_images(s["methods"], s["method_conf"], names is not None, given[0])
     if names is None and args.command != "compare":  # one method: the preset's headline or loop method
         s["methods"] = [s["loop_method"] if args.command == "loops" else s["methods"][0]]
     return s
+
+
+#: the encoder of descriptor files (:mod:`encoders.descriptors`)
+DESCRIPTORS = "descriptors"
+
+
+def input_encoder(args, given: list[str]) -> str | None:
+    """``--encoder``, or for descriptor files (``given``: :func:`descriptor_inputs`) their sparsifier (another encoder
+    refused)."""
+    if given and args.encoder not in (None, DESCRIPTORS):
+        raise ValueError(f"{given[0]} holds descriptors: --encoder {DESCRIPTORS} (their random-projection top-k) "
+                         f"reads them, not --encoder {args.encoder}")
+    return DESCRIPTORS if given else args.encoder
+
+
+def descriptor_inputs(args) -> list[str]:
+    """The command's inputs if they are descriptor files (a mix with images refused), else []."""
+    paths = [str(p) for a in ("db", "query", "seq", "sources") for p in _listed(getattr(args, a, None))]
+    found = [p for p in paths if is_descriptor_file(p)]
+    if found and len(found) < len(paths):
+        other = next(p for p in paths if not is_descriptor_file(p))
+        raise ValueError(f"{found[0]} holds descriptors and {other} does not: give every traverse as descriptors "
+                         "(.npy, .h5) or every one as images")
+    if found and getattr(args, "verify", 0):
+        raise ValueError(f"--verify matches the images' keypoints: {found[0]} holds descriptors, no images")
+    return found
+
+
+def _listed(value) -> list:
+    return [] if value is None else list(value) if isinstance(value, (list, tuple)) else [value]
+
+
+def _reads_images(name: str, confs: dict) -> bool:
+    """Whether method ``name`` with its conf reads an input computed from the images."""
+    return bool(set(methods.get(name, **confs.get(name, {})).required_inputs) - set(ENCODER_INPUTS))
+
+
+def _without_images(names: list[str], confs: dict, chosen: bool, where: str) -> list[str]:
+    """The methods that read descriptors, not images (a method chosen that reads images refused)."""
+    reads_images = [m for m in names if _reads_images(m, confs)]
+    if reads_images and chosen:
+        able = [m for m in methods.available() if not _reads_images(m, confs)]
+        raise ValueError(f"{', '.join(reads_images)} read{'s' if len(reads_images) == 1 else ''} the images: {where} "
+                         f"holds descriptors, no images; methods that read descriptors: {', '.join(able)}")
+    kept = [m for m in names if m not in reads_images]
+    if not kept:
+        raise ValueError(f"{where} holds descriptors: no method of the preset reads them; choose one with --methods")
+    return kept
 
 
 def options_from_args(args, settings: dict | None = None, **own):
@@ -173,14 +227,16 @@ def options_from_args(args, settings: dict | None = None, **own):
         memory_budget=budget, follow_speed=follows_speed(args))
 
 
-def loop_geometry(method: str, given: str | None) -> bool:
+def loop_geometry(method: str, given: str | None, images: bool = True) -> bool:
     """Whether ``method``'s loop closures get the geometric second opinion: ``--geometry`` (``on`` refused for a method
-    that does not decide them frame by frame), by default where it does."""
+    that does not decide them frame by frame, or without ``images``: descriptor files), by default where it does."""
     decides = methods.get_class(method).decides_frames
     if given == "on" and not decides:
         raise ValueError(f"--geometry on: a second opinion on the closures of a method that decides them frame by "
                          f"frame, not on {method}'s")
-    return decides and given != "off"
+    if given == "on" and not images:
+        raise ValueError("--geometry on matches the images' keypoints: descriptor files hold no images")
+    return decides and images and given != "off"
 
 
 def parse_every(text) -> float:

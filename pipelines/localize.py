@@ -25,8 +25,10 @@ from pipelines.args import (
     add_preset_argument,
     add_query_speed_argument,
     add_source_arguments,
+    descriptor_inputs,
     follows_speed,
     gt_spec_from_args,
+    input_encoder,
     method_confs,
     parse_every,
     topic_arg,
@@ -327,7 +329,8 @@ def _online_method(args) -> tuple[str, dict]:
 def run_command(args) -> int:
     name, given = _online_method(args)
     # the preset's encoder and the method's conf unless flags name others (vpr.presets.resolve)
-    settings = presets.resolve(args.preset, encoder=args.encoder, encoder_conf=encoders.parse_conf(args.encoder_conf),
+    encoder = input_encoder(args, descriptor_inputs(args))
+    settings = presets.resolve(args.preset, encoder=encoder, encoder_conf=encoders.parse_conf(args.encoder_conf),
                                methods=[name], method_conf={name: given})
     methods.get_online(name, **settings["method_conf"][name]).check_matching()  # before a frame is read
     every = parse_every(args.every) if args.every else None

@@ -14,6 +14,7 @@ import numpy as np
 
 from pipelines import loops_online
 from pipelines.args import (
+    DESCRIPTORS,
     add_common_arguments,
     add_gt_arguments,
     add_query_speed_argument,
@@ -73,7 +74,7 @@ def run_command(args) -> int:
     from vpr.report import metrics_table
 
     settings = settings_from_args(args)
-    own = {"geometry": loop_geometry(settings["methods"][0], args.geometry)}
+    own = {"geometry": loop_geometry(settings["methods"][0], args.geometry, settings["encoder"] != DESCRIPTORS)}
     if args.exclude is not None:
         own["exclude"] = args.exclude
     opts = options_from_args(args, settings, **own)

@@ -14,6 +14,8 @@ def _frames(srcs):
     """``read(names) -> {name: image}``: frames of the sources by name (``SESSION/NAME`` too), or image paths."""
     where = {}
     for src in srcs:
+        if not src.has_images:  # descriptor files: the strips show names, no pictures
+            continue
         try:
             names = src.names()
         except ValueError:  # paths on stdin: read by their paths

@@ -81,8 +81,7 @@ class StreamEncoder(FrameEncoder):
     def warm_up(self) -> None:
         """Load models and build projection matrices now, so that the first frame's latency is its own."""
         if self.described:
-            d = self.encoder.describe([np.zeros((48, 64, 3), np.uint8)] * 2)
-            self.encoder.encode_descriptors(d)
+            self.encoder.warm_up()
 
     def push(self, image) -> sp.csr_matrix:
         """The SDRs of the frames now ready, in order (0 or more rows; 1 row except with causal standardisation).

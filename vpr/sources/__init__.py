@@ -21,24 +21,27 @@ from .base import (
     decode_image,
     natural_key,
 )
+from .descriptors import DESCRIPTOR_EXTENSIONS, DescriptorSource, is_descriptor_file, read_descriptors
 from .files import FolderSource, ListSource
 from .stdin import StdinSource
 from .video import VideoSource
 
 __all__ = ["Frame", "FrameSkippedWarning", "IgnoredFilesWarning", "Source", "FolderSource", "ListSource", "VideoSource",
-           "BagSource", "StdinSource", "KINDS", "is_bag",
+           "BagSource", "StdinSource", "KINDS", "is_bag", "DescriptorSource", "read_descriptors",
+           "is_descriptor_file", "DESCRIPTOR_EXTENSIONS",
            "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS", "LIST_EXTENSIONS", "natural_key", "decode_image", "open_source",
            "open_sources", "load_all", "iter_batches", "frame_reader", "images_at"]
 
 
 #: The kinds of source, asked in this order whether a path is theirs (:meth:`Source.accepts`).
-KINDS = (BagSource, FolderSource, VideoSource, ListSource)
+KINDS = (BagSource, FolderSource, VideoSource, ListSource, DescriptorSource)
 
 _WHERE = {"fps": "videos and bags (use --step for images)", "topic": "ROS bags (.bag, .mcap, .db3, a ROS 2 bag folder)"}
 
 
 def open_source(path, fps=None, step=None, max_frames=None, topic: str | None = None) -> Source:
-    """Open a folder, video, image-list file (.txt .lst) or ROS bag as a :class:`Source` (the first of :data:`KINDS`).
+    """Open a folder, video, image-list file (.txt .lst), ROS bag or descriptor file (.npy .h5) as a :class:`Source`
+    (the first of :data:`KINDS`).
 
     ``fps``: videos and bags resampled by timestamps; ``step``: every ``step``-th frame; ``max_frames``: frames
     attempted; ``topic``: a bag's camera topic (default its only image topic). A missing path raises
@@ -57,8 +60,8 @@ def open_source(path, fps=None, step=None, max_frames=None, topic: str | None = 
             return kind(p, **given)
     raise ValueError(
         f"{p}: unknown source kind {p.suffix.lower() or '(no extension)'!r}; expected a folder of images, a video "
-        f"({' '.join(sorted(VIDEO_EXTENSIONS))}), an image list ({' '.join(sorted(LIST_EXTENSIONS))}) or a ROS bag "
-        "(.bag .mcap .db3, or a folder with metadata.yaml)")
+        f"({' '.join(sorted(VIDEO_EXTENSIONS))}), an image list ({' '.join(sorted(LIST_EXTENSIONS))}), a ROS bag "
+        f"(.bag .mcap .db3, or a folder with metadata.yaml) or descriptors ({' '.join(DESCRIPTOR_EXTENSIONS)})")
 
 
 def _identity(src: Source) -> tuple:

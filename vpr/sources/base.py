@@ -163,6 +163,8 @@ class Source:
     """
 
     kind = "source"
+    #: whether its frames are images (a descriptor file's are descriptor rows)
+    has_images: bool = True
     #: the input line last read, for sources read line by line (image paths on stdin); None for the others
     line: int | None = None
     #: what the frames of this kind of source come with: ``"stamps"`` (times), ``"positions"``
