@@ -16,7 +16,8 @@ from vpr.config import coerce_value
 from vpr.imageproc import seqslam_preprocess
 from vpr.similarity import overlap_count
 
-NAMES = ["cnn", "orb", "pixel", "projection"]
+NAMES = ["cnn", "descriptors", "orb", "pixel", "projection"]
+IMAGE_NAMES = [n for n in NAMES if n != "descriptors"]  # descriptors reads descriptor rows (tests/test_descriptors.py)
 
 
 def textured(seed: int, size=(160, 120)) -> np.ndarray:
@@ -111,7 +112,7 @@ def test_bad_conf_values_raise(name, conf, match):
 
 # -- input handling -----------------------------------------------------------
 
-@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize("name", IMAGE_NAMES)
 def test_bad_images_raise_naming_the_frame(name, encs, images):
     e = encs[name]
     with pytest.raises(ValueError, match=r"images\[1\]: empty image"):
@@ -128,7 +129,7 @@ def test_bad_images_raise_naming_the_frame(name, encs, images):
         e.encode(np.zeros((2, 3, 20, 20, 3), np.uint8))
 
 
-@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize("name", IMAGE_NAMES)
 def test_grey_16bit_and_rgba_match_uint8_bgr(name, encs, images):
     e = encs[name]
     grey = [cv2.cvtColor(im, cv2.COLOR_BGR2GRAY) for im in images[:3]]
