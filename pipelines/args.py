@@ -149,7 +149,8 @@ def settings_from_args(args) -> dict:
     confs = parse_method_confs(args.method_conf, methods.available())
     given = descriptor_inputs(args)
     encoder = input_encoder(args, given)
-    s = presets.resolve(args.preset, encoder=encoder, encoder_conf=enc_conf, methods=names, method_conf=confs,
+    preset = args.preset if args.preset is not None or not given else DESCRIPTORS  # the preset of descriptor files
+    s = presets.resolve(preset, encoder=encoder, encoder_conf=enc_conf, methods=names, method_conf=confs,
                         loops=args.command == "loops")
     if given:
         s["methods"] = _without_images(s["methods"], s["method_conf"], names is not None, given[0])

@@ -138,3 +138,13 @@ def field_recalls(S, db_xy, q_xy, ns, radius: float = 25.0) -> np.ndarray:
                 recalls[i:] += 1
                 break
     return recalls / len(q_xy)
+
+
+def delta_descriptors_by_convolution(x, L: int) -> np.ndarray:
+    """Delta Descriptors as the paper's code describes its ``delta`` op: each dimension convolved (``"same"``) with a
+    kernel of ``L / 2`` entries ``+2 / L`` then ``L / 2`` entries ``-2 / L`` (NumPy's convolution flips it: the mean of
+    the frames ahead minus that of the frames behind), a frame summing to exactly zero keeping its raw descriptor."""
+    v = np.full(L, -2.0 / L)
+    v[:L // 2] *= -1
+    d = np.array([np.convolve(x[:, i], v, "same") for i in range(x.shape[1])]).T
+    return np.array([x[j] if row.sum() == 0 else row for j, row in enumerate(d)])

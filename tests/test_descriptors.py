@@ -63,12 +63,13 @@ def test_the_same_descriptors_as_npy_as_h5_and_from_the_images_give_the_same_met
     common = ["--tolerance", 3, "--no-progress"]
     runs = {"npy": [described["db_npy"], described["q_npy"]], "h5": [described["db_h5"], described["q_h5"]],
             "images": [*described["folders"], "--encoder", "projection", "--encoder-conf", "descriptor=pixel",
-                       "--encoder-conf", "standardise=fit", "--methods", "rshosm-seq,seqslam-desc,pairwise"]}
+                       "--encoder-conf", "standardise=fit", "--methods", "rshosm-seq,delta,seqslam-desc,pairwise",
+                       "--method-conf", "pairwise.on=descriptor"]}
     for name, argv in runs.items():
         assert main([str(a) for a in ["compare", *argv, "--out", tmp_path / name, *common]]) == 0, \
             capsys.readouterr().err
     got = {name: _metrics(tmp_path / name) for name in runs}
-    assert set(got["npy"]) == {"rshosm-seq", "seqslam-desc", "pairwise"}  # seqslam reads images: left out
+    assert list(got["npy"]) == ["rshosm-seq", "delta", "seqslam-desc", "pairwise"]  # the descriptors preset
     assert got["npy"] == got["h5"] == got["images"]
     assert got["npy"]["rshosm-seq"]["ap"] > got["npy"]["pairwise"]["ap"]
     assert (tmp_path / "npy" / "report.html").is_file()

@@ -20,7 +20,7 @@ def _features(n=30, seed=0):
 
 
 def test_registry_builds_methods_and_rejects_unknown_names_and_keys():
-    assert methods.available() == ["rshosm", "rshosm-seq", "seqslam", "seqslam-desc", "pairwise"]
+    assert methods.available() == ["rshosm", "rshosm-seq", "seqslam", "seqslam-desc", "pairwise", "delta"]
     for name in methods.available():
         m = methods.get(name)
         assert isinstance(m, methods.Method) and m.name == name and m.conf == type(m).default_conf

@@ -62,6 +62,15 @@ PRESETS: dict[str, dict] = {
         "loop_encoder_conf": {},
         "use": "the paper's setting (KI 2018), for reproducing it",
     },
+    "descriptors": {
+        "encoder": "descriptors",
+        "encoder_conf": {"standardise": "fit"},
+        "methods": ["rshosm-seq", "delta", "seqslam-desc", "pairwise"],
+        "method_conf": {"pairwise": {"on": "descriptor"}},
+        "loop_method": "rshosm-seq",
+        "loop_encoder_conf": {"standardise": "causal"},
+        "use": "descriptors computed elsewhere (.npy, hloc .h5): the default where the inputs are descriptor files",
+    },
     "fast": {
         "encoder": "pixel",
         "encoder_conf": {"k": 200, "standardise": "fit"},

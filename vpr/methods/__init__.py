@@ -24,6 +24,7 @@ _REGISTRY = {
     "seqslam": ("vpr.methods.seqslam", "SeqSlam"),
     "seqslam-desc": ("vpr.methods.seqslam", "SeqSlamDesc"),
     "pairwise": ("vpr.methods.pairwise", "Pairwise"),
+    "delta": ("vpr.methods.delta", "Delta"),
 }
 
 
