@@ -44,6 +44,15 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     ap.add_argument("--verify", type=int, default=0, metavar="N",
                     help="geometric verification of each query's N best candidates (ORB + pycolmap)")
     ap.add_argument("--min-inliers", type=int, default=15, help="inliers needed to accept a verified match")
+    files = ap.add_argument_group("files the field's tools read")
+    files.add_argument("--top", type=int, default=20, metavar="N",
+                       help="each query's N best database frames with their scores, METHOD/top.csv (default 20; 0: "
+                            "none)")
+    files.add_argument("--pairs", type=int, default=0, metavar="N",
+                       help="hloc's retrieval pairs file of each query's N best, METHOD/pairs-query-METHODN.txt")
+    files.add_argument("--mat", action="store_true",
+                       help="METHOD/similarity.mat for MATLAB (S database x query, best counted from 1, score, "
+                            "accepted)")
     ap.add_argument("--recall-at", default=None, metavar="N1,N2,...",
                     help="the N of Recall@N, over every query (the field's) and over the queries with a true match "
                          f"(default {','.join(map(str, RECALL_AT))}; needs ground truth)")
@@ -70,7 +79,10 @@ def run_command(args) -> int:
     from pipelines.runs import run_compare, run_fleet
     from vpr.report import metrics_table
 
-    opts = options_from_args(args, recall_at=parse_recall_at(args))
+    for flag, n in (("--top", args.top), ("--pairs", args.pairs)):
+        if n < 0:
+            raise ValueError(f"{flag} {n}: a number of database frames per query, 0 or more")
+    opts = options_from_args(args, recall_at=parse_recall_at(args), top=args.top, pairs=args.pairs, mat=args.mat)
     if len(args.query) > 1:  # a fleet: one table per query traverse
         def said(name, done, total):
             print(f"vpr {args.command}: query {name} done ({done} of {total})", file=sys.stderr, flush=True)

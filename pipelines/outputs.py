@@ -96,6 +96,45 @@ def write_matches(folder: Path, res: MatchResult, db_names, q_names, extra: dict
                         *(v[j] for v in extra.values())])
 
 
+def write_ranked(folder: Path, res: MatchResult, db_names, q_names, top: int = 0, pairs: int = 0,
+                 mat: bool = False) -> None:
+    """The files the field's tools read, of one method's result: ``top.csv`` (each query's ``top`` best database
+    frames, best first, with their scores), hloc's ``pairs-query-METHOD{pairs}.txt`` (``query_name db_name``, the
+    ``pairs`` best of each query, as hloc's ``pairs_from_retrieval`` writes them) and, with ``mat``,
+    ``similarity.mat`` (MATLAB: ``S`` database x query, ``best`` each query's best database frame counted from 1, 0
+    for none, ``score``, ``accepted``)."""
+    from vpr.verify import top_candidates  # the ranking: decreasing similarity, ties by lower index
+
+    n = max(int(top), int(pairs))
+    if n:
+        idx = top_candidates(res.similarity, min(n, len(db_names)))
+        S = res.similarity.tocsc() if sp.issparse(res.similarity) else res.similarity
+        if top:
+            with io.atomic_open(folder / "top.csv", "w", newline="", encoding="utf-8", errors="surrogateescape") as fh:
+                w = csv.writer(fh, lineterminator="\n")
+                w.writerow(["query", "query_name", "rank", "db", "db_name", "score"])
+                for j, row in enumerate(idx):
+                    for r, b in enumerate(row[:top]):
+                        if b >= 0:
+                            w.writerow([j, q_names[j], r + 1, int(b), db_names[b], f"{float(S[b, j]):.6g}"])
+        if pairs:
+            spaced = next((x for x in (*q_names, *db_names) if any(c.isspace() for c in x)), None)
+            if spaced is not None:
+                warn(f"{folder}: no hloc pairs file: the frame name {spaced!r} holds white space, which hloc's pairs "
+                     "files separate names by")
+            else:
+                lines = [f"{q_names[j]} {db_names[b]}\n" for j, row in enumerate(idx) for b in row[:pairs] if b >= 0]
+                with io.atomic_open(folder / f"pairs-query-{res.method}{pairs}.txt", "w", encoding="utf-8",
+                                    errors="surrogateescape") as fh:
+                    fh.writelines(lines)
+    if mat:
+        import scipy.io
+
+        with io.atomic_path(folder / "similarity.mat") as tmp:
+            scipy.io.savemat(tmp, {"S": res.similarity, "best": res.best + 1, "score": res.score,
+                                   "accepted": res.accepted.astype(np.uint8)}, do_compression=True)
+
+
 def write_method(folder: Path, res: MatchResult, evaluated: tuple, db_names, q_names, truth: tuple = (None, None, None),
                  verification: tuple | None = None, title: str = "", loops: bool = False,
                  matches: dict | None = None) -> dict:
@@ -106,10 +145,13 @@ def write_method(folder: Path, res: MatchResult, evaluated: tuple, db_names, q_n
     gt_soft, mask) as evaluated. With ``verification`` (verifier, candidates, progress), each query's best candidates
     are re-ordered by geometric inliers (:meth:`vpr.verify.Verifier.verify`): the entry ``m+verify`` evaluates that
     matrix and its decisions. ``matches``: what ``matches.csv`` adds (an online run's): ``columns`` (more
-    columns), and ``best_names``, ``query_ids``, ``name_of`` of :func:`write_matches`.
+    columns), and ``best_names``, ``query_ids``, ``name_of`` of :func:`write_matches`; and the files the field's tools
+    read (:func:`write_ranked`): ``top`` (each query's N best as ``top.csv``), ``pairs`` (hloc's pairs file of the N
+    best), ``mat`` (``similarity.mat``).
     """
     names = dict(matches or {})
     columns = names.pop("columns", None)
+    ranked = {k: names.pop(k) for k in ("top", "pairs", "mat") if k in names}
     m = res.method
     gt_hard, gt_soft, mask = truth
     verifier, verify, progress = verification or (None, 0, False)
@@ -136,6 +178,8 @@ def write_method(folder: Path, res: MatchResult, evaluated: tuple, db_names, q_n
         entries[m + "+verify"] = (vm, vcurve)
     write_matches(folder, res, db_names, q_names, {**extra, **(columns or {})},
                   gt=None if gt_hard is None else (gt_hard, gt_soft, mask), **names)
+    if ranked and db_names is not None:
+        write_ranked(folder, res, db_names, q_names, **ranked)
     name_of = names.get("name_of")
     rows = list(db_names) if db_names is not None else [name_of(i) for i in range(res.similarity.shape[0])]
     io.save_json(folder / "frames.json", {"rows": rows, "columns": list(q_names)}, indent=None)

@@ -82,6 +82,11 @@ class RunOptions:
     exclude: int | str = LOOP_EXCLUDE
     #: the N of Recall@N (:func:`vpr.evaluate.recall_at_n`)
     recall_at: tuple = evaluate.RECALL_AT
+    #: the files the field's tools read (:func:`pipelines.outputs.write_ranked`): each query's N best (``top.csv``),
+    #: hloc's pairs file of the N best, ``similarity.mat``
+    top: int = 20
+    pairs: int = 0
+    mat: bool = False
     #: methods whose candidates are verified (None: all)
     verify_methods: tuple | None = None
     #: a query driven at another speed than the database matched again at the sampling that makes them agree
@@ -345,7 +350,8 @@ def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, ran: tuple 
         io.save_json(out / m / "config.json", config(opts, argv, command=command, db=str(db), query=str(query),
                                                       methods=list(runners)))
         entries = write_method(out / m, res, evaluated, db_names, q_names, (gt_hard, gt_soft, None),
-                               (v, opts.verify, opts.progress) if v is not None else None)
+                               (v, opts.verify, opts.progress) if v is not None else None,
+                               matches={"top": opts.top, "pairs": opts.pairs, "mat": opts.mat})
         return {k: (e, None) for k, e in entries.items() if k != m}
 
     read: dict = {}  # the query's speed as the first method to read it read it, for those that read none

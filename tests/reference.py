@@ -148,3 +148,14 @@ def delta_descriptors_by_convolution(x, L: int) -> np.ndarray:
     v[:L // 2] *= -1
     d = np.array([np.convolve(x[:, i], v, "same") for i in range(x.shape[1])]).T
     return np.array([x[j] if row.sum() == 0 else row for j, row in enumerate(d)])
+
+
+def hloc_pairs(path) -> dict[str, list[str]]:
+    """An hloc pairs file read by hloc's own rule (``parse_retrieval``): one pair a line, ``name0 name1`` split on white
+    space; the retrieved names of each query, in the file's order."""
+    out: dict[str, list[str]] = defaultdict(list)
+    with open(path, encoding="utf-8") as fh:
+        for line in fh.read().rstrip("\n").split("\n"):
+            q, r = line.split()
+            out[q].append(r)
+    return dict(out)

@@ -1,0 +1,46 @@
+"""The files the field's tools read: each query's top N (CSV), hloc's pairs file, a MATLAB .mat."""
+import csv
+
+import numpy as np
+import pytest
+import scipy.io
+
+from pipelines.cli import main
+from tests.reference import hloc_pairs
+
+
+@pytest.mark.slow
+def test_top_n_hloc_pairs_and_mat_of_a_compare(scene_on_disk, tmp_path, capsys):
+    s = scene_on_disk("two_seasons", (48, 32), 60)
+    db, q = s[s["names"][0]], s[s["names"][1]]
+    argv = ["compare", db, q, "--tolerance", 2, "--preset", "fast", "--methods", "rshosm-seq,pairwise", "--top", 7,
+            "--pairs", 5, "--mat", "--out", tmp_path / "o", "--no-progress"]
+    assert main([str(a) for a in argv]) == 0, capsys.readouterr().err
+    folder = tmp_path / "o" / "rshosm-seq"
+    with open(folder / "top.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    with open(folder / "matches.csv", newline="") as fh:
+        best = {r["query"]: r["best_db"] for r in csv.DictReader(fh)}
+    assert len(rows) == 60 * 7 and {r["rank"] for r in rows} == {str(k) for k in range(1, 8)}
+    for r in rows:  # rank 1 is the best match; scores fall with the rank
+        if r["rank"] == "1":
+            assert r["db"] == best[r["query"]]
+    for qn in {r["query"] for r in rows}:
+        scores = [float(r["score"]) for r in rows if r["query"] == qn]
+        assert scores == sorted(scores, reverse=True)
+    # hloc's parsing rule: one pair a line, names of the folders' images, 5 a query, the top.csv's first five
+    pairs = hloc_pairs(folder / "pairs-query-rshosm-seq5.txt")
+    db_names, q_names = {p.name for p in db.glob("*.png")}, {p.name for p in q.glob("*.png")}
+    assert set(pairs) == q_names and all(len(v) == 5 and set(v) <= db_names for v in pairs.values())
+    first = next(iter(pairs))
+    assert pairs[first] == [r["db_name"] for r in rows if r["query_name"] == first][:5]
+    m = scipy.io.loadmat(folder / "similarity.mat")
+    S = np.load(folder / "similarity.npy")
+    np.testing.assert_allclose(m["S"], S, rtol=1e-6)
+    assert m["best"].ravel().tolist() == [int(best[str(j)]) + 1 if int(best[str(j)]) >= 0 else 0 for j in range(60)]
+    # refused: a negative count, in one line, nothing written
+    argv[argv.index("--top") + 1] = -1
+    argv[argv.index("--out") + 1] = tmp_path / "bad"
+    assert main([str(a) for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--top -1" in err and not (tmp_path / "bad").exists()
