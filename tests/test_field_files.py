@@ -44,3 +44,25 @@ def test_top_n_hloc_pairs_and_mat_of_a_compare(scene_on_disk, tmp_path, capsys):
     assert main([str(a) for a in argv]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--top -1" in err and not (tmp_path / "bad").exists()
+
+
+def test_a_folder_of_subfolders_is_read_through_them(tmp_path):
+    import cv2
+
+    from vpr.sources import open_source
+
+    img = np.zeros((8, 8, 3), np.uint8)
+    for sub, names in (("000", ["b@1@2@.jpg", "a@1@2@.jpg"]), ("001", ["c@1@2@.jpg"])):
+        (tmp_path / "db" / sub).mkdir(parents=True)
+        for n in names:
+            cv2.imwrite(str(tmp_path / "db" / sub / n), img)
+    with pytest.warns(UserWarning, match="no images of its own; the 3 in its subfolders are read"):
+        src = open_source(tmp_path / "db")
+    assert src.names() == ["000/a@1@2@.jpg", "000/b@1@2@.jpg", "001/c@1@2@.jpg"]
+    assert [f.name for f in src] == src.names()
+    # a dataset's test folder holds the two traverses: refused, naming both
+    for sub in ("database", "queries"):
+        (tmp_path / "test" / sub).mkdir(parents=True)
+        cv2.imwrite(str(tmp_path / "test" / sub / "x.jpg"), img)
+    with pytest.raises(ValueError, match="holds database/ and queries/, two traverses"):
+        open_source(tmp_path / "test")

@@ -124,7 +124,7 @@ class _FileListSource(Source):
 
 
 class FolderSource(_FileListSource):
-    """The images in one folder (not recursive), in natural order.
+    """The images in one folder, in natural order (those of its subfolders where it has none of its own).
 
     Images are :data:`IMAGE_EXTENSIONS` (any case); other image formats and dangling links keep their frame number and
     are skipped with a warning when they do not decode; hidden files are ignored, other files with one warning
@@ -164,6 +164,8 @@ class FolderSource(_FileListSource):
                     others.append(entry.name)
         self.ignored = len(others)
         if not images:
+            images = self._nested(frame_like)
+        if not images:
             raise ValueError(f"no images in {self.path} ({self.ignored} other files ignored)")
         images.sort(key=natural_key)
         self._entries = [(n, self.path / n) for n in images]
@@ -171,6 +173,24 @@ class FolderSource(_FileListSource):
             others.sort(key=natural_key)
             warnings.warn(f"{self.path}: {len(others)} files that are not images ignored (e.g. "
                           f"{', '.join(others[:3])})", IgnoredFilesWarning, stacklevel=2)
+
+
+    def _nested(self, frame_like) -> list[str]:
+        """The images in the folder's subfolders, as paths relative to it (a folder with none of its own: a dataset
+        laid out in subfolders, as VPR-datasets-downloader's or Pittsburgh's); said in one line. A folder holding both
+        ``database`` and ``queries`` is refused: they are two traverses."""
+        subs = {p.name for p in self.path.iterdir() if p.is_dir() and not p.name.startswith(".")}
+        if {"database", "queries"} <= subs:
+            raise ValueError(f"{self.path}: holds database/ and queries/, two traverses: give each "
+                             f"({self.path / 'database'} {self.path / 'queries'})")
+        found = sorted(str(p.relative_to(self.path)) for p in self.path.rglob("*")
+                       if p.suffix.lower() in frame_like and not any(part.startswith(".") for part in
+                                                                       p.relative_to(self.path).parts)
+                       and (p.is_file() or p.is_symlink()))
+        if found:
+            warnings.warn(f"{self.path}: no images of its own; the {len(found)} in its subfolders are read, in the "
+                          "natural order of their paths", UserWarning, stacklevel=3)
+        return found
 
 
 class ListSource(_FileListSource):
