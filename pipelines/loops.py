@@ -26,7 +26,7 @@ from pipelines.args import (
 from pipelines.loops_online import no_revisit, rounded, say_session_speeds
 from pipelines.outputs import claim_methods, merge_metrics, versions, write_method
 from pipelines.report import write_report
-from pipelines.runs import RunOptions, config, extract_run, prepare_run
+from pipelines.runs import RunOptions, config, extract_run, follows, prepare_run
 from vpr import evaluate, groundtruth, io, methods
 from vpr.groundtruth import any_true, build_stream_gt, frame_rows
 from vpr.methods import LOOP_EXCLUDE
@@ -152,7 +152,7 @@ def run_loops(seq, opts: RunOptions) -> dict:
 
         done = evaluate.run_methods(runners, loops_of, gt_hard, gt_soft, mask, on_result=write, loops=True)
         if len(srcs) == 1:  # the sessions of a stream are read one by one (below)
-            groundtruth.check_speeds({k: m.get("path_speed") for k, (m, _) in done.items()},
+            groundtruth.check_speeds({k: m.get("path_speed") for k, (m, _) in done.items() if follows(k)},
                                      fix="within one run, a stretch read faster is matched again by default "
                                          "(metrics.json sampling.runs), one read slower is decided as it comes; "
                                          "given as sessions (vpr loops RUN1 RUN2), a later run is followed whole")

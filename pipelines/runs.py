@@ -115,6 +115,13 @@ class RunOptions:
                             if v is not None)
 
 
+def follows(label: str) -> bool:
+    """Whether the method of a result's label (``m`` or ``m+verify``) follows sequences: its paths of best frames read
+    the query's speed (a single-frame method's best frames form no path, and say nothing of it)."""
+    name = label.split("+")[0]
+    return name in methods.available() and methods.get_class(name).follows_sequences
+
+
 def config(opts: RunOptions, argv=None, **inputs) -> dict:
     return {"argv": list(sys.argv[1:] if argv is None else argv), **inputs, **asdict(opts)}
 
@@ -366,7 +373,7 @@ def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, ran: tuple 
         return res
 
     done = evaluate.run_methods(the_map.fitted, call, gt_hard, gt_soft, on_result=write, recall_at=opts.recall_at)
-    check_speeds({k: m.get("path_speed") for k, (m, _) in done.items() if not m.get("sampling")})
+    check_speeds({k: m.get("path_speed") for k, (m, _) in done.items() if not m.get("sampling") and follows(k)})
     # what makes two runs' metrics comparable: same frames (content keys), encoding and ground truth
     truth = opts.gt.describe(sampling_step(db_src.indices()))  # a tolerance in frames kept and in input frames
     inputs = {"kind": "match", "db": db_src.key(), "query": q_src.key(), "encoder": encoder.name,

@@ -196,3 +196,21 @@ def test_localize_follows_a_query_driven_twice_as_fast_and_resumes(scene_on_disk
     assert code == 0, err
     key = lambda r: (r["best_db"], r["score"], r["accepted"])  # noqa: E731
     assert [key(json.loads(x)) for x in (first + rest).splitlines()] == [key(r) for r in answers["follow"]]
+
+
+@pytest.mark.slow
+def test_a_single_frame_method_says_nothing_of_a_speed(scene_on_disk, tmp_path, capsys):
+    # its best frames form no path: no speed is said of it, no --step advised, at any speed of the query
+    s = scene_on_disk("two_seasons", (64, 48), 120)
+    db, other = s[s["names"][0]], s[s["names"][1]]
+    q2 = tmp_path / "every_2nd"
+    q2.mkdir()
+    for f in sorted(db.iterdir())[::2]:
+        (q2 / f.name).symlink_to(f)
+    for query, out in ((q2, "twice"), (other, "same")):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            code, _, err = run(["compare", db, query, "--methods", "pairwise", "--out", tmp_path / out], capsys)
+        assert code == 0, err
+        said = [str(w.message) for w in caught if "frame rate" in str(w.message) or "--step" in str(w.message)]
+        assert said == [] and "--step" not in err, said
