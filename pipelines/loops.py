@@ -24,7 +24,7 @@ from pipelines.args import (
     settings_from_args,
 )
 from pipelines.loops_online import no_revisit, rounded, say_session_speeds
-from pipelines.outputs import claim_methods, merge_metrics, versions, write_method
+from pipelines.outputs import claim_methods, merge_metrics, versions, write_method, write_stream_pairs
 from pipelines.report import write_report
 from pipelines.runs import RunOptions, config, extract_run, follows, prepare_run
 from vpr import evaluate, groundtruth, io, methods
@@ -54,6 +54,9 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
                          "the images are large enough) accepts closures the method's own rule has not reached yet: "
                          "short loops, revisits a sequence is slow to trust; on by default for a method that decides "
                          "frame by frame (research/docs/loops.md), off: the method's rule alone decides")
+    ap.add_argument("--pairs", type=int, default=0, metavar="N",
+                    help="hloc's pairs file of the stream for structure from motion: each frame with its N next frames "
+                         "and each accepted loop closure, METHOD/pairs-sequentialN-loops.txt (batch)")
     add_query_speed_argument(ap, sessions=True)
     add_gt_arguments(ap, loops=True)
     online = ap.add_argument_group("online (SEQ is -)")
@@ -77,7 +80,9 @@ def run_command(args) -> int:
     own = {"geometry": loop_geometry(settings["methods"][0], args.geometry, settings["encoder"] != DESCRIPTORS)}
     if args.exclude is not None:
         own["exclude"] = args.exclude
-    opts = options_from_args(args, settings, **own)
+    if args.pairs < 0:
+        raise ValueError(f"--pairs {args.pairs}: a number of next frames, 0 or more")
+    opts = options_from_args(args, settings, pairs=args.pairs, **own)
     report = run_loops(args.seq[0] if len(args.seq) == 1 else args.seq, opts)
     print(metrics_table(report["methods"], "loops"))
     print(f"wrote {opts.out}/report.html (open it: the table, the plots and the frames side by side), metrics.json")
@@ -137,6 +142,8 @@ def run_loops(seq, opts: RunOptions) -> dict:
                 evaluated[0]["session_speeds"] = rounded(speeds[m])
             write_method(out / m, res, evaluated, features.names, features.names, (gt_hard, gt_soft, mask),
                          title=f"{m}: loop closures", loops=True)
+            if opts.pairs:
+                write_stream_pairs(out / m, res, features.names, opts.pairs, starts)
             io.save_json(out / m / "config.json", config(opts, command="loops", seq=[str(q) for q in seqs],
                                                           method=m, exclude=exclude))
 

@@ -39,7 +39,8 @@ def run_command(args) -> int:
     given = [f for f, v in (("--fps", args.fps), ("--step", args.step), ("--max-frames", args.max_frames),
                             ("--cache", args.cache), ("--topic", args.topic), ("--every", args.every),
                             ("--gt-topic", args.gt_topic),
-                            ("--memory-budget", args.memory_budget), ("--query-speed", args.query_speed))
+                            ("--memory-budget", args.memory_budget), ("--query-speed", args.query_speed),
+                            ("--pairs", args.pairs or None))
              if v is not None]
     if given:
         raise ValueError(f"vpr loops -: {', '.join(given)} apply to a folder or video, not to image paths on stdin")

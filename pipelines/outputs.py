@@ -135,6 +135,20 @@ def write_ranked(folder: Path, res: MatchResult, db_names, q_names, top: int = 0
                                    "accepted": res.accepted.astype(np.uint8)}, do_compression=True)
 
 
+def write_stream_pairs(folder: Path, res: MatchResult, names, n: int, starts=(0,)) -> Path:
+    """hloc's pairs file of one stream, what structure from motion of a video needs: each frame with its ``n`` next
+    frames of its session, and each accepted loop closure (frame, the earlier frame it closes onto); one pair a line,
+    each once, in frame order: ``pairs-sequential{n}-loops.txt``."""
+    bounds = [*sorted({0, *(int(a) for a in starts)}), len(names)]
+    end = np.repeat(bounds[1:], np.diff(bounds))  # each frame's session end
+    pairs = {(j, k) for j in range(len(names)) for k in range(j + 1, min(j + 1 + int(n), int(end[j])))}
+    pairs |= {(int(b), j) for j, (b, a) in enumerate(zip(res.best, res.accepted, strict=True)) if a and b >= 0}
+    path = folder / f"pairs-sequential{n}-loops.txt"
+    with io.atomic_open(path, "w", encoding="utf-8", errors="surrogateescape") as fh:
+        fh.writelines(f"{names[a]} {names[b]}\n" for a, b in sorted(pairs, key=lambda p: (max(p), min(p))))
+    return path
+
+
 def write_method(folder: Path, res: MatchResult, evaluated: tuple, db_names, q_names, truth: tuple = (None, None, None),
                  verification: tuple | None = None, title: str = "", loops: bool = False,
                  matches: dict | None = None) -> dict:

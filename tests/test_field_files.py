@@ -66,3 +66,23 @@ def test_a_folder_of_subfolders_is_read_through_them(tmp_path):
         cv2.imwrite(str(tmp_path / "test" / sub / "x.jpg"), img)
     with pytest.raises(ValueError, match="holds database/ and queries/, two traverses"):
         open_source(tmp_path / "test")
+
+
+@pytest.mark.slow
+def test_loops_write_the_streams_sequential_and_loop_pairs(scene_on_disk, tmp_path, capsys, monkeypatch):
+    import io
+
+    s = scene_on_disk("loop_revisits", (48, 36), 240)
+    argv = ["loops", s["laps"], "--pairs", 2, "--preset", "fast", "--out", tmp_path / "o", "--no-progress"]
+    assert main([str(a) for a in argv]) == 0, capsys.readouterr().err
+    folder = tmp_path / "o" / "rshosm-seq"
+    with open(folder / "matches.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    names = [r["query_name"] for r in rows]
+    pairs = {(a, b) for a, rs in hloc_pairs(folder / "pairs-sequential2-loops.txt").items() for b in rs}
+    sequential = {(names[j], names[k]) for j in range(len(names)) for k in (j + 1, j + 2) if k < len(names)}
+    closures = {(r["db_name"], r["query_name"]) for r in rows if r["accepted"] == "1"}
+    assert closures and pairs == sequential | closures
+    monkeypatch.setattr("sys.stdin", io.StringIO(""))
+    assert main(["loops", "-", "--pairs", "2", "--out", str(tmp_path / "online")]) == 2
+    assert "--pairs" in capsys.readouterr().err and not (tmp_path / "online").exists()
