@@ -391,8 +391,8 @@ def _check_complete(out: Path, n_db: int, n_q: int) -> None:
             json.loads(p.read_text())
         elif p.suffix == ".png":
             assert cv2.imread(str(p)) is not None, p
-        elif p.suffix == ".csv":
-            assert len(list(csv.DictReader(open(p)))) == n_q
+        elif p.suffix == ".csv":  # a row per query (top.csv: each query's 20 best, here every database frame or 20)
+            assert len(list(csv.DictReader(open(p)))) == (n_q * min(20, n_db) if p.name == "top.csv" else n_q), p
 
 
 def _results(out: Path, names) -> dict:
