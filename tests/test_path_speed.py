@@ -92,14 +92,20 @@ def test_a_speed_is_said_with_the_fix_given():
     assert lines[3].endswith("do this (research/docs/localize.md)")
 
 
-@pytest.mark.slow
-def test_compare_follows_a_query_driven_twice_as_fast(scene_on_disk, tmp_path, capsys):
+def _twice_as_fast(scene_on_disk, tmp_path):
+    """(the day traverse, the night traverse, the day's every 2nd frame: the day driven twice as fast)."""
     s = scene_on_disk("two_seasons", (64, 48), 120)
     db, other = s[s["names"][0]], s[s["names"][1]]
     q2 = tmp_path / "every_2nd"
     q2.mkdir()
     for f in sorted(db.iterdir())[::2]:
         (q2 / f.name).symlink_to(f)
+    return db, other, q2
+
+
+@pytest.mark.slow
+def test_compare_follows_a_query_driven_twice_as_fast(scene_on_disk, tmp_path, capsys):
+    db, other, q2 = _twice_as_fast(scene_on_disk, tmp_path)
     for query, out, how, said in ((q2, "follow", [], "learned again as 2 maps of one frame in 2"),
                                   (q2, "as_is", ["--query-speed", "as-is"], "driven faster"),
                                   (other, "same", [], None)):
@@ -201,12 +207,7 @@ def test_localize_follows_a_query_driven_twice_as_fast_and_resumes(scene_on_disk
 @pytest.mark.slow
 def test_a_single_frame_method_says_nothing_of_a_speed(scene_on_disk, tmp_path, capsys):
     # its best frames form no path: no speed is said of it, no --step advised, at any speed of the query
-    s = scene_on_disk("two_seasons", (64, 48), 120)
-    db, other = s[s["names"][0]], s[s["names"][1]]
-    q2 = tmp_path / "every_2nd"
-    q2.mkdir()
-    for f in sorted(db.iterdir())[::2]:
-        (q2 / f.name).symlink_to(f)
+    db, other, q2 = _twice_as_fast(scene_on_disk, tmp_path)
     for query, out in ((q2, "twice"), (other, "same")):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
