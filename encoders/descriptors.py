@@ -19,6 +19,8 @@ class DescriptorsEncoder(ProjectedEncoder):
 
     name = "descriptors"
     default_conf = {"standardise": "fit"}
+    #: the descriptors' length, once the sources are known (:meth:`check_sources`; 0 before)
+    dim = 0
 
     def describe(self, images) -> np.ndarray:
         rows = list(images)
@@ -30,18 +32,17 @@ class DescriptorsEncoder(ProjectedEncoder):
 
     def warm_up(self) -> None:
         """Build the projection matrix of the descriptors' length, once it is known (:meth:`check_sources`)."""
-        if getattr(self, "dim", 0):
+        if self.dim:
             self.encode_descriptors(np.zeros((2, self.dim), np.float32))
 
     def check_sources(self, srcs, roles, chosen: str = "") -> None:
         """As every encoder's, and the traverses must be descriptor files of one length (one model's)."""
         dims = {}
         for src, role in zip(srcs, roles, strict=True):
-            dim = getattr(src, "dim", None)
-            if dim is None:
+            if src.has_images:
                 raise ValueError(f"{role} {src.path}: encoder descriptors reads descriptor files (.npy, .h5), not a "
                                  f"{src.kind}")
-            dims[f"{role} {src.path}"] = dim
+            dims[f"{role} {src.path}"] = src.dim
         if len(set(dims.values())) > 1:
             raise ValueError("descriptors of different lengths (another model's?): "
                              + ", ".join(f"{k} {v}" for k, v in dims.items()))

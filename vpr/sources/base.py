@@ -163,7 +163,7 @@ class Source:
     """
 
     kind = "source"
-    #: whether its frames are images (a descriptor file's are descriptor rows)
+    #: whether its frames are images (a descriptor file's are descriptor rows, of length ``dim``)
     has_images: bool = True
     #: the input line last read, for sources read line by line (image paths on stdin); None for the others
     line: int | None = None
