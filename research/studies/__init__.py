@@ -1,1 +1,2 @@
-"""Research studies: not installed, not part of the product. Run as ``python -m studies.<name>``; see README.md."""
+"""Research studies: not installed, not part of the product. Run as ``python -m research.studies.<name>``
+(research/README.md)."""
