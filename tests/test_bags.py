@@ -130,6 +130,7 @@ def test_a_cut_ros1_bag_reads_what_is_complete(seasons, tmp_path):
     assert [f.index for f in src] == list(range(n))
 
 
+@pytest.mark.slow  # command-line integration
 def test_empty_compressed_frames_are_skipped_everywhere(seasons, tmp_path, capsys):
     images = read_folder(seasons["day"])[:16]
     bag = write_bag(tmp_path / "drops.bag", images, compressed=True, gps=False, odom=False, empty={3, 9})

@@ -191,6 +191,7 @@ def test_variable_frame_rate_video_is_sampled_by_timestamps(tmp_path):
     assert [f.index for f in src] == idx
 
 
+@pytest.mark.slow  # command-line integration
 def test_ground_truth_that_makes_most_pairs_true_is_warned_about(folders, scene, tmp_path, capsys):
     with pytest.warns(UserWarning, match="--tolerance 1000 counts frames kept and spans more than a tenth of"):
         code, out, err = _run(["compare", *folders, "--out", tmp_path / "out", "--tolerance", "1000", *FAST], capsys)

@@ -145,6 +145,7 @@ def test_encode_and_demo_take_the_preset():
     assert (args.preset, args.encoder, args.methods, args.encoder_conf) == (None, None, None, None)
 
 
+@pytest.mark.slow  # command-line integration
 def test_config_json_records_the_resolved_settings(tmp_path):
     from vpr.render import write_scene
 

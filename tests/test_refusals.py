@@ -64,6 +64,7 @@ def test_localize_with_a_map_refuses_what_the_map_fixes(scene, map_file, tmp_pat
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.slow  # command-line integration
 def test_localize_applies_query_time_settings_to_a_map(scene, map_file, tmp_path, capsys):
     code, out, err = _run(["localize", map_file, scene["q"], "--out", tmp_path / "o", "--method-conf",
                            "rshosm-seq.min_score=1e9"], capsys)
@@ -73,6 +74,7 @@ def test_localize_applies_query_time_settings_to_a_map(scene, map_file, tmp_path
     assert m["methods"]["rshosm-seq"]["n_accepted"] == 0
 
 
+@pytest.mark.slow  # command-line integration
 def test_learn_adds_the_suffix_and_maps_are_read_by_content(scene, map_file, tmp_path, capsys):
     assert map_file.is_file() and map_file.suffix == ".npz"
     renamed = tmp_path / "robot_map"  # a map renamed without a suffix is still a map
@@ -210,6 +212,7 @@ def test_degenerate_sdrs_warn_with_their_count(tmp_path, capsys):
     assert "11 of 12 frames repeat another frame's SDR exactly" in " | ".join(str(w.message) for w in rec)
 
 
+@pytest.mark.slow  # command-line integration
 def test_a_cache_file_of_another_source_is_not_trusted(scene, tmp_path, capsys):
     import encoders
     from pipelines.extract import cache_path
@@ -350,6 +353,7 @@ def test_huge_or_misplaced_values_are_refused_in_one_line_before_anything_is_wri
     assert not out.exists()
 
 
+@pytest.mark.slow  # command-line integration
 def test_a_run_leaves_no_lock_behind_and_a_refused_one_no_folder(scene, tmp_path, capsys):
     out = tmp_path / "o"
     code, _, err = _run(["compare", scene["db"], scene["q"], "--out", out, "--methods", "pairwise,seqslam",

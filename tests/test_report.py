@@ -74,6 +74,7 @@ def test_a_query_followed_at_another_speed_is_said_on_the_page(sampling, said):
         assert "session 3" not in note  # read at the earlier sessions' speed: nothing done, nothing said
 
 
+@pytest.mark.slow  # a vpr compare run: command-line integration
 def test_compare_writes_a_report_with_a_strip_per_decision_shown(compared):
     page = (compared / "report.html").read_text()
     metrics = json.loads((compared / "metrics.json").read_text())["methods"]
@@ -183,6 +184,7 @@ def test_loops_and_localize_write_reports(scene_on_disk, tmp_path, capsys):
     assert (tmp_path / "loc" / "pr.png").is_file() and (tmp_path / "loc" / "rshosm-seq" / "similarity.png").is_file()
 
 
+@pytest.mark.slow  # a vpr compare run: command-line integration
 def test_a_rejected_best_match_in_the_soft_band_is_neither_and_the_counts_parse(scene_on_disk, tmp_path, capsys):
     s = scene_on_disk("two_seasons", (64, 48), 120)
     out = tmp_path / "soft"
@@ -201,6 +203,7 @@ def test_a_rejected_best_match_in_the_soft_band_is_neither_and_the_counts_parse(
     assert counts["pairwise"].get("lost", [0, 0])[1] == lost
 
 
+@pytest.mark.slow  # a vpr compare run: command-line integration
 def test_without_ground_truth_a_strip_is_query_and_best_match_by_score(scene_on_disk, tmp_path, capsys):
     s = scene_on_disk("two_seasons", (64, 48), 120)
     out = tmp_path / "nogt"

@@ -197,6 +197,7 @@ def _write_positions(path, rows, names):
     return path
 
 
+@pytest.mark.slow  # command-line integration
 def test_sessions_named_alike_are_told_apart(two_runs, capsys):
     root, rows = two_runs
     runs = [root / "run1" / "img", root / "run2" / "img"]
@@ -229,6 +230,7 @@ def test_the_same_recording_twice_is_refused_as_sessions(two_runs, capsys):
     assert not (root / "o").exists() and not (root / "map.npz").exists()
 
 
+@pytest.mark.slow  # command-line integration
 def test_a_byte_identical_copy_of_a_recording_is_refused_as_a_second_session(laps, two_runs, tmp_path, capsys):
     root, _ = two_runs
     copy = tmp_path / "copy" / "img"
