@@ -12,9 +12,12 @@ __all__ = ["write_report"]
 
 def _frames(srcs):
     """``read(names) -> {name: image}``: frames of the sources by name (``SESSION/NAME`` too), or image paths."""
-    where = {}
+    where, paths = {}, {}
     for src in srcs:
-        if not src.has_images:  # descriptor files: the strips show names, no pictures
+        if not src.has_images:  # descriptor files: their images beside them where there are, else names alone
+            for n, f in zip(src.names(), src.frame_paths() or [], strict=False):
+                paths.setdefault(n, f)
+                paths.setdefault(f"{src.name}/{n}", f)
             continue
         try:
             names = src.names()
@@ -27,7 +30,9 @@ def _frames(srcs):
     def read(names) -> dict:
         out, wanted = {}, {}
         for n in set(names):
-            if n in where:
+            if n in paths:
+                out[n] = decode_image(paths[n])[0]
+            elif n in where:
                 wanted.setdefault(id(where[n][0]), []).append(n)
             elif n and Path(n).is_file():  # paths on stdin
                 out[n] = decode_image(Path(n))[0]

@@ -128,3 +128,22 @@ def test_learn_localize_and_loops_take_descriptor_files(described, tmp_path, cap
     assert main([str(a) for a in ["loops", db, "--geometry", "on", "--out", tmp_path / "g", "--no-progress"]]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--geometry on" in err and "no images" in err and not (tmp_path / "g").exists()
+
+
+@pytest.mark.slow
+def test_images_beside_a_descriptor_file_name_its_frames_and_show_on_the_page(described, tmp_path, capsys):
+    import shutil
+
+    pair = []
+    for role, folder in zip(("db", "q"), described["folders"], strict=True):
+        shutil.copy(described[role + "_npy"], tmp_path / f"{role}.npy")
+        (tmp_path / role).symlink_to(folder)  # db.npy beside db/: its images, one a row
+        pair.append(tmp_path / f"{role}.npy")
+    assert DescriptorSource(pair[0]).names() == sorted(p.name for p in described["folders"][0].glob("*.png"))
+    argv = ["compare", *pair, "--tolerance", 3, "--out", tmp_path / "o", "--no-progress"]
+    assert main([str(a) for a in argv]) == 0, capsys.readouterr().err
+    assert (tmp_path / "o" / "report.html").read_text().count("data:image/jpeg") > 100  # the frames, shown
+    np.save(tmp_path / "short.npy", np.load(pair[1])[:50])
+    (tmp_path / "short").symlink_to(described["folders"][1])
+    with pytest.raises(ValueError, match="50 descriptors, but the folder beside it"):
+        DescriptorSource(tmp_path / "short.npy")

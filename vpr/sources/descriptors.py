@@ -1,9 +1,11 @@
 """Global descriptors computed elsewhere (NetVLAD, MixVPR, SALAD, ...) as a source: one frame per row.
 
 A ``.npy`` of N x D numbers (frames named ``000000``, ``000001``, ...), or hloc's global-feature ``.h5``
-(``/<image name>/global_descriptor``, the names kept, in natural order as a folder's). Each frame's "image" is its
-descriptor row: the ``descriptors`` encoder sparsifies them, ``seqslam-desc`` and ``pairwise`` read them as they are.
-Read without executing anything (no pickle); a file that is not N x D finite numbers is refused naming what is wrong.
+(``/<image name>/global_descriptor``, the names kept, in natural order as a folder's); a folder of the file's name
+beside it (``db.npy`` and ``db/``) holding the images names the frames and shows them on the report page. Each
+frame's "image" is its descriptor row: the ``descriptors`` encoder sparsifies them, ``seqslam-desc`` and ``pairwise``
+read them as they are. Read without executing anything (no pickle); a file that is not N x D finite numbers is
+refused naming what is wrong.
 """
 from __future__ import annotations
 
@@ -96,9 +98,36 @@ class DescriptorSource(Source):
     def __init__(self, path, step=None, max_frames=None):
         super().__init__(path)
         self.all_names, self.rows = read_descriptors(self.path)
+        self.images = self._images_beside()
         picked = np.arange(len(self.all_names))[::int(step or 1)]
         self._picked = picked[:max_frames] if max_frames is not None else picked
         self.step, self.max_frames = step, max_frames
+
+    def _images_beside(self) -> list[Path] | None:
+        """The images of the folder beside the file, of its name without the suffix (``db.npy`` and ``db/``), one a
+        row: they name the frames of a ``.npy``; an ``.h5``'s names must be theirs. None without such a folder; a
+        count or a name that differs is refused."""
+        folder = self.path.with_suffix("")
+        if not folder.is_dir():
+            return None
+        from .files import FolderSource  # a folder's images, as a folder source lists them
+
+        names = FolderSource(folder).names()
+        if len(names) != len(self.all_names):
+            raise ValueError(f"{self.path}: {len(self.all_names)} descriptors, but the folder beside it, {folder}, "
+                             f"holds {len(names)} images")
+        if self.path.suffix.lower() == ".npy":
+            self.all_names = names
+        else:
+            missing = [n for n in self.all_names if n not in set(names)]
+            if missing:
+                raise ValueError(f"{self.path}: {len(missing)} descriptor names are not images of {folder} (first: "
+                                 f"{missing[0]})")
+        return [folder / n for n in self.all_names]
+
+    def frame_paths(self) -> list[Path] | None:
+        """The images beside the file (:meth:`_images_beside`) of the frames :meth:`indices` names, or None."""
+        return None if self.images is None else [self.images[i] for i in self.indices()]
 
     @property
     def dim(self) -> int:
