@@ -15,7 +15,6 @@ from vpr import methods, presets
 from vpr.config import parse_key_values, parse_method_confs
 from vpr.groundtruth import NAMES_RADIUS, GroundTruthSpec
 from vpr.sources import is_descriptor_file
-from vpr.types import ENCODER_INPUTS
 
 __all__ = ["add_common_arguments", "add_source_arguments", "add_preset_argument", "add_gt_arguments",
            "gt_spec_from_args", "loop_geometry", "descriptor_inputs", "input_encoder", "method_confs",
@@ -139,23 +138,23 @@ def settings_from_args(args) -> dict:
     """The run's settings, resolved once: :func:`vpr.presets.resolve` of ``--preset`` with the flags given.
 
     ``methods``: ``--methods`` / ``--method``, else the preset's (``compare``:
-    all of them; ``loops``: its loop method; others: its headline).
+    all of them; ``loops``: its loop method; others: its headline); ``images``: whether the inputs are images (not
+    descriptor files, whose preset is ``descriptors``).
     """
+    given = descriptor_inputs(args)
+    encoder = input_encoder(args, given)
+    preset = args.preset if args.preset is not None or not given else DESCRIPTORS  # the preset of descriptor files
     if getattr(args, "methods", None) is not None:
         names = [m.strip() for m in args.methods.split(",") if m.strip()]
     else:
         names = [args.method] if getattr(args, "method", None) else None
     enc_conf = parse_key_values(args.encoder_conf, "--encoder-conf")
     confs = parse_method_confs(args.method_conf, methods.available())
-    given = descriptor_inputs(args)
-    encoder = input_encoder(args, given)
-    preset = args.preset if args.preset is not None or not given else DESCRIPTORS  # the preset of descriptor files
     s = presets.resolve(preset, encoder=encoder, encoder_conf=enc_conf, methods=names, method_conf=confs,
                         loops=args.command == "loops")
-    if given:
-        s["methods"] = _without_images(s["methods"], s["method_conf"], names is not None, given[0])
     if names is None and args.command != "compare":  # one method: the preset's headline or loop method
         s["methods"] = [s["loop_method"] if args.command == "loops" else s["methods"][0]]
+    s["images"] = not given  # the inputs are images, not descriptor files
     return s
 
 
@@ -180,31 +179,11 @@ def descriptor_inputs(args) -> list[str]:
         other = next(p for p in paths if not is_descriptor_file(p))
         raise ValueError(f"{found[0]} holds descriptors and {other} does not: give every traverse as descriptors "
                          "(.npy, .h5) or every one as images")
-    if found and getattr(args, "verify", 0):
-        raise ValueError(f"--verify matches the images' keypoints: {found[0]} holds descriptors, no images")
     return found
 
 
 def _listed(value) -> list:
     return [] if value is None else list(value) if isinstance(value, (list, tuple)) else [value]
-
-
-def _reads_images(name: str, confs: dict) -> bool:
-    """Whether method ``name`` with its conf reads an input computed from the images."""
-    return bool(set(methods.get(name, **confs.get(name, {})).required_inputs) - set(ENCODER_INPUTS))
-
-
-def _without_images(names: list[str], confs: dict, chosen: bool, where: str) -> list[str]:
-    """The methods that read descriptors, not images (a method chosen that reads images refused)."""
-    reads_images = [m for m in names if _reads_images(m, confs)]
-    if reads_images and chosen:
-        able = [m for m in methods.available() if not _reads_images(m, confs)]
-        raise ValueError(f"{', '.join(reads_images)} read{'s' if len(reads_images) == 1 else ''} the images: {where} "
-                         f"holds descriptors, no images; methods that read descriptors: {', '.join(able)}")
-    kept = [m for m in names if m not in reads_images]
-    if not kept:
-        raise ValueError(f"{where} holds descriptors: no method of the preset reads them; choose one with --methods")
-    return kept
 
 
 def options_from_args(args, settings: dict | None = None, **own):
@@ -217,7 +196,7 @@ def options_from_args(args, settings: dict | None = None, **own):
     budget = None if args.memory_budget is None else parse_size(args.memory_budget)
     gt = gt_spec_from_args(args)
     s = settings_from_args(args) if settings is None else settings
-    return RunOptions(**own,
+    return RunOptions(**own, images=s["images"],
         out=Path(args.out), methods=tuple(s["methods"]), preset=s["preset"], encoder=s["encoder"],
         encoder_conf=s["encoder_conf"], method_conf=s["method_conf"], fps=args.fps, step=args.step,
         max_frames=args.max_frames, gt=gt, topic=topic_arg(args.topic),

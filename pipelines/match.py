@@ -60,6 +60,14 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     add_common_arguments(ap)
 
 
+def own_options(args) -> dict:
+    """The options of ``match`` and ``compare`` beside every run's: Recall@N's N and the field's files."""
+    for flag, n in (("--top", args.top), ("--pairs", args.pairs)):
+        if n < 0:
+            raise ValueError(f"{flag} {n}: a number of database frames per query, 0 or more")
+    return {"recall_at": parse_recall_at(args), "top": args.top, "pairs": args.pairs, "mat": args.mat}
+
+
 def parse_recall_at(args) -> tuple:
     """``--recall-at 1,5,10,20`` -> (1, 5, 10, 20) (refused: not positive integers, or without ground truth)."""
     if args.recall_at is None:
@@ -79,10 +87,8 @@ def run_command(args) -> int:
     from pipelines.runs import run_compare, run_fleet
     from vpr.report import metrics_table
 
-    for flag, n in (("--top", args.top), ("--pairs", args.pairs)):
-        if n < 0:
-            raise ValueError(f"{flag} {n}: a number of database frames per query, 0 or more")
-    opts = options_from_args(args, recall_at=parse_recall_at(args), top=args.top, pairs=args.pairs, mat=args.mat)
+    own = own_options(args)
+    opts = options_from_args(args, **own)
     if len(args.query) > 1:  # a fleet: one table per query traverse
         def said(name, done, total):
             print(f"vpr {args.command}: query {name} done ({done} of {total})", file=sys.stderr, flush=True)

@@ -80,6 +80,8 @@ class RunOptions:
     geometry: bool = False
     #: loops: candidates at least this many frames back, or ``"Ns"`` seconds where the frames have times
     exclude: int | str = LOOP_EXCLUDE
+    #: the inputs are images (False: descriptor files, which no method or check that reads images can take)
+    images: bool = True
     #: the N of Recall@N (:func:`vpr.evaluate.recall_at_n`)
     recall_at: tuple = evaluate.RECALL_AT
     #: the files the field's tools read (:func:`pipelines.outputs.write_ranked`): each query's N best (``top.csv``),
@@ -108,6 +110,8 @@ class RunOptions:
             raise ValueError(f"--cache {self.cache}: is a file, expected a folder (of encodings, e.g. from `vpr "
                              "encode`)")
         check_workers(self.workers, self.scheduler)
+        if not self.images and self.verify:
+            raise ValueError("--verify matches the images' keypoints: the inputs are descriptors, no images")
 
     def chosen(self) -> str:
         """The options that chose the frames read (named when a source is too short)."""
@@ -137,7 +141,7 @@ def prepare_run(out: Path, paths, roles, opts: RunOptions, match: bool = False):
     chosen = opts.chosen()
     if not opts.verify and opts.min_inliers != RunOptions.min_inliers:
         warn(f"--min-inliers {opts.min_inliers} has no effect without --verify N; ignored")
-    runners = methods.build(opts.methods, opts.method_conf)
+    runners = methods.build(opts.methods, opts.method_conf, opts.images)
     unknown = set(opts.verify_methods or ()) - set(runners)
     if unknown:
         raise ValueError(f"verify_methods: {', '.join(sorted(unknown))} not among the methods run")

@@ -8,14 +8,15 @@ from vpr import io
 from vpr.maps import Map
 from vpr.shosm import LOOP_EXCLUDE
 from vpr.statefile import MemoryFileError
-from vpr.types import EncodedTraverse, ImageInput, MatchResult, StreamDetector
+from vpr.types import ENCODER_INPUTS, EncodedTraverse, ImageInput, MatchResult, StreamDetector
 
 from .base import Fitted, Method
 from .speed import loops_at_speed, loops_in_run_at_speed, match_at_speed
 
 __all__ = ["online", "get_online", "load_map", "saved_loop_meta", "resume_loop_detector", "LOOP_EXCLUDE", "Map",
-           "MemoryFileError", "register", "unregister", "get", "build", "available", "get_class", "match", "loops",
-           "image_inputs", "Method", "Fitted", "match_at_speed", "loops_at_speed", "loops_in_run_at_speed"]
+           "MemoryFileError", "register", "unregister", "get", "build", "reads_images", "available", "get_class",
+           "match", "loops", "image_inputs", "Method", "Fitted", "match_at_speed", "loops_at_speed",
+           "loops_in_run_at_speed"]
 
 # name -> (module, class); imported on first use, so that e.g. the SeqSLAM kernels load only for seqslam
 _REGISTRY = {
@@ -117,11 +118,17 @@ def get(name: str, **conf) -> Method:
     return get_class(name)(**conf)
 
 
-def build(names, confs: dict | None = None) -> dict[str, Method]:
+def reads_images(method: Method) -> bool:
+    """Whether ``method`` (with its conf) reads an input it computes from the images (not the encoder's)."""
+    return bool(set(method.required_inputs) - set(ENCODER_INPUTS))
+
+
+def build(names, confs: dict | None = None, images: bool = True) -> dict[str, Method]:
     """The methods ``names`` with their ``confs`` (method -> conf), built and checked before any work.
 
     A conf for a method not in ``names`` is still checked (a typo should not pass silently), then ignored with a
-    warning; a name given twice runs once.
+    warning; a name given twice runs once. Without ``images`` (the inputs are descriptor files) a method that reads
+    the images is refused, naming those that do not.
     """
     names = list(names)
     if not names:
@@ -142,7 +149,13 @@ def build(names, confs: dict | None = None) -> dict[str, Method]:
     if unused:
         warnings.warn(f"--method-conf for {', '.join(unused)}, which this run does not use ({', '.join(unique)}); "
                       "ignored", stacklevel=2)
-    return {m: built.get(m) or get(m) for m in unique}
+    out = {m: built.get(m) or get(m) for m in unique}
+    blind = [m for m, r in out.items() if not images and reads_images(r)]
+    if blind:
+        able = [m for m in available() if not reads_images(get(m))]
+        raise ValueError(f"{', '.join(blind)} read{'s' if len(blind) == 1 else ''} the images, and the inputs are "
+                         f"descriptors (--preset descriptors); methods that read descriptors: {', '.join(able)}")
+    return out
 
 
 def match(method: str, db: EncodedTraverse, query: EncodedTraverse, conf: dict | None = None,
