@@ -140,10 +140,11 @@ def run_loops(seq, opts: RunOptions) -> dict:
                 evaluated[0]["sessions"] = evaluate.session_pairs(res.best, res.accepted, gt_hard, starts,
                                                                   gt_soft, mask, [s.name for s in srcs])
                 evaluated[0]["session_speeds"] = rounded(speeds[m])
+            if opts.pairs:
+                (out / m).mkdir(parents=True, exist_ok=True)
+                write_stream_pairs(out / m, res, features.names, opts.pairs, starts)
             write_method(out / m, res, evaluated, features.names, features.names, (gt_hard, gt_soft, mask),
                          title=f"{m}: loop closures", loops=True)
-            if opts.pairs:
-                write_stream_pairs(out / m, res, features.names, opts.pairs, starts)
             io.save_json(out / m / "config.json", config(opts, command="loops", seq=[str(q) for q in seqs],
                                                           method=m, exclude=exclude))
 
