@@ -159,13 +159,11 @@ def write_method(folder: Path, res: MatchResult, evaluated: tuple, db_names, q_n
     gt_soft, mask) as evaluated. With ``verification`` (verifier, candidates, progress), each query's best candidates
     are re-ordered by geometric inliers (:meth:`vpr.verify.Verifier.verify`): the entry ``m+verify`` evaluates that
     matrix and its decisions. ``matches``: what ``matches.csv`` adds (an online run's): ``columns`` (more
-    columns), and ``best_names``, ``query_ids``, ``name_of`` of :func:`write_matches`; and the files the field's tools
-    read (:func:`write_ranked`): ``top`` (each query's N best as ``top.csv``), ``pairs`` (hloc's pairs file of the N
-    best), ``mat`` (``similarity.mat``).
+    columns), and ``best_names``, ``query_ids``, ``name_of`` of :func:`write_matches`. The files the field's tools read
+    are :func:`write_ranked`'s.
     """
     names = dict(matches or {})
     columns = names.pop("columns", None)
-    ranked = {k: names.pop(k) for k in ("top", "pairs", "mat") if k in names}
     m = res.method
     gt_hard, gt_soft, mask = truth
     verifier, verify, progress = verification or (None, 0, False)
@@ -192,8 +190,6 @@ def write_method(folder: Path, res: MatchResult, evaluated: tuple, db_names, q_n
         entries[m + "+verify"] = (vm, vcurve)
     write_matches(folder, res, db_names, q_names, {**extra, **(columns or {})},
                   gt=None if gt_hard is None else (gt_hard, gt_soft, mask), **names)
-    if ranked and db_names is not None:
-        write_ranked(folder, res, db_names, q_names, **ranked)
     name_of = names.get("name_of")
     rows = list(db_names) if db_names is not None else [name_of(i) for i in range(res.similarity.shape[0])]
     io.save_json(folder / "frames.json", {"rows": rows, "columns": list(q_names)}, indent=None)

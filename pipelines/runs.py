@@ -21,7 +21,7 @@ import numpy as np
 import encoders
 from pipelines.cluster import check_workers, dask_client, run_tasks, send_once, split_match
 from pipelines.extract import extract_all
-from pipelines.outputs import claim_methods, merge_metrics, versions, warn, write_method
+from pipelines.outputs import claim_methods, merge_metrics, versions, warn, write_method, write_ranked
 from pipelines.report import write_report
 from vpr import evaluate, io, methods
 from vpr.groundtruth import (
@@ -361,8 +361,8 @@ def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, ran: tuple 
         io.save_json(out / m / "config.json", config(opts, argv, command=command, db=str(db), query=str(query),
                                                       methods=list(runners)))
         entries = write_method(out / m, res, evaluated, db_names, q_names, (gt_hard, gt_soft, None),
-                               (v, opts.verify, opts.progress) if v is not None else None,
-                               matches={"top": opts.top, "pairs": opts.pairs, "mat": opts.mat})
+                               (v, opts.verify, opts.progress) if v is not None else None)
+        write_ranked(out / m, res, db_names, q_names, opts.top, opts.pairs, opts.mat)
         return {k: (e, None) for k, e in entries.items() if k != m}
 
     read: dict = {}  # the query's speed as the first method to read it read it, for those that read none
