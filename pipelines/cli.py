@@ -5,9 +5,7 @@ Each pipeline module listed in :data:`MODULES` contributes its sub-commands:
 - ``COMMANDS = {"name": "one-line help", ...}``, a literal dict;
 - ``add_arguments(parser, command)``, adding the command's arguments;
 - ``run_command(args) -> int``, a thin adapter from the parsed arguments to the
-  module's functions (which take explicit parameters); a command that runs in two
-  forms from one parser (``vpr loops SEQ`` and ``vpr loops -``) also declares
-  ``route(args)``, the ``run_command`` of the form asked for.
+  module's functions (which take explicit parameters).
 
 ``vpr --help`` reads the ``COMMANDS`` literals from the modules' source
 without importing them, and only the chosen command's module is imported, so
@@ -65,13 +63,6 @@ def commands() -> dict[str, tuple[str, str]]:
                 raise RuntimeError(f"command {name!r} is declared by {out[name][0]} and {module}")
             out[name] = (module, help_)
     return out
-
-
-def _runner(module, args):
-    """The function that runs the parsed command: the module's ``route(args)`` where a command runs in two forms (batch
-    and online, one parser), else its ``run_command``."""
-    route = getattr(module, "route", None)
-    return route(args) if route is not None else module.run_command
 
 
 def build_parser(only: str | None = None, table: dict | None = None) -> argparse.ArgumentParser:
@@ -182,7 +173,7 @@ def main(argv=None) -> int:
                 importlib.import_module("vpr.verify")  # its library's signal handlers replaced now, not mid-run
             _check_paths(args)
             with _memory_budget(getattr(args, "memory_budget", None)):
-                return int(_runner(importlib.import_module(table[args.command][0]), args)(args) or 0)
+                return int(importlib.import_module(table[args.command][0]).run_command(args) or 0)
         except ValueError as e:  # bad input, including a state or map file that cannot be used
             print(f"{command}: error: {' '.join(str(e).split())}", file=sys.stderr)
             return 2

@@ -35,7 +35,7 @@ from vpr.sources import frame_reader
 from vpr.types import EncodedTraverse, MatchResult
 from vpr.verify import opinion_around
 
-__all__ = ["COMMANDS", "add_arguments", "route", "run_command", "run_loops"]
+__all__ = ["COMMANDS", "add_arguments", "run_batch", "run_command", "run_loops"]
 
 COMMANDS = {"loops": "loop closures within one traverse (the paper's setting)"}
 
@@ -65,12 +65,13 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     add_common_arguments(ap)
 
 
-def route(args):
-    """``vpr loops -`` runs online (:func:`pipelines.loops_online.run_command`), any other ``SEQ`` in batch."""
-    return loops_online.run_command if "-" in args.seq else run_command
-
-
 def run_command(args) -> int:
+    """``vpr loops -`` runs online (:func:`pipelines.loops_online.run_command`), any other ``SEQ`` in batch
+    (:func:`run_batch`)."""
+    return (loops_online.run_command if "-" in args.seq else run_batch)(args)
+
+
+def run_batch(args) -> int:
     """``vpr loops SEQ...``: the batch."""
     if args.state_out or args.resume:
         raise ValueError("--state-out and --resume are for online loop closure: SEQ - (image paths on stdin)")
