@@ -229,7 +229,7 @@ def split_match(fitted, query: EncodedTraverse, client, workers: int, shipped: d
         client.cancel(futures + [shared])
         raise
     t_blocks = time.perf_counter() - t
-    result = fitted.combine([d[0] for d in done], time.perf_counter() - t)
+    result = fitted.combine([d[0] for d in done], time.perf_counter() - t, query)
     if shipped is not None:  # what was sent, and where the time went (a block's CPU seconds on its worker)
         shipped.update(map_bytes=map_bytes, blocks=len(futures), block_frames=size, margin=margin,
                        task_bytes=max(task_bytes), pickle_seconds=round(t_pickle, 3),

@@ -38,7 +38,7 @@ def _same_answers(whole, split):
 def _blocks(fitted, q, size):
     t = time.perf_counter()
     blocks = [fitted.match_block(q, a, min(a + size, len(q))) for a in range(0, len(q), size)]
-    return fitted.combine(blocks, time.perf_counter() - t)
+    return fitted.combine(blocks, time.perf_counter() - t, q)
 
 
 def test_blocks_with_their_margins_give_the_whole_match():

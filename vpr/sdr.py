@@ -248,6 +248,23 @@ def random_sdrs(n: int, n_bits: int = 2048, n_active: int = 40, seed=None) -> sp
     return from_indices(list(idx), n_bits)
 
 
+def unmoved(batch, share: float) -> np.ndarray:
+    """Per frame of ``batch``, whether at least ``share`` of its active bits were active in the frame before (the
+    first frame and an empty row: False): as a sequence memory of threshold ``share`` sees it, the camera did not
+    move between them."""
+    b = check_batch(batch)
+    if b.shape[0] < 2:
+        return np.zeros(b.shape[0], bool)
+    kept = np.asarray(b[1:].multiply(b[:-1]).sum(axis=1)).ravel()
+    size = np.diff(b.indptr)[1:]
+    return np.r_[False, (size > 0) & (kept >= float(share) * size)]
+
+
+def kept_share(bits: np.ndarray, before: np.ndarray) -> float:
+    """The share of the active bits ``bits`` (indices) that were active in ``before`` (0 for an empty row)."""
+    return float(np.isin(bits, before).sum() / bits.size) if bits.size else 0.0
+
+
 def degenerate(x, duplicate_share: float = 0.1) -> str | None:
     """What is wrong with an SDR batch whose frames cannot be told apart: empty rows, or many identical rows.
 

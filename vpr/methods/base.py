@@ -150,6 +150,11 @@ class Method:
         best = np.where(np.isfinite(score), np.asarray(best, np.int64), -1)
         return Decision(best, score, best >= 0)
 
+    def decision_inputs(self, state, db: EncodedTraverse, query: EncodedTraverse) -> dict:
+        """What :meth:`decisions` reads besides the similarity, as its keyword arguments (``state``: :meth:`_fit`'s);
+        none by default."""
+        return {}
+
     def _match(self, db: EncodedTraverse, query: EncodedTraverse, progress: bool):
         """(similarity, Decision or None: :meth:`decisions` on the best matches).
 
@@ -279,14 +284,15 @@ class Fitted:
         best, z = best_matches(S)
         return S, best, z
 
-    def combine(self, blocks, seconds: float) -> MatchResult:
-        """The :class:`MatchResult` of the whole query traverse from its blocks (in order), decided over all."""
+    def combine(self, blocks, seconds: float, query: EncodedTraverse) -> MatchResult:
+        """The :class:`MatchResult` of the whole ``query`` traverse from its blocks (in order), decided over all."""
         m = self.method
         parts = [b[0] for b in blocks]
         S = sp.hstack([sp.csr_matrix(p) for p in parts]).tocsr() if sp.issparse(parts[0]) else np.hstack(parts)
         best = np.concatenate([b[1] for b in blocks]).astype(np.int64)
         z = np.concatenate([b[2] for b in blocks]).astype(np.float64)
-        return m._result(S, m.decisions(S, best, z), self.seconds + seconds)
+        return m._result(S, m.decisions(S, best, z, **m.decision_inputs(self.state, self.db, query)),
+                         self.seconds + seconds)
 
     def __repr__(self) -> str:
         return f"Fitted({self.method!r}, db={len(self.db)} frames)"

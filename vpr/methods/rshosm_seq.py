@@ -15,7 +15,10 @@ from vpr.shosm import (
     accept_path,
     loop_evidence,
     loop_rule,
+    map_places,
     query_evidence,
+    refuse_stands,
+    standing,
 )
 from vpr.shosm.confirm import warm_up as warm_up_confirmation
 from vpr.similarity import top_k_or_dense
@@ -121,13 +124,24 @@ class RshosmSeq(Method):
         top_k = top_k_or_dense(n_db, n_q, seq.top_k, DENSE_EVIDENCE_PAIRS) if seq.top_k else None
         r = query_evidence(mem, q_sdr, db_codes, seq.evidence, direction=seq.direction, top_k=top_k,
                            beam=seq.beam, progress=progress)
-        return r.similarity, self.decisions(r.similarity, r.best, r.z)
+        return r.similarity, self.decisions(r.similarity, r.best, r.z, **self.decision_inputs(state, db, query))
 
-    def decisions(self, S, best, score):
-        """The decision of a robot localising against the map (vpr localize): a path score, query by query."""
+    def decision_inputs(self, state, db: EncodedTraverse, query: EncodedTraverse) -> dict:
+        """The stands of the map (:func:`vpr.shosm.standing`, from the memory's codes) and of the query
+        (:func:`vpr.sdr.unmoved` at the memory's threshold)."""
+        mem, db_codes = state
+        return {"stands": (standing(map_places(db_codes, mem.cells_per_column)),
+                           sdr.unmoved(self.need(query, "sdr", "query"), mem.threshold))}
+
+    def decisions(self, S, best, score, stands=None):
+        """The decision of a robot localising against the map (vpr localize): a path score, query by query; not
+        accepted on a stand of the map or of the query (``stands``: (map, query), :func:`vpr.shosm.refuse_stands`)."""
         d = accept_path(S, self.seq.path())
         best = np.asarray(best, np.int64)
-        return Decision(best, np.where(best >= 0, d.score, -np.inf), d.accepted & (best >= 0), d.margin)
+        accepted = d.accepted & (best >= 0)
+        if stands is not None:
+            accepted = refuse_stands(best, accepted, *stands)
+        return Decision(best, np.where(best >= 0, d.score, -np.inf), accepted, d.margin)
 
     def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool, sessions=(0,), opinion=None):
         """Loop closures within one stream (:func:`vpr.shosm.loop_evidence`): learned online, scored by causal

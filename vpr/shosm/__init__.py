@@ -27,6 +27,9 @@ from .decide import (
     accept_path,
     decide_all,
     loop_rule,
+    map_places,
+    refuse_stands,
+    standing,
     stationary_closures,
 )
 from .detector import LoopDetector
@@ -55,7 +58,8 @@ __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pa
            "query_evidence", "dense_evidence", "sparse_evidence", "LoopEvidence", "LoopDecider", "PathDecider",
            "decide_all",
            "LoopRule", "LOOP_RULES", "loop_rule",
-           "accept_loops", "accept_path", "stationary_closures", "Localizer", "LoopStream", "loop_evidence",
+           "accept_loops", "accept_path", "stationary_closures", "map_places", "standing", "refuse_stands",
+           "Localizer", "LoopStream", "loop_evidence",
            "LOOP_UNCAPPED_MAX", "LoopDetector", "Confirmation", "confirm_closures",
            "Placement", "place_closures", "Backfill", "backfill_closures", "SpeedFollower", "PICKS", "check_pick",
            "pick_maps", "disagree", "between_maps", "fill_between", "path_lengths"]

@@ -16,7 +16,7 @@ from .evidence import LoopEvidence
 from .kernels import decide as KD
 
 __all__ = ["LoopRule", "LoopDecider", "PathDecider", "LOOP_RULES", "loop_rule", "decide_all", "accept_loops",
-           "accept_path", "stationary_closures"]
+           "accept_path", "stationary_closures", "STAND_FRAMES", "map_places", "standing", "refuse_stands"]
 
 
 class PathDecider(Decider):
@@ -266,6 +266,55 @@ def accept_path(S, conf: PathConf | None = None, sessions=None) -> Decision:
         cols = ((rows_all[np.isfinite(A[:, j])], A[np.isfinite(A[:, j]), j]) for j in range(n_q))
     return decide_all(decider, (Column(r, v, float(v.min()) if v.size else 0.0, n_db, j)
                                 for j, (r, v) in enumerate(cols)))
+
+
+def map_places(codes, cells_per_column: int, sessions=(0,)) -> np.ndarray:
+    """Each map frame's place number: the next frame has the next number unless the memory learned it as the same
+    minicolumns as the frame before in its session (the camera stood: one place under several frame numbers).
+
+    ``codes``: the map's winner cells (:meth:`SequenceMemory.run`, cell ``c`` in minicolumn ``c // cells_per_column``);
+    ``sessions``: each session's first frame.
+    """
+    c = sp.csr_matrix(codes)
+    n = c.shape[0]
+    if n < 2:
+        return np.zeros(n, np.int64)
+    width = -(-c.shape[1] // int(cells_per_column))
+    cols = sp.csr_matrix((np.ones(c.nnz, np.int32), c.indices // int(cells_per_column), c.indptr.copy()),
+                         shape=(n, width))  # its own arrays: summing duplicates rewrites them
+    cols.sum_duplicates()
+    cols.data[:] = 1
+    size = np.diff(cols.indptr)
+    shared = np.asarray(cols[1:].multiply(cols[:-1]).sum(axis=1)).ravel()
+    same = (size[1:] > 0) & (shared == size[1:]) & (shared == size[:-1])
+    starts = np.asarray([s for s in sessions if 0 < int(s) < n], np.int64)
+    same[starts - 1] = False  # a session's first frame follows no frame of the map
+    return np.r_[0, np.cumsum(~same)].astype(np.int64)
+
+
+#: Map frames of one place (:func:`map_places`) from which on no frame number singles out an answer: with 2, the
+#: answer is within a frame of the query's own either way; with 3 or more, it may not be.
+STAND_FRAMES = 3
+
+
+def standing(places, frames: int = STAND_FRAMES) -> np.ndarray:
+    """Per map frame, whether it is one of ``frames`` or more map frames of one place (``places``:
+    :func:`map_places`, one number per frame, non-decreasing): a frame of a stand."""
+    p = np.asarray(places, np.int64)
+    if p.size == 0:
+        return np.zeros(0, bool)
+    _, count = np.unique(p, return_counts=True)
+    return np.repeat(count >= int(frames), count)
+
+
+def refuse_stands(best, accepted, map_standing, query_unmoved):
+    """``accepted`` without the answers that no frame number singles out: onto a map frame of a stand
+    (:func:`standing`), or of a query frame that did not move since the frame before (:func:`vpr.sdr.unmoved`; the
+    evidence, which expects the query to move on, runs ahead of it). Arrays of a traverse, or one frame's scalars."""
+    best = np.asarray(best, np.int64)
+    on_stand = np.asarray(map_standing, bool)[np.clip(best, 0, None)] & (best >= 0)
+    out = np.asarray(accepted, bool) & ~np.asarray(query_unmoved, bool) & ~on_stand
+    return bool(out) if out.ndim == 0 else out
 
 
 def stationary_closures(sdr, best, accepted, ratio: float = 0.35) -> np.ndarray:

@@ -1,6 +1,8 @@
 """Online localisation against a learned database: one query frame in, one place out."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -9,7 +11,7 @@ from vpr.statefile import joint_state, part_state
 from vpr.types import Decision, MapLocalizer
 
 from .conf import RshosmSeqConf, memory_params
-from .decide import PathDecider
+from .decide import PathDecider, map_places, refuse_stands, standing
 from .evidence import make_engine
 from .graph import Graph
 from .memory import SequenceMemory, pad_codes
@@ -42,6 +44,13 @@ class Localizer(MapLocalizer):
         self.sessions = np.asarray(sorted({0, *(int(s) for s in (sessions or ()))}), np.int64)
         self.engine = make_engine(Graph.of(memory, self.db_codes), self.seq.evidence, self.seq.beam, self.seq.exact)
         self.decider = PathDecider(self.seq.path(), self.sessions)
+        #: each map frame's place number (:func:`vpr.shosm.map_places`) and whether it is a frame of a stand, onto
+        #: which no answer is accepted (:func:`vpr.shosm.standing`)
+        self.places = map_places(self.db_codes, memory.cells_per_column, self.sessions)
+        self.standing = standing(self.places)
+        self._before: np.ndarray | None = None  # the query frame before's active bits
+        #: whether the last query frame kept the memory's threshold of the frame before's bits (it did not move)
+        self.unmoved = False
 
     @classmethod
     def from_database(cls, db_sdr, names, progress: bool = False, conf: RshosmSeqConf | None = None,
@@ -113,6 +122,7 @@ class Localizer(MapLocalizer):
         """Start a new query traverse: forget the evidence carried from earlier frames and the decision's path."""
         self.engine.reset()
         self.decider.new_session()
+        self._before, self.unmoved = None, False
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the kernels, leaving the state as it was."""
@@ -123,17 +133,25 @@ class Localizer(MapLocalizer):
     def update(self, sdr_row) -> Decision:
         """Localise one query frame (SDR row: 1-row batch, bool vector or bit indices)."""
         bits = _sdr.row_bits(sdr_row, self.memory.n_inputs, name="query SDR")
-        return self.decider.decide(self.engine.step(bits, frame=self.engine.frames))
+        d = self.decider.decide(self.engine.step(bits, frame=self.engine.frames))
+        self.unmoved = self._before is not None and _sdr.kept_share(bits, self._before) >= self.memory.threshold
+        self._before = bits
+        if d.accepted and not refuse_stands(d.best, True, self.standing, self.unmoved):
+            d = dataclasses.replace(d, accepted=False)
+        return d
 
     # ------------------------------------------------------------ state
     def state(self) -> tuple[dict, dict]:
         """(header, arrays) of the query so far: the evidence and the decision (:meth:`load_state`)."""
-        return joint_state(engine=self.engine, dec=self.decider)
+        header, arrays = joint_state(engine=self.engine, dec=self.decider)
+        header["before"] = self._before is not None
+        return header, {**arrays, "before": np.zeros(0, np.int64) if self._before is None else self._before}
 
     def load_state(self, header: dict, arrays: dict) -> Localizer:
         if header.get("engine") is not None:
             self.engine.load_state(*part_state(header, arrays, "engine"))
         self.decider.load_state(*part_state(header, arrays, "dec"))
+        self._before = np.asarray(arrays["before"], np.int64) if header.get("before") else None
         return self
 
     def map_state(self) -> tuple[dict, dict[str, dict]]:
