@@ -269,8 +269,8 @@ def test_online_the_speed_is_read_on_the_answers_given(speed):
         mode = follower.mode
         own, d = plain.update(q[j]), follower.update(q[j])
         read = d.best if mode > 0 else own.best
-        if read >= 0:
-            assert follower.path.last == read and follower.path.start <= j, (j, mode)
+        if read >= 0:  # on the map's places (two frames of one appearance in a row are one)
+            assert follower.path.last == follower.base.places[read] and follower.path.start <= j, (j, mode)
         followed += bool(mode)
     assert followed > q.shape[0] // 2
 
@@ -302,10 +302,14 @@ def test_online_a_slower_speed_is_left_only_at_a_frame_its_queries_do_not_answer
     db, q, _, _ = simulate.aliased_traverses(300, 100, speed=(0.45, 0.55), seed=3)
     q = _odd_frames_noise(q)
     plain, follower = _follower(db)
-    j = 0
-    while follower.mode >= 0 or j < 100:
+    _, first = _follower(db)
+    acc = np.array([first.update(q[j]).accepted for j in range(q.shape[0])])
+    # from a frame on which its queries answer the next 20 frames (a stand of the map's in between refuses some)
+    start = next(j for j in range(100, q.shape[0] - 21) if acc[j - 1:j + 21].all())
+    for j in range(start):
         plain.update(q[j]), follower.update(q[j])
-        j += 1
+    j = start
+    assert follower.mode < 0
     monkeypatch.setattr(follower.path, "speed", lambda frame: 1.0)  # from here on the map's answers read its speed
     ds, own = [], []
     while follower.mode < 0 and j < q.shape[0]:

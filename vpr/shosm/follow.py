@@ -127,7 +127,8 @@ class SpeedFollower(FollowingLocalizer):
     """Online localisation that follows a query driven at another speed than the map at the same frame rate.
 
     Steps the map's ``localizer`` on every frame and reads the speed of the consistent path of best frames (the
-    path rule's ``back`` / ``ahead``, over at least :data:`~vpr.evaluate.MIN_RUN` frames) of the answers: the
+    path rule's ``back`` / ``ahead``, over at least :data:`~vpr.evaluate.MIN_RUN` frames; counted in the map's places
+    and the query's frames that moved, so that neither's stand reads as a speed: :meth:`_tick`) of the answers: the
     localizer's, and while a faster query is followed, those given (the localizer's evidence lags a faster
     query). While it is :data:`~vpr.groundtruth.RATE_RATIO` or more map frames a frame, the frames are answered by
     the ``step`` maps of one frame in ``step`` (learned again from ``sdr``, the map's SDRs, when first needed; each
@@ -154,7 +155,7 @@ class SpeedFollower(FollowingLocalizer):
         self.keeps: list[np.ndarray] = []
         self.phase_paths: list[_Path] = []
         self.queries: list[Localizer] = []
-        self.mode, self.frame = 0, 0
+        self.mode, self.frame, self.clock = 0, 0, 0  # clock: the query frames that moved (:meth:`_tick`)
         self.recent: list[tuple[int, np.ndarray]] = []  # (frame, active bits) of the last ``replay`` frames
         #: frames this object answered by the maps of one frame in ``step`` / as queries of one frame in ``step``, of
         #: them those the maps placed apart / answered by the frame before (not part of the state: a follower loaded
@@ -206,7 +207,7 @@ class SpeedFollower(FollowingLocalizer):
         for loc in [*self.phases, *self.queries]:
             loc.reset()
         self.path.step(-1, -1)
-        self.mode, self.frame, self.recent, self.last = 0, 0, [], None
+        self.mode, self.frame, self.clock, self.recent, self.last = 0, 0, 0, [], None
 
     def warm_up(self) -> None:
         self.base.warm_up()
@@ -221,7 +222,7 @@ class SpeedFollower(FollowingLocalizer):
         if self.mode < 0:  # a slower query's queries answer first; the speed read leaves it where they do not
             out = self._slower(j, bits, d)
             if out.accepted:
-                self.path.step(j, d.best)
+                self._tick(d.best)
             else:
                 self._read(j, d.best)
             if self.mode < 0:
@@ -230,7 +231,7 @@ class SpeedFollower(FollowingLocalizer):
             return self._answer(j, bits, d)
         faster = self.mode > 0 and self.follows_faster
         if not faster:  # the map's own answers read the speed
-            self._read(j, d.best)
+            self._read(j, d.best, d.accepted)
         out = self._answer(j, bits, d)
         if faster:  # while a faster query is followed, the answers given read it
             self._read(j, out.best)
@@ -238,12 +239,26 @@ class SpeedFollower(FollowingLocalizer):
                 self._feed(self.mode, j, bits)
         return out
 
-    def _read(self, j: int, best: int) -> None:
+    def _tick(self, best: int) -> bool:
+        """Step the path with this frame's answer, on the map's places (a stand of the map is one) and the query's
+        frames that moved (a stand of the query is no time); False where the query did not move (not stepped)."""
+        if self.base.unmoved:
+            return False
+        self.path.step(self.clock, int(self.base.places[best]) if best >= 0 else -1)
+        self.clock += 1
+        return True
+
+    def _read(self, j: int, best: int, accepted: bool = True) -> None:
         """Step the path with frame ``j``'s answer and switch to the speed it reads (its engines started from the
-        frames kept before ``j``)."""
-        self.path.step(j, best)
-        v = self.path.speed(j)
+        frames kept before ``j``); a frame where the query did not move reads nothing, and a slower speed is read only
+        where the map's answer is ``accepted`` (its evidence follows a slower query; a path it does not accept, as
+        after a stand or on a reversed query, moves slowly too)."""
+        if not self._tick(best):
+            return
+        v = self.path.speed(self.clock - 1)
         mode = self.mode if v is None else int(np.sign(speed_step(v)))
+        if mode < 0 <= self.mode and not accepted:
+            mode = self.mode
         if mode != self.mode:
             self.mode = mode
             self._start(mode)
@@ -297,7 +312,7 @@ class SpeedFollower(FollowingLocalizer):
         """(header, arrays) of what the follower carries besides the map's localizer (:meth:`load_state`)."""
         frames = np.array([j for j, _ in self.recent], np.int64)
         sizes = np.array([b.size for _, b in self.recent], np.int64)
-        header = {"step": self.step, "replay": self.replay, "mode": self.mode, "frame": self.frame,
+        header = {"step": self.step, "replay": self.replay, "mode": self.mode, "frame": self.frame, "clock": self.clock,
                   "path": self.path.state(), "phase_paths": [p.state() for p in self.phase_paths],
                   "last": None if self.last is None else [int(self.last[0]), int(self.last[1]), float(self.last[2])]}
         arrays = {"recent_frames": frames, "recent_sizes": sizes,
@@ -314,6 +329,7 @@ class SpeedFollower(FollowingLocalizer):
             raise ValueError(f"a speed follower's state of step {header['step']}, replay {header['replay']} cannot "
                              f"continue one of step {self.step}, replay {self.replay}")
         self.mode, self.frame = int(header["mode"]), int(header["frame"])
+        self.clock = int(header.get("clock", self.frame))
         self.path.restore(header["path"])
         last = header.get("last")
         self.last = None if last is None else (int(last[0]), int(last[1]), float(last[2]))
