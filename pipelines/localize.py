@@ -79,6 +79,10 @@ class LocalizeOnline(Online):
 
     def answer(self, encoded, name: str) -> Decision:
         d = self.answering.update(encoded)
+        if d.reversed and "reversed" not in self._said:
+            self._said.add("reversed")
+            print(f"vpr localize: from query frame {d.frame} ({name}) on, the query runs the map backwards: its "
+                  "answers are not accepted while it does (research/docs/localize.md)", file=sys.stderr, flush=True)
         if self.follower is None:
             return d
         mode = self.follower.mode

@@ -267,6 +267,7 @@ def _write(job: Online, out: Path, src, rows, skipped, seconds, state_out, waiti
         check_speeds({job.method: speed})
     m = {"frames": T, "seconds": round(seconds, 4), "n_accepted": int(accepted.sum()), "stopped": stopped,
          "path_speed": speed, **({"sampling": sampling} if sampling else {}),
+         **({"reversed_frames": res.reversed} if res.reversed else {}),
          "latency_ms": {"with_encoding": latency_summary(lat_all), "without_encoding": latency_summary(lat_dec)}}
     if waiting:
         m["waiting"] = waiting  # in the state (--state-out), answered after --resume

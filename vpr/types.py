@@ -134,7 +134,7 @@ class Decision:
 
     ``best``: the frame it matches (-1: none); ``score``: the decision's statistic; ``accepted``; ``margin``: how far
     the best place stood out of the others in this frame; ``frame``: the frame decided; ``column``: its evidence,
-    where one frame was decided online.
+    where one frame was decided online; ``reversed``: the query runs the map backwards at this frame (not accepted).
     """
 
     best: int | np.ndarray
@@ -143,6 +143,7 @@ class Decision:
     margin: float | np.ndarray = 0.0
     frame: int | np.ndarray = -1
     column: Column | None = None
+    reversed: bool | np.ndarray = False
 
     @classmethod
     def stack(cls, decisions: Iterable[Decision]) -> Decision:
@@ -150,7 +151,7 @@ class Decision:
         ds = list(decisions)
         return cls(np.array([d.best for d in ds], np.int64), np.array([d.score for d in ds], np.float64),
                    np.array([d.accepted for d in ds], bool), np.array([d.margin for d in ds], np.float64),
-                   np.array([d.frame for d in ds], np.int64))
+                   np.array([d.frame for d in ds], np.int64), reversed=np.array([d.reversed for d in ds], bool))
 
 
 class Decider(ABC):
@@ -430,6 +431,8 @@ class MatchResult:
     #: (and ``"db_apart"``: frames the maps placed apart, undecided; or ``"query_filled"``: a slower query's frames
     #: placed between accepted ones); None: every frame as it came
     sampling: dict | None = None
+    #: query frames at which the query runs the map backwards (:attr:`Decision.reversed`: not accepted)
+    reversed: int = 0
 
     @classmethod
     def from_decisions(cls, method: str, decisions, n_rows: int, top_k: int | None, seconds: float,
@@ -447,4 +450,5 @@ class MatchResult:
         S = sp.csc_matrix((np.concatenate([z for _, z in cand] + [np.zeros(0, np.float32)]).astype(np.float32),
                            np.concatenate([c for c, _ in cand] + [np.zeros(0, np.int64)]).astype(np.int64), ptr),
                           shape=(int(n_rows), len(ds))).tocsr()
-        return cls(method, S, best, score, np.array([d.accepted for d in ds], bool), seconds, dict(conf or {}))
+        return cls(method, S, best, score, np.array([d.accepted for d in ds], bool), seconds, dict(conf or {}),
+                   reversed=sum(bool(d.reversed) for d in ds))

@@ -22,9 +22,13 @@ Three settings:
 - **sessions** (``vpr loops S1 S2``): the database -> query pairs above as two
   sessions of one stream, at 1x, 2x, 0.5x and reversed.
 
-Runs are kept under ``--out`` (a second call prints the table from them).
+Runs are kept under ``--out`` (a second call prints the table from them). ``--arg`` (repeatable) is added to
+every run of ``rshosm-seq`` (e.g. ``--arg=--method-conf --arg=rshosm-seq.confirm_frames=0``, ``--arg=--query-speed
+--arg=as-is``): a mechanism taken out, the table with and without it; ``--base DIR`` reads SeqSLAM's loop runs
+from a run of the defaults instead of running them again.
 
 Usage: VPR_DATASETS=../shared/datasets python -m research.studies.decisions [--out results/decisions] [--only SETTING]
+    [--arg ARG ...] [--base DIR]
 """
 from __future__ import annotations
 
@@ -42,6 +46,9 @@ from research.studies.cells import decisions_cell
 from research.studies.speed_models import linked, positions_csv
 
 SETTINGS = ("match", "one_run", "sessions")
+#: arguments added to every run of rshosm-seq (``--arg``) and the run whose SeqSLAM loops are read (``--base``)
+EXTRA: list[str] = []
+BASE: list[Path] = []
 #: stderr words of a run that says the query's speed
 SPEED_WORDS = ("driven faster", "driven slower", "another speed", "faster than", "slower than")
 
@@ -154,9 +161,10 @@ def match_table(s: Streams, out: Path) -> None:
     for name, (db, p_db), (q, p_q), radius, soft in match_pairs(s):
         key = f"{db.name}-{q.name}"
         gt = ["--gt", p_db, p_q, "--radius", radius, "--gt-soft", soft]
-        cmp, said_c = run(["compare", db, q, "--methods", "rshosm-seq,seqslam", *gt, *cache], out / "compare" / key)
-        loc, said_l = run(["localize", _map(db, p_db, out), q, "--gt", p_q, "--radius", radius, "--gt-soft", soft],
-                          out / "localize" / key)
+        cmp, said_c = run(["compare", db, q, "--methods", "rshosm-seq,seqslam", *gt, *cache, *EXTRA],
+                          out / "compare" / key)
+        loc, said_l = run(["localize", _map(db, p_db, out), q, "--gt", p_q, "--radius", radius, "--gt-soft", soft,
+                           *EXTRA], out / "localize" / key)
         r = loc["rshosm-seq"]
         print(f"| {name} | {decisions_cell(cmp['rshosm-seq'], frames=False)} | {decisions_cell(r, frames=False)} | "
               f"{decisions_cell(cmp['seqslam'], frames=False)} | {speed_cell(cmp['rshosm-seq'], said_c)} / "
@@ -181,7 +189,7 @@ def one_run_table(s: Streams, out: Path) -> None:
     print("|---|---|---|---|")
     for name, (folder, p), radius, soft in one_run_streams(s):
         key = folder.name if folder.name != "images" else "rtabmap"
-        got = {m: run(["loops", folder, "--method", m, *_gt(p, radius, soft)], out / "loops" / f"{key}-{m}")
+        got = {m: _loops([folder, "--method", m, *_gt(p, radius, soft)], out, "loops", f"{key}-{m}")
                for m in ("rshosm-seq", "seqslam")}
         m = got["rshosm-seq"][0]["rshosm-seq"]
         print(f"| {name} | {decisions_cell(m, frames=False)} | "
@@ -199,11 +207,19 @@ def sessions_table(s: Streams, out: Path) -> None:
             continue  # every file: the database -> query rows
         key = f"{db.name}-{q.name}"
         gt = ["--gt", p_db, p_q, "--radius", radius, "--gt-soft", soft]
-        got = {m: run(["loops", db, q, "--method", m, *gt], out / "sessions" / f"{key}-{m}")
-               for m in ("rshosm-seq", "seqslam")}
+        got = {m: _loops([db, q, "--method", m, *gt], out, "sessions", f"{key}-{m}") for m in ("rshosm-seq", "seqslam")}
         cells = [decisions_cell(_later(got[m][0][m]), frames=False) for m in ("rshosm-seq", "seqslam")]
         m = got["rshosm-seq"][0]["rshosm-seq"]
         print(f"| {name} | {' | '.join(cells)} | {speed_cell(m, got['rshosm-seq'][1])} |", flush=True)
+
+
+def _loops(argv: list, out: Path, setting: str, key: str):
+    """``vpr loops ARGV`` kept under ``out/setting/key``: rshosm-seq's with :data:`EXTRA`, SeqSLAM's read from
+    :data:`BASE` where it is there."""
+    if argv[argv.index("--method") + 1] == "rshosm-seq":
+        return run(["loops", *argv, *EXTRA], out / setting / key)
+    kept = [b / setting / key for b in BASE if (b / setting / key / "metrics.json").exists()]
+    return run(["loops", *argv], kept[0] if kept else out / setting / key)
 
 
 def _later(m: dict) -> dict:
@@ -219,7 +235,11 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=Path("results/decisions"))
     ap.add_argument("--only", choices=SETTINGS, action="append", help="one setting (repeatable); default all")
+    ap.add_argument("--arg", action="append", default=[], help="an argument added to every run of rshosm-seq")
+    ap.add_argument("--base", type=Path, help="read SeqSLAM's loop runs from this --out of the defaults")
     args = ap.parse_args(argv)
+    EXTRA[:] = args.arg
+    BASE[:] = [args.base] if args.base else []
     streams = Streams(_data(), args.out)
     t = time.perf_counter()
     tables = {"match": match_table, "one_run": one_run_table, "sessions": sessions_table}

@@ -37,7 +37,8 @@ def method_metrics(res, gt_hard, gt_soft, mask=None, loops: bool = False, recall
 
     Always the seconds, the number of accepted matches and ``path_speed`` (:func:`path_speed`: database frames per
     query frame along the accepted paths, None without a path) and, for a result matched again at the query's speed,
-    its ``sampling`` (:attr:`~vpr.types.MatchResult.sampling`); with ground truth the metrics of :func:`evaluate` over
+    its ``sampling`` (:attr:`~vpr.types.MatchResult.sampling`), ``reversed_frames`` where the query ran the map
+    backwards (:attr:`~vpr.types.MatchResult.reversed`); with ground truth the metrics of :func:`evaluate` over
     the evaluated pairs and the precision and recall of the accepted matches. ``loops``: one stream's loop closures,
     where the curve is that of the per-frame decisions (:func:`decision_curve`: ``frame_ap``,
     ``frame_recall_at_100p``), what loop-closure detectors report; a stream without a true loop (a drive without
@@ -49,6 +50,8 @@ def method_metrics(res, gt_hard, gt_soft, mask=None, loops: bool = False, recall
          "path_speed": speed_metric(res.best, res.accepted)}
     if res.sampling:
         m["sampling"] = dict(res.sampling)
+    if res.reversed:
+        m["reversed_frames"] = int(res.reversed)
     if gt_hard is None:
         return m, None
     if loops and not _count(gt_hard, mask):

@@ -267,6 +267,16 @@ def check_speeds(speeds: Mapping[str, float | None], paths: str = "accepted path
                           f"answers may trail the place; {then} (research/docs/localize.md)", UserWarning, stacklevel=2)
 
 
+def check_reversed(counts: Mapping[str, tuple[int, int]]) -> None:
+    """Warn for each method (``counts``: method -> (frames read running the map backwards, the query's frames),
+    metrics.json's ``reversed_frames``) whose query ran the map backwards somewhere: those frames are not accepted."""
+    for label, (n, total) in counts.items():
+        if n:
+            warnings.warn(f"{label}: the query runs the map backwards at {n} of its {total} frames: its answers there "
+                          "are not accepted (the sequence evidence follows the map's direction; research/docs/"
+                          "localize.md)", UserWarning, stacklevel=2)
+
+
 def check_rates(srcs, every: float | None = None, against_first: bool = False) -> None:
     """Warn when the sources' frame rates (where they have times) are :data:`RATE_RATIO` or more apart and frames
     are not chosen by travel (``every``): a sequence of one moves several frames per frame of the other.

@@ -182,7 +182,7 @@ class Method:
         best = np.asarray(d.best, np.int64)
         score = np.where(best >= 0, np.asarray(d.score, np.float64), -np.inf)
         return MatchResult(self.name, S, best, score, np.asarray(d.accepted, bool) & (best >= 0), seconds,
-                           dict(self.conf))
+                           dict(self.conf), reversed=int(np.count_nonzero(d.reversed)))
 
     # ---------------------------------------------------------------- public
     def match(self, db: EncodedTraverse, query: EncodedTraverse, progress: bool = False) -> MatchResult:

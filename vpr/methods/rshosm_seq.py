@@ -13,11 +13,13 @@ from vpr.shosm import (
     SequenceMemory,
     SpeedFollower,
     accept_path,
+    direction_read,
     loop_evidence,
     loop_rule,
     map_places,
     query_evidence,
     refuse_stands,
+    reversed_frames,
     standing,
 )
 from vpr.shosm.confirm import warm_up as warm_up_confirmation
@@ -124,24 +126,38 @@ class RshosmSeq(Method):
         top_k = top_k_or_dense(n_db, n_q, seq.top_k, DENSE_EVIDENCE_PAIRS) if seq.top_k else None
         r = query_evidence(mem, q_sdr, db_codes, seq.evidence, direction=seq.direction, top_k=top_k,
                            beam=seq.beam, progress=progress)
+        if shape is not None:  # a block of a larger match: decided over the whole (Fitted.combine)
+            return r.similarity, None
         return r.similarity, self.decisions(r.similarity, r.best, r.z, **self.decision_inputs(state, db, query))
 
     def decision_inputs(self, state, db: EncodedTraverse, query: EncodedTraverse) -> dict:
         """The stands of the map (:func:`vpr.shosm.standing`, from the memory's codes) and of the query
-        (:func:`vpr.sdr.unmoved` at the memory's threshold)."""
+        (:func:`vpr.sdr.unmoved` at the memory's threshold); each query frame's best z of the causal evidence of the
+        query moving along the map and of it running the map backwards (``direction="forward"`` and
+        ``"reversed"``, :func:`vpr.shosm.reversed_frames`: what :class:`vpr.shosm.Localizer` compares online)."""
         mem, db_codes = state
-        return {"stands": (standing(map_places(db_codes, mem.cells_per_column)),
-                           sdr.unmoved(self.need(query, "sdr", "query"), mem.threshold))}
+        q = self.need(query, "sdr", "query")
+        top_k = top_k_or_dense(len(db), len(query), self.seq.top_k, DENSE_EVIDENCE_PAIRS) if self.seq.top_k else None
+        ahead, back = (query_evidence(mem, q, db_codes, self.seq.evidence, direction=d, top_k=top_k,
+                                      beam=self.seq.beam).z for d in ("forward", "reversed"))
+        return {"stands": (standing(map_places(db_codes, mem.cells_per_column)), sdr.unmoved(q, mem.threshold)),
+                "direction": (ahead, back)}
 
-    def decisions(self, S, best, score, stands=None):
+    def decisions(self, S, best, score, stands=None, direction=None):
         """The decision of a robot localising against the map (vpr localize): a path score, query by query; not
-        accepted on a stand of the map or of the query (``stands``: (map, query), :func:`vpr.shosm.refuse_stands`)."""
+        accepted on a stand of the map or of the query (``stands``: (map, query), :func:`vpr.shosm.refuse_stands`),
+        nor where the query runs the map backwards or its direction is not read yet (``direction``: each frame's best
+        z of the evidence along the map and of the evidence reversed, :func:`vpr.shosm.reversed_frames`,
+        :func:`vpr.shosm.direction_read`)."""
         d = accept_path(S, self.seq.path())
         best = np.asarray(best, np.int64)
         accepted = d.accepted & (best >= 0)
         if stands is not None:
             accepted = refuse_stands(best, accepted, *stands)
-        return Decision(best, np.where(best >= 0, d.score, -np.inf), accepted, d.margin)
+        back = np.zeros(best.size, bool) if direction is None else reversed_frames(*direction)
+        if direction is not None:
+            accepted &= direction_read(best.size)
+        return Decision(best, np.where(best >= 0, d.score, -np.inf), accepted & ~back, d.margin, reversed=back)
 
     def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool, sessions=(0,), opinion=None):
         """Loop closures within one stream (:func:`vpr.shosm.loop_evidence`): learned online, scored by causal

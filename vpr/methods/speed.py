@@ -105,7 +105,7 @@ def _resampled(fitted: Fitted, query: EncodedTraverse, k: int, speed: float, pic
     sampling = {"speed": round(float(speed), 3), "db_step" if k > 0 else "query_step": abs(k),
                 "db_apart" if k > 0 else "query_filled": int((apart if k > 0 else filled).sum())}
     return MatchResult(method.name, S, best, score, accepted, sum(r.seconds for r in parts), dict(method.conf),
-                       sampling)
+                       sampling, reversed=(max if k > 0 else sum)(r.reversed for r in parts))
 
 
 def loops_at_speed(method: Method, seq: EncodedTraverse, res: MatchResult, sessions, progress: bool = False,

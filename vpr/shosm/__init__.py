@@ -33,6 +33,7 @@ from .decide import (
     stationary_closures,
 )
 from .detector import LoopDetector
+from .direction import Direction, direction_read, reversed_frames
 from .evidence import (
     Engine,
     Evidence,
@@ -59,7 +60,7 @@ __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pa
            "decide_all",
            "LoopRule", "LOOP_RULES", "loop_rule",
            "accept_loops", "accept_path", "stationary_closures", "map_places", "standing", "refuse_stands",
-           "Localizer", "LoopStream", "loop_evidence",
+           "Localizer", "LoopStream", "loop_evidence", "Direction", "direction_read", "reversed_frames",
            "LOOP_UNCAPPED_MAX", "LoopDetector", "Confirmation", "confirm_closures",
            "Placement", "place_closures", "Backfill", "backfill_closures", "SpeedFollower", "PICKS", "check_pick",
            "pick_maps", "disagree", "between_maps", "fill_between", "path_lengths"]

@@ -28,7 +28,9 @@ __all__ = ["EvidenceEngine", "Engine", "beam_params", "SpeedEngine", "make_engin
 #: Query frames per call of the beam kernel and per block of finished columns of a traverse.
 QUERY_CHUNK = 2048
 
-_DIRECTIONS = ("both", "forward")
+#: ``"reversed"``: one forward pass over the query along the map's transitions reversed (the query running the map
+#: backwards)
+_DIRECTIONS = ("both", "forward", "reversed")
 _ONE = np.zeros(1, np.int64)
 #: A second pass that holds nothing (one direction).
 _NO_PASS = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
@@ -121,9 +123,13 @@ class Engine:
     """
 
     def __init__(self, graph: Graph, evidence: EvidenceConf | None = None, beam: BeamConf | None = None,
-                 exact: bool = False, threads: int | None = None):
+                 exact: bool = False, threads: int | None = None, reverse: bool = False):
         self.graph, self.evidence, self.beam_conf = graph, evidence or EvidenceConf(), beam or BeamConf()
         self.exact = bool(exact)
+        #: :meth:`step` follows the map's transitions reversed (the graph built ``backward``)
+        self.reverse = bool(reverse)
+        if self.reverse and graph.bwd is None:
+            raise ValueError("an engine that follows the map backwards needs the graph built backward=True")
         self.threads = min(2, numba.config.NUMBA_NUM_THREADS) if threads is None else int(threads)
         self.normalise = self.evidence.normalise == "query"
         self.frames = 0
@@ -155,14 +161,18 @@ class Engine:
         if self.exact:
             self._out[:] = 0.0
             stay, skip = self.evidence.costs
-            KE.evidence_frames(q_ptr, bits, _ONE, *self._dense, float(self.evidence.decay), stay, skip, 0.0,
+            d = self._dense
+            if self.reverse:
+                d = (*d[:4], d[5], d[4], *d[6:])
+            KE.evidence_frames(q_ptr, bits, _ONE, *d, float(self.evidence.decay), stay, skip, 0.0,
                                self._out, self._e, self.frames == 0)
             col = self._out[:, 0]
             rows = np.flatnonzero(col)
             val = col[rows].astype(np.float64)
         else:
             limit = np.array([n - 1 if n < g.n_db else BIG], np.int64)
-            _, rows, val = self._beam.run(g, g.fwd, q_ptr, bits, _ONE, limit, self._params[capped])
+            _, rows, val = self._beam.run(g, g.bwd if self.reverse else g.fwd, q_ptr, bits, _ONE, limit,
+                                          self._params[capped])
         self.frames += 1
         return self.column(rows, val, n, frame)
 
@@ -225,7 +235,7 @@ class Engine:
         params = beam_params(self.evidence, self.beam_conf, 0.5 if direction == "both" else 0.0)
         limits = np.full(n_q, BIG, np.int64)
         seen = {"max_beam": 0, "max_candidates": 0}
-        passes = [("fwd", np.arange(n_q, dtype=np.int64))]
+        passes = [("rev" if direction == "reversed" else "fwd", np.arange(n_q, dtype=np.int64))]
         if direction == "both":
             passes.append(("bwd", np.arange(n_q, dtype=np.int64)[::-1].copy()))
         # Columns are finished (summed over the passes, standardised, cut to top_k) a chunk of queries at a time as
@@ -252,9 +262,10 @@ class Engine:
             """One direction's columns, per chunk, each given to :func:`give` as it is made."""
             b = Beam(g)
             adj = g.fwd if name == "fwd" else g.bwd
-            for c in (range(len(starts)) if name == "fwd" else range(len(starts) - 1, -1, -1)):
+            ahead = name != "bwd"  # the query's frames in their order
+            for c in (range(len(starts)) if ahead else range(len(starts) - 1, -1, -1)):
                 q0, q1 = starts[c], min(starts[c] + chunk, n_q)
-                frames = order[q0:q1] if name == "fwd" else order[n_q - q1:n_q - q0]
+                frames = order[q0:q1] if ahead else order[n_q - q1:n_q - q0]
                 cols = b.run(g, adj, q_ptr, q_ind, frames, limits[q0:q1], params)
                 cols = _reversed(*cols) if name == "bwd" else cols
                 give(k, c, (cols[0], cols[1].astype(np.int32), cols[2].astype(np.float32)) if len(passes) > 1
@@ -297,7 +308,8 @@ class Engine:
             (self._rel, self._dense) if self.exact else g.dense()
         n_q = q.shape[0]
         out = np.zeros((g.n_db, n_q), dtype=np.float32)
-        passes = [(np.arange(n_q), rs, rd, 0.5 if direction == "both" else 0.0)]
+        passes = [(np.arange(n_q), *((rd, rs) if direction == "reversed" else (rs, rd)),
+                   0.5 if direction == "both" else 0.0)]
         if direction == "both":
             passes.append((np.arange(n_q)[::-1].copy(), rd, rs, 0.5))
         q_ptr, q_ind = q.indptr.astype(np.int64), q.indices.astype(np.int64)
@@ -423,8 +435,9 @@ def query_evidence(mem: SequenceMemory, query_batch, db_codes, conf: EvidenceCon
     """Graded evidence of every query frame for the database frames, standardised as ``conf.normalise`` says.
 
     ``mem``: the memory that learned the database; ``db_codes``: its winner codes (``mem.run``); ``conf``: an
-    :class:`EvidenceConf`; ``direction``: ``"both"`` or ``"forward"``; ``top_k`` None: dense (n_db x n_q ndarray),
-    an int: the beam's ``top_k`` best database frames per query (csr), with ``beam`` its :class:`BeamConf`.
+    :class:`EvidenceConf`; ``direction``: ``"both"``, ``"forward"`` or ``"reversed"`` (:data:`_DIRECTIONS`); ``top_k``
+    None: dense (n_db x n_q ndarray), an int: the beam's ``top_k`` best database frames per query (csr), with ``beam``
+    its :class:`BeamConf`.
     """
     conf = conf or EvidenceConf()
     if check_top_k(top_k) is not None:
@@ -461,5 +474,5 @@ def sparse_evidence(mem: SequenceMemory, query_batch, db_codes, conf: EvidenceCo
     ``dense_evidence(..., clamp=True)`` standardised.
     """
     check_choice(direction, "direction", _DIRECTIONS)
-    g = Graph.of(mem, db_codes, backward=direction == "both")
+    g = Graph.of(mem, db_codes, backward=direction != "forward")
     return make_engine(g, conf, beam).run(query_batch, direction, top_k, progress, stats)

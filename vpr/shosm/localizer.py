@@ -12,7 +12,8 @@ from vpr.types import Decision, MapLocalizer
 
 from .conf import RshosmSeqConf, memory_params
 from .decide import PathDecider, map_places, refuse_stands, standing
-from .evidence import make_engine
+from .direction import Direction
+from .evidence import Engine, make_engine
 from .graph import Graph
 from .memory import SequenceMemory, pad_codes
 
@@ -42,7 +43,11 @@ class Localizer(MapLocalizer):
         self.memory, self.names = memory, names
         self.db_codes = sp.csr_matrix(db_codes, dtype=bool)
         self.sessions = np.asarray(sorted({0, *(int(s) for s in (sessions or ()))}), np.int64)
-        self.engine = make_engine(Graph.of(memory, self.db_codes), self.seq.evidence, self.seq.beam, self.seq.exact)
+        graph = Graph.of(memory, self.db_codes, backward=True)
+        self.engine = make_engine(graph, self.seq.evidence, self.seq.beam, self.seq.exact)
+        #: the evidence of the query running the map backwards, against the engine's (:class:`Direction`)
+        self.backward = Engine(graph, self.seq.evidence.split()[0], self.seq.beam, self.seq.exact, reverse=True)
+        self.direction = Direction()
         self.decider = PathDecider(self.seq.path(), self.sessions)
         #: each map frame's place number (:func:`vpr.shosm.map_places`) and whether it is a frame of a stand, onto
         #: which no answer is accepted (:func:`vpr.shosm.standing`)
@@ -101,8 +106,8 @@ class Localizer(MapLocalizer):
         header, arrays = self.state()
         if new.seq.exact != self.seq.exact or new.seq.evidence.speeds != self.seq.evidence.speeds:
             # the evidence of another kind or of other speed models starts afresh
-            arrays = {k: v for k, v in arrays.items() if not k.startswith("engine_")}
-            header = {**header, "engine": None}
+            arrays = {k: v for k, v in arrays.items() if not k.startswith(("engine_", "backward_"))}
+            header = {k: v for k, v in header.items() if k != "backward"} | {"engine": None}
         return new.load_state(header, arrays)
 
     def every(self, k: int, phase: int = 0) -> np.ndarray:
@@ -121,6 +126,8 @@ class Localizer(MapLocalizer):
     def reset(self) -> None:
         """Start a new query traverse: forget the evidence carried from earlier frames and the decision's path."""
         self.engine.reset()
+        self.backward.reset()
+        self.direction.reset()
         self.decider.new_session()
         self._before, self.unmoved = None, False
 
@@ -133,17 +140,21 @@ class Localizer(MapLocalizer):
     def update(self, sdr_row) -> Decision:
         """Localise one query frame (SDR row: 1-row batch, bool vector or bit indices)."""
         bits = _sdr.row_bits(sdr_row, self.memory.n_inputs, name="query SDR")
-        d = self.decider.decide(self.engine.step(bits, frame=self.engine.frames))
+        column = self.engine.step(bits, frame=self.engine.frames)
+        d = self.decider.decide(column)
         self.unmoved = self._before is not None and _sdr.kept_share(bits, self._before) >= self.memory.threshold
         self._before = bits
-        if d.accepted and not refuse_stands(d.best, True, self.standing, self.unmoved):
-            d = dataclasses.replace(d, accepted=False)
+        back = self.direction.update(column.best()[1], self.backward.step(bits).best()[1])
+        if back or not self.direction.read or \
+                (d.accepted and not refuse_stands(d.best, True, self.standing, self.unmoved)):
+            d = dataclasses.replace(d, accepted=False, reversed=back)
         return d
 
     # ------------------------------------------------------------ state
     def state(self) -> tuple[dict, dict]:
         """(header, arrays) of the query so far: the evidence and the decision (:meth:`load_state`)."""
-        header, arrays = joint_state(engine=self.engine, dec=self.decider)
+        header, arrays = joint_state(engine=self.engine, dec=self.decider, backward=self.backward,
+                                     direction=self.direction)
         header["before"] = self._before is not None
         return header, {**arrays, "before": np.zeros(0, np.int64) if self._before is None else self._before}
 
@@ -151,6 +162,9 @@ class Localizer(MapLocalizer):
         if header.get("engine") is not None:
             self.engine.load_state(*part_state(header, arrays, "engine"))
         self.decider.load_state(*part_state(header, arrays, "dec"))
+        for name in ("backward", "direction"):  # (a state saved before they were kept starts them afresh)
+            if name in header:
+                getattr(self, name).load_state(*part_state(header, arrays, name))
         self._before = np.asarray(arrays["before"], np.int64) if header.get("before") else None
         return self
 
