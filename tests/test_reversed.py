@@ -20,6 +20,9 @@ def test_reversed_frames_compares_trailing_means():
     r = np.array([1.0, 2.0, 4.0, 4.0, 4.0, 4.0])
     assert reversed_frames(f, r, window=2).tolist() == [False, False, True, True, True, True]
     assert reversed_frames(f, r, window=5).tolist() == [False, False, False, True, True, True]
+    # a whole traverse at once: its first frames as the first window read
+    assert reversed_frames(f, r, window=5, causal=False).tolist() == [True] * 6
+    assert reversed_frames(f[:3], r[:3], window=5, causal=False).tolist() == [False] * 3
     d = Direction(window=2)
     assert [d.update(a, b) for a, b in zip(f, r, strict=True)] == reversed_frames(f, r, window=2).tolist()
     with pytest.raises(ValueError, match="one value per frame"):

@@ -7,13 +7,13 @@ from vpr import sdr
 from vpr.shosm import (
     DENSE_EVIDENCE_PAIRS,
     LOOP_EXCLUDE,
+    UNMOVED_SHARE,
     Localizer,
     LoopDetector,
     RshosmSeqConf,
     SequenceMemory,
     SpeedFollower,
     accept_path,
-    direction_read,
     loop_evidence,
     loop_rule,
     map_places,
@@ -132,31 +132,29 @@ class RshosmSeq(Method):
 
     def decision_inputs(self, state, db: EncodedTraverse, query: EncodedTraverse) -> dict:
         """The stands of the map (:func:`vpr.shosm.standing`, from the memory's codes) and of the query
-        (:func:`vpr.sdr.unmoved` at the memory's threshold); each query frame's best z of the causal evidence of the
-        query moving along the map and of it running the map backwards (``direction="forward"`` and
-        ``"reversed"``, :func:`vpr.shosm.reversed_frames`: what :class:`vpr.shosm.Localizer` compares online)."""
+        (:func:`vpr.sdr.unmoved` at :data:`vpr.shosm.UNMOVED_SHARE`); each query frame's best z of the causal
+        evidence of the query moving along the map and of it running the map backwards (``direction="forward"``
+        and ``"reversed"``, :func:`vpr.shosm.reversed_frames`: what :class:`vpr.shosm.Localizer` compares
+        online)."""
         mem, db_codes = state
         q = self.need(query, "sdr", "query")
         top_k = top_k_or_dense(len(db), len(query), self.seq.top_k, DENSE_EVIDENCE_PAIRS) if self.seq.top_k else None
         ahead, back = (query_evidence(mem, q, db_codes, self.seq.evidence, direction=d, top_k=top_k,
                                       beam=self.seq.beam).z for d in ("forward", "reversed"))
-        return {"stands": (standing(map_places(db_codes, mem.cells_per_column)), sdr.unmoved(q, mem.threshold)),
+        return {"stands": (standing(map_places(db_codes, mem.cells_per_column)), sdr.unmoved(q, UNMOVED_SHARE)),
                 "direction": (ahead, back)}
 
     def decisions(self, S, best, score, stands=None, direction=None):
         """The decision of a robot localising against the map (vpr localize): a path score, query by query; not
         accepted on a stand of the map or of the query (``stands``: (map, query), :func:`vpr.shosm.refuse_stands`),
-        nor where the query runs the map backwards or its direction is not read yet (``direction``: each frame's best
-        z of the evidence along the map and of the evidence reversed, :func:`vpr.shosm.reversed_frames`,
-        :func:`vpr.shosm.direction_read`)."""
+        nor where the query runs the map backwards (``direction``: each frame's best z of the evidence along the map
+        and of the evidence reversed, :func:`vpr.shosm.reversed_frames`; the first frames as the first ten read)."""
         d = accept_path(S, self.seq.path())
         best = np.asarray(best, np.int64)
         accepted = d.accepted & (best >= 0)
         if stands is not None:
             accepted = refuse_stands(best, accepted, *stands)
-        back = np.zeros(best.size, bool) if direction is None else reversed_frames(*direction)
-        if direction is not None:
-            accepted &= direction_read(best.size)
+        back = np.zeros(best.size, bool) if direction is None else reversed_frames(*direction, causal=False)
         return Decision(best, np.where(best >= 0, d.score, -np.inf), accepted & ~back, d.margin, reversed=back)
 
     def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool, sessions=(0,), opinion=None):

@@ -14,16 +14,20 @@ def _finite(z) -> np.ndarray:
     return np.where(np.isfinite(z), z, 0.0)
 
 
-def reversed_frames(z_forward, z_reverse, window: int = MIN_RUN) -> np.ndarray:
-    """Per query frame, whether the query runs the map backwards there: over the last ``window`` frames (fewer at the
-    start), the mean best z-score of the evidence of the query moving backward along the map (``z_reverse``: the
-    evidence with the map's transitions reversed, ``direction="reversed"``) is above that of the evidence decided on
-    (``z_forward``). A frame without candidates counts 0."""
+def reversed_frames(z_forward, z_reverse, window: int = MIN_RUN, causal: bool = True) -> np.ndarray:
+    """Per query frame, whether the query runs the map backwards there: over the last ``window`` frames, the mean best
+    z-score of the evidence of the query moving backward along the map (``z_reverse``: the evidence with the map's
+    transitions reversed, ``direction="reversed"``) is above that of the evidence moving along it (``z_forward``,
+    ``direction="forward"``). A frame without candidates counts 0. The first ``window - 1`` frames: over the frames so
+    far (``causal``, online, where :func:`direction_read` holds their answers back), or as the first ``window``
+    frames read (a whole traverse at once)."""
     f, r = _finite(z_forward), _finite(z_reverse)
     if f.shape != r.shape:
         raise ValueError(f"z_forward and z_reverse need one value per frame each, got {f.shape} and {r.shape}")
     d = np.r_[0.0, np.cumsum(r - f)]
     i = np.arange(1, f.size + 1)
+    if not causal:
+        i = np.maximum(i, min(int(window), f.size))
     return d[i] - d[np.maximum(i - int(window), 0)] > 0.0
 
 

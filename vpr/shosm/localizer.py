@@ -11,7 +11,7 @@ from vpr.statefile import joint_state, part_state
 from vpr.types import Decision, MapLocalizer
 
 from .conf import RshosmSeqConf, memory_params
-from .decide import PathDecider, map_places, refuse_stands, standing
+from .decide import UNMOVED_SHARE, PathDecider, map_places, refuse_stands, standing
 from .direction import Direction
 from .evidence import Engine, make_engine
 from .graph import Graph
@@ -54,7 +54,7 @@ class Localizer(MapLocalizer):
         self.places = map_places(self.db_codes, memory.cells_per_column, self.sessions)
         self.standing = standing(self.places)
         self._before: np.ndarray | None = None  # the query frame before's active bits
-        #: whether the last query frame kept the memory's threshold of the frame before's bits (it did not move)
+        #: whether the last query frame kept :data:`UNMOVED_SHARE` of the frame before's bits (it did not move)
         self.unmoved = False
 
     @classmethod
@@ -142,7 +142,7 @@ class Localizer(MapLocalizer):
         bits = _sdr.row_bits(sdr_row, self.memory.n_inputs, name="query SDR")
         column = self.engine.step(bits, frame=self.engine.frames)
         d = self.decider.decide(column)
-        self.unmoved = self._before is not None and _sdr.kept_share(bits, self._before) >= self.memory.threshold
+        self.unmoved = self._before is not None and _sdr.kept_share(bits, self._before) >= UNMOVED_SHARE
         self._before = bits
         back = self.direction.update(column.best()[1], self.backward.step(bits).best()[1])
         if back or not self.direction.read or \
