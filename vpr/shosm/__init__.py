@@ -20,7 +20,6 @@ from .confirm import Confirmation, confirm_closures
 from .connections import Connections, MemoryView
 from .decide import (
     LOOP_RULES,
-    STAND_FRAMES,
     UNMOVED_SHARE,
     LoopDecider,
     LoopRule,
@@ -30,8 +29,6 @@ from .decide import (
     decide_all,
     loop_rule,
     map_places,
-    refuse_stands,
-    standing,
     stationary_closures,
 )
 from .detector import LoopDetector
@@ -61,8 +58,7 @@ __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pa
            "query_evidence", "dense_evidence", "sparse_evidence", "LoopEvidence", "LoopDecider", "PathDecider",
            "decide_all",
            "LoopRule", "LOOP_RULES", "loop_rule",
-           "accept_loops", "accept_path", "stationary_closures", "STAND_FRAMES", "UNMOVED_SHARE", "map_places",
-           "standing", "refuse_stands",
+           "accept_loops", "accept_path", "stationary_closures", "UNMOVED_SHARE", "map_places",
            "Localizer", "LoopStream", "loop_evidence", "Direction", "direction_read", "reversed_frames",
            "LOOP_UNCAPPED_MAX", "LoopDetector", "Confirmation", "confirm_closures",
            "Placement", "place_closures", "Backfill", "backfill_closures", "SpeedFollower", "PICKS", "check_pick",
