@@ -16,8 +16,11 @@ from vpr.shosm import (
     accept_path,
     loop_evidence,
     loop_rule,
+    map_places,
     query_evidence,
+    refuse_stands,
     reversed_frames,
+    standing,
 )
 from vpr.shosm.confirm import warm_up as warm_up_confirmation
 from vpr.similarity import top_k_or_dense
@@ -128,27 +131,29 @@ class RshosmSeq(Method):
         return r.similarity, self.decisions(r.similarity, r.best, r.z, **self.decision_inputs(state, db, query))
 
     def decision_inputs(self, state, db: EncodedTraverse, query: EncodedTraverse) -> dict:
-        """The query frames that did not move (:func:`vpr.sdr.unmoved` at :data:`vpr.shosm.UNMOVED_SHARE`); each
-        query frame's best z of the causal evidence of the query moving along the map and of it running the map
-        backwards (``direction="forward"`` and ``"reversed"``, :func:`vpr.shosm.reversed_frames`: what
-        :class:`vpr.shosm.Localizer` compares online)."""
+        """The stands of the map (:func:`vpr.shosm.standing`, from the memory's codes) and of the query
+        (:func:`vpr.sdr.unmoved` at :data:`vpr.shosm.UNMOVED_SHARE`); each query frame's best z of the causal
+        evidence of the query moving along the map and of it running the map backwards (``direction="forward"``
+        and ``"reversed"``, :func:`vpr.shosm.reversed_frames`: what :class:`vpr.shosm.Localizer` compares
+        online)."""
         mem, db_codes = state
         q = self.need(query, "sdr", "query")
         top_k = top_k_or_dense(len(db), len(query), self.seq.top_k, DENSE_EVIDENCE_PAIRS) if self.seq.top_k else None
         ahead, back = (query_evidence(mem, q, db_codes, self.seq.evidence, direction=d, top_k=top_k,
                                       beam=self.seq.beam).z for d in ("forward", "reversed"))
-        return {"unmoved": sdr.unmoved(q, UNMOVED_SHARE), "direction": (ahead, back)}
+        return {"stands": (standing(map_places(db_codes, mem.cells_per_column)), sdr.unmoved(q, UNMOVED_SHARE)),
+                "direction": (ahead, back)}
 
-    def decisions(self, S, best, score, unmoved=None, direction=None):
+    def decisions(self, S, best, score, stands=None, direction=None):
         """The decision of a robot localising against the map (vpr localize): a path score, query by query; not
-        accepted at a query frame that did not move (``unmoved``: the evidence, which expects it to, runs ahead), nor
-        where the query runs the map backwards (``direction``: each frame's best z of the evidence along the map and
-        of the evidence reversed, :func:`vpr.shosm.reversed_frames`; the first frames as the first ten read)."""
+        accepted on a stand of the map or of the query (``stands``: (map, query), :func:`vpr.shosm.refuse_stands`),
+        nor where the query runs the map backwards (``direction``: each frame's best z of the evidence along the map
+        and of the evidence reversed, :func:`vpr.shosm.reversed_frames`; the first frames as the first ten read)."""
         d = accept_path(S, self.seq.path())
         best = np.asarray(best, np.int64)
         accepted = d.accepted & (best >= 0)
-        if unmoved is not None:
-            accepted &= ~np.asarray(unmoved, bool)
+        if stands is not None:
+            accepted = refuse_stands(best, accepted, *stands)
         back = np.zeros(best.size, bool) if direction is None else reversed_frames(*direction, causal=False)
         return Decision(best, np.where(best >= 0, d.score, -np.inf), accepted & ~back, d.margin, reversed=back)
 

@@ -20,6 +20,7 @@ from .confirm import Confirmation, confirm_closures
 from .connections import Connections, MemoryView
 from .decide import (
     LOOP_RULES,
+    STAND_FRAMES,
     UNMOVED_SHARE,
     LoopDecider,
     LoopRule,
@@ -29,6 +30,8 @@ from .decide import (
     decide_all,
     loop_rule,
     map_places,
+    refuse_stands,
+    standing,
     stationary_closures,
 )
 from .detector import LoopDetector
@@ -58,7 +61,8 @@ __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pa
            "query_evidence", "dense_evidence", "sparse_evidence", "LoopEvidence", "LoopDecider", "PathDecider",
            "decide_all",
            "LoopRule", "LOOP_RULES", "loop_rule",
-           "accept_loops", "accept_path", "stationary_closures", "UNMOVED_SHARE", "map_places",
+           "accept_loops", "accept_path", "stationary_closures", "STAND_FRAMES", "UNMOVED_SHARE", "map_places",
+           "standing", "refuse_stands",
            "Localizer", "LoopStream", "loop_evidence", "Direction", "direction_read", "reversed_frames",
            "LOOP_UNCAPPED_MAX", "LoopDetector", "Confirmation", "confirm_closures",
            "Placement", "place_closures", "Backfill", "backfill_closures", "SpeedFollower", "PICKS", "check_pick",

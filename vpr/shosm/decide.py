@@ -16,7 +16,8 @@ from .evidence import LoopEvidence
 from .kernels import decide as KD
 
 __all__ = ["LoopRule", "LoopDecider", "PathDecider", "LOOP_RULES", "loop_rule", "decide_all", "accept_loops",
-           "accept_path", "stationary_closures", "UNMOVED_SHARE", "map_places"]
+           "accept_path", "stationary_closures", "STAND_FRAMES", "UNMOVED_SHARE", "map_places", "standing",
+           "refuse_stands"]
 
 
 class PathDecider(Decider):
@@ -270,8 +271,7 @@ def accept_path(S, conf: PathConf | None = None, sessions=None) -> Decision:
 
 def map_places(codes, cells_per_column: int, sessions=(0,)) -> np.ndarray:
     """Each map frame's place number: the next frame has the next number unless the memory learned it as the same
-    minicolumns as the frame before in its session (the camera stood: one place under several frame numbers; the
-    speed of a query is read on places, :class:`vpr.shosm.SpeedFollower`).
+    minicolumns as the frame before in its session (the camera stood: one place under several frame numbers).
 
     ``codes``: the map's winner cells (:meth:`SequenceMemory.run`, cell ``c`` in minicolumn ``c // cells_per_column``);
     ``sessions``: each session's first frame.
@@ -298,6 +298,31 @@ def map_places(codes, cells_per_column: int, sessions=(0,)) -> np.ndarray:
 #: Gardens Point, 0.57 on Nordland with the query standardised online) and what those of a standing train keep
 #: (0.69 or more online, 0.86 or more at once): ``research/docs/decisions.md``, "Stands and direction".
 UNMOVED_SHARE = 0.6
+
+#: Map frames of one place (:func:`map_places`) from which on no frame number singles out an answer: with 2, the
+#: answer is within a frame of the query's own either way; with 3 or more, it may not be.
+STAND_FRAMES = 3
+
+
+def standing(places, frames: int = STAND_FRAMES) -> np.ndarray:
+    """Per map frame, whether it is one of ``frames`` or more map frames of one place (``places``:
+    :func:`map_places`, one number per frame, non-decreasing): a frame of a stand."""
+    p = np.asarray(places, np.int64)
+    if p.size == 0:
+        return np.zeros(0, bool)
+    _, count = np.unique(p, return_counts=True)
+    return np.repeat(count >= int(frames), count)
+
+
+def refuse_stands(best, accepted, map_standing, query_unmoved):
+    """``accepted`` without the answers that no frame number singles out: onto a map frame of a stand
+    (:func:`standing`), or of a query frame that did not move since the frame before (:func:`vpr.sdr.unmoved`; the
+    evidence, which expects the query to move on, runs ahead of it). Arrays of a traverse, or one frame's scalars."""
+    best = np.asarray(best, np.int64)
+    on_stand = np.asarray(map_standing, bool)[np.clip(best, 0, None)] & (best >= 0)
+    out = np.asarray(accepted, bool) & ~np.asarray(query_unmoved, bool) & ~on_stand
+    return bool(out) if out.ndim == 0 else out
+
 
 def stationary_closures(sdr, best, accepted, ratio: float = 0.35) -> np.ndarray:
     """Which accepted closures ``best[j] -> j`` are onto a place the camera never left

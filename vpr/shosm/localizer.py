@@ -11,7 +11,7 @@ from vpr.statefile import joint_state, part_state
 from vpr.types import Decision, MapLocalizer
 
 from .conf import RshosmSeqConf, memory_params
-from .decide import UNMOVED_SHARE, PathDecider, map_places
+from .decide import UNMOVED_SHARE, PathDecider, map_places, refuse_stands, standing
 from .direction import Direction
 from .evidence import Engine, make_engine
 from .graph import Graph
@@ -49,12 +49,11 @@ class Localizer(MapLocalizer):
         self.backward = Engine(graph, self.seq.evidence.split()[0], self.seq.beam, self.seq.exact, reverse=True)
         self.direction = Direction()
         self.decider = PathDecider(self.seq.path(), self.sessions)
-        #: each map frame's place number (:func:`vpr.shosm.map_places`: a stand of the map is one), on which a
-        #: query's speed is read
+        #: each map frame's place number (:func:`vpr.shosm.map_places`) and whether it is a frame of a stand, onto
+        #: which no answer is accepted (:func:`vpr.shosm.standing`)
         self.places = map_places(self.db_codes, memory.cells_per_column, self.sessions)
+        self.standing = standing(self.places)
         self._before: np.ndarray | None = None  # the query frame before's active bits
-        self._frames = 0  # query frames seen since the last reset (a frame that did not move steps no engine)
-        self._last: Decision | None = None  # the answer of the last frame that moved
         #: whether the last query frame kept :data:`UNMOVED_SHARE` of the frame before's bits (it did not move)
         self.unmoved = False
 
@@ -89,7 +88,7 @@ class Localizer(MapLocalizer):
     @property
     def frames(self) -> int:
         """Query frames seen since the last :meth:`reset`."""
-        return self._frames
+        return self.engine.frames
 
     def reconfigure(self, **flat) -> Localizer:
         """This map with other query-time settings (evidence, beam, ``top_k``, the decision), continuing its state.
@@ -130,7 +129,7 @@ class Localizer(MapLocalizer):
         self.backward.reset()
         self.direction.reset()
         self.decider.new_session()
-        self._before, self.unmoved, self._frames, self._last = None, False, 0, None
+        self._before, self.unmoved = None, False
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the kernels, leaving the state as it was."""
@@ -141,19 +140,14 @@ class Localizer(MapLocalizer):
     def update(self, sdr_row) -> Decision:
         """Localise one query frame (SDR row: 1-row batch, bool vector or bit indices)."""
         bits = _sdr.row_bits(sdr_row, self.memory.n_inputs, name="query SDR")
-        frame, self._frames = self._frames, self._frames + 1
+        column = self.engine.step(bits, frame=self.engine.frames)
+        d = self.decider.decide(column)
         self.unmoved = self._before is not None and _sdr.kept_share(bits, self._before) >= UNMOVED_SHARE
         self._before = bits
-        if self.unmoved and self._last is not None:
-            # the query did not move: no step of the evidence, which expects the next place (it would run ahead of
-            # the query); the answer of the frame before, not accepted (no frame number singles it out)
-            return dataclasses.replace(self._last, accepted=False, frame=frame)
-        column = self.engine.step(bits, frame=frame)
-        d = self.decider.decide(column)
         back = self.direction.update(column.best()[1], self.backward.step(bits).best()[1])
-        if back or not self.direction.read:
+        if back or not self.direction.read or \
+                (d.accepted and not refuse_stands(d.best, True, self.standing, self.unmoved)):
             d = dataclasses.replace(d, accepted=False, reversed=back)
-        self._last = d
         return d
 
     # ------------------------------------------------------------ state
@@ -162,9 +156,6 @@ class Localizer(MapLocalizer):
         header, arrays = joint_state(engine=self.engine, dec=self.decider, backward=self.backward,
                                      direction=self.direction)
         header["before"] = self._before is not None
-        header["frames"] = self._frames
-        header["last"] = None if self._last is None else [int(self._last.best), float(self._last.score),
-                                                          bool(self._last.reversed)]
         return header, {**arrays, "before": np.zeros(0, np.int64) if self._before is None else self._before}
 
     def load_state(self, header: dict, arrays: dict) -> Localizer:
@@ -175,9 +166,6 @@ class Localizer(MapLocalizer):
             if name in header:
                 getattr(self, name).load_state(*part_state(header, arrays, name))
         self._before = np.asarray(arrays["before"], np.int64) if header.get("before") else None
-        self._frames = int(header.get("frames", self.engine.frames))
-        last = header.get("last")
-        self._last = None if last is None else Decision(int(last[0]), float(last[1]), False, reversed=bool(last[2]))
         return self
 
     def map_state(self) -> tuple[dict, dict[str, dict]]:
