@@ -81,8 +81,9 @@ class LocalizeOnline(Online):
         d = self.answering.update(encoded)
         if d.reversed and "reversed" not in self._said:
             self._said.add("reversed")
-            print(f"vpr localize: from query frame {d.frame} ({name}) on, the query runs the map backwards: its "
-                  "answers are not accepted while it does (research/docs/localize.md)", file=sys.stderr, flush=True)
+            print(f"vpr localize: at query frame {d.frame} ({name}) the evidence of the query running the map "
+                  "backwards is the stronger: the answers of such frames are not accepted (metrics.json "
+                  "reversed_frames counts them)", file=sys.stderr, flush=True)
         if self.follower is None:
             return d
         mode = self.follower.mode

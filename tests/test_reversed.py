@@ -23,6 +23,14 @@ def test_reversed_frames_compares_trailing_means():
     # a whole traverse at once: its first frames as the first window read
     assert reversed_frames(f, r, window=5, causal=False).tolist() == [True] * 6
     assert reversed_frames(f[:3], r[:3], window=5, causal=False).tolist() == [False] * 3
+    # a frame that did not move is not read: it takes the reading of the frame before (none yet: False)
+    moved = np.array([False, True, True, False, True, True])
+    assert reversed_frames(f, r, window=2, moved=moved).tolist() == [False, False, True, True, True, True]
+    r2 = np.array([5.0, 2.0, 0.0, 9.0, 0.0, 0.0])
+    assert reversed_frames(f, r2, window=1, moved=moved).tolist() == [False, False, False, False, False, False]
+    d = Direction(window=1)
+    assert [d.update(a, b, m) for a, b, m in zip(f, r2, moved, strict=True)] == [False] * 6  # frame 3 not read
+    assert reversed_frames(f, r2, window=1).tolist() == [True, False, False, True, False, False]
     d = Direction(window=2)
     assert [d.update(a, b) for a, b in zip(f, r, strict=True)] == reversed_frames(f, r, window=2).tolist()
     with pytest.raises(ValueError, match="one value per frame"):
@@ -106,7 +114,7 @@ def test_compare_and_localize_say_a_reversed_query(scene_on_disk, tmp_path, caps
 
     s = scene_on_disk("two_seasons", (48, 36), 60)
     db, q = s[s["names"][0]], _reversed_folder(s[s["names"][1]], tmp_path / "rev")
-    with pytest.warns(UserWarning, match="runs the map backwards"):
+    with pytest.warns(UserWarning, match="running the map backwards is the stronger"):
         assert main(["compare", str(db), str(q), "--methods", "rshosm-seq", "--out", str(tmp_path / "c"),
                      "--no-progress"]) == 0
     m = json.loads((tmp_path / "c" / "metrics.json").read_text())["methods"]["rshosm-seq"]
@@ -115,4 +123,4 @@ def test_compare_and_localize_say_a_reversed_query(scene_on_disk, tmp_path, caps
     assert main(["localize", str(tmp_path / "m.npz"), str(q), "--out", str(tmp_path / "l"), "--no-progress"]) == 0
     err = capsys.readouterr().err
     m = json.loads((tmp_path / "l" / "metrics.json").read_text())["methods"]["rshosm-seq"]
-    assert m["reversed_frames"] > 0 and "runs the map backwards" in err
+    assert m["reversed_frames"] > 0 and "running the map backwards is the stronger" in err

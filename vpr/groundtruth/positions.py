@@ -272,9 +272,9 @@ def check_reversed(counts: Mapping[str, tuple[int, int]]) -> None:
     metrics.json's ``reversed_frames``) whose query ran the map backwards somewhere: those frames are not accepted."""
     for label, (n, total) in counts.items():
         if n:
-            warnings.warn(f"{label}: the query runs the map backwards at {n} of its {total} frames: its answers there "
-                          "are not accepted (the sequence evidence follows the map's direction; research/docs/"
-                          "localize.md)", UserWarning, stacklevel=2)
+            warnings.warn(f"{label}: at {n} of the query's {total} frames the evidence of it running the map backwards "
+                          "is the stronger: those frames' answers are not accepted (the sequence evidence follows the "
+                          "map's direction; docs/internals.md, vpr/shosm/decide.py)", UserWarning, stacklevel=2)
 
 
 def check_rates(srcs, every: float | None = None, against_first: bool = False) -> None:

@@ -154,7 +154,8 @@ class RshosmSeq(Method):
         accepted = d.accepted & (best >= 0)
         if stands is not None:
             accepted = refuse_stands(best, accepted, *stands)
-        back = np.zeros(best.size, bool) if direction is None else reversed_frames(*direction, causal=False)
+        back = np.zeros(best.size, bool) if direction is None else \
+            reversed_frames(*direction, causal=False, moved=None if stands is None else ~np.asarray(stands[1], bool))
         return Decision(best, np.where(best >= 0, d.score, -np.inf), accepted & ~back, d.margin, reversed=back)
 
     def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool, sessions=(0,), opinion=None):

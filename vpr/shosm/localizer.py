@@ -144,7 +144,7 @@ class Localizer(MapLocalizer):
         d = self.decider.decide(column)
         self.unmoved = self._before is not None and _sdr.kept_share(bits, self._before) >= UNMOVED_SHARE
         self._before = bits
-        back = self.direction.update(column.best()[1], self.backward.step(bits).best()[1])
+        back = self.direction.update(column.best()[1], self.backward.step(bits).best()[1], moved=not self.unmoved)
         if back or not self.direction.read or \
                 (d.accepted and not refuse_stands(d.best, True, self.standing, self.unmoved)):
             d = dataclasses.replace(d, accepted=False, reversed=back)
