@@ -20,7 +20,8 @@ Three settings:
   forward-only drives (Nordland summer every 10th, every file first 1,000, Gardens
   Point day_left), where every closure is false.
 - **sessions** (``vpr loops S1 S2``): the database -> query pairs above as two
-  sessions of one stream, at 1x, 2x, 0.5x and reversed.
+  sessions of one stream, at 1x, 2x, 0.5x and reversed; and two short sessions (the
+  first 111 frames of Gardens Point's two traverses, of Nordland's every 10th).
 
 Runs are kept under ``--out`` (a second call prints the table from them). ``--arg`` (repeatable) is added to
 every run of ``rshosm-seq`` (e.g. ``--arg=--method-conf --arg=rshosm-seq.confirm_frames=0``, ``--arg=--query-speed
@@ -135,6 +136,13 @@ def match_pairs(s: Streams):
     yield "Gardens Point, query reversed", left, s.gp("right_rev", s.right[::-1]), 2, 8
 
 
+def short_sessions(s: Streams):
+    """(name, earlier session, later session, radius, soft) of two short sessions (111 frames each)."""
+    yield ("Gardens Point, 111 frames each", s.gp("left111", s.left[:111]), s.gp("right111", s.right[:111]), 2, 8)
+    yield ("Nordland every 10th, 111 frames each", s.nl("s10_111", s.summer[::10][:111], 10),
+           s.nl("w10_111", s.winter[::10][:111], 10), 1, 3)
+
+
 def one_run_streams(s: Streams):
     """(name, folder, ground-truth options, exclude or None) of the one-run rows."""
     yield "Gardens Point day_left + day_right (400)", s.gp("gp_lr", s.left + s.right), 2, 8
@@ -202,9 +210,8 @@ def sessions_table(s: Streams, out: Path) -> None:
           "R(acc)\n")
     print("| stream | rshosm-seq | SeqSLAM | speed said (rshosm-seq) |")
     print("|---|---|---|---|")
-    for name, (db, p_db), (q, p_q), radius, soft in match_pairs(s):
-        if "first" in name or "all" in name:
-            continue  # every file: the database -> query rows
+    pairs = [p for p in match_pairs(s) if "first" not in p[0] and "all" not in p[0]]  # every file: the match rows
+    for name, (db, p_db), (q, p_q), radius, soft in [*pairs, *short_sessions(s)]:
         key = f"{db.name}-{q.name}"
         gt = ["--gt", p_db, p_q, "--radius", radius, "--gt-soft", soft]
         got = {m: _loops([db, q, "--method", m, *gt], out, "sessions", f"{key}-{m}") for m in ("rshosm-seq", "seqslam")}
