@@ -108,6 +108,29 @@ def follows_speed(args) -> bool:
     return getattr(args, "query_speed", "as-is") in (None, "follow")
 
 
+def add_field_files_arguments(ap: argparse.ArgumentParser, pairs: bool = True) -> None:
+    """``--top``, ``--pairs`` (where the command has no pairs of its own) and ``--mat``: the files the field's tools
+    read (:func:`pipelines.outputs.write_ranked`)."""
+    files = ap.add_argument_group("files the field's tools read")
+    files.add_argument("--top", type=int, default=20, metavar="N",
+                       help="each query's N best database frames with their scores, METHOD/top.csv (default 20; 0: "
+                            "none)")
+    if pairs:
+        files.add_argument("--pairs", type=int, default=0, metavar="N",
+                           help="hloc's retrieval pairs file of each query's N best, METHOD/pairs-query-METHODN.txt")
+    files.add_argument("--mat", action="store_true",
+                       help="METHOD/similarity.mat for MATLAB (S database x query, best counted from 1, score, "
+                            "accepted)")
+
+
+def field_files(args) -> dict:
+    """``top``, ``pairs`` and ``mat`` of :func:`add_field_files_arguments`, checked."""
+    for flag, n in (("--top", args.top), ("--pairs", getattr(args, "pairs", 0))):
+        if n < 0:
+            raise ValueError(f"{flag} {n}: a number of database frames per query, 0 or more")
+    return {"top": args.top, "pairs": getattr(args, "pairs", 0), "mat": args.mat}
+
+
 def add_method_conf_argument(ap: argparse.ArgumentParser) -> None:
     """``--method-conf METHOD.KEY=VALUE`` (repeatable)."""
     ap.add_argument("--method-conf", action="append", default=[], metavar="METHOD.KEY=VALUE",

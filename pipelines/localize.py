@@ -20,12 +20,14 @@ from pathlib import Path
 import encoders
 from pipelines.args import (
     add_common_arguments,
+    add_field_files_arguments,
     add_gt_arguments,
     add_method_conf_argument,
     add_preset_argument,
     add_query_speed_argument,
     add_source_arguments,
     descriptor_inputs,
+    field_files,
     follows_speed,
     gt_spec_from_args,
     input_encoder,
@@ -104,6 +106,9 @@ class LocalizeOnline(Online):
     def name_of(self, frame: int) -> str | None:
         return self.loc.names[frame]
 
+    def candidate_names(self) -> list[str]:
+        return self.loc.names
+
     def n_candidates(self) -> int:
         return self.loc.n_db
 
@@ -178,6 +183,8 @@ class LocalizeOptions:
     follow_speed : a query driven faster or slower than the map at the same frame rate answered by the maps of one
         frame in k or as queries of one frame in k while it is so (the method's ``follower``, where it has one);
         False: the frames as they come.
+    files : the files the field's tools read (``top``, ``pairs``, ``mat`` of
+        :func:`pipelines.outputs.write_ranked`); default: each query frame's 20 best map frames (``top.csv``).
     """
 
     query_standardise: str = "running"
@@ -193,6 +200,7 @@ class LocalizeOptions:
     topic: str | tuple | None = None
     every: float | None = None
     follow_speed: bool = True
+    files: dict = field(default_factory=lambda: {"top": 20, "pairs": 0, "mat": False})
 
 
 def localize(map_or_db, query, out, opts: LocalizeOptions | None = None, stdout=None, stdin=None, **options) -> dict:
@@ -205,7 +213,7 @@ def localize(map_or_db, query, out, opts: LocalizeOptions | None = None, stdout=
     """
     o = replace(opts or LocalizeOptions(), **options)
     (query_standardise, prior_frames, window, gt, learn_options, fps, step, max_frames, state_out, progress, topic,
-     every, follow_speed) = (getattr(o, f.name) for f in fields(o))
+     every, follow_speed, files) = (getattr(o, f.name) for f in fields(o))
     out = Path(out)
     io.check_writable(out / "metrics.json", "--out")
     if state_out:
@@ -270,6 +278,7 @@ def localize(map_or_db, query, out, opts: LocalizeOptions | None = None, stdout=
                          {"map_or_db": str(map_or_db), "query": str(query), "query_standardise": query_standardise,
                           "prior_frames": prior_frames, "window": window, "follow_speed": follow_speed}, q_xy,
                          follower)
+    job.files = dict(files)
     job.warm_up()
     return run_online(job, q_src, out, stdout, state_out)
 
@@ -311,6 +320,7 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
                     help=f"running: statistics over the last N query frames (default {WINDOW}; 0: all frames so far)")
     ap.add_argument("--state-out", metavar="FILE.npz", help="also write the localizer with its state at the end")
     add_query_speed_argument(ap)
+    add_field_files_arguments(ap)
     learn_group = ap.add_argument_group("learning MAP_OR_DB when it is a database")
     _add_learn_args(learn_group)
     add_source_arguments(ap)
@@ -371,7 +381,7 @@ def run_command(args) -> int:
     opts = LocalizeOptions(query_standardise=args.query_standardise, prior_frames=args.prior_frames,
                            window=args.window, state_out=args.state_out, gt=gt_spec_from_args(args),
                            learn_options=learn_opts, progress=not args.no_progress,
-                           follow_speed=follows_speed(args), **src_opts)
+                           follow_speed=follows_speed(args), files=field_files(args), **src_opts)
     report = localize(args.map, args.query, args.out, opts)
     print(summary_line(report, args.out), file=sys.stderr)
     return 0

@@ -11,9 +11,11 @@ import sys
 
 from pipelines.args import (
     add_common_arguments,
+    add_field_files_arguments,
     add_gt_arguments,
     add_query_speed_argument,
     add_run_arguments,
+    field_files,
     options_from_args,
 )
 from vpr.evaluate import RECALL_AT
@@ -44,15 +46,7 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     ap.add_argument("--verify", type=int, default=0, metavar="N",
                     help="geometric verification of each query's N best candidates (ORB + pycolmap)")
     ap.add_argument("--min-inliers", type=int, default=15, help="inliers needed to accept a verified match")
-    files = ap.add_argument_group("files the field's tools read")
-    files.add_argument("--top", type=int, default=20, metavar="N",
-                       help="each query's N best database frames with their scores, METHOD/top.csv (default 20; 0: "
-                            "none)")
-    files.add_argument("--pairs", type=int, default=0, metavar="N",
-                       help="hloc's retrieval pairs file of each query's N best, METHOD/pairs-query-METHODN.txt")
-    files.add_argument("--mat", action="store_true",
-                       help="METHOD/similarity.mat for MATLAB (S database x query, best counted from 1, score, "
-                            "accepted)")
+    add_field_files_arguments(ap)
     ap.add_argument("--recall-at", default=None, metavar="N1,N2,...",
                     help="the N of Recall@N, over every query (the field's) and over the queries with a true match "
                          f"(default {','.join(map(str, RECALL_AT))}; needs ground truth)")
@@ -62,10 +56,7 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
 
 def own_options(args) -> dict:
     """The options of ``match`` and ``compare`` beside every run's: Recall@N's N and the field's files."""
-    for flag, n in (("--top", args.top), ("--pairs", args.pairs)):
-        if n < 0:
-            raise ValueError(f"{flag} {n}: a number of database frames per query, 0 or more")
-    return {"recall_at": parse_recall_at(args), "top": args.top, "pairs": args.pairs, "mat": args.mat}
+    return {"recall_at": parse_recall_at(args), **field_files(args)}
 
 
 def parse_recall_at(args) -> tuple:

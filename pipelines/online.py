@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipelines.outputs import claim_methods, merge_metrics, versions, write_method
+from pipelines.outputs import claim_methods, merge_metrics, versions, write_method, write_ranked
 from pipelines.report import write_report
 from vpr import evaluate
 from vpr.groundtruth import check_speeds
@@ -45,6 +45,9 @@ class Online:
     ground_truth: tuple | None = None
     #: the job goes on from a saved state (``--resume``, or a map saved with ``--state-out``)
     resumed: bool = False
+    #: the files the field's tools read (``top``, ``pairs``, ``mat`` of :func:`pipelines.outputs.write_ranked`), of
+    #: the candidates :meth:`candidate_names`; empty: none
+    files: dict = {}
 
     def warm_up(self) -> None:
         """Compile kernels and load models now, so that the first frame's latency is its own."""
@@ -58,6 +61,10 @@ class Online:
 
     def name_of(self, frame: int) -> str | None:
         """The name of a candidate frame."""
+        raise NotImplementedError
+
+    def candidate_names(self) -> list[str]:
+        """The names of every candidate frame, in order (:attr:`files`)."""
         raise NotImplementedError
 
     def n_candidates(self) -> int:
@@ -280,6 +287,8 @@ def _write(job: Online, out: Path, src, rows, skipped, seconds, state_out, waiti
                                           "latency_decide_ms": [round(v, 3) for v in lat_dec]},
                               "best_names": [job.name_of(b) if b >= 0 else "" for b in best],
                               "query_ids": frames.tolist(), "name_of": job.name_of})[job.method]
+    if job.files:  # the files the field's tools read
+        write_ranked(out / job.method, res, job.candidate_names(), names, **job.files)
     if state_out:
         job.save(state_out)
     params = {"command": job.command, **job.params(), "skipped": skipped,

@@ -46,6 +46,34 @@ def test_top_n_hloc_pairs_and_mat_of_a_compare(scene_on_disk, tmp_path, capsys):
     assert err.count("\n") == 1 and "--top -1" in err and not (tmp_path / "bad").exists()
 
 
+@pytest.mark.slow
+def test_localize_writes_the_top_n_hloc_pairs_and_mat_of_its_answers(scene_on_disk, tmp_path, capsys):
+    s = scene_on_disk("two_seasons", (48, 32), 60)
+    db, q = s[s["names"][0]], s[s["names"][1]]
+    argv = ["localize", db, q, "--preset", "fast", "--top", 4, "--pairs", 3, "--mat", "--out", tmp_path / "o",
+            "--no-progress"]
+    assert main([str(a) for a in argv]) == 0, capsys.readouterr().err
+    folder = tmp_path / "o" / "rshosm-seq"
+    with open(folder / "top.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    with open(folder / "matches.csv", newline="") as fh:
+        best = {r["query"]: r["best_db"] for r in csv.DictReader(fh)}
+    assert {r["rank"] for r in rows} == {"1", "2", "3", "4"}
+    assert all(r["db"] == best[r["query"]] for r in rows if r["rank"] == "1")  # rank 1: the frame's answer
+    pairs = hloc_pairs(folder / "pairs-query-rshosm-seq3.txt")
+    db_names = {p.name for p in db.glob("*.png")}
+    assert set(pairs) == {p.name for p in q.glob("*.png")} and all(len(v) == 3 and set(v) <= db_names
+                                                                  for v in pairs.values())
+    m = scipy.io.loadmat(folder / "similarity.mat")
+    assert m["S"].shape == (60, 60) and m["best"].ravel().tolist() == [int(best[str(j)]) + 1 for j in range(60)]
+    capsys.readouterr()
+    argv[argv.index("--pairs") + 1] = -2
+    argv[argv.index("--out") + 1] = tmp_path / "bad"
+    assert main([str(a) for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--pairs -2" in err and not (tmp_path / "bad").exists()
+
+
 def test_a_folder_of_subfolders_is_read_through_them(tmp_path):
     import cv2
 

@@ -145,6 +145,7 @@ class Localizer(MapLocalizer):
         self.unmoved = self._before is not None and _sdr.kept_share(bits, self._before) >= UNMOVED_SHARE
         self._before = bits
         back = self.direction.update(column.best()[1], self.backward.step(bits).best()[1], moved=not self.unmoved)
+        back = back and self.direction.read  # (before, no direction is read: no answer is accepted either)
         if back or not self.direction.read or \
                 (d.accepted and not refuse_stands(d.best, True, self.standing, self.unmoved)):
             d = dataclasses.replace(d, accepted=False, reversed=back)
