@@ -46,8 +46,8 @@ def test_a_revisit_is_accepted_from_its_first_frames_and_the_replay_equals_the_s
     added = np.flatnonzero(after.accepted & ~before.accepted)
     assert added.min() >= 300 and np.abs(after.best[added] - place[added]).max() <= 2  # the revisit's own frames
     sessions = [0, 450]  # nothing waits across a session's start
-    raw = loop_evidence(x, exclude=30, backfill_frames=0, place_frames=0, sessions=sessions).decision
-    whole = loop_evidence(x, exclude=30, place_frames=0, sessions=sessions).decision
+    raw = loop_evidence(x, exclude=30, backfill_frames=0, sessions=sessions).decision
+    whole = loop_evidence(x, exclude=30, sessions=sessions).decision
     c = LoopConf()
     again = backfill_closures(raw, c.backfill_frames, c.back, c.ahead, c.min_score, sessions=sessions)
     np.testing.assert_array_equal(again.accepted, whole.accepted)

@@ -435,12 +435,12 @@ def test_a_later_session_at_another_speed_is_decided_again_onto_the_earlier_ones
     np.testing.assert_array_equal(out.similarity[:, :a], res.similarity[:, :a])  # the first session as it was
     np.testing.assert_array_equal(out.similarity[a:], res.similarity[a:])
     right = lambda r: r.accepted[a:] & (np.abs(r.best[a:] - q_place) <= 1)  # noqa: E731
-    # against the evidence's own answers (its closures not placed by the frames up to them)
-    as_is = methods.get("rshosm-seq", place_frames=0).loops(stream, exclude=5, sessions=[a])
+    # against the loop's own answers
+    as_is = methods.get("rshosm-seq").loops(stream, exclude=5, sessions=[a])
     p0, p1 = (right(r).sum() / max(r.accepted[a:].sum(), 1) for r in (as_is, out))
     assert p1 >= p0 and right(out).mean() >= right(as_is).mean() + gain, (p0, p1)
-    # placed, the loop's own closures onto the earlier session are where the query is (its recall stays the match's)
-    assert right(res).sum() == res.accepted[a:].sum() and right(out).sum() > right(res).sum()
+    # decided again: more closures onto the earlier session where the query is than the loop's own
+    assert right(out).sum() > right(res).sum()
     # the speed is read on the match against the earlier session, also where the loop's own paths read none
     blind = dataclasses.replace(res, best=np.where(np.arange(len(res.best)) >= a, -1, res.best))
     again = _loops(method, stream, blind, a)[0]
@@ -567,11 +567,11 @@ def test_one_run_at_one_speed_or_slower_forward_or_without_sequences_is_left_as_
 
 
 def test_a_later_session_is_followed_also_with_settings_of_one_stream():
-    """A setting of loop closure within one stream (place_frames) does not keep a later session from being matched
+    """A setting of loop closure within one stream (backfill_frames) does not keep a later session from being matched
     again against the earlier ones (its match is a map's, where such a setting is refused)."""
     db, q, _ = _traverses((1.8, 2.2))
     stream = EncodedTraverse.from_parts([db, q], ["a", "b"])
-    method = methods.get("rshosm-seq", place_frames=10)
+    method = methods.get("rshosm-seq", backfill_frames=10)
     res = method.loops(stream, exclude=5, sessions=[len(db)])
     out, said = _loops(method, stream, res, len(db))
     assert out.sampling["sessions"][0]["db_step"] == 2 and not any("cannot be matched" in s for s in said)

@@ -25,7 +25,7 @@ Then the accepted closures of both: false in the first half, true / false in the
 The update latency includes handing out the decisions that waited for the frames after them (``take_late``).
 
 Usage: python research/benchmarks/bench_loops_scale.py [--frames 50000] [--checkpoints 1000,5000,10000,20000,50000]
-       [--confirm-frames N] [--place-frames N]
+       [--confirm-frames N]
 """
 from __future__ import annotations
 
@@ -122,7 +122,7 @@ def run_batch(n: int, out: Path, conf: dict) -> dict:
 
 def _child(args) -> int:
     out = Path(args.out)
-    conf = {k: getattr(args, k) for k in ("confirm_frames", "place_frames") if getattr(args, k) is not None}
+    conf = {k: getattr(args, k) for k in ("confirm_frames",) if getattr(args, k) is not None}
     res = run_detector(args.frames, args.cp, out, conf) if args.child == "detector" else \
         run_batch(args.frames, out, conf)
     print(json.dumps(res))
@@ -151,8 +151,6 @@ def main(argv=None) -> int:
     ap.add_argument("--checkpoints", default="1000,5000,10000,20000,50000")
     ap.add_argument("--confirm-frames", type=int, default=None,
                     help="rshosm-seq.confirm_frames (default: its default; 0: closures decided at once)")
-    ap.add_argument("--place-frames", type=int, default=None,
-                    help="rshosm-seq.place_frames (default: its default; 0: closures not placed)")
     ap.add_argument("--child", choices=("detector", "batch"), help=argparse.SUPPRESS)
     ap.add_argument("--out", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
@@ -163,7 +161,7 @@ def main(argv=None) -> int:
 
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        conf = {"confirm_frames": a.confirm_frames, "place_frames": a.place_frames}
+        conf = {"confirm_frames": a.confirm_frames}
         procs = {k: _spawn(k, a.frames, a.cp, Path(tmp) / f"{k}.npz", conf) for k in ("detector", "batch")}
         res = {k: json.loads(p.communicate()[0].strip().splitlines()[-1]) for k, p in procs.items()}
         wall = time.perf_counter() - t0

@@ -19,15 +19,14 @@ without it does on it: a rule that only holds where it was chosen shows there.
 ``--sizes``: the rendered streams also at other sizes, each a stream of its own.
 
 Closures are confirmed by the frames after them as ``vpr loops`` does (``LoopConf.confirm_frames``,
-``--confirm-frames``, 0: decided at once) and placed by the frames up to them (``LoopConf.place_frames``,
-``--place-frames``, 0: the evidence's answer), the frames leading up to a confirmed closure accepted with it
+``--confirm-frames``, 0: decided at once), the frames leading up to a confirmed closure accepted with it
 (``LoopConf.backfill_frames``, ``--backfill-frames``; ``--backfill-grid`` prints every stream under each of
 :data:`BACKFILL_FRAMES`); ``--confirm-grid`` prints, for the default rule, every stream under
 each ``confirm_frames`` x ``confirm_z`` of :data:`CONFIRM_FRAMES` x :data:`CONFIRM_Z` (with ``research.studies.run_on``,
 where a revisit leaves the earlier route, the streams the confirmation was chosen on).
 
 Usage: python -m research.studies.loop_decisions [--cache DIR] [--data DIR] [--presets default,fast] [--leave-one-out]
-       [--decay D] [--sizes 160x120,320x240] [--confirm-frames N] [--backfill-frames N] [--place-frames N]
+       [--decay D] [--sizes 160x120,320x240] [--confirm-frames N] [--backfill-frames N]
        [--confirm-grid] [--backfill-grid]
 """
 from __future__ import annotations
@@ -49,7 +48,6 @@ from vpr.shosm import (
     backfill_closures,
     confirm_closures,
     loop_evidence,
-    place_closures,
 )
 from vpr.types import Decision
 
@@ -112,12 +110,11 @@ def confirmed(stream, ev, conf: LoopConf):
 
 def decide(stream, ev, conf: LoopConf):
     """The stream's decisions under ``conf`` as ``vpr loops`` takes them: :func:`confirmed`, the frames leading up
-    to a confirmed closure accepted with it (``conf.backfill_frames``), the closures placed by the frames up to them
-    (``conf.place_frames``)."""
+    to a confirmed closure accepted with it (``conf.backfill_frames``)."""
     d = confirmed(stream, ev, conf)
     if conf.backfill_frames:
         d = backfill_closures(d, conf.backfill_frames, conf.back, conf.ahead, conf.min_score)
-    return place_closures(d, stream.x, EXCLUDE, conf.as_dict()) if conf.place_frames else d
+    return d
 
 
 def backfill_waits(stream, ev, conf: LoopConf) -> np.ndarray:
@@ -231,8 +228,6 @@ def main(argv=None) -> int:
                     help="frames after a closure that confirm it (default: LoopConf's; 0: decided at once)")
     ap.add_argument("--backfill-frames", type=int, default=LoopConf().backfill_frames,
                     help="frames before a confirmed closure accepted with it (default: LoopConf's; 0: none)")
-    ap.add_argument("--place-frames", type=int, default=LoopConf().place_frames,
-                    help="frames up to a closure that place it (default: LoopConf's; 0: the evidence's answer)")
     ap.add_argument("--backfill-grid", action="store_true",
                     help="the default rule under every backfill_frames of the grid, each stream's recall to 3 places")
     ap.add_argument("--confirm-grid", action="store_true",
@@ -263,7 +258,7 @@ def main(argv=None) -> int:
     results = {}
     for rule in itertools.product(DRIFTS, SCORES):
         conf = LoopConf(drift=rule[0], min_score=rule[1], confirm_frames=a.confirm_frames,
-                        place_frames=a.place_frames, backfill_frames=a.backfill_frames)
+                        backfill_frames=a.backfill_frames)
         results[rule] = {n: count(*data[n], conf) for n in names}
     print("\nRevisit streams: recall of the accepted closures (false accepted); forward-only drives: false "
           "closures (+ onto an identical copy).\n")
@@ -273,7 +268,7 @@ def main(argv=None) -> int:
         print(row(rule, per, names))
     chosen = choose(results, names)
     print(f"\nchosen on every stream: drift {chosen[0]}, min_score {chosen[1]:g}" if chosen else "\nno rule qualifies")
-    conf = LoopConf(confirm_frames=a.confirm_frames, place_frames=a.place_frames, backfill_frames=a.backfill_frames)
+    conf = LoopConf(confirm_frames=a.confirm_frames, backfill_frames=a.backfill_frames)
     print(f"\nWith the defaults (LoopConf: drift {conf.drift}, min_score {conf.min_score:g}), what `vpr loops` reports "
           "(R@100P: recall at 100 % precision of the per-frame decisions; accepted closures onto an identical copy "
           "in brackets):\n")
@@ -295,7 +290,7 @@ def main(argv=None) -> int:
         print("| confirm_frames | confirm_z | " + " | ".join(names) + " |")
         print("|---|---|" + "---|" * len(names))
         for frames, z in [(0, None), *itertools.product(CONFIRM_FRAMES[1:], CONFIRM_Z)]:
-            conf = LoopConf(confirm_frames=frames, place_frames=a.place_frames, backfill_frames=a.backfill_frames,
+            conf = LoopConf(confirm_frames=frames, backfill_frames=a.backfill_frames,
                             **({} if z is None else {"confirm_z": z}))
             per = {n: count(*data[n], conf) for n in names}
             print(f"| {frames} | {'-' if z is None else f'{z:g}'} | {stream_cells(per, names)} |", flush=True)
@@ -305,12 +300,12 @@ def main(argv=None) -> int:
         print("| backfill_frames | " + " | ".join(names) + " |")
         print("|---|" + "---|" * len(names))
         for frames in BACKFILL_FRAMES:
-            conf = LoopConf(confirm_frames=a.confirm_frames, place_frames=a.place_frames, backfill_frames=frames)
+            conf = LoopConf(confirm_frames=a.confirm_frames, backfill_frames=frames)
             per = {n: count(*data[n], conf) for n in names}
             cells = [f"{per[n]['true'] / per[n]['frames']:.3f} ({per[n]['false']})" if _stream_of(n) in REVISITS
                      else f"{per[n]['false']}" + (f" (+{per[n]['copy']})" if per[n]["copy"] else "") for n in names]
             print(f"| {frames} | {' | '.join(cells)} |", flush=True)
-        conf = LoopConf(confirm_frames=a.confirm_frames, place_frames=a.place_frames, backfill_frames=a.backfill_frames)
+        conf = LoopConf(confirm_frames=a.confirm_frames, backfill_frames=a.backfill_frames)
         print(f"\nWhat waits for a later closure online (backfill_frames {conf.backfill_frames}, after the "
               "confirmation): the share of frames that wait, the median wait of those, the longest (frames)\n")
         print("| stream | waiting | median | longest |")

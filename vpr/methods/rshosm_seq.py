@@ -22,6 +22,7 @@ from vpr.shosm import (
     reversed_frames,
     standing,
 )
+from vpr.shosm.conf import without_retired
 from vpr.shosm.confirm import warm_up as warm_up_confirmation
 from vpr.similarity import top_k_or_dense
 from vpr.types import Decision, EncodedTraverse
@@ -51,7 +52,7 @@ class RshosmSeq(Method):
     runs_online = True
 
     def __init__(self, **conf):
-        super().__init__(**conf)
+        super().__init__(**without_retired(conf, self.name))
         #: the conf, built and checked once: every value is refused here, before any work
         self.seq = RshosmSeqConf.build(self.conf, self.name)
         loop_rule(self.seq.loop_rule)  # a rule not registered is refused now

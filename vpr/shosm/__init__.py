@@ -52,7 +52,6 @@ from .graph import Graph
 from .localizer import Localizer
 from .loops import LOOP_UNCAPPED_MAX, LoopStream, loop_evidence
 from .memory import SequenceMemory, pad_codes
-from .place import Placement, place_closures
 
 __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pad_codes",
            "LEARN_THRESHOLD", "LOOP_EXCLUDE", "LOOP_ONLY_KEYS", "DENSE_EVIDENCE_PAIRS", "EvidenceConf", "BeamConf",
@@ -65,5 +64,5 @@ __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pa
            "standing", "refuse_stands",
            "Localizer", "LoopStream", "loop_evidence", "Direction", "direction_read", "reversed_frames",
            "LOOP_UNCAPPED_MAX", "LoopDetector", "Confirmation", "confirm_closures",
-           "Placement", "place_closures", "Backfill", "backfill_closures", "SpeedFollower", "PICKS", "check_pick",
+           "Backfill", "backfill_closures", "SpeedFollower", "PICKS", "check_pick",
            "pick_maps", "disagree", "between_maps", "fill_between", "path_lengths"]

@@ -13,7 +13,8 @@ from vpr.similarity import TOP_K
 
 from .memory import SequenceMemory
 
-__all__ = ["LEARN_THRESHOLD", "LOOP_EXCLUDE", "DENSE_EVIDENCE_PAIRS", "SPEEDS", "EvidenceConf", "BeamConf", "LoopConf",
+__all__ = ["RETIRED", "without_retired",
+           "LEARN_THRESHOLD", "LOOP_EXCLUDE", "DENSE_EVIDENCE_PAIRS", "SPEEDS", "EvidenceConf", "BeamConf", "LoopConf",
            "PathConf", "memory_params", "RshosmSeqConf", "DECISION_KEYS"]
 
 #: Minicolumn threshold of the memory that rSHOSM-seq learns (the paper's is 0.25).
@@ -218,9 +219,6 @@ class LoopConf(PathConf):
     backfill_frames : int >= 0
         When a closure is accepted (and confirmed), the frames up to this many before it that led up to it on its path
         are accepted with it (:class:`vpr.shosm.Backfill`); they wait meanwhile. 0: nothing accepted back.
-    place_frames : int, 0 or >= 3
-        An accepted closure is answered again with this many frames up to it where they read a revisit driven faster
-        than the evidence follows (:class:`vpr.shosm.Placement`); 0: the evidence's answer stands.
     """
 
     drift: float = 1.25
@@ -229,7 +227,6 @@ class LoopConf(PathConf):
     confirm_frames: int = 20
     confirm_z: float = 2.5
     backfill_frames: int = 40
-    place_frames: int = 20
 
     def __post_init__(self):
         super().__post_init__()
@@ -243,9 +240,6 @@ class LoopConf(PathConf):
         v = self.backfill_frames
         if isinstance(v, bool) or int(v) != v or int(v) < 0:
             raise ValueError(f"backfill_frames must be an integer >= 0 (0: nothing accepted back), got {v}")
-        v = self.place_frames
-        if isinstance(v, bool) or int(v) != v or not (int(v) == 0 or int(v) >= 3):
-            raise ValueError(f"place_frames must be 0 (closures are not placed) or an integer >= 3, got {v}")
 
     @property
     def rule(self) -> tuple:
@@ -254,11 +248,26 @@ class LoopConf(PathConf):
 
 
 #: The decision's keys of loop closure within one stream only.
-LOOP_ONLY_KEYS = ("stop_ratio", "confirm_frames", "confirm_z", "backfill_frames", "place_frames")
+LOOP_ONLY_KEYS = ("stop_ratio", "confirm_frames", "confirm_z", "backfill_frames")
+
+#: Keys of decision mechanisms that were taken out (``research/docs/decisions.md``, "Each mechanism taken out"): unset
+#: in a saved map or detector state (None) they are dropped; set, refused naming why.
+RETIRED = {"place_frames": "closures are no longer placed by the frames up to them: the placement changed no answer "
+                           "on a stream it was not chosen on (research/docs/decisions.md)"}
 
 #: The decision's keys; left None in :class:`RshosmSeqConf`, a key takes the default of :class:`LoopConf` in one
 #: stream, of :class:`PathConf` against a map.
 DECISION_KEYS = LoopConf.keys()
+
+def without_retired(conf: Mapping | None, what: str = "rshosm-seq") -> dict:
+    """``conf`` without the :data:`RETIRED` keys left unset (None, as a saved map or state holds them); one set
+    raises ValueError naming why it was taken out."""
+    conf = dict(conf or {})
+    for key, why in RETIRED.items():
+        if key in conf and conf.pop(key) is not None:
+            raise ValueError(f"{what}: {key} was taken out: {why}")
+    return conf
+
 
 #: rSHOSM-seq's own keys: ``direction`` of the batch evidence (``"both"`` or the causal ``"forward"``), ``top_k``
 #: (frames kept per query; None: all), ``exact`` (the localizer's dense column instead of the beam), ``loop_rule``
@@ -314,7 +323,7 @@ class RshosmSeqConf:
         Strings are read as the default's type; unknown keys and bad values raise ValueError naming ``what`` and the
         key.
         """
-        flat = merge_conf(cls.defaults(), conf, what, nullable=cls.NULLABLE)
+        flat = merge_conf(cls.defaults(), without_retired(conf, what), what, nullable=cls.NULLABLE)
         try:
             memory = SequenceMemory.check_params(**{k: flat[k] for k in memory_params()})
             evidence = EvidenceConf.from_conf(flat)

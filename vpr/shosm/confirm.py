@@ -87,13 +87,10 @@ def look_ahead_z(z_rows: list[np.ndarray], b: int, n: int, stay: float, skip: fl
 
 
 def warm_up() -> None:
-    """Compile (or load from numba's cache) the kernels of a closure after the rule: the confirmation's and the
-    placement's (:class:`vpr.shosm.Placement`)."""
+    """Compile (or load from numba's cache) the confirmation's kernels."""
     standardised_overlaps(np.zeros(3, np.int64), np.array([0, 1], np.int64), 1, 1, 2,
                           (np.zeros((0, 3), np.int64), np.zeros(0, np.int32), 0))
     ahead_scores([np.zeros(2, np.float32)] * 2, 0.05, 0.05)
-    KC.faster_paths(np.array([0, 1, 2], np.int64), np.array([0, 1], np.int64), 1, 0, 1, np.array([1], np.int64), 3,
-                    np.zeros(2, bool), np.empty(1), np.empty(1, np.int64))
 
 
 def ahead_scores(z_rows: list[np.ndarray], stay: float, skip: float) -> np.ndarray:

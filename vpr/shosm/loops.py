@@ -18,7 +18,6 @@ from .decide import loop_rule
 from .evidence import LoopEvidence, make_engine
 from .graph import Graph
 from .memory import SequenceMemory
-from .place import Placement
 
 __all__ = ["LoopStream", "loop_evidence", "LOOP_UNCAPPED_MAX"]
 
@@ -56,7 +55,6 @@ class LoopStream:
         self.confirmation = Confirmation(loop.confirm_frames, loop.confirm_z, self.exclude, stay, skip,
                                          self.mem.n_inputs)
         self.backfill = Backfill(loop.backfill_frames, loop.back, loop.ahead, self.decider.accept_score)
-        self.placement = Placement(loop.place_frames, self.exclude, loop.back, loop.ahead, self.mem.n_inputs)
         self._rows = _sdr.RowLog()  # the stream's SDR rows, where the decider keeps none
         self.starts = [0]  # the first frame of every session
         self.frames = 0
@@ -93,9 +91,8 @@ class LoopStream:
 
     def _final(self, ds: list[Decision], end: bool = False) -> list[Decision]:
         """Decisions leaving the confirmation, the frames leading up to a confirmed closure accepted with it
-        (:class:`Backfill`; ``end``: the session ends, nothing waits on), the closures placed (:class:`Placement`)."""
-        ds = self.backfill.push(ds) + (self.backfill.flush() if end else [])
-        return self.placement(ds, self.rows, self.starts) if ds else ds
+        (:class:`Backfill`; ``end``: the session ends, nothing waits on)."""
+        return self.backfill.push(ds) + (self.backfill.flush() if end else [])
 
     @property
     def waiting(self) -> int:
@@ -107,8 +104,7 @@ class LoopStream:
 
         Returns its winner cells and the decisions final now (each with its column over the candidates), in frame
         order: this frame's, unless it or an earlier one waits for the frames after it (:class:`Confirmation`) or on
-        a path that a later closure may accept with it (:class:`Backfill`); an accepted closure answered where the
-        frames up to it place it (:class:`Placement`).
+        a path that a later closure may accept with it (:class:`Backfill`).
         """
         bits = _sdr.row_bits(sdr_row, self.mem.n_inputs, name="frame SDR")
         j = self.frames

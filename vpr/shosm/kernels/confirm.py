@@ -1,5 +1,5 @@
 """Compiled kernels of a closure after the rule (numba): a frame's overlaps with its candidates, the look-ahead of the
-confirmation, the paths of the placement."""
+confirmation."""
 from __future__ import annotations
 
 import numpy as np
@@ -80,47 +80,3 @@ def ahead_scores(flat, row_ptr, stay, skip, acc, nxt):  # pragma: no cover - com
     if cur is not acc:
         for i in range(width):
             acc[i] = cur[i]
-
-
-@njit(cache=True, nogil=True)
-def faster_paths(ptr, ind, t0, lo, hi, n_cand, moves, mask, score, start):  # pragma: no cover - compiled
-    """Paths of candidates ``lo .. hi - 1`` through frames ``t0 .. t0 + len(n_cand) - 1`` (sorted or unsorted CSR
-    ``ptr``, ``ind``), moving 0 to ``moves`` candidates a frame, scored by the sum of the frames' SDR overlaps with
-    the candidates they pass (frame ``t`` sees its first ``n_cand[t - t0]`` candidates only). ``score[c - lo]``: the
-    best path's score ending at candidate ``c`` in the last frame (-inf: none), ``start[c - lo]``: where it starts in
-    the first. ``mask``: a zeroed bool scratch of one entry per bit (left zeroed)."""
-    w = hi - lo
-    prev_s = np.empty(w, np.float64)
-    prev_a = np.empty(w, np.int64)
-    for k in range(n_cand.shape[0]):
-        t = t0 + k
-        for p in range(ptr[t], ptr[t + 1]):
-            mask[ind[p]] = True
-        for i in range(w - 1, -1, -1):
-            c = lo + i
-            if c >= n_cand[k]:
-                score[i] = -np.inf
-                start[i] = -1
-                continue
-            if k == 0:
-                best, origin = 0.0, c
-            else:
-                best, origin = -np.inf, -1
-                for m in range(min(moves, i) + 1):
-                    if prev_s[i - m] > best:
-                        best, origin = prev_s[i - m], prev_a[i - m]
-                if origin < 0:
-                    score[i] = -np.inf
-                    start[i] = -1
-                    continue
-            overlap = 0
-            for p in range(ptr[c], ptr[c + 1]):
-                if mask[ind[p]]:
-                    overlap += 1
-            score[i] = best + overlap
-            start[i] = origin
-        for p in range(ptr[t], ptr[t + 1]):
-            mask[ind[p]] = False
-        for i in range(w):
-            prev_s[i] = score[i]
-            prev_a[i] = start[i]
