@@ -9,18 +9,24 @@ from pipelines.cli import main
 from tests.reference import hloc_pairs
 
 
-@pytest.mark.slow
-def test_top_n_hloc_pairs_and_mat_of_a_compare(scene_on_disk, tmp_path, capsys):
-    s = scene_on_disk("two_seasons", (48, 32), 60)
-    db, q = s[s["names"][0]], s[s["names"][1]]
-    argv = ["compare", db, q, "--tolerance", 2, "--preset", "fast", "--methods", "rshosm-seq,pairwise", "--top", 7,
-            "--pairs", 5, "--mat", "--out", tmp_path / "o", "--no-progress"]
+def _ranked_files(argv, tmp_path, capsys):
+    """Run ``vpr ARGV`` (its --out tmp_path/o); (rshosm-seq's folder, its top.csv rows, each query's best_db)."""
     assert main([str(a) for a in argv]) == 0, capsys.readouterr().err
     folder = tmp_path / "o" / "rshosm-seq"
     with open(folder / "top.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     with open(folder / "matches.csv", newline="") as fh:
         best = {r["query"]: r["best_db"] for r in csv.DictReader(fh)}
+    return folder, rows, best
+
+
+@pytest.mark.slow
+def test_top_n_hloc_pairs_and_mat_of_a_compare(scene_on_disk, tmp_path, capsys):
+    s = scene_on_disk("two_seasons", (48, 32), 60)
+    db, q = s[s["names"][0]], s[s["names"][1]]
+    argv = ["compare", db, q, "--tolerance", 2, "--preset", "fast", "--methods", "rshosm-seq,pairwise", "--top", 7,
+            "--pairs", 5, "--mat", "--out", tmp_path / "o", "--no-progress"]
+    folder, rows, best = _ranked_files(argv, tmp_path, capsys)
     assert len(rows) == 60 * 7 and {r["rank"] for r in rows} == {str(k) for k in range(1, 8)}
     for r in rows:  # rank 1 is the best match; scores fall with the rank
         if r["rank"] == "1":
@@ -52,12 +58,7 @@ def test_localize_writes_the_top_n_hloc_pairs_and_mat_of_its_answers(scene_on_di
     db, q = s[s["names"][0]], s[s["names"][1]]
     argv = ["localize", db, q, "--preset", "fast", "--top", 4, "--pairs", 3, "--mat", "--out", tmp_path / "o",
             "--no-progress"]
-    assert main([str(a) for a in argv]) == 0, capsys.readouterr().err
-    folder = tmp_path / "o" / "rshosm-seq"
-    with open(folder / "top.csv", newline="") as fh:
-        rows = list(csv.DictReader(fh))
-    with open(folder / "matches.csv", newline="") as fh:
-        best = {r["query"]: r["best_db"] for r in csv.DictReader(fh)}
+    folder, rows, best = _ranked_files(argv, tmp_path, capsys)
     assert {r["rank"] for r in rows} == {"1", "2", "3", "4"}
     assert all(r["db"] == best[r["query"]] for r in rows if r["rank"] == "1")  # rank 1: the frame's answer
     pairs = hloc_pairs(folder / "pairs-query-rshosm-seq3.txt")

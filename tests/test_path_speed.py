@@ -191,8 +191,8 @@ def test_localize_follows_a_query_driven_twice_as_fast_and_resumes(scene_on_disk
         page = (tmp_path / how / "report.html").read_text()
         assert ("frames answered by the map&#x27;s 2 maps of one frame in 2" in page) == (how == "follow"), how
         answers[how] = [json.loads(x) for x in out.splitlines()]
-    near = {h: np.mean([r["accepted"] and abs(r["best_db"] - 2 * r["query"]) <= 1 for r in a])
-            for h, a in answers.items()}
+    near = {h: np.mean([r["accepted"] and abs(r["best_db"] - 2 * r["query"]) <= 1 for r in a if r["query"] >= 9])
+            for h, a in answers.items()}  # (no answer is accepted before the query's direction is read)
     assert near["follow"] >= 0.9, near  # what following gains is measured in tests/test_query_speed.py
     # stopped and continued from --state-out: the same answers as one run
     code, first, err = run(["localize", tmp_path / "map.npz", tmp_path / "first", "--out", tmp_path / "a",

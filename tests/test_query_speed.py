@@ -575,3 +575,14 @@ def test_a_later_session_is_followed_also_with_settings_of_one_stream():
     res = method.loops(stream, exclude=5, sessions=[len(db)])
     out, said = _loops(method, stream, res, len(db))
     assert out.sampling["sessions"][0]["db_step"] == 2 and not any("cannot be matched" in s for s in said)
+
+
+def test_a_slower_querys_frame_its_neighbours_bracket_elsewhere_is_not_decided():
+    """Answered as queries of one frame in 2, a frame lies between the frames just before and after it (other
+    queries): an accepted answer more than 3 map frames from their mean contradicts them and is not decided."""
+    best = np.array([10, 11, 7, 12, 13, 20, 14])
+    acc = np.array([True, True, True, True, True, True, False])
+    apart = shosm.apart_from_neighbours(best, acc, 2)
+    assert apart.tolist() == [False, False, True, False, False, False, False]  # 20: a neighbour is not accepted
+    assert not shosm.apart_from_neighbours(best, np.zeros(7, bool), 2).any()
+    assert shosm.apart_from_neighbours(np.array([10, 14, 11]), np.ones(3, bool), 3).tolist() == [False] * 3

@@ -428,8 +428,9 @@ class MatchResult:
     conf: dict = field(default_factory=dict)
     #: how the result was matched when the query was driven at another speed than the database
     #: (:func:`vpr.methods.match_at_speed`): ``{"speed": first pass's path speed, "db_step" or "query_step": k}``
-    #: (and ``"db_apart"``: frames the maps placed apart, undecided; or ``"query_filled"``: a slower query's frames
-    #: placed between accepted ones); None: every frame as it came
+    #: (and ``"db_apart"``: frames the maps placed apart, undecided; or ``"query_apart"``: frames the queries placed
+    #: apart from the frames around them, undecided, and ``"query_filled"``: a slower query's frames placed between
+    #: accepted ones); None: every frame as it came
     sampling: dict | None = None
     #: query frames at which the query runs the map backwards (:attr:`Decision.reversed`: not accepted)
     reversed: int = 0

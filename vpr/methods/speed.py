@@ -11,6 +11,7 @@ from vpr.paths import path_run_speeds, path_speed, session_speeds, speed_step
 from vpr.shosm import (
     LOOP_ONLY_KEYS,
     PathConf,
+    apart_from_neighbours,
     between_maps,
     check_pick,
     confirm_closures,
@@ -95,6 +96,8 @@ def _resampled(fitted: Fitted, query: EncodedTraverse, k: int, speed: float, pic
         S = (sp.hstack if sparse else np.hstack)([r.similarity for r in parts])[:, order]
         best, score, accepted = (np.concatenate([getattr(r, f) for r in parts])[order]
                                  for f in ("best", "score", "accepted"))
+        apart = apart_from_neighbours(best, accepted, step)
+        accepted = accepted & ~apart
         best, score, filled = fill_between(best, score, accepted, step)
         accepted = accepted | filled
         said = f"its frames were matched as {step} queries of one frame in {step}"
@@ -103,7 +106,9 @@ def _resampled(fitted: Fitted, query: EncodedTraverse, k: int, speed: float, pic
                   f"driven {'faster' if k > 0 else 'slower'} than the database at the same frame rate: {said}, so "
                   "that its sequences follow the query's (research/docs/localize.md)", UserWarning, stacklevel=3)
     sampling = {"speed": round(float(speed), 3), "db_step" if k > 0 else "query_step": abs(k),
-                "db_apart" if k > 0 else "query_filled": int((apart if k > 0 else filled).sum())}
+                "db_apart" if k > 0 else "query_apart": int(apart.sum())}
+    if k < 0:
+        sampling["query_filled"] = int(filled.sum())
     return MatchResult(method.name, S, best, score, accepted, sum(r.seconds for r in parts), dict(method.conf),
                        sampling, reversed=(max if k > 0 else sum)(r.reversed for r in parts))
 

@@ -47,7 +47,17 @@ from .evidence import (
     query_evidence,
     sparse_evidence,
 )
-from .follow import PICKS, SpeedFollower, between_maps, check_pick, disagree, fill_between, path_lengths, pick_maps
+from .follow import (
+    PICKS,
+    SpeedFollower,
+    apart_from_neighbours,
+    between_maps,
+    check_pick,
+    disagree,
+    fill_between,
+    path_lengths,
+    pick_maps,
+)
 from .graph import Graph
 from .localizer import Localizer
 from .loops import LOOP_UNCAPPED_MAX, LoopStream, loop_evidence
@@ -65,4 +75,4 @@ __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pa
            "Localizer", "LoopStream", "loop_evidence", "Direction", "direction_read", "reversed_frames",
            "LOOP_UNCAPPED_MAX", "LoopDetector", "Confirmation", "confirm_closures",
            "Backfill", "backfill_closures", "SpeedFollower", "PICKS", "check_pick",
-           "pick_maps", "disagree", "between_maps", "fill_between", "path_lengths"]
+           "pick_maps", "disagree", "apart_from_neighbours", "between_maps", "fill_between", "path_lengths"]

@@ -14,8 +14,8 @@ from vpr.types import Column, Decision, FollowingLocalizer
 from .conf import PathConf
 from .localizer import Localizer
 
-__all__ = ["PICKS", "check_pick", "pick_maps", "disagree", "between_maps", "fill_between", "path_lengths",
-           "SpeedFollower"]
+__all__ = ["PICKS", "check_pick", "pick_maps", "disagree", "apart_from_neighbours", "between_maps", "fill_between",
+           "path_lengths", "SpeedFollower"]
 
 
 #: How a frame is answered by one of the ``k`` maps of one frame in ``k``: ``"path"``, the map that accepts it on the
@@ -55,6 +55,22 @@ def disagree(best, accepted, step: int) -> np.ndarray:
     lo = np.where(accepted, best, np.iinfo(np.int64).max).min(axis=0)
     hi = np.where(accepted, best, -1).max(axis=0)
     return (accepted.sum(axis=0) >= 2) & (hi - lo > step + 1)
+
+
+def apart_from_neighbours(best, accepted, step: int) -> np.ndarray:
+    """Per frame of a query driven ``step`` times slower than the map, answered as ``step`` queries of one frame in
+    ``step`` (``best``, ``accepted``: in the traverse's order, numbered on the map), whether its answer lies more than
+    ``step + 1`` map frames from the mean of the frames just before and after it, both accepted by the other queries:
+    those bracket its place (the query moves ``1 / step`` map frames a frame), so the queries contradict each other
+    and the frame is not decided (:func:`disagree`, the same of the maps of one frame in ``step``)."""
+    best, accepted = np.asarray(best, np.int64), np.asarray(accepted, bool) & (np.asarray(best) >= 0)
+    out = np.zeros(best.size, bool)
+    if best.size < 3:
+        return out
+    both = accepted[:-2] & accepted[2:]
+    mid = (best[:-2] + best[2:]) / 2.0
+    out[1:-1] = accepted[1:-1] & both & (np.abs(best[1:-1] - mid) > step + 1)
+    return out
 
 
 def between_maps(best, accepted, chosen, step: int) -> np.ndarray:
