@@ -114,7 +114,7 @@ def test_compare_and_localize_say_a_reversed_query(scene_on_disk, tmp_path, caps
 
     s = scene_on_disk("two_seasons", (48, 36), 60)
     db, q = s[s["names"][0]], _reversed_folder(s[s["names"][1]], tmp_path / "rev")
-    with pytest.warns(UserWarning, match="running the map backwards is the stronger"):
+    with pytest.warns(UserWarning, match="the query runs the map backwards"):
         assert main(["compare", str(db), str(q), "--methods", "rshosm-seq", "--out", str(tmp_path / "c"),
                      "--no-progress"]) == 0
     m = json.loads((tmp_path / "c" / "metrics.json").read_text())["methods"]["rshosm-seq"]
@@ -123,4 +123,4 @@ def test_compare_and_localize_say_a_reversed_query(scene_on_disk, tmp_path, caps
     assert main(["localize", str(tmp_path / "m.npz"), str(q), "--out", str(tmp_path / "l"), "--no-progress"]) == 0
     err = capsys.readouterr().err
     m = json.loads((tmp_path / "l" / "metrics.json").read_text())["methods"]["rshosm-seq"]
-    assert m["reversed_frames"] > 0 and "running the map backwards is the stronger" in err
+    assert m["reversed_frames"] > 0 and "the query runs the map backwards" in err
