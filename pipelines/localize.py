@@ -71,7 +71,7 @@ class LocalizeOnline(Online):
         self.follower = follower  # a query driven faster or slower than the map, followed (research/docs/localize.md)
         self.answering: QueryLocalizer = follower or self.loc
         self._said = {0}
-        self._reversed = 0  # frames read running the map backwards
+        self._reversed = self._accepted = 0  # frames localised running the map backwards, accepted along it
 
     def warm_up(self) -> None:
         self.answering.warm_up()
@@ -83,12 +83,12 @@ class LocalizeOnline(Online):
     def answer(self, encoded, name: str) -> Decision:
         d = self.answering.update(encoded)
         self._reversed += bool(d.reversed)
-        if 2 * self._reversed > d.frame + 1 and "reversed" not in self._said:  # most frames so far read so
+        self._accepted += bool(d.accepted)
+        if self._reversed > self._accepted and "reversed" not in self._said:  # localised backwards more than along
             self._said.add("reversed")
-            print(f"vpr localize: from query frame {d.frame} ({name}) on, the query runs the map backwards (at "
-                  f"{self._reversed} of its {d.frame + 1} frames the evidence of it doing so is the stronger): such "
-                  "frames' answers are not accepted (metrics.json reversed_frames counts them)", file=sys.stderr,
-                  flush=True)
+            print(f"vpr localize: from query frame {d.frame} ({name}) on, the query runs the map backwards "
+                  f"({self._reversed} frames localised so, {self._accepted} accepted along it): such frames' answers "
+                  "are not accepted (metrics.json reversed_frames counts them)", file=sys.stderr, flush=True)
         if self.follower is None:
             return d
         mode = self.follower.mode

@@ -113,7 +113,8 @@ def test_compare_and_localize_say_a_reversed_query(scene_on_disk, tmp_path, caps
     from pipelines.cli import main
 
     s = scene_on_disk("two_seasons", (48, 36), 60)
-    db, q = s[s["names"][0]], _reversed_folder(s[s["names"][1]], tmp_path / "rev")
+    db = s[s["names"][0]]
+    q = _reversed_folder(db, tmp_path / "rev")  # the map's own drive, last frame first: evidence enough to say so
     with pytest.warns(UserWarning, match="the query runs the map backwards"):
         assert main(["compare", str(db), str(q), "--methods", "rshosm-seq", "--out", str(tmp_path / "c"),
                      "--no-progress"]) == 0

@@ -60,7 +60,7 @@ def positions(runs: Path, stream: str) -> np.ndarray:
 
 
 def row_inputs(runs: Path, key: str, db_name: str, q_name: str):
-    """(S, best, z, map places, query SDRs, forward z, reversed z) of one row."""
+    """(S, map places, query SDRs, (forward z, reversed z, reversed accepted)) of one row."""
     S = np.load(runs / "compare" / key / "rshosm-seq" / "similarity.npy", allow_pickle=False)
     db, q = cached_sdr(runs, db_name), cached_sdr(runs, q_name)
     m = methods.get("rshosm-seq")
@@ -92,21 +92,21 @@ def main(argv=None) -> None:
     print("| stream | " + " | ".join(v[0] for v in variants) + " |")
     print("|---|" + "---|" * len(variants))
     for name, key, db_name, q_name, radius, soft in ROWS:
-        S, places, q, (ahead, back) = row_inputs(args.runs, key, db_name, q_name)
+        S, places, q, direction = row_inputs(args.runs, key, db_name, q_name)
         pd, pq = positions(args.runs, db_name), positions(args.runs, q_name)
         d = np.abs(pd[:, None] - pq[None, :])
         hard, gsoft = d <= radius, d <= soft
         base = accept_path(S, PathConf())
         best = np.argmax(S, axis=0)
         cells = []
-        for _, f, s, direction in variants:
+        for _, f, s, rev in variants:
             acc = base.accepted.copy()
             if f is not None:
                 acc &= ~standing(places, f)[best]
             if s is not None:
                 acc &= ~sdr.unmoved(q, s)
-            if direction:
-                acc &= ~reversed_frames(ahead, back, causal=False)
+            if rev:
+                acc &= ~reversed_frames(*direction[:2], causal=False)
             cells.append(cell(best, acc, hard, gsoft))
         print(f"| {name} | " + " | ".join(cells) + " |", flush=True)
 

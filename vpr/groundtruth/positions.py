@@ -268,16 +268,14 @@ def check_speeds(speeds: Mapping[str, float | None], paths: str = "accepted path
 
 
 def check_reversed(counts: Mapping[str, tuple[int, int]]) -> None:
-    """Warn for each method (``counts``: method -> (frames read running the map backwards, the query's frames),
-    metrics.json's ``reversed_frames``) whose query runs the map backwards: more of its frames read so than not
-    (a few frames of weak evidence read so in a forward query are counted in metrics.json, not said). Those frames
-    are not accepted either way."""
-    for label, (n, total) in counts.items():
-        if 2 * n > total:
-            warnings.warn(f"{label}: the query runs the map backwards (at {n} of its {total} frames the evidence of it "
-                          "doing so is the stronger): those frames' answers are not accepted (the sequence evidence "
-                          "follows the map's direction; docs/internals.md, vpr/shosm/decide.py)", UserWarning,
-                          stacklevel=2)
+    """Warn for each method (``counts``: method -> (frames localised running the map backwards, metrics.json's
+    ``reversed_frames``; frames accepted)) whose query is localised running the map backwards at more frames than it
+    is accepted along the map: the query runs the map backwards, and those frames are not accepted."""
+    for label, (n, accepted) in counts.items():
+        if n > accepted:
+            warnings.warn(f"{label}: the query runs the map backwards ({n} frames localised so, {accepted} accepted "
+                          "along it): those frames' answers are not accepted (the sequence evidence follows the map's "
+                          "direction; docs/internals.md, vpr/shosm/decide.py)", UserWarning, stacklevel=2)
 
 
 def check_rates(srcs, every: float | None = None, against_first: bool = False) -> None:

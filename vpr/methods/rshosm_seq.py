@@ -136,14 +136,16 @@ class RshosmSeq(Method):
         (:func:`vpr.sdr.unmoved` at :data:`vpr.shosm.UNMOVED_SHARE`); each query frame's best z of the causal
         evidence of the query moving along the map and of it running the map backwards (``direction="forward"``
         and ``"reversed"``, :func:`vpr.shosm.reversed_frames`: what :class:`vpr.shosm.Localizer` compares
-        online)."""
+        online), and which frames the path rule accepts on the reversed evidence (the map's frames in reverse
+        order: a confident localisation of the query running the map backwards)."""
         mem, db_codes = state
         q = self.need(query, "sdr", "query")
         top_k = top_k_or_dense(len(db), len(query), self.seq.top_k, DENSE_EVIDENCE_PAIRS) if self.seq.top_k else None
         ahead, back = (query_evidence(mem, q, db_codes, self.seq.evidence, direction=d, top_k=top_k,
-                                      beam=self.seq.beam).z for d in ("forward", "reversed"))
+                                      beam=self.seq.beam) for d in ("forward", "reversed"))
+        mirrored = back.similarity[np.arange(len(db))[::-1]]
         return {"stands": (standing(map_places(db_codes, mem.cells_per_column)), sdr.unmoved(q, UNMOVED_SHARE)),
-                "direction": (ahead, back)}
+                "direction": (ahead.z, back.z, accept_path(mirrored, self.seq.path()).accepted)}
 
     def decisions(self, S, best, score, stands=None, direction=None):
         """The decision of a robot localising against the map (vpr localize): a path score, query by query; not
@@ -155,9 +157,12 @@ class RshosmSeq(Method):
         accepted = d.accepted & (best >= 0)
         if stands is not None:
             accepted = refuse_stands(best, accepted, *stands)
-        back = np.zeros(best.size, bool) if direction is None else \
-            reversed_frames(*direction, causal=False, moved=None if stands is None else ~np.asarray(stands[1], bool))
-        return Decision(best, np.where(best >= 0, d.score, -np.inf), accepted & ~back, d.margin, reversed=back)
+        back = confident = np.zeros(best.size, bool)
+        if direction is not None:
+            back = reversed_frames(*direction[:2], causal=False,
+                                   moved=None if stands is None else ~np.asarray(stands[1], bool))
+            confident = back & np.asarray(direction[2], bool)
+        return Decision(best, np.where(best >= 0, d.score, -np.inf), accepted & ~back, d.margin, reversed=confident)
 
     def _loops(self, seq: EncodedTraverse, exclude: int, progress: bool, sessions=(0,), opinion=None):
         """Loop closures within one stream (:func:`vpr.shosm.loop_evidence`): learned online, scored by causal

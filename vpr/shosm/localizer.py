@@ -8,7 +8,7 @@ import scipy.sparse as sp
 
 from vpr import sdr as _sdr
 from vpr.statefile import joint_state, part_state
-from vpr.types import Decision, MapLocalizer
+from vpr.types import Column, Decision, MapLocalizer
 
 from .conf import RshosmSeqConf, memory_params
 from .decide import UNMOVED_SHARE, PathDecider, map_places, refuse_stands, standing
@@ -48,6 +48,7 @@ class Localizer(MapLocalizer):
         #: the evidence of the query running the map backwards, against the engine's (:class:`Direction`)
         self.backward = Engine(graph, self.seq.evidence.split()[0], self.seq.beam, self.seq.exact, reverse=True)
         self.direction = Direction()
+        self.mirrored = PathDecider(self.seq.path())  # the path rule on the reversed evidence
         self.decider = PathDecider(self.seq.path(), self.sessions)
         #: each map frame's place number (:func:`vpr.shosm.map_places`) and whether it is a frame of a stand, onto
         #: which no answer is accepted (:func:`vpr.shosm.standing`)
@@ -128,6 +129,7 @@ class Localizer(MapLocalizer):
         self.engine.reset()
         self.backward.reset()
         self.direction.reset()
+        self.mirrored.new_session()
         self.decider.new_session()
         self._before, self.unmoved = None, False
 
@@ -144,18 +146,21 @@ class Localizer(MapLocalizer):
         d = self.decider.decide(column)
         self.unmoved = self._before is not None and _sdr.kept_share(bits, self._before) >= UNMOVED_SHARE
         self._before = bits
-        back = self.direction.update(column.best()[1], self.backward.step(bits).best()[1], moved=not self.unmoved)
+        rev = self.backward.step(bits)
+        back = self.direction.update(column.best()[1], rev.best()[1], moved=not self.unmoved)
         back = back and self.direction.read  # (before, no direction is read: no answer is accepted either)
+        n = rev.n  # the reversed evidence on the map's frames in reverse order: the path rule's confidence in it
+        confident = self.mirrored.decide(Column(n - 1 - rev.rows[::-1], rev.z[::-1], rev.fill, n, rev.frame)).accepted
         if back or not self.direction.read or \
                 (d.accepted and not refuse_stands(d.best, True, self.standing, self.unmoved)):
-            d = dataclasses.replace(d, accepted=False, reversed=back)
+            d = dataclasses.replace(d, accepted=False, reversed=bool(back and confident))
         return d
 
     # ------------------------------------------------------------ state
     def state(self) -> tuple[dict, dict]:
         """(header, arrays) of the query so far: the evidence and the decision (:meth:`load_state`)."""
         header, arrays = joint_state(engine=self.engine, dec=self.decider, backward=self.backward,
-                                     direction=self.direction)
+                                     direction=self.direction, mirrored=self.mirrored)
         header["before"] = self._before is not None
         return header, {**arrays, "before": np.zeros(0, np.int64) if self._before is None else self._before}
 
@@ -163,7 +168,7 @@ class Localizer(MapLocalizer):
         if header.get("engine") is not None:
             self.engine.load_state(*part_state(header, arrays, "engine"))
         self.decider.load_state(*part_state(header, arrays, "dec"))
-        for name in ("backward", "direction"):  # (a state saved before they were kept starts them afresh)
+        for name in ("backward", "direction", "mirrored"):  # (a state saved before they were kept starts them afresh)
             if name in header:
                 getattr(self, name).load_state(*part_state(header, arrays, name))
         self._before = np.asarray(arrays["before"], np.int64) if header.get("before") else None
