@@ -105,8 +105,8 @@ def main(argv=None) -> None:
                 acc &= ~standing(places, f)[best]
             if s is not None:
                 acc &= ~sdr.unmoved(q, s)
-            if rev:
-                acc &= ~reversed_frames(*direction[:2], causal=False)
+            if rev:  # read on the frames that moved, as the method reads it
+                acc &= ~reversed_frames(*direction[:2], causal=False, moved=~sdr.unmoved(q, UNMOVED_SHARE))
             cells.append(cell(best, acc, hard, gsoft))
         print(f"| {name} | " + " | ".join(cells) + " |", flush=True)
 
