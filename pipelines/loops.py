@@ -16,15 +16,17 @@ from pipelines import loops_online
 from pipelines.args import (
     DESCRIPTORS,
     add_common_arguments,
+    add_field_files_arguments,
     add_gt_arguments,
     add_query_speed_argument,
     add_run_arguments,
+    field_files,
     loop_geometry,
     options_from_args,
     settings_from_args,
 )
 from pipelines.loops_online import no_revisit, rounded, say_session_speeds
-from pipelines.outputs import claim_methods, merge_metrics, versions, write_method, write_stream_pairs
+from pipelines.outputs import claim_methods, merge_metrics, versions, write_method, write_ranked, write_stream_pairs
 from pipelines.report import write_report
 from pipelines.runs import RunOptions, config, extract_run, follows, prepare_run
 from vpr import evaluate, groundtruth, io, methods
@@ -57,6 +59,7 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     ap.add_argument("--pairs", type=int, default=0, metavar="N",
                     help="hloc's pairs file of the stream for structure from motion: each frame with its N next frames "
                          "and each accepted loop closure, METHOD/pairs-sequentialN-loops.txt (batch)")
+    add_field_files_arguments(ap, pairs=False)
     add_query_speed_argument(ap, sessions=True)
     add_gt_arguments(ap, loops=True)
     online = ap.add_argument_group("online (SEQ is -)")
@@ -83,7 +86,8 @@ def run_batch(args) -> int:
         own["exclude"] = args.exclude
     if args.pairs < 0:
         raise ValueError(f"--pairs {args.pairs}: a number of next frames, 0 or more")
-    opts = options_from_args(args, settings, pairs=args.pairs, **own)
+    files = field_files(args)
+    opts = options_from_args(args, settings, pairs=args.pairs, top=files["top"], mat=files["mat"], **own)
     report = run_loops(args.seq[0] if len(args.seq) == 1 else args.seq, opts)
     print(metrics_table(report["methods"], "loops"))
     print(f"wrote {opts.out}/report.html (open it: the table, the plots and the frames side by side), metrics.json")
@@ -146,6 +150,7 @@ def run_loops(seq, opts: RunOptions) -> dict:
                 write_stream_pairs(out / m, res, features.names, opts.pairs, starts)
             write_method(out / m, res, evaluated, features.names, features.names, (gt_hard, gt_soft, mask),
                          title=f"{m}: loop closures", loops=True)
+            write_ranked(out / m, res, features.names, features.names, opts.top, 0, opts.mat)
             io.save_json(out / m / "config.json", config(opts, command="loops", seq=[str(q) for q in seqs],
                                                           method=m, exclude=exclude))
 

@@ -11,7 +11,7 @@ import sys
 import numpy as np
 
 import encoders
-from pipelines.args import gt_spec_from_args, loop_geometry, settings_from_args
+from pipelines.args import field_files, gt_spec_from_args, loop_geometry, settings_from_args
 from pipelines.online import Online, run_online, summary_line
 from pipelines.outputs import warn
 from pipelines.stream import StreamEncoder
@@ -40,7 +40,7 @@ def run_command(args) -> int:
                             ("--cache", args.cache), ("--topic", args.topic), ("--every", args.every),
                             ("--gt-topic", args.gt_topic),
                             ("--memory-budget", args.memory_budget), ("--query-speed", args.query_speed),
-                            ("--pairs", args.pairs or None))
+                            ("--pairs", args.pairs or None), ("--mat", args.mat or None))
              if v is not None]
     if given:
         raise ValueError(f"vpr loops -: {', '.join(given)} apply to a folder or video, not to image paths on stdin")
@@ -55,7 +55,8 @@ def run_command(args) -> int:
         det = resume_detector(args.resume)
     else:
         det = make_detector(settings, exclude, geometry=loop_geometry(settings["methods"][0], args.geometry))
-    report = detect_loops(det, args.out, gt=gt_spec_from_args(args), state_out=args.state_out)
+    report = detect_loops(det, args.out, gt=gt_spec_from_args(args), state_out=args.state_out,
+                          top=field_files(args)["top"])
     print(summary_line(report, args.out, "loop closures accepted"), file=sys.stderr)
     return 0
 
@@ -165,6 +166,9 @@ class LoopsOnline(Online):
     def n_candidates(self) -> int:
         return self.det.frames  # a resumed detector's frames from before this run are candidates too
 
+    def candidate_names(self) -> list[str]:
+        return list(self.det.names[:self.n_candidates()])
+
     def waiting_in_state(self) -> int:
         return self.det.waiting + (self.det.encoder.waiting if self.det.encoder is not None else 0)
 
@@ -227,7 +231,7 @@ class LoopsOnline(Online):
 
 
 def detect_loops(det: StreamDetector, out, stdin=None, stdout=None, gt: GroundTruthSpec | None = None,
-                 state_out=None) -> dict:
+                 state_out=None, top: int = 20) -> dict:
     """Decide every frame named on ``stdin`` with ``det``; write ``out``'s files; return metrics.json's content.
 
     On a stop (Ctrl-C, SIGTERM) the frames decided so far are written and the
@@ -238,6 +242,7 @@ def detect_loops(det: StreamDetector, out, stdin=None, stdout=None, gt: GroundTr
     if state_out is not None:
         io.check_writable(state_out, "--state-out")
     job = LoopsOnline(det, gt, goes_on=state_out is not None)
+    job.files = {"top": int(top), "pairs": 0, "mat": False} if top else {}
     job.warm_up()
     return run_online(job, StdinSource(stdin if stdin is not None else sys.stdin), out, stdout, state_out)
 

@@ -102,12 +102,20 @@ def test_loops_write_the_streams_sequential_and_loop_pairs(scene_on_disk, tmp_pa
     import io
 
     s = scene_on_disk("loop_revisits", (48, 36), 240)
-    argv = ["loops", s["laps"], "--pairs", 2, "--preset", "fast", "--out", tmp_path / "o", "--no-progress"]
+    argv = ["loops", s["laps"], "--pairs", 2, "--top", 3, "--mat", "--preset", "fast", "--out", tmp_path / "o",
+            "--no-progress"]
     assert main([str(a) for a in argv]) == 0, capsys.readouterr().err
     folder = tmp_path / "o" / "rshosm-seq"
     with open(folder / "matches.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     names = [r["query_name"] for r in rows]
+    with open(folder / "top.csv", newline="") as fh:  # each frame's 3 best earlier frames by the similarity
+        top = list(csv.DictReader(fh))
+    assert top and all(int(r["db"]) < int(r["query"]) and r["rank"] in ("1", "2", "3") for r in top)
+    for qn in {r["query"] for r in top}:
+        scores = [float(r["score"]) for r in top if r["query"] == qn]
+        assert scores == sorted(scores, reverse=True)
+    assert scipy.io.loadmat(folder / "similarity.mat")["S"].shape == (len(rows), len(rows))
     pairs = {(a, b) for a, rs in hloc_pairs(folder / "pairs-sequential2-loops.txt").items() for b in rs}
     sequential = {(names[j], names[k]) for j in range(len(names)) for k in (j + 1, j + 2) if k < len(names)}
     closures = {(r["db_name"], r["query_name"]) for r in rows if r["accepted"] == "1"}
@@ -115,3 +123,5 @@ def test_loops_write_the_streams_sequential_and_loop_pairs(scene_on_disk, tmp_pa
     monkeypatch.setattr("sys.stdin", io.StringIO(""))
     assert main(["loops", "-", "--pairs", "2", "--out", str(tmp_path / "online")]) == 2
     assert "--pairs" in capsys.readouterr().err and not (tmp_path / "online").exists()
+    assert main(["loops", "-", "--mat", "--out", str(tmp_path / "online")]) == 2
+    assert "--mat" in capsys.readouterr().err and not (tmp_path / "online").exists()
