@@ -123,12 +123,14 @@ def add_field_files_arguments(ap: argparse.ArgumentParser, pairs: bool = True) -
                             "accepted)")
 
 
-def field_files(args) -> dict:
-    """``top``, ``pairs`` and ``mat`` of :func:`add_field_files_arguments`, checked."""
-    for flag, n in (("--top", args.top), ("--pairs", getattr(args, "pairs", 0))):
+def field_files(args, pairs: bool = True) -> dict:
+    """``top``, ``pairs`` (0 where the command's ``--pairs`` is its own: ``pairs`` False) and ``mat`` of
+    :func:`add_field_files_arguments`, checked."""
+    counts = {"--top": args.top, **({"--pairs": args.pairs} if pairs else {})}
+    for flag, n in counts.items():
         if n < 0:
             raise ValueError(f"{flag} {n}: a number of database frames per query, 0 or more")
-    return {"top": args.top, "pairs": getattr(args, "pairs", 0), "mat": args.mat}
+    return {"top": args.top, "pairs": args.pairs if pairs else 0, "mat": args.mat}
 
 
 def add_method_conf_argument(ap: argparse.ArgumentParser) -> None:

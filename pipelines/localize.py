@@ -41,7 +41,15 @@ from pipelines.outputs import warn
 from pipelines.stream import PRIOR_FRAMES, WINDOW, StreamEncoder
 from vpr import evaluate, io, methods, presets
 from vpr.checks import per_input
-from vpr.groundtruth import GroundTruthSpec, build_gt, prepare_positions, same_rate, same_sampling, sampling_step
+from vpr.groundtruth import (
+    GroundTruthSpec,
+    build_gt,
+    prepare_positions,
+    runs_backwards,
+    same_rate,
+    same_sampling,
+    sampling_step,
+)
 from vpr.methods import Map, MemoryFileError
 from vpr.sources import open_source
 from vpr.sources.stdin import StdinSource
@@ -84,7 +92,7 @@ class LocalizeOnline(Online):
         d = self.answering.update(encoded)
         self._reversed += bool(d.reversed)
         self._accepted += bool(d.accepted)
-        if self._reversed > self._accepted and "reversed" not in self._said:  # localised backwards more than along
+        if runs_backwards(self._reversed, self._accepted) and "reversed" not in self._said:
             self._said.add("reversed")
             print(f"vpr localize: from query frame {d.frame} ({name}) on, the query runs the map backwards "
                   f"({self._reversed} frames localised so, {self._accepted} accepted along it): such frames' answers "

@@ -86,7 +86,7 @@ def run_batch(args) -> int:
         own["exclude"] = args.exclude
     if args.pairs < 0:
         raise ValueError(f"--pairs {args.pairs}: a number of next frames, 0 or more")
-    files = field_files(args)
+    files = field_files(args, pairs=False)
     opts = options_from_args(args, settings, pairs=args.pairs, top=files["top"], mat=files["mat"], **own)
     report = run_loops(args.seq[0] if len(args.seq) == 1 else args.seq, opts)
     print(metrics_table(report["methods"], "loops"))

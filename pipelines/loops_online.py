@@ -56,7 +56,7 @@ def run_command(args) -> int:
     else:
         det = make_detector(settings, exclude, geometry=loop_geometry(settings["methods"][0], args.geometry))
     report = detect_loops(det, args.out, gt=gt_spec_from_args(args), state_out=args.state_out,
-                          top=field_files(args)["top"])
+                          top=field_files(args, pairs=False)["top"])
     print(summary_line(report, args.out, "loop closures accepted"), file=sys.stderr)
     return 0
 

@@ -46,8 +46,8 @@ class Online:
     #: the job goes on from a saved state (``--resume``, or a map saved with ``--state-out``)
     resumed: bool = False
     #: the files the field's tools read (``top``, ``pairs``, ``mat`` of :func:`pipelines.outputs.write_ranked`), of
-    #: the candidates :meth:`candidate_names`; empty: none
-    files: dict = {}
+    #: the candidates :meth:`candidate_names`; None: none
+    files: dict | None = None
 
     def warm_up(self) -> None:
         """Compile kernels and load models now, so that the first frame's latency is its own."""

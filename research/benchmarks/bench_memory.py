@@ -24,11 +24,11 @@ import argparse
 import json
 import os
 import resource
-import subprocess
 import sys
 import time
 
 import numpy as np
+from children import child_json  # noqa: E402, I001 (run as a script: its own folder is on the path)
 
 WINDOW = 1000
 
@@ -89,9 +89,7 @@ def child_new_places(T, seed):
 
 def _child(kind, T, seed):
     env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
-    out = subprocess.run([sys.executable, __file__, "--child", kind, str(T), str(seed)], env=env,
-                         capture_output=True, text=True, check=True)
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    return child_json([sys.executable, __file__, "--child", kind, str(T), str(seed)], f"{kind} at {T} frames", env)
 
 
 def _mmm(values):

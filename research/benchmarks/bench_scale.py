@@ -43,12 +43,12 @@ for _var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MK
 import argparse  # noqa: E402
 import json  # noqa: E402
 import resource  # noqa: E402
-import subprocess  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 import scipy.sparse as sp  # noqa: E402
+from children import child_json  # noqa: E402, I001 (run as a script: its own folder is on the path)
 
 from vpr.types import EncodedTraverse  # noqa: E402
 
@@ -114,10 +114,7 @@ def child(method, n, seed, agree, dense_below_limit):
 def run_child(method, n, seed, agree=False, dense_below_limit=False):
     cmd = [sys.executable, __file__, "--child", method, "--n", str(n), "--seed", str(seed)]
     cmd += ["--dense-below-limit"] if dense_below_limit else []
-    res = subprocess.run(cmd + (["--agree-child"] if agree else []), capture_output=True, text=True)
-    if res.returncode:
-        raise RuntimeError(f"{method} at {n} frames failed:\n{res.stderr[-3000:]}")
-    return json.loads(res.stdout.strip().splitlines()[-1])
+    return child_json(cmd + (["--agree-child"] if agree else []), f"{method} at {n} frames")
 
 
 def main(argv=None):

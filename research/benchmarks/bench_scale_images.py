@@ -48,7 +48,6 @@ for _var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MK
 import argparse  # noqa: E402
 import json  # noqa: E402
 import resource  # noqa: E402
-import subprocess  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
@@ -56,6 +55,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import scipy.sparse as sp  # noqa: E402
+from children import child_json  # noqa: E402, I001 (run as a script: its own folder is on the path)
 
 TOLERANCE = 2  # frames: the query folder is frame-aligned with the database folder (--tolerance)
 
@@ -147,10 +147,7 @@ def run_child(data: Path, preset: str, n: int, agree: bool, prof: bool = False, 
     cmd = [sys.executable, __file__, "--child", preset, "--n", str(n), "--data", str(data),
            "--tolerance", str(tolerance)]
     cmd += ["--agree-child"] if agree else []
-    res = subprocess.run(cmd + (["--profile-child"] if prof else []), capture_output=True, text=True)
-    if res.returncode:
-        raise RuntimeError(f"{preset} at {n} frames failed:\n{res.stderr[-3000:]}")
-    return json.loads(res.stdout.strip().splitlines()[-1])
+    return child_json(cmd + (["--profile-child"] if prof else []), f"{preset} at {n} frames")
 
 
 def main(argv=None):

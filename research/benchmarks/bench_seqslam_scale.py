@@ -40,11 +40,11 @@ import argparse  # noqa: E402
 import json  # noqa: E402
 import resource  # noqa: E402
 import statistics  # noqa: E402
-import subprocess  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 
 import numpy as np  # noqa: E402
+from children import child_json  # noqa: E402, I001 (run as a script: its own folder is on the path)
 
 from vpr import simulate  # noqa: E402
 from vpr.seqslam import difference_matrix, seqslam, seqslam_topk  # noqa: E402
@@ -123,7 +123,7 @@ def main(argv=None) -> None:
         reps = args.repeats if n <= args.once_above else 1
         cmd = [sys.executable, __file__, "--child", str(n), "--repeats", str(reps),
                "--exact-max", str(args.exact_max), "--dense-max", str(args.dense_max), "--seed", str(args.seed)]
-        r = json.loads(subprocess.run(cmd, check=True, capture_output=True, text=True).stdout.strip().splitlines()[-1])
+        r = child_json(cmd, f"SeqSLAM at {n} frames")
         rows.append((n, r))
         t = r["times"]
         c = r["cpu"]

@@ -27,6 +27,7 @@ from .positions import (
     check_speeds,
     frame_positions,
     prepare_positions,
+    runs_backwards,
     same_rate,
     same_sampling,
     speed_step,
@@ -50,5 +51,5 @@ __all__ = ["NAMES_RADIUS", "gt_from_labels", "gt_from_frames", "gt_from_toleranc
            "load_positions_csv", "gt_from_position_files", "load_traverse_positions", "positions_of_frames",
            "db_query_matrix", "loop_matrix", "GroundTruthSpec", "build_gt", "build_loop_gt", "build_stream_gt",
            "check_loop_gt_files", "prepare_positions", "frame_positions", "Positions", "same_sampling", "same_rate",
-           "check_rates", "check_reversed", "check_speeds", "speed_step", "RATE_RATIO", "any_true", "frame_rows",
-           "sampling_step", "tolerance_text", "check_tolerance", "check_radius", "aligned_frames"]
+           "check_rates", "check_reversed", "runs_backwards", "check_speeds", "speed_step", "RATE_RATIO", "any_true",
+           "frame_rows", "sampling_step", "tolerance_text", "check_tolerance", "check_radius", "aligned_frames"]

@@ -124,12 +124,16 @@ class RshosmSeq(Method):
         mem, db_codes = state  # read, never changed, by the evidence
         q_sdr = self.need(query, "sdr", "query")
         n_db, n_q = shape or (len(db), len(query))  # a block of a larger match takes the path of the whole
-        top_k = top_k_or_dense(n_db, n_q, seq.top_k, DENSE_EVIDENCE_PAIRS) if seq.top_k else None
+        top_k = self._top_k(n_db, n_q)
         r = query_evidence(mem, q_sdr, db_codes, seq.evidence, direction=seq.direction, top_k=top_k,
                            beam=seq.beam, progress=progress)
         if shape is not None:  # a block of a larger match: decided over the whole (Fitted.combine)
             return r.similarity, None
         return r.similarity, self.decisions(r.similarity, r.best, r.z, **self.decision_inputs(state, db, query))
+
+    def _top_k(self, n_db: int, n_q: int) -> int | None:
+        """The beam's top-K of a match of ``n_db`` x ``n_q`` frames (None: the dense evidence)."""
+        return top_k_or_dense(n_db, n_q, self.seq.top_k, DENSE_EVIDENCE_PAIRS) if self.seq.top_k else None
 
     def decision_inputs(self, state, db: EncodedTraverse, query: EncodedTraverse) -> dict:
         """The stands of the map (:func:`vpr.shosm.standing`, from the memory's codes) and of the query
@@ -140,7 +144,7 @@ class RshosmSeq(Method):
         order: a confident localisation of the query running the map backwards)."""
         mem, db_codes = state
         q = self.need(query, "sdr", "query")
-        top_k = top_k_or_dense(len(db), len(query), self.seq.top_k, DENSE_EVIDENCE_PAIRS) if self.seq.top_k else None
+        top_k = self._top_k(len(db), len(query))
         ahead, back = (query_evidence(mem, q, db_codes, self.seq.evidence, direction=d, top_k=top_k,
                                       beam=self.seq.beam) for d in ("forward", "reversed"))
         mirrored = back.similarity[np.arange(len(db))[::-1]]

@@ -294,9 +294,8 @@ def map_places(codes, cells_per_column: int, sessions=(0,)) -> np.ndarray:
 
 
 #: The share of a query frame's bits kept from the frame before at which the query did not move
-#: (:func:`vpr.sdr.unmoved`): in the gap between what consecutive frames of a moving camera keep (at most 0.45 on
-#: Gardens Point, 0.57 on Nordland with the query standardised online) and what those of a standing train keep
-#: (0.69 or more online, 0.86 or more at once): ``research/docs/decisions.md``, "Stands and direction".
+#: (:func:`vpr.sdr.unmoved`): between what consecutive frames of a moving camera keep and what those of a standing
+#: camera keep (``research/docs/decisions.md``, "Stands and direction").
 UNMOVED_SHARE = 0.6
 
 #: Map frames of one place (:func:`map_places`) from which on no frame number singles out an answer: with 2, the
