@@ -54,3 +54,14 @@ def test_parse_key_values_names_the_flag():
     for bad in ("k", "=3"):
         with pytest.raises(ValueError, match=f"--x-conf: expected key=value, got '{bad}'"):
             parse_key_values([bad], "--x-conf")
+
+
+def test_a_key_taken_out_is_refused_naming_why_and_dropped_unset():
+    from vpr import methods
+    from vpr.shosm import RshosmSeqConf
+
+    # a saved map or detector state holds it unset: read as before
+    assert "place_frames" not in RshosmSeqConf.build({"place_frames": None, "decay": 0.8}).flat()
+    for build in (lambda: RshosmSeqConf.build({"place_frames": 20}), lambda: methods.get("rshosm-seq", place_frames=0)):
+        with pytest.raises(ValueError, match="place_frames was taken out: closures are no longer placed"):
+            build()
