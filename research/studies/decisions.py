@@ -9,7 +9,9 @@ run said of the query's speed (``matched again``: the run followed a speed it re
 
 Three settings:
 
-- **database -> query** (``compare``, ``localize``; SeqSLAM from ``compare``):
+- **database -> query** (``compare``, ``localize``; SeqSLAM from ``compare``, and
+  SeqSLAM online beside ``localize``: ``seqslam.causal=true``, each frame's sequence
+  the frames up to it, as an online run sees them):
   Nordland summer -> winter every file, first 300 / 1,000 / all 3,576 (right within
   1 file, soft 3); every 10th file (358) at the same speed, 2x (the query every
   20th), 0.5x (every 5th) and reversed; Gardens Point day_left -> day_right (right
@@ -163,8 +165,9 @@ def _gt(p, radius, soft) -> list:
 
 def match_table(s: Streams, out: Path) -> None:
     print("\n### Database -> query: accepted, P(acc), R(acc)\n")
-    print("| stream | compare rshosm-seq | localize rshosm-seq | SeqSLAM (compare) | speed: compare / localize |")
-    print("|---|---|---|---|---|")
+    print("| stream | compare rshosm-seq | localize rshosm-seq | SeqSLAM (compare) | SeqSLAM online (causal) | "
+          "speed: compare / localize |")
+    print("|---|---|---|---|---|---|")
     cache = ["--cache", out / "cache"]
     for name, (db, p_db), (q, p_q), radius, soft in match_pairs(s):
         key = f"{db.name}-{q.name}"
@@ -173,9 +176,12 @@ def match_table(s: Streams, out: Path) -> None:
                           out / "compare" / key)
         loc, said_l = run(["localize", _map(db, p_db, out), q, "--gt", p_q, "--radius", radius, "--gt-soft", soft,
                            *EXTRA], out / "localize" / key)
+        causal, _ = run(["compare", db, q, "--methods", "seqslam", "--method-conf", "seqslam.causal=true", *gt, *cache],
+                        out / "compare_causal" / key)
         r = loc["rshosm-seq"]
         print(f"| {name} | {decisions_cell(cmp['rshosm-seq'], frames=False)} | {decisions_cell(r, frames=False)} | "
-              f"{decisions_cell(cmp['seqslam'], frames=False)} | {speed_cell(cmp['rshosm-seq'], said_c)} / "
+              f"{decisions_cell(cmp['seqslam'], frames=False)} | {decisions_cell(causal['seqslam'], frames=False)} | "
+              f"{speed_cell(cmp['rshosm-seq'], said_c)} / "
               f"{speed_cell(r, said_l)} |", flush=True)
 
 
