@@ -64,6 +64,11 @@ def add_gt_arguments(ap, loops: bool = False, title: str = "ground truth (option
                              "ground_truth_new.npy; or with --radius: one positions CSV per traverse "
                              "(frame,x,y), or one CSV with traverse,frame,x,y rows for both; one TUM trajectory or "
                              "KITTI poses file per traverse; or the word names (UTM in the file names) or exif")
+    if not loops:
+        gt.add_argument("--gt-tolerance-unit", type=int, metavar="N",
+                        help="--gt of query,db,tolerance rows (OpenSeqSLAM's ground truth, frames counted from 1): "
+                             "the frames its tolerance counts per frame of the file; a query matches the database "
+                             "frames within tolerance // N of its reference (10 for OpenSeqSLAM's Nordland sample)")
     gt.add_argument("--gt-topic", nargs="+", metavar="TOPIC", help="ROS bags: positions from this topic (NavSatFix in "
                     "metres from the first fix, Odometry, PoseStamped), interpolated at each frame's time, not across "
                     "an outage; with --radius; one for all inputs or one per input, in order")
@@ -80,7 +85,8 @@ def gt_spec_from_args(args) -> GroundTruthSpec:
     files = tuple(args.gt or ())
     radius = NAMES_RADIUS if args.radius is None and files == ("names",) else args.radius
     return GroundTruthSpec(tolerance=getattr(args, "tolerance", None), files=files, radius=radius, soft=args.gt_soft,
-                           topic=topic_arg(getattr(args, "gt_topic", None)))
+                           topic=topic_arg(getattr(args, "gt_topic", None)),
+                           file_unit=getattr(args, "gt_tolerance_unit", None))
 
 
 def topic_arg(values):

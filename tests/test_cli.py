@@ -142,7 +142,7 @@ def test_corrupt_png_is_skipped_and_recorded(scene, tmp_path, capsys):
     assert p["ignored_files"]["db"] == 1
 
 
-@pytest.mark.parametrize("case", ["missing", "empty", "video", "gt", "method_conf"])
+@pytest.mark.parametrize("case", ["missing", "empty", "video", "gt", "gt_tolerance", "method_conf"])
 def test_bad_input_gives_one_line_and_exit_2(scene, tmp_path, capsys, case):
     out = tmp_path / "out"
     if case == "missing":
@@ -158,6 +158,10 @@ def test_bad_input_gives_one_line_and_exit_2(scene, tmp_path, capsys, case):
         gt = tmp_path / "gt.csv"
         gt.write_text("query,db\n0,1\n1,x\n")
         argv, expect = ["match", scene["db"], scene["q"], "--out", out, "--gt", gt], "gt.csv:3"
+    elif case == "gt_tolerance":  # OpenSeqSLAM's rows: the tolerance's unit must be said
+        gt = tmp_path / "truth.csv"
+        gt.write_text("1,1,15\n2,2,15\n")
+        argv, expect = ["match", scene["db"], scene["q"], "--out", out, "--gt", gt], "--gt-tolerance-unit N"
     else:
         argv, expect = ["match", scene["db"], scene["q"], "--out", out, "--method-conf", "seqslam.nope=1"], "nope"
     code, _, err = _run(argv, capsys)

@@ -5,6 +5,7 @@ import pytest
 import scipy.io
 
 from vpr.groundtruth import GroundTruthSpec, build_gt, build_loop_gt
+from vpr.groundtruth.files import load_tolerance_csv
 from vpr.groundtruth.formats import db_query_matrix, loop_matrix, read_matrix, split_variable
 
 
@@ -119,3 +120,62 @@ def test_loops_refuse_tolerance_and_two_csvs(tmp_path):
         GroundTruthSpec(tolerance=2).check(loops=True)
     with pytest.raises(ValueError, match="one CSV file"):
         GroundTruthSpec(files=("a.csv", "b.csv"), radius=1.0).check(loops=True)
+
+
+def _openseqslam_rows(path, n, tolerance=15, header=False):
+    path.write_text(("query,db,tolerance\n" if header else "") + "".join(f"{i},{i},{tolerance}\n"
+                                                                          for i in range(1, n + 1)))
+    return path
+
+
+@pytest.mark.parametrize("header", [False, True])
+def test_openseqslam_rows_at_their_unit_are_the_frame_tolerance(tmp_path, header):
+    """OpenSeqSLAM's Nordland sample (i,i,15 over every 10th frame, 15 at the full rate) is |i - j| <= 1."""
+    f = _openseqslam_rows(tmp_path / "truth.csv", 12, header=header)
+    names = [f"{i:03d}" for i in range(12)]
+    hard, soft = build_gt(GroundTruthSpec(files=(str(f),), file_unit=10), names, names, range(12), range(12))
+    i, j = np.indices((12, 12))
+    np.testing.assert_array_equal(hard, np.abs(i - j) <= 1)
+    assert soft is None
+    # counted in the file's own frames: within 15
+    np.testing.assert_array_equal(load_tolerance_csv(f, 12, 12, 1), np.abs(i - j) <= 15)
+
+
+def test_openseqslam_rows_of_frames_not_read_are_left_out(tmp_path):
+    f = _openseqslam_rows(tmp_path / "truth.csv", 10, tolerance=0)
+    with pytest.warns(UserWarning, match="6 rows name frames that were not read"):
+        gt = load_tolerance_csv(f, 4, 7, 1, db_indices=[0, 2, 4, 6], q_indices=range(7))
+    assert gt.sum() == 4 and gt[1, 2] and gt[3, 6]  # query frame 2 (row 3) onto database frame 2
+
+
+@pytest.mark.parametrize("text, message", [
+    ("0,1,15\n", "count from 1"),
+    ("1,1,-2\n", "negative"),
+    ("1,x,3\n", "db 'x' is not an integer"),
+    ("a,b,c\n1,1,1\n", "unknown header"),
+    ("9,1,1\n", "query frame 9 out of range 1..4"),
+    ("1,9,1\n", "database frame 9 out of range 1..4"),
+    ("1,1\n", "expected 3 columns"),
+])
+def test_openseqslam_rows_malformed(tmp_path, text, message):
+    (tmp_path / "t.csv").write_text(text)
+    with pytest.raises(ValueError, match=message):
+        load_tolerance_csv(tmp_path / "t.csv", 4, 4, 10)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({}, "--gt-tolerance-unit N"),                                   # the unit is not in the file
+    ({"file_unit": 0}, "integer >= 1"),
+    ({"file_unit": 10, "radius": 2.0}, "alone"),
+    ({"file_unit": 10, "soft": 3}, "needs position ground truth"),
+])
+def test_openseqslam_unit_refusals(tmp_path, kwargs, message):
+    f = _openseqslam_rows(tmp_path / "truth.csv", 3)
+    with pytest.raises(ValueError, match=message):
+        GroundTruthSpec(files=(str(f),), **kwargs).check()
+
+
+def test_unit_on_a_two_column_file_is_refused(tmp_path):
+    (tmp_path / "pairs.csv").write_text("0,0\n1,1\n")
+    with pytest.raises(ValueError, match="has 2 columns"):
+        GroundTruthSpec(files=(str(tmp_path / "pairs.csv"),), file_unit=10).check()

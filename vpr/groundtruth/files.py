@@ -16,7 +16,8 @@ from vpr.similarity import fits_dense
 
 from .matrices import gt_from_positions
 
-__all__ = ["load_pairs_csv", "load_positions_csv", "gt_from_position_files", "load_traverse_positions",
+__all__ = ["load_pairs_csv", "load_tolerance_csv", "csv_columns",
+           "load_positions_csv", "gt_from_position_files", "load_traverse_positions",
            "positions_of_frames", "positions_for", "read_rows", "parse_float", "POSITION_COLUMNS",
            "positions_for_frames"]
 
@@ -214,6 +215,80 @@ def load_pairs_csv(path, n_db: int, n_q: int, db_names: Sequence[str] | None = N
         return gt
     gt = np.zeros((n_db, n_q), dtype=bool)
     gt[rows_db, cols_q] = True
+    return gt
+
+
+def csv_columns(path) -> int:
+    """The number of columns of the first content line of the CSV ``path`` (0: no content line)."""
+    for line in Path(path).read_text(encoding="utf-8-sig", errors="replace").splitlines():
+        s = line.strip()
+        if s and not s.startswith("#"):
+            return len(next(csv.reader([s], skipinitialspace=True))) if "," in s else len(s.split())
+    return 0
+
+
+def load_tolerance_csv(path, n_db: int, n_q: int, unit: int, *, db_indices: Sequence[int] | None = None,
+                       q_indices: Sequence[int] | None = None):
+    """Ground truth from OpenSeqSLAM's CSV of ``query,reference,tolerance`` rows (frames counted from 1, as MATLAB
+    counts).
+
+    A query row matches the database frames within ``tolerance // unit`` frames of its reference: ``unit`` is how
+    many of the frames the tolerance counts one frame of the file stands for (OpenSeqSLAM's Nordland sample: 358 rows
+    of every 10th frame, a tolerance of 15 frames at the full rate; ``unit=10``: within 1 frame). Frame ``k`` of the
+    file is source frame ``k - 1``; with ``db_indices`` / ``q_indices`` (source frame numbers of the frames read)
+    frames that were not read are left out (one warning), without them frames are 0..n-1 and a larger one is an
+    error. An optional header names the three columns ``query``, ``db`` (or ``reference``) and ``tolerance``, in this
+    order.
+
+    Returns bool (n_db, n_q), sparse above :func:`~vpr.similarity.dense_pairs` pairs. A missing file raises
+    FileNotFoundError; a malformed one ValueError ``"FILE:LINE: reason"``.
+    """
+    n_db = check_count(n_db, "n_db", minimum=1)
+    n_q = check_count(n_q, "n_q", minimum=1)
+    unit = check_count(unit, "unit", minimum=1)
+    db_rows, q_rows = _index_rows(db_indices, n_db, "db_indices"), _index_rows(q_indices, n_q, "q_indices")
+    rows = read_rows(path, 3, "query,db,tolerance")
+    if _parse_int(rows[0][1][0]) is None:  # a header
+        first_line, header = rows[0]
+        if [h.casefold() for h in header] not in (["query", "db", "tolerance"], ["query", "reference", "tolerance"]):
+            raise ValueError(f"{path}:{first_line}: unknown header {','.join(header)!r}; expected query,db,tolerance "
+                             "or no header")
+        rows = rows[1:]
+        if not rows:
+            raise ValueError(f"{path}: no rows after the header on line {first_line}")
+    db_hits, q_hits, dropped = [], [], 0
+    for lineno, fields in rows:
+        values = [_parse_int(f) for f in fields]
+        for name, v, f in zip(("query", "db", "tolerance"), values, fields, strict=True):
+            if v is None:
+                raise ValueError(f"{path}:{lineno}: {name} {f!r} is not an integer")
+        q, ref, tol = values
+        if q < 1 or ref < 1:
+            raise ValueError(f"{path}:{lineno}: frame number {min(q, ref)}: the frames of a query,db,tolerance file "
+                             "count from 1 (OpenSeqSLAM's, MATLAB's)")
+        if tol < 0:
+            raise ValueError(f"{path}:{lineno}: tolerance {tol} is negative")
+        if q - 1 not in q_rows:
+            if q_indices is None:
+                raise ValueError(f"{path}:{lineno}: query frame {q} out of range 1..{n_q}")
+            dropped += 1
+            continue
+        if db_indices is None and ref > n_db:
+            raise ValueError(f"{path}:{lineno}: database frame {ref} out of range 1..{n_db}")
+        reach = tol // unit
+        hits = [db_rows[k] for k in range(ref - 1 - reach, ref + reach) if k in db_rows]
+        dropped += not hits
+        db_hits += hits
+        q_hits += [q_rows[q - 1]] * len(hits)
+    if dropped:
+        warnings.warn(f"{path}: {dropped} rows name frames that were not read; ignored", stacklevel=2)
+    db_hits, q_hits = np.asarray(db_hits, np.int64), np.asarray(q_hits, np.int64)
+    if not fits_dense(n_db, n_q):
+        gt = sp.csr_matrix((np.ones(db_hits.size, bool), (db_hits, q_hits)), shape=(n_db, n_q))
+        gt.sum_duplicates()
+        return gt
+    gt = np.zeros((n_db, n_q), dtype=bool)
+    gt[db_hits, q_hits] = True
     return gt
 
 

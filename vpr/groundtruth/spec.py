@@ -12,9 +12,11 @@ import scipy.sparse as sp
 from vpr.similarity import fits_dense
 
 from .files import (
+    csv_columns,
     is_loop_pairs_file,
     load_loop_pairs,
     load_pairs_csv,
+    load_tolerance_csv,
     load_traverse_positions,
     parse_float,
     positions_for,
@@ -53,6 +55,9 @@ class GroundTruthSpec:
         Larger radius (or tolerance) within which pairs are ignored.
     topic : str or tuple of str, optional
         Positions from this topic of each bag (or one per input), with ``radius``.
+    file_unit : int, optional
+        OpenSeqSLAM's ``query,db,tolerance`` CSV (``files``): the frames its tolerance counts per frame of the file
+        (:func:`~vpr.groundtruth.files.load_tolerance_csv`); such a file is refused without it.
     """
 
     tolerance: int | None = None
@@ -60,6 +65,7 @@ class GroundTruthSpec:
     radius: float | None = None
     soft: float | None = None
     topic: str | tuple[str, ...] | None = None
+    file_unit: int | None = None
 
     #: ``--gt`` words that name where positions are, not a file.
     KEYWORDS = ("names", "exif")
@@ -76,6 +82,8 @@ class GroundTruthSpec:
             if self.soft is not None:
                 out.update(gt_soft_input_frames=self.soft * step,
                            gt_soft_text=tolerance_text("--gt-soft", self.soft, step))
+        if self.file_unit is not None:
+            out["gt_tolerance_unit"] = self.file_unit
         topic = list(self.topic) if isinstance(self.topic, tuple) else self.topic
         return {**out, "gt_topic": topic} if self.topic is not None else out
 
@@ -159,6 +167,28 @@ class GroundTruthSpec:
                 raise FileNotFoundError(f"no such ground-truth file: {fp}")
             if not fp.is_file():
                 raise ValueError(f"{fp}: is a folder, expected a ground-truth file")
+        self._check_file_unit(loops, check_files and not matrices and radius is None and len(files) == 1)
+
+    def _check_file_unit(self, loops: bool, pairs_file: bool) -> None:
+        """A ``query,db,tolerance`` file needs ``file_unit``, and ``file_unit`` needs one."""
+        unit, what = self.file_unit, "--gt-tolerance-unit"
+        if unit is not None:
+            if isinstance(unit, bool) or not isinstance(unit, (int, np.integer)) or unit < 1:
+                raise ValueError(f"{what} must be an integer >= 1 (frames), got {unit!r}")
+            if loops or self.radius is not None or self.tolerance is not None or self.topic is not None \
+                    or self.soft is not None or len(self.files) != 1 or is_matrix_file(self.files[0]):
+                raise ValueError(f"{what} applies to one query,db,tolerance CSV (OpenSeqSLAM's ground truth) as "
+                                 "--gt, alone: not with --radius, --tolerance, --gt-soft, --gt-topic or matrices")
+        if not pairs_file:
+            return
+        n = csv_columns(self.files[0])
+        if n == 3 and unit is None:
+            raise ValueError(f"{self.files[0]}: query,db,tolerance rows (OpenSeqSLAM's ground truth), whose "
+                             f"tolerance column's unit the file does not say: give {what} N, the frames the tolerance "
+                             "counts per frame of the file (10 for OpenSeqSLAM's Nordland sample: every 10th frame, "
+                             "a tolerance at the full rate; 1: it counts the file's frames)")
+        if n != 3 and unit is not None:
+            raise ValueError(f"{what}: {self.files[0]} has {n} columns; it applies to query,db,tolerance rows")
 
     def no_match_error(self, db_indices=None, q_indices=None, exclude: int | None = None) -> ValueError:
         """The error for a ground truth in which no query frame has a true match, in the options' words.
@@ -337,6 +367,9 @@ def _db_query_gt(spec, db_names, q_names, db_indices, q_indices, db_traverse, q_
         soft = db_query_matrix(files[1], len(db_names), len(q_names), db_indices, q_indices, totals) \
             if len(files) == 2 else None
         return hard, (soft | hard if soft is not None else None)
+    if spec.file_unit is not None:  # OpenSeqSLAM's query,db,tolerance rows (check() refused the rest)
+        return load_tolerance_csv(files[0], len(db_names), len(q_names), spec.file_unit, db_indices=db_indices,
+                                  q_indices=q_indices), None
     if spec.radius is None:  # one pairs file (check() refused the rest)
         hard = load_pairs_csv(files[0], len(db_names), len(q_names), db_names=db_names, q_names=q_names,
                               db_indices=db_indices, q_indices=q_indices)
