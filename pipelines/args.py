@@ -13,10 +13,12 @@ from pathlib import Path
 import encoders
 from vpr import methods, presets
 from vpr.config import parse_key_values, parse_method_confs
+from vpr.evaluate import RECALL_AT
 from vpr.groundtruth import NAMES_RADIUS, GroundTruthSpec
 from vpr.sources import is_descriptor_file
 
-__all__ = ["add_common_arguments", "add_source_arguments", "add_preset_argument", "add_gt_arguments",
+__all__ = ["add_recall_at_argument", "parse_recall_at",
+           "add_common_arguments", "add_source_arguments", "add_preset_argument", "add_gt_arguments",
            "gt_spec_from_args", "loop_geometry", "descriptor_inputs", "input_encoder", "method_confs",
            "add_method_conf_argument", "add_run_arguments", "settings_from_args", "options_from_args", "parse_every",
            "parse_size", "add_query_speed_argument", "follows_speed", "DESCRIPTORS"]
@@ -77,6 +79,28 @@ def add_gt_arguments(ap, loops: bool = False, title: str = "ground truth (option
                     help="also ignore pairs within this larger radius/tolerance (soft ground truth; a tolerance in "
                          "frames kept, as --tolerance)")
     return gt
+
+
+def add_recall_at_argument(ap: argparse.ArgumentParser) -> None:
+    """``--recall-at``: the N of Recall@N (:func:`parse_recall_at`)."""
+    ap.add_argument("--recall-at", default=None, metavar="N1,N2,...",
+                    help="the N of Recall@N, over every query (the field's) and over the queries with a true match "
+                         f"(default {','.join(map(str, RECALL_AT))}; needs ground truth)")
+
+
+def parse_recall_at(args) -> tuple:
+    """``--recall-at 1,5,10,20`` -> (1, 5, 10, 20) (refused: not positive integers, or without ground truth)."""
+    if args.recall_at is None:
+        return RECALL_AT
+    try:
+        ns = tuple(int(n) for n in args.recall_at.split(","))
+    except ValueError:
+        ns = ()
+    if not ns or any(n < 1 for n in ns):
+        raise ValueError(f"--recall-at {args.recall_at}: positive integers separated by commas, e.g. 1,5,10,20")
+    if not (args.gt or getattr(args, "tolerance", None) is not None or getattr(args, "gt_topic", None)):
+        raise ValueError("--recall-at needs ground truth (--gt, --tolerance or --gt-topic) to score recall")
+    return ns
 
 
 def gt_spec_from_args(args) -> GroundTruthSpec:

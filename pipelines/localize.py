@@ -25,6 +25,7 @@ from pipelines.args import (
     add_method_conf_argument,
     add_preset_argument,
     add_query_speed_argument,
+    add_recall_at_argument,
     add_source_arguments,
     descriptor_inputs,
     field_files,
@@ -33,6 +34,7 @@ from pipelines.args import (
     input_encoder,
     method_confs,
     parse_every,
+    parse_recall_at,
     topic_arg,
 )
 from pipelines.maps import learn, load_map, map_path
@@ -137,7 +139,7 @@ class LocalizeOnline(Online):
         gt_hard, gt_soft = build_gt(gt, loc.names, names, info.get("db_indices") or list(range(loc.n_db)), q_idx,
                                     info.get("db_source", "database"), self.q_src.name, positions=positions,
                                     rates=(info.get("source_rate"), self.q_src.native_rate()))
-        m, curve = evaluate.method_metrics(result, gt_hard, gt_soft)
+        m, curve = evaluate.method_metrics(result, gt_hard, gt_soft, recall_at=self.recall_at)
         self.ground_truth = (gt_hard, gt_soft, None)
         m.pop("seconds", None)
         m.pop("n_accepted", None)
@@ -196,6 +198,7 @@ class LocalizeOptions:
         False: the frames as they come.
     files : the files the field's tools read (``top``, ``pairs``, ``mat`` of
         :func:`pipelines.outputs.write_ranked`); default: each query frame's 20 best map frames (``top.csv``).
+    recall_at : the N of Recall@N (:func:`vpr.evaluate.recall_at_n`).
     """
 
     query_standardise: str = "running"
@@ -212,6 +215,7 @@ class LocalizeOptions:
     every: float | None = None
     follow_speed: bool = True
     files: dict = field(default_factory=lambda: {"top": 20, "pairs": 0, "mat": False})
+    recall_at: tuple = evaluate.RECALL_AT
 
 
 def localize(map_or_db, query, out, opts: LocalizeOptions | None = None, stdout=None, stdin=None, **options) -> dict:
@@ -224,7 +228,7 @@ def localize(map_or_db, query, out, opts: LocalizeOptions | None = None, stdout=
     """
     o = replace(opts or LocalizeOptions(), **options)
     (query_standardise, prior_frames, window, gt, learn_options, fps, step, max_frames, state_out, progress, topic,
-     every, follow_speed, files) = (getattr(o, f.name) for f in fields(o))
+     every, follow_speed, files, recall_at) = (getattr(o, f.name) for f in fields(o))
     out = Path(out)
     io.check_writable(out / "metrics.json", "--out")
     if state_out:
@@ -290,6 +294,7 @@ def localize(map_or_db, query, out, opts: LocalizeOptions | None = None, stdout=
                           "prior_frames": prior_frames, "window": window, "follow_speed": follow_speed}, q_xy,
                          follower)
     job.files = dict(files)
+    job.recall_at = tuple(recall_at)
     job.warm_up()
     return run_online(job, q_src, out, stdout, state_out)
 
@@ -336,6 +341,7 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     _add_learn_args(learn_group)
     add_source_arguments(ap)
     add_gt_arguments(ap, title="ground truth (optional; enables AP and R@1)")
+    add_recall_at_argument(ap)
     add_common_arguments(ap)
 
 
@@ -392,7 +398,8 @@ def run_command(args) -> int:
     opts = LocalizeOptions(query_standardise=args.query_standardise, prior_frames=args.prior_frames,
                            window=args.window, state_out=args.state_out, gt=gt_spec_from_args(args),
                            learn_options=learn_opts, progress=not args.no_progress,
-                           follow_speed=follows_speed(args), files=field_files(args), **src_opts)
+                           follow_speed=follows_speed(args), files=field_files(args),
+                           recall_at=parse_recall_at(args), **src_opts)
     report = localize(args.map, args.query, args.out, opts)
     print(summary_line(report, args.out), file=sys.stderr)
     return 0

@@ -19,10 +19,12 @@ from pipelines.args import (
     add_field_files_arguments,
     add_gt_arguments,
     add_query_speed_argument,
+    add_recall_at_argument,
     add_run_arguments,
     field_files,
     loop_geometry,
     options_from_args,
+    parse_recall_at,
     settings_from_args,
 )
 from pipelines.loops_online import no_revisit, rounded, say_session_speeds
@@ -62,6 +64,7 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     add_field_files_arguments(ap, pairs=False)
     add_query_speed_argument(ap, sessions=True)
     add_gt_arguments(ap, loops=True)
+    add_recall_at_argument(ap)
     online = ap.add_argument_group("online (SEQ is -)")
     online.add_argument("--state-out", metavar="FILE.npz", help="save the loop detector after the last frame")
     online.add_argument("--resume", metavar="FILE.npz", help="continue a loop detector saved with --state-out")
@@ -87,7 +90,8 @@ def run_batch(args) -> int:
     if args.pairs < 0:
         raise ValueError(f"--pairs {args.pairs}: a number of next frames, 0 or more")
     files = field_files(args, pairs=False)
-    opts = options_from_args(args, settings, pairs=args.pairs, top=files["top"], mat=files["mat"], **own)
+    opts = options_from_args(args, settings, pairs=args.pairs, top=files["top"], mat=files["mat"],
+                             recall_at=parse_recall_at(args), **own)
     report = run_loops(args.seq[0] if len(args.seq) == 1 else args.seq, opts)
     print(metrics_table(report["methods"], "loops"))
     print(f"wrote {opts.out}/report.html (open it: the table, the plots and the frames side by side), metrics.json")
@@ -164,7 +168,8 @@ def run_loops(seq, opts: RunOptions) -> dict:
                 return methods.loops_at_speed(r, features, res, starts, opts.progress)
             return methods.loops_in_run_at_speed(r, features, res, exclude, opts.progress)
 
-        done = evaluate.run_methods(runners, loops_of, gt_hard, gt_soft, mask, on_result=write, loops=True)
+        done = evaluate.run_methods(runners, loops_of, gt_hard, gt_soft, mask, on_result=write, loops=True,
+                                    recall_at=opts.recall_at)
         if len(srcs) == 1:  # the sessions of a stream are read one by one (below)
             groundtruth.check_speeds({k: m.get("path_speed") for k, (m, _) in done.items() if follows(k)},
                                      fix="within one run, a stretch read faster is matched again by default "

@@ -11,7 +11,7 @@ import sys
 import numpy as np
 
 import encoders
-from pipelines.args import field_files, gt_spec_from_args, loop_geometry, settings_from_args
+from pipelines.args import field_files, gt_spec_from_args, loop_geometry, parse_recall_at, settings_from_args
 from pipelines.online import Online, run_online, summary_line
 from pipelines.outputs import warn
 from pipelines.stream import StreamEncoder
@@ -56,7 +56,7 @@ def run_command(args) -> int:
     else:
         det = make_detector(settings, exclude, geometry=loop_geometry(settings["methods"][0], args.geometry))
     report = detect_loops(det, args.out, gt=gt_spec_from_args(args), state_out=args.state_out,
-                          top=field_files(args, pairs=False)["top"])
+                          top=field_files(args, pairs=False)["top"], recall_at=parse_recall_at(args))
     print(summary_line(report, args.out, "loop closures accepted"), file=sys.stderr)
     return 0
 
@@ -204,7 +204,7 @@ class LoopsOnline(Online):
             no_revisit(self.gt, exclude)
         hard, soft = (None if g is None else g[:, frames] for g in (hard, soft))
         mask = groundtruth.loop_closure_mask(N, exclude=exclude, starts=starts)[:, frames]
-        m, curve = evaluate.method_metrics(result, hard, soft, mask=mask, loops=True)
+        m, curve = evaluate.method_metrics(result, hard, soft, mask=mask, loops=True, recall_at=self.recall_at)
         self.ground_truth = (hard, soft, mask)
         if len(starts) > 1:
             m["sessions"] = evaluate.session_pairs(result.best, result.accepted, hard, starts, soft, mask, labels,
@@ -231,8 +231,10 @@ class LoopsOnline(Online):
 
 
 def detect_loops(det: StreamDetector, out, stdin=None, stdout=None, gt: GroundTruthSpec | None = None,
-                 state_out=None, top: int = 20) -> dict:
+                 state_out=None, top: int = 20, recall_at: tuple = evaluate.RECALL_AT) -> dict:
     """Decide every frame named on ``stdin`` with ``det``; write ``out``'s files; return metrics.json's content.
+
+    ``top``: each frame's best earlier frames kept in ``top.csv``; ``recall_at``: the N of Recall@N.
 
     On a stop (Ctrl-C, SIGTERM) the frames decided so far are written and the
     detector saved, then the stop goes on (:func:`pipelines.online.run_online`).
@@ -243,6 +245,7 @@ def detect_loops(det: StreamDetector, out, stdin=None, stdout=None, gt: GroundTr
         io.check_writable(state_out, "--state-out")
     job = LoopsOnline(det, gt, goes_on=state_out is not None)
     job.files = {"top": int(top), "pairs": 0, "mat": False} if top else {}
+    job.recall_at = tuple(recall_at)
     job.warm_up()
     return run_online(job, StdinSource(stdin if stdin is not None else sys.stdin), out, stdout, state_out)
 

@@ -14,11 +14,12 @@ from pipelines.args import (
     add_field_files_arguments,
     add_gt_arguments,
     add_query_speed_argument,
+    add_recall_at_argument,
     add_run_arguments,
     field_files,
     options_from_args,
+    parse_recall_at,
 )
-from vpr.evaluate import RECALL_AT
 
 __all__ = ["COMMANDS", "add_arguments", "run_command"]
 
@@ -47,9 +48,7 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
                     help="geometric verification of each query's N best candidates (ORB + pycolmap)")
     ap.add_argument("--min-inliers", type=int, default=15, help="inliers needed to accept a verified match")
     add_field_files_arguments(ap)
-    ap.add_argument("--recall-at", default=None, metavar="N1,N2,...",
-                    help="the N of Recall@N, over every query (the field's) and over the queries with a true match "
-                         f"(default {','.join(map(str, RECALL_AT))}; needs ground truth)")
+    add_recall_at_argument(ap)
     add_query_speed_argument(ap)
     add_common_arguments(ap)
 
@@ -57,21 +56,6 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
 def own_options(args) -> dict:
     """The options of ``match`` and ``compare`` beside every run's: Recall@N's N and the field's files."""
     return {"recall_at": parse_recall_at(args), **field_files(args)}
-
-
-def parse_recall_at(args) -> tuple:
-    """``--recall-at 1,5,10,20`` -> (1, 5, 10, 20) (refused: not positive integers, or without ground truth)."""
-    if args.recall_at is None:
-        return RECALL_AT
-    try:
-        ns = tuple(int(n) for n in args.recall_at.split(","))
-    except ValueError:
-        ns = ()
-    if not ns or any(n < 1 for n in ns):
-        raise ValueError(f"--recall-at {args.recall_at}: positive integers separated by commas, e.g. 1,5,10,20")
-    if not (args.gt or args.tolerance is not None or args.gt_topic):
-        raise ValueError("--recall-at needs ground truth (--gt, --tolerance or --gt-topic) to score recall")
-    return ns
 
 
 def run_command(args) -> int:

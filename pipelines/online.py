@@ -48,6 +48,8 @@ class Online:
     #: the files the field's tools read (``top``, ``pairs``, ``mat`` of :func:`pipelines.outputs.write_ranked`), of
     #: the candidates :meth:`candidate_names`; None: none
     files: dict | None = None
+    #: the N of Recall@N (:func:`vpr.evaluate.recall_at_n`)
+    recall_at: tuple = evaluate.RECALL_AT
 
     def warm_up(self) -> None:
         """Compile kernels and load models now, so that the first frame's latency is its own."""

@@ -90,3 +90,63 @@ def test_utm_names_alone_score_within_the_fields_25_m(scene_on_disk, tmp_path, c
     m = json.loads((tmp_path / "o" / "metrics.json").read_text())
     assert m["params"]["ground_truth"]["radius"] == 25.0
     assert m["methods"]["pairwise"]["recall_at_n"]["queries_with_true_match"] > 0
+
+
+def test_loop_recall_ranks_each_frames_earlier_frames_only():
+    """One stream: frame j's candidates are the frames at least ``exclude`` before it; a hit at N is a true earlier
+    frame among its N best of those (brute force)."""
+    from vpr.groundtruth import loop_closure_mask
+
+    rng = np.random.default_rng(3)
+    T, exclude = 80, 5
+    place = np.r_[np.arange(40), np.arange(40)]  # a loop: frame 40 + i revisits frame i
+    S = np.round(rng.random((T, T)), 2)
+    gt = np.abs(place[:, None] - place[None, :]) <= 1
+    S = S + gt * rng.random((T, T)) * 0.6
+    mask = loop_closure_mask(T, exclude=exclude)
+    r = evaluate.recall_at_n(S, gt, ns=(1, 3), mask=mask)
+    want, with_match = {1: 0, 3: 0}, 0
+    for j in range(T):
+        rows = np.flatnonzero(mask[:, j])
+        if not gt[rows, j].any():
+            continue
+        with_match += 1
+        order = rows[np.lexsort((rows, -S[rows, j]))]  # similarity descending, ties by the lower index
+        for n in want:
+            want[n] += bool(gt[order[:n], j].any())
+    assert r["queries_with_true_match"] == with_match == 40 and r["queries"] == T
+    assert r["with_true_match"] == {str(n): want[n] / with_match for n in want}
+    assert r["every_query"] == {str(n): want[n] / T for n in want}
+
+
+@pytest.mark.slow
+def test_loops_and_localize_print_and_write_recall_at_n(scene_on_disk, tmp_path, capsys, monkeypatch):
+    import io
+
+    s = scene_on_disk("loop_revisits", (48, 36), 240)
+    gt = ["--gt", s["gt"], "--radius", 4]
+    argv = ["loops", s["laps"], *gt, "--preset", "fast", "--recall-at", "1,3", "--no-progress"]
+    assert main([str(a) for a in [*argv, "--out", tmp_path / "batch"]]) == 0, capsys.readouterr().err
+    out = capsys.readouterr().out
+    assert "frames with an earlier true match (R@1 above)" in out and "R@3" in out
+    m = json.loads((tmp_path / "batch" / "metrics.json").read_text())["methods"]["rshosm-seq"]
+    assert set(m["recall_at_n"]["with_true_match"]) == {"1", "3"}
+    assert m["recall_at_n"]["with_true_match"]["1"] == m["recall_at_1"]
+    assert "frames with an earlier true match" in (tmp_path / "batch" / "report.html").read_text()
+    # online, the frames' paths on stdin
+    paths = sorted(p for p in s["laps"].iterdir() if p.suffix == ".png")
+    monkeypatch.setattr("sys.stdin", io.StringIO("".join(f"{p}\n" for p in paths)))
+    online = ["loops", "-", *gt, "--preset", "fast", "--recall-at", "2", "--out", tmp_path / "online"]
+    assert main([str(a) for a in online]) == 0, capsys.readouterr().err
+    m = json.loads((tmp_path / "online" / "metrics.json").read_text())["methods"]["rshosm-seq"]
+    assert set(m["recall_at_n"]["with_true_match"]) == {"2"} and m["recall_at_n"]["queries_with_true_match"] > 0
+    # localize: the same option
+    two = scene_on_disk("two_seasons", (48, 32), 60)
+    loc = ["localize", two[two["names"][0]], two[two["names"][1]], "--gt", two["gt"], "--radius", 9, "--preset",
+           "fast", "--recall-at", "1,4", "--out", tmp_path / "loc", "--no-progress"]
+    assert main([str(a) for a in loc]) == 0, capsys.readouterr().err
+    m = json.loads((tmp_path / "loc" / "metrics.json").read_text())["methods"]["rshosm-seq"]["recall_at_n"]
+    assert set(m["every_query"]) == {"1", "4"}
+    capsys.readouterr()
+    assert main([str(a) for a in [*argv[:2], "--recall-at", "1", "--out", tmp_path / "no_gt"]]) == 2
+    assert "needs ground truth" in capsys.readouterr().err and not (tmp_path / "no_gt").exists()

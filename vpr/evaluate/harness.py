@@ -43,8 +43,9 @@ def method_metrics(res, gt_hard, gt_soft, mask=None, loops: bool = False, recall
     where the curve is that of the per-frame decisions (:func:`decision_curve`: ``frame_ap``,
     ``frame_recall_at_100p``), what loop-closure detectors report; a stream without a true loop (a drive without
     revisits) has no ranking or recall to measure: ``revisits`` 0 and the accepted closures, all false
-    (``false_per_1000``). A database x query match also gets ``recall_at_n``, Recall@N for each of ``recall_at`` over
-    every query and over the queries with a true match (:func:`recall_at_n`).
+    (``false_per_1000``). With a true match to find, ``recall_at_n``: Recall@N for each of ``recall_at`` over every
+    query and over the queries with a true match (:func:`recall_at_n`; loops: each frame is the query, its earlier
+    frames outside ``mask``'s exclusion the candidates).
     """
     m = {"seconds": round(res.seconds, 4), "n_accepted": int(np.count_nonzero(res.accepted & (res.best >= 0))),
          "path_speed": speed_metric(res.best, res.accepted)}
@@ -61,8 +62,7 @@ def method_metrics(res, gt_hard, gt_soft, mask=None, loops: bool = False, recall
     ev, (prec, rec, _) = evaluate(res.similarity, gt_hard, gt_soft, mask=mask, return_curve=True)
     m.update({k: float(v) for k, v in ev.items()})
     m.update(accepted_precision(res.best, res.accepted, gt_hard, gt_soft, mask=mask))
-    if not loops:
-        m["recall_at_n"] = recall_at_n(res.similarity, gt_hard, gt_soft, recall_at, mask=mask)
+    m["recall_at_n"] = recall_at_n(res.similarity, gt_hard, gt_soft, recall_at, mask=mask)
     if gt_soft is not None:
         m["best_in_soft"] = best_in_soft_band(res.best, gt_hard, gt_soft, mask=mask)
     if loops:

@@ -421,7 +421,7 @@ def write(out, read_query, read_db, kind: str = "match", title: str | None = Non
              f"no ground truth: at most {LIMIT} decisions per method are shown, the accepted and the rejected by "
              "score, highest first"]
     notes += [n for n in (sampling_note(m, v) for m, v in methods.items()) if n]
-    notes += recall_notes(methods)
+    notes += recall_notes(methods, kind)
     top_k = [m for m, v in methods.items() if str(v.get("similarity_file", "")).endswith("_topk.npz")]
     if top_k:
         budget = params.get("memory_budget")

@@ -35,16 +35,24 @@ def metrics_table(table: dict, kind: str = "match", ground_truth: dict | None = 
     if soft:
         lines.append("R@1, AP, R@100P and P(acc) ignore best matches in the soft band (--gt-soft): neither right nor "
                      "wrong. Best matches there: " + ", ".join(f"{n} {c}" for n, c in soft.items()))
-    lines += recall_lines(table)
+    lines += recall_lines(table, kind)
     units = [t for t in ((ground_truth or {}).get(k) for k in ("tolerance_text", "gt_soft_text")) if t]
     if units:
         lines.append("ground truth in frames kept (after --step / --fps / --every): " + "; ".join(units))
     return "\n".join(lines)
 
 
-def recall_lines(table: dict) -> list[str]:
+def _recall_words(kind: str, r: dict) -> tuple[str, str]:
+    """(every query, queries with a true match) in a ``kind``'s words."""
+    if kind == "loops":
+        return f"every frame ({r['queries']})", f"the {r['queries_with_true_match']} frames with an earlier true match"
+    return f"every query (the field's: {r['queries']} queries)", f"the {r['queries_with_true_match']} with a true match"
+
+
+def recall_lines(table: dict, kind: str = "match") -> list[str]:
     """Recall@N of the methods that have it (metrics.json's ``recall_at_n``), over every query (the field's
-    denominator) and over the queries with a true match (the table's R@1), as lines of a small table."""
+    denominator; loops: every frame) and over the queries with a true match (the table's R@1), as lines of a small
+    table."""
     rn = {name: m["recall_at_n"] for name, m in table.items() if m.get("recall_at_n")}
     if not rn:
         return []
@@ -52,22 +60,23 @@ def recall_lines(table: dict) -> list[str]:
     ns = list(first["every_query"])
     cell = lambda v: f"{v:>7.3f}" if v is not None else f"{'-':>7}"  # noqa: E731
     head = "".join(f"{'R@' + n:>7}" for n in ns)
-    out = [f"Recall@N over every query (the field's: {first['queries']} queries) | over the "
-           f"{first['queries_with_true_match']} with a true match (R@1 above)",
-           f"{'method':<22}{head}   |{head}"]
+    every, with_match = _recall_words(kind, first)
+    out = [f"Recall@N over {every} | over {with_match} (R@1 above)", f"{'method':<22}{head}   |{head}"]
     for name, r in rn.items():
         out.append(f"{name:<22}" + "".join(cell(r["every_query"][n]) for n in ns) + "   |"
                    + "".join(cell(r["with_true_match"][n]) for n in ns))
     return out
 
 
-def recall_notes(methods: dict) -> list[str]:
-    """The report's lines of Recall@N: per method, over every query (the field's) and over those with a true match."""
+def recall_notes(methods: dict, kind: str = "match") -> list[str]:
+    """The report's lines of Recall@N: per method, over every query (the field's; loops: every frame) and over those
+    with a true match."""
     out = []
     for name, m in methods.items():
         r = m.get("recall_at_n")
         if r:
             fmt = lambda d: ", ".join(f"R@{n} " + ("-" if v is None else f"{v:.3f}") for n, v in d.items())  # noqa: E731
-            out.append(f"{name}: Recall@N over every query (the field's, {r['queries']}): {fmt(r['every_query'])}; "
-                       f"over the {r['queries_with_true_match']} with a true match: {fmt(r['with_true_match'])}")
+            every, with_match = _recall_words(kind, r)
+            out.append(f"{name}: Recall@N over {every}: {fmt(r['every_query'])}; over {with_match}: "
+                       f"{fmt(r['with_true_match'])}")
     return out
