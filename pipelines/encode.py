@@ -19,7 +19,15 @@ import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from pipelines.args import add_common_arguments, add_preset_argument, add_source_arguments, topic_arg
+from pipelines.args import (
+    DESCRIPTORS,
+    add_common_arguments,
+    add_preset_argument,
+    add_source_arguments,
+    descriptor_inputs,
+    input_encoder,
+    topic_arg,
+)
 from pipelines.cluster import check_workers, dask_client, default_workers
 from pipelines.extract import (
     DEFAULT_CHUNK_FRAMES,
@@ -36,6 +44,7 @@ from pipelines.extract import (
 from vpr import presets
 from vpr.interrupts import deferred
 from vpr.sources import Source, open_source, open_sources
+from vpr.types import ENCODER_INPUTS
 
 __all__ = ["COMMANDS", "add_arguments", "run_command", "encode_sources", "Encoded"]
 
@@ -233,8 +242,9 @@ def add_arguments(ap: argparse.ArgumentParser, command: str = "encode") -> None:
     where.add_argument("--scheduler", metavar="ADDRESS", help="use a running Dask cluster, e.g. tcp://host:8786")
     ap.add_argument("--chunk-frames", type=int, default=DEFAULT_CHUNK_FRAMES,
                     help=f"frames per task (default {DEFAULT_CHUNK_FRAMES})")
-    ap.add_argument("--parts", default=",".join(available_inputs()),
-                    help=f"what to store, comma-separated subset of {','.join(available_inputs())} (default: all)")
+    ap.add_argument("--parts", default=None,
+                    help=f"what to store, comma-separated subset of {','.join(available_inputs())} (default: all; "
+                         f"descriptor files: {','.join(ENCODER_INPUTS)})")
     ap.add_argument("--overwrite", action="store_true", help="encode again even when the cache has the result")
     add_common_arguments(ap)
 
@@ -247,8 +257,17 @@ def run_command(args) -> int:
                          "without it (vpr match / compare / loops --every then encode what they keep)")
     srcs = open_sources(args.sources, topic_arg(args.topic), False, fps=args.fps, step=args.step,
                         max_frames=args.max_frames)
-    parts = [p.strip() for p in args.parts.split(",") if p.strip()]
-    s = presets.resolve(args.preset, encoder=args.encoder, encoder_conf=encoders.parse_conf(args.encoder_conf))
+    given = descriptor_inputs(args)  # descriptor files: their sparsifier and preset, as vpr compare reads them
+    if args.parts is None:
+        parts = list(ENCODER_INPUTS if given else available_inputs())
+    else:
+        parts = [p.strip() for p in args.parts.split(",") if p.strip()]
+        images = [p for p in parts if p not in ENCODER_INPUTS]
+        if given and images:
+            raise ValueError(f"--parts {','.join(images)}: read from images, and {given[0]} holds descriptors; "
+                             f"the parts of descriptor files: {','.join(ENCODER_INPUTS)}")
+    preset = args.preset if args.preset is not None or not given else DESCRIPTORS
+    s = presets.resolve(preset, encoder=input_encoder(args, given), encoder_conf=encoders.parse_conf(args.encoder_conf))
     out = encode_sources(srcs, args.cache, s["encoder"], s["encoder_conf"],
                          workers=args.workers, scheduler=args.scheduler, chunk_frames=args.chunk_frames,
                          parts=parts, overwrite=args.overwrite, progress=not args.no_progress)

@@ -237,3 +237,28 @@ def test_killed_worker_chunks_are_retried_and_output_is_identical(data, tmp_path
         assert workers[killed[0][0]].poll() is not None
         got = {r.path.name: r.path.read_bytes() for r in out}
         assert got == _serial_bytes([data["night"]], tmp_path)
+
+
+def test_descriptor_files_encode_to_the_cache_vpr_compare_writes(tmp_path, capsys):
+    """``vpr encode`` of descriptor files: their sparsifier and preset, in chunks, byte for byte the cache file
+    ``vpr compare`` writes of them (and reads back); image parts refused."""
+    from pipelines.cli import main
+
+    rng = np.random.default_rng(0)
+    db = rng.normal(size=(40, 32)).astype(np.float32)
+    np.save(tmp_path / "db.npy", db)
+    np.save(tmp_path / "q.npy", db + 0.2 * rng.normal(size=db.shape).astype(np.float32))
+    files = [str(tmp_path / "db.npy"), str(tmp_path / "q.npy")]
+    assert main(["encode", *files, "--cache", str(tmp_path / "enc"), "--workers", "0", "--chunk-frames", "16",
+                 "--no-progress"]) == 0
+    made = {p.name: p.read_bytes() for p in (tmp_path / "enc").iterdir()}
+    assert len(made) == 2 and all("-descriptors-" in n for n in made)
+    argv = ["compare", *files, "--tolerance", "1", "--no-progress"]  # the preset's methods: the SDRs and the rows
+    assert main([*argv, "--cache", str(tmp_path / "run"), "--out", str(tmp_path / "o1")]) == 0
+    assert {p.name: p.read_bytes() for p in (tmp_path / "run").iterdir()} == made
+    assert main([*argv, "--cache", str(tmp_path / "enc"), "--out", str(tmp_path / "o2")]) == 0  # read, not rewritten
+    assert {p.name: p.read_bytes() for p in (tmp_path / "enc").iterdir()} == made
+    capsys.readouterr()
+    assert main(["encode", *files, "--cache", str(tmp_path / "bad"), "--parts", "sdr,pixels", "--workers", "0"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--parts pixels" in err and not (tmp_path / "bad").exists()
