@@ -81,7 +81,8 @@ class LocalizeOnline(Online):
         self.follower = follower  # a query driven faster or slower than the map, followed (research/docs/localize.md)
         self.answering: QueryLocalizer = follower or self.loc
         self._said = {0}
-        self._reversed = self._accepted = 0  # frames localised running the map backwards, accepted along it
+        # frames localised running the map backwards, accepted along it, decided
+        self._reversed = self._accepted = self._decided = 0
 
     def warm_up(self) -> None:
         self.answering.warm_up()
@@ -94,7 +95,8 @@ class LocalizeOnline(Online):
         d = self.answering.update(encoded)
         self._reversed += bool(d.reversed)
         self._accepted += bool(d.accepted)
-        if runs_backwards(self._reversed, self._accepted) and "reversed" not in self._said:
+        self._decided += 1
+        if runs_backwards(self._reversed, self._accepted, self._decided) and "reversed" not in self._said:
             self._said.add("reversed")
             print(f"vpr localize: from query frame {d.frame} ({name}) on, the query runs the map backwards "
                   f"({self._reversed} frames localised so, {self._accepted} accepted along it): such frames' answers "

@@ -379,7 +379,8 @@ def compare_query(the_map: MatchMap, query, q_src, opts: RunOptions, ran: tuple 
 
     done = evaluate.run_methods(the_map.fitted, call, gt_hard, gt_soft, on_result=write, recall_at=opts.recall_at)
     check_speeds({k: m.get("path_speed") for k, (m, _) in done.items() if not m.get("sampling") and follows(k)})
-    check_reversed({k: (m.get("reversed_frames", 0), m["n_accepted"]) for k, (m, _) in done.items()})
+    check_reversed({k: (m.get("reversed_frames", 0), m["n_accepted"]) for k, (m, _) in done.items()},
+                   len(q_ex.features))
     # what makes two runs' metrics comparable: same frames (content keys), encoding and ground truth
     truth = opts.gt.describe(sampling_step(db_src.indices()))  # a tolerance in frames kept and in input frames
     inputs = {"kind": "match", "db": db_src.key(), "query": q_src.key(), "encoder": encoder.name,

@@ -125,3 +125,28 @@ def test_compare_and_localize_say_a_reversed_query(scene_on_disk, tmp_path, caps
     err = capsys.readouterr().err
     m = json.loads((tmp_path / "l" / "metrics.json").read_text())["methods"]["rshosm-seq"]
     assert m["reversed_frames"] > 0 and "the query runs the map backwards" in err
+
+
+def test_a_few_frames_read_backwards_do_not_say_the_query_runs_backwards():
+    """Said of most of a query, never of a few frames of a forward one on which little is accepted."""
+    from vpr.groundtruth import runs_backwards
+
+    assert not runs_backwards(1, 0, 18)        # one weak frame early in a forward run
+    assert not runs_backwards(10, 0, 300)      # a forward run that accepts nothing
+    assert not runs_backwards(190, 200, 400)   # more of it is accepted along the map
+    assert runs_backwards(341, 0, 358) and runs_backwards(11, 0, 20)
+
+
+def test_a_smooth_forward_descriptor_stream_is_not_said_backwards(tmp_path, capsys):
+    """Descriptors whose neighbours are near alike (a random walk): a few frames may read backwards, the query is
+    not said to run backwards."""
+    from pipelines.cli import main
+
+    rng = np.random.default_rng(1)
+    walk = np.cumsum(rng.normal(size=(300, 128)), axis=0).astype(np.float32)
+    np.save(tmp_path / "db.npy", walk)
+    np.save(tmp_path / "q.npy", walk + 0.2 * rng.normal(size=walk.shape).astype(np.float32))
+    argv = ["localize", str(tmp_path / "db.npy"), str(tmp_path / "q.npy"), "--tolerance", "1", "--out",
+            str(tmp_path / "l"), "--no-progress"]
+    assert main(argv) == 0
+    assert "runs the map backwards" not in capsys.readouterr().err

@@ -267,18 +267,19 @@ def check_speeds(speeds: Mapping[str, float | None], paths: str = "accepted path
                           f"answers may trail the place; {then} (research/docs/localize.md)", UserWarning, stacklevel=2)
 
 
-def runs_backwards(reversed_frames: int, accepted: int) -> bool:
-    """Whether a query runs the map backwards: it is localised so (metrics.json ``reversed_frames``) at more frames
-    than it is accepted along the map. The one rule of every command that says it, batch and online."""
-    return int(reversed_frames) > int(accepted)
+def runs_backwards(reversed_frames: int, accepted: int, frames: int) -> bool:
+    """Whether a query runs the map backwards: it is localised so (metrics.json ``reversed_frames``) at more than
+    half of its ``frames`` (those decided so far) and at more frames than it is accepted along the map. The one rule
+    of every command that says it, batch and online."""
+    return int(reversed_frames) > int(accepted) and 2 * int(reversed_frames) > int(frames)
 
 
-def check_reversed(counts: Mapping[str, tuple[int, int]]) -> None:
+def check_reversed(counts: Mapping[str, tuple[int, int]], frames: int) -> None:
     """Warn for each method (``counts``: method -> (frames localised running the map backwards, metrics.json's
-    ``reversed_frames``; frames accepted)) whose query is localised running the map backwards at more frames than it
-    is accepted along the map: the query runs the map backwards, and those frames are not accepted."""
+    ``reversed_frames``; frames accepted)) whose query of ``frames`` runs the map backwards (:func:`runs_backwards`):
+    those frames are not accepted."""
     for label, (n, accepted) in counts.items():
-        if runs_backwards(n, accepted):
+        if runs_backwards(n, accepted, frames):
             warnings.warn(f"{label}: the query runs the map backwards ({n} frames localised so, {accepted} accepted "
                           "along it): those frames' answers are not accepted (the sequence evidence follows the map's "
                           "direction; docs/internals.md, vpr/shosm/decide.py)", UserWarning, stacklevel=2)
