@@ -120,6 +120,19 @@ def _check_names(names, n: int, what: str):
         raise ValueError(f"{what}: {len(names)} names for {n} frames")
 
 
+def _pairs_matrix(rows_db, cols_q, n_db: int, n_q: int):
+    """Bool (n_db, n_q), True at the (database, query) pairs given; sparse above
+    :func:`~vpr.similarity.dense_pairs` pairs (a dense bool matrix of 50,000 x 50,000 frames would take 2.5 GB)."""
+    rows_db, cols_q = np.asarray(rows_db, np.int64), np.asarray(cols_q, np.int64)
+    if not fits_dense(n_db, n_q):
+        gt = sp.csr_matrix((np.ones(rows_db.size, bool), (rows_db, cols_q)), shape=(n_db, n_q))
+        gt.sum_duplicates()
+        return gt
+    gt = np.zeros((n_db, n_q), dtype=bool)
+    gt[rows_db, cols_q] = True
+    return gt
+
+
 def load_pairs_csv(path, n_db: int, n_q: int, db_names: Sequence[str] | None = None,
                    q_names: Sequence[str] | None = None, *, db_indices: Sequence[int] | None = None,
                    q_indices: Sequence[int] | None = None, columns: tuple[str, str] = ("query", "db")):
@@ -208,14 +221,7 @@ def load_pairs_csv(path, n_db: int, n_q: int, db_names: Sequence[str] | None = N
         cols_q.append(q)
     if dropped:
         warnings.warn(f"{path}: {dropped} pairs name frames that were not read; ignored", stacklevel=2)
-    rows_db, cols_q = np.asarray(rows_db, np.int64), np.asarray(cols_q, np.int64)
-    if not fits_dense(n_db, n_q):  # a dense bool matrix of 50,000 x 50,000 frames would take 2.5 GB
-        gt = sp.csr_matrix((np.ones(rows_db.size, bool), (rows_db, cols_q)), shape=(n_db, n_q))
-        gt.sum_duplicates()
-        return gt
-    gt = np.zeros((n_db, n_q), dtype=bool)
-    gt[rows_db, cols_q] = True
-    return gt
+    return _pairs_matrix(rows_db, cols_q, n_db, n_q)
 
 
 def csv_columns(path) -> int:
@@ -282,14 +288,7 @@ def load_tolerance_csv(path, n_db: int, n_q: int, unit: int, *, db_indices: Sequ
         q_hits += [q_rows[q - 1]] * len(hits)
     if dropped:
         warnings.warn(f"{path}: {dropped} rows name frames that were not read; ignored", stacklevel=2)
-    db_hits, q_hits = np.asarray(db_hits, np.int64), np.asarray(q_hits, np.int64)
-    if not fits_dense(n_db, n_q):
-        gt = sp.csr_matrix((np.ones(db_hits.size, bool), (db_hits, q_hits)), shape=(n_db, n_q))
-        gt.sum_duplicates()
-        return gt
-    gt = np.zeros((n_db, n_q), dtype=bool)
-    gt[db_hits, q_hits] = True
-    return gt
+    return _pairs_matrix(db_hits, q_hits, n_db, n_q)
 
 
 #: The names a positions file's header may give its three columns (any case, any order).
