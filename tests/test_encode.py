@@ -239,6 +239,7 @@ def test_killed_worker_chunks_are_retried_and_output_is_identical(data, tmp_path
         assert got == _serial_bytes([data["night"]], tmp_path)
 
 
+@pytest.mark.slow
 def test_descriptor_files_encode_to_the_cache_vpr_compare_writes(tmp_path, capsys):
     """``vpr encode`` of descriptor files: their sparsifier and preset, in chunks, byte for byte the cache file
     ``vpr compare`` writes of them (and reads back); image parts refused."""

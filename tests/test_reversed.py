@@ -137,6 +137,7 @@ def test_a_few_frames_read_backwards_do_not_say_the_query_runs_backwards():
     assert runs_backwards(341, 0, 358) and runs_backwards(11, 0, 20)
 
 
+@pytest.mark.slow
 def test_a_smooth_forward_descriptor_stream_is_not_said_backwards(tmp_path, capsys):
     """Descriptors whose neighbours are near alike (a random walk): a few frames may read backwards, the query is
     not said to run backwards."""
