@@ -4,6 +4,7 @@ from .files import (
     load_loop_pairs,
     load_pairs_csv,
     load_positions_csv,
+    load_tolerance_csv,
     load_traverse_positions,
     positions_of_frames,
 )
@@ -47,8 +48,9 @@ from .spec import (
 )
 
 __all__ = ["NAMES_RADIUS", "gt_from_labels", "gt_from_frames", "gt_from_tolerance", "gt_from_positions",
-           "loop_closure_mask", "loop_closure_gt", "loop_pairs", "load_pairs_csv", "load_loop_pairs",
-           "load_positions_csv", "gt_from_position_files", "load_traverse_positions", "positions_of_frames",
+           "loop_closure_mask", "loop_closure_gt", "loop_pairs", "load_pairs_csv", "load_tolerance_csv",
+           "load_loop_pairs", "load_positions_csv", "gt_from_position_files", "load_traverse_positions",
+           "positions_of_frames",
            "db_query_matrix", "loop_matrix", "GroundTruthSpec", "build_gt", "build_loop_gt", "build_stream_gt",
            "check_loop_gt_files", "prepare_positions", "frame_positions", "Positions", "same_sampling", "same_rate",
            "check_rates", "check_reversed", "runs_backwards", "check_speeds", "speed_step", "RATE_RATIO", "any_true",
