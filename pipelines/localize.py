@@ -14,7 +14,7 @@ import argparse
 import contextlib
 import sys
 import warnings
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import encoders
@@ -229,8 +229,9 @@ def localize(map_or_db, query, out, opts: LocalizeOptions | None = None, stdout=
     ``**options`` over them.
     """
     o = replace(opts or LocalizeOptions(), **options)
-    (query_standardise, prior_frames, window, gt, learn_options, fps, step, max_frames, state_out, progress, topic,
-     every, follow_speed, files, recall_at) = (getattr(o, f.name) for f in fields(o))
+    query_standardise, prior_frames, window, gt = o.query_standardise, o.prior_frames, o.window, o.gt
+    fps, step, max_frames, topic, every = o.fps, o.step, o.max_frames, o.topic, o.every
+    learn_options, state_out, progress, follow_speed = o.learn_options, o.state_out, o.progress, o.follow_speed
     out = Path(out)
     io.check_writable(out / "metrics.json", "--out")
     if state_out:
@@ -295,8 +296,8 @@ def localize(map_or_db, query, out, opts: LocalizeOptions | None = None, stdout=
                          {"map_or_db": str(map_or_db), "query": str(query), "query_standardise": query_standardise,
                           "prior_frames": prior_frames, "window": window, "follow_speed": follow_speed}, q_xy,
                          follower)
-    job.files = dict(files)
-    job.recall_at = tuple(recall_at)
+    job.files = dict(o.files)
+    job.recall_at = tuple(o.recall_at)
     job.warm_up()
     return run_online(job, q_src, out, stdout, state_out)
 
