@@ -19,7 +19,7 @@ from vpr.sources import is_descriptor_file
 
 __all__ = ["add_recall_at_argument", "parse_recall_at",
            "add_common_arguments", "add_source_arguments", "add_preset_argument", "add_gt_arguments",
-           "gt_spec_from_args", "loop_geometry", "descriptor_inputs", "input_encoder", "method_confs",
+           "gt_spec_from_args", "loop_geometry", "descriptor_inputs", "input_encoder", "input_preset", "method_confs",
            "add_method_conf_argument", "add_run_arguments", "settings_from_args", "options_from_args", "parse_every",
            "parse_size", "add_query_speed_argument", "follows_speed", "DESCRIPTORS"]
 
@@ -98,7 +98,8 @@ def parse_recall_at(args) -> tuple:
         ns = ()
     if not ns or any(n < 1 for n in ns):
         raise ValueError(f"--recall-at {args.recall_at}: positive integers separated by commas, e.g. 1,5,10,20")
-    if not (args.gt or getattr(args, "tolerance", None) is not None or getattr(args, "gt_topic", None)):
+    gt = gt_spec_from_args(args)
+    if not (gt.files or gt.tolerance is not None or gt.topic is not None):
         raise ValueError("--recall-at needs ground truth (--gt, --tolerance or --gt-topic) to score recall")
     return ns
 
@@ -197,8 +198,7 @@ def settings_from_args(args) -> dict:
     descriptor files, whose preset is ``descriptors``).
     """
     given = descriptor_inputs(args)
-    encoder = input_encoder(args, given)
-    preset = args.preset if args.preset is not None or not given else DESCRIPTORS  # the preset of descriptor files
+    encoder, preset = input_encoder(args, given), input_preset(args, given)
     if getattr(args, "methods", None) is not None:
         names = [m.strip() for m in args.methods.split(",") if m.strip()]
     else:
@@ -224,6 +224,11 @@ def input_encoder(args, given: list[str]) -> str | None:
         raise ValueError(f"{given[0]} holds descriptors: --encoder {DESCRIPTORS} (their random-projection top-k) "
                          f"reads them, not --encoder {args.encoder}")
     return DESCRIPTORS if given else args.encoder
+
+
+def input_preset(args, given: list[str]) -> str | None:
+    """``--preset``, or for descriptor files (``given``: :func:`descriptor_inputs`) their own, ``descriptors``."""
+    return args.preset if args.preset is not None or not given else DESCRIPTORS
 
 
 def descriptor_inputs(args) -> list[str]:

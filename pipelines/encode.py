@@ -20,12 +20,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from pipelines.args import (
-    DESCRIPTORS,
     add_common_arguments,
     add_preset_argument,
     add_source_arguments,
     descriptor_inputs,
     input_encoder,
+    input_preset,
     topic_arg,
 )
 from pipelines.cluster import check_workers, dask_client, default_workers
@@ -266,8 +266,8 @@ def run_command(args) -> int:
         if given and images:
             raise ValueError(f"--parts {','.join(images)}: read from images, and {given[0]} holds descriptors; "
                              f"the parts of descriptor files: {','.join(ENCODER_INPUTS)}")
-    preset = args.preset if args.preset is not None or not given else DESCRIPTORS
-    s = presets.resolve(preset, encoder=input_encoder(args, given), encoder_conf=encoders.parse_conf(args.encoder_conf))
+    s = presets.resolve(input_preset(args, given), encoder=input_encoder(args, given),
+                        encoder_conf=encoders.parse_conf(args.encoder_conf))
     out = encode_sources(srcs, args.cache, s["encoder"], s["encoder_conf"],
                          workers=args.workers, scheduler=args.scheduler, chunk_frames=args.chunk_frames,
                          parts=parts, overwrite=args.overwrite, progress=not args.no_progress)

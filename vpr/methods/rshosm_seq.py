@@ -155,7 +155,8 @@ class RshosmSeq(Method):
         """The decision of a robot localising against the map (vpr localize): a path score, query by query; not
         accepted on a stand of the map or of the query (``stands``: (map, query), :func:`vpr.shosm.refuse_stands`),
         nor where the query runs the map backwards (``direction``: each frame's best z of the evidence along the map
-        and of the evidence reversed, :func:`vpr.shosm.reversed_frames`; the first frames as the first ten read)."""
+        and of the evidence reversed, :func:`vpr.shosm.reversed_frames`; the first ``MIN_RUN`` frames as they
+        read together)."""
         d = accept_path(S, self.seq.path())
         best = np.asarray(best, np.int64)
         accepted = d.accepted & (best >= 0)

@@ -35,7 +35,7 @@ from .decide import (
     stationary_closures,
 )
 from .detector import LoopDetector
-from .direction import Direction, direction_read, reversed_frames
+from .direction import Direction, reversed_frames
 from .evidence import (
     Engine,
     Evidence,
@@ -72,7 +72,7 @@ __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pa
            "LoopRule", "LOOP_RULES", "loop_rule",
            "accept_loops", "accept_path", "stationary_closures", "STAND_FRAMES", "UNMOVED_SHARE", "map_places",
            "standing", "refuse_stands",
-           "Localizer", "LoopStream", "loop_evidence", "Direction", "direction_read", "reversed_frames",
+           "Localizer", "LoopStream", "loop_evidence", "Direction", "reversed_frames",
            "LOOP_UNCAPPED_MAX", "LoopDetector", "Confirmation", "confirm_closures",
            "Backfill", "backfill_closures", "SpeedFollower", "PICKS", "check_pick",
            "pick_maps", "disagree", "apart_from_neighbours", "between_maps", "fill_between", "path_lengths"]

@@ -259,6 +259,7 @@ RETIRED = {"place_frames": "closures are no longer placed by the frames up to th
 #: stream, of :class:`PathConf` against a map.
 DECISION_KEYS = LoopConf.keys()
 
+
 def without_retired(conf: Mapping | None, what: str = "rshosm-seq") -> dict:
     """``conf`` without the :data:`RETIRED` keys left unset (None, as a saved map or state holds them); one set
     raises ValueError naming why it was taken out."""

@@ -6,7 +6,7 @@ import numpy as np
 
 from vpr.paths import MIN_RUN
 
-__all__ = ["reversed_frames", "direction_read", "Direction"]
+__all__ = ["reversed_frames", "Direction"]
 
 
 def _finite(z) -> np.ndarray:
@@ -19,7 +19,7 @@ def reversed_frames(z_forward, z_reverse, window: int = MIN_RUN, causal: bool = 
     z-score of the evidence of the query moving backward along the map (``z_reverse``: the evidence with the map's
     transitions reversed, ``direction="reversed"``) is above that of the evidence moving along it (``z_forward``,
     ``direction="forward"``). A frame without candidates counts 0. The first ``window - 1`` frames: over the frames so
-    far (``causal``, online, where :func:`direction_read` holds their answers back), or as the first ``window``
+    far (``causal``, online, where :attr:`Direction.read` holds their answers back), or as the first ``window``
     frames read (a whole traverse at once). ``moved`` (bool per frame): only the frames that moved are read (a query
     that stands has no direction); the others take the reading of the last frame that moved (none yet: False)."""
     f, r = _finite(z_forward), _finite(z_reverse)
@@ -38,12 +38,6 @@ def reversed_frames(z_forward, z_reverse, window: int = MIN_RUN, causal: bool = 
     return d[i] - d[np.maximum(i - int(window), 0)] > 0.0
 
 
-def direction_read(n: int, window: int = MIN_RUN) -> np.ndarray:
-    """Per frame of a traverse of ``n``, whether the query's direction is read there: from its ``window``-th frame on
-    (before, one direction's evidence is not yet told from the other's, and no answer is accepted)."""
-    return np.arange(int(n)) >= int(window) - 1
-
-
 class Direction:
     """:func:`reversed_frames` one frame at a time (the last ``window`` frames kept)."""
 
@@ -60,7 +54,8 @@ class Direction:
 
     @property
     def read(self) -> bool:
-        """Whether the direction is read (:func:`direction_read`): ``window`` frames seen."""
+        """Whether the direction is read: ``window`` frames that moved seen (before, one direction's evidence is not
+        yet told from the other's, and no answer is accepted)."""
         return self.diff.size >= self.window
 
     def reset(self) -> None:
