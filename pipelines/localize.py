@@ -17,6 +17,8 @@ import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+import numpy as np
+
 import encoders
 from pipelines.args import (
     add_common_arguments,
@@ -55,7 +57,7 @@ from vpr.groundtruth import (
 from vpr.methods import Map, MemoryFileError
 from vpr.sources import open_source
 from vpr.sources.stdin import StdinSource
-from vpr.types import Decision, FollowingLocalizer, QueryLocalizer
+from vpr.types import Decision, FollowingLocalizer, LateLocalizer, QueryLocalizer
 
 __all__ = ["COMMANDS", "add_arguments", "run_command", "learn", "load_map", "localize", "LocalizeOptions"]
 
@@ -70,9 +72,11 @@ class LocalizeOnline(Online):
     """``vpr localize``: each query frame encoded with the map's encoder and localised by its :class:`vpr.Localizer`."""
 
     command = "localize"
+    #: the input's end is a pause (``--state-out``): the frames waiting stay in the state
+    goes_on = False
 
     def __init__(self, the_map: Map, qenc: StreamEncoder, gt: GroundTruthSpec, q_src, params: dict, q_xy=None,
-                 follower: FollowingLocalizer | None = None):
+                 follower: FollowingLocalizer | None = None, late: LateLocalizer | None = None):
         self.map, self.loc, self.qenc, self.gt, self.q_src = the_map, the_map.localizer, qenc, gt, q_src
         self.method = the_map.method
         self.resumed = bool(the_map.query_state)
@@ -80,40 +84,93 @@ class LocalizeOnline(Online):
         self.top_k = self.loc.top_k
         self.follower = follower  # a query driven faster or slower than the map, followed (research/docs/localize.md)
         self.answering: QueryLocalizer = follower or self.loc
+        self.late = late  # each frame answered a few frames late, with the frames after it
+        #: the query frames' names and positions (or None) by frame number, while their answers wait
+        self.waiting: dict[int, tuple[str, list | None]] = {}
+        self._done: list[int] = []  # frames answered by the last call (their names read by the harness after it)
+        self._from_state = 0  # frames read before this run, waiting in the state
+        self._xy_of: dict[str, np.ndarray] | None = None
+        self._state_xy: dict[int, list | None] = {}
         self._said = {0}
         # frames localised running the map backwards, accepted along it, decided
         self._reversed = self._accepted = self._decided = 0
 
     def warm_up(self) -> None:
-        self.answering.warm_up()
+        (self.late or self.answering).warm_up()
         self.qenc.warm_up()  # first calls (loading a CNN, the projection matrix) are not a frame's latency
 
     def encode(self, image):
         return self.qenc.encode(image)
 
-    def answer(self, encoded, name: str) -> Decision:
-        d = self.answering.update(encoded)
-        self._reversed += bool(d.reversed)
-        self._accepted += bool(d.accepted)
-        self._decided += 1
+    def answer(self, encoded, name: str) -> list[Decision]:
+        for f in self._done:
+            self.waiting.pop(f, None)
+        ds = self.late.update(encoded) if self.late is not None else [self.answering.update(encoded)]
+        frame = self.loc.frames - 1
+        self.waiting[frame] = (name, self._xy(name))
+        self._say_speed(frame, name)
+        return self._count(ds)
+
+    def _xy(self, name: str) -> list | None:
+        """The query frame ``name``'s position (None without position ground truth)."""
+        if self.q_xy is None:
+            return None
+        if self._xy_of is None:
+            self._xy_of = dict(zip(self.q_src.names(), self.q_xy, strict=True))
+        xy = self._xy_of.get(name)
+        return None if xy is None else [float(v) for v in xy]
+
+    def _count(self, ds: list[Decision]) -> list[Decision]:
+        """Count the decisions ``ds`` and say what they show; returns ``ds``."""
+        self._done = [d.frame for d in ds]
+        for d in ds:
+            self._reversed += bool(d.reversed)
+            self._accepted += bool(d.accepted)
+            self._decided += 1
+            self._say(d, self.waiting_name(d.frame))
+        return ds
+
+    def waiting_name(self, frame: int) -> str | None:
+        return self.waiting.get(frame, (str(frame), None))[0]
+
+    def waiting_in_state(self) -> int:
+        return self._from_state
+
+    def waiting_xy(self, frame: int) -> list:
+        """The position of frame ``frame``, read before this run (kept in the state)."""
+        xy = self._state_xy.get(frame)
+        return [np.nan, np.nan] if xy is None else xy
+
+    def load_late(self) -> None:
+        """Continue the frames waiting in the map's state (a ``--state-out`` file)."""
+        if self.late is None or self.map.late_state is None:
+            return
+        header, arrays = self.map.late_state
+        self.late.load_state(header, arrays)
+        self.waiting = {int(f): (str(n), xy) for f, n, xy in header["query"]}
+        self._state_xy = {f: xy for f, (_, xy) in self.waiting.items()}
+        self._from_state = len(self.late.waiting)
+
+    def _say(self, d: Decision, name: str) -> None:
         if runs_backwards(self._reversed, self._accepted, self._decided) and "reversed" not in self._said:
             self._said.add("reversed")
             print(f"vpr localize: from query frame {d.frame} ({name}) on, the query runs the map backwards "
                   f"({self._reversed} frames localised so, {self._accepted} accepted along it): such frames' answers "
                   "are not accepted (metrics.json reversed_frames counts them)", file=sys.stderr, flush=True)
+
+    def _say_speed(self, frame: int, name: str) -> None:
         if self.follower is None:
-            return d
+            return
         mode = self.follower.mode
         if mode not in self._said and (mode < 0 or self.follower.follows_faster):
             self._said.add(mode)
             k = self.follower.step
             how = (f"the map's {k} maps of one frame in {k}" if mode > 0 else
                    f"the map, its frames taken as {k} queries of one frame in {k}")
-            print(f"vpr localize: from query frame {d.frame} ({name}) on, the map's best frames move "
+            print(f"vpr localize: from query frame {frame} ({name}) on, the map's best frames move "
                   f"{'faster' if mode > 0 else 'slower'} than one a frame: the query was driven at another speed than "
                   f"the map; frames are answered by {how} while it is so (research/docs/localize.md)", file=sys.stderr,
                   flush=True)
-        return d
 
     def sampling(self) -> dict | None:
         return None if self.follower is None else self.follower.sampling()
@@ -131,13 +188,18 @@ class LocalizeOnline(Online):
         gt, loc, info = self.gt, self.loc, self.map.info
         if gt.tolerance is None and not gt.files and gt.topic is None:
             return {}, None
-        own = [i if i >= 0 else k for k, i in enumerate(indices)]  # the source's frame numbers (stdin: the lines)
+        # the first rows: frames read before a restart, waiting in the state; then this run's source's frames
+        n_from = self._from_state
+        own = [i if i >= 0 else k - n_from for k, i in enumerate(indices)][n_from:]  # (stdin: the lines)
         positions = None
         if self.q_xy is not None:
             row = {k: r for r, k in enumerate(self.q_src.indices())}
-            positions = (self.map.positions, self.q_xy[[row[k] for k in own]])
-        # a resumed run's query frames continue the stopped run's numbering: it answered frames 0 .. frames[0] - 1
-        q_idx = [int(frames[0] * sampling_step(own)) + i for i in own]
+            before = [self.waiting_xy(int(f)) for f in frames[:n_from]]
+            positions = (self.map.positions, np.array([*before, *self.q_xy[[row[k] for k in own]]], np.float64))
+        # a resumed run's query frames continue the stopped run's numbering: it read frames 0 .. frames[n_from] - 1
+        step = sampling_step(own)
+        first = int(frames[n_from]) if len(frames) > n_from else 0
+        q_idx = [int(f * step) for f in frames[:n_from]] + [int(first * step) + i for i in own]
         gt_hard, gt_soft = build_gt(gt, loc.names, names, info.get("db_indices") or list(range(loc.n_db)), q_idx,
                                     info.get("db_source", "database"), self.q_src.name, positions=positions,
                                     rates=(info.get("source_rate"), self.q_src.native_rate()))
@@ -147,14 +209,29 @@ class LocalizeOnline(Online):
         m.pop("n_accepted", None)
         return m, curve
 
-    def new_session(self) -> None:
-        """A new query traverse: no evidence or path carries over, the query statistics start again."""
-        self.answering.reset()
+    def new_session(self) -> list[Decision]:
+        """A new query traverse: no evidence or path carries over, the query statistics start again (the frames
+        waiting are answered first)."""
+        ds = self.late.reset() if self.late is not None else []
+        if self.late is None:
+            self.answering.reset()
         self.qenc.new_session()
+        return self._count(ds)
+
+    def finish(self) -> list[Decision]:
+        """The frames waiting answered with the frames there are after them; with ``--state-out`` they wait in the
+        state instead (the input's end may be a pause)."""
+        return self._count(self.late.flush()) if self.late is not None and not self.goes_on else []
 
     def save(self, path) -> None:
         self.map.query_state = self.qenc.state()[1]  # its header is empty: the arrays hold it
         self.map.follow_state = None if self.follower is None else self.follower.state()
+        self.map.late_state = None
+        if self.late is not None:
+            header, arrays = self.late.state()
+            frames = [int(w.decision.frame) for w in self.late.waiting]
+            query = [[f, *self.waiting.get(f, (str(f), None))] for f in frames]
+            self.map.late_state = ({**header, "query": query}, arrays)
         self.map.save(path)
 
     def resume_hint(self, path) -> str:
@@ -292,10 +369,13 @@ def localize(map_or_db, query, out, opts: LocalizeOptions | None = None, stdout=
             except (KeyError, ValueError, TypeError, IndexError) as e:
                 raise MemoryFileError(f"{map_or_db}: corrupt map file (the state of its speed follower: "
                                       f"{type(e).__name__}: {e})") from e
+    late = methods.get(the_map.method).late(the_map.localizer, follower)
     job = LocalizeOnline(the_map, qenc, gt, q_src,
                          {"map_or_db": str(map_or_db), "query": str(query), "query_standardise": query_standardise,
                           "prior_frames": prior_frames, "window": window, "follow_speed": follow_speed}, q_xy,
-                         follower)
+                         follower, late)
+    job.goes_on = bool(state_out)
+    job.load_late()
     job.files = dict(o.files)
     job.recall_at = tuple(o.recall_at)
     job.warm_up()
@@ -367,7 +447,7 @@ def run_command(args) -> int:
     encoder = input_encoder(args, descriptor_inputs(args))
     settings = presets.resolve(args.preset, encoder=encoder, encoder_conf=encoders.parse_conf(args.encoder_conf),
                                methods=[name], method_conf={name: given})
-    methods.get_online(name, **settings["method_conf"][name]).check_matching()  # before a frame is read
+    methods.get_online(name, **settings["method_conf"][name]).check_matching(online=True)  # before a frame is read
     every = parse_every(args.every) if args.every else None
     if args.command == "learn":
         # where the positions are (no radius: nothing is evaluated here; the map keeps them)

@@ -78,6 +78,11 @@ class Online:
         """Frames read before this run (a resumed state) whose answers are still to come; they come first."""
         return 0
 
+    def waiting_name(self, frame: int) -> str | None:
+        """The name of frame ``frame``, read before this run, answered in it (default: :meth:`name_of`, where the
+        candidates are the stream's own frames)."""
+        return self.name_of(frame)
+
     def new_session(self):
         """A line ``#session``: the next frame starts a new run (returns decisions of frames that waited)."""
 
@@ -175,7 +180,7 @@ def _run(job: Online, src, out: Path, stdout, state_out, claim: contextlib.ExitS
         for d in ([] if got is None else [got] if isinstance(got, Decision) else got):
             if from_state:
                 from_state -= 1
-                name, index, ms, ms_dec = job.name_of(d.frame), -1, 0.0, 0.0
+                name, index, ms, ms_dec = job.waiting_name(d.frame), -1, 0.0, 0.0
             else:
                 name, index, ms, ms_dec = waiting.pop(0)
             rows.append((name, index, d, ms, ms_dec))

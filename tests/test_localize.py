@@ -25,8 +25,8 @@ def _map(loc) -> vpr.Map:
 def test_localizer_equals_batch_forward_and_restarts(traverses, tmp_path):
     db, q, dp, qp = traverses
     names = [f"db{i:04d}.png" for i in range(db.shape[0])]
-    loc = vpr.Localizer.from_database(db, names, drift=0.5, min_score=4.0)
-    whole = vpr.Localizer.from_database(db, names, drift=0.5, min_score=4.0)
+    loc = vpr.Localizer.from_database(db, names, drift=0.5, min_score=4.0, exact=False)
+    whole = vpr.Localizer.from_database(db, names, drift=0.5, min_score=4.0, exact=False)
     n_conn = loc.memory.n_connections
     batch = ev.sparse_evidence(loc.memory, q, loc.db_codes, direction="forward", top_k=50)
     answers = []
@@ -181,7 +181,8 @@ def test_causal_standardisation_only_looks_back():
 
 
 @pytest.mark.slow
-def test_localize_stdin_answers_each_path_before_the_next_arrives(scene, tmp_path):
+@pytest.mark.parametrize("lag", [0, 2])
+def test_localize_stdin_answers_each_path_lag_frames_after_it_arrives(scene, tmp_path, lag):
     import subprocess
     import sys
     from pathlib import Path
@@ -189,17 +190,21 @@ def test_localize_stdin_answers_each_path_before_the_next_arrives(scene, tmp_pat
     from pipelines.localize import learn
 
     learn(scene["summer_day"], tmp_path / "map.npz", encoder_conf={"k": 100, "standardise": "fit"}, progress=False)
-    paths = sorted(Path(scene["winter_night"]).glob("*.png"))[:3]
+    paths = sorted(Path(scene["winter_night"]).glob("*.png"))[:5]
     p = subprocess.Popen([sys.executable, "-m", "pipelines.cli", "localize", str(tmp_path / "map.npz"), "-",
-                          "--out", str(tmp_path / "o")], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                         stderr=subprocess.PIPE, text=True, cwd=Path(__file__).resolve().parents[1])
+                          "--out", str(tmp_path / "o"), "--method-conf", f"rshosm-seq.lag={lag}"],
+                         stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         cwd=Path(__file__).resolve().parents[1])
     try:
         for i, path in enumerate(paths):
             p.stdin.write(f"{path}\n")
             p.stdin.flush()
-            line = json.loads(p.stdout.readline())  # blocks until this frame's answer: stdin is still open
-            assert line["query"] == i and line["query_name"] == str(path)
-        p.stdin.close()
+            if i >= lag:  # blocks until frame i - lag is answered: stdin is still open
+                line = json.loads(p.stdout.readline())
+                assert line["query"] == i - lag and line["query_name"] == str(paths[i - lag])
+        p.stdin.close()  # the end of the stream: the frames still waiting are answered
+        rest = [json.loads(x) for x in p.stdout.read().splitlines()]
+        assert [r["query"] for r in rest] == list(range(len(paths) - lag, len(paths)))
         assert p.wait(timeout=60) == 0, p.stderr.read()
     finally:
         p.kill()

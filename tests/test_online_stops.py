@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from pipelines.cli import main
+from vpr.shosm import LOCALIZE_LAG
 
 pytestmark = pytest.mark.slow  # command-line runs in a subprocess, stopped by a signal
 
@@ -37,13 +38,15 @@ def _start(argv) -> subprocess.Popen:
                             env={**os.environ, "PYTHONPATH": str(ROOT)})
 
 
-def _feed_then_stop(p: subprocess.Popen, paths, sig) -> tuple[list[dict], str]:
-    """Send ``paths`` one by one, each answered before the next; then ``sig`` while the run waits for more."""
+def _feed_then_stop(p: subprocess.Popen, paths, sig, late: int = 0) -> tuple[list[dict], str]:
+    """Send ``paths`` one by one, each answered before the next (``late``: the answer of the frame that many before);
+    then ``sig`` while the run waits for more."""
     answers = []
-    for path in paths:
+    for k, path in enumerate(paths):
         p.stdin.write(path + "\n")
         p.stdin.flush()
-        answers.append(json.loads(p.stdout.readline()))
+        if k >= late:
+            answers.append(json.loads(p.stdout.readline()))
     p.send_signal(sig)
     out, err = p.communicate(timeout=120)
     return answers + [json.loads(s) for s in out.splitlines()], err
@@ -93,9 +96,12 @@ def test_stopped_localize_writes_its_outputs_and_state(laps, tmp_path):
     day = laps["laps"]
     assert _main(["learn", day, "--out", tmp_path / "map.npz", "--preset", "fast"]) == 0
     p = _start(["localize", tmp_path / "map.npz", "-", "--out", tmp_path / "a", "--state-out", tmp_path / "s.npz"])
-    answers, err = _feed_then_stop(p, laps["paths"][:25], signal.SIGTERM)
+    answers, err = _feed_then_stop(p, laps["paths"][:25], signal.SIGTERM, late=LOCALIZE_LAG)
     assert p.returncode == 143, err
-    assert len(answers) == 25 and len(_rows(tmp_path / "a")) == 25
+    # each frame is answered LOCALIZE_LAG frames late: the last ones wait in the state, answered first on resuming
+    n = 25 - LOCALIZE_LAG
+    assert [a["query"] for a in answers] == list(range(n)) and len(_rows(tmp_path / "a")) == n
+    assert f"{LOCALIZE_LAG} frames read" in err and "their answers come first" in err, err
     assert (tmp_path / "s.npz").is_file()
     assert json.loads((tmp_path / "a" / "metrics.json").read_text())["methods"]["rshosm-seq"]["stopped"] is True
 
@@ -124,7 +130,8 @@ def test_binary_data_on_stdin_is_refused_naming_stdin(laps, tmp_path):
 
 def test_a_second_run_into_the_same_out_is_refused_while_the_first_runs(laps, tmp_path):
     assert _main(["learn", laps["laps"], "--out", tmp_path / "map.npz", "--preset", "fast"]) == 0
-    first = _start(["localize", tmp_path / "map.npz", "-", "--out", tmp_path / "o"])
+    first = _start(["localize", tmp_path / "map.npz", "-", "--out", tmp_path / "o", "--method-conf",
+                    "rshosm-seq.lag=0"])
     first.stdin.write(laps["paths"][0] + "\n")
     first.stdin.flush()
     json.loads(first.stdout.readline())  # the first run has claimed --out
@@ -217,9 +224,10 @@ def test_a_stopped_localize_says_how_to_go_on_with_its_state(laps, tmp_path, cap
                   tmp_path / "s.npz"]) == 130
     err = capsys.readouterr().err
     assert "--resume" not in err
-    assert (f"every frame up to input line 30 is answered in the outputs; to continue, give {tmp_path / 's.npz'} as "
-            f"the map (vpr localize {tmp_path / 's.npz'} QUERY) with another --out and feed it from input line 31") \
-        in err, err
+    assert (f"{LOCALIZE_LAG} frames read ({paths[30 - LOCALIZE_LAG]} .. {paths[29]}) wait in "
+            f"{tmp_path / 's.npz'} for later frames, not yet in the outputs: to continue, give {tmp_path / 's.npz'} as "
+            f"the map (vpr localize {tmp_path / 's.npz'} QUERY) with another --out and feed it from input line 31; "
+            "their answers come first") in err, err
     monkeypatch.undo()
     # into the stopped run's --out: refused in one line, its answers kept
     before = (tmp_path / "a" / "rshosm-seq" / "matches.csv").read_bytes()

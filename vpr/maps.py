@@ -40,6 +40,8 @@ class Map:
         The database's SDRs, which :meth:`subset` learns again.
     follow_state : (header, arrays) or None
         The state of what follows the query's speed over the localizer (:class:`~vpr.types.FollowingLocalizer`).
+    late_state : (header, arrays) or None
+        The state of what answers the query frames late (:class:`~vpr.types.LateLocalizer`): the frames waiting.
     """
 
     def __init__(self, method: str, localizer: MapLocalizer, encoder: dict, statistics=(), positions=None,
@@ -53,6 +55,7 @@ class Map:
         self.origin = None if origin is None else tuple(float(v) for v in origin)
         self.query_state: dict = {}
         self.follow_state: tuple[dict, dict] | None = None
+        self.late_state: tuple[dict, dict] | None = None
         self.info = dict(info or {})
         self.sdr = None if sdr is None else sp.csr_matrix(sdr, dtype=bool)
         if self.sdr is not None and self.sdr.shape[0] != localizer.n_db:
@@ -110,6 +113,8 @@ class Map:
         parts = {**loc_parts, "enc": stats, "qenc": self.query_state, "db": db}
         if self.follow_state is not None:
             header["follow"], parts["follow"] = self.follow_state
+        if self.late_state is not None:
+            header["late"], parts["late"] = self.late_state
         return write_file(path, _FORMAT, _FORMAT_VERSION, header, parts, names=self.localizer.names)
 
     @classmethod
@@ -138,6 +143,8 @@ class Map:
             out.query_state = parts.get("qenc", {})
             if header.get("follow") is not None:
                 out.follow_state = (header["follow"], parts.get("follow", {}))
+            if header.get("late") is not None:
+                out.late_state = (header["late"], parts.get("late", {}))
         return out
 
     def __repr__(self) -> str:

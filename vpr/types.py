@@ -13,7 +13,8 @@ if TYPE_CHECKING:
     from vpr.sdr import RowLog
 
 __all__ = ["EncodedTraverse", "ImageInput", "Column", "Decision", "Decider", "QueryLocalizer", "MapLocalizer",
-           "FollowingLocalizer", "StreamDetector", "FrameEncoder", "MatchResult", "ENCODER_INPUTS", "RATE_RATIO"]
+           "FollowingLocalizer", "LateLocalizer", "StreamDetector", "FrameEncoder", "MatchResult", "ENCODER_INPUTS",
+           "RATE_RATIO"]
 
 #: Inputs that come from the encoder (every other input is an :class:`ImageInput` of a method).
 ENCODER_INPUTS = {"sdr": "SDRs", "desc": "dense descriptors"}
@@ -233,12 +234,13 @@ class MapLocalizer(ABC):
     it (``Method.restore_localizer``).
 
     ``names``: the database frames' names; ``conf``: the whole conf (recorded in metrics.json); ``sessions``: each map
-    session's first frame.
+    session's first frame; ``frames``: the query frames read since the last :meth:`reset` (a saved state's included).
     """
 
     names: list[str]
     conf: dict
     sessions: np.ndarray
+    frames: int
 
     @property
     def n_db(self) -> int:
@@ -311,6 +313,38 @@ class FollowingLocalizer(ABC):
 
     @abstractmethod
     def load_state(self, header: dict, arrays: dict) -> FollowingLocalizer:
+        """Continue from a :meth:`state`; returns self."""
+
+
+class LateLocalizer(ABC):
+    """Answers a query stream over a :class:`MapLocalizer` (or its :class:`FollowingLocalizer`) ``lag`` frames late,
+    each frame with the evidence of the frames after it (handed out by ``Method.late``). ``waiting``: the frames
+    read, not yet answered, oldest first."""
+
+    lag: int
+    waiting: list
+
+    @abstractmethod
+    def update(self, sdr_row) -> list[Decision]:
+        """Read the next query frame; the decisions now due (of earlier frames, in order)."""
+
+    @abstractmethod
+    def flush(self) -> list[Decision]:
+        """The decisions of the frames still waiting (the stream ended), each with the frames there are after it."""
+
+    @abstractmethod
+    def reset(self) -> list[Decision]:
+        """A new query traverse: the frames waiting are decided first (returned), then nothing carries over."""
+
+    @abstractmethod
+    def warm_up(self) -> None: ...
+
+    @abstractmethod
+    def state(self) -> tuple[dict, dict]:
+        """(header, arrays) of what it carries besides what answers at once (the frames waiting)."""
+
+    @abstractmethod
+    def load_state(self, header: dict, arrays: dict) -> LateLocalizer:
         """Continue from a :meth:`state`; returns self."""
 
 

@@ -15,6 +15,7 @@ from vpr.types import (
     EncodedTraverse,
     FollowingLocalizer,
     ImageInput,
+    LateLocalizer,
     MapLocalizer,
     MatchResult,
     StreamDetector,
@@ -68,9 +69,10 @@ class Method:
     def check_size(self, n_db: int, n_q: int) -> None:
         """Raise ValueError if ``n_db x n_q`` is too large for this method (default: any size)."""
 
-    def check_matching(self) -> None:
+    def check_matching(self, online: bool = False) -> None:
         """Raise ValueError if a setting given applies to loop closure within one stream only (database x query
-        matching and localisation refuse it before a frame is read; default: every setting applies)."""
+        matching and localisation refuse it before a frame is read), or to online localisation only where not
+        ``online``; default: every setting applies."""
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the method's kernels.
@@ -119,6 +121,12 @@ class Method:
     def follower(self, localizer: MapLocalizer, sdr=None) -> FollowingLocalizer | None:
         """What answers a query driven at another speed than the map over ``localizer`` (``sdr``: the map's SDRs, to
         learn it again at another sampling); None (the default): the query's frames as they come."""
+        return None
+
+    def late(self, localizer: MapLocalizer, answering=None) -> LateLocalizer | None:
+        """What answers each query frame a few frames late, with the evidence of the frames after it, over
+        ``answering`` (``localizer`` or its :meth:`follower`); None (the default, or a lag of 0): every frame at
+        once."""
         return None
 
     def loop_conf(self):

@@ -8,6 +8,7 @@ from vpr.shosm import (
     DENSE_EVIDENCE_PAIRS,
     LOOP_EXCLUDE,
     UNMOVED_SHARE,
+    Lagged,
     Localizer,
     LoopDetector,
     RshosmSeqConf,
@@ -85,11 +86,18 @@ class RshosmSeq(Method):
         of one frame in k while the query's speed reads so."""
         return SpeedFollower(localizer, sdr)
 
+    def late(self, localizer: Localizer, answering=None) -> Lagged | None:
+        """A :class:`vpr.shosm.Lagged` of the map's ``lag`` (``rshosm-seq.lag``; None where it is 0)."""
+        lag = localizer.seq.localize_lag
+        return Lagged(localizer, answering, lag) if lag else None
+
     def loop_conf(self) -> RshosmSeqConf:
         return self.seq
 
-    def check_matching(self) -> None:
+    def check_matching(self, online: bool = False) -> None:
         self.seq.path()  # refuses the keys of loop closure only
+        if not online:
+            self.seq.refuse_lag("a batch match (it scores each frame with the whole query)")
 
     def warm_up(self) -> None:
         mem = warm_up_memory()

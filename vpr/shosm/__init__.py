@@ -5,7 +5,9 @@ from .backfill import Backfill, backfill_closures
 from .conf import (
     DECISION_KEYS,
     DENSE_EVIDENCE_PAIRS,
+    DENSE_LOCALIZE_FRAMES,
     LEARN_THRESHOLD,
+    LOCALIZE_LAG,
     LOOP_EXCLUDE,
     LOOP_ONLY_KEYS,
     SPEEDS,
@@ -59,12 +61,14 @@ from .follow import (
     pick_maps,
 )
 from .graph import Graph
+from .lagged import Lagged
 from .localizer import Localizer
 from .loops import LOOP_UNCAPPED_MAX, LoopStream, loop_evidence
 from .memory import SequenceMemory, pad_codes
 
 __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pad_codes",
-           "LEARN_THRESHOLD", "LOOP_EXCLUDE", "LOOP_ONLY_KEYS", "DENSE_EVIDENCE_PAIRS", "EvidenceConf", "BeamConf",
+           "LEARN_THRESHOLD", "LOCALIZE_LAG", "LOOP_EXCLUDE", "LOOP_ONLY_KEYS", "DENSE_EVIDENCE_PAIRS",
+           "DENSE_LOCALIZE_FRAMES", "EvidenceConf", "BeamConf",
            "LoopConf", "PathConf", "RshosmSeqConf", "DECISION_KEYS", "SPEEDS", "memory_params", "Graph", "Engine",
            "EvidenceEngine", "SpeedEngine", "make_engine", "Evidence",
            "query_evidence", "dense_evidence", "sparse_evidence", "LoopEvidence", "LoopDecider", "PathDecider",
@@ -72,7 +76,7 @@ __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pa
            "LoopRule", "LOOP_RULES", "loop_rule",
            "accept_loops", "accept_path", "stationary_closures", "STAND_FRAMES", "UNMOVED_SHARE", "map_places",
            "standing", "refuse_stands",
-           "Localizer", "LoopStream", "loop_evidence", "Direction", "reversed_frames",
+           "Localizer", "Lagged", "LoopStream", "loop_evidence", "Direction", "reversed_frames",
            "LOOP_UNCAPPED_MAX", "LoopDetector", "Confirmation", "confirm_closures",
            "Backfill", "backfill_closures", "SpeedFollower", "PICKS", "check_pick",
            "pick_maps", "disagree", "apart_from_neighbours", "between_maps", "fill_between", "path_lengths"]

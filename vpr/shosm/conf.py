@@ -15,7 +15,8 @@ from .memory import SequenceMemory
 
 __all__ = ["RETIRED", "without_retired",
            "LEARN_THRESHOLD", "LOOP_EXCLUDE", "DENSE_EVIDENCE_PAIRS", "SPEEDS", "EvidenceConf", "BeamConf", "LoopConf",
-           "PathConf", "memory_params", "RshosmSeqConf", "DECISION_KEYS"]
+           "PathConf", "memory_params", "RshosmSeqConf", "DECISION_KEYS", "LOCALIZE_LAG",
+           "DENSE_LOCALIZE_FRAMES"]
 
 #: Minicolumn threshold of the memory that rSHOSM-seq learns (the paper's is 0.25).
 LEARN_THRESHOLD = 0.75
@@ -270,10 +271,22 @@ def without_retired(conf: Mapping | None, what: str = "rshosm-seq") -> dict:
     return conf
 
 
+#: Online localisation against a map of at most this many frames steps the dense column (``exact``), beyond it the
+#: beam: a 7,000-frame map is the dense side of a batch match (:data:`DENSE_EVIDENCE_PAIRS`); on Nordland's 3,576
+#: frames the dense step is both faster and more accurate than the beam, whose caps bind there
+#: (``research/docs/decisions.md``, "Answers a few frames late").
+DENSE_LOCALIZE_FRAMES = 7_000
+
+#: Query frames after a frame whose evidence ``vpr localize`` waits for before it answers the frame, by default
+#: (:class:`vpr.shosm.Lagged`; ``research/docs/decisions.md``, "Answers a few frames late").
+LOCALIZE_LAG = 10
+
 #: rSHOSM-seq's own keys: ``direction`` of the batch evidence (``"both"`` or the causal ``"forward"``), ``top_k``
-#: (frames kept per query; None: all), ``exact`` (the localizer's dense column instead of the beam), ``loop_rule``
-#: (a name in :data:`vpr.shosm.LOOP_RULES`).
-_OWN = MappingProxyType({"direction": "both", "top_k": TOP_K, "exact": False, "loop_rule": "path"})
+#: (frames kept per query; None: all), ``exact`` (the localizer's dense column instead of the beam; None: dense on a
+#: map of at most :data:`DENSE_LOCALIZE_FRAMES` frames), ``loop_rule``
+#: (a name in :data:`vpr.shosm.LOOP_RULES`), ``lag`` (online localisation's: each frame answered that many frames
+#: late, with the evidence of the frames after it; None: :data:`LOCALIZE_LAG`).
+_OWN = MappingProxyType({"direction": "both", "top_k": TOP_K, "exact": None, "loop_rule": "path", "lag": None})
 _DIRECTIONS = ("both", "forward")
 
 
@@ -302,11 +315,12 @@ class RshosmSeqConf:
     decision: Mapping
     direction: str
     top_k: int | None
-    exact: bool
+    exact: bool | None
     loop_rule: str = "path"
+    lag: int | None = None
 
     #: Keys that also take None ("none" on the command line).
-    NULLABLE = frozenset({"seed", "stay", "skip", "top_k", "max_beam", "max_enter", *DECISION_KEYS})
+    NULLABLE = frozenset({"seed", "stay", "skip", "top_k", "max_beam", "max_enter", "lag", "exact", *DECISION_KEYS})
 
     def __reduce__(self):  # pickled as its flat keys (a map shipped to a Dask cluster holds one)
         return RshosmSeqConf.build, (self.flat(),)
@@ -339,10 +353,16 @@ class RshosmSeqConf:
             top_k = check_top_k(flat["top_k"])
             if not (isinstance(flat["loop_rule"], str) and flat["loop_rule"]):
                 raise ValueError(f"loop_rule must name a loop rule, got {flat['loop_rule']!r}")
+            lag = flat["lag"]
+            if lag is not None:
+                lag = coerce_value("lag", lag, 0)
+                if isinstance(lag, bool) or int(lag) != lag or int(lag) < 0:
+                    raise ValueError(f"lag must be an integer >= 0 (frames; 0: each frame answered at once), got {lag}")
         except ValueError as e:
             raise ValueError(f"{what}: {e}") from None
+        exact = None if flat["exact"] is None else bool(flat["exact"])
         return cls(MappingProxyType(memory), evidence, beam, MappingProxyType(decision), flat["direction"],
-                   None if top_k is None else int(top_k), bool(flat["exact"]), flat["loop_rule"])
+                   None if top_k is None else int(top_k), exact, flat["loop_rule"], None if lag is None else int(lag))
 
     @classmethod
     def of(cls, *confs, **flat) -> RshosmSeqConf:
@@ -368,7 +388,8 @@ class RshosmSeqConf:
     def flat(self) -> dict:
         """The flat keys and values (``--method-conf rshosm-seq.KEY=VALUE``; saved in map and detector files)."""
         return {**self.memory, **self.evidence.as_dict(), **self.beam.as_dict(), "direction": self.direction,
-                "top_k": self.top_k, "exact": self.exact, "loop_rule": self.loop_rule, **self.decision}
+                "top_k": self.top_k, "exact": self.exact, "loop_rule": self.loop_rule, "lag": self.lag,
+                **self.decision}
 
     def replace(self, **flat) -> RshosmSeqConf:
         """This conf with some flat keys changed (checked as :meth:`build`)."""
@@ -380,7 +401,9 @@ class RshosmSeqConf:
         return dict(self.memory)
 
     def loop(self) -> LoopConf:
-        """The decision within one stream: the keys given over :class:`LoopConf`'s defaults."""
+        """The decision within one stream: the keys given over :class:`LoopConf`'s defaults (``lag``, of online
+        localisation, refused)."""
+        self.refuse_lag("loop closure within one stream")
         return LoopConf(**{k: v for k, v in self.decision.items() if v is not None})
 
     def path(self, between_sessions: bool = False) -> PathConf:
@@ -395,7 +418,24 @@ class RshosmSeqConf:
                              "localisation against a map")
         return PathConf(**{k: v for k, v in self.decision.items() if v is not None and k in PathConf.keys()})
 
+    def refuse_lag(self, where: str) -> None:
+        """ValueError if ``lag`` is given: it applies to online localisation against a map only."""
+        if self.lag is not None:
+            raise ValueError(f"rshosm-seq: lag applies to online localisation against a map (vpr localize), not to "
+                             f"{where}")
+
+    def localize_exact(self, n_db: int) -> bool:
+        """Whether online localisation against a map of ``n_db`` frames steps the dense column (``exact``, default:
+        at most :data:`DENSE_LOCALIZE_FRAMES` frames)."""
+        return n_db <= DENSE_LOCALIZE_FRAMES if self.exact is None else self.exact
+
+    @property
+    def localize_lag(self) -> int:
+        """The frames online localisation answers late (``lag``, default :data:`LOCALIZE_LAG`)."""
+        return LOCALIZE_LAG if self.lag is None else self.lag
+
     def resolved(self, setting: str) -> dict:
         """The flat keys with the decision of ``setting`` (``"loops"`` or ``"map"``) filled in (for metrics.json)."""
-        rule = self.loop() if setting == "loops" else self.path()
-        return {**self.flat(), **rule.as_dict()}
+        if setting == "loops":
+            return {**self.flat(), **self.loop().as_dict()}
+        return {**self.flat(), **self.path().as_dict(), "lag": self.localize_lag}

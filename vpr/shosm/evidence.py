@@ -119,11 +119,13 @@ class Engine:
     ``evidence``: an :class:`EvidenceConf`; ``beam``: a :class:`BeamConf` (not with ``exact``, which carries every
     relevant cell); ``threads``: :meth:`run`'s two passes on two threads at once when 2 or more (default: numba's, at
     most 2; same answers). The state between frames (:meth:`state`) is the last frame's evidence; :meth:`step` is
-    causal, :meth:`run` starts afresh and may add a backward pass.
+    causal, :meth:`run` starts afresh and may add a backward pass. ``z_weight``: the share of the frame's own
+    feed-forward overlap taken out of :meth:`step`'s scores (0: none; two passes added count it ``2 - their sum``
+    times, :func:`beam_params`).
     """
 
     def __init__(self, graph: Graph, evidence: EvidenceConf | None = None, beam: BeamConf | None = None,
-                 exact: bool = False, threads: int | None = None, reverse: bool = False):
+                 exact: bool = False, threads: int | None = None, reverse: bool = False, z_weight: float = 0.0):
         self.graph, self.evidence, self.beam_conf = graph, evidence or EvidenceConf(), beam or BeamConf()
         self.exact = bool(exact)
         #: :meth:`step` follows the map's transitions reversed (the graph built ``backward``)
@@ -133,8 +135,9 @@ class Engine:
         self.threads = min(2, numba.config.NUMBA_NUM_THREADS) if threads is None else int(threads)
         self.normalise = self.evidence.normalise == "query"
         self.frames = 0
-        self._params = {c: beam_params(self.evidence, self.beam_conf if c else self.beam_conf.uncapped(), 0.0)
-                        for c in (True, False)}
+        self.z_weight = float(z_weight)
+        self._params = {c: beam_params(self.evidence, self.beam_conf if c else self.beam_conf.uncapped(),
+                                       self.z_weight) for c in (True, False)}
         if self.exact:
             self._rel, self._dense = graph.dense()
             self._e = np.zeros(self._rel.size, np.float64)
@@ -155,6 +158,11 @@ class Engine:
         Only cells learned by candidate ``n - 1`` take part (loop closure over a growing graph); ``capped``: the
         beam's caps apply.
         """
+        return self.column(*self.step_raw(bits, n, capped), frame)
+
+    def step_raw(self, bits, n: int | None = None, capped: bool = True) -> tuple[np.ndarray, np.ndarray, int]:
+        """:meth:`step` before standardising: (candidate rows, their raw evidence, ``n``); a candidate left out
+        scores 0."""
         g = self.graph
         n = g.n_db if n is None else int(n)
         q_ptr = np.array([0, bits.size], np.int64)
@@ -164,7 +172,7 @@ class Engine:
             d = self._dense
             if self.reverse:
                 d = (*d[:4], d[5], d[4], *d[6:])
-            KE.evidence_frames(q_ptr, bits, _ONE, *d, float(self.evidence.decay), stay, skip, 0.0,
+            KE.evidence_frames(q_ptr, bits, _ONE, *d, float(self.evidence.decay), stay, skip, self.z_weight,
                                self._out, self._e, self.frames == 0)
             col = self._out[:, 0]
             rows = np.flatnonzero(col)
@@ -174,7 +182,7 @@ class Engine:
             _, rows, val = self._beam.run(g, g.bwd if self.reverse else g.fwd, q_ptr, bits, _ONE, limit,
                                           self._params[capped])
         self.frames += 1
-        return self.column(rows, val, n, frame)
+        return np.asarray(rows, np.int64), np.asarray(val, np.float64), n
 
     def grow(self) -> None:
         """Make room after the graph grew (:meth:`Graph.attach`)."""

@@ -13,7 +13,7 @@ from vpr.types import Column, Decision, MapLocalizer
 from .conf import RshosmSeqConf, memory_params
 from .decide import UNMOVED_SHARE, PathDecider, map_places, refuse_stands, standing
 from .direction import Direction
-from .evidence import Engine, make_engine
+from .evidence import Engine, make_engine, merge_columns
 from .graph import Graph
 from .memory import SequenceMemory, pad_codes
 
@@ -44,9 +44,15 @@ class Localizer(MapLocalizer):
         self.db_codes = sp.csr_matrix(db_codes, dtype=bool)
         self.sessions = np.asarray(sorted({0, *(int(s) for s in (sessions or ()))}), np.int64)
         graph = Graph.of(memory, self.db_codes, backward=True)
-        self.engine = make_engine(graph, self.seq.evidence, self.seq.beam, self.seq.exact)
+        #: whether the engines step the dense column (:meth:`RshosmSeqConf.localize_exact`) or the beam
+        self.exact = self.seq.localize_exact(len(names))
+        self.engine = make_engine(graph, self.seq.evidence, self.seq.beam, self.exact)
+        #: the engine's speed models, one :class:`Engine` each
+        self.lanes: list[Engine] = getattr(self.engine, "lanes", [self.engine])
+        self.raw: list[tuple] = []
+        self.refusing = True
         #: the evidence of the query running the map backwards, against the engine's (:class:`Direction`)
-        self.backward = Engine(graph, self.seq.evidence.split()[0], self.seq.beam, self.seq.exact, reverse=True)
+        self.backward = Engine(graph, self.seq.evidence.split()[0], self.seq.beam, self.exact, reverse=True)
         self.direction = Direction()
         self.mirrored = PathDecider(self.seq.path())  # the path rule on the reversed evidence
         self.decider = PathDecider(self.seq.path(), self.sessions)
@@ -105,7 +111,7 @@ class Localizer(MapLocalizer):
                              f"{', '.join(f'{k}={mine[k]}' for k in fixed)}); learn a new map to change them")
         new = Localizer(self.memory, self.db_codes, self.names, self.seq.replace(**flat), sessions=self.sessions)
         header, arrays = self.state()
-        if new.seq.exact != self.seq.exact or new.seq.evidence.speeds != self.seq.evidence.speeds:
+        if new.exact != self.exact or new.seq.evidence.speeds != self.seq.evidence.speeds:
             # the evidence of another kind or of other speed models starts afresh
             arrays = {k: v for k, v in arrays.items() if not k.startswith(("engine_", "backward_"))}
             header = {k: v for k, v in header.items() if k != "backward"} | {"engine": None}
@@ -131,7 +137,7 @@ class Localizer(MapLocalizer):
         self.direction.reset()
         self.mirrored.new_session()
         self.decider.new_session()
-        self._before, self.unmoved = None, False
+        self._before, self.unmoved, self.refusing, self.raw = None, False, True, []
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the kernels, leaving the state as it was."""
@@ -142,16 +148,21 @@ class Localizer(MapLocalizer):
     def update(self, sdr_row) -> Decision:
         """Localise one query frame (SDR row: 1-row batch, bool vector or bit indices)."""
         bits = _sdr.row_bits(sdr_row, self.memory.n_inputs, name="query SDR")
-        column = self.engine.step(bits, frame=self.engine.frames)
+        frame = self.engine.frames
+        #: the last frame's raw evidence per speed model (:meth:`Engine.step_raw`), read by :class:`Lagged`
+        self.raw = [e.step_raw(bits) for e in self.lanes]
+        column = merge_columns([e.column(*r, frame) for e, r in zip(self.lanes, self.raw, strict=True)])
         d = self.decider.decide(column)
         self.unmoved = self._before is not None and _sdr.kept_share(bits, self._before) >= UNMOVED_SHARE
         self._before = bits
         rev = self.backward.step(bits)
         back = self.direction.update(column.best()[1], rev.best()[1], moved=not self.unmoved)
         back = back and self.direction.read  # (before, no direction is read: no answer is accepted either)
+        #: no answer is accepted now: the query runs the map backwards, or no direction is read yet
+        self.refusing = bool(back or not self.direction.read)
         n = rev.n  # the reversed evidence on the map's frames in reverse order: the path rule's confidence in it
         confident = self.mirrored.decide(Column(n - 1 - rev.rows[::-1], rev.z[::-1], rev.fill, n, rev.frame)).accepted
-        if back or not self.direction.read or \
+        if self.refusing or \
                 (d.accepted and not refuse_stands(d.best, True, self.standing, self.unmoved)):
             d = dataclasses.replace(d, accepted=False, reversed=bool(back and confident))
         return d

@@ -1,0 +1,170 @@
+"""Online localisation answered a few frames late, with the evidence of the frames after each one."""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from vpr.statefile import part_state
+from vpr.types import Column, Decision, LateLocalizer
+
+from .decide import PathDecider, refuse_stands
+from .evidence import Engine, merge_columns
+from .localizer import Localizer
+
+__all__ = ["Lagged"]
+
+
+@dataclass
+class _Waiting:
+    """A frame waiting for the ones after it: its active bits, its causal raw evidence per speed model, its decision
+    at once, whether it moved, and whether a speed follower answered it from other maps (``followed``)."""
+
+    bits: np.ndarray
+    raw: list[tuple[np.ndarray, np.ndarray, int]]
+    decision: Decision
+    unmoved: bool
+    followed: bool
+
+
+class Lagged(LateLocalizer):
+    """Answers each query frame ``lag`` frames late: its evidence is the causal one plus a backward pass from the
+    ``lag``-th frame after it, the two added as the batch evidence of both directions adds them
+    (:meth:`vpr.shosm.Engine.run`), decided by the map's path rule (:class:`PathDecider`).
+
+    ``base``: the map's :class:`Localizer`, stepped on every frame (it reads the direction of the query and the stands
+    at once); ``answering``: what answers each frame at once (``base``, or a speed follower over it: a frame it
+    answered from other maps keeps that answer, late). :meth:`update` returns the decisions that are due (none for
+    the first ``lag`` frames of a traverse); :meth:`flush` the rest, each with the frames there are after it.
+    ``lag`` 0: every frame answered at once, as ``answering`` does.
+    """
+
+    def __init__(self, base: Localizer, answering=None, lag: int = 0):
+        self.base, self.answering, self.lag = base, answering or base, int(lag)
+        if self.lag < 0:
+            raise ValueError(f"lag must be >= 0, got {lag}")
+        graph = base.lanes[0].graph
+        seq = base.seq
+        # the backward pass: the frames from the last one back, along the map's transitions reversed; the frame's
+        # own overlap taken out once of the two passes' sum (the causal pass keeps it)
+        self.backward = [Engine(graph, lane, seq.beam, base.exact, reverse=True, z_weight=1.0)
+                         for lane in seq.evidence.split()]
+        self.decider = PathDecider(seq.path(), base.sessions)
+        self.waiting: list[_Waiting] = []
+
+    def __getattr__(self, name):  # mode, step, sampling ... of what answers at once
+        if name in ("base", "answering"):
+            raise AttributeError(name)
+        return getattr(self.answering, name)
+
+    def warm_up(self) -> None:
+        self.answering.warm_up()
+        header, arrays = self.backward[0].state()
+        self.backward[0].step(np.zeros(0, np.int64))
+        self.backward[0].load_state(header, arrays)
+
+    def update(self, sdr_row) -> list[Decision]:
+        """Localise the next query frame; returns the decisions now due (the frame ``lag`` frames before)."""
+        d = self.answering.update(sdr_row)
+        if not self.lag:
+            return [d]
+        b = self.base
+        followed = getattr(self.answering, "mode", 0) != 0
+        self.waiting.append(_Waiting(b._before, list(b.raw), d, bool(b.unmoved), followed))
+        return [self._decide(0)] if len(self.waiting) > self.lag else []
+
+    def flush(self) -> list[Decision]:
+        """The decisions of the frames still waiting (the traverse ended), each with the frames after it."""
+        out = []
+        while self.waiting:
+            out.append(self._decide(0))
+        return out
+
+    def reset(self) -> list[Decision]:
+        """A new query traverse: the frames waiting are decided first (returned), then nothing carries over."""
+        out = self.flush()
+        self.answering.reset()
+        self.decider.new_session()
+        return out
+
+    def _decide(self, k: int) -> Decision:
+        """The late decision of waiting frame ``k`` (0: the oldest, taken out of :attr:`waiting`)."""
+        w = self.waiting.pop(k)
+        after = [w, *self.waiting[:self.lag]][::-1]  # from the last frame there is back to this one
+        cols = []
+        for engine, (rows, val, n) in zip(self.backward, w.raw, strict=True):
+            engine.reset()
+            for x in after:
+                back = engine.step_raw(x.bits, n)
+            cols.append(engine.column(*_added((rows, val), back[:2]), n, w.decision.frame))
+        col = merge_columns(cols)
+        late = self.decider.decide(col)
+        if w.followed:  # answered from another map or as another query: that answer stands
+            return w.decision
+        b = self.base
+        ok = late.accepted and not b.refusing and refuse_stands(late.best, True, b.standing, w.unmoved)
+        return dataclasses.replace(late, accepted=bool(ok), reversed=w.decision.reversed, frame=w.decision.frame)
+
+    # ------------------------------------------------------------ state
+    def state(self) -> tuple[dict, dict]:
+        """(header, arrays) of the frames waiting and the late path rule (:meth:`load_state`)."""
+        dh, da = self.decider.state()
+        ws = self.waiting
+        header = {"lag": self.lag, "decider": dh, "n_waiting": len(ws), "lanes": len(self.backward),
+                  "waiting": [[int(w.decision.frame), int(w.decision.best), float(w.decision.score),
+                               bool(w.decision.accepted), float(w.decision.margin), bool(w.decision.reversed),
+                               bool(w.unmoved), bool(w.followed)] for w in ws]}
+        arrays = {**{f"decider_{k}": v for k, v in da.items()}, **_ragged("bits", [w.bits for w in ws])}
+        for j in range(len(self.backward)):
+            arrays.update(_ragged(f"rows{j}", [w.raw[j][0] for w in ws]))
+            arrays.update(_ragged(f"val{j}", [w.raw[j][1] for w in ws]))
+            arrays[f"n{j}"] = np.array([w.raw[j][2] for w in ws], np.int64)
+        cols = [w.decision.column for w in ws]
+        arrays.update(_ragged("crows", [c.rows if c is not None else np.zeros(0, np.int64) for c in cols]))
+        arrays.update(_ragged("cz", [c.z if c is not None else np.zeros(0, np.float32) for c in cols]))
+        arrays["cfill"] = np.array([c.fill if c is not None else np.nan for c in cols], np.float64)
+        arrays["cn"] = np.array([c.n if c is not None else -1 for c in cols], np.int64)
+        return header, arrays
+
+    def load_state(self, header: dict, arrays: dict) -> Lagged:
+        """Continue from a :meth:`state` of a :class:`Lagged` of the same lag and speed models."""
+        if int(header["lag"]) != self.lag or int(header["lanes"]) != len(self.backward):
+            raise ValueError(f"the state answers {header['lag']} frames late over {header['lanes']} speed models; "
+                             f"this localizer {self.lag} over {len(self.backward)}")
+        self.decider.load_state(*part_state(header, arrays, "decider"))
+        n = int(header["n_waiting"])
+        bits = _unragged(arrays, "bits", n)
+        raws = [list(zip(_unragged(arrays, f"rows{j}", n), _unragged(arrays, f"val{j}", n),
+                         (int(v) for v in arrays[f"n{j}"]), strict=True)) for j in range(len(self.backward))]
+        crows, cz = _unragged(arrays, "crows", n), _unragged(arrays, "cz", n)
+        self.waiting = []
+        for i, (frame, best, score, accepted, margin, rev, unmoved, followed) in enumerate(header["waiting"]):
+            cn = int(arrays["cn"][i])
+            col = None if cn < 0 else Column(crows[i].astype(np.int64), cz[i].astype(np.float32),
+                                              float(arrays["cfill"][i]), cn, int(frame))
+            d = Decision(int(best), float(score), bool(accepted), float(margin), int(frame), col, bool(rev))
+            self.waiting.append(_Waiting(bits[i].astype(np.int64), [r[i] for r in raws], d, bool(unmoved),
+                                         bool(followed)))
+        return self
+
+
+def _added(a, b) -> tuple[np.ndarray, np.ndarray]:
+    """Two sparse columns (rows, values) added; a row one lacks scores 0 there."""
+    rows = np.union1d(a[0], b[0])
+    val = np.zeros(rows.size, np.float64)
+    for r, v in (a, b):
+        val[np.searchsorted(rows, r)] += v
+    return rows, val
+
+
+def _ragged(name: str, parts: list[np.ndarray]) -> dict:
+    return {f"{name}_sizes": np.array([p.size for p in parts], np.int64),
+            f"{name}_data": np.concatenate(parts) if parts else np.zeros(0)}
+
+
+def _unragged(arrays: dict, name: str, n: int) -> list[np.ndarray]:
+    sizes = np.asarray(arrays[f"{name}_sizes"], np.int64)
+    if sizes.size != n:
+        raise ValueError(f"the state holds {sizes.size} waiting frames' {name}, not {n}")
+    return np.split(np.asarray(arrays[f"{name}_data"]), np.cumsum(sizes)[:-1]) if n else []
