@@ -310,7 +310,7 @@ def test_online_a_slower_speed_is_left_only_at_a_frame_its_queries_do_not_answer
         plain.update(q[j]), follower.update(q[j])
     j = start
     assert follower.mode < 0
-    monkeypatch.setattr(follower.path, "speed", lambda frame: 1.0)  # from here on the map's answers read its speed
+    monkeypatch.setattr(follower.path, "speed", lambda: 1.0)  # from here on the map's answers read its speed
     ds, own = [], []
     while follower.mode < 0 and j < q.shape[0]:
         own.append(plain.update(q[j]))
@@ -586,3 +586,27 @@ def test_a_slower_querys_frame_its_neighbours_bracket_elsewhere_is_not_decided()
     assert apart.tolist() == [False, False, True, False, False, False, False]  # 20: a neighbour is not accepted
     assert not shosm.apart_from_neighbours(best, np.zeros(7, bool), 2).any()
     assert shosm.apart_from_neighbours(np.array([10, 14, 11]), np.ones(3, bool), 3).tolist() == [False] * 3
+
+
+def test_the_online_speed_is_read_where_both_halves_of_the_path_read_it():
+    from vpr.paths import MIN_RUN
+    from vpr.shosm.follow import BestPath
+
+    def read(bests):
+        p = BestPath(4, 8)
+        for t, b in enumerate(bests):
+            p.step(t, b)
+        return p.speed()
+
+    assert read(range(0, MIN_RUN - 1)) is None  # too short to read
+    assert read([t // 2 for t in range(20)]) == pytest.approx(0.5, abs=0.03)  # a query at half the speed
+    assert read([2 * t for t in range(20)]) == pytest.approx(2.0)
+    # at the map's speed, then the answers stay on one frame: the slope of all of them reads slower (0.61), the
+    # halves do not agree (1.0 and 0.0)
+    assert read([*range(12), *[11] * 8]) is None
+    # one answer six frames behind, then the map's speed: its two ends read faster (14 frames in 9), the slope of all
+    # of them not (1.27), its first half faster (2.0): no speed; 6 frames later the map's
+    assert read([0, *range(6, 15)]) is None
+    assert 0.9 < read([0, *range(6, 21)]) < 1.5
+    assert read([*range(10), *range(10, 30, 2)]) is None  # 1x for 10 frames, then 2x for 10: neither yet
+    assert read(range(20)) == pytest.approx(1.0)

@@ -15,7 +15,7 @@ from .conf import PathConf
 from .localizer import Localizer
 
 __all__ = ["PICKS", "check_pick", "pick_maps", "disagree", "apart_from_neighbours", "between_maps", "fill_between",
-           "path_lengths", "SpeedFollower"]
+           "path_lengths", "BestPath", "SpeedFollower"]
 
 
 #: How a frame is answered by one of the ``k`` maps of one frame in ``k``: ``"path"``, the map that accepts it on the
@@ -114,29 +114,48 @@ def fill_between(best, score, accepted, step: int) -> tuple[np.ndarray, np.ndarr
     return best, score, filled
 
 
-class _Path:
+class BestPath:
     """A consistent path of best frames (each within ``back`` behind and ``ahead`` beyond the last): its first frame
-    and best, its last best and its length."""
+    and best, its last best, its length, and its bests (one per frame), which read its speed."""
 
     def __init__(self, back: int, ahead: int):
         self.back, self.ahead = back, ahead
         self.start, self.first, self.last, self.length = -1, -1, -1, 0
+        self.recent: list[int] = []
 
     def step(self, frame: int, best: int) -> None:
         if best >= 0 and self.length and -self.back <= best - self.last <= self.ahead:
             self.last, self.length = best, self.length + 1
+            self.recent.append(best)
         else:
             self.start, self.first, self.last, self.length = frame, best, best, int(best >= 0)
+            self.recent = [best] if best >= 0 else []
 
-    def speed(self, frame: int) -> float | None:
-        """Best frames per frame since the path started, once it is :data:`~vpr.evaluate.MIN_RUN` frames long."""
-        return (self.last - self.first) / (frame - self.start) if self.length >= MIN_RUN else None
+    def speed(self) -> float | None:
+        """Best frames per frame along the path (the least-squares slope of its bests: one answer
+        off moves it little), once it is :data:`~vpr.evaluate.MIN_RUN` frames long; None where the two halves of
+        those frames read different speeds (faster, slower or neither: :func:`~vpr.paths.speed_step`): a path
+        that moves on, then stands, is no slower speed, nor one that jumps, then moves on, a faster."""
+        if len(self.recent) < MIN_RUN:
+            return None
+        p = np.asarray(self.recent, np.float64)
+        h = p.size // 2
+        v = _slope(p)
+        reads = {int(np.sign(speed_step(x))) for x in (_slope(p[:h]), v, _slope(p[h:]))}
+        return v if len(reads) == 1 else None
 
-    def state(self) -> list[int]:
-        return [self.start, self.first, self.last, self.length]
+    def state(self) -> list:
+        return [self.start, self.first, self.last, self.length, *self.recent]
 
     def restore(self, values) -> None:
-        self.start, self.first, self.last, self.length = (int(v) for v in values)
+        self.start, self.first, self.last, self.length = (int(v) for v in values[:4])
+        self.recent = [int(v) for v in values[4:]]
+
+
+def _slope(p: np.ndarray) -> float:
+    """The least-squares slope of ``p`` over its index."""
+    t = np.arange(p.size) - (p.size - 1) / 2
+    return float(t @ (p - p.mean()) / (t @ t))
 
 
 class SpeedFollower(FollowingLocalizer):
@@ -166,10 +185,11 @@ class SpeedFollower(FollowingLocalizer):
         self.pick = check_pick(pick)
         path = localizer.seq.path()
         self._bounds = path.back, path.ahead
-        self.path = _Path(*self._bounds)
+        self.path = BestPath(*self._bounds)
+        self.kept = BestPath(*self._bounds)  # the path of the accepted answers alone: a slower speed is read on it
         self.phases: list[Localizer] = []
         self.keeps: list[np.ndarray] = []
-        self.phase_paths: list[_Path] = []
+        self.phase_paths: list[BestPath] = []
         self.queries: list[Localizer] = []
         self.mode, self.frame, self.clock = 0, 0, 0  # clock: the query frames that moved (:meth:`_tick`)
         self.recent: list[tuple[int, np.ndarray]] = []  # (frame, active bits) of the last ``replay`` frames
@@ -205,7 +225,7 @@ class SpeedFollower(FollowingLocalizer):
         """Start the engines of ``mode`` afresh and give them the frames kept (those before this one)."""
         for loc in self._engines(mode):
             loc.reset()
-        self.phase_paths = [_Path(*self._bounds) for _ in self.phases]
+        self.phase_paths = [BestPath(*self._bounds) for _ in self.phases]
         for j, bits in self.recent[:-1]:
             self._feed(mode, j, bits)
 
@@ -223,6 +243,7 @@ class SpeedFollower(FollowingLocalizer):
         for loc in [*self.phases, *self.queries]:
             loc.reset()
         self.path.step(-1, -1)
+        self.kept.step(-1, -1)
         self.mode, self.frame, self.clock, self.recent, self.last = 0, 0, 0, [], None
 
     def warm_up(self) -> None:
@@ -255,25 +276,29 @@ class SpeedFollower(FollowingLocalizer):
                 self._feed(self.mode, j, bits)
         return out
 
-    def _tick(self, best: int) -> bool:
-        """Step the path with this frame's answer, on the map's places (a stand of the map is one) and the query's
-        frames that moved (a stand of the query is no time); False where the query did not move (not stepped)."""
+    def _tick(self, best: int, accepted: bool = True) -> bool:
+        """Step the paths with this frame's answer (:attr:`kept` only where it is ``accepted``), on the map's places
+        (a stand of the map is one) and the query's frames that moved (a stand of the query is no time); False where
+        the query did not move (not stepped)."""
         if self.base.unmoved:
             return False
-        self.path.step(self.clock, int(self.base.places[best]) if best >= 0 else -1)
+        place = int(self.base.places[best]) if best >= 0 else -1
+        self.path.step(self.clock, place)
+        self.kept.step(self.clock, place if accepted else -1)
         self.clock += 1
         return True
 
     def _read(self, j: int, best: int, accepted: bool = True) -> None:
         """Step the path with frame ``j``'s answer and switch to the speed it reads (its engines started from the
         frames kept before ``j``); a frame where the query did not move reads nothing, and a slower speed is read only
-        where the map's answer is ``accepted`` (its evidence follows a slower query; a path it does not accept, as
-        after a stand or on a reversed query, moves slowly too)."""
-        if not self._tick(best):
+        on the path of the map's ``accepted`` answers alone, as the batch reads a speed (:func:`vpr.paths.path_runs`;
+        its evidence follows a slower query; a path it does not accept, as after a stand or on a reversed query, moves
+        slowly too)."""
+        if not self._tick(best, accepted):
             return
-        v = self.path.speed(self.clock - 1)
+        v = self.path.speed()
         mode = self.mode if v is None else int(np.sign(speed_step(v)))
-        if mode < 0 <= self.mode and not accepted:
+        if mode < 0 <= self.mode and speed_step(self.kept.speed()) >= 0:
             mode = self.mode
         if mode != self.mode:
             self.mode = mode
@@ -329,7 +354,8 @@ class SpeedFollower(FollowingLocalizer):
         frames = np.array([j for j, _ in self.recent], np.int64)
         sizes = np.array([b.size for _, b in self.recent], np.int64)
         header = {"step": self.step, "replay": self.replay, "mode": self.mode, "frame": self.frame, "clock": self.clock,
-                  "path": self.path.state(), "phase_paths": [p.state() for p in self.phase_paths],
+                  "path": self.path.state(), "kept": self.kept.state(),
+                  "phase_paths": [p.state() for p in self.phase_paths],
                   "last": None if self.last is None else [int(self.last[0]), int(self.last[1]), float(self.last[2])]}
         arrays = {"recent_frames": frames, "recent_sizes": sizes,
                   "recent_bits": np.concatenate([b for _, b in self.recent] or [np.zeros(0, np.int64)])}
@@ -347,6 +373,7 @@ class SpeedFollower(FollowingLocalizer):
         self.mode, self.frame = int(header["mode"]), int(header["frame"])
         self.clock = int(header.get("clock", self.frame))
         self.path.restore(header["path"])
+        self.kept.restore(header["kept"])
         last = header.get("last")
         self.last = None if last is None else (int(last[0]), int(last[1]), float(last[2]))
         bits = np.split(np.asarray(arrays["recent_bits"], np.int64), np.cumsum(arrays["recent_sizes"])[:-1])
@@ -354,7 +381,7 @@ class SpeedFollower(FollowingLocalizer):
             if len(arrays["recent_frames"]) else []
         for name, loc in self._named(self.mode).items():
             loc.load_state(*part_state(header["engines"], arrays, name))
-        self.phase_paths = [_Path(*self._bounds) for _ in self.phases]
+        self.phase_paths = [BestPath(*self._bounds) for _ in self.phases]
         for p, v in zip(self.phase_paths, header["phase_paths"], strict=False):
             p.restore(v)
         return self
