@@ -416,7 +416,8 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
                     help="running: weight of the database's statistics in the running ones, in frames (default "
                          f"{PRIOR_FRAMES:g})")
     ap.add_argument("--window", type=int,
-                    help=f"running: statistics over the last N query frames (default {WINDOW}; 0: all frames so far)")
+                    help=f"running: statistics over the last N query frames that moved (default {WINDOW}; 0: all "
+                         "frames so far; a frame that keeps most of the one before's bits does not join them)")
     ap.add_argument("--state-out", metavar="FILE.npz", help="also write the localizer with its state at the end")
     add_query_speed_argument(ap)
     add_field_files_arguments(ap)

@@ -4,9 +4,10 @@ The batch commands standardise a traverse on its own frames
 (``standardise="fit"``), which needs the whole traverse. Online that is
 impossible; :class:`StreamEncoder` standardises each frame with
 ``"running"`` statistics (:class:`vpr.standardise.RunningStandardiser`:
-the last ``window`` frames plus the database's statistics as a prior) or the
-database's own (``"db"``). An encoder with ``standardise="causal"`` (the loop
-encoders of the presets) needs nothing from a database: its frames are
+the last ``window`` frames plus the database's statistics as a prior; a frame
+whose SDR keeps :data:`vpr.shosm.UNMOVED_SHARE` of the frame before's bits, a
+camera that stands, does not join them) or the database's own (``"db"``). An
+encoder with ``standardise="causal"`` (the loop encoders of the presets) needs nothing from a database: its frames are
 standardised as the batch does it (:class:`vpr.standardise.CausalStandardiser`),
 so the SDRs equal the batch's, but the first ``CAUSAL_MIN`` frames wait for
 each other (:meth:`StreamEncoder.push`). Encoders that do not standardise, or
@@ -18,6 +19,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from encoders.base import BaseEncoder, DescriptorEncoder
+from vpr.sdr import kept_share
+from vpr.shosm import UNMOVED_SHARE
 from vpr.standardise import CAUSAL_MIN, CausalStandardiser, RunningStandardiser
 from vpr.types import FrameEncoder
 
@@ -67,6 +70,7 @@ class StreamEncoder(FrameEncoder):
                              "written without them?)")
         self._running = [RunningStandardiser(m, s, prior_frames, window) for m, s in encoder.statistics()] \
             if fitted and standardise == "running" else []
+        self._before: np.ndarray | None = None  # the last frame's active bits (running statistics)
 
     @property
     def delay(self) -> int:
@@ -116,6 +120,7 @@ class StreamEncoder(FrameEncoder):
         self._causal, self._waiting = [], []
         for r in self._running:
             r.reset()
+        self._before = None
         return out
 
     def _release(self, stats) -> sp.csr_matrix:
@@ -133,7 +138,13 @@ class StreamEncoder(FrameEncoder):
         if not self._running:
             return sp.csr_matrix(self.encoder.encode_descriptors(desc))
         stats = [r.update(b[0]) for r, b in zip(self._running, self.encoder.blocks(desc), strict=True)]
-        return sp.csr_matrix(self.encoder.encode_descriptors(desc, stats))
+        x = sp.csr_matrix(self.encoder.encode_descriptors(desc, stats), dtype=bool)
+        bits = x.indices.astype(np.int64)
+        if self._before is not None and kept_share(bits, self._before) >= UNMOVED_SHARE:
+            for r in self._running:  # the camera stands: the frame is no new sample of the places
+                r.withdraw()
+        self._before = bits
+        return x
 
     def state(self) -> tuple[dict, dict]:
         """The running statistics as arrays (stored in ``--state-out`` files, so that a restart continues them)."""
@@ -148,6 +159,8 @@ class StreamEncoder(FrameEncoder):
             out["q_n"] = st["n"]
             if "recent" in st:
                 out[f"q_recent_{i}"] = st["recent"]
+        if self._before is not None:
+            out["q_before"] = self._before
         return {}, out
 
     def load_state(self, header: dict, arrays: dict) -> StreamEncoder:
@@ -164,4 +177,5 @@ class StreamEncoder(FrameEncoder):
             if f"q_recent_{i}" in arrays:
                 st["recent"] = arrays[f"q_recent_{i}"]
             r.load_state({}, st)
+        self._before = np.asarray(arrays["q_before"], np.int64) if "q_before" in arrays else None
         return self

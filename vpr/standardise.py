@@ -135,11 +135,13 @@ class RunningStandardiser:
         self.sum = prior_frames * m
         self.sq = prior_frames * (np.where(np.isfinite(self._prior_std), self._prior_std, 0.0) ** 2 + m ** 2)
         self.recent: list[np.ndarray] = []
+        self._last: tuple[np.ndarray, np.ndarray | None] | None = None  # the last frame added, the one it pushed out
 
     def update(self, x) -> tuple[np.ndarray, np.ndarray]:
         """Add one frame's descriptor block ``x`` (dims,); return the (mean, std) to standardise it with."""
         x = np.asarray(x, np.float64).ravel()
         self.n += 1.0
+        old = None
         if self.window is not None:
             self.recent.append(x)
             if len(self.recent) > self.window:  # a sliding window: the oldest frame leaves the sums
@@ -149,6 +151,28 @@ class RunningStandardiser:
                 self.sq -= old * old
         self.sum += x
         self.sq += x * x
+        self._last = (x, old)
+        return self._stats()
+
+    def withdraw(self) -> None:
+        """Take the frame of the last :meth:`update` out of the statistics again (the frame it pushed out of the window
+        back in): a frame that repeats the one before is no new sample of the places. Once per update."""
+        if self._last is None:
+            raise ValueError("withdraw: no frame to take back (one per update)")
+        x, old = self._last
+        self._last = None
+        self.n -= 1.0
+        self.sum -= x
+        self.sq -= x * x
+        if self.window is not None:
+            self.recent.pop()
+            if old is not None:
+                self.recent.insert(0, old)
+                self.n += 1.0
+                self.sum += old
+                self.sq += old * old
+
+    def _stats(self) -> tuple[np.ndarray, np.ndarray]:
         mean = self.sum / self.n
         std = np.sqrt(np.maximum(self.sq / self.n - mean ** 2, 0.0))
         std = np.where(np.isfinite(self._prior_std) & (std >= 1e-6), std, np.inf)
@@ -165,4 +189,5 @@ class RunningStandardiser:
         self.n = float(state["n"])
         self.sum, self.sq = np.asarray(state["sum"], np.float64), np.asarray(state["sq"], np.float64)
         self.recent = list(np.asarray(state["recent"], np.float64)) if "recent" in state else []
+        self._last = None
         return self
