@@ -5,7 +5,7 @@ The batch commands standardise a traverse on its own frames
 impossible; :class:`StreamEncoder` standardises each frame with
 ``"running"`` statistics (:class:`vpr.standardise.RunningStandardiser`:
 the last ``window`` frames plus the database's statistics as a prior; a frame
-whose SDR keeps :data:`vpr.shosm.UNMOVED_SHARE` of the frame before's bits, a
+whose SDR keeps :data:`vpr.sdr.UNMOVED_SHARE` of the frame before's bits, a
 camera that stands, does not join them) or the database's own (``"db"``). An
 encoder with ``standardise="causal"`` (the loop encoders of the presets) needs nothing from a database: its frames are
 standardised as the batch does it (:class:`vpr.standardise.CausalStandardiser`),
@@ -19,8 +19,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from encoders.base import BaseEncoder, DescriptorEncoder
-from vpr.sdr import kept_share
-from vpr.shosm import UNMOVED_SHARE
+from vpr.sdr import UNMOVED_SHARE, kept_share
 from vpr.standardise import CAUSAL_MIN, CausalStandardiser, RunningStandardiser
 from vpr.types import FrameEncoder
 

@@ -7,6 +7,7 @@ import numpy as np
 import scipy.sparse as sp
 
 __all__ = [
+    "UNMOVED_SHARE",
     "from_indices",
     "from_dense",
     "from_topk",
@@ -246,6 +247,12 @@ def random_sdrs(n: int, n_bits: int = 2048, n_active: int = 40, seed=None) -> sp
     idx = np.argsort(rng.random((n, n_bits)), axis=1)[:, :n_active] if n * n_bits <= 5e7 else \
         np.stack([rng.choice(n_bits, n_active, replace=False) for _ in range(n)])
     return from_indices(list(idx), n_bits)
+
+
+#: The share of a frame's active bits kept from the frame before at which the camera did not move (:func:`unmoved`):
+#: between what consecutive frames of a moving camera keep and what those of a standing camera keep
+#: (``research/docs/decisions.md``, "Stands and direction").
+UNMOVED_SHARE = 0.6
 
 
 def unmoved(batch, share: float) -> np.ndarray:

@@ -293,10 +293,8 @@ def map_places(codes, cells_per_column: int, sessions=(0,)) -> np.ndarray:
     return np.r_[0, np.cumsum(~same)].astype(np.int64)
 
 
-#: The share of a query frame's bits kept from the frame before at which the query did not move
-#: (:func:`vpr.sdr.unmoved`): between what consecutive frames of a moving camera keep and what those of a standing
-#: camera keep (``research/docs/decisions.md``, "Stands and direction").
-UNMOVED_SHARE = 0.6
+#: :data:`vpr.sdr.UNMOVED_SHARE`: a query frame that kept this share of the frame before's bits is not accepted
+UNMOVED_SHARE = _sdr.UNMOVED_SHARE
 
 #: Map frames of one place (:func:`map_places`) from which on no frame number singles out an answer: with 2, the
 #: answer is within a frame of the query's own either way; with 3 or more, it may not be.
