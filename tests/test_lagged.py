@@ -114,3 +114,14 @@ def test_lag_is_a_setting_of_online_localisation_only():
         methods.get("rshosm-seq", lag=-1)
     assert methods.get("rshosm-seq", lag="12").seq.localize_lag == 12
     assert methods.get("rshosm-seq").seq.localize_lag == ev.LOCALIZE_LAG
+
+
+def test_exact_is_read_from_its_spelling_or_left_to_the_map():
+    # as --method-conf spells it: a string
+    assert [methods.get("rshosm-seq", exact=v).seq.exact for v in ("false", "true", "none", "0")] == \
+        [False, True, None, False]
+    seq = methods.get("rshosm-seq").seq
+    assert seq.localize_exact(ev.DENSE_LOCALIZE_FRAMES) and not seq.localize_exact(ev.DENSE_LOCALIZE_FRAMES + 1)
+    assert not methods.get("rshosm-seq", exact="false").seq.localize_exact(10)
+    with pytest.raises(ValueError, match="exact"):
+        methods.get("rshosm-seq", exact="maybe")

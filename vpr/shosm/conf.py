@@ -358,9 +358,11 @@ class RshosmSeqConf:
                 lag = coerce_value("lag", lag, 0)
                 if isinstance(lag, bool) or int(lag) != lag or int(lag) < 0:
                     raise ValueError(f"lag must be an integer >= 0 (frames; 0: each frame answered at once), got {lag}")
+            exact = flat["exact"]
+            if exact is not None:  # true, false, or none: the map's size decides (localize_exact)
+                exact = coerce_value("exact", exact, False)
         except ValueError as e:
             raise ValueError(f"{what}: {e}") from None
-        exact = None if flat["exact"] is None else bool(flat["exact"])
         return cls(MappingProxyType(memory), evidence, beam, MappingProxyType(decision), flat["direction"],
                    None if top_k is None else int(top_k), exact, flat["loop_rule"], None if lag is None else int(lag))
 
