@@ -8,8 +8,10 @@ ms: median / p95 / max over the frames), the causal R@1 within one place, and
 the same for ``exact=True`` (dense evidence per frame) up to ``--exact-max``, and for ``follow``: the
 :class:`vpr.shosm.SpeedFollower` around the localizer that ``vpr localize`` runs by default (the query here moves
 0.8-1.2 places a frame, so its answers are the localizer's; the cost is that of its engines); ``beam2x`` and
-``follow2x``: the same with a query moving 1.8-2.2 places a frame (R@1 within one place). ``held MB``: the arrays
-the localizer (or the follower, with the engines it built) holds after the query (:func:`held_mb`).
+``follow2x``: the same with a query moving 1.8-2.2 places a frame (R@1 within one place); ``late``: what ``vpr
+localize`` runs, the follower answered ``LOCALIZE_LAG`` frames late (:class:`vpr.shosm.Lagged`; the map's own
+choice of dense column or beam; the frame's latency is its ``update``, which answers an earlier frame). ``held
+MB``: the arrays the localizer (or the follower, with the engines it built) holds after the query (:func:`held_mb`).
 
 Target: median <= 5 ms at 10,000 database frames.
 
@@ -21,6 +23,7 @@ frames, the ``fast`` preset's encoder) as the map, every winter frame as a
 query (encoding excluded; R@1 within 10 frames, accepted answers' precision).
 
 Usage: python research/benchmarks/bench_localize.py [--sizes 1000,10000,50000] [--frames 2000] [--nordland DIR]
+    [--modes beam,follow,beam2x,follow2x,exact,late]
 """
 from __future__ import annotations
 
@@ -55,24 +58,29 @@ def held_mb(obj) -> float:
     return total / 2**20
 
 
-def latency(n, frames, exact, seed=0, follow=False, speed=(0.8, 1.2)):
+def latency(n, frames, exact, seed=0, follow=False, speed=(0.8, 1.2), late=False):
     from vpr import simulate
-    from vpr.shosm import Localizer, SpeedFollower
+    from vpr.shosm import LOCALIZE_LAG, Lagged, Localizer, SpeedFollower
 
     db, q, dp, qp = simulate.aliased_traverses(n, max(n // 10, 1), seed=seed, speed=speed)
     t = time.perf_counter()
     loc = Localizer.from_database(db, [str(i) for i in range(n)], exact=exact, seed=seed)
     if follow:  # what `vpr localize` runs by default: the localizer and the engines that follow another speed
         loc = SpeedFollower(loc, db)
+    if late:  # and each frame answered LOCALIZE_LAG frames late
+        loc = Lagged(getattr(loc, "base", loc), loc, lag=LOCALIZE_LAG)
     t_learn = time.perf_counter() - t
     rows = [q.indices[q.indptr[j]:q.indptr[j + 1]] for j in range(min(frames, q.shape[0]))]
     loc.warm_up()  # compile / load the kernels
-    ms, best = [], []
+    ms, out = [], []
     for bits in rows:
         t = time.perf_counter()
         o = loc.update(bits)
         ms.append((time.perf_counter() - t) * 1e3)
-        best.append(o.best)
+        out.extend(o if late else [o])
+    if late:
+        out.extend(loc.flush())
+    best = [o.best for o in sorted(out, key=lambda o: o.frame)]
     ms = np.array(ms)
     r1 = np.mean(np.abs(dp[np.maximum(best, 0)] - qp[: len(rows)]) <= 1)
     return ms, r1, t_learn, held_mb(loc)
@@ -133,16 +141,20 @@ def main(argv=None):
     ap.add_argument("--frames", type=int, default=2000, help="query frames timed per size")
     ap.add_argument("--exact-max", type=int, default=10000)
     ap.add_argument("--nordland", default=None)
+    ap.add_argument("--modes", default="beam,follow,beam2x,follow2x,exact,late",
+                    help="late: what `vpr localize` runs, the follower answered LOCALIZE_LAG frames late")
     a = ap.parse_args(argv)
     print("Localizer.update latency per query frame (ms, encoding excluded), top-50")
     print(f"{'n_db':>7} {'mode':>8} {'frames':>7} {'median':>8} {'p95':>8} {'max':>8} {'R@1':>7} {'learn s':>8} "
           f"{'held MB':>8}")
     for n in (int(s) for s in a.sizes.split(",")):
-        for mode in ("beam", "follow", "beam2x", "follow2x", "exact"):
+        for mode in a.modes.split(","):
             if mode == "exact" and n > a.exact_max:
                 continue
-            ms, r1, t_learn, mb = latency(n, a.frames, mode == "exact", follow=mode.startswith("follow"),
-                                          speed=(1.8, 2.2) if mode.endswith("2x") else (0.8, 1.2))
+            exact = None if mode == "late" else mode == "exact"  # late: as `vpr localize`, the map's own choice
+            ms, r1, t_learn, mb = latency(n, a.frames, exact, follow=mode.startswith("follow") or mode == "late",
+                                          speed=(1.8, 2.2) if mode.endswith("2x") else (0.8, 1.2),
+                                          late=mode == "late")
             print(f"{n:7d} {mode:>8} {ms.size:7d} {np.median(ms):8.3f} "
                   f"{np.percentile(ms, 95):8.3f} {ms.max():8.3f} {r1:7.3f} {t_learn:8.1f} {mb:8.1f}", flush=True)
     if a.nordland:
