@@ -72,11 +72,10 @@ class LocalizeOnline(Online):
     """``vpr localize``: each query frame encoded with the map's encoder and localised by its :class:`vpr.Localizer`."""
 
     command = "localize"
-    #: the input's end is a pause (``--state-out``): the frames waiting stay in the state
-    goes_on = False
 
     def __init__(self, the_map: Map, qenc: StreamEncoder, gt: GroundTruthSpec, q_src, params: dict, q_xy=None,
-                 follower: FollowingLocalizer | None = None, late: LateLocalizer | None = None):
+                 follower: FollowingLocalizer | None = None, late: LateLocalizer | None = None,
+                 goes_on: bool = False):
         self.map, self.loc, self.qenc, self.gt, self.q_src = the_map, the_map.localizer, qenc, gt, q_src
         self.method = the_map.method
         self.resumed = bool(the_map.query_state)
@@ -91,6 +90,9 @@ class LocalizeOnline(Online):
         self._from_state = 0  # frames read before this run, waiting in the state
         self._xy_of: dict[str, np.ndarray] | None = None
         self._state_xy: dict[int, list | None] = {}
+        #: the input's end is a pause (``--state-out``): the frames waiting stay in the state
+        self.goes_on = goes_on
+        self._load_late()
         self._said = {0}
         # frames localised running the map backwards, accepted along it, decided
         self._reversed = self._accepted = self._decided = 0
@@ -141,7 +143,7 @@ class LocalizeOnline(Online):
         xy = self._state_xy.get(frame)
         return [np.nan, np.nan] if xy is None else xy
 
-    def load_late(self) -> None:
+    def _load_late(self) -> None:
         """Continue the frames waiting in the map's state (a ``--state-out`` file)."""
         if self.late is None or self.map.late_state is None:
             return
@@ -373,9 +375,7 @@ def localize(map_or_db, query, out, opts: LocalizeOptions | None = None, stdout=
     job = LocalizeOnline(the_map, qenc, gt, q_src,
                          {"map_or_db": str(map_or_db), "query": str(query), "query_standardise": query_standardise,
                           "prior_frames": prior_frames, "window": window, "follow_speed": follow_speed}, q_xy,
-                         follower, late)
-    job.goes_on = bool(state_out)
-    job.load_late()
+                         follower, late, goes_on=bool(state_out))
     job.files = dict(o.files)
     job.recall_at = tuple(o.recall_at)
     job.warm_up()

@@ -272,9 +272,7 @@ def without_retired(conf: Mapping | None, what: str = "rshosm-seq") -> dict:
 
 
 #: Online localisation against a map of at most this many frames steps the dense column (``exact``), beyond it the
-#: beam: a 7,000-frame map is the dense side of a batch match (:data:`DENSE_EVIDENCE_PAIRS`); on Nordland's 3,576
-#: frames the dense step is both faster and more accurate than the beam, whose caps bind there
-#: (``research/docs/decisions.md``, "Answers a few frames late").
+#: beam, whose cost does not grow with the map (``docs/internals.md``, ``vpr/shosm/localizer.py``).
 DENSE_LOCALIZE_FRAMES = 7_000
 
 #: Query frames after a frame whose evidence ``vpr localize`` waits for before it answers the frame, by default

@@ -98,6 +98,8 @@ class EvidenceEngine(Protocol):
     """What the localizer and loop closure step: :class:`Engine` (one speed model) and :class:`SpeedEngine`."""
 
     frames: int
+    #: its speed models, one :class:`Engine` each (an :class:`Engine`: itself)
+    lanes: list[Engine]
 
     def step(self, bits, n: int | None = None, capped: bool = True, frame: int = -1) -> Column: ...
 
@@ -151,6 +153,11 @@ class Engine:
         order = np.argsort(rows, kind="stable")
         z = ((val[order] - mu) / sd).astype(np.float32)
         return Column(np.asarray(rows, np.int64)[order], z, float(np.float32(-mu / sd)), int(n), frame)
+
+    @property
+    def lanes(self) -> list[Engine]:
+        """Its speed models: itself (:class:`EvidenceEngine`)."""
+        return [self]
 
     def step(self, bits, n: int | None = None, capped: bool = True, frame: int = -1) -> Column:
         """The evidence of the next frame (its active bits, sorted) over candidates ``0 .. n - 1`` (default: all).

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vpr.statefile import part_state
-from vpr.types import Column, Decision, LateLocalizer
+from vpr.types import Column, Decision, FollowingLocalizer, LateLocalizer
 
 from .decide import PathDecider, refuse_stands
 from .evidence import Engine, merge_columns
@@ -42,6 +42,8 @@ class Lagged(LateLocalizer):
 
     def __init__(self, base: Localizer, answering=None, lag: int = 0):
         self.base, self.answering, self.lag = base, answering or base, int(lag)
+        #: the speed follower that answers at once, if any (a frame it answered from other maps keeps that answer)
+        self.follower = self.answering if isinstance(self.answering, FollowingLocalizer) else None
         if self.lag < 0:
             raise ValueError(f"lag must be >= 0, got {lag}")
         graph = base.lanes[0].graph
@@ -52,11 +54,6 @@ class Lagged(LateLocalizer):
                          for lane in seq.evidence.split()]
         self.decider = PathDecider(seq.path(), base.sessions)
         self.waiting: list[_Waiting] = []
-
-    def __getattr__(self, name):  # mode, step, sampling ... of what answers at once
-        if name in ("base", "answering"):
-            raise AttributeError(name)
-        return getattr(self.answering, name)
 
     def warm_up(self) -> None:
         self.answering.warm_up()
@@ -70,7 +67,7 @@ class Lagged(LateLocalizer):
         if not self.lag:
             return [d]
         b = self.base
-        followed = getattr(self.answering, "mode", 0) != 0
+        followed = self.follower is not None and self.follower.mode != 0
         self.waiting.append(_Waiting(b._before, list(b.raw), d, bool(b.unmoved), followed))
         return [self._decide(0)] if len(self.waiting) > self.lag else []
 

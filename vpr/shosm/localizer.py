@@ -48,7 +48,7 @@ class Localizer(MapLocalizer):
         self.exact = self.seq.localize_exact(len(names))
         self.engine = make_engine(graph, self.seq.evidence, self.seq.beam, self.exact)
         #: the engine's speed models, one :class:`Engine` each
-        self.lanes: list[Engine] = getattr(self.engine, "lanes", [self.engine])
+        self.lanes: list[Engine] = self.engine.lanes
         self.raw: list[tuple] = []
         self.refusing = True
         #: the evidence of the query running the map backwards, against the engine's (:class:`Direction`)
