@@ -167,6 +167,9 @@ def prepare_run(out: Path, paths, roles, opts: RunOptions, match: bool = False):
     if opts.verify > n_db:
         raise ValueError(f"--verify {opts.verify}: more candidates per query than the database's {n_db} frames to read "
                          f"({srcs[0].path}); at most {n_db}")
+    if not match:
+        for runner in runners.values():
+            runner.check_loops()  # a setting of online localisation: refused now, not after encoding
     gts = []
     for k, q_src in enumerate(srcs[1:] if match else [], start=1):
         db_att, q_att = srcs[0].indices(), q_src.indices()

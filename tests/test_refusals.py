@@ -115,6 +115,15 @@ def test_every_sub_command_takes_no_progress():
 
 
 # ------------------------------------------------------------ 3. distributed encoding
+@pytest.mark.parametrize("command", ["loops", "compare"])
+def test_a_lag_of_online_localisation_is_refused_before_any_work(scene, tmp_path, capsys, command):
+    inputs = [scene["db"]] if command == "loops" else [scene["db"], scene["q"]]
+    code, _, err = _run([command, *inputs, "--out", tmp_path / "o", "--cache", tmp_path / "c", "--method-conf",
+                         "rshosm-seq.lag=3"], capsys)
+    _one_error_line(code, err, "lag applies to online localisation")
+    assert not (tmp_path / "o").exists() and not (tmp_path / "c").exists()  # nothing encoded, nothing written
+
+
 def test_absurd_worker_counts_are_refused(scene, tmp_path, capsys):
     code, _, err = _run(["encode", scene["db"], "--cache", tmp_path / "c", "--workers", 1000], capsys)
     _one_error_line(code, err, "--workers 1000", "--scheduler")

@@ -74,6 +74,10 @@ class Method:
         matching and localisation refuse it before a frame is read), or to online localisation only where not
         ``online``; default: every setting applies."""
 
+    def check_loops(self) -> None:
+        """Raise ValueError if a setting given does not apply to loop closure within one stream (refused before a
+        frame is read; default: every setting applies)."""
+
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the method's kernels.
 

@@ -99,6 +99,9 @@ class RshosmSeq(Method):
         if not online:
             self.seq.refuse_lag("a batch match (it scores each frame with the whole query)")
 
+    def check_loops(self) -> None:
+        self.seq.loop()  # refuses the keys of online localisation only
+
     def warm_up(self) -> None:
         mem = warm_up_memory()
         tiny = sdr.from_indices([[0, 1, 2, 3]] * 2, 64)
