@@ -3,11 +3,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 import vpr
 from vpr import methods, simulate
 from vpr import shosm as ev
-from vpr.shosm import Lagged
+from vpr.shosm import Lagged, PathConf, PathDecider
+from vpr.types import Column
 
 
 @pytest.fixture(scope="module")
@@ -125,3 +127,41 @@ def test_exact_is_read_from_its_spelling_or_left_to_the_map():
     assert not methods.get("rshosm-seq", exact="false").seq.localize_exact(10)
     with pytest.raises(ValueError, match="exact"):
         methods.get("rshosm-seq", exact="maybe")
+
+
+def _col(best, frame, n=50, z=3.0):
+    v = np.zeros(n, np.float32)
+    v[best] = z
+    return Column(np.arange(n, dtype=np.int64), v, 0.0, n, frame)
+
+
+def test_a_path_accepted_on_the_frames_after_it_and_only_before_it_breaks():
+    dec = PathDecider(PathConf(drift=0.25, min_score=12.0))
+    for t in range(3):  # a path of 3 frames: score 3 * 2.75, below the bar
+        assert not dec.decide(_col(t, t)).accepted
+    before = dec.st.copy()
+    assert dec.accepted_ahead([_col(3, 3), _col(4, 4)])  # 11.0, then 13.75
+    assert not dec.accepted_ahead([_col(3, 3)])  # the bar not reached within the frames given
+    assert not dec.accepted_ahead([_col(40, 3), _col(41, 4), _col(42, 5)])  # another place: the path broke
+    assert np.array_equal(dec.st, before)  # the path's state is left as it was
+    dec.new_session()
+    assert not dec.accepted_ahead([_col(t, t) for t in range(10)])  # no path to accept
+
+
+def test_late_frames_are_accepted_on_their_path_ahead_but_not_just_after_a_query_stand(traverses):
+    db, q, dp, qp = traverses
+    names = _names(db.shape[0])
+    lag = Lagged(vpr.Localizer.from_database(db, names), lag=8)
+    got = _answers(lag, q) + lag.flush()
+    acc = np.array([d.accepted for d in got])
+    own = np.array([d.score >= lag.decider.accept_score for d in got])
+    assert (acc & ~own).any()  # accepted before its own score reached the bar
+    assert np.mean(np.abs(dp[np.array([d.best for d in got])[acc]] - qp[acc]) <= 1) >= 0.95
+    # the query stands at its frame 5 for 20 frames (the frame repeated) before any path is accepted: the evidence
+    # ran on alone during the stand, so within the evidence's memory after it frames are accepted on their own score
+    stood = sp.vstack([q[:5], *[q[5]] * 20, q[5:]]).tocsr()
+    lag = Lagged(vpr.Localizer.from_database(db, names), lag=8)
+    got = _answers(lag, stood) + lag.flush()
+    after = [d for d in got if 26 <= d.frame < 26 + lag.memory_frames]
+    assert lag.memory_frames == 10 and sum(d.accepted for d in after) >= 5
+    assert all(d.score >= lag.decider.accept_score for d in after if d.accepted)

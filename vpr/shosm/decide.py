@@ -48,6 +48,27 @@ class PathDecider(Decider):
             self.starts)
         return Decision(int(best), float(score), bool(ok), float(margin), column.frame, column)
 
+    def accepted_ahead(self, columns) -> bool:
+        """Whether the path of the frame just decided is accepted on one of the next ``columns`` (in order) before it
+        breaks; the state is left as it was (a copy is stepped)."""
+        st, rule = self.st.copy(), self._rule
+        if st[0]["score"] <= 0.0:
+            return False
+        for column in columns:
+            n = int(column.n)
+            if self._place.size < n:
+                self._place = np.arange(max(n, 2 * self._place.size), dtype=np.int64)
+            head = int(st[0]["head"])
+            best, score, ok, _ = KD.locate_frame(
+                (column.rows, column.z.astype(np.float64), n, float(column.fill)), rule, self._place, st, self.starts)
+            on = (head - rule[2] <= best <= head + rule[3]
+                  and KD.session_of(self.starts, best) == KD.session_of(self.starts, head))
+            if not on or score <= 0.0:
+                return False
+            if ok:
+                return True
+        return False
+
     def new_session(self) -> None:
         """A new query traverse: no path yet."""
         self.st[:] = KD.path_state()

@@ -31,7 +31,10 @@ class _Waiting:
 class Lagged(LateLocalizer):
     """Answers each query frame ``lag`` frames late: its evidence is the causal one plus a backward pass from the
     ``lag``-th frame after it, the two added as the batch evidence of both directions adds them
-    (:meth:`vpr.shosm.Engine.run`), decided by the map's path rule (:class:`PathDecider`).
+    (:meth:`vpr.shosm.Engine.run`), decided by the map's path rule (:class:`PathDecider`). A frame is accepted where
+    that rule accepts its path on its own frame or on one of the frames waiting after it
+    (:meth:`PathDecider.accepted_ahead`), except within :attr:`memory_frames` after a query frame that did not move
+    and on which no path was accepted (there on its own score only).
 
     ``base``: the map's :class:`Localizer`, stepped on every frame (it reads the direction of the query and the stands
     at once); ``answering``: what answers each frame at once (``base``, or a speed follower over it: a frame it
@@ -54,6 +57,10 @@ class Lagged(LateLocalizer):
                          for lane in seq.evidence.split()]
         self.decider = PathDecider(seq.path(), base.sessions)
         self.waiting: list[_Waiting] = []
+        #: frames over which the evidence forgets (``1 / (1 - decay)``): a frame this close after a query stand on
+        #: which no path was accepted carries the evidence that ran on alone during it
+        self.memory_frames = int(round(1.0 / (1.0 - float(seq.evidence.decay))))
+        self.settling = self.memory_frames  # frames decided since the last of such a stand
 
     def warm_up(self) -> None:
         self.answering.warm_up()
@@ -83,24 +90,35 @@ class Lagged(LateLocalizer):
         out = self.flush()
         self.answering.reset()
         self.decider.new_session()
+        self.settling = self.memory_frames
         return out
 
     def _decide(self, k: int) -> Decision:
         """The late decision of waiting frame ``k`` (0: the oldest, taken out of :attr:`waiting`)."""
         w = self.waiting.pop(k)
         after = [w, *self.waiting[:self.lag]][::-1]  # from the last frame there is back to this one
-        cols = []
-        for engine, (rows, val, n) in zip(self.backward, w.raw, strict=True):
+        backs = [[] for _ in after]  # per frame, from the last back to this one: its backward raw per speed model
+        for j, engine in enumerate(self.backward):
             engine.reset()
-            for x in after:
-                back = engine.step_raw(x.bits, n)
-            cols.append(engine.column(*_added((rows, val), back[:2]), n, w.decision.frame))
-        col = merge_columns(cols)
-        late = self.decider.decide(col)
+            for i, x in enumerate(after):
+                backs[i].append(engine.step_raw(x.bits, x.raw[j][2])[:2])
+
+        def column(i: int):  # frame ``after[i]``'s evidence of both directions, its speed models merged
+            x = after[i]
+            return merge_columns([e.column(*_added(r[:2], back), r[2], x.decision.frame)
+                                  for e, r, back in zip(self.backward, x.raw, backs[i], strict=True)])
+
+        late = self.decider.decide(column(-1))
+        # a query stand on which no path was accepted: the evidence ran on alone, ahead of the query
+        self.settling = 0 if w.unmoved and not late.accepted else self.settling + 1
+        settled = self.settling >= self.memory_frames
         if w.followed:  # answered from another map or as another query: that answer stands
             return w.decision
         b = self.base
-        ok = late.accepted and not b.refusing and refuse_stands(late.best, True, b.standing, w.unmoved)
+        # accepted on its own path score, or (settled) on the frames after it
+        ahead = (column(i) for i in range(len(after) - 2, -1, -1))
+        ok = (late.accepted or settled and self.decider.accepted_ahead(ahead)) and not b.refusing \
+            and refuse_stands(late.best, True, b.standing, w.unmoved)
         return dataclasses.replace(late, accepted=bool(ok), reversed=w.decision.reversed, frame=w.decision.frame)
 
     # ------------------------------------------------------------ state
@@ -109,6 +127,7 @@ class Lagged(LateLocalizer):
         dh, da = self.decider.state()
         ws = self.waiting
         header = {"lag": self.lag, "decider": dh, "n_waiting": len(ws), "lanes": len(self.backward),
+                  "settling": self.settling,
                   "waiting": [[int(w.decision.frame), int(w.decision.best), float(w.decision.score),
                                bool(w.decision.accepted), float(w.decision.margin), bool(w.decision.reversed),
                                bool(w.unmoved), bool(w.followed)] for w in ws]}
@@ -135,6 +154,7 @@ class Lagged(LateLocalizer):
         raws = [list(zip(_unragged(arrays, f"rows{j}", n), _unragged(arrays, f"val{j}", n),
                          (int(v) for v in arrays[f"n{j}"]), strict=True)) for j in range(len(self.backward))]
         crows, cz = _unragged(arrays, "crows", n), _unragged(arrays, "cz", n)
+        self.settling = int(header["settling"])
         self.waiting = []
         for i, (frame, best, score, accepted, margin, rev, unmoved, followed) in enumerate(header["waiting"]):
             cn = int(arrays["cn"][i])
