@@ -56,7 +56,7 @@ BASE: list[Path] = []
 SPEED_WORDS = ("driven faster", "driven slower", "another speed", "faster than", "slower than")
 
 
-def _data() -> Path:
+def data_root() -> Path:
     root = Path(os.environ.get("VPR_DATASETS", Path(__file__).resolve().parents[3] / "shared" / "datasets"))
     if not (root / "nordland_trimmed").is_dir():
         raise SystemExit(f"{root}: no nordland_trimmed; set VPR_DATASETS to the shared datasets")
@@ -174,8 +174,8 @@ def match_table(s: Streams, out: Path) -> None:
         gt = ["--gt", p_db, p_q, "--radius", radius, "--gt-soft", soft]
         cmp, said_c = run(["compare", db, q, "--methods", "rshosm-seq,seqslam", *gt, *cache, *EXTRA],
                           out / "compare" / key)
-        loc, said_l = run(["localize", _map(db, p_db, out), q, "--gt", p_q, "--radius", radius, "--gt-soft", soft,
-                           *EXTRA], out / "localize" / key)
+        loc, said_l = run(["localize", learned_map(db, p_db, out), q, "--gt", p_q, "--radius", radius, "--gt-soft",
+                           soft, *EXTRA], out / "localize" / key)
         causal, _ = run(["compare", db, q, "--methods", "seqslam", "--method-conf", "seqslam.causal=true", *gt, *cache],
                         out / "compare_causal" / key)
         r = loc["rshosm-seq"]
@@ -185,7 +185,7 @@ def match_table(s: Streams, out: Path) -> None:
               f"{speed_cell(r, said_l)} |", flush=True)
 
 
-def _map(db: Path, positions: Path, out: Path) -> Path:
+def learned_map(db: Path, positions: Path, out: Path) -> Path:
     """The map ``vpr learn`` writes of ``db`` with its positions, learned once under ``out``."""
     the_map = out / "maps" / f"{db.name}.npz"
     if not the_map.exists():
@@ -253,7 +253,7 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     EXTRA[:] = args.arg
     BASE[:] = [args.base] if args.base else []
-    streams = Streams(_data(), args.out)
+    streams = Streams(data_root(), args.out)
     t = time.perf_counter()
     tables = {"match": match_table, "one_run": one_run_table, "sessions": sessions_table}
     for name in args.only or SETTINGS:
