@@ -40,28 +40,28 @@ class PathDecider(Decider):
         return float(self.conf.min_score)
 
     def _decide(self, column: Column) -> Decision:
+        best, score, ok, margin = self._step(column, self.st)
+        return Decision(int(best), float(score), bool(ok), float(margin), column.frame, column)
+
+    def _step(self, column: Column, st: np.ndarray) -> tuple:
+        """(best, score, accepted, margin) of ``column`` on the path state ``st`` (updated)."""
         n = int(column.n)
         if self._place.size < n:
             self._place = np.arange(max(n, 2 * self._place.size), dtype=np.int64)
-        best, score, ok, margin = KD.locate_frame(
-            (column.rows, column.z.astype(np.float64), n, float(column.fill)), self._rule, self._place, self.st,
-            self.starts)
-        return Decision(int(best), float(score), bool(ok), float(margin), column.frame, column)
+        return KD.locate_frame((column.rows, column.z.astype(np.float64), n, float(column.fill)), self._rule,
+                               self._place, st, self.starts)
 
     def accepted_ahead(self, columns) -> bool:
         """Whether the path of the frame just decided is accepted on one of the next ``columns`` (in order) before it
-        breaks; the state is left as it was (a copy is stepped)."""
-        st, rule = self.st.copy(), self._rule
+        breaks (a best more than ``back`` behind or ``ahead`` beyond the path's head, in another session, or the score
+        down to 0); the state is left as it was (a copy is stepped)."""
+        st = self.st.copy()
         if st[0]["score"] <= 0.0:
             return False
         for column in columns:
-            n = int(column.n)
-            if self._place.size < n:
-                self._place = np.arange(max(n, 2 * self._place.size), dtype=np.int64)
             head = int(st[0]["head"])
-            best, score, ok, _ = KD.locate_frame(
-                (column.rows, column.z.astype(np.float64), n, float(column.fill)), rule, self._place, st, self.starts)
-            on = (head - rule[2] <= best <= head + rule[3]
+            best, score, ok, _ = self._step(column, st)
+            on = (head - self.conf.back <= best <= head + self.conf.ahead
                   and KD.session_of(self.starts, best) == KD.session_of(self.starts, head))
             if not on or score <= 0.0:
                 return False
