@@ -64,11 +64,11 @@ def latency(n, frames, exact, seed=0, follow=False, speed=(0.8, 1.2), late=False
 
     db, q, dp, qp = simulate.aliased_traverses(n, max(n // 10, 1), seed=seed, speed=speed)
     t = time.perf_counter()
-    loc = Localizer.from_database(db, [str(i) for i in range(n)], exact=exact, seed=seed)
-    if follow:  # what `vpr localize` runs by default: the localizer and the engines that follow another speed
-        loc = SpeedFollower(loc, db)
+    base = Localizer.from_database(db, [str(i) for i in range(n)], exact=exact, seed=seed)
+    # what `vpr localize` runs by default: the localizer and the engines that follow another speed
+    loc = SpeedFollower(base, db) if follow else base
     if late:  # and each frame answered LOCALIZE_LAG frames late
-        loc = Lagged(getattr(loc, "base", loc), loc, lag=LOCALIZE_LAG)
+        loc = Lagged(base, loc, lag=LOCALIZE_LAG)
     t_learn = time.perf_counter() - t
     rows = [q.indices[q.indptr[j]:q.indptr[j + 1]] for j in range(min(frames, q.shape[0]))]
     loc.warm_up()  # compile / load the kernels

@@ -75,14 +75,14 @@ class Lagged(LateLocalizer):
             return [d]
         b = self.base
         followed = self.follower is not None and self.follower.mode != 0
-        self.waiting.append(_Waiting(b._before, list(b.raw), d, bool(b.unmoved), followed))
-        return [self._decide(0)] if len(self.waiting) > self.lag else []
+        self.waiting.append(_Waiting(b.before, list(b.raw), d, bool(b.unmoved), followed))
+        return [self._decide()] if len(self.waiting) > self.lag else []
 
     def flush(self) -> list[Decision]:
         """The decisions of the frames still waiting (the traverse ended), each with the frames after it."""
         out = []
         while self.waiting:
-            out.append(self._decide(0))
+            out.append(self._decide())
         return out
 
     def reset(self) -> list[Decision]:
@@ -93,9 +93,9 @@ class Lagged(LateLocalizer):
         self.settling = self.memory_frames
         return out
 
-    def _decide(self, k: int) -> Decision:
-        """The late decision of waiting frame ``k`` (0: the oldest, taken out of :attr:`waiting`)."""
-        w = self.waiting.pop(k)
+    def _decide(self) -> Decision:
+        """The late decision of the oldest waiting frame (taken out of :attr:`waiting`)."""
+        w = self.waiting.pop(0)
         after = [w, *self.waiting[:self.lag]][::-1]  # from the last frame there is back to this one
         backs = [[] for _ in after]  # per frame, from the last back to this one: its backward raw per speed model
         for j, engine in enumerate(self.backward):
@@ -115,10 +115,10 @@ class Lagged(LateLocalizer):
         if w.followed:  # answered from another map or as another query: that answer stands
             return w.decision
         b = self.base
-        # accepted on its own path score, or (settled) on the frames after it
+        # not refused, then accepted on its own path score or (settled) on the frames after it
         ahead = (column(i) for i in range(len(after) - 2, -1, -1))
-        ok = (late.accepted or settled and self.decider.accepted_ahead(ahead)) and not b.refusing \
-            and refuse_stands(late.best, True, b.standing, w.unmoved)
+        ok = not b.refusing and refuse_stands(late.best, True, b.standing, w.unmoved) \
+            and (late.accepted or settled and self.decider.accepted_ahead(ahead))
         return dataclasses.replace(late, accepted=bool(ok), reversed=w.decision.reversed, frame=w.decision.frame)
 
     # ------------------------------------------------------------ state

@@ -60,7 +60,8 @@ class Localizer(MapLocalizer):
         #: which no answer is accepted (:func:`vpr.shosm.standing`)
         self.places = map_places(self.db_codes, memory.cells_per_column, self.sessions)
         self.standing = standing(self.places)
-        self._before: np.ndarray | None = None  # the query frame before's active bits
+        #: the last query frame's active bits (None before the first; read by :class:`Lagged`)
+        self.before: np.ndarray | None = None
         #: whether the last query frame kept :data:`UNMOVED_SHARE` of the frame before's bits (it did not move)
         self.unmoved = False
 
@@ -137,7 +138,7 @@ class Localizer(MapLocalizer):
         self.direction.reset()
         self.mirrored.new_session()
         self.decider.new_session()
-        self._before, self.unmoved, self.refusing, self.raw = None, False, True, []
+        self.before, self.unmoved, self.refusing, self.raw = None, False, True, []
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the kernels, leaving the state as it was."""
@@ -153,8 +154,8 @@ class Localizer(MapLocalizer):
         self.raw = [e.step_raw(bits) for e in self.lanes]
         column = merge_columns([e.column(*r, frame) for e, r in zip(self.lanes, self.raw, strict=True)])
         d = self.decider.decide(column)
-        self.unmoved = self._before is not None and _sdr.kept_share(bits, self._before) >= UNMOVED_SHARE
-        self._before = bits
+        self.unmoved = self.before is not None and _sdr.kept_share(bits, self.before) >= UNMOVED_SHARE
+        self.before = bits
         rev = self.backward.step(bits)
         back = self.direction.update(column.best()[1], rev.best()[1], moved=not self.unmoved)
         back = back and self.direction.read  # (before, no direction is read: no answer is accepted either)
@@ -172,8 +173,8 @@ class Localizer(MapLocalizer):
         """(header, arrays) of the query so far: the evidence and the decision (:meth:`load_state`)."""
         header, arrays = joint_state(engine=self.engine, dec=self.decider, backward=self.backward,
                                      direction=self.direction, mirrored=self.mirrored)
-        header["before"] = self._before is not None
-        return header, {**arrays, "before": np.zeros(0, np.int64) if self._before is None else self._before}
+        header["before"] = self.before is not None
+        return header, {**arrays, "before": np.zeros(0, np.int64) if self.before is None else self.before}
 
     def load_state(self, header: dict, arrays: dict) -> Localizer:
         if header.get("engine") is not None:
@@ -182,7 +183,7 @@ class Localizer(MapLocalizer):
         for name in ("backward", "direction", "mirrored"):  # (a state saved before they were kept starts them afresh)
             if name in header:
                 getattr(self, name).load_state(*part_state(header, arrays, name))
-        self._before = np.asarray(arrays["before"], np.int64) if header.get("before") else None
+        self.before = np.asarray(arrays["before"], np.int64) if header.get("before") else None
         return self
 
     def map_state(self) -> tuple[dict, dict[str, dict]]:
