@@ -17,7 +17,7 @@ from vpr.evaluate import RECALL_AT
 from vpr.groundtruth import NAMES_RADIUS, GroundTruthSpec
 from vpr.sources import is_descriptor_file
 
-__all__ = ["add_recall_at_argument", "parse_recall_at",
+__all__ = ["add_recall_at_argument", "parse_recall_at", "add_prefix_arguments",
            "add_common_arguments", "add_source_arguments", "add_preset_argument", "add_gt_arguments",
            "gt_spec_from_args", "loop_geometry", "descriptor_inputs", "input_encoder", "input_preset", "method_confs",
            "add_method_conf_argument", "add_run_arguments", "settings_from_args", "options_from_args", "parse_every",
@@ -40,6 +40,18 @@ def add_source_arguments(ap) -> None:
     ap.add_argument("--topic", nargs="+", metavar="NAME", help="ROS bags: the camera topic (sensor_msgs/Image or "
                     "CompressedImage; default: the bag's only image topic that is not depth); one for all inputs "
                     "or one per input, in order")
+
+
+def add_prefix_arguments(ap, db: bool = True, query: bool = True) -> None:
+    """``--db-prefix`` / ``--query-prefix`` (hloc's spelling): one ``.h5`` of global features holding the database's
+    and the queries' frames, told apart by the beginning of their names."""
+    group = ap.add_argument_group("one hloc .h5 for the database and the queries (as hloc's pairs_from_retrieval)")
+    if db:
+        group.add_argument("--db-prefix", metavar="PREFIX", help="the database's frames: the .h5's names that begin "
+                           "with PREFIX (e.g. db/)")
+    if query:
+        group.add_argument("--query-prefix", metavar="PREFIX", help="the query's frames: the .h5's names that begin "
+                           "with PREFIX (e.g. query/)")
 
 
 def add_preset_argument(ap) -> None:
@@ -209,6 +221,8 @@ def settings_from_args(args) -> dict:
                         loops=args.command == "loops")
     if names is None and args.command != "compare":  # one method: the preset's headline or loop method
         s["methods"] = [s["loop_method"] if args.command == "loops" else s["methods"][0]]
+        # the preset's confs of the methods not run are not the user's: only a --method-conf given is said unused
+        s["method_conf"] = {m: c for m, c in s["method_conf"].items() if m in s["methods"] or m in confs}
     s["images"] = not given  # the inputs are images, not descriptor files
     return s
 
@@ -264,7 +278,8 @@ def options_from_args(args, settings: dict | None = None, **own):
         verify=getattr(args, "verify", 0), min_inliers=getattr(args, "min_inliers", 15),
         workers=getattr(args, "workers", None), scheduler=getattr(args, "scheduler", None),
         progress=not args.no_progress, cache=Path(args.cache) if args.cache else None,
-        memory_budget=budget, follow_speed=follows_speed(args))
+        memory_budget=budget, follow_speed=follows_speed(args), db_prefix=getattr(args, "db_prefix", None),
+        query_prefix=getattr(args, "query_prefix", None))
 
 
 def loop_geometry(method: str, given: str | None, images: bool = True) -> bool:

@@ -228,7 +228,8 @@ class _reporter:
 def add_arguments(ap: argparse.ArgumentParser, command: str = "encode") -> None:
     import encoders
 
-    ap.add_argument("sources", metavar="SOURCE", nargs="+", help="image folders, videos or image lists")
+    ap.add_argument("sources", metavar="SOURCE", nargs="+", help="image folders, videos, image lists, ROS bags "
+                    "or descriptor files (.npy, hloc .h5)")
     ap.add_argument("--cache", required=True, metavar="DIR",
                     help="cache folder; give the same to match/compare/loops/localize --cache")
     # the preset's encoder unless --encoder is given, so that `vpr compare --cache DIR` with the same preset hits

@@ -25,6 +25,7 @@ from pipelines.args import (
     add_field_files_arguments,
     add_gt_arguments,
     add_method_conf_argument,
+    add_prefix_arguments,
     add_preset_argument,
     add_query_speed_argument,
     add_recall_at_argument,
@@ -39,15 +40,17 @@ from pipelines.args import (
     parse_recall_at,
     topic_arg,
 )
-from pipelines.maps import learn, load_map, map_path
+from pipelines.maps import learn, learn_plan, load_map, map_encoder, map_path, plan_learn
 from pipelines.online import Online, run_online, summary_line
-from pipelines.outputs import warn
+from pipelines.outputs import check_pairs, warn
 from pipelines.stream import PRIOR_FRAMES, WINDOW, StreamEncoder
 from vpr import evaluate, io, methods, presets
 from vpr.checks import per_input
 from vpr.groundtruth import (
     GroundTruthSpec,
+    any_true,
     build_gt,
+    input_spec,
     prepare_positions,
     runs_backwards,
     same_rate,
@@ -55,7 +58,7 @@ from vpr.groundtruth import (
     sampling_step,
 )
 from vpr.methods import Map, MemoryFileError
-from vpr.sources import open_source
+from vpr.sources import check_ordered, open_source
 from vpr.sources.stdin import StdinSource
 from vpr.types import Decision, FollowingLocalizer, LateLocalizer, QueryLocalizer
 
@@ -187,8 +190,8 @@ class LocalizeOnline(Online):
         return self.loc.n_db
 
     def evaluate(self, result, names, indices, frames) -> dict:
-        gt, loc, info = self.gt, self.loc, self.map.info
-        if gt.tolerance is None and not gt.files and gt.topic is None:
+        gt = self.gt
+        if not gt.given:
             return {}, None
         # the first rows: frames read before a restart, waiting in the state; then this run's source's frames
         n_from = self._from_state
@@ -202,9 +205,10 @@ class LocalizeOnline(Online):
         step = sampling_step(own)
         first = int(frames[n_from]) if len(frames) > n_from else 0
         q_idx = [int(f * step) for f in frames[:n_from]] + [int(first * step) + i for i in own]
-        gt_hard, gt_soft = build_gt(gt, loc.names, names, info.get("db_indices") or list(range(loc.n_db)), q_idx,
-                                    info.get("db_source", "database"), self.q_src.name, positions=positions,
-                                    rates=(info.get("source_rate"), self.q_src.native_rate()))
+        gt_hard, gt_soft = query_gt(gt, MapFrames.of_map(self.map), names, q_idx, self.q_src, positions)
+        if not any_true(gt_hard):  # a query of image paths on stdin (a source's is refused before any frame)
+            warn(f"{gt.no_match_error(q_indices=q_idx)}: the decisions are written without metrics")
+            return {}, None
         m, curve = evaluate.method_metrics(result, gt_hard, gt_soft, recall_at=self.recall_at)
         self.ground_truth = (gt_hard, gt_soft, None)
         m.pop("seconds", None)
@@ -258,6 +262,57 @@ class LocalizeOnline(Online):
 
 
 @dataclass(frozen=True)
+class MapFrames:
+    """The frames a query is scored against: a learned map's, or a database's about to be learned (its sources'
+    frames, read before any is encoded)."""
+
+    method: str
+    names: list
+    indices: list
+    source: str
+    rate: float | None
+    positions: np.ndarray | None
+    origin: tuple | None
+
+    @classmethod
+    def of_map(cls, the_map: Map) -> MapFrames:
+        info, loc = the_map.info, the_map.localizer
+        return cls(the_map.method, list(loc.names), list(info.get("db_indices") or range(loc.n_db)),
+                   info.get("db_source", "database"), info.get("source_rate"), the_map.positions, the_map.origin)
+
+    @classmethod
+    def of_plan(cls, plan) -> MapFrames:
+        xy = None if plan.positions is None else np.concatenate(list(plan.positions))
+        rate = plan.srcs[0].native_rate() if len(plan.srcs) == 1 else None
+        return cls(plan.method.name, plan.names(), plan.indices(), plan.srcs[0].name, rate, xy, plan.origin())
+
+
+def _query_positions(q_src, q_gt: GroundTruthSpec, db: MapFrames, every) -> np.ndarray:
+    """The query source's frame positions (``--every``: one frame kept per so many metres), about the map's origin."""
+    return prepare_positions([q_src], ["query"], q_gt, every, loops=False, origin=db.origin)[0]
+
+
+def query_gt(gt: GroundTruthSpec, db: MapFrames, names, indices, q_src, positions=None):
+    """(gt_hard, gt_soft) of the query frames ``names`` (source frame numbers ``indices``) against the map's frames
+    ``db``; ``positions``: (the map's, the query frames') positions with ``--radius``."""
+    return build_gt(gt, db.names, names, db.indices, indices, db.source, q_src.name, positions=positions,
+                    rates=(db.rate, q_src.native_rate()))
+
+
+def check_query_gt(gt: GroundTruthSpec, db: MapFrames, q_src, q_xy=None) -> None:
+    """Refuse, before a frame is read, a ground truth in which no frame of the query source has a true match in the
+    map (as ``vpr match`` refuses it; what it says is said again when the frames read are scored)."""
+    if not gt.given:
+        return
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        hard, _ = query_gt(gt, db, q_src.names(), q_src.indices(), q_src,
+                           None if q_xy is None else (db.positions, q_xy))
+    if hard is not None and not any_true(hard):
+        raise gt.no_match_error(db.indices, q_src.indices())
+
+
+@dataclass(frozen=True)
 class LocalizeOptions:
     """How ``vpr localize`` reads and answers a query.
 
@@ -274,6 +329,8 @@ class LocalizeOptions:
     progress : progress bar while learning a database.
     topic : bags' camera topic (a pair: the database's and the query's); every : one query frame per so many
         metres (with the query's positions).
+    db_prefix, query_prefix : one hloc ``.h5`` for both: the database's and the query's frames by the beginning of
+        their names.
     follow_speed : a query driven faster or slower than the map at the same frame rate answered by the maps of one
         frame in k or as queries of one frame in k while it is so (the method's ``follower``, where it has one);
         False: the frames as they come.
@@ -297,6 +354,8 @@ class LocalizeOptions:
     follow_speed: bool = True
     files: dict = field(default_factory=lambda: {"top": 20, "pairs": 0, "mat": False})
     recall_at: tuple = evaluate.RECALL_AT
+    db_prefix: str | None = None
+    query_prefix: str | None = None
 
 
 def localize(map_or_db, query, out, opts: LocalizeOptions | None = None, stdout=None, stdin=None, **options) -> dict:
@@ -308,62 +367,78 @@ def localize(map_or_db, query, out, opts: LocalizeOptions | None = None, stdout=
     ``**options`` over them.
     """
     o = replace(opts or LocalizeOptions(), **options)
-    query_standardise, prior_frames, window, gt = o.query_standardise, o.prior_frames, o.window, o.gt
-    fps, step, max_frames, topic, every = o.fps, o.step, o.max_frames, o.topic, o.every
-    learn_options, state_out, progress, follow_speed = o.learn_options, o.state_out, o.progress, o.follow_speed
     out = Path(out)
     io.check_writable(out / "metrics.json", "--out")
-    if state_out:
-        io.check_writable(state_out, "--state-out")
-    running = {k: v for k, v in (("prior_frames", prior_frames), ("window", window)) if v is not None}
-    if query_standardise != "running" and running:
+    if o.state_out:
+        io.check_writable(o.state_out, "--state-out")
+    running = {k: v for k, v in (("prior_frames", o.prior_frames), ("window", o.window)) if v is not None}
+    if o.query_standardise != "running" and running:
         raise ValueError(f"--{' and --'.join(k.replace('_', '-') for k in running)} appl"
                          f"{'ies' if len(running) == 1 else 'y'} to --query-standardise running, not "
-                         f"{query_standardise} (the database's statistics, fixed)")
+                         f"{o.query_standardise} (the database's statistics, fixed)")
     if running.get("window") == 0:
         running["window"] = None  # every frame so far
     p = Path(map_or_db)
     learned = Map.is_map(p) or (p.is_file() and p.suffix.lower() == ".npz")  # a foreign .npz is refused by Map.load
-    gt = gt or GroundTruthSpec()
-    # one camera / position topic for both, or the database's and the query's
-    (db_topic, topic), (db_gt_topic, gt_topic) = ([None, *per_input(t, 1, option)] if learned
-                                                  else per_input(t, 2, option)
-                                                  for t, option in ((topic, "--topic"), (gt.topic, "--gt-topic")))
-    gt = replace(gt, topic=gt_topic)
+    gt = o.gt or GroundTruthSpec()
+    gt.check()
+    if learned and gt.positional and len(gt.files) > 1:
+        raise ValueError(f"--gt {' '.join(gt.files)}: {map_or_db} is a learned map, which keeps its frames' "
+                         "positions; give the query's positions alone (--gt QUERY_FILE)")
+    # one camera topic for both, or the database's and the query's; each input's own positions
+    db_topic, topic = [None, *per_input(o.topic, 1, "--topic")] if learned else per_input(o.topic, 2, "--topic")
+    db_gt, q_gt = (None, input_spec(gt, 0, 1)) if learned else (input_spec(gt, 0, 2), input_spec(gt, 1, 2))
+    gt = replace(gt, topic=q_gt.topic)
+    stdin_query = str(query) == "-"
+    frames = {"fps": o.fps, "step": o.step, "max_frames": o.max_frames}
+    learn_options = dict(o.learn_options or {})
+    plan = None
     if learned:
         the_map, enc = load_map(p)
-        named = (learn_options or {}).get("method")
+        named = learn_options.get("method")
         if named and named != the_map.method:
             raise ValueError(f"{map_or_db} is a map of {the_map.method}: --method-conf for {named} does not apply")
-        if (learn_options or {}).get("method_conf"):  # query-time settings apply to a learned map
+        if learn_options.get("method_conf"):  # query-time settings apply to a learned map
             the_map.localizer = the_map.localizer.reconfigure(**learn_options["method_conf"])
-    else:
-        learn_to = out / "map.npz"
-        positional = gt is not None and gt.positional
-        learn(map_or_db, learn_to, fps=fps, step=step, max_frames=max_frames, progress=progress, topic=db_topic,
-              positions=replace(gt, topic=db_gt_topic) if positional else None, every=every if positional else None,
-              **dict(learn_options or {}))
-        the_map, enc = load_map(learn_to)
-    the_map, every = same_sampling(the_map, every, gt.positional or bool(gt.topic), str(map_or_db), progress)
-    q_src = StdinSource(stdin if stdin is not None else sys.stdin) if str(query) == "-" else \
-        open_source(query, fps=fps, step=step, max_frames=max_frames, topic=topic)
-    if str(query) != "-" and every is None:  # a query at another frame rate than the map's
-        the_map, q_fps = same_rate(the_map, q_src, fps, str(map_or_db), progress)
-        q_src = open_source(query, fps=q_fps, step=step, max_frames=max_frames, topic=topic) if q_fps else q_src
-    qenc = StreamEncoder(enc, query_standardise, **running)
+        db = MapFrames.of_map(the_map)
+    else:  # checked and opened now, learned once the query is checked too
+        plan = plan_learn(map_or_db, **learn_options, topic=db_topic, positions=db_gt if gt.positional else None,
+                          every=o.every if gt.positional else None, prefix=o.db_prefix, **frames)
+        db = MapFrames.of_plan(plan)
+    if o.every is not None and not gt.positional:
+        prepare_positions([], ["query"], q_gt, o.every)  # refused: --every needs the frames' positions
+    q_src = StdinSource(stdin if stdin is not None else sys.stdin) if stdin_query else \
+        open_source(query, topic=topic, prefix=o.query_prefix, prefix_flag="--query-prefix", **frames)
+    if stdin_query and o.query_prefix is not None:
+        raise ValueError("--query-prefix picks the frames of an .h5 by name: image paths on stdin have none")
+    if not stdin_query:
+        check_ordered([q_src], ["query"], [db.method] if methods.get_class(db.method).reads_order else [])
+    if gt.positional and stdin_query:
+        raise ValueError("position ground truth (--radius) reads the query's positions from its source; with "
+                         "paths on stdin give --gt PAIRS.csv or --tolerance")
+    if gt.positional and db.positions is None:
+        raise ValueError(f"{map_or_db}: the map holds no positions of its frames, so --radius has nothing to "
+                         "match; learn it with --gt-topic or --gt (or give the database itself)")
+    check_pairs(o.files.get("pairs", 0), len(db.names), map_or_db)
+    if not stdin_query:  # every frame of the query source (--every keeps some of them, later)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # said when the frames kept are read
+            q_xy = _query_positions(q_src, q_gt, db, None) if gt.positional else None
+        check_query_gt(gt, db, q_src, q_xy)
+    # ---- the work starts here: every refusal above
+    if plan is not None:
+        the_map = learn_plan(plan, o.progress)
+        the_map.save(map_path(out / "map.npz"))  # the map learned, to localise against again (vpr localize DIR/map.npz)
+        enc = map_encoder(the_map)
+    the_map, every = same_sampling(the_map, o.every, gt.positional, str(map_or_db), o.progress)
+    if not stdin_query and every is None:  # a query at another frame rate than the map's
+        the_map, q_fps = same_rate(the_map, q_src, o.fps, str(map_or_db), o.progress)
+        if q_fps:
+            q_src = open_source(query, topic=topic, prefix=o.query_prefix, **{**frames, "fps": q_fps})
+    q_xy = _query_positions(q_src, q_gt, MapFrames.of_map(the_map), every) if gt.positional else None
+    qenc = StreamEncoder(enc, o.query_standardise, **running)
     qenc.load_state({}, the_map.query_state)  # a --state-out file continues its query's running statistics
-    q_xy = None
-    if gt.positional:
-        if the_map.positions is None:
-            raise ValueError(f"{map_or_db}: the map holds no positions of its frames, so --radius has nothing to "
-                             "match; learn it with --gt-topic or --gt (or give the database itself)")
-        if str(query) == "-":
-            raise ValueError("position ground truth (--radius) reads the query's positions from its source; with "
-                             "paths on stdin give --gt PAIRS.csv or --tolerance")
-        q_xy = prepare_positions([q_src], ["query"], gt, every, loops=False, origin=the_map.origin)[0]
-    elif every is not None:
-        prepare_positions([q_src] if str(query) != "-" else [], ["query"], gt, every)
-    follower = methods.get(the_map.method).follower(the_map.localizer, the_map.sdr) if follow_speed else None
+    follower = methods.get(the_map.method).follower(the_map.localizer, the_map.sdr) if o.follow_speed else None
     if follower is not None:
         if the_map.follow_state is not None:  # a --state-out file continues its follower too
             try:
@@ -373,13 +448,13 @@ def localize(map_or_db, query, out, opts: LocalizeOptions | None = None, stdout=
                                       f"{type(e).__name__}: {e})") from e
     late = methods.get(the_map.method).late(the_map.localizer, follower)
     job = LocalizeOnline(the_map, qenc, gt, q_src,
-                         {"map_or_db": str(map_or_db), "query": str(query), "query_standardise": query_standardise,
-                          "prior_frames": prior_frames, "window": window, "follow_speed": follow_speed}, q_xy,
-                         follower, late, goes_on=bool(state_out))
+                         {"map_or_db": str(map_or_db), "query": str(query), "query_standardise": o.query_standardise,
+                          "prior_frames": o.prior_frames, "window": o.window, "follow_speed": o.follow_speed}, q_xy,
+                         follower, late, goes_on=bool(o.state_out))
     job.files = dict(o.files)
     job.recall_at = tuple(o.recall_at)
     job.warm_up()
-    return run_online(job, q_src, out, stdout, state_out)
+    return run_online(job, q_src, out, stdout, o.state_out)
 
 
 # ------------------------------------------------------------------ command line
@@ -393,11 +468,13 @@ def _add_learn_args(ap):
 
 def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     if command == "learn":
-        ap.add_argument("db", metavar="DB", nargs="+", help="database traverse: image folder, video, image list or "
-                        "ROS bag; several: the sessions of one map (a robot's runs)")
+        ap.add_argument("db", metavar="DB", nargs="+", help="database traverse: image folder, video, image list, ROS "
+                        "bag, or descriptors computed elsewhere (.npy of N x D, hloc's global-feature .h5); several: "
+                        "the sessions of one map (a robot's runs)")
         ap.add_argument("--out", required=True, metavar="MAP.npz", help="map file to write")
         _add_learn_args(ap)
         add_source_arguments(ap)
+        add_prefix_arguments(ap, query=False)
         pos = ap.add_argument_group("the frames' positions, kept in the map (vpr localize --radius evaluates "
                                     "against them; --every needs them)")
         pos.add_argument("--gt", nargs=1, metavar="FILE", help="positions CSV (frame,x,y), TUM trajectory, KITTI "
@@ -406,8 +483,10 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
                          "PoseStamped topic; one for all sessions or one per session, in order")
         add_common_arguments(ap)
         return
-    ap.add_argument("map", metavar="MAP_OR_DB", help="map from `vpr learn` (.npz), or a database traverse to learn")
-    ap.add_argument("query", metavar="QUERY", help="image folder, video, image list, or - (paths on stdin)")
+    ap.add_argument("map", metavar="MAP_OR_DB", help="map from `vpr learn` (.npz), or a database traverse to learn "
+                    "(as vpr learn's DB)")
+    ap.add_argument("query", metavar="QUERY", help="image folder, video, image list, ROS bag, descriptors computed "
+                    "elsewhere (.npy of N x D, hloc's global-feature .h5), or - (image paths on stdin)")
     ap.add_argument("--out", required=True, help="output folder (matches.csv, metrics.json)")
     ap.add_argument("--query-standardise", choices=("running", "db"), default="running",
                     help="standardise=fit encoders: running statistics of the query so far (default) or the "
@@ -424,6 +503,7 @@ def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     learn_group = ap.add_argument_group("learning MAP_OR_DB when it is a database")
     _add_learn_args(learn_group)
     add_source_arguments(ap)
+    add_prefix_arguments(ap)
     add_gt_arguments(ap, title="ground truth (optional; enables AP and R@1)")
     add_recall_at_argument(ap)
     add_common_arguments(ap)
@@ -458,7 +538,7 @@ def run_command(args) -> int:
                     max_frames=args.max_frames,
                     progress=not args.no_progress, encoder=settings["encoder"], encoder_conf=settings["encoder_conf"],
                     method=name, method_conf=settings["method_conf"][name], topic=topic_arg(args.topic), positions=spec,
-                    every=every)
+                    every=every, prefix=args.db_prefix)
         loc = the_map.localizer
         skipped = the_map.info.get("skipped") or []
         if skipped:
@@ -468,7 +548,8 @@ def run_command(args) -> int:
         return 0
     if Map.is_map(args.map) or Path(args.map).suffix.lower() == ".npz":
         fixed = [f for f, v in (("--encoder", args.encoder), ("--encoder-conf", args.encoder_conf),
-                                ("--preset", args.preset), ("--method", args.method)) if v]
+                                ("--preset", args.preset), ("--method", args.method), ("--db-prefix", args.db_prefix))
+                 if v]
         if fixed:
             raise ValueError(f"{args.map} is a learned map: it fixes the method, the encoder and its conf "
                              f"({', '.join(fixed)} cannot change them); --method-conf METHOD.KEY=VALUE sets the "
@@ -483,7 +564,8 @@ def run_command(args) -> int:
                            window=args.window, state_out=args.state_out, gt=gt_spec_from_args(args),
                            learn_options=learn_opts, progress=not args.no_progress,
                            follow_speed=follows_speed(args), files=field_files(args),
-                           recall_at=parse_recall_at(args), **src_opts)
+                           recall_at=parse_recall_at(args), db_prefix=args.db_prefix,
+                           query_prefix=args.query_prefix, **src_opts)
     report = localize(args.map, args.query, args.out, opts)
     print(summary_line(report, args.out), file=sys.stderr)
     return 0

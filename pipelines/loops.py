@@ -46,7 +46,8 @@ COMMANDS = {"loops": "loop closures within one traverse (the paper's setting)"}
 
 def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
     ap.add_argument("seq", metavar="SEQ", nargs="+",
-                    help="image folder, video, image list or ROS bag; several: the sessions of one stream (a "
+                    help="image folder, video, image list, ROS bag, or descriptors computed elsewhere (.npy of N x "
+                         "D, hloc's global-feature .h5); several: the sessions of one stream (a "
                          "robot's runs, in order); or - for image paths on stdin, decided online one frame at a time "
                          "(a JSON line per frame on stdout; a line #session starts a new session)")
     add_run_arguments(ap, "loop method")

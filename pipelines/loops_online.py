@@ -66,12 +66,13 @@ def make_detector(settings: dict, exclude: int = LOOP_EXCLUDE, geometry: bool = 
     the preset's loop encoder and the loop detector its method (one that runs online) hands out with its conf;
     ``geometry``: with the geometric second opinion (its frames read again from their paths)."""
     method = settings["methods"][0]
-    runner = methods.get_online(method, **settings["method_conf"].get(method, {}))
     unused = sorted(set(settings["method_conf"]) - {method})
     if unused:
         raise ValueError(f"vpr loops -: online loop closure is {method}'s; --method-conf for {', '.join(unused)} does "
                          "not apply")
     enc = encoders.get(settings["encoder"], **settings["encoder_conf"])
+    runner = methods.get_online(method, sdr_bits=enc.n_bits, encoder=f"--encoder {enc.name}",
+                                **settings["method_conf"].get(method, {}))
     enc.check_memory(1)  # frames come one at a time
     frames = FramesByPath()  # the detector's frame names, once it is made
     det = runner.loop_detector(StreamEncoder(enc), exclude=exclude,

@@ -13,6 +13,7 @@ from pipelines.args import (
     add_common_arguments,
     add_field_files_arguments,
     add_gt_arguments,
+    add_prefix_arguments,
     add_query_speed_argument,
     add_recall_at_argument,
     add_run_arguments,
@@ -30,11 +31,13 @@ COMMANDS = {
 
 
 def add_arguments(ap: argparse.ArgumentParser, command: str) -> None:
-    ap.add_argument("db", metavar="DB", help="database traverse: image folder, video or image list")
+    ap.add_argument("db", metavar="DB", help="database traverse: image folder, video, image list, ROS bag, or "
+                    "descriptors computed elsewhere (.npy of N x D, hloc's global-feature .h5)")
     ap.add_argument("query", metavar="QUERY", nargs="+",
-                    help="query traverse(s): image folder, video or image list; several: a fleet, one folder "
-                         "OUT/<query name> each, on Dask (--workers, --scheduler)")
+                    help="query traverse(s), of the same kinds as DB; several: a fleet, one folder OUT/<query name> "
+                         "each, on Dask (--workers, --scheduler)")
     add_run_arguments(ap, "methods" if command == "compare" else "first method")
+    add_prefix_arguments(ap)
     add_gt_arguments(ap)
     fleet = ap.add_argument_group("Dask: several query traverses (a fleet), or one split in blocks")
     fleet.add_argument("--workers", type=int, metavar="N",

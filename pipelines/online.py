@@ -25,6 +25,7 @@ from pipelines.report import write_report
 from vpr import evaluate
 from vpr.groundtruth import check_speeds
 from vpr.interrupts import deferred
+from vpr.report import metrics_table
 from vpr.sources.stdin import SESSION
 from vpr.types import Decision, MatchResult
 
@@ -124,16 +125,24 @@ def latency_summary(ms) -> dict:
 
 
 def summary_line(report: dict, out, accepted: str | None = None) -> str:
-    """The line an online command prints on stderr at the end: frames, what was accepted, the latency (of the method
-    the run's ``params`` name)."""
+    """What an online command prints on stderr at the end (its stdout holds a JSON line per frame): with ground
+    truth the metrics table with Recall@N, as ``vpr match`` prints it; then a line of the frames, what was accepted
+    and the latency (of the method the run's ``params`` name)."""
+    if not report["methods"]:  # every frame read waits in the state (said when the input ended)
+        return f"vpr {report['params']['command']}: {report['waiting']} frames wait in the state; nothing answered yet"
     m = report["methods"][report["params"]["method"]]
     lat = m["latency_ms"]
     what = f", {m['n_accepted']} {accepted}" if accepted else ""
     truth = report["params"].get("ground_truth") or {}
     unit = f"; ground truth {truth['tolerance_text']}" if truth.get("tolerance_text") else ""
-    return (f"vpr {report['params']['command']}: {m['frames']} frames{what}, latency median "
+    line = (f"vpr {report['params']['command']}: {m['frames']} frames{what}, latency median "
             f"{lat['with_encoding']['median']:.2f} ms ({lat['without_encoding']['median']:.2f} ms without encoding)"
             f"{unit}; wrote {out}/report.html and metrics.json")
+    if "recall_at_1" not in m:  # no ground truth: nothing scored
+        return line
+    kind = "loops" if report["params"]["command"] == "loops" else "match"
+    table = {report["params"]["method"]: m}
+    return "\n".join([metrics_table(table, kind), line])
 
 
 class _Lines:
@@ -232,6 +241,12 @@ def _run(job: Online, src, out: Path, stdout, state_out, claim: contextlib.ExitS
               f"{job.resume_hint(state_out)} with another --out; their answers come first", file=sys.stderr,
               flush=True)
     if not rows:
+        if waiting and state_out:  # every frame read waits for the frames after it: kept in the state alone
+            with deferred():
+                job.save(state_out)
+            if stop is not None:
+                raise stop
+            return {"methods": {}, "params": {"command": job.command, "method": job.method}, "waiting": len(waiting)}
         if stop is not None:
             raise stop
         raise ValueError("no readable frames")

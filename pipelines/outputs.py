@@ -22,7 +22,7 @@ from vpr.similarity import TOP_K, topk_sparse
 from vpr.types import MatchResult
 
 __all__ = ["MATCH_COLUMNS", "GT_COLUMNS", "DENSE_FILE_BYTES", "versions", "write_similarity", "write_matches",
-           "write_method", "merge_metrics", "warn", "claim_methods"]
+           "write_method", "merge_metrics", "warn", "claim_methods", "check_pairs", "write_ranked"]
 
 
 def warn(msg: str) -> None:
@@ -94,6 +94,14 @@ def write_matches(folder: Path, res: MatchResult, db_names, q_names, extra: dict
             q = j if query_ids is None else query_ids[j]
             w.writerow([q, q_names[j], b, name, f"{res.score[j]:.6g}", int(bool(res.accepted[j])),
                         *(v[j] for v in extra.values())])
+
+
+def check_pairs(pairs: int, n_db: int, db) -> None:
+    """Refuse ``--pairs N`` beyond the database's ``n_db`` frames (``db``), before any work: hloc's pairs file
+    (:func:`write_ranked`) is named for N."""
+    if pairs > n_db:
+        raise ValueError(f"--pairs {pairs}: more pairs per query than the database's {n_db} frames ({db}); at most "
+                         f"{n_db}")
 
 
 def write_ranked(folder: Path, res: MatchResult, db_names, q_names, top: int = 0, pairs: int = 0,

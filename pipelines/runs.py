@@ -21,7 +21,7 @@ import numpy as np
 import encoders
 from pipelines.cluster import check_workers, dask_client, run_tasks, send_once, split_match
 from pipelines.extract import extract_all
-from pipelines.outputs import claim_methods, merge_metrics, versions, warn, write_method, write_ranked
+from pipelines.outputs import check_pairs, claim_methods, merge_metrics, versions, warn, write_method, write_ranked
 from pipelines.report import write_report
 from vpr import evaluate, io, methods
 from vpr.groundtruth import (
@@ -39,7 +39,7 @@ from vpr.interrupts import deferred
 from vpr.methods import LOOP_EXCLUDE
 from vpr.report import TABLE, table_cells, write_table
 from vpr.similarity import budget_setting, dense_budget
-from vpr.sources import open_sources
+from vpr.sources import check_ordered, open_sources
 from vpr.types import MatchResult
 
 __all__ = ["RunOptions", "run_compare", "run_fleet", "prepare_run", "compare_query", "MatchMap", "extract_run",
@@ -101,6 +101,9 @@ class RunOptions:
     cache: Path | None = None
     #: bytes the dense matrices may take (``--memory-budget``; None: :func:`vpr.similarity.default_dense_budget`)
     memory_budget: int | None = None
+    #: one hloc ``.h5`` for both: the database's and the queries' frames, by the beginning of their names
+    db_prefix: str | None = None
+    query_prefix: str | None = None
 
     def __post_init__(self):
         if isinstance(self.verify, bool) or not isinstance(self.verify, (int, np.integer)) or self.verify < 0:
@@ -142,12 +145,16 @@ def prepare_run(out: Path, paths, roles, opts: RunOptions, match: bool = False):
     chosen = opts.chosen()
     if not opts.verify and opts.min_inliers != RunOptions.min_inliers:
         warn(f"--min-inliers {opts.min_inliers} has no effect without --verify N; ignored")
-    runners = methods.build(opts.methods, opts.method_conf, opts.images)
+    encoder = encoders.get(opts.encoder, **opts.encoder_conf)
+    runners = methods.build(opts.methods, opts.method_conf, opts.images, sdr_bits=encoder.n_bits,
+                            encoder=f"--encoder {encoder.name}")
     unknown = set(opts.verify_methods or ()) - set(runners)
     if unknown:
         raise ValueError(f"verify_methods: {', '.join(sorted(unknown))} not among the methods run")
-    encoder = encoders.get(opts.encoder, **opts.encoder_conf)
-    srcs = open_sources(paths, opts.topic, not match, fps=opts.fps, step=opts.step, max_frames=opts.max_frames)
+    prefixes = [opts.db_prefix, *[opts.query_prefix] * (len(paths) - 1)]
+    srcs = open_sources(paths, opts.topic, not match, fps=opts.fps, step=opts.step, max_frames=opts.max_frames,
+                        prefix=prefixes, prefix_flags=["--db-prefix", *["--query-prefix"] * (len(paths) - 1)])
+    check_ordered(srcs, roles, [m for m, r in runners.items() if r.reads_order])
     positions = prepare_positions(srcs, roles, opts.gt, opts.every)
     check_rates(srcs, opts.every, against_first=match)
     encoder.check_sources(srcs, roles, chosen)
@@ -164,6 +171,8 @@ def prepare_run(out: Path, paths, roles, opts: RunOptions, match: bool = False):
     if opts.cache is not None and Path(opts.cache).is_dir() and not os.access(opts.cache, os.W_OK | os.X_OK):
         warn(f"--cache {opts.cache}: not writable; encodings found there are read, new ones are not cached")
     n_db = len(srcs[0].indices())
+    if match:
+        check_pairs(opts.pairs, n_db, srcs[0].path)
     if opts.verify > n_db:
         raise ValueError(f"--verify {opts.verify}: more candidates per query than the database's {n_db} frames to read "
                          f"({srcs[0].path}); at most {n_db}")

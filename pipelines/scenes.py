@@ -55,7 +55,8 @@ class EncoderTest:
 def similarity(method: str, db_sdr: sp.csr_matrix, q_sdr: sp.csr_matrix):
     """db x query similarity of ``method`` on two SDR traverses."""
     names = list(range(max(db_sdr.shape[0], q_sdr.shape[0])))
-    return methods.get(method).match(EncodedTraverse(names[: db_sdr.shape[0]], sdr=db_sdr),
+    conf = methods.get_class(method).conf_for_sdrs({}, db_sdr.shape[1])  # the memory reads the encoder's width
+    return methods.get(method, **conf).match(EncodedTraverse(names[: db_sdr.shape[0]], sdr=db_sdr),
                                      EncodedTraverse(names[: q_sdr.shape[0]], sdr=q_sdr)).similarity
 
 

@@ -1,5 +1,6 @@
 """Global descriptors computed elsewhere as an input: .npy (N x D) and hloc's global-feature .h5."""
 import json
+import warnings
 
 import h5py
 import numpy as np
@@ -27,8 +28,8 @@ def test_descriptor_files_read_as_sources(tmp_path):
     # hloc: names kept (nested groups are folders), in natural order as a folder's
     names = ["db/img10.jpg", "db/img2.jpg", "db/img1.jpg", "db/img3.jpg"]
     _h5(tmp_path / "g.h5", names, rows)
-    got_names, got = read_descriptors(tmp_path / "g.h5")
-    assert got_names == ["db/img1.jpg", "db/img2.jpg", "db/img3.jpg", "db/img10.jpg"]
+    got_names, got, order = read_descriptors(tmp_path / "g.h5")
+    assert got_names == ["db/img1.jpg", "db/img2.jpg", "db/img3.jpg", "db/img10.jpg"] and order == "names"
     np.testing.assert_array_equal(got, rows[[2, 1, 3, 0]])
 
 
@@ -147,3 +148,127 @@ def test_images_beside_a_descriptor_file_name_its_frames_and_show_on_the_page(de
     (tmp_path / "short").symlink_to(described["folders"][1])
     with pytest.raises(ValueError, match="50 descriptors, but the folder beside it"):
         DescriptorSource(tmp_path / "short.npy")
+
+
+def _h5_ordered(path, names, rows, track_order: bool):
+    with h5py.File(path, "w", track_order=track_order) as f:
+        for name, row in zip(names, rows, strict=True):
+            f.create_group(name, track_order=track_order).create_dataset("global_descriptor", data=row)
+    return path
+
+
+def test_an_h5_keeps_its_frames_in_the_order_it_was_written_or_says_the_name_order(tmp_path):
+    rows = np.arange(20, dtype=np.float32).reshape(5, 4)
+    names = [f"q/img_{k}.jpg" for k in range(5)]
+    shuffled = [3, 0, 4, 1, 2]
+    # hloc's own files keep no order: the frames in the natural order of their names, said in one line
+    _h5_ordered(tmp_path / "hloc.h5", [names[k] for k in shuffled], rows[shuffled], track_order=False)
+    with pytest.warns(UserWarning, match="keeps no order of its frames.*natural order of their names"):
+        src = DescriptorSource(tmp_path / "hloc.h5")
+    assert src.names() == names and src.order == "names"
+    np.testing.assert_array_equal(np.stack([f.image for f in src]), rows)
+    # written keeping the order (track_order=True): the frames in the order they were written, whatever their names
+    _h5_ordered(tmp_path / "kept.h5", [names[k] for k in shuffled], rows[shuffled], track_order=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        src = DescriptorSource(tmp_path / "kept.h5")
+    assert src.names() == [names[k] for k in shuffled] and src.order == "file"
+
+
+def test_frame_names_that_carry_no_order_are_refused_for_the_sequence_methods(tmp_path):
+    from vpr.sources import check_ordered
+
+    hashed = [f"db/{h}.jpg" for h in ("3fa9c2e1", "0b17d5aa", "c4e6f019", "91d2b3c7")]
+    _h5_ordered(tmp_path / "hash.h5", hashed, np.eye(4, dtype=np.float32), track_order=False)
+    src = DescriptorSource(tmp_path / "hash.h5")
+    assert src.order is None
+    with pytest.raises(ValueError, match="carry no order.*rshosm-seq reads the frames as a sequence.*track_order"):
+        check_ordered([src], ["database"], ["rshosm-seq"])
+    check_ordered([src], ["database"], [])  # single frames (pairwise): any order
+    _h5_ordered(tmp_path / "hash_kept.h5", hashed, np.eye(4, dtype=np.float32), track_order=True)
+    assert DescriptorSource(tmp_path / "hash_kept.h5").order == "file"
+
+
+@pytest.mark.parametrize("names,ordered", [
+    (["img_1.jpg", "img_2.jpg", "img_10.jpg"], True),
+    (["1403636579763555584.png", "1403636579813555456.png"], True),  # EuRoC's nanosecond stamps
+    (["2019-03-01_10-22-33.jpg", "2019-03-01_10-22-34.jpg"], True),
+    (["frame0099.png", "frame0100.png", "frame0101.png"], True),
+    (["3fa9c2e1.jpg", "0b17d5aa.jpg", "c4e6f019.jpg"], False),
+    (["@0543256.96@4178906.70@10@S@.jpg", "@0543290.11@4178850.02@10@S@.jpg"], False),  # places, not an order
+])
+def test_which_names_carry_an_order(names, ordered):
+    from vpr.sources import names_carry_order
+
+    assert names_carry_order(names) is ordered
+
+
+def test_one_h5_holds_the_database_and_the_queries_by_hlocs_prefixes(tmp_path):
+    rows = np.arange(24, dtype=np.float32).reshape(6, 4)
+    names = ["db/a1.jpg", "db/a2.jpg", "db/a3.jpg", "query/b1.jpg", "query/b2.jpg", "query/b3.jpg"]
+    _h5(tmp_path / "global-feats.h5", names, rows)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        db = open_source(tmp_path / "global-feats.h5", prefix="db/")
+        q = open_source(tmp_path / "global-feats.h5", prefix="query/")
+    assert db.names() == names[:3] and q.names() == names[3:] and db.name != q.name
+    np.testing.assert_array_equal(np.stack([f.image for f in q]), rows[3:])
+    with pytest.raises(ValueError, match="no frame name begins with 'queries/'"):
+        open_source(tmp_path / "global-feats.h5", prefix="queries/")
+    np.save(tmp_path / "d.npy", rows)
+    with pytest.raises(ValueError, match="--db-prefix applies to an hloc .h5"):
+        open_source(tmp_path / "d.npy", prefix="db/", prefix_flag="--db-prefix")
+
+
+def test_an_n_x_d_dataset_of_descriptors_at_the_root_is_read_and_anything_else_named(tmp_path):
+    rows = np.arange(24, dtype=np.float32).reshape(6, 4)
+    with h5py.File(tmp_path / "root.h5", "w") as f:
+        f.create_dataset("global_descriptor", data=rows)
+    names, got, order = read_descriptors(tmp_path / "root.h5")
+    assert names == [f"{k:06d}" for k in range(6)] and order == "file"
+    np.testing.assert_array_equal(got, rows)
+    with h5py.File(tmp_path / "two.h5", "w") as f:
+        f.create_dataset("descriptors", data=rows)
+        f.create_dataset("features", data=rows)
+    with pytest.raises(ValueError, match=r"several N x D datasets of descriptors \(found /descriptors \(6, 4\)"):
+        read_descriptors(tmp_path / "two.h5")
+
+
+def test_an_empty_or_damaged_npy_is_refused_naming_it(tmp_path):
+    (tmp_path / "empty.npy").write_bytes(b"")
+    with pytest.raises(ValueError, match="empty.npy: an empty file"):
+        read_descriptors(tmp_path / "empty.npy")
+    good = tmp_path / "good.npy"
+    np.save(good, np.zeros((3, 4), np.float32))
+    (tmp_path / "cut.npy").write_bytes(good.read_bytes()[:90])
+    with pytest.raises(ValueError, match=r"cut.npy: not a .npy of numbers \("):
+        read_descriptors(tmp_path / "cut.npy")
+    import pickle
+
+    (tmp_path / "pickled.npy").write_bytes(pickle.dumps({"a": 1}))  # never run, and said in whole words
+    with pytest.raises(ValueError, match=r"pickled.npy: not a .npy of numbers \(.*`allow_pickle=` keyword argument"):
+        read_descriptors(tmp_path / "pickled.npy")
+
+
+@pytest.mark.slow
+def test_a_shuffled_hloc_file_gives_the_ordered_files_answers_and_a_hashed_one_is_refused(described, tmp_path,
+                                                                                          capsys):
+    q = np.load(described["q_npy"])
+    names = [f"query/img_{k}.jpg" for k in range(len(q))]
+    order = np.random.default_rng(0).permutation(len(q))
+    _h5_ordered(tmp_path / "shuffled.h5", [names[k] for k in order], q[order], track_order=False)
+    runs = {"npy": described["q_npy"], "shuffled": tmp_path / "shuffled.h5"}
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        for name, query in runs.items():
+            argv = ["match", described["db_npy"], query, "--out", tmp_path / name, "--tolerance", 3, "--no-progress"]
+            assert main([str(a) for a in argv]) == 0, capsys.readouterr().err
+    assert sum("natural order of their names" in str(w.message) for w in said) == 1
+    assert _metrics(tmp_path / "npy") == _metrics(tmp_path / "shuffled")
+    hashed = [f"query/{k * 7919 % 100003:x}{k}.jpg" for k in range(len(q))]
+    _h5_ordered(tmp_path / "hash.h5", hashed, q, track_order=False)
+    argv = ["match", described["db_npy"], tmp_path / "hash.h5", "--out", tmp_path / "h", "--tolerance", 3,
+            "--no-progress"]
+    assert main([str(a) for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "carry no order" in err and not (tmp_path / "h").exists()

@@ -27,6 +27,7 @@ from .positions import (
     check_reversed,
     check_speeds,
     frame_positions,
+    input_spec,
     prepare_positions,
     runs_backwards,
     same_rate,
@@ -52,6 +53,7 @@ __all__ = ["NAMES_RADIUS", "gt_from_labels", "gt_from_frames", "gt_from_toleranc
            "load_loop_pairs", "load_positions_csv", "gt_from_position_files", "load_traverse_positions",
            "positions_of_frames",
            "db_query_matrix", "loop_matrix", "GroundTruthSpec", "build_gt", "build_loop_gt", "build_stream_gt",
-           "check_loop_gt_files", "prepare_positions", "frame_positions", "Positions", "same_sampling", "same_rate",
+           "check_loop_gt_files", "prepare_positions", "input_spec", "frame_positions", "Positions", "same_sampling",
+           "same_rate",
            "check_rates", "check_reversed", "runs_backwards", "check_speeds", "speed_step", "RATE_RATIO", "any_true",
            "frame_rows", "sampling_step", "tolerance_text", "check_tolerance", "check_radius", "aligned_frames"]

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Mapping
+from dataclasses import replace
 
 import numpy as np
 
@@ -14,7 +15,7 @@ from . import trajectories as tr
 from .files import load_traverse_positions, positions_for, positions_for_frames, positions_of_frames
 from .spec import GroundTruthSpec
 
-__all__ = ["prepare_positions", "frame_positions", "Positions", "same_sampling"]
+__all__ = ["input_spec", "prepare_positions", "frame_positions", "Positions", "same_sampling"]
 
 
 class Positions(list):
@@ -118,6 +119,38 @@ def frame_positions(src, spec: GroundTruthSpec, file: str | None, role: str, sin
     return _csv_positions(src, file, role, single), "metres", ""
 
 
+def input_spec(spec: GroundTruthSpec, k: int, n: int) -> GroundTruthSpec:
+    """The position ground truth of the ``k``-th of ``n`` traverses read one at a time (a database learned, then its
+    query; the sessions of a stream): its own positions file of ``--gt FILE1 FILE2 ...`` and its own ``--gt-topic``.
+
+    One file stays every traverse's where it names each (``names``, ``exif``, a ``traverse,frame,x,y`` CSV); one
+    trajectory or ``frame,x,y`` CSV for several traverses, or a count of files that is neither one nor ``n``, is
+    refused. A spec without ``--radius`` (pairs, matrices, ``--tolerance``) is the run's, returned as it is.
+    """
+    if not spec.positional:
+        return spec
+    topics = per_input(spec.topic, n, "--gt-topic")
+    files = list(spec.files)
+    if spec.topic is None and len(files) != n and (len(files) != 1 or spec.keyword is None and not
+                                                    _names_traverses(files[0])):
+        kind = tr.trajectory_format(files[0]) if len(files) == 1 else None
+        what = (f"one {'trajectory' if kind else 'positions file'}" if len(files) == 1 else
+                f"{len(files)} positions files")
+        raise ValueError(f"--gt {' '.join(files)}: {what} for {n} traverse{'s' if n > 1 else ''}; give one per "
+                         f"traverse, in order (--gt {' '.join(f'FILE{j + 1}' for j in range(n))})"
+                         + (", or one CSV with traverse,frame,x,y rows" if n > 1 else ""))
+    own = tuple(files) if len(files) != n or n == 1 else (files[k],)
+    return replace(spec, files=own, topic=topics[k])
+
+
+def _names_traverses(path) -> bool:
+    """Whether the positions CSV ``path`` has a traverse column (``traverse,frame,x,y``: every traverse's rows)."""
+    if tr.trajectory_format(path) is not None:
+        return False
+    with open(path, encoding="utf-8-sig") as fh:
+        return "traverse" in fh.readline().lower()
+
+
 def prepare_positions(srcs, roles, spec: GroundTruthSpec, every: float | None = None, loops: bool | None = None,
                       need: bool | None = None, origin: tuple | None = None) -> list | None:
     """Every source's frame positions (aligned with its ``indices()`` after this), or None when none are needed.
@@ -135,22 +168,13 @@ def prepare_positions(srcs, roles, spec: GroundTruthSpec, every: float | None = 
         return None
     # the options, before they are used (build_gt takes the positions as given)
     spec.check(loops=len(srcs) == 1 if loops is None else loops, sessions=len(srcs))
-    files = list(spec.files)
-    if len(srcs) > 1 and len(files) == 1 and spec.keyword is None:
-        kind = tr.trajectory_format(files[0])
-        with open(files[0], encoding="utf-8-sig") as fh:
-            combined = "traverse" in fh.readline().lower()
-        if kind is not None or not combined:
-            raise ValueError(f"--gt {files[0]}: one {'trajectory' if kind else 'positions file'} for "
-                             f"{len(srcs)} traverses; give one per traverse, in order (--gt "
-                             f"{' '.join(f'FILE{k + 1}' for k in range(len(srcs)))}), or one CSV with "
-                             "traverse,frame,x,y rows")
-        _check_alike(srcs, files[0])
+    own = [input_spec(spec, k, len(srcs)) for k in range(len(srcs))]
+    if len(srcs) > 1 and len(spec.files) == 1 and spec.keyword is None:
+        _check_alike(srcs, spec.files[0])
     read = []
-    topics = per_input(spec.topic, len(srcs), "--gt-topic")
-    for k, (src, role) in enumerate(zip(srcs, roles, strict=True)):
-        file = None if spec.topic is not None else files[k] if len(files) == len(srcs) > 1 else files[0]
-        read.append(frame_positions(src, spec, file, role, single=len(srcs) == 1, topic=topics[k]))
+    for src, role, mine in zip(srcs, roles, own, strict=True):
+        file = None if mine.topic is not None else mine.files[0]
+        read.append(frame_positions(src, mine, file, role, single=len(srcs) == 1, topic=mine.topic))
     # GPS in metres about one origin for every source (each bag's own first fix would shift one traverse)
     if origin is None:
         origin = next((tuple(float(a) for a in v[~np.isnan(v).any(axis=1)][0]) for v, kind, _ in read

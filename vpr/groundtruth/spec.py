@@ -98,6 +98,11 @@ class GroundTruthSpec:
         return self.files[0] if len(self.files) == 1 and self.files[0] in self.KEYWORDS else None
 
     @property
+    def given(self) -> bool:
+        """Whether any ground truth is given (``--tolerance``, ``--gt`` or ``--gt-topic``)."""
+        return self.tolerance is not None or bool(self.files) or self.topic is not None
+
+    @property
     def positional(self) -> bool:
         """Ground truth from positions of the frames (``--radius``): every source's frames get a position."""
         return self.radius is not None

@@ -9,7 +9,7 @@ import numpy as np
 
 __all__ = ["trajectory_format", "load_tum", "load_kitti", "utm_from_names", "exif_positions", "positions_at",
            "outages", "outage_limit", "short_gaps", "OUTAGE_S", "every", "latlon_to_metres",
-           "EARTH_RADIUS"]
+           "EARTH_RADIUS", "TIME_RESOLUTION"]
 
 #: Mean Earth radius, m: latitude and longitude to local metres (an equirectangular plane about the first
 #: point, within a few centimetres per kilometre at the scale of a route).
@@ -169,6 +169,11 @@ def short_gaps(traj_t) -> np.ndarray:
     return np.stack([t[k], t[k + 1]], axis=1)
 
 
+#: seconds: the resolution of the times trajectories are written with (TUM: 6 decimals); a frame's time within it of
+#: the trajectory's first or last sample is at that sample
+TIME_RESOLUTION = 1e-6
+
+
 def positions_at(times, traj_t, traj_xy) -> tuple[np.ndarray, np.ndarray]:
     """The trajectory's position at each of ``times``, linearly interpolated; and why a time has none.
 
@@ -179,7 +184,8 @@ def positions_at(times, traj_t, traj_xy) -> tuple[np.ndarray, np.ndarray]:
     times = np.asarray(times, np.float64)
     traj_t = np.asarray(traj_t, np.float64)
     traj_xy = np.asarray(traj_xy, np.float64)
-    why = np.where((times >= traj_t[0]) & (times <= traj_t[-1]), 0, 1)
+    # a time at either end up to the files' resolution (a TUM trajectory's microseconds) is at that end
+    why = np.where((times >= traj_t[0] - TIME_RESOLUTION) & (times <= traj_t[-1] + TIME_RESOLUTION), 0, 1)
     for a, b in outages(traj_t):
         why[(times > a) & (times < b)] = 2
     xy = np.full((times.size, traj_xy.shape[1]), np.nan)

@@ -72,9 +72,10 @@ def online() -> str:
     return next(m for m in available() if get_class(m).runs_online)
 
 
-def get_online(name: str, **conf) -> Method:
-    """A new method ``name`` that runs online (ValueError naming those that do, for one that does not)."""
-    method = get(name, **conf)
+def get_online(name: str, sdr_bits: int | None = None, encoder: str = "the encoder", **conf) -> Method:
+    """A new method ``name`` that runs online (ValueError naming those that do, for one that does not); ``sdr_bits``:
+    the width of the ``encoder``'s SDRs, which the method's reads follow (:meth:`Method.conf_for_sdrs`)."""
+    method = get(name, **get_class(name).conf_for_sdrs(conf, sdr_bits, encoder))
     if not method.runs_online:
         able = [m for m in available() if get_class(m).runs_online]
         raise ValueError(f"{name} does not run online (one frame at a time as it comes); methods that do: "
@@ -123,12 +124,14 @@ def reads_images(method: Method) -> bool:
     return bool(set(method.required_inputs) - set(ENCODER_INPUTS))
 
 
-def build(names, confs: dict | None = None, images: bool = True) -> dict[str, Method]:
+def build(names, confs: dict | None = None, images: bool = True, sdr_bits: int | None = None,
+          encoder: str = "the encoder") -> dict[str, Method]:
     """The methods ``names`` with their ``confs`` (method -> conf), built and checked before any work.
 
     A conf for a method not in ``names`` is still checked (a typo should not pass silently), then ignored with a
     warning; a name given twice runs once. Without ``images`` (the inputs are descriptor files) a method that reads
-    the images is refused, naming those that do not.
+    the images is refused, naming those that do not. ``sdr_bits``: the width of the ``encoder``'s SDRs, which the
+    methods' reads follow (:meth:`Method.conf_for_sdrs`).
     """
     names = list(names)
     if not names:
@@ -140,16 +143,17 @@ def build(names, confs: dict | None = None, images: bool = True) -> dict[str, Me
     for m in unique:
         get_class(m)  # unknown names fail here, with the list of methods
     built = {}
-    for m, c in (confs or {}).items():
+    for m, c in {**{m: {} for m in unique}, **(confs or {})}.items():
+        c = get_class(m).conf_for_sdrs(c, sdr_bits, encoder)
         try:
             built[m] = get(m, **c)
         except ValueError as exc:
-            raise ValueError(f"--method-conf {m}: {exc}") from None
-    unused = [m for m in built if m not in unique]
+            raise ValueError(f"--method-conf {m}: {exc}" if m in (confs or {}) else str(exc)) from None
+    unused = [m for m in confs or {} if m not in unique]
     if unused:
         warnings.warn(f"--method-conf for {', '.join(unused)}, which this run does not use ({', '.join(unique)}); "
                       "ignored", stacklevel=2)
-    out = {m: built.get(m) or get(m) for m in unique}
+    out = {m: built[m] for m in unique}
     blind = [m for m, r in out.items() if not images and reads_images(r)]
     if blind:
         able = [m for m in available() if not reads_images(get(m))]

@@ -45,6 +45,10 @@ class Method:
     #: inputs this method computes from the images itself, by name (the extraction stage provides them)
     image_inputs: dict = {}
 
+    #: the conf key that is the width of the SDRs the method reads (None: it reads any width), which follows the
+    #: encoder's (:meth:`conf_for_sdrs`)
+    sdr_width_key: str | None = None
+
     def __init__(self, **conf):
         self.conf = merge_conf(self.default_conf, conf, self.name, nullable=self.nullable_conf)
         if "top_k" in self.conf:
@@ -64,6 +68,25 @@ class Method:
                 raise ValueError(f"{self.name} needs {what} of the {role} traverse, but none were extracted")
             raise ValueError(f"{self.name} needs {what} of the {role} traverse, but the encoder produced none")
         return value
+
+    @classmethod
+    def conf_for_sdrs(cls, conf: dict, n_bits: int | None, encoder: str = "the encoder") -> dict:
+        """``conf`` with the width of the SDRs read (:attr:`sdr_width_key`) set to the encoder's ``n_bits``; a width
+        given otherwise is refused before any frame is encoded (ValueError naming both settings and the fix)."""
+        key = cls.sdr_width_key
+        if key is None or n_bits is None:
+            return dict(conf)
+        given = conf.get(key)
+        if given is not None:
+            try:
+                differs = int(str(given)) != int(n_bits)
+            except ValueError:
+                return dict(conf)  # refused by the conf's own check, naming the value
+            if differs:
+                raise ValueError(f"--method-conf {cls.name}.{key}={given}: {encoder} makes SDRs of {int(n_bits)} "
+                                 f"bits, which {cls.name} reads at their width by itself: leave {key} out, or give "
+                                 f"the encoder {given} bits (--encoder-conf n_bits={given})")
+        return {**conf, key: int(n_bits)}
 
     # ----------------------------------------------------------- to override
     def check_size(self, n_db: int, n_q: int) -> None:
@@ -90,6 +113,8 @@ class Method:
     #: whether the method's sequences follow a query that moves one database frame a frame (a query driven at
     #: another speed is matched again at the sampling that makes the two agree: :func:`vpr.methods.match_at_speed`)
     follows_sequences: bool = False
+    #: whether the method reads the frames as a sequence, in their order (a source that keeps none is refused)
+    reads_order: bool = True
     #: whether the method runs online, one frame at a time as it comes: the online face below (``vpr loops -``,
     #: ``vpr learn`` / ``vpr localize``)
     runs_online: bool = False

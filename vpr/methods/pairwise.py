@@ -22,6 +22,7 @@ class Pairwise(Method):
     """
 
     name = "pairwise"
+    reads_order = False
     score_label = "similarity of the two frames (SDR overlap or descriptor)"
     default_conf = {"on": "sdr", "metric": "auto", "top_k": TOP_K}
 

@@ -29,6 +29,7 @@ class Rshosm(Method):
     """
 
     name = "rshosm"
+    sdr_width_key = "n_inputs"
     score_label = "winner-cell overlap"
     default_conf = {**SequenceMemory.default_params(), "top_k": TOP_K}
     nullable_conf = frozenset({"seed"})

@@ -44,6 +44,7 @@ class RshosmSeq(Method):
     """
 
     name = "rshosm-seq"
+    sdr_width_key = "n_inputs"
     score_label = "z-score of the sequence evidence"
     default_conf = RshosmSeqConf.defaults()
     nullable_conf = RshosmSeqConf.NULLABLE

@@ -21,42 +21,54 @@ from .base import (
     decode_image,
     natural_key,
 )
-from .descriptors import DESCRIPTOR_EXTENSIONS, DescriptorSource, is_descriptor_file, read_descriptors
+from .descriptors import (
+    DESCRIPTOR_EXTENSIONS,
+    DescriptorSource,
+    is_descriptor_file,
+    names_carry_order,
+    read_descriptors,
+)
 from .files import FolderSource, ListSource
 from .stdin import StdinSource
 from .video import VideoSource
 
 __all__ = ["Frame", "FrameSkippedWarning", "IgnoredFilesWarning", "Source", "FolderSource", "ListSource", "VideoSource",
            "BagSource", "StdinSource", "KINDS", "is_bag", "DescriptorSource", "read_descriptors",
-           "is_descriptor_file", "DESCRIPTOR_EXTENSIONS",
+           "is_descriptor_file", "names_carry_order", "DESCRIPTOR_EXTENSIONS",
            "IMAGE_EXTENSIONS", "VIDEO_EXTENSIONS", "LIST_EXTENSIONS", "natural_key", "decode_image", "open_source",
-           "open_sources", "load_all", "iter_batches", "frame_reader", "images_at"]
+           "open_sources", "check_ordered", "load_all", "iter_batches", "frame_reader", "images_at"]
 
 
 #: The kinds of source, asked in this order whether a path is theirs (:meth:`Source.accepts`).
 KINDS = (BagSource, FolderSource, VideoSource, ListSource, DescriptorSource)
 
-_WHERE = {"fps": "videos and bags (use --step for images)", "topic": "ROS bags (.bag, .mcap, .db3, a ROS 2 bag folder)"}
+_WHERE = {"fps": "videos and bags (use --step for images)", "topic": "ROS bags (.bag, .mcap, .db3, a ROS 2 bag folder)",
+          "prefix": "an hloc .h5 of global features (its frames whose names begin with it)"}
 
 
-def open_source(path, fps=None, step=None, max_frames=None, topic: str | None = None) -> Source:
+def open_source(path, fps=None, step=None, max_frames=None, topic: str | None = None, prefix: str | None = None,
+                prefix_flag: str = "--prefix") -> Source:
     """Open a folder, video, image-list file (.txt .lst), ROS bag or descriptor file (.npy .h5) as a :class:`Source`
     (the first of :data:`KINDS`).
 
     ``fps``: videos and bags resampled by timestamps; ``step``: every ``step``-th frame; ``max_frames``: frames
-    attempted; ``topic``: a bag's camera topic (default its only image topic). A missing path raises
-    FileNotFoundError; an unknown kind, an option the kind does not take or a source that cannot be read ValueError.
+    attempted; ``topic``: a bag's camera topic (default its only image topic); ``prefix``: an ``.h5``'s frames whose
+    names begin with it (hloc's ``db_prefix`` / ``query_prefix``; ``prefix_flag`` names it in a refusal). A missing
+    path raises FileNotFoundError; an unknown kind, an option the kind does not take or a source that cannot be read
+    ValueError.
     """
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(f"no such file or folder: {p}")
-    given = {k: v for k, v in (("fps", fps), ("step", step), ("max_frames", max_frames), ("topic", topic))
-             if v is not None}
+    given = {k: v for k, v in (("fps", fps), ("step", step), ("max_frames", max_frames), ("topic", topic),
+                               ("prefix", prefix)) if v is not None}
     for kind in KINDS:
         if kind.accepts(p):
             for option in sorted(set(given) - kind.options):
-                raise ValueError(f"{p}: --{option.replace('_', '-')} applies to {_WHERE[option]}, not to a "
-                                 f"{kind.kind}")
+                flag = prefix_flag if option == "prefix" else f"--{option.replace('_', '-')}"
+                raise ValueError(f"{p}: {flag} applies to {_WHERE[option]}, not to a {kind.kind}")
+            if kind is DescriptorSource and "prefix" in given and p.suffix.lower() == ".npy":
+                raise ValueError(f"{p}: {prefix_flag} applies to {_WHERE['prefix']}, not to a .npy")
             return kind(p, **given)
     raise ValueError(
         f"{p}: unknown source kind {p.suffix.lower() or '(no extension)'!r}; expected a folder of images, a video "
@@ -64,8 +76,22 @@ def open_source(path, fps=None, step=None, max_frames=None, topic: str | None = 
         f"(.bag .mcap .db3, or a folder with metadata.yaml) or descriptors ({' '.join(DESCRIPTOR_EXTENSIONS)})")
 
 
+def check_ordered(srcs, roles, methods) -> None:
+    """Refuse, before a frame is read, a source whose frames come in no known order (a descriptor file that keeps
+    none, its names carrying none: :attr:`DescriptorSource.order` None) where ``methods`` (names) read the frames as
+    a sequence."""
+    if not methods:
+        return
+    for src, role in zip(srcs, roles, strict=True):
+        if isinstance(src, DescriptorSource) and src.order is None:
+            raise ValueError(f"{role} {src.path}: its frame names carry no order (such as {src.all_names[0]!r}) and "
+                             f"the file keeps none, but {', '.join(methods)} read{'s' if len(methods) == 1 else ''} "
+                             "the frames as a sequence: write the .h5 with track_order=True in the frames' order, or "
+                             "a .npy of rows in order; --methods pairwise compares single frames")
+
+
 def _identity(src: Source) -> tuple:
-    return (src.path.resolve(), getattr(src, "topic", None))
+    return (src.path.resolve(), getattr(src, "topic", None), getattr(src, "prefix", None))
 
 
 def fingerprint(path) -> str:
@@ -87,8 +113,10 @@ def fingerprint(path) -> str:
     return h.hexdigest()
 
 
-def open_sources(paths, topic=None, distinct: bool = True, **options) -> list[Source]:
-    """:func:`open_source` of each of ``paths``, with a ``topic`` each (:func:`per_input`), named apart.
+def open_sources(paths, topic=None, distinct: bool = True, prefix=None, prefix_flags=None,
+                 **options) -> list[Source]:
+    """:func:`open_source` of each of ``paths``, with a ``topic`` each (:func:`per_input`) and a ``prefix`` each (a
+    sequence of one per input, None: none; ``prefix_flags``: the options that gave them), named apart.
 
     Two inputs that are the same source (the same file or folder, the same topic) are refused with ``distinct``
     (sessions of one robot, a map's sessions: a traverse learned twice closes perfect loops onto its own copy); else
@@ -98,8 +126,10 @@ def open_sources(paths, topic=None, distinct: bool = True, **options) -> list[So
     import warnings
 
     paths = list(paths)
-    srcs = [open_source(p, topic=t, **options) for p, t in zip(paths, per_input(topic, len(paths), "--topic"),
-                                                                   strict=True)]
+    prefixes = list(prefix) if prefix is not None else [None] * len(paths)
+    flags = list(prefix_flags) if prefix_flags is not None else ["--prefix"] * len(paths)
+    srcs = [open_source(p, topic=t, prefix=x, prefix_flag=f, **options)
+            for p, t, x, f in zip(paths, per_input(topic, len(paths), "--topic"), prefixes, flags, strict=True)]
     seen: dict[tuple, int] = {}
     content: dict[tuple, int] = {}
     for k, src in enumerate(srcs):
@@ -108,7 +138,7 @@ def open_sources(paths, topic=None, distinct: bool = True, **options) -> list[So
         if first != k:
             msg = (f"{src.path} is given twice (inputs {first + 1} and {k + 1})"
                    + (f", topic {src.topic}" if getattr(src, "topic", None) else ""))
-        elif len(srcs) > 1 and src.path.exists():
+        elif len(srcs) > 1 and src.path.exists() and getattr(src, "prefix", None) is None:
             first = content.setdefault((fingerprint(src.path), getattr(src, "topic", None)), k)
             if first != k:
                 msg = (f"{srcs[first].path} and {src.path} (inputs {first + 1} and {k + 1}) hold the same recording, "
