@@ -159,3 +159,87 @@ def hloc_pairs(path) -> dict[str, list[str]]:
             q, r = line.split()
             out[q].append(r)
     return dict(out)
+
+
+def stream_beam_reference(stream, exclude: int, decay: float, stay: float, skip: float, floor: float,
+                          rel_floor: float, z_floor: float, z_weight: float = 0.0, sessions=()) -> list[dict]:
+    """The beam's evidence of every frame of a stream over the frames before it, literally (sets and dicts).
+
+    ``stream``: the SDR rows (active bits) of the stream; a :class:`vpr.shosm.SequenceMemory` learns each (a fresh
+    context at each frame of ``sessions``), then frame ``j`` is scored over the frames ``0 .. L`` (``L = j - exclude``,
+    or every frame of the earlier sessions) with only the cells that first won by frame ``L`` taking part: a cell is
+    a candidate when its minicolumn's overlap fraction is above ``z_floor``, when a beam cell predicts it (a
+    connection, or two: a skipped frame at ``skip``), or when it is a beam cell above ``stay``; its evidence is its
+    fraction plus ``decay`` times the best of those offers (never below 0); the cells above ``max(floor, rel_floor
+    * largest)`` form the next beam and give each frame whose code holds one the mean of ``evidence - z_weight *
+    fraction`` over its code. Returns per frame ``{frame: raw evidence}`` (uncapped).
+    """
+    from vpr.shosm import SequenceMemory
+
+    mem = SequenceMemory(n_inputs=int(max(max(r) for r in stream if len(r)) + 1), seed=0) \
+        if not hasattr(stream, "memory") else stream.memory
+    rows = list(stream)
+    born: dict[int, int] = {}
+    codes: list[list[int]] = []
+    beam: dict[int, float] = {}
+    out = []
+    start = 0
+    for j, bits in enumerate(rows):
+        if j in set(sessions) and j > 0:
+            mem.reset()
+            beam = {}
+            start = j
+        winners = [int(c) for c in mem.step(np.asarray(bits, np.int64))]
+        for c in winners:
+            born.setdefault(c, j)
+        codes.append(winners)
+        limit = max(j - max(exclude, 1) + 1, start, 0) - 1  # the candidate frames 0 .. limit
+        con = mem.connections
+        lateral = con.lateral.tocsr()
+        ff = con.feedforward.tocsr()
+        active = set(int(b) for b in bits)
+        size = np.diff(ff.indptr)
+        frac = {}
+        for m in range(ff.shape[0]):
+            if size[m]:
+                frac[m] = sum(1 for b in ff.indices[ff.indptr[m]:ff.indptr[m + 1]] if b in active) / size[m]
+        cpc = mem.cells_per_column
+        live = {c for c, b in born.items() if b <= limit}
+
+        def z(c, frac=frac, cpc=cpc):
+            return frac.get(c // cpc, 0.0)
+
+        cand = {c for c in live if z(c) > z_floor}
+        cand |= {c for c, v in beam.items() if c in live and stay >= 0 and v > stay}
+        p1: dict[int, float] = {}
+        for s, v in beam.items():
+            if s in live:
+                for d in lateral.indices[lateral.indptr[s]:lateral.indptr[s + 1]]:
+                    if d in live:
+                        cand.add(int(d))
+                        p1[int(d)] = max(p1.get(int(d), 0.0), v)
+        p2: dict[int, float] = {}
+        if skip >= 0:
+            for s, v in list(p1.items()):
+                if v > skip:
+                    for d in lateral.indices[lateral.indptr[s]:lateral.indptr[s + 1]]:
+                        if d in live:
+                            cand.add(int(d))
+                            p2[int(d)] = max(p2.get(int(d), 0.0), v)
+        e = {}
+        for c in cand:
+            p = p1.get(c, 0.0)
+            if skip >= 0:
+                p = max(p, p2.get(c, 0.0) - skip)
+            if stay >= 0 and c in beam:
+                p = max(p, beam[c] - stay)
+            e[c] = z(c) + decay * max(p, 0.0)
+        thr = max(floor, rel_floor * max(e.values(), default=0.0))
+        beam = {c: v for c, v in e.items() if v > thr}
+        col = {}
+        for f in range(limit + 1):
+            hits = [c for c in codes[f] if c in beam]
+            if hits:
+                col[f] = sum((beam[c] - z_weight * z(c)) / max(len(codes[f]), 1) for c in hits)
+        out.append(col)
+    return out

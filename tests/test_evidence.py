@@ -302,7 +302,7 @@ def test_bad_arguments(aliased):
     with pytest.raises(ValueError, match="exclude"):
         ev.loop_evidence(sdr.random_sdrs(5, seed=0), exclude=0)
     with pytest.raises(ValueError, match="caps"):
-        ev.loop_evidence(sdr.random_sdrs(5, seed=0), exclude=1, caps="some")
+        ev.loop_evidence(sdr.random_sdrs(5, seed=0), exclude=1, caps="auto")
     with pytest.raises(ValueError, match="another memory"):
         ev.Graph.of(mem, sp.csr_matrix((1, mem.n_cells + 10), dtype=bool) + sp.eye(1, mem.n_cells + 10,
                                                                                    mem.n_cells + 5, dtype=bool))
@@ -476,18 +476,17 @@ def test_a_closure_sharing_little_beyond_chance_is_no_stop():
         LoopDecider(LoopConf())  # the stop check without the SDRs' width
 
 
-def test_loop_evidence_caps_the_beam_only_beyond_the_dense_output():
+def test_loop_evidence_carries_every_cell_unless_capped():
     # pixel-like SDRs sharing many bits, so that caps of a few cells would bind
     rng = np.random.default_rng(1)
     base = rng.random((60, 256)) < 0.5
     rows = [np.flatnonzero(base[i // 3] ^ (rng.random(256) < 0.05))[:60] for i in range(90)]
     x = sdr.from_indices(rows, 256)
     mem = {"n_inputs": 256}
-    auto, _ = ev.loop_evidence(x, exclude=5, **mem)
+    default, _ = ev.loop_evidence(x, exclude=5, **mem)
     free, _ = ev.loop_evidence(x, exclude=5, caps=False, **mem)
     tight, _ = ev.loop_evidence(x, exclude=5, conf=BeamConf(max_beam=16, max_enter=2), caps=True, **mem)
-    np.testing.assert_array_equal(auto, free)
+    np.testing.assert_array_equal(default, free)
     assert not np.array_equal(tight, free)
-    beyond, _ = ev.loop_evidence(x, exclude=5, dense_max=50, **mem)  # top-50 sparse and capped
+    beyond, _ = ev.loop_evidence(x, exclude=5, dense_max=50, **mem)  # top-50 sparse, the same evidence
     assert sp.issparse(beyond)
-    assert ev.LOOP_UNCAPPED_MAX <= 20_000

@@ -57,34 +57,33 @@ def _profile(g, conf, q, warm: int, frames: int) -> dict:
     params = beam_params(conf.evidence, conf.beam, 0.5)
     q_ptr, q_ind = q.indptr.astype(np.int64), q.indices.astype(np.int64)
     order = np.arange(warm + frames, dtype=np.int64)
-    limits = np.full(order.size, np.iinfo(np.int64).max // 4, np.int64)
     beams = [Beam(g), Beam(g)]
     for b in beams:
-        b.run(g, g.fwd, q_ptr, q_ind, order[:warm], limits[:warm], params)
+        b.run(g, g.fwd, q_ptr, q_ind, order[:warm], params)
     # the kernel itself over the measured frames
     t0 = time.perf_counter()
-    ref = beams[0].run(g, g.fwd, q_ptr, q_ind, order[warm:], limits[warm:], params)
+    ref = beams[0].run(g, g.fwd, q_ptr, q_ind, order[warm:], params)
     kernel_ms = (time.perf_counter() - t0) * 1e3 / frames
     b = beams[1]
-    ff = (g.bit_cols, g.bit_len, g.col_size, g.cpc)
+    ff = (g.bit_cols, g.bit_len, g.col_size, g.col_ptr)
     lateral = (g.fwd[0], g.fwd[1], g.fwd[2], g.fwd[3] if len(g.fwd) == 4 else np.zeros(0, np.int32))
     if lateral[3].size and b.gmax.size < lateral[0].size:
         b.gmax, b.gmark, b.gtouch = (np.zeros(lateral[0].size), np.zeros(lateral[0].size, bool),
                                      np.zeros(lateral[0].size, np.int64))
-    cells = (g.c_head, g.c_next, g.c_frame, g.relevant, g.birth, g.db_norm)
+    cells = (g.c_head, g.c_next, g.c_frame, g.r_col, g.db_norm)
     state = (b.st, b.beam, b.beam_e, b.in_beam)
     times = np.zeros((frames, len(PHASES)))
     cols = []
     for k, t in enumerate(order[warm:]):
         scratch = (b.counts, b.touched_cols, b.p1, b.p2, b.z, b.slot, b.cand, b.e_new, b.gmax, b.gmark, b.gtouch,
                    b.acc, b.db_mark, b.db_touch)
-        bits, limit = q_ind[q_ptr[t]:q_ptr[t + 1]], limits[0]
+        bits = q_ind[q_ptr[t]:q_ptr[t + 1]]
         c = [time.perf_counter()]
-        n_tc, n_c = KB.enter_by_overlap(bits, limit, ff, cells, params, scratch)
+        n_tc, n_c = KB.enter_by_overlap(bits, ff, params, scratch)
         c.append(time.perf_counter())
-        n_c = KB.enter_by_prediction(n_c, limit, lateral, cells, params, state, scratch)
+        n_c = KB.enter_by_prediction(n_c, lateral, params, state, scratch)
         c.append(time.perf_counter())
-        thr = KB.new_evidence(n_c, ff, params, state, scratch)
+        thr = KB.new_evidence(n_c, ff, cells, params, state, scratch)
         c.append(time.perf_counter())
         keep = KB.carry_floor(n_c, thr, params[7], scratch)
         c.append(time.perf_counter())
@@ -92,7 +91,7 @@ def _profile(g, conf, q, warm: int, frames: int) -> dict:
             b.out_idx, b.out_val = np.zeros(g.n_db, np.int64), np.zeros(g.n_db)
         out_ptr = np.zeros(2, np.int64)
         b.st[KB.B_OUT_POS] = 0
-        KB.carry_and_output(0, n_c, n_tc, thr, keep, limit, params[3], cells, state, scratch,
+        KB.carry_and_output(0, n_c, n_tc, thr, keep, params[3], cells, state, scratch,
                              (out_ptr, b.out_idx, b.out_val))
         c.append(time.perf_counter())
         times[k] = np.diff(c) * 1e3

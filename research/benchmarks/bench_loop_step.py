@@ -5,9 +5,8 @@ with the ``fast`` preset's encoder, then runs :class:`vpr.shosm.LoopStream`'s
 step by hand, timing each part of every frame: Algorithm 1 learning the frame
 (``mem``), the evidence graph taking it in (``attach``, ``grow``), the beam's
 evidence over the earlier frames (``engine``) and the decision (``decide``).
-Prints the median and 99th percentile (ms) over the last 500 frames, with the
-beam's caps as ``vpr`` sets them (``auto``: uncapped below
-:data:`vpr.shosm.loops.LOOP_UNCAPPED_MAX` frames) and capped from the start.
+Prints the median and 99th percentile (ms) over the last 500 frames, uncapped (as ``vpr`` runs it) and with the
+beam's caps from the start.
 
     python research/benchmarks/bench_loop_step.py [--frames 2000,5000]
 """
@@ -25,7 +24,7 @@ def _run(n: int, caps) -> dict:
     from vpr import presets
     from vpr.render import render_scene
     from vpr.shosm import RshosmSeqConf
-    from vpr.shosm.loops import LOOP_UNCAPPED_MAX, LoopStream, n_candidates
+    from vpr.shosm.loops import LoopStream, n_candidates
 
     images = render_scene("loop_revisits", size=(64, 48), n_frames=n).traverses[0].images
     s = presets.resolve("fast")
@@ -38,12 +37,11 @@ def _run(n: int, caps) -> dict:
         old_len, ne_old = stream.mem.view().bit_len.copy(), stream.mem.n_connections
         winners = stream.mem.step(bits)
         t.append(time.perf_counter())
-        stream.graph.attach(j, bits, winners, old_len, ne_old)
+        stream.graph.attach(bits, winners, old_len, ne_old)
         t.append(time.perf_counter())
         stream.engine.grow()
         t.append(time.perf_counter())
-        capped = j >= LOOP_UNCAPPED_MAX if caps == "auto" else bool(caps)
-        column = stream.engine.step(bits, n_candidates(j, stream.exclude, stream.starts[-1]), capped, frame=j)
+        column = stream.engine.step(bits, n_candidates(j, stream.exclude, stream.starts[-1]), caps, frame=j)
         t.append(time.perf_counter())
         stream.decider.add_sdr(bits)
         stream.frames += 1
@@ -65,10 +63,10 @@ def main(argv=None) -> None:
     print("| frames | caps | mem | attach | grow | engine | decide | minicolumns per input bit |")
     print("|---:|---|---|---|---|---|---|---:|")
     for n in [int(v) for v in args.frames.split(",")]:
-        for caps in ("auto", True):
+        for caps in (False, True):
             r = _run(n, caps)
             cells = " | ".join(f"{r[k][0]:.2f} / {r[k][1]:.2f}" for k in ("mem", "attach", "grow", "engine", "decide"))
-            print(f"| {n:,} | {'from the start' if caps is True else 'auto'} | {cells} | "
+            print(f"| {n:,} | {'from the start' if caps else 'none'} | {cells} | "
                   f"{r['columns per input bit']:.0f} |")
     print("(ms per frame, median / 99th percentile over the last 500 frames; encoding not included)")
 

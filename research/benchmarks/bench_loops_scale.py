@@ -13,9 +13,8 @@ Two runs, each in its own process so that each peak RSS is its own:
 
 1. :class:`vpr.LoopDetector`, one ``update`` per frame: the latency of the 200
    updates before each checkpoint (median / p95 / max, ms), the process RSS and
-   the detector's saved state there. Up to ``LOOP_UNCAPPED_MAX`` frames the beam
-   is uncapped (its cost grows with the frames), from there on capped
-   (``research/docs/loops.md``: why, and what the caps cost).
+   the detector's saved state there. The beam carries every cell (the evidence over the stream laid out by
+   frame, :class:`vpr.shosm.StreamEngine`: a frame's cost grows with the cells learned, in one pass over them).
 2. ``vpr.shosm.loop_evidence`` over the whole stream in its top-K form (what
    ``vpr loops`` runs beyond 20,000 frames): time and peak RSS; and whether its
    decisions equal the detector's, frame for frame.
@@ -157,8 +156,6 @@ def main(argv=None) -> int:
     a.cp = [int(c) for c in a.checkpoints.split(",") if int(c) <= a.frames]
     if a.child:
         return _child(a)
-    from vpr.shosm import LOOP_UNCAPPED_MAX
-
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         conf = {"confirm_frames": a.confirm_frames}
@@ -167,8 +164,8 @@ def main(argv=None) -> int:
         wall = time.perf_counter() - t0
         det, bat = (dict(np.load(Path(tmp) / f"{k}.npz")) for k in ("detector", "batch"))
     _, place, half = stream(a.frames)
-    print(f"stream: {a.frames:,} frames ({half:,} places driven once, then again); the beam is capped from frame "
-          f"{LOOP_UNCAPPED_MAX:,} on; both runs side by side, {wall:.0f} s wall\n")
+    print(f"stream: {a.frames:,} frames ({half:,} places driven once, then again); the beam uncapped; both runs "
+          f"side by side, {wall:.0f} s wall\n")
     print("| frames seen | update median ms | p95 ms | max ms | process RSS MB | detector state file MB | "
           "memory arrays MB |")
     print("|---|---|---|---|---|---|---|")

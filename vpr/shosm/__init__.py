@@ -63,8 +63,9 @@ from .follow import (
 from .graph import Graph
 from .lagged import Lagged
 from .localizer import Localizer
-from .loops import LOOP_UNCAPPED_MAX, LoopStream, loop_evidence
+from .loops import LoopStream, loop_evidence
 from .memory import SequenceMemory, pad_codes
+from .stream_graph import StreamEngine, StreamGraph
 
 __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pad_codes",
            "LEARN_THRESHOLD", "LOCALIZE_LAG", "LOOP_EXCLUDE", "LOOP_ONLY_KEYS", "DENSE_EVIDENCE_PAIRS",
@@ -77,6 +78,6 @@ __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pa
            "accept_loops", "accept_path", "stationary_closures", "STAND_FRAMES", "UNMOVED_SHARE", "map_places",
            "standing", "refuse_stands",
            "Localizer", "Lagged", "LoopStream", "loop_evidence", "Direction", "reversed_frames",
-           "LOOP_UNCAPPED_MAX", "LoopDetector", "Confirmation", "confirm_closures",
+           "StreamGraph", "StreamEngine", "LoopDetector", "Confirmation", "confirm_closures",
            "Backfill", "backfill_closures", "SpeedFollower", "PICKS", "check_pick",
            "pick_maps", "disagree", "apart_from_neighbours", "between_maps", "fill_between", "path_lengths"]

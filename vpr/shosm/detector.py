@@ -17,7 +17,7 @@ from .loops import LoopStream
 __all__ = ["LoopDetector"]
 
 _FORMAT = "vpr.LoopDetector"
-_FORMAT_VERSION = 5
+_FORMAT_VERSION = 6
 
 
 def _is_sdr(x) -> bool:

@@ -18,7 +18,7 @@ from vpr.statefile import joint_state, part_state
 from vpr.types import Column, Decision
 
 from .conf import BeamConf, EvidenceConf
-from .graph import BIG, Beam, Graph
+from .graph import Beam, Graph
 from .kernels import evidence as KE
 from .memory import SequenceMemory
 
@@ -149,9 +149,10 @@ class Engine:
 
     def column(self, rows, val, n: int, frame: int = -1) -> Column:
         """The standardised column of raw evidence ``val`` at ``rows`` over ``n`` candidates."""
-        mu, sd = KE.moments(val, n) if self.normalise and n > 0 else (0.0, 1.0)
         order = np.argsort(rows, kind="stable")
-        z = ((val[order] - mu) / sd).astype(np.float32)
+        val = np.asarray(val, np.float64)[order]
+        mu, sd = KE.moments(val, n) if self.normalise and n > 0 else (0.0, 1.0)  # summed in the candidates' order
+        z = ((val - mu) / sd).astype(np.float32)
         return Column(np.asarray(rows, np.int64)[order], z, float(np.float32(-mu / sd)), int(n), frame)
 
     @property
@@ -185,15 +186,12 @@ class Engine:
             rows = np.flatnonzero(col)
             val = col[rows].astype(np.float64)
         else:
-            limit = np.array([n - 1 if n < g.n_db else BIG], np.int64)
-            _, rows, val = self._beam.run(g, g.bwd if self.reverse else g.fwd, q_ptr, bits, _ONE, limit,
-                                          self._params[capped])
+            _, rows, val = self._beam.run(g, g.bwd if self.reverse else g.fwd, q_ptr, bits, _ONE, self._params[capped])
         self.frames += 1
         return np.asarray(rows, np.int64), np.asarray(val, np.float64), n
 
     def grow(self) -> None:
-        """Make room after the graph grew (:meth:`Graph.attach`)."""
-        self._beam.grow(self.graph)
+        """Nothing to make room for: a learned database's graph does not grow."""
 
     def reset(self) -> None:
         """Forget the evidence carried from earlier frames (a new query traverse, a new session)."""
@@ -208,8 +206,8 @@ class Engine:
         """(header, arrays) after the frames seen so far; :meth:`load_state` continues from them."""
         if self.exact:
             return {"frames": self.frames, "exact": True}, {"rel": self._rel.copy(), "e": self._e.copy()}
-        cells, values = self._beam.cells()
-        return {"frames": self.frames, "exact": False}, {"beam_cells": cells, "beam_e": values,
+        cells, values = self._beam.cells()  # kept as the memory's cells
+        return {"frames": self.frames, "exact": False}, {"beam_cells": self.graph.rel[cells], "beam_e": values,
                                                          "beam_st": self._beam.st.copy()}
 
     def load_state(self, header: dict, arrays: dict) -> Engine:
@@ -226,9 +224,10 @@ class Engine:
             self._e[:] = arrays["e"]
             return self
         cells = np.asarray(arrays["beam_cells"], np.int64)
-        if cells.size and (cells.min() < 0 or cells.max() >= self.graph.n_cells):
-            raise ValueError("the state has beam cells outside this memory: another memory's state?")
-        self._beam.set_cells(cells, np.asarray(arrays["beam_e"], np.float64))
+        r = self.graph.number(cells)
+        if cells.size and (r.max() >= self.graph.n_rel or not np.array_equal(self.graph.rel[r], cells)):
+            raise ValueError("the state has beam cells that carry no evidence in this memory: another memory's state?")
+        self._beam.set_cells(r, np.asarray(arrays["beam_e"], np.float64))
         if "beam_st" in arrays:
             self._beam.st[:] = arrays["beam_st"]
         return self
@@ -248,7 +247,6 @@ class Engine:
         n_q, n_db = q.shape[0], g.n_db
         q_ptr, q_ind = q.indptr.astype(np.int64), q.indices.astype(np.int64)
         params = beam_params(self.evidence, self.beam_conf, 0.5 if direction == "both" else 0.0)
-        limits = np.full(n_q, BIG, np.int64)
         seen = {"max_beam": 0, "max_candidates": 0}
         passes = [("rev" if direction == "reversed" else "fwd", np.arange(n_q, dtype=np.int64))]
         if direction == "both":
@@ -281,7 +279,7 @@ class Engine:
             for c in (range(len(starts)) if ahead else range(len(starts) - 1, -1, -1)):
                 q0, q1 = starts[c], min(starts[c] + chunk, n_q)
                 frames = order[q0:q1] if ahead else order[n_q - q1:n_q - q0]
-                cols = b.run(g, adj, q_ptr, q_ind, frames, limits[q0:q1], params)
+                cols = b.run(g, adj, q_ptr, q_ind, frames, params)
                 cols = _reversed(*cols) if name == "bwd" else cols
                 give(k, c, (cols[0], cols[1].astype(np.int32), cols[2].astype(np.float32)) if len(passes) > 1
                      else cols)
@@ -397,6 +395,13 @@ class SpeedEngine:
                  threads: int | None = None):
         self.graph, self.evidence = graph, evidence
         self.lanes = [Engine(graph, lane, beam, exact, threads) for lane in evidence.split()]
+
+    @classmethod
+    def of_lanes(cls, graph, evidence: EvidenceConf, lanes: list) -> SpeedEngine:
+        """The speed models' engines ``lanes`` (one per model of ``evidence``, over ``graph``), stepped together."""
+        self = cls.__new__(cls)
+        self.graph, self.evidence, self.lanes = graph, evidence, list(lanes)
+        return self
 
     @property
     def frames(self) -> int:

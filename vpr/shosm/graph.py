@@ -1,4 +1,4 @@
-"""The learned memory as the evidence kernels read it (:class:`Graph`), and one pass's scratch (:class:`Beam`)."""
+"""A learned database as the beam's kernels read it (:class:`Graph`), and one pass's scratch (:class:`Beam`)."""
 from __future__ import annotations
 
 import numpy as np
@@ -7,10 +7,7 @@ import scipy.sparse as sp
 from .kernels import beam as KB
 from .memory import SequenceMemory
 
-__all__ = ["BIG", "Graph", "Beam", "check_codes", "linked_lists", "grouped_lists"]
-
-#: "Never": a birth frame or a limit beyond any frame.
-BIG = KB.NO_LIMIT
+__all__ = ["Graph", "Beam", "check_codes", "linked_lists", "grouped_lists"]
 
 
 def check_codes(mem: SequenceMemory, db_codes) -> sp.csr_matrix:
@@ -69,138 +66,61 @@ def _narrow(lists) -> tuple:
     return tuple(np.asarray(a, np.int32) for a in lists)
 
 
-def _grown(a, size, fill):
-    out = np.full(size, fill, a.dtype)
-    out[: a.size] = a
-    return out
-
-
 class Graph:
-    """A learned memory and the database frames it can answer with, as the kernels read them.
+    """A learned memory and the database frames it can answer with, as the beam's kernels read them (one stream
+    learned while it is read: :class:`vpr.shosm.StreamGraph`).
 
-    ``bit_cols, bit_len``: input bit -> minicolumns; ``col_size``: connections per minicolumn; ``cpc, n_cells,
-    n_cols``; ``fwd, bwd``: successor lists ``(head, next, target[, group])`` per cell or group (``bwd`` reversed, or
-    None); ``c_head, c_next, c_frame``: cell -> database frames; ``relevant``, ``birth`` per cell; ``db_norm`` per
-    frame; ``n_db``.
+    Only cells in the database's codes or on a lateral connection can carry evidence to a database frame: they are
+    numbered ``0 .. n_rel - 1`` in the order of the memory's cells (``rel``: each one's memory cell), so that every
+    array indexed by cell is as long as those cells, not as the whole memory. ``bit_cols, bit_len``: input bit ->
+    minicolumns; ``col_size``: connections per minicolumn; ``col_ptr``: minicolumn ``m``'s cells are ``col_ptr[m] ..
+    col_ptr[m + 1] - 1``; ``r_col``: each cell's minicolumn; ``fwd, bwd``: successor lists ``(head, next, target[,
+    group])`` per cell or group (``bwd`` reversed, or None); ``c_head, c_next, c_frame``: cell -> database frames;
+    ``db_norm`` per frame; ``n_db``.
     """
 
-    ARRAYS = ("col_size", "relevant", "birth", "c_head", "c_next", "c_frame", "db_norm")
-
-    def __init__(self, mem: SequenceMemory, codes: sp.csr_matrix | None = None, backward: bool = False):
+    def __init__(self, mem: SequenceMemory, codes: sp.csr_matrix, backward: bool = False):
         v = mem.view()
         self.mem, self.cpc = mem, v.cells_per_column
         self.bit_cols, self.bit_len = v.bit_cols, v.bit_len
         self.codes = codes
-        if codes is None:  # grows with the stream (attach)
-            cap = 1024 * self.cpc
-            self.n_cells, self.n_cols, self.n_db = cap, 1024, 0
-            self.col_size, self.relevant = np.zeros(1024), np.zeros(cap, bool)
-            self.birth, self.c_head = np.full(cap, BIG, np.int64), np.full(cap, -1, np.int32)
-            self.c_next, self.c_frame = np.zeros(4096, np.int32), np.zeros(4096, np.int32)
-            self.db_norm = np.ones(1024, np.float64)
-            self.fwd, self.bwd = (np.full(cap, -1, np.int32), np.zeros(4096, np.int32), np.zeros(4096, np.int32)), None
-            self.n_nodes = 0
-            return
-        n_cells = max(v.n_cells, codes.shape[1], 1)
-        self.n_cells, self.n_cols, self.n_db = n_cells, max(v.n_columns, 1), codes.shape[0]
+        self.n_cols, self.n_db = max(v.n_columns, 1), codes.shape[0]
         self.col_size = v.column_sizes.astype(np.float64)
-        self.relevant = np.zeros(n_cells, bool)
-        self.relevant[codes.indices] = True
-        self.relevant[v.e_src] = True
-        self.relevant[v.e_dst] = True
+        self.rel = np.unique(np.concatenate([codes.indices.astype(np.int64), v.e_src, v.e_dst]))
+        self.n_rel = self.rel.size
+        self.r_col = (self.rel // self.cpc).astype(np.int32)
+        self.col_ptr = np.r_[0, np.cumsum(np.bincount(self.r_col, minlength=self.n_cols))].astype(np.int32)
         coo = codes.tocoo()
-        self.c_head, self.c_next, self.c_frame = _narrow(linked_lists(coo.col, coo.row, n_cells))
-        self.n_nodes = self.c_frame.size
-        self.birth = np.zeros(n_cells, np.int64)
+        self.c_head, self.c_next, self.c_frame = _narrow(linked_lists(self.number(coo.col), coo.row, self.n_rel))
         self.db_norm = np.maximum(np.diff(codes.indptr), 1).astype(np.float64)
-        self.fwd = _narrow(grouped_lists(v.e_src, v.e_dst, n_cells))
-        self.bwd = _narrow(grouped_lists(v.e_dst, v.e_src, n_cells)) if backward else None
+        src, dst = self.number(v.e_src), self.number(v.e_dst)
+        self.fwd = _narrow(grouped_lists(src, dst, self.n_rel))
+        self.bwd = _narrow(grouped_lists(dst, src, self.n_rel)) if backward else None
+
+    def number(self, cells) -> np.ndarray:
+        """The numbers of memory cells that can carry evidence (:attr:`rel`)."""
+        return np.searchsorted(self.rel, np.asarray(cells, np.int64)).astype(np.int64)
 
     @classmethod
     def of(cls, mem: SequenceMemory, db_codes, backward: bool = False) -> Graph:
         """The graph of a learned database (``db_codes``: its winner codes); ``backward``: also ``bwd``."""
         return cls(mem, check_codes(mem, db_codes), backward)
 
-    @classmethod
-    def growing(cls, mem: SequenceMemory) -> Graph:
-        """An empty graph over ``mem``, which learns one stream while it is read: :meth:`attach` each frame."""
-        return cls(mem)
-
-    def attach(self, j: int, bits: np.ndarray, winners: np.ndarray, old_len: np.ndarray, ne_old: int) -> None:
-        """Frame ``j``, just learned (winner cells ``winners``), becomes a database frame.
-
-        ``old_len`` / ``ne_old``: the memory's ``bit_len`` and connection count before it learned the frame.
-        """
-        v, cpc = self.mem.view(), self.cpc
-        a_head, a_next, a_dst = self.fwd
-        if v.n_cells > self.n_cells:  # grow everything indexed by cell or minicolumn
-            new = max(v.n_cells, 2 * self.n_cells)
-            self.relevant, self.birth = _grown(self.relevant, new, False), _grown(self.birth, new, BIG)
-            self.c_head, self.col_size = _grown(self.c_head, new, -1), _grown(self.col_size, new // cpc, 0.0)
-            a_head = _grown(a_head, new, -1)
-            self.n_cells, self.n_cols = new, new // cpc
-        if j >= self.db_norm.size:
-            self.db_norm = _grown(self.db_norm, 2 * (j + 1), 1.0)
-        KB.count_new_entries(self.col_size, bits, old_len, v.bit_len, v.bit_cols)
-        ne = v.e_src.size
-        if ne > a_next.size:
-            a_next, a_dst = np.resize(a_next, max(ne, 2 * a_next.size)), np.resize(a_dst, max(ne, 2 * a_dst.size))
-        KB.append_lists(a_head, a_next, a_dst, ne_old, v.e_src[ne_old:], v.e_dst[ne_old:])
-        self.fwd = (a_head, a_next, a_dst)
-        n = self.n_nodes
-        if n + winners.size > self.c_next.size:
-            self.c_next = np.resize(self.c_next, 2 * (n + winners.size))
-            self.c_frame = np.resize(self.c_frame, 2 * (n + winners.size))
-        KB.append_lists(self.c_head, self.c_next, self.c_frame, n, winners, np.full(winners.size, j, np.int64))
-        self.n_nodes = n + winners.size
-        self.relevant[winners] = True
-        self.birth[winners] = np.minimum(self.birth[winners], j)
-        self.db_norm[j] = max(winners.size, 1)
-        self.bit_cols, self.bit_len = v.bit_cols, v.bit_len
-        self.n_db = j + 1
-
     def dense(self) -> tuple:
-        """The dense kernel's form (:func:`vpr.shosm.kernels.evidence.evidence_frames`), on the relevant cells only.
-
-        Only cells in database codes or on a connection can carry evidence to the output; they are renumbered ``0 ..
-        n_rel - 1``. Returns ``(rel, (bit_cols, bit_len, col_size, rel_col, src, dst, db_ptr, db_ind, db_norm))`` with
-        ``rel`` the memory's cell index of each relevant cell.
-        """
+        """The dense kernel's form (:func:`vpr.shosm.kernels.evidence.evidence_frames`), on the cells that can carry
+        evidence: ``(rel, (bit_cols, bit_len, col_size, rel_col, src, dst, db_ptr, db_ind, db_norm))``."""
         v, db = self.mem.view(), self.codes
-        rel = np.unique(np.concatenate([db.indices.astype(np.int64), v.e_src, v.e_dst]))
         db_ptr = db.indptr.astype(np.int64)
-        return rel, (v.bit_cols, v.bit_len, v.column_sizes.astype(np.float64), rel // v.cells_per_column,
-                     np.searchsorted(rel, v.e_src).astype(np.int64), np.searchsorted(rel, v.e_dst).astype(np.int64),
-                     db_ptr, np.searchsorted(rel, db.indices.astype(np.int64)).astype(np.int64),
-                     np.diff(db_ptr).astype(np.float64))
-
-    # ------------------------------------------------------------- state (a growing graph)
-    def state(self) -> tuple[dict, dict]:
-        header = {"n_cells": self.n_cells, "n_nodes": self.n_nodes, "n_db": self.n_db}
-        arrays = {k: getattr(self, k) for k in self.ARRAYS}
-        arrays.update(a_head=self.fwd[0], a_next=self.fwd[1], a_dst=self.fwd[2])
-        return header, arrays
-
-    def load_state(self, header: dict, arrays: dict) -> Graph:
-        self.n_cells, self.n_nodes = int(header["n_cells"]), int(header["n_nodes"])
-        for k in self.ARRAYS:
-            setattr(self, k, np.array(arrays[k]))
-        self.c_head, self.c_next, self.c_frame = _narrow((self.c_head, self.c_next, self.c_frame))
-        self.n_cols = self.col_size.size
-        self.n_db = int(header.get("n_db", self.db_norm.size))
-        if self.relevant.size != self.n_cells or self.n_cols * self.cpc != self.n_cells:
-            raise ValueError("the evidence graph does not match its size")
-        self.fwd = _narrow((arrays["a_head"], arrays["a_next"], arrays["a_dst"]))
-        v = self.mem.view()
-        self.bit_cols, self.bit_len = v.bit_cols, v.bit_len
-        return self
+        return self.rel, (v.bit_cols, v.bit_len, v.column_sizes.astype(np.float64), self.rel // v.cells_per_column,
+                          self.number(v.e_src), self.number(v.e_dst), db_ptr, self.number(db.indices),
+                          np.diff(db_ptr).astype(np.float64))
 
 
 class Beam:
     """The state and scratch arrays of :func:`vpr.shosm.kernels.beam.beam_frames`, one direction."""
 
     def __init__(self, graph: Graph):
-        n_cells, n_cols, n_db = graph.n_cells, graph.n_cols, max(graph.db_norm.size, 1)
+        n_cells, n_cols, n_db = max(graph.n_rel, 1), graph.n_cols, max(graph.db_norm.size, 1)
         self.st = np.zeros(KB.BEAM_STATE_SIZE, np.int64)
         # per cell (32 bits: 2**31 cells): its place in the beam and its candidate number, plus one (0: none); per
         # candidate or beam entry (at most one per cell; np.zeros leaves the pages no frame reached unmapped)
@@ -219,17 +139,6 @@ class Beam:
         """(largest beam, largest candidate set) of any frame so far (to check the caps)."""
         return int(self.st[KB.B_MAX_BEAM]), int(self.st[KB.B_MAX_CAND])
 
-    def grow(self, graph: Graph) -> None:
-        """Make room for a graph that has grown (online learning)."""
-        def g(a, n):
-            return a if a.size >= n else _grown(a, max(n, 2 * a.size), 0)
-
-        for name in ("in_beam", "slot", "beam", "cand", "beam_e", "p1", "p2", "z", "e_new"):
-            setattr(self, name, g(getattr(self, name), graph.n_cells))
-        self.counts, self.touched_cols = g(self.counts, graph.n_cols), g(self.touched_cols, graph.n_cols)
-        n_db = graph.db_norm.size
-        self.acc, self.db_mark, self.db_touch = g(self.acc, n_db), g(self.db_mark, n_db), g(self.db_touch, n_db)
-
     def cells(self) -> tuple[np.ndarray, np.ndarray]:
         """(cells, evidence) of the beam now (copies)."""
         n = int(self.st[KB.B_SIZE])
@@ -243,7 +152,7 @@ class Beam:
         self.in_beam[np.asarray(cells, np.int64)] = np.arange(1, n + 1, dtype=np.int32)
         self.st[KB.B_SIZE] = n
 
-    def run(self, g: Graph, adj, q_ptr, q_ind, order, limits, params):
+    def run(self, g: Graph, adj, q_ptr, q_ind, order, params):
         """Run frames ``order`` along the successor lists ``adj``; return their sparse columns (ptr, idx, val)."""
         grp = adj[3] if len(adj) == 4 else np.zeros(0, np.int32)
         if grp.size and self.gmax.size < adj[0].size:
@@ -255,9 +164,9 @@ class Beam:
         st[KB.B_OUT_POS] = 0
         st[KB.B_FRAMES] = 0
         while True:
-            done = KB.beam_frames((q_ptr, q_ind, order, limits), (g.bit_cols, g.bit_len, g.col_size, g.cpc),
-                                  (adj[0], adj[1], adj[2], grp),
-                                  (g.c_head, g.c_next, g.c_frame, g.relevant, g.birth, g.db_norm), params,
+            done = KB.beam_frames((q_ptr, q_ind, order), (g.bit_cols, g.bit_len, g.col_size, g.col_ptr),
+                                  (adj[0], adj[1], adj[2], grp), (g.c_head, g.c_next, g.c_frame, g.r_col, g.db_norm),
+                                  params,
                                   (st, self.beam, self.beam_e, self.in_beam),
                                   (self.counts, self.touched_cols, self.p1, self.p2, self.z, self.slot, self.cand,
                                    self.e_new, self.gmax, self.gmark, self.gtouch, self.acc, self.db_mark,

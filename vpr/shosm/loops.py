@@ -15,37 +15,32 @@ from .backfill import Backfill
 from .conf import LOOP_EXCLUDE, RshosmSeqConf
 from .confirm import Confirmation
 from .decide import loop_rule
-from .evidence import LoopEvidence, make_engine
-from .graph import Graph
+from .evidence import LoopEvidence
 from .memory import SequenceMemory
+from .stream_graph import StreamEngine, StreamGraph, make_stream_engine
 
-__all__ = ["LoopStream", "loop_evidence", "LOOP_UNCAPPED_MAX"]
-
-#: The beam carries every cell until the stream has this many frames; from then on the caps of
-#: :class:`vpr.shosm.BeamConf` bound the cost per frame (``caps="auto"``). Uncapped, a long stream's time and
-#: memory grow too fast; capped from the start, the frames of the current condition fill the beam and the
-#: other condition's frames of the same place never enter it (``research/docs/loops.md``).
-LOOP_UNCAPPED_MAX = 10_000
-
+__all__ = ["LoopStream", "loop_evidence"]
 
 class LoopStream:
     """One stream's loop closure: the memory learned so far, the evidence engine over it, the decisions.
 
     ``exclude``: frames closer are not candidates; ``conf``: the whole :class:`RshosmSeqConf`; ``caps``: whether the
-    beam's caps apply (``"auto"``: from frame :data:`LOOP_UNCAPPED_MAX` on); ``opinion(decider)``: a decider around
-    the loop rule's (:class:`vpr.verify.GeometricOpinion`).
+    beam's caps apply (default: no; the evidence over the stream laid out by frame carries every cell, and a cap
+    would drop the revisits across a change of conditions, ``research/docs/loops.md``); ``opinion(decider)``: a
+    decider around the loop rule's (:class:`vpr.verify.GeometricOpinion`).
     """
 
-    def __init__(self, exclude: int = LOOP_EXCLUDE, conf: RshosmSeqConf | None = None, caps: str | bool = "auto",
+    def __init__(self, exclude: int = LOOP_EXCLUDE, conf: RshosmSeqConf | None = None, caps: bool = False,
                  opinion=None):
         exclude = check_exclude(exclude)
-        if not (caps == "auto" or isinstance(caps, bool)):
-            raise ValueError(f"caps must be 'auto', True or False, got {caps!r}")
+        if not isinstance(caps, bool):
+            raise ValueError(f"caps must be True or False, got {caps!r}")
         self.exclude, self.caps = int(exclude), caps
         self.seq = conf if conf is not None else RshosmSeqConf.build()
         self.mem = SequenceMemory(**self.seq.memory_params)
-        self.graph = Graph.growing(self.mem)
-        self.engine = make_engine(self.graph, self.seq.evidence, self.seq.beam)
+        self.graph = StreamGraph(self.mem)
+        self.engine = make_stream_engine(self.graph, self.seq.evidence, self.seq.beam)
+        self._shares_overlaps = isinstance(self.engine, StreamEngine) and not caps
         self.decider: Decider = loop_rule(self.seq.loop_rule)(self.seq.loop(), self.seq.path(between_sessions=True),
                                                               n_bits=self.mem.n_inputs)
         if opinion is not None:
@@ -109,11 +104,12 @@ class LoopStream:
         bits = _sdr.row_bits(sdr_row, self.mem.n_inputs, name="frame SDR")
         j = self.frames
         old_len, ne_old = self.mem.view().bit_len.copy(), self.mem.n_connections
-        winners = self.mem.step(bits)
-        self.graph.attach(j, bits, winners, old_len, ne_old)
+        shared = self._shares_overlaps  # the memory's overlap count of the frame, not counted again
+        winners = self.mem.step(bits, keep_overlaps=shared)
+        self.graph.attach(bits, winners, old_len, ne_old)
         self.engine.grow()
-        capped = j >= LOOP_UNCAPPED_MAX if self.caps == "auto" else bool(self.caps)
-        column = self.engine.step(bits, n_candidates(j, self.exclude, self.starts[-1]), capped, frame=j)
+        column = self.engine.step(bits, n_candidates(j, self.exclude, self.starts[-1]), self.caps, frame=j,
+                                  overlaps=self.mem.overlaps() if shared else None)
         self.decider.add_sdr(bits)
         if self.decider.rows is None:
             self._rows.append(bits)
@@ -136,7 +132,7 @@ class LoopStream:
         """Continue from a :meth:`state` (raises ValueError on inconsistent arrays)."""
         self.mem.load_state(*part_state(header, arrays, "mem"))
         self.graph.load_state(*part_state(header, arrays, "graph"))
-        self.engine = make_engine(self.graph, self.seq.evidence, self.seq.beam).load_state(
+        self.engine = make_stream_engine(self.graph, self.seq.evidence, self.seq.beam).load_state(
             *part_state(header, arrays, "engine"))
         self.decider.load_state(*part_state(header, arrays, "dec"))
         self.confirmation.load_state(*part_state(header, arrays, "confirm"))
@@ -152,11 +148,14 @@ class LoopStream:
     @classmethod
     def from_state(cls, header: dict, arrays: dict) -> LoopStream:
         """The stream of a :meth:`state` pair."""
-        return cls(header["exclude"], RshosmSeqConf.build(header["seq"]), header["caps"]).load_state(header, arrays)
+        caps = header["caps"]
+        if not isinstance(caps, bool):
+            raise ValueError("a loop stream's state of an earlier version (its beam capped from a frame on)")
+        return cls(header["exclude"], RshosmSeqConf.build(header["seq"]), caps).load_state(header, arrays)
 
 
 def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf=None, top_k: int | None = None,
-                  caps: str | bool = "auto", dense_max: int | None = None, progress: bool = False, sessions=None,
+                  caps: bool = False, dense_max: int | None = None, progress: bool = False, sessions=None,
                   opinion=None, **flat) -> LoopEvidence:
     """Loop closure within one stream with graded forward sequence evidence, learned online.
 

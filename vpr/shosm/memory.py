@@ -254,15 +254,32 @@ class SequenceMemory:
             bar.close()
         return out_ptr, out_idx[: out_ptr[-1]]
 
-    def step(self, sdr_row, learn: bool = True) -> np.ndarray:
+    def step(self, sdr_row, learn: bool = True, keep_overlaps: bool = False) -> np.ndarray:
         """Process one input SDR (one pass of Algorithm 1); returns the sorted winner cells (int64).
 
         ``sdr_row``: a 1-row SDR batch, a dense row of ``n_inputs`` values or active bit indices
         (:func:`vpr.sdr.row_bits`). With ``learn`` off nothing is created or learned and no random numbers are drawn
-        (bursting ties by a fixed per-cell key): a query leaves the memory as it found it.
+        (bursting ties by a fixed per-cell key): a query leaves the memory as it found it. ``keep_overlaps`` (while
+        learning): the step's overlap counts (line 1) are kept for the caller, :meth:`overlaps`.
         """
-        _, idx = self._run_batch(self._input_bits(sdr_row), learn)
+        if keep_overlaps and not learn:
+            raise ValueError("keep_overlaps applies to a step that learns")
+        self._st[K.KEEP_COUNTS] = int(keep_overlaps)
+        try:
+            _, idx = self._run_batch(self._input_bits(sdr_row), learn)
+        finally:
+            self._st[K.KEEP_COUNTS] = 0
+        self._kept = keep_overlaps
         return idx.copy()
+
+    def overlaps(self) -> tuple[np.ndarray, np.ndarray, int]:
+        """(counts per minicolumn, the minicolumns touched, how many) of the last step run with ``keep_overlaps``:
+        each minicolumn's overlap with that step's input, before it learned (the minicolumns it created are not
+        touched). The caller uses them and sets the touched counts back to 0 before the next step."""
+        if not getattr(self, "_kept", False):
+            raise ValueError("no overlaps kept: run step(..., keep_overlaps=True) first")
+        self._kept = False
+        return self._counts, self._touched, int(self._st[K.N_TOUCHED])
 
     compute = step  # htm.core's name
 

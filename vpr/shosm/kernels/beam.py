@@ -1,4 +1,4 @@
-"""Compiled kernels of the sparse graded evidence (numba): the beam, and lists that grow online."""
+"""Compiled kernels of the sparse graded evidence (numba): the beam over a learned database."""
 from __future__ import annotations
 
 import numpy as np
@@ -10,16 +10,6 @@ from .overlap import count_overlaps
 # frame so far) that tests and benchmarks read to check the caps
 B_SIZE, B_OUT_POS, B_NEED, B_FRAMES, B_MAX_BEAM, B_MAX_CAND = range(6)
 BEAM_STATE_SIZE = 6
-#: A frame's limit that admits every cell: no cell's birth is read.
-NO_LIMIT = np.iinfo(np.int64).max // 4
-
-
-@njit(cache=True, inline="always")
-def _born(birth, c, limit):  # pragma: no cover - compiled
-    """Whether cell ``c`` was learned by ``limit`` (:data:`NO_LIMIT`: every cell, no birth read)."""
-    return limit >= NO_LIMIT or birth[c] <= limit
-
-
 @njit(cache=True, inline="always")
 def _join(c, slot, cand, p1, p2, n_c):  # pragma: no cover - compiled
     """Cell ``c`` becomes candidate ``n_c`` (``slot[c] = n_c + 1``) with no offers yet. Returns the count."""
@@ -31,20 +21,19 @@ def _join(c, slot, cand, p1, p2, n_c):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
-def _relax(s, v, a_head, a_dst, a_next, birth, limit, p, q, slot, cand, n_c):  # pragma: no cover - compiled
-    """Offer evidence ``v`` of cell ``s`` along its connections: ``p[k] = max(p[k], v)`` for every
-    target learned by ``limit`` (``k`` its candidate number; new targets join the candidates, ``q`` is the
-    other offer array). Returns the candidate count."""
+def _relax(s, v, a_head, a_dst, a_next, p, q, slot, cand, n_c):  # pragma: no cover - compiled
+    """Offer evidence ``v`` of cell ``s`` along its connections: ``p[k] = max(p[k], v)`` for every target (``k`` its
+    candidate number; new targets join the candidates, ``q`` is the other offer array). Returns the candidate
+    count."""
     e = a_head[s]
     while e >= 0:
         d = a_dst[e]
-        if _born(birth, d, limit):
-            k = slot[d] - 1
-            if k < 0:
-                k = n_c
-                n_c = _join(d, slot, cand, p, q, n_c)
-            if v > p[k]:
-                p[k] = v
+        k = slot[d] - 1
+        if k < 0:
+            k = n_c
+            n_c = _join(d, slot, cand, p, q, n_c)
+        if v > p[k]:
+            p[k] = v
         e = a_next[e]
     return n_c
 
@@ -65,13 +54,12 @@ def _offer(s, v, grp, gmax, gmark, gtouch, n_g):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
-def _relax_groups(n_g, gtouch, gmax, gmark, a_head, a_dst, a_next, birth, limit, p, q, slot, cand,
-                  n_c):  # pragma: no cover - compiled
+def _relax_groups(n_g, gtouch, gmax, gmark, a_head, a_dst, a_next, p, q, slot, cand, n_c):  # pragma: no cover
     """Relax each touched group's largest offer along the group's one successor list."""
     for k in range(n_g):
         gi = gtouch[k]
         gmark[gi] = False
-        n_c = _relax(gi, gmax[gi], a_head, a_dst, a_next, birth, limit, p, q, slot, cand, n_c)
+        n_c = _relax(gi, gmax[gi], a_head, a_dst, a_next, p, q, slot, cand, n_c)
     return n_c
 
 
@@ -82,13 +70,12 @@ def _fraction(counts, col_size, col):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
-def enter_by_overlap(bits, limit, ff, cells, conf, scratch):  # pragma: no cover - compiled
+def enter_by_overlap(bits, ff, conf, scratch):  # pragma: no cover - compiled
     """Feed-forward: the overlap count of every minicolumn the frame's ``bits`` touch (kept in ``counts`` until
     the frame ends, so that every candidate gets its feed-forward term, :func:`_fraction`), and the cells of the
     minicolumns above the floor (at most ``max_enter`` minicolumns, those of largest overlap) as candidates.
     Returns (minicolumns touched, candidates)."""
-    bit_cols, bit_len, col_size, cpc = ff
-    relevant, birth = cells[3], cells[4]
+    bit_cols, bit_len, col_size, col_ptr = ff
     z_floor, max_enter = conf[6], conf[8]
     counts, touched_cols, p1, p2, slot, cand = scratch[0], scratch[1], scratch[2], scratch[3], scratch[5], scratch[6]
     n_tc = count_overlaps(bits, bit_cols, bit_len, counts, touched_cols)
@@ -112,20 +99,18 @@ def enter_by_overlap(bits, limit, ff, cells, conf, scratch):  # pragma: no cover
     for i in range(n_tc):
         col = touched_cols[i]
         if _fraction(counts, col_size, col) > zf:
-            for k in range(cpc):
-                c = col * cpc + k
-                if relevant[c] and _born(birth, c, limit) and slot[c] == 0:
+            for c in range(col_ptr[col], col_ptr[col + 1]):  # the minicolumn's cells that can carry evidence
+                if slot[c] == 0:
                     n_c = _join(c, slot, cand, p1, p2, n_c)
     return n_tc, n_c
 
 
 @njit(cache=True, inline="always")
-def enter_by_prediction(n_c, limit, lateral, cells, conf, state, scratch):  # pragma: no cover - compiled
+def enter_by_prediction(n_c, lateral, conf, state, scratch):  # pragma: no cover - compiled
     """Prediction: the offers of one connection from a beam cell (and of the beam cell itself: ``stay``) into
     ``p1``, and of two connections (a skipped database frame) into ``p2``; their targets join the candidates.
     Returns the candidates."""
     a_head, a_next, a_dst, grp = lateral
-    birth = cells[4]
     stay, skip = conf[1], conf[2]
     st, beam, beam_e = state[0], state[1], state[2]
     p1, p2, slot, cand = scratch[2], scratch[3], scratch[5], scratch[6]
@@ -135,16 +120,14 @@ def enter_by_prediction(n_c, limit, lateral, cells, conf, state, scratch):  # pr
     for i in range(st[B_SIZE]):
         s = beam[i]
         v = beam_e[i]
-        if not _born(birth, s, limit):
-            continue
         if stay >= 0.0 and v > stay and slot[s] == 0:
             n_c = _join(s, slot, cand, p1, p2, n_c)
         if grouped:
             n_g = _offer(s, v, grp, gmax, gmark, gtouch, n_g)
         else:
-            n_c = _relax(s, v, a_head, a_dst, a_next, birth, limit, p1, p2, slot, cand, n_c)
+            n_c = _relax(s, v, a_head, a_dst, a_next, p1, p2, slot, cand, n_c)
     if grouped:
-        n_c = _relax_groups(n_g, gtouch, gmax, gmark, a_head, a_dst, a_next, birth, limit, p1, p2, slot, cand, n_c)
+        n_c = _relax_groups(n_g, gtouch, gmax, gmark, a_head, a_dst, a_next, p1, p2, slot, cand, n_c)
     if skip >= 0.0:  # only p1 > skip can win
         n1 = n_c
         n_g = 0
@@ -155,25 +138,24 @@ def enter_by_prediction(n_c, limit, lateral, cells, conf, state, scratch):  # pr
                 if grouped:
                     n_g = _offer(s, v, grp, gmax, gmark, gtouch, n_g)
                 else:
-                    n_c = _relax(s, v, a_head, a_dst, a_next, birth, limit, p2, p1, slot, cand, n_c)
+                    n_c = _relax(s, v, a_head, a_dst, a_next, p2, p1, slot, cand, n_c)
         if grouped:
-            n_c = _relax_groups(n_g, gtouch, gmax, gmark, a_head, a_dst, a_next, birth, limit, p2, p1, slot, cand,
-                                n_c)
+            n_c = _relax_groups(n_g, gtouch, gmax, gmark, a_head, a_dst, a_next, p2, p1, slot, cand, n_c)
     return n_c
 
 
 @njit(cache=True, inline="always")
-def new_evidence(n_c, ff, conf, state, scratch):  # pragma: no cover - compiled
+def new_evidence(n_c, ff, cells, conf, state, scratch):  # pragma: no cover - compiled
     """Each candidate's evidence (its feed-forward term plus ``decay`` times the best prediction, never below 0)
     into ``e_new``; returns the floor a cell must exceed to count this frame."""
     decay, stay, skip, _, floor, rel_floor = conf[0], conf[1], conf[2], conf[3], conf[4], conf[5]
-    col_size, cpc = ff[2], ff[3]
+    col_size, r_col = ff[2], cells[3]
     beam_e, in_beam = state[2], state[3]
     counts, p1, p2, z, cand, e_new = scratch[0], scratch[2], scratch[3], scratch[4], scratch[6], scratch[7]
     emax = 0.0
     for i in range(n_c):
         c = cand[i]
-        z[i] = _fraction(counts, col_size, c // cpc)
+        z[i] = _fraction(counts, col_size, r_col[c])
         p = p1[i]
         if skip >= 0.0 and p2[i] - skip > p:
             p = p2[i] - skip
@@ -212,10 +194,10 @@ def carry_floor(n_c, thr, max_beam, scratch):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
-def carry_and_output(t, n_c, n_tc, thr, keep, limit, z_weight, cells, state, scratch, out):  # pragma: no cover
+def carry_and_output(t, n_c, n_tc, thr, keep, z_weight, cells, state, scratch, out):  # pragma: no cover
     """The new beam (cells above ``keep``) and frame ``t``'s output column (database frames of the cells above
     ``thr``, each the mean of its cells' ``evidence - z_weight * z``); clears the frame's scratch."""
-    c_head, c_next, c_frame, db_norm = cells[0], cells[1], cells[2], cells[5]
+    c_head, c_next, c_frame, db_norm = cells[0], cells[1], cells[2], cells[4]
     st, beam, beam_e, in_beam = state
     counts, touched_cols, z, slot, cand, e_new = scratch[0], scratch[1], scratch[4], scratch[5], scratch[6], \
         scratch[7]
@@ -239,12 +221,11 @@ def carry_and_output(t, n_c, n_tc, thr, keep, limit, z_weight, cells, state, scr
             node = c_head[c]
             while node >= 0:
                 j = c_frame[node]
-                if j <= limit:
-                    if not db_mark[j]:
-                        db_mark[j] = True
-                        db_touch[n_touch] = j
-                        n_touch += 1
-                    acc[j] += (en - z_weight * zc) / db_norm[j]
+                if not db_mark[j]:
+                    db_mark[j] = True
+                    db_touch[n_touch] = j
+                    n_touch += 1
+                acc[j] += (en - z_weight * zc) / db_norm[j]
                 node = c_next[node]
     st[B_SIZE] = nb2
     if nb2 > st[B_MAX_BEAM]:
@@ -268,19 +249,19 @@ def beam_frames(query, ff, lateral, cells, conf, state, scratch, out):  # pragma
     """Sparse graded evidence for the query frames ``order`` (one direction), frame by frame in phases:
     enter by overlap, enter by prediction, new evidence, the carry floor, the new beam and the output column.
 
-    Parameters (tuples of arrays owned by the caller; cells are the memory's cell indices)
+    Parameters (tuples of arrays owned by the caller; cells are the database's cells that can carry evidence,
+    numbered ``0 .. n - 1`` in the order of the memory's cells: :class:`vpr.shosm.graph.Graph`)
     ----------
-    query : (q_ptr, q_ind, order, limits)
-        CSR of the query SDR batch; ``order``: frames to run; ``limits``: int64 per frame: only cells born at and
-        database frames output up to ``limit`` (loop closure over the past; a large value against a database).
-    ff : (bit_cols, bit_len, col_size, cpc)
-        Inverted index input bit -> minicolumns, connections per minicolumn (float64), cells per minicolumn.
+    query : (q_ptr, q_ind, order)
+        CSR of the query SDR batch; ``order``: frames to run.
+    ff : (bit_cols, bit_len, col_size, col_ptr)
+        Inverted index input bit -> minicolumns, connections per minicolumn (float64), each minicolumn's cells
+        ``col_ptr[m] .. col_ptr[m + 1] - 1``.
     lateral : (a_head, a_next, a_dst, grp)
         Prediction lists per source cell (reversed for a backward pass), or per group of cells with the same targets
-        (``grp``: int64 group per cell, -1: none; empty: per cell); a group relaxes its largest evidence once.
-    cells : (c_head, c_next, c_frame, relevant, birth, db_norm)
-        cell -> database frames whose code holds it; whether it may carry evidence; its first database frame; the code
-        size per database frame.
+        (``grp``: int32 group per cell, -1: none; empty: per cell); a group relaxes its largest evidence once.
+    cells : (c_head, c_next, c_frame, r_col, db_norm)
+        cell -> database frames whose code holds it; its minicolumn; the code size per database frame.
     conf : (decay, stay, skip, z_weight, floor, rel_floor, z_floor, max_beam, max_enter)
         As :class:`vpr.shosm.EvidenceConf` and :class:`vpr.shosm.BeamConf` (stay/skip < 0: off; caps <= 0: none); ties
         at a cap drop out together.
@@ -296,38 +277,26 @@ def beam_frames(query, ff, lateral, cells, conf, state, scratch, out):  # pragma
     Returns the number of frames processed; fewer than all when ``out_idx`` lacks room for the next frame
     (``st[B_NEED]``: the size needed), and the caller grows it and calls again.
     """
-    q_ptr, q_ind, order, limits = query
+    q_ptr, q_ind, order = query
     st = state[0]
     n = order.shape[0]
     for t in range(st[B_FRAMES], n):
         q = order[t]
-        limit = limits[t]
-        need = st[B_OUT_POS] + min(limit + 1, cells[5].shape[0])  # a column holds each database frame once at most
+        need = st[B_OUT_POS] + cells[4].shape[0]  # a column holds each database frame once at most
         if need > out[1].shape[0]:
             st[B_NEED] = need
             st[B_FRAMES] = t
             return t
-        n_tc, n_c = enter_by_overlap(q_ind[q_ptr[q]:q_ptr[q + 1]], limit, ff, cells, conf, scratch)
-        n_c = enter_by_prediction(n_c, limit, lateral, cells, conf, state, scratch)
-        thr = new_evidence(n_c, ff, conf, state, scratch)
+        n_tc, n_c = enter_by_overlap(q_ind[q_ptr[q]:q_ptr[q + 1]], ff, conf, scratch)
+        n_c = enter_by_prediction(n_c, lateral, conf, state, scratch)
+        thr = new_evidence(n_c, ff, cells, conf, state, scratch)
         if n_c > st[B_MAX_CAND]:
             st[B_MAX_CAND] = n_c
         keep = carry_floor(n_c, thr, conf[7], scratch)
-        carry_and_output(t, n_c, n_tc, thr, keep, limit, conf[3], cells, state, scratch, out)
+        carry_and_output(t, n_c, n_tc, thr, keep, conf[3], cells, state, scratch, out)
     st[B_FRAMES] = n
     st[B_NEED] = 0
     return n
-
-
-@njit(cache=True)
-def append_lists(head, nxt, val, base, keys, vals):
-    """Append entries ``keys[i] -> vals[i]`` at positions ``base + i`` of linked lists (newest first)."""
-    for i in range(keys.shape[0]):
-        e = base + i
-        k = keys[i]
-        nxt[e] = head[k]
-        head[k] = e
-        val[e] = vals[i]
 
 
 @njit(cache=True)

@@ -11,7 +11,9 @@ N_COLS, N_ENTRIES, N_EDGES, N_PRED, N_PREV, TAPE_POS, TAPE_LEN, OUT_POS, NEED_KI
     range(12)
 # work counters (list nodes visited), machine-independent cost figures for the benchmark
 W_MATCH, W_PRED, W_BURST, W_LEARN = range(12, 16)
-STATE_SIZE = 16
+# KEEP_COUNTS 1: a step leaves its overlap counts for the caller (who resets them), N_TOUCHED minicolumns touched
+KEEP_COUNTS, N_TOUCHED = 16, 17
+STATE_SIZE = 18
 
 # what the kernel needs more of (NEED_KIND)
 DONE, NEED_COLS, NEED_ENTRIES, NEED_EDGES, NEED_TAPE, NEED_OUT, NEED_HASH, NEED_EDGE_HASH = range(8)
@@ -119,8 +121,10 @@ def match_columns(bits, learn, k_active, st, ff, scratch):
             active[n_act] = best
             n_act += 1
             counts[best] = -counts[best]  # taken (all counts are reset below)
-    for i in range(n_touch):
-        counts[touched[i]] = 0
+    st[N_TOUCHED] = n_touch
+    if st[KEEP_COUNTS] == 0:
+        for i in range(n_touch):
+            counts[touched[i]] = 0
     return n_act
 
 
@@ -346,6 +350,10 @@ def run_frames(frames, f_start, f_stop, learn, params, st, ff, lat, cells, scrat
         n_act = match_columns(bits, learn, k_active, st, ff, scratch)
         create = n_act == 0 and learn and bits.shape[0] > 0
         if lacks_space(bits, create, n_act, learn, params, st, ff, lat, tape, out_idx):
+            if st[KEEP_COUNTS]:  # the frame is run again once there is room: its counts start from 0
+                counts, touched = scratch[0], scratch[1]
+                for i in range(st[N_TOUCHED]):
+                    counts[touched[i]] = 0
             return f
         tp = st[TAPE_POS]
         if create:
