@@ -11,6 +11,7 @@ continues exactly where it stopped.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import json
 import sys
@@ -192,6 +193,8 @@ def _run(job: Online, src, out: Path, stdout, state_out, claim: contextlib.ExitS
                 name, index, ms, ms_dec = job.waiting_name(d.frame), -1, 0.0, 0.0
             else:
                 name, index, ms, ms_dec = waiting.pop(0)
+            if d.column is not None:  # the outputs keep each answer's top-K: held whole, a long run's grow as T^2
+                d = dataclasses.replace(d, column=d.column.kept(job.top_k))
             rows.append((name, index, d, ms, ms_dec))
             lines.write({"query": int(d.frame), "query_name": name, "best_db": d.best if d.best >= 0 else None,
                          "db_name": job.name_of(d.best) if d.best >= 0 else None,

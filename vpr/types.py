@@ -122,6 +122,14 @@ class Column:
         order = np.lexsort((self.rows, -self.z.astype(np.float64)))[:k]
         return self.rows[order], self.z[order]
 
+    def kept(self, k: int | None) -> Column:
+        """The column cut to its ``k`` candidates of most evidence (None: itself); the others score ``fill``."""
+        if k is None or self.rows.size <= k:
+            return self
+        rows, z = self.top(k)
+        order = np.argsort(rows, kind="stable")
+        return Column(rows[order], z[order], self.fill, self.n, self.frame)
+
     def dense(self) -> np.ndarray:
         """The scores of all ``n`` candidates."""
         out = np.full(self.n, self.fill, np.float32)

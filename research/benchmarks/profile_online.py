@@ -5,12 +5,13 @@ The stream: N frames, then their N revisits. ``--source images``: ``make_large_f
 encoder, causal standardisation); ``--source sdr``: ``vpr.simulate.aliased_traverses`` SDRs (200 of 2,048 bits),
 the second traverse with 35 % of its bits moved. :class:`vpr.shosm.LoopStream` steps each frame as ``vpr loops -``
 does, its stages timed apart: encoding, Algorithm 1 learning the frame (``learn``), the evidence graph taking it in
-(``attach``), the evidence over the earlier frames (``evidence``) and the decision with its confirmation
-(``decide``). At each checkpoint the evidence kernel's phases are timed alone on a copy of its state over the next
-``--phase-frames`` frames (the phases of :func:`vpr.shosm.kernels.stream.stream_step`), with what each touches:
-the feed-forward postings read, the cells, the blocks' entries, the beam, the codes' entries and the frames
-written. The machine's own limits are measured here too: memory bandwidth (a large copy) and the rate of
-random reads from an array of the graph's size, so that each phase's bytes and reads can be held against them.
+(``attach``), the evidence over the earlier frames (``evidence``, reading the memory's overlap count of the frame)
+and the decision with its confirmation (``decide``). At ``--phase-at`` frames the evidence kernel's phases are
+timed alone (counting the overlaps itself) on a copy of its state over the next ``--phase-frames`` frames (the
+phases of :func:`vpr.shosm.kernels.stream.stream_step`), with what each touches: the feed-forward postings read, the
+cells, the blocks' entries, the beam, the codes' entries and the frames written. The machine's own limits are
+measured here too: memory bandwidth (a large copy) and the rate of random reads from an array of the graph's size,
+so that each phase's bytes and reads can be held against them.
 
     python research/benchmarks/profile_online.py --n 5000 --checkpoints 2000,5000,9500 [--source images|sdr]
 """
@@ -77,7 +78,12 @@ def sdr_stream(n: int):
 
     from vpr import simulate
 
-    db, q = simulate.aliased_traverses(n, max(n // 10, 1), k=200, seed=0)[:2]
+    places = n
+    while True:  # the query's length varies with its speed: enough places for n frames
+        db, q = simulate.aliased_traverses(places, max(places // 10, 1), k=200, seed=0)[:2]
+        if q.shape[0] >= n:
+            break
+        places = int(places * 1.05) + 1
     x = sp.vstack([db[:n], q[:n]]).tocsr()
     return (x.indices[x.indptr[j]:x.indptr[j + 1]].astype(np.int64) for j in range(x.shape[0])), n
 
@@ -96,7 +102,7 @@ def phase_profile(stream, bits_ahead: list, n: int) -> dict:
     times, touched = [], []
     for bits in bits_ahead:
         c = [time.perf_counter()]
-        KS.feed_forward(bits, n_r, ff, cells, params, e_beam, scratch)
+        KS.feed_forward(bits, -1, n_r, ff, cells, params, e_beam, scratch)
         c.append(time.perf_counter())
         KS.predict(n_r, g.n_blocks, blocks, params, e_beam, scratch)
         c.append(time.perf_counter())
@@ -147,13 +153,14 @@ def run(n: int, source: str, checkpoints: list[int], data: Path, window: int) ->
         else:
             bits = next(feed)
         t1 = time.perf_counter()
-        old_len, ne_old = stream.mem.view().bit_len.copy(), stream.mem.n_connections
-        winners = stream.mem.step(bits)
+        old_len, ne_old = stream.mem.view(sizes=False).bit_len.copy(), stream.mem.n_connections
+        winners = stream.mem.step(bits, keep_overlaps=True)  # as LoopStream.step: the count read by the evidence
         t2 = time.perf_counter()
         stream.graph.attach(bits, winners, old_len, ne_old)
         stream.engine.grow()
         t3 = time.perf_counter()
-        column = stream.engine.step(bits, n_candidates(j, stream.exclude, stream.starts[-1]), False, frame=j)
+        column = stream.engine.step(bits, n_candidates(j, stream.exclude, stream.starts[-1]), False, frame=j,
+                                    overlaps=stream.mem.overlaps())
         t4 = time.perf_counter()
         stream.decider.add_sdr(bits)
         if stream.decider.rows is None:

@@ -187,9 +187,10 @@ class Method:
         best = np.where(np.isfinite(score), np.asarray(best, np.int64), -1)
         return Decision(best, score, best >= 0)
 
-    def decision_inputs(self, state, db: EncodedTraverse, query: EncodedTraverse) -> dict:
-        """What :meth:`decisions` reads besides the similarity, as its keyword arguments (``state``: :meth:`_fit`'s);
-        none by default."""
+    def decision_inputs(self, state, db: EncodedTraverse, query: EncodedTraverse, evidence=None) -> dict:
+        """What :meth:`decisions` reads besides the similarity, as its keyword arguments (``state``: :meth:`_fit`'s;
+        ``evidence``: what the method's own match computed that it reads again, where the match passes it); none by
+        default."""
         return {}
 
     def _match(self, db: EncodedTraverse, query: EncodedTraverse, progress: bool):

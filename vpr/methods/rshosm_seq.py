@@ -15,6 +15,7 @@ from vpr.shosm import (
     SequenceMemory,
     SpeedFollower,
     accept_path,
+    directions_evidence,
     loop_evidence,
     loop_rule,
     map_places,
@@ -137,17 +138,30 @@ class RshosmSeq(Method):
         q_sdr = self.need(query, "sdr", "query")
         n_db, n_q = shape or (len(db), len(query))  # a block of a larger match takes the path of the whole
         top_k = self._top_k(n_db, n_q)
-        r = query_evidence(mem, q_sdr, db_codes, seq.evidence, direction=seq.direction, top_k=top_k,
-                           beam=seq.beam, progress=progress)
         if shape is not None:  # a block of a larger match: decided over the whole (Fitted.combine)
+            r = query_evidence(mem, q_sdr, db_codes, seq.evidence, direction=seq.direction, top_k=top_k,
+                               beam=seq.beam, progress=progress)
             return r.similarity, None
-        return r.similarity, self.decisions(r.similarity, r.best, r.z, **self.decision_inputs(state, db, query))
+        ev = self._directions(state, q_sdr, top_k, progress)
+        r = ev[seq.direction]
+        return r.similarity, self.decisions(r.similarity, r.best, r.z,
+                                            **self.decision_inputs(state, db, query, evidence=ev))
+
+    def _directions(self, state, q_sdr, top_k, progress: bool = False) -> dict:
+        """The evidence of the query in the directions its match and its direction check read (the match's own,
+        ``"forward"`` and ``"reversed"``), computed together (:func:`vpr.shosm.directions_evidence`)."""
+        mem, db_codes = state
+        seq = self.seq
+        if seq.direction == "both":
+            return directions_evidence(mem, q_sdr, db_codes, seq.evidence, top_k, seq.beam, progress)
+        return {d: query_evidence(mem, q_sdr, db_codes, seq.evidence, direction=d, top_k=top_k, beam=seq.beam,
+                                  progress=progress) for d in ("forward", "reversed")}
 
     def _top_k(self, n_db: int, n_q: int) -> int | None:
         """The beam's top-K of a match of ``n_db`` x ``n_q`` frames (None: the dense evidence)."""
         return top_k_or_dense(n_db, n_q, self.seq.top_k, DENSE_EVIDENCE_PAIRS) if self.seq.top_k else None
 
-    def decision_inputs(self, state, db: EncodedTraverse, query: EncodedTraverse) -> dict:
+    def decision_inputs(self, state, db: EncodedTraverse, query: EncodedTraverse, evidence=None) -> dict:
         """The stands of the map (:func:`vpr.shosm.standing`, from the memory's codes) and of the query
         (:func:`vpr.sdr.unmoved` at :data:`vpr.shosm.UNMOVED_SHARE`); each query frame's best z of the causal
         evidence of the query moving along the map and of it running the map backwards (``direction="forward"``
@@ -156,9 +170,8 @@ class RshosmSeq(Method):
         order: a confident localisation of the query running the map backwards)."""
         mem, db_codes = state
         q = self.need(query, "sdr", "query")
-        top_k = self._top_k(len(db), len(query))
-        ahead, back = (query_evidence(mem, q, db_codes, self.seq.evidence, direction=d, top_k=top_k,
-                                      beam=self.seq.beam) for d in ("forward", "reversed"))
+        ev = evidence or self._directions(state, q, self._top_k(len(db), len(query)))
+        ahead, back = ev["forward"], ev["reversed"]
         mirrored = back.similarity[np.arange(len(db))[::-1]]
         return {"stands": (standing(map_places(db_codes, mem.cells_per_column)), sdr.unmoved(q, UNMOVED_SHARE)),
                 "direction": (ahead.z, back.z, accept_path(mirrored, self.seq.path()).accepted)}

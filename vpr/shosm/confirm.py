@@ -198,6 +198,17 @@ class Confirmation:
             self._z[key] = standardised_overlaps(rows.ptr, rows.ind, q, n, self.n_bits, columns)
         return self._z[key]
 
+    @property
+    def needs_rows(self) -> bool:
+        """Whether closures are confirmed at all (``frames`` > 0): only then is a frame's row of use."""
+        return self.frames > 0
+
+    def prepare(self, rows: _sdr.RowLog, q: int) -> None:
+        """Compute frame ``q``'s standardised overlaps now (``rows`` holds it), for a closure that may wait for it;
+        nothing else of the confirmation may run meanwhile (a stream computes it on another thread while it learns
+        and scores the frame: it reads the rows alone)."""
+        self._row(rows, q)
+
     # ------------------------------------------------------------- state
     def state(self) -> tuple[dict, dict]:
         """(header, arrays): the waiting decisions, with their columns (:meth:`load_state`)."""

@@ -23,7 +23,7 @@ from .kernels import evidence as KE
 from .memory import SequenceMemory
 
 __all__ = ["EvidenceEngine", "Engine", "beam_params", "SpeedEngine", "make_engine", "merge_columns", "merge_evidence",
-           "Evidence", "LoopEvidence", "query_evidence", "dense_evidence", "sparse_evidence"]
+           "Evidence", "LoopEvidence", "query_evidence", "directions_evidence", "dense_evidence", "sparse_evidence"]
 
 #: Query frames per call of the beam kernel and per block of finished columns of a traverse.
 QUERY_CHUNK = 2048
@@ -190,6 +190,33 @@ class Engine:
         self.frames += 1
         return np.asarray(rows, np.int64), np.asarray(val, np.float64), n
 
+    def steps_raw(self, frames: list[np.ndarray], capped: bool = True) -> list[tuple[np.ndarray, np.ndarray]]:
+        """:meth:`step_raw` of each of ``frames`` (active bits, sorted) in turn, in one call of the kernel: each
+        frame's (candidate rows, raw evidence)."""
+        g = self.graph
+        k = len(frames)
+        q_ptr = np.r_[0, np.cumsum([f.size for f in frames])].astype(np.int64)
+        q_ind = np.concatenate(frames).astype(np.int64) if k else np.zeros(0, np.int64)
+        order = np.arange(k, dtype=np.int64)
+        out = []
+        if self.exact:
+            stay, skip = self.evidence.costs
+            d = self._dense
+            if self.reverse:
+                d = (*d[:4], d[5], d[4], *d[6:])
+            cols = np.zeros((g.n_db, k), np.float32)
+            KE.evidence_frames(q_ptr, q_ind, order, *d, float(self.evidence.decay), stay, skip, self.z_weight, cols,
+                               self._e, self.frames == 0)
+            for i in range(k):
+                rows = np.flatnonzero(cols[:, i])
+                out.append((rows, cols[rows, i].astype(np.float64)))
+        else:
+            ptr, idx, val = self._beam.run(g, g.bwd if self.reverse else g.fwd, q_ptr, q_ind, order,
+                                           self._params[capped])
+            out = [(idx[ptr[i]:ptr[i + 1]].astype(np.int64), val[ptr[i]:ptr[i + 1]]) for i in range(k)]
+        self.frames += k
+        return out
+
     def grow(self) -> None:
         """Nothing to make room for: a learned database's graph does not grow."""
 
@@ -306,6 +333,85 @@ class Engine:
         S = sp.hstack([p[0] for p in parts], format="csr")
         S.sort_indices()
         return Evidence(S, np.concatenate([p[1] for p in parts]), np.concatenate([p[2] for p in parts]))
+
+    def run_directions(self, query_batch, top_k: int | None = TOP_K, progress: bool = False) -> dict[str, Evidence]:
+        """The evidence of every frame of ``query_batch`` in the three directions a batch match reads: ``"both"``
+        (:meth:`run`'s), the causal ``"forward"`` and ``"reversed"`` (the query running the map backwards), the
+        ``top_k`` best database frames per query each; each the same as :meth:`run` of that direction.
+
+        Three passes, not four: the forward pass gives both the forward half of ``"both"`` and the causal evidence
+        (they differ only in how much of each frame's own overlap is taken out), and runs with the reversed pass
+        over the query's frames in the same order, each frame's overlaps counted once for both; the backward pass
+        runs on the other core. The graph must be built ``backward``.
+        """
+        top_k = check_top_k(top_k)
+        g = self.graph
+        if g.bwd is None:
+            raise ValueError("the directions' evidence needs the graph built backward=True")
+        q = _sdr.check_batch(query_batch, n_bits=g.mem.n_inputs, name="query SDR batch")
+        n_q, n_db = q.shape[0], g.n_db
+        q_ptr, q_ind = q.indptr.astype(np.int64), q.indices.astype(np.int64)
+        half, alone = (beam_params(self.evidence, self.beam_conf, w) for w in (0.5, 0.0))
+        n_per_q = np.full(n_q, n_db, np.int64)
+        chunk = QUERY_CHUNK
+        starts = list(range(0, n_q, chunk))
+        cols: dict[str, dict[int, tuple]] = {"fwd": {}, "causal": {}, "rev": {}, "bwd": {}}
+        done: dict[str, dict[int, tuple]] = {"both": {}, "forward": {}, "reversed": {}}
+        lock = threading.Lock()
+
+        def narrow(c):
+            return c[0], c[1].astype(np.int32), c[2].astype(np.float32)
+
+        def finish(c: int) -> None:
+            """Chunk ``c``'s columns of every direction, once every pass gave them (under the lock)."""
+            q0, q1 = starts[c], min(starts[c] + chunk, n_q)
+            if c in cols["fwd"] and c in cols["bwd"] and c not in done["both"]:
+                a, b = cols["fwd"].pop(c), cols["bwd"].pop(c)
+                done["both"][c] = _finish(a, b, n_per_q[q0:q1], n_db, top_k, self.normalise)
+            for name, key in (("causal", "forward"), ("rev", "reversed")):
+                if c in cols[name]:
+                    done[key][c] = _finish(cols[name].pop(c), _NO_PASS, n_per_q[q0:q1], n_db, top_k, self.normalise)
+
+        def ahead(bar):  # the forward pass (two outputs) with the reversed pass, the query's frames in order
+            fwd, rev = Beam(g), Beam(g)
+            for c in range(len(starts)):
+                q0, q1 = starts[c], min(starts[c] + chunk, n_q)
+                (both_half, causal), reversed_ = fwd.run_pair(rev, g, g.fwd, g.bwd, q_ptr, q_ind,
+                                                              np.arange(q0, q1, dtype=np.int64), half, alone, 0.0)
+                with lock:  # (a direction of one pass is finished as run() finishes it, in float64)
+                    cols["fwd"][c], cols["causal"][c], cols["rev"][c] = narrow(both_half), causal, reversed_
+                    finish(c)
+                    bar.update(2 * (q1 - q0))
+
+        def back(bar):  # the backward pass, the query's frames last to first
+            b = Beam(g)
+            order = np.arange(n_q, dtype=np.int64)[::-1].copy()
+            for c in range(len(starts) - 1, -1, -1):
+                q0, q1 = starts[c], min(starts[c] + chunk, n_q)
+                got = _reversed(*b.run(g, g.bwd, q_ptr, q_ind, order[n_q - q1:n_q - q0], half))
+                with lock:
+                    cols["bwd"][c] = narrow(got)
+                    finish(c)
+                    bar.update(q1 - q0)
+
+        with tqdm(total=3 * n_q, desc="rSHOSM evidence", unit="frame", leave=False, disable=not progress) as bar:
+            if self.threads > 1:
+                with ThreadPoolExecutor(2) as pool:
+                    for f in [pool.submit(ahead, bar), pool.submit(back, bar)]:
+                        f.result()
+            else:
+                ahead(bar)
+                back(bar)
+        out = {}
+        for key, parts in done.items():
+            ps = [parts[c] for c in range(len(starts))]
+            if not ps:
+                out[key] = Evidence(sp.csr_matrix((n_db, 0), dtype=np.float32), np.zeros(0, np.int64), np.zeros(0))
+                continue
+            S = sp.hstack([p[0] for p in ps], format="csr")
+            S.sort_indices()
+            out[key] = Evidence(S, np.concatenate([p[1] for p in ps]), np.concatenate([p[2] for p in ps]))
+        return out
 
     def run_dense(self, query_batch, direction: str = "both", progress: bool = False,
                   clamp: bool = False) -> np.ndarray:
@@ -447,6 +553,18 @@ def make_engine(graph: Graph, evidence: EvidenceConf | None = None, beam: BeamCo
     if len(lanes) == 1:
         return Engine(graph, lanes[0], beam, exact, threads)
     return SpeedEngine(graph, evidence, beam, exact, threads)
+
+
+def directions_evidence(mem: SequenceMemory, query_batch, db_codes, conf: EvidenceConf | None = None,
+                        top_k: int | None = None, beam: BeamConf | None = None,
+                        progress: bool = False) -> dict[str, Evidence]:
+    """:func:`query_evidence` of the directions ``"both"``, ``"forward"`` and ``"reversed"`` at once (what a batch
+    match and its direction check read): the same evidences, the sparse ones in three passes over one graph
+    (:meth:`Engine.run_directions`)."""
+    conf = conf or EvidenceConf()
+    if check_top_k(top_k) is None or len(conf.split()) > 1:
+        return {d: query_evidence(mem, query_batch, db_codes, conf, d, top_k, beam, progress) for d in _DIRECTIONS}
+    return Engine(Graph.of(mem, db_codes, backward=True), conf, beam).run_directions(query_batch, top_k, progress)
 
 
 def query_evidence(mem: SequenceMemory, query_batch, db_codes, conf: EvidenceConf | None = None,

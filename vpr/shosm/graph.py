@@ -132,6 +132,7 @@ class Beam:
         self.acc, self.db_mark, self.db_touch = np.zeros(n_db, np.float64), np.zeros(n_db, bool), np.zeros(n_db,
                                                                                                              np.int64)
         self.out_idx, self.out_val = np.zeros(4096, np.int64), np.zeros(4096, np.float64)
+        self.out_val2, self.acc2 = np.zeros(0), np.zeros(0)  # a second output where a run asks for it
         self.gmax, self.gmark, self.gtouch = np.zeros(0), np.zeros(0, bool), np.zeros(0, np.int64)
 
     @property
@@ -152,29 +153,85 @@ class Beam:
         self.in_beam[np.asarray(cells, np.int64)] = np.arange(1, n + 1, dtype=np.int32)
         self.st[KB.B_SIZE] = n
 
-    def run(self, g: Graph, adj, q_ptr, q_ind, order, params):
-        """Run frames ``order`` along the successor lists ``adj``; return their sparse columns (ptr, idx, val)."""
+    def _lists(self, adj) -> tuple:
         grp = adj[3] if len(adj) == 4 else np.zeros(0, np.int32)
         if grp.size and self.gmax.size < adj[0].size:
             self.gmax, self.gmark = np.zeros(adj[0].size), np.zeros(adj[0].size, bool)
             self.gtouch = np.zeros(adj[0].size, np.int64)
-        n = order.size
+        return adj[0], adj[1], adj[2], grp
+
+    def _scratch(self, counts=None, touched=None) -> tuple:
+        return (self.counts if counts is None else counts, self.touched_cols if touched is None else touched,
+                self.p1, self.p2, self.z, self.slot, self.cand, self.e_new, self.gmax, self.gmark, self.gtouch,
+                self.acc, self.db_mark, self.db_touch, self.acc2)
+
+    def _out(self, out_ptr, z_weight2) -> tuple:
+        """The output arrays (with ``z_weight2``, the second value array and its accumulator made room for first)."""
+        two = z_weight2 is not None
+        if two and self.out_val2.size != self.out_idx.size:
+            self.out_val2 = np.zeros(self.out_idx.size)
+        if two and self.acc2.size != self.acc.size:
+            self.acc2 = np.zeros(self.acc.size)
+        return out_ptr, self.out_idx, self.out_val, self.out_val2 if two else np.zeros(0), \
+            0.0 if z_weight2 is None else float(z_weight2)
+
+    def _grow_out(self, need: int, two: bool) -> None:
+        size = max(int(need), 2 * self.out_idx.size)
+        self.out_idx, self.out_val = np.resize(self.out_idx, size), np.resize(self.out_val, size)
+        if two:
+            self.out_val2 = np.resize(self.out_val2, size)
+
+    def _columns(self, out_ptr, z_weight2) -> tuple:
+        end = out_ptr[-1]
+        cols = (out_ptr, self.out_idx[:end].copy(), self.out_val[:end].copy())
+        return cols if z_weight2 is None else (cols, (out_ptr, cols[1], self.out_val2[:end].copy()))
+
+    def _start(self, n: int):
         out_ptr = np.zeros(n + 1, np.int64)
-        st = self.st
-        st[KB.B_OUT_POS] = 0
-        st[KB.B_FRAMES] = 0
+        self.st[KB.B_OUT_POS] = 0
+        self.st[KB.B_FRAMES] = 0
+        return out_ptr
+
+    @staticmethod
+    def _ff(g: Graph) -> tuple:
+        return g.bit_cols, g.bit_len, g.col_size, g.col_ptr
+
+    @staticmethod
+    def _cells(g: Graph) -> tuple:
+        return g.c_head, g.c_next, g.c_frame, g.r_col, g.db_norm
+
+    def _state(self) -> tuple:
+        return self.st, self.beam, self.beam_e, self.in_beam
+
+    def run(self, g: Graph, adj, q_ptr, q_ind, order, params, z_weight2: float | None = None):
+        """Run frames ``order`` along the successor lists ``adj``; return their sparse columns (ptr, idx, val), and
+        with ``z_weight2`` a pair of them: the second with the frame's own overlap taken out ``z_weight2`` times."""
+        lists = self._lists(adj)
+        n = order.size
+        out_ptr = self._start(n)
         while True:
-            done = KB.beam_frames((q_ptr, q_ind, order), (g.bit_cols, g.bit_len, g.col_size, g.col_ptr),
-                                  (adj[0], adj[1], adj[2], grp), (g.c_head, g.c_next, g.c_frame, g.r_col, g.db_norm),
-                                  params,
-                                  (st, self.beam, self.beam_e, self.in_beam),
-                                  (self.counts, self.touched_cols, self.p1, self.p2, self.z, self.slot, self.cand,
-                                   self.e_new, self.gmax, self.gmark, self.gtouch, self.acc, self.db_mark,
-                                   self.db_touch), (out_ptr, self.out_idx, self.out_val))
+            out = self._out(out_ptr, z_weight2)  # (before the scratch: it sizes the second accumulator)
+            done = KB.beam_frames((q_ptr, q_ind, order), self._ff(g), lists, self._cells(g), params, self._state(),
+                                  self._scratch(), out)
             if done >= n:
                 break
-            size = max(int(st[KB.B_NEED]), 2 * self.out_idx.size)
-            self.out_idx = np.resize(self.out_idx, size)
-            self.out_val = np.resize(self.out_val, size)
-        end = out_ptr[-1]
-        return out_ptr, self.out_idx[:end].copy(), self.out_val[:end].copy()
+            self._grow_out(self.st[KB.B_NEED], z_weight2 is not None)
+        return self._columns(out_ptr, z_weight2)
+
+    def run_pair(self, other: Beam, g: Graph, adj, other_adj, q_ptr, q_ind, order, params, other_params,
+                 z_weight2: float | None = None):
+        """:meth:`run` of this beam along ``adj`` and of ``other`` along ``other_adj`` over the same frames at once,
+        each frame's overlaps counted once for both; returns (this run's columns, the other's)."""
+        lists, other_lists = self._lists(adj), other._lists(other_adj)
+        n = order.size
+        out_ptr, other_ptr = self._start(n), other._start(n)
+        while True:
+            out, other_out = self._out(out_ptr, z_weight2), other._out(other_ptr, None)  # (before the scratch)
+            done = KB.beam_frames_pair((q_ptr, q_ind, order), self._ff(g), lists, other_lists, self._cells(g), params,
+                                       other_params, self._state(), other._state(), self._scratch(),
+                                       other._scratch(self.counts, self.touched_cols), out, other_out)
+            if done >= n:
+                break
+            self._grow_out(self.st[KB.B_NEED], z_weight2 is not None)
+            other._grow_out(other.st[KB.B_NEED], False)
+        return self._columns(out_ptr, z_weight2), other._columns(other_ptr, None)

@@ -98,10 +98,10 @@ class Lagged(LateLocalizer):
         w = self.waiting.pop(0)
         after = [w, *self.waiting[:self.lag]][::-1]  # from the last frame there is back to this one
         backs = [[] for _ in after]  # per frame, from the last back to this one: its backward raw per speed model
-        for j, engine in enumerate(self.backward):
+        for engine in self.backward:
             engine.reset()
-            for i, x in enumerate(after):
-                backs[i].append(engine.step_raw(x.bits, x.raw[j][2])[:2])
+            for i, got in enumerate(engine.steps_raw([x.bits for x in after])):
+                backs[i].append(got)
 
         def column(i: int):  # frame ``after[i]``'s evidence of both directions, its speed models merged
             x = after[i]

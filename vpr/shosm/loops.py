@@ -1,6 +1,9 @@
 """Loop closure within one stream: learned online with Algorithm 1, scored by the forward evidence, decided."""
 from __future__ import annotations
 
+import dataclasses
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 import scipy.sparse as sp
 from tqdm import tqdm
@@ -41,6 +44,7 @@ class LoopStream:
         self.graph = StreamGraph(self.mem)
         self.engine = make_stream_engine(self.graph, self.seq.evidence, self.seq.beam)
         self._shares_overlaps = isinstance(self.engine, StreamEngine) and not caps
+        self._worker: ThreadPoolExecutor | None = None
         self.decider: Decider = loop_rule(self.seq.loop_rule)(self.seq.loop(), self.seq.path(between_sessions=True),
                                                               n_bits=self.mem.n_inputs)
         if opinion is not None:
@@ -57,6 +61,12 @@ class LoopStream:
     @property
     def n_inputs(self) -> int:
         return self.mem.n_inputs
+
+    def _pool(self) -> ThreadPoolExecutor:
+        """The thread that computes a frame's confirmation overlaps beside the frame's learning and evidence."""
+        if self._worker is None:
+            self._worker = ThreadPoolExecutor(1, thread_name_prefix="vpr-confirm")
+        return self._worker
 
     @property
     def rows(self) -> _sdr.RowLog:
@@ -103,16 +113,24 @@ class LoopStream:
         """
         bits = _sdr.row_bits(sdr_row, self.mem.n_inputs, name="frame SDR")
         j = self.frames
-        old_len, ne_old = self.mem.view().bit_len.copy(), self.mem.n_connections
-        shared = self._shares_overlaps  # the memory's overlap count of the frame, not counted again
-        winners = self.mem.step(bits, keep_overlaps=shared)
-        self.graph.attach(bits, winners, old_len, ne_old)
-        self.engine.grow()
-        column = self.engine.step(bits, n_candidates(j, self.exclude, self.starts[-1]), self.caps, frame=j,
-                                  overlaps=self.mem.overlaps() if shared else None)
         self.decider.add_sdr(bits)
         if self.decider.rows is None:
             self._rows.append(bits)
+        # the frame's overlaps with the earlier frames, which a closure waiting for it reads, on the other core while
+        # the memory learns the frame and its evidence is scored (they share nothing)
+        early = self._pool().submit(self.confirmation.prepare, self.rows, j) if self.confirmation.needs_rows else None
+        try:
+            old_len, ne_old = self.mem.view(sizes=False).bit_len.copy(), self.mem.n_connections
+            shared = self._shares_overlaps  # the memory's overlap count of the frame, not counted again
+            winners = self.mem.step(bits, keep_overlaps=shared)
+            self.graph.attach(bits, winners, old_len, ne_old)
+            self.engine.grow()
+            n = n_candidates(j, self.exclude, self.starts[-1])
+            column = self.engine.step(bits, n, self.caps, frame=j, overlaps=self.mem.overlaps()) if shared else \
+                self.engine.step(bits, n, self.caps, frame=j)
+        finally:
+            if early is not None:
+                early.result()
         self.frames += 1
         d = self.decider.decide(column)
         return winners, self._final(self.confirmation.push(d, self.rows, self.decider.pair_verified))
@@ -205,7 +223,7 @@ def loop_evidence(sdr_batch, exclude: int = LOOP_EXCLUDE, conf=None, top_k: int 
     def take(ds) -> None:
         for d in ds:
             j, c = d.frame, d.column
-            decisions.append(d)
+            decisions.append(dataclasses.replace(d, column=None))  # its column is kept below, dense or top-K
             fill[j] = c.fill
             best[j], z[j] = c.best()
             if dense is not None:

@@ -158,12 +158,13 @@ class SequenceMemory:
         """Number of lateral (prediction) connections."""
         return int(self._st[K.N_EDGES])
 
-    def view(self) -> MemoryView:
-        """Read-only views of the learned arrays (see :class:`MemoryView`); what kernels read."""
+    def view(self, sizes: bool = True) -> MemoryView:
+        """Read-only views of the learned arrays (see :class:`MemoryView`); what kernels read. ``sizes`` False: no
+        :meth:`column_sizes` (None), for a reader that keeps them itself after every frame."""
         nc, ne = self.n_columns, self.n_connections
         return MemoryView(readonly(self._bit_cols), readonly(self._bit_len), readonly(self._e_src[:ne]),
-                          readonly(self._e_dst[:ne]), self.column_sizes(), readonly(self._col_thr[:nc]), nc,
-                          self.cells_per_column)
+                          readonly(self._e_dst[:ne]), self.column_sizes() if sizes else None,
+                          readonly(self._col_thr[:nc]), nc, self.cells_per_column)
 
     @property
     def connections(self) -> Connections:

@@ -56,7 +56,7 @@ class StreamGraph:
         self.p_s, self.p_d = np.zeros(1024, np.int32), np.zeros(1024, np.int32)
         self.cell_r = np.full(1024 * self.cpc, -1, np.int32)  # memory cell -> its number here (-1: never won)
         self.col_size = np.zeros(1024, np.float64)  # feed-forward connections per minicolumn
-        v = mem.view()
+        v = mem.view(sizes=False)
         self.bit_cols, self.bit_len = v.bit_cols, v.bit_len
 
     def numbers(self, cells: np.ndarray) -> np.ndarray:
@@ -68,7 +68,7 @@ class StreamGraph:
 
         ``old_len`` / ``ne_old``: the memory's ``bit_len`` and connection count before it learned the frame.
         """
-        v = self.mem.view()
+        v = self.mem.view(sizes=False)  # (the sizes: kept here, col_size)
         j = self.n_frames
         self.cell_r = _room(self.cell_r, v.n_cells, -1)
         self.col_size = _room(self.col_size, v.n_columns, 0.0)
@@ -124,7 +124,7 @@ class StreamGraph:
                 raise ValueError(f"the stream graph's state lacks {k!r} (saved by another version?)")
             setattr(self, k, np.array(arrays[k]))
         self.n_r, self.n_frames, self.n_blocks = int(header["n_r"]), int(header["n_frames"]), int(header["n_blocks"])
-        v = self.mem.view()
+        v = self.mem.view(sizes=False)
         if self.cell_r.size < v.n_cells or self.n_r > self.r_col.size or self.n_frames + 1 > self.code_ptr.size:
             raise ValueError("the stream graph does not match its memory")
         self.bit_cols, self.bit_len = v.bit_cols, v.bit_len

@@ -73,12 +73,18 @@ def _fraction(counts, col_size, col):  # pragma: no cover - compiled
 def enter_by_overlap(bits, ff, conf, scratch):  # pragma: no cover - compiled
     """Feed-forward: the overlap count of every minicolumn the frame's ``bits`` touch (kept in ``counts`` until
     the frame ends, so that every candidate gets its feed-forward term, :func:`_fraction`), and the cells of the
-    minicolumns above the floor (at most ``max_enter`` minicolumns, those of largest overlap) as candidates.
-    Returns (minicolumns touched, candidates)."""
-    bit_cols, bit_len, col_size, col_ptr = ff
+    minicolumns above the floor as candidates (:func:`enter_counted`). Returns (minicolumns touched, candidates)."""
+    n_tc = count_overlaps(bits, ff[0], ff[1], scratch[0], scratch[1])
+    return n_tc, enter_counted(n_tc, ff, conf, scratch)
+
+
+@njit(cache=True, inline="always")
+def enter_counted(n_tc, ff, conf, scratch):  # pragma: no cover - compiled
+    """The cells of the touched minicolumns above the floor (at most ``max_enter`` minicolumns, those of largest
+    overlap) as candidates, from the counts in ``scratch``. Returns the candidates."""
+    col_size, col_ptr = ff[2], ff[3]
     z_floor, max_enter = conf[6], conf[8]
     counts, touched_cols, p1, p2, slot, cand = scratch[0], scratch[1], scratch[2], scratch[3], scratch[5], scratch[6]
-    n_tc = count_overlaps(bits, bit_cols, bit_len, counts, touched_cols)
     n_above = 0
     for i in range(n_tc):
         if _fraction(counts, col_size, touched_cols[i]) > z_floor:
@@ -102,7 +108,7 @@ def enter_by_overlap(bits, ff, conf, scratch):  # pragma: no cover - compiled
             for c in range(col_ptr[col], col_ptr[col + 1]):  # the minicolumn's cells that can carry evidence
                 if slot[c] == 0:
                     n_c = _join(c, slot, cand, p1, p2, n_c)
-    return n_tc, n_c
+    return n_c
 
 
 @njit(cache=True, inline="always")
@@ -194,15 +200,17 @@ def carry_floor(n_c, thr, max_beam, scratch):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
-def carry_and_output(t, n_c, n_tc, thr, keep, z_weight, cells, state, scratch, out):  # pragma: no cover
+def carry_and_output(t, n_c, thr, keep, z_weight, cells, state, scratch, out):  # pragma: no cover
     """The new beam (cells above ``keep``) and frame ``t``'s output column (database frames of the cells above
-    ``thr``, each the mean of its cells' ``evidence - z_weight * z``); clears the frame's scratch."""
+    ``thr``, each the mean of its cells' ``evidence - z_weight * z``; where ``out`` has a second value array of
+    room, also the mean of ``evidence - z_weight2 * z`` there, ``out = (ptr, idx, val, val2, z_weight2)``); clears
+    the frame's scratch but the overlap counts."""
     c_head, c_next, c_frame, db_norm = cells[0], cells[1], cells[2], cells[4]
     st, beam, beam_e, in_beam = state
-    counts, touched_cols, z, slot, cand, e_new = scratch[0], scratch[1], scratch[4], scratch[5], scratch[6], \
-        scratch[7]
-    acc, db_mark, db_touch = scratch[11], scratch[12], scratch[13]
-    out_ptr, out_idx, out_val = out
+    z, slot, cand, e_new = scratch[4], scratch[5], scratch[6], scratch[7]
+    acc, db_mark, db_touch, acc2 = scratch[11], scratch[12], scratch[13], scratch[14]
+    out_ptr, out_idx, out_val, out_val2, z_weight2 = out
+    two = out_val2.shape[0] > 0
     for i in range(st[B_SIZE]):
         in_beam[beam[i]] = 0
     nb2 = 0
@@ -226,17 +234,20 @@ def carry_and_output(t, n_c, n_tc, thr, keep, z_weight, cells, state, scratch, o
                     db_touch[n_touch] = j
                     n_touch += 1
                 acc[j] += (en - z_weight * zc) / db_norm[j]
+                if two:
+                    acc2[j] += (en - z_weight2 * zc) / db_norm[j]
                 node = c_next[node]
     st[B_SIZE] = nb2
     if nb2 > st[B_MAX_BEAM]:
         st[B_MAX_BEAM] = nb2
-    for i in range(n_tc):
-        counts[touched_cols[i]] = 0
     pos = st[B_OUT_POS]
     for i in range(n_touch):
         j = db_touch[i]
         out_idx[pos] = j
         out_val[pos] = acc[j]
+        if two:
+            out_val2[pos] = acc2[j]
+            acc2[j] = 0.0
         pos += 1
         acc[j] = 0.0
         db_mark[j] = False
@@ -268,11 +279,12 @@ def beam_frames(query, ff, lateral, cells, conf, state, scratch, out):  # pragma
     state : (st, beam, beam_e, in_beam)
         ``st`` (int64, indices ``B_*``), the beam's cells and evidence, per cell its place in the beam plus one;
         carried from call to call.
-    scratch : (counts, touched_cols, p1, p2, z, slot, cand, e_new, gmax, gmark, gtouch, acc, db_mark, db_touch)
+    scratch : (counts, touched_cols, p1, p2, z, slot, cand, e_new, gmax, gmark, gtouch, acc, db_mark, db_touch, acc2)
         Work space: per minicolumn, per cell (``slot``: candidate number plus one, zero between frames), per
         candidate, per group and per database frame.
-    out : (out_ptr, out_idx, out_val)
-        Per processed frame the sparse column (database frame, evidence); ``out_ptr[t + 1]`` ends frame ``order[t]``.
+    out : (out_ptr, out_idx, out_val, out_val2, z_weight2)
+        Per processed frame the sparse column (database frame, evidence; with room in ``out_val2``, also the
+        evidence with ``z_weight2``); ``out_ptr[t + 1]`` ends frame ``order[t]``.
 
     Returns the number of frames processed; fewer than all when ``out_idx`` lacks room for the next frame
     (``st[B_NEED]``: the size needed), and the caller grows it and calls again.
@@ -288,14 +300,55 @@ def beam_frames(query, ff, lateral, cells, conf, state, scratch, out):  # pragma
             st[B_FRAMES] = t
             return t
         n_tc, n_c = enter_by_overlap(q_ind[q_ptr[q]:q_ptr[q + 1]], ff, conf, scratch)
-        n_c = enter_by_prediction(n_c, lateral, conf, state, scratch)
-        thr = new_evidence(n_c, ff, cells, conf, state, scratch)
-        if n_c > st[B_MAX_CAND]:
-            st[B_MAX_CAND] = n_c
-        keep = carry_floor(n_c, thr, conf[7], scratch)
-        carry_and_output(t, n_c, n_tc, thr, keep, conf[3], cells, state, scratch, out)
+        _beam_step(t, n_c, ff, lateral, cells, conf, state, scratch, out)
+        _clear_counts(n_tc, scratch)
     st[B_FRAMES] = n
     st[B_NEED] = 0
+    return n
+
+
+@njit(cache=True, inline="always")
+def _beam_step(t, n_c, ff, lateral, cells, conf, state, scratch, out):  # pragma: no cover - compiled
+    """A frame's phases after entering by overlap: prediction, new evidence, the carry floor, carry and output."""
+    st = state[0]
+    n_c = enter_by_prediction(n_c, lateral, conf, state, scratch)
+    thr = new_evidence(n_c, ff, cells, conf, state, scratch)
+    if n_c > st[B_MAX_CAND]:
+        st[B_MAX_CAND] = n_c
+    keep = carry_floor(n_c, thr, conf[7], scratch)
+    carry_and_output(t, n_c, thr, keep, conf[3], cells, state, scratch, out)
+
+
+@njit(cache=True, inline="always")
+def _clear_counts(n_tc, scratch):  # pragma: no cover - compiled
+    counts, touched_cols = scratch[0], scratch[1]
+    for i in range(n_tc):
+        counts[touched_cols[i]] = 0
+
+
+@njit(cache=True, nogil=True)
+def beam_frames_pair(query, ff, lat_a, lat_b, cells, conf_a, conf_b, state_a, state_b, scratch_a, scratch_b,
+                     out_a, out_b):  # pragma: no cover - compiled
+    """Two passes over the same query frames in the same order at once (:func:`beam_frames`' arguments, one of each
+    per pass): each frame's overlaps are counted once for both (``scratch_b`` must hold ``scratch_a``'s counts and
+    touched minicolumns). The forward evidence and the evidence of the query running the map backwards go so."""
+    q_ptr, q_ind, order = query
+    st_a, st_b = state_a[0], state_b[0]
+    n = order.shape[0]
+    for t in range(st_a[B_FRAMES], n):
+        q = order[t]
+        need = cells[4].shape[0]
+        if st_a[B_OUT_POS] + need > out_a[1].shape[0] or st_b[B_OUT_POS] + need > out_b[1].shape[0]:
+            st_a[B_NEED] = st_a[B_OUT_POS] + need
+            st_b[B_NEED] = st_b[B_OUT_POS] + need
+            st_a[B_FRAMES] = t
+            return t
+        n_tc, n_c = enter_by_overlap(q_ind[q_ptr[q]:q_ptr[q + 1]], ff, conf_a, scratch_a)
+        _beam_step(t, n_c, ff, lat_a, cells, conf_a, state_a, scratch_a, out_a)
+        _beam_step(t, enter_counted(n_tc, ff, conf_b, scratch_b), ff, lat_b, cells, conf_b, state_b, scratch_b, out_b)
+        _clear_counts(n_tc, scratch_a)
+    st_a[B_FRAMES] = n
+    st_a[B_NEED] = 0
     return n
 
 

@@ -333,7 +333,7 @@ def commit_step(n_cur, n_next, n_act, st, cells, out_idx):
     st[OUT_POS] = op + n_cur
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # another thread may score the stream meanwhile (vpr.shosm.LoopStream)
 def run_frames(frames, f_start, f_stop, learn, params, st, ff, lat, cells, scratch, tape, out):
     """Run Algorithm 1 on frames ``f_start..f_stop-1``; return the first frame not processed.
 
