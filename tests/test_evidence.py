@@ -490,3 +490,21 @@ def test_loop_evidence_carries_every_cell_unless_capped():
     assert not np.array_equal(tight, free)
     beyond, _ = ev.loop_evidence(x, exclude=5, dense_max=50, **mem)  # top-50 sparse, the same evidence
     assert sp.issparse(beyond)
+
+
+def test_the_three_directions_at_once_are_each_directions_own_evidence():
+    """A batch match and its direction check read the evidence of both directions, the causal and the reversed one:
+    three passes (the forward one giving two, with the reversed one beside it, the overlaps counted once) give the
+    three evidences that a pass each gives."""
+    from vpr import simulate
+
+    db, q = simulate.aliased_traverses(300, 30, k=60, seed=3)[:2]
+    mem = ev.SequenceMemory(threshold=0.75)
+    codes = mem.run(db)
+    mem.reset()
+    at_once = ev.directions_evidence(mem, q, codes, top_k=20)
+    for d in ("both", "forward", "reversed"):
+        alone = ev.query_evidence(mem, q, codes, direction=d, top_k=20)
+        assert (at_once[d].similarity != alone.similarity).nnz == 0, d
+        np.testing.assert_array_equal(at_once[d].best, alone.best)
+        np.testing.assert_array_equal(at_once[d].z, alone.z)

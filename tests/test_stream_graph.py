@@ -71,3 +71,12 @@ def test_a_frames_connections_are_one_block_of_every_source_to_every_target_or_i
     assert pairs == set(zip(g.numbers(v.e_src).tolist(), g.numbers(v.e_dst).tolist(), strict=True))
     # cells numbered in the order they first won: each frame's new cells after the earlier frames'
     assert np.all(np.diff(g.r_end[: g.n_frames]) >= 0) and g.r_end[g.n_frames - 1] == g.n_r
+
+
+def test_an_answers_column_kept_to_its_best_candidates_scores_the_rest_as_the_fill():
+    from vpr.types import Column
+
+    c = Column(np.array([1, 4, 6, 9]), np.array([0.5, 2.0, -1.0, 1.5], np.float32), -3.0, 12, 7)
+    k = c.kept(2)
+    assert k.rows.tolist() == [4, 9] and k.z.tolist() == [2.0, 1.5] and k.fill == -3.0 and k.n == 12
+    assert k.best() == c.best() and c.kept(None) is c and c.kept(10) is c

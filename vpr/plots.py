@@ -297,22 +297,25 @@ def plot_similarity(S, path, best_db=None, accepted=None, gt_hard=None, gt_soft=
     if fr > 1 or fc > 1:
         ax.text(1.0, 1.01, f"display max-pooled {fr}x{fc}", transform=ax.transAxes, ha="right",
                 fontsize="x-small", va="bottom")
-    # where the matrix lies in the saved picture, so that a page showing it can tell which pair a click is on
-    meta = {"vpr-matrix": _matrix_box(fig, ax, n_db, n_q)} if Path(path).suffix.lower() == ".png" else None
-    return save_figure(fig, path, dpi=dpi, bbox_inches="tight", metadata=meta)
+    # laid out once: the crop saved and where the matrix lies in it (so that a page showing the picture can tell
+    # which pair a click is on) come from the same layout
+    tight, box = _layout(fig, ax)
+    meta = {"vpr-matrix": json.dumps({"box": box, "shape": [int(n_db), int(n_q)]})} \
+        if Path(path).suffix.lower() == ".png" else None
+    return save_figure(fig, path, dpi=dpi, bbox_inches=tight, metadata=meta)
 
 
-def _matrix_box(fig, ax, n_db: int, n_q: int) -> str:
-    """JSON of the axes' box in the picture ``savefig(bbox_inches="tight")`` writes, as fractions of its width and
-    height from the top left (``box``: x0, y0, x1, y1), and the matrix's ``shape``."""
-    fig.canvas.draw()  # lays the figure out as saving will
-    renderer = fig.canvas.get_renderer()
-    tight = fig.get_tightbbox(renderer).padded(rcParams["savefig.pad_inches"])  # inches, as savefig crops
+def _layout(fig, ax) -> tuple:
+    """Lay ``fig`` out once and fix it there: (the picture's crop, as ``bbox_inches="tight"`` would take it; the box
+    of ``ax`` in that crop, as fractions of its width and height from the top left: x0, y0, x1, y1)."""
+    fig.canvas.draw()  # lays the figure out (constrained)
+    tight = fig.get_tightbbox(fig.canvas.get_renderer()).padded(rcParams["savefig.pad_inches"])  # inches
+    fig.set_layout_engine("none")  # saving keeps this layout instead of laying the figure out again
     w, h = fig.get_size_inches()
     pos = ax.get_position()  # figure fractions
     x0, x1 = ((pos.x0 * w - tight.x0) / tight.width, (pos.x1 * w - tight.x0) / tight.width)
     y0, y1 = ((tight.y1 - pos.y1 * h) / tight.height, (tight.y1 - pos.y0 * h) / tight.height)
-    return json.dumps({"box": [round(v, 5) for v in (x0, y0, x1, y1)], "shape": [int(n_db), int(n_q)]})
+    return tight, [round(v, 5) for v in (x0, y0, x1, y1)]
 
 
 def _pairs_in(G, rows, cols) -> np.ndarray:

@@ -2,10 +2,12 @@
 from __future__ import annotations
 
 import dataclasses
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
+from vpr import sdr as _sdr
 from vpr.statefile import part_state
 from vpr.types import Column, Decision, FollowingLocalizer, LateLocalizer
 
@@ -61,6 +63,7 @@ class Lagged(LateLocalizer):
         #: which no path was accepted carries the evidence that ran on alone during it
         self.memory_frames = int(round(1.0 / (1.0 - float(seq.evidence.decay))))
         self.settling = self.memory_frames  # frames decided since the last of such a stand
+        self._worker: ThreadPoolExecutor | None = None  # the thread of the backward passes
 
     def warm_up(self) -> None:
         self.answering.warm_up()
@@ -69,14 +72,39 @@ class Lagged(LateLocalizer):
         self.backward[0].load_state(header, arrays)
 
     def update(self, sdr_row) -> list[Decision]:
-        """Localise the next query frame; returns the decisions now due (the frame ``lag`` frames before)."""
-        d = self.answering.update(sdr_row)
+        """Localise the next query frame; returns the decisions now due (the frame ``lag`` frames before).
+
+        The due frame's backward pass (from this frame back to it) runs on a second thread while this frame is
+        localised at once: the two read the map and nothing of each other."""
         if not self.lag:
-            return [d]
+            return [self.answering.update(sdr_row)]
         b = self.base
+        window = None
+        if len(self.waiting) >= self.lag:
+            bits = _sdr.row_bits(sdr_row, b.memory.n_inputs, name="query SDR")
+            window = self._pool().submit(self._backward, [bits, *(w.bits for w in self.waiting[:self.lag][::-1])])
+        try:
+            d = self.answering.update(sdr_row)
+        finally:
+            backs = window.result() if window is not None else None
         followed = self.follower is not None and self.follower.mode != 0
         self.waiting.append(_Waiting(b.before, list(b.raw), d, bool(b.unmoved), followed))
-        return [self._decide()] if len(self.waiting) > self.lag else []
+        return [self._decide(backs)] if len(self.waiting) > self.lag else []
+
+    def _pool(self) -> ThreadPoolExecutor:
+        if self._worker is None:
+            self._worker = ThreadPoolExecutor(1, thread_name_prefix="vpr-late")
+        return self._worker
+
+    def _backward(self, frames: list[np.ndarray]) -> list[list[tuple]]:
+        """The backward pass over ``frames`` (from the last one back to the oldest waiting): per frame, its raw
+        evidence per speed model."""
+        backs = [[] for _ in frames]
+        for engine in self.backward:
+            engine.reset()
+            for i, got in enumerate(engine.steps_raw(frames)):
+                backs[i].append(got)
+        return backs
 
     def flush(self) -> list[Decision]:
         """The decisions of the frames still waiting (the traverse ended), each with the frames after it."""
@@ -93,15 +121,13 @@ class Lagged(LateLocalizer):
         self.settling = self.memory_frames
         return out
 
-    def _decide(self) -> Decision:
-        """The late decision of the oldest waiting frame (taken out of :attr:`waiting`)."""
+    def _decide(self, backs=None) -> Decision:
+        """The late decision of the oldest waiting frame (taken out of :attr:`waiting`); ``backs``: its backward
+        pass (:meth:`_backward`) where already run."""
         w = self.waiting.pop(0)
         after = [w, *self.waiting[:self.lag]][::-1]  # from the last frame there is back to this one
-        backs = [[] for _ in after]  # per frame, from the last back to this one: its backward raw per speed model
-        for engine in self.backward:
-            engine.reset()
-            for i, got in enumerate(engine.steps_raw([x.bits for x in after])):
-                backs[i].append(got)
+        if backs is None:  # per frame, from the last back to this one: its backward raw per speed model
+            backs = self._backward([x.bits for x in after])
 
         def column(i: int):  # frame ``after[i]``'s evidence of both directions, its speed models merged
             x = after[i]

@@ -7,7 +7,7 @@ from numba import njit
 from .overlap import count_overlaps
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # a late answer's backward pass runs on another thread (vpr.shosm.Lagged)
 def evidence_frames(q_ptr, q_ind, order, bit_cols, bit_len, col_size, rel_col, e_src, e_dst,
                     db_ptr, db_ind, db_norm, decay, stay, skip, z_weight, out, e, fresh, clamp=False):
     """Graded sequence evidence of a query traverse along the learned lateral connections (dense).
