@@ -39,7 +39,7 @@ def test_localizer_equals_batch_forward_and_restarts(traverses, tmp_path):
         assert r.best == batch.best[j] and abs(r.column.best()[1] - batch.z[j]) <= 1e-6
         # (a frame of one appearance with the one before or after is a stand: no frame number singles it out; the
         # query's direction is read from its tenth frame on)
-        assert r.accepted == (r.score >= 4.0 and not loc.standing[r.best] and not loc.unmoved and j >= 9 and
+        assert r.accepted == (r.score >= 4.0 and not loc.standing[r.best] and not loc.last.unmoved and j >= 9 and
                               not r.reversed)
         assert (r.best, r.score, r.accepted) == (w.best, w.score, w.accepted)  # the restart changes nothing
         answers.append(r)

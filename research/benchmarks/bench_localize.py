@@ -58,7 +58,7 @@ def held_mb(obj) -> float:
     return total / 2**20
 
 
-def latency(n, frames, exact, seed=0, follow=False, speed=(0.8, 1.2), late=False):
+def latency(n, frames, exact, seed=0, follow=False, speed=(0.8, 1.2), late=False, parts=None):
     from vpr import simulate
     from vpr.shosm import LOCALIZE_LAG, Lagged, Localizer, SpeedFollower
 
@@ -72,6 +72,19 @@ def latency(n, frames, exact, seed=0, follow=False, speed=(0.8, 1.2), late=False
     t_learn = time.perf_counter() - t
     rows = [q.indices[q.indptr[j]:q.indptr[j + 1]] for j in range(min(frames, q.shape[0]))]
     loc.warm_up()  # compile / load the kernels
+    if late and parts is not None:  # the two threads of a late update, timed apart
+        parts.update(backward=[], own=[])
+        backward, own = loc._backward, loc.answering.update
+
+        def timed(f, key):
+            def run(*args):
+                t = time.perf_counter()
+                out = f(*args)
+                parts[key].append((time.perf_counter() - t) * 1e3)
+                return out
+            return run
+
+        loc._backward, loc.answering.update = timed(backward, "backward"), timed(own, "own")
     ms, out = [], []
     for bits in rows:
         t = time.perf_counter()
@@ -143,6 +156,8 @@ def main(argv=None):
     ap.add_argument("--nordland", default=None)
     ap.add_argument("--modes", default="beam,follow,beam2x,follow2x,exact,late",
                     help="late: what `vpr localize` runs, the follower answered LOCALIZE_LAG frames late")
+    ap.add_argument("--parts", action="store_true", help="late: also the median ms of its two threads, the due "
+                    "frame's backward pass and the newest frame's own steps (the follower's update)")
     a = ap.parse_args(argv)
     print("Localizer.update latency per query frame (ms, encoding excluded), top-50")
     print(f"{'n_db':>7} {'mode':>8} {'frames':>7} {'median':>8} {'p95':>8} {'max':>8} {'R@1':>7} {'learn s':>8} "
@@ -152,11 +167,15 @@ def main(argv=None):
             if mode == "exact" and n > a.exact_max:
                 continue
             exact = None if mode == "late" else mode == "exact"  # late: as `vpr localize`, the map's own choice
+            parts: dict = {}
             ms, r1, t_learn, mb = latency(n, a.frames, exact, follow=mode.startswith("follow") or mode == "late",
                                           speed=(1.8, 2.2) if mode.endswith("2x") else (0.8, 1.2),
-                                          late=mode == "late")
+                                          late=mode == "late", parts=parts if a.parts else None)
             print(f"{n:7d} {mode:>8} {ms.size:7d} {np.median(ms):8.3f} "
                   f"{np.percentile(ms, 95):8.3f} {ms.max():8.3f} {r1:7.3f} {t_learn:8.1f} {mb:8.1f}", flush=True)
+            if parts.get("own"):
+                print(f"{'':>16} its two threads, median ms: the backward pass {np.median(parts['backward']):.3f}, "
+                      f"the newest frame's own steps {np.median(parts['own']):.3f}", flush=True)
     if a.nordland:
         nordland(a.nordland)
 

@@ -63,7 +63,7 @@ from .follow import (
 )
 from .graph import Graph
 from .lagged import Lagged
-from .localizer import Localizer
+from .localizer import Localizer, LocalizerStep
 from .loops import LoopStream, loop_evidence
 from .memory import SequenceMemory, pad_codes
 from .stream_graph import StreamEngine, StreamGraph
@@ -79,7 +79,7 @@ __all__ = ["SequenceMemory", "MemoryView", "Connections", "MemoryFileError", "pa
            "LoopRule", "LOOP_RULES", "loop_rule",
            "accept_loops", "accept_path", "stationary_closures", "STAND_FRAMES", "UNMOVED_SHARE", "map_places",
            "standing", "refuse_stands",
-           "Localizer", "Lagged", "LoopStream", "loop_evidence", "Direction", "reversed_frames",
+           "Localizer", "LocalizerStep", "Lagged", "LoopStream", "loop_evidence", "Direction", "reversed_frames",
            "StreamGraph", "StreamEngine", "LoopDetector", "Confirmation", "confirm_closures",
            "Backfill", "backfill_closures", "SpeedFollower", "PICKS", "check_pick",
            "pick_maps", "disagree", "apart_from_neighbours", "between_maps", "fill_between", "path_lengths"]

@@ -11,6 +11,8 @@ from vpr.checks import check_top_k
 from vpr.config import coerce_value, merge_conf
 from vpr.similarity import TOP_K
 
+from .kernels.decide import LoopRule as LoopRuleArgs
+from .kernels.decide import PathRule
 from .memory import SequenceMemory
 
 __all__ = ["RETIRED", "without_retired",
@@ -184,9 +186,9 @@ class PathConf(_Conf):
         _check_path(self)
 
     @property
-    def rule(self) -> tuple:
-        """(drift, min_score, back, ahead, island) as the decision kernel reads them."""
-        return float(self.drift), float(self.min_score), int(self.back), int(self.ahead), float(self.island)
+    def rule(self) -> PathRule:
+        """The rule as the decision kernel reads it (a named record)."""
+        return PathRule(float(self.drift), float(self.min_score), int(self.back), int(self.ahead), float(self.island))
 
 
 @dataclass(frozen=True)
@@ -243,9 +245,9 @@ class LoopConf(PathConf):
             raise ValueError(f"backfill_frames must be an integer >= 0 (0: nothing accepted back), got {v}")
 
     @property
-    def rule(self) -> tuple:
-        """(drift, min_score, back, ahead, island, stop_ratio) as the decision kernel reads them."""
-        return (*super().rule, float(self.stop_ratio))
+    def rule(self) -> LoopRuleArgs:
+        """The rule as the decision kernel reads it (a named record: the path's and the stop check's ratio)."""
+        return LoopRuleArgs(*super().rule, float(self.stop_ratio))
 
 
 #: The decision's keys of loop closure within one stream only.

@@ -48,8 +48,8 @@ class PathDecider(Decider):
         n = int(column.n)
         if self._place.size < n:
             self._place = np.arange(max(n, 2 * self._place.size), dtype=np.int64)
-        return KD.locate_frame((column.rows, column.z.astype(np.float64), n, float(column.fill)), self._rule,
-                               self._place, st, self.starts)
+        return KD.locate_frame(KD.ColumnArgs(column.rows, column.z.astype(np.float64), n, float(column.fill)),
+                               self._rule, self._place, st, self.starts)
 
     def accepted_ahead(self, columns) -> bool:
         """Whether the path of the frame just decided is accepted on one of the next ``columns`` (in order) before it
@@ -159,7 +159,7 @@ class LoopDecider(LoopRule):
             self.path_b = np.concatenate([self.path_b, np.full(size - self.path_b.size, -1, np.int64)])
         vals = column.z.astype(np.float64)
         best, score, ok, margin, _ = KD.decide_frame(
-            j, (column.rows, vals, int(column.n), float(column.fill)), self._rule,
+            j, KD.ColumnArgs(column.rows, vals, int(column.n), float(column.fill)), self._rule,
             (self._rows.ptr, self._rows.ind, self.place, self.path_b, self.st, self.starts, self.n_bits or 1))
         start = int(self.starts[-1])
         if start > 0 and not ok:  # a later session: its frame against the earlier ones, as against a map

@@ -177,9 +177,7 @@ class Engine:
         if self.exact:
             self._out[:] = 0.0
             stay, skip = self.evidence.costs
-            d = self._dense
-            if self.reverse:
-                d = (*d[:4], d[5], d[4], *d[6:])
+            d = self._dense.reversed() if self.reverse else self._dense
             KE.evidence_frames(q_ptr, bits, _ONE, *d, float(self.evidence.decay), stay, skip, self.z_weight,
                                self._out, self._e, self.frames == 0)
             col = self._out[:, 0]
@@ -201,9 +199,7 @@ class Engine:
         out = []
         if self.exact:
             stay, skip = self.evidence.costs
-            d = self._dense
-            if self.reverse:
-                d = (*d[:4], d[5], d[4], *d[6:])
+            d = self._dense.reversed() if self.reverse else self._dense
             cols = np.zeros((g.n_db, k), np.float32)
             KE.evidence_frames(q_ptr, q_ind, order, *d, float(self.evidence.decay), stay, skip, self.z_weight, cols,
                                self._e, self.frames == 0)

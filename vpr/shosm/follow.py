@@ -280,7 +280,7 @@ class SpeedFollower(FollowingLocalizer):
         """Step the paths with this frame's answer (:attr:`kept` only where it is ``accepted``), on the map's places
         (a stand of the map is one) and the query's frames that moved (a stand of the query is no time); False where
         the query did not move (not stepped)."""
-        if self.base.unmoved:
+        if self.base.last is not None and self.base.last.unmoved:
             return False
         place = int(self.base.places[best]) if best >= 0 else -1
         self.path.step(self.clock, place)

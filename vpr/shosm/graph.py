@@ -1,13 +1,15 @@
 """A learned database as the beam's kernels read it (:class:`Graph`), and one pass's scratch (:class:`Beam`)."""
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import scipy.sparse as sp
 
 from .kernels import beam as KB
 from .memory import SequenceMemory
 
-__all__ = ["Graph", "Beam", "check_codes", "linked_lists", "grouped_lists"]
+__all__ = ["Graph", "DenseGraph", "Beam", "check_codes", "linked_lists", "grouped_lists"]
 
 
 def check_codes(mem: SequenceMemory, db_codes) -> sp.csr_matrix:
@@ -106,14 +108,34 @@ class Graph:
         """The graph of a learned database (``db_codes``: its winner codes); ``backward``: also ``bwd``."""
         return cls(mem, check_codes(mem, db_codes), backward)
 
-    def dense(self) -> tuple:
+    def dense(self) -> tuple[np.ndarray, DenseGraph]:
         """The dense kernel's form (:func:`vpr.shosm.kernels.evidence.evidence_frames`), on the cells that can carry
-        evidence: ``(rel, (bit_cols, bit_len, col_size, rel_col, src, dst, db_ptr, db_ind, db_norm))``."""
+        evidence: ``(rel, DenseGraph)``."""
         v, db = self.mem.view(), self.codes
         db_ptr = db.indptr.astype(np.int64)
-        return self.rel, (v.bit_cols, v.bit_len, v.column_sizes.astype(np.float64), self.rel // v.cells_per_column,
-                          self.number(v.e_src), self.number(v.e_dst), db_ptr, self.number(db.indices),
-                          np.diff(db_ptr).astype(np.float64))
+        return self.rel, DenseGraph(v.bit_cols, v.bit_len, v.column_sizes.astype(np.float64),
+                                    self.rel // v.cells_per_column, self.number(v.e_src), self.number(v.e_dst), db_ptr,
+                                    self.number(db.indices), np.diff(db_ptr).astype(np.float64))
+
+
+class DenseGraph(NamedTuple):
+    """A database as the dense kernel reads it (:func:`vpr.shosm.kernels.evidence.evidence_frames`'s arguments in
+    their order): the inverted index, each cell's minicolumn, the lateral connections ``src -> dst`` (a pass along
+    the map's transitions reversed swaps them: :meth:`reversed`) and the database's codes."""
+
+    bit_cols: np.ndarray
+    bit_len: np.ndarray
+    col_size: np.ndarray
+    rel_col: np.ndarray
+    src: np.ndarray
+    dst: np.ndarray
+    db_ptr: np.ndarray
+    db_ind: np.ndarray
+    db_norm: np.ndarray
+
+    def reversed(self) -> DenseGraph:
+        """The same database along its transitions reversed."""
+        return self._replace(src=self.dst, dst=self.src)
 
 
 class Beam:

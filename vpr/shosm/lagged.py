@@ -88,7 +88,8 @@ class Lagged(LateLocalizer):
         finally:
             backs = window.result() if window is not None else None
         followed = self.follower is not None and self.follower.mode != 0
-        self.waiting.append(_Waiting(b.before, list(b.raw), d, bool(b.unmoved), followed))
+        s = b.last  # what the map's localizer made of this frame (its own answer: ``d``, or the follower's)
+        self.waiting.append(_Waiting(s.bits, list(s.raw), d, s.unmoved, followed))
         return [self._decide(backs)] if len(self.waiting) > self.lag else []
 
     def _pool(self) -> ThreadPoolExecutor:
@@ -141,9 +142,12 @@ class Lagged(LateLocalizer):
         if w.followed:  # answered from another map or as another query: that answer stands
             return w.decision
         b = self.base
-        # not refused, then accepted on its own path score or (settled) on the frames after it
+        # not refused, then accepted on its own path score or (settled) on the frames after it; refused where the map's
+        # localizer refuses now, with the frames after this one read (the direction over the newest frames: the first
+        # frames of a query take the reading of the frames after them, as the batch's direction check reads them)
         ahead = (column(i) for i in range(len(after) - 2, -1, -1))
-        ok = not b.refusing and refuse_stands(late.best, True, b.standing, w.unmoved) \
+        refusing = b.last is None or b.last.refusing
+        ok = not refusing and refuse_stands(late.best, True, b.standing, w.unmoved) \
             and (late.accepted or settled and self.decider.accepted_ahead(ahead))
         return dataclasses.replace(late, accepted=bool(ok), reversed=w.decision.reversed, frame=w.decision.frame)
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -17,7 +18,24 @@ from .evidence import Engine, make_engine, merge_columns
 from .graph import Graph
 from .memory import SequenceMemory, pad_codes
 
-__all__ = ["Localizer"]
+__all__ = ["Localizer", "LocalizerStep"]
+
+
+@dataclass(frozen=True)
+class LocalizerStep:
+    """What :meth:`Localizer.step` made of one query frame.
+
+    ``decision``: its answer at once; ``bits``: its active bits; ``raw``: its causal raw evidence per speed model
+    (:meth:`Engine.step_raw`: rows, values, candidates); ``unmoved``: it kept :data:`UNMOVED_SHARE` of the frame
+    before's bits (it did not move); ``refusing``: no answer is accepted now, the query running the map backwards or
+    its direction not read yet (:class:`Direction`).
+    """
+
+    decision: Decision
+    bits: np.ndarray
+    raw: tuple
+    unmoved: bool
+    refusing: bool
 
 
 class Localizer(MapLocalizer):
@@ -49,8 +67,6 @@ class Localizer(MapLocalizer):
         self.engine = make_engine(graph, self.seq.evidence, self.seq.beam, self.exact)
         #: the engine's speed models, one :class:`Engine` each
         self.lanes: list[Engine] = self.engine.lanes
-        self.raw: list[tuple] = []
-        self.refusing = True
         #: the evidence of the query running the map backwards, against the engine's (:class:`Direction`)
         self.backward = Engine(graph, self.seq.evidence.split()[0], self.seq.beam, self.exact, reverse=True)
         self.direction = Direction()
@@ -60,10 +76,9 @@ class Localizer(MapLocalizer):
         #: which no answer is accepted (:func:`vpr.shosm.standing`)
         self.places = map_places(self.db_codes, memory.cells_per_column, self.sessions)
         self.standing = standing(self.places)
-        #: the last query frame's active bits (None before the first; read by :class:`Lagged`)
-        self.before: np.ndarray | None = None
-        #: whether the last query frame kept :data:`UNMOVED_SHARE` of the frame before's bits (it did not move)
-        self.unmoved = False
+        self._before: np.ndarray | None = None  # the last query frame's active bits
+        #: what :meth:`update` made of the last query frame (None before the first)
+        self.last: LocalizerStep | None = None
 
     @classmethod
     def from_database(cls, db_sdr, names, progress: bool = False, conf: RshosmSeqConf | None = None,
@@ -138,7 +153,7 @@ class Localizer(MapLocalizer):
         self.direction.reset()
         self.mirrored.new_session()
         self.decider.new_session()
-        self.before, self.unmoved, self.refusing, self.raw = None, False, True, []
+        self._before, self.last = None, None
 
     def warm_up(self) -> None:
         """Compile (or load from numba's cache) the kernels, leaving the state as it was."""
@@ -147,34 +162,37 @@ class Localizer(MapLocalizer):
         self.engine.load_state(header, arrays)
 
     def update(self, sdr_row) -> Decision:
-        """Localise one query frame (SDR row: 1-row batch, bool vector or bit indices)."""
+        """Localise one query frame (SDR row: 1-row batch, bool vector or bit indices); what else it made of the frame
+        is :attr:`last` (a :class:`LocalizerStep`)."""
+        return self.step(sdr_row).decision
+
+    def step(self, sdr_row) -> LocalizerStep:
+        """Localise one query frame: its decision and what else a late answer reads of it (:class:`LocalizerStep`)."""
         bits = _sdr.row_bits(sdr_row, self.memory.n_inputs, name="query SDR")
         frame = self.engine.frames
-        #: the last frame's raw evidence per speed model (:meth:`Engine.step_raw`), read by :class:`Lagged`
-        self.raw = [e.step_raw(bits) for e in self.lanes]
-        column = merge_columns([e.column(*r, frame) for e, r in zip(self.lanes, self.raw, strict=True)])
+        raw = tuple(e.step_raw(bits) for e in self.lanes)
+        column = merge_columns([e.column(*r, frame) for e, r in zip(self.lanes, raw, strict=True)])
         d = self.decider.decide(column)
-        self.unmoved = self.before is not None and _sdr.kept_share(bits, self.before) >= UNMOVED_SHARE
-        self.before = bits
+        unmoved = self._before is not None and _sdr.kept_share(bits, self._before) >= UNMOVED_SHARE
+        self._before = bits
         rev = self.backward.step(bits)
-        back = self.direction.update(column.best()[1], rev.best()[1], moved=not self.unmoved)
+        back = self.direction.update(column.best()[1], rev.best()[1], moved=not unmoved)
         back = back and self.direction.read  # (before, no direction is read: no answer is accepted either)
-        #: no answer is accepted now: the query runs the map backwards, or no direction is read yet
-        self.refusing = bool(back or not self.direction.read)
+        refusing = bool(back or not self.direction.read)
         n = rev.n  # the reversed evidence on the map's frames in reverse order: the path rule's confidence in it
         confident = self.mirrored.decide(Column(n - 1 - rev.rows[::-1], rev.z[::-1], rev.fill, n, rev.frame)).accepted
-        if self.refusing or \
-                (d.accepted and not refuse_stands(d.best, True, self.standing, self.unmoved)):
+        if refusing or (d.accepted and not refuse_stands(d.best, True, self.standing, unmoved)):
             d = dataclasses.replace(d, accepted=False, reversed=bool(back and confident))
-        return d
+        self.last = LocalizerStep(d, bits, raw, bool(unmoved), refusing)
+        return self.last
 
     # ------------------------------------------------------------ state
     def state(self) -> tuple[dict, dict]:
         """(header, arrays) of the query so far: the evidence and the decision (:meth:`load_state`)."""
         header, arrays = joint_state(engine=self.engine, dec=self.decider, backward=self.backward,
                                      direction=self.direction, mirrored=self.mirrored)
-        header["before"] = self.before is not None
-        return header, {**arrays, "before": np.zeros(0, np.int64) if self.before is None else self.before}
+        header["before"] = self._before is not None
+        return header, {**arrays, "before": np.zeros(0, np.int64) if self._before is None else self._before}
 
     def load_state(self, header: dict, arrays: dict) -> Localizer:
         if header.get("engine") is not None:
@@ -183,7 +201,7 @@ class Localizer(MapLocalizer):
         for name in ("backward", "direction", "mirrored"):  # (a state saved before they were kept starts them afresh)
             if name in header:
                 getattr(self, name).load_state(*part_state(header, arrays, name))
-        self.before = np.asarray(arrays["before"], np.int64) if header.get("before") else None
+        self._before = np.asarray(arrays["before"], np.int64) if header.get("before") else None
         return self
 
     def map_state(self) -> tuple[dict, dict[str, dict]]:

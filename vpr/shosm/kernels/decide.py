@@ -1,10 +1,22 @@
 """Compiled kernel of the loop decision (numba): one frame at a time, with the state carried between frames."""
 from __future__ import annotations
 
+from collections import namedtuple
+
 import numpy as np
 from numba import njit
 
 from vpr.similarity import stationary
+
+#: A path rule as the kernels read it (:attr:`vpr.shosm.PathConf.rule`): the drift taken off each frame's margin,
+#: the score that accepts, how far behind (``back``) or beyond (``ahead``) the path's head a best frame continues it,
+#: the z-score of a candidate of the best one's island.
+PathRule = namedtuple("PathRule", ["drift", "min_score", "back", "ahead", "island"])
+#: A loop rule as the kernels read it (:attr:`vpr.shosm.LoopConf.rule`): a path rule and the stop check's ratio.
+LoopRule = namedtuple("LoopRule", ["drift", "min_score", "back", "ahead", "island", "stop_ratio"])
+#: One frame's evidence over its candidates ``0 .. n - 1`` as the kernels read it: the rows stored (sorted), their
+#: z-scores (float64), ``n``, and the z of a candidate not stored.
+ColumnArgs = namedtuple("ColumnArgs", ["rows", "vals", "n", "fill"])
 
 #: The state a path decision carries between frames (one record): the path's score, its ``head`` (the
 #: furthest best frame of the path; -1: no path) and its ``start`` (the frame the path began at).
@@ -88,13 +100,12 @@ def column_peaks(rows, vals, n, fill, island, place, link_w, newest):  # pragma:
 def decide_frame(j, column, rule, stream):  # pragma: no cover - compiled
     """The decision of frame ``j``; updates the stream's ``place``, ``path_b`` and ``st``.
 
-    ``column``: (rows, vals, n, fill), candidates ``0 .. n - 1``, rows sorted, ``fill`` the z of one not stored;
-    ``rule``: :class:`vpr.shosm.LoopConf`'s; ``stream``: (sdr_ptr, sdr_ind (empty: no stop check), place (each frame's
-    place), path_b (each frame's best candidate), st (:data:`PATH_STATE`), starts, n_bits (the SDRs' width)). Returns
-    (best, score, accepted, margin, near).
+    ``column``: a :data:`ColumnArgs`; ``rule``: a :data:`LoopRule`; ``stream``: (sdr_ptr, sdr_ind (empty: no stop
+    check), place (each frame's place), path_b (each frame's best candidate), st (:data:`PATH_STATE`), starts, n_bits
+    (the SDRs' width)). Returns (best, score, accepted, margin, near).
     """
-    rows, vals, n, fill = column
-    drift, min_score, back, ahead, island, stop_ratio = rule
+    rows, vals, n, fill = column.rows, column.vals, column.n, column.fill
+    back, ahead, island = rule.back, rule.ahead, rule.island
     sdr_ptr, sdr_ind, place, path_b, st, starts, n_bits = stream
     p = st[0]
     s_j = session_of(starts, j)
@@ -116,7 +127,7 @@ def decide_frame(j, column, rule, stream):  # pragma: no cover - compiled
         own = b if session_of(starts, b) != session_of(starts, head) else -1
         jump = _linked(place, place[b], head + (ahead - back) // 2, (back + ahead) // 2 + 1, place.shape[0], own, own)
     prev = p.score if cont or jump else 0.0
-    score = max(0.0, prev + (zb - zo) - drift)
+    score = max(0.0, prev + (zb - zo) - rule.drift)
     if not (cont or jump):
         p.start = j
     p.head = max(head, b) if cont else b
@@ -124,9 +135,9 @@ def decide_frame(j, column, rule, stream):  # pragma: no cover - compiled
         p.head = b
         p.start = j + 1
     p.score = score
-    ok = score >= min_score and not near
-    if ok and stop_ratio > 0.0 and sdr_ptr.shape[0] > j and session_of(starts, b) == s_j:  # within one run only
-        ok = not stationary(sdr_ptr, sdr_ind, b, j, stop_ratio, n_bits)
+    ok = score >= rule.min_score and not near
+    if ok and rule.stop_ratio > 0.0 and sdr_ptr.shape[0] > j and session_of(starts, b) == s_j:  # within one run
+        ok = not stationary(sdr_ptr, sdr_ind, b, j, rule.stop_ratio, n_bits)
     if score > 0.0 and not near and place[j] == j:  # a frame on a path is (provisionally) the place it matched
         place[j] = place[b]
     return b, score, ok, zb - zo, near
@@ -136,14 +147,13 @@ def decide_frame(j, column, rule, stream):  # pragma: no cover - compiled
 def locate_frame(column, rule, place, st, starts):  # pragma: no cover - compiled
     """The localisation decision of one query frame against a map of ``n`` frames; updates ``st``.
 
-    :func:`decide_frame`'s path score without what only one stream has (a place just left, links, stops). ``column`` as
-    there; ``rule``: :class:`vpr.shosm.PathConf`'s; ``place``: ``arange(n)``; ``starts``: the map's sessions. Returns
-    (best, score, accepted, margin).
+    :func:`decide_frame`'s path score without what only one stream has (a place just left, links, stops). ``column``: a
+    :data:`ColumnArgs`; ``rule``: a :data:`PathRule`; ``place``: ``arange(n)``; ``starts``: the map's sessions.
+    Returns (best, score, accepted, margin).
     """
-    rows, vals, n, fill = column
-    drift, min_score, back, ahead, island = rule
+    back, ahead = rule.back, rule.ahead
     p = st[0]
-    b, zb, zo, _ = column_peaks(rows, vals, n, fill, island, place, 0, -1)
+    b, zb, zo, _ = column_peaks(column.rows, column.vals, column.n, column.fill, rule.island, place, 0, -1)
     if b < 0:
         p.score = 0.0
         p.head = -1
@@ -151,7 +161,7 @@ def locate_frame(column, rule, place, st, starts):  # pragma: no cover - compile
     head = p.head
     cont = head >= 0 and head - back <= b <= head + ahead and session_of(starts, b) == session_of(starts, head)
     prev = p.score if cont else 0.0
-    score = max(0.0, prev + (zb - zo) - drift)
+    score = max(0.0, prev + (zb - zo) - rule.drift)
     p.head = max(head, b) if cont and score > 0.0 else b
     p.score = score
-    return b, score, score >= min_score, zb - zo
+    return b, score, score >= rule.min_score, zb - zo
